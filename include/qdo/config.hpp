@@ -1,0 +1,65 @@
+// The system description: every value of REFERENCE §1 in one validated structure.
+// Units are in the names. Loaded from JSON (unknown keys rejected) or from a preset.
+#pragma once
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace qdo {
+
+enum class Propagator { Fresnel, AngularSpectrum };
+enum class ConvolutionMode { Linear, Circular };
+
+struct SystemConfig {
+  std::string preset = "custom";        // name of the preset it came from, informational
+  // DOE grid: N x N samples at pitch_m, sample (i, j) at ((j - N/2) * pitch, (i - N/2) * pitch).
+  std::size_t n = 1024;
+  double pitch_m = 4e-6;
+  // Spectral samples: wavelength_start_nm + k * wavelength_step_nm, k = 0 .. bands-1.
+  double wavelength_start_nm = 400;
+  double wavelength_step_nm = 10;
+  std::size_t bands = 31;
+  // On-axis point source distance; scene_at_infinity = true means a plane wave
+  // (JSON: "scene_distance_m": "inf").
+  double scene_distance_m = 1.0;
+  bool scene_at_infinity = false;
+  double sensor_distance_m = 0.05;       // DOE to sensor, z
+  double aperture_radius_m = 0;          // 0 means the release's (N/2 - 1) * pitch_m
+  std::string material = "OHARA_SK1300";
+  double base_wavelength_nm = 700;       // h_max = base_wavelength / (n(base) - 1)
+  double base_plate_m = 2e-3;            // glass under the relief (fabrication files only)
+  Propagator propagator = Propagator::Fresnel;
+  std::size_t padding_px = 256;          // zero padding per side before propagation (N/4 default)
+  bool strict_sampling = false;          // refuse under-sampled transfer functions
+  // Sensor: square pixels of sensor_pitch_m; PSF resampled onto it by area integration.
+  double sensor_pitch_m = 8e-6;
+  std::size_t scene_size_px = 512;       // size of built-in scenes (rows = cols)
+  std::string camera = "FLIR_GS3-U3-41S4C";  // built-in name, or a CSV path (wavelength_nm,R,G,B)
+  bool srf_interpolate = false;          // allow linear interpolation of a CSV SRF onto the band grid
+  ConvolutionMode convolution = ConvolutionMode::Linear;
+  double read_noise_sigma = 0.0;         // Gaussian read noise, in units of full scale
+  double full_well_photons = 0.0;        // photons at value 1.0 for shot noise; 0 disables shot noise
+  unsigned long long noise_seed = 0;
+
+  // Derived quantities.
+  std::vector<double> wavelengths_nm() const;
+  double aperture_radius() const;        // metres, resolved default
+  double h_max_m() const;                // one 2π phase at base_wavelength_nm
+  std::size_t sensor_size_px() const;    // round(n * pitch_m / sensor_pitch_m)
+
+  // Checks every field; throws InputError naming the key, the value and what is allowed.
+  void validate() const;
+};
+
+// Presets: "paper" (REFERENCE §1 values) and "small" (N = 256, z scaled with N so the
+// numerical aperture and the transfer-function sampling ratio equal the paper's).
+SystemConfig preset_config(const std::string& name);
+std::vector<std::string> preset_names();
+
+// JSON I/O. `from_json_text` starts from the preset named by the optional "preset" key
+// (default "paper") and overrides with the other keys; unknown keys are rejected.
+SystemConfig config_from_json_text(const std::string& text, const std::string& origin = "<json>");
+SystemConfig config_from_json_file(const std::string& path);
+std::string config_to_json_text(const SystemConfig& c);
+
+}  // namespace qdo

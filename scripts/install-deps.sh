@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Installs the Debian packages qdo needs to build, test and run. Idempotent: packages
+# already present are skipped, so a prepared machine pays nothing.
+set -euo pipefail
+pkgs=(
+  build-essential cmake pkg-config
+  ocl-icd-opencl-dev opencl-c-headers opencl-clhpp-headers pocl-opencl-icd clinfo
+  libclfft-dev           # FFT on the OpenCL device
+  libfftw3-dev           # CPU reference FFT (double)
+  libeigen3-dev          # host linear algebra
+  libhdf5-dev            # result files and HDF5 / .mat v7.3 cubes
+  libmatio-dev           # MATLAB .mat v5 / v7.3 reader
+  nlohmann-json3-dev     # configuration files
+  libpng-dev             # figures
+  doctest-dev            # tests
+)
+missing=()
+for p in "${pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "install-deps: installing ${missing[*]}"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+else
+  echo "install-deps: all packages present"
+fi
