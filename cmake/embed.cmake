@@ -1,5 +1,6 @@
 # Writes OUT: a C++ file holding every file of FILES as a string, looked up by file name
 # (e.g. "psf.cl", "srf_FLIR_GS3-U3-41S4C.csv") through qdo::embedded_file().
+string(REPLACE "|" ";" FILES "${FILES}")
 set(body "")
 set(entries "")
 set(i 0)

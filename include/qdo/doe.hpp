@@ -1,0 +1,69 @@
+// DOE height maps: parameterizations, designs and the quantizer of REFERENCE §2.
+// Heights are the glass relief H above the base plate, in metres, bounded to [0, h_max];
+// normalised height u = H / h_max. Grid: N x N, sample (i, j) (row, col) sits at
+// ((j - N/2) * pitch, (i - N/2) * pitch), row-major.
+#pragma once
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/types.hpp"
+
+namespace qdo {
+
+enum class Parameterization { Full2D, Radial, Quad };
+Parameterization parameterization_from_string(const std::string& s);
+
+// Number of free parameters: Full2D N*N (row-major), Radial N/2 (ring k holds pixels with
+// k <= r/pitch < k+1, r measured from sample (N/2, N/2); pixels with r >= N/2 take the last
+// ring), Quad (N/2)*(N/2) (quarter (a, b) with a = min(|i - N/2|, N/2 - 1), likewise b).
+std::size_t parameter_count(Parameterization p, std::size_t n);
+// Expands `params` (layout above) into the N x N map; each value is clamped to [0, h_max_m].
+Map2D expand_parameters(Parameterization p, const std::vector<double>& params, std::size_t n, double h_max_m);
+
+// Level placement of the uniform quantizer with L levels:
+//  Inclusive (the release): u_k = k / (L - 1), k = 0..L-1 (0 and h_max both levels);
+//  Wrapped (textbook multi-level DOE): u_k = k / L, k = 0..L-1 (u near 1 wraps to level 0).
+enum class Placement { Inclusive, Wrapped };
+Placement placement_from_string(const std::string& s);
+std::string to_string(Placement p);
+
+struct Quantizer {
+  int levels = 4;                      // L >= 2
+  Placement placement = Placement::Inclusive;
+  // Adaptive per-level offsets a_l (QDO+A, release convention): level l sits at
+  // (l + 0.5 a_l) / (L - 1) [Inclusive] or (l + 0.5 a_l) / L [Wrapped]; a_0 is fixed at 0.
+  // Empty means all zero. Size L when given; a_l must lie in [-1, 1] ([-0.2, 0.2] when L = 2).
+  std::vector<double> offsets;
+
+  void validate() const;
+  // Index of the level nearest in the uniform grid (round half up: floor(x + 0.5)).
+  int level_index(double u) const;
+  // Normalised height of level l, offsets included.
+  double level_value(int l) const;
+  // Quantized normalised height Q(u).
+  double quantize(double u) const { return level_value(level_index(u)); }
+  // All L level heights in metres.
+  std::vector<double> level_heights_m(double h_max_m) const;
+};
+
+// Alpha-blended heights (Eq. 8): H = alpha * h_max * Q(H_f / h_max) + (1 - alpha) * H_f,
+// element-wise over an N x N map.
+Map2D quantize_heights(const Map2D& h_full_m, double h_max_m, const Quantizer& q, double alpha = 1.0);
+
+// Cubic alpha schedule (Eq. 10): 0 for s <= t0, 1 - ((t1 - s)/(t1 - t0))^3 for t0 < s <= t1, 1 after.
+double alpha_schedule(double step, double t0, double t1);
+
+// Quantization deviation (Table 2): mean |H_q - H_f| in metres over the map.
+double quantization_deviation_m(const Map2D& h_q, const Map2D& h_f);
+
+// A diffractive lens for `design_wavelength_nm` that images the on-axis source at the scene
+// distance onto the sensor at sensor_distance_m: phase -k[(sqrt(r²+d²) - d) + (sqrt(r²+z²) - z)]
+// (exact; the first term is dropped for a source at infinity), wrapped to [0, 2π) and
+// converted to relief with the material's index at the design wavelength.
+Map2D lens_design(const SystemConfig& cfg, double design_wavelength_nm);
+// A flat (zero-height) design.
+Map2D flat_design(const SystemConfig& cfg);
+
+}  // namespace qdo

@@ -1,0 +1,99 @@
+// The OpenCL forward model: PSF stack, per-band convolution and RGB sensor, with every
+// buffer kept on the device between stages. One Simulator per (configuration, precision).
+//
+//   heights (N x N) --doe_field--> field (bands x M x M) --FFT, TF, IFFT--> field
+//     --intensity_crop, normalise--> psf (bands x N x N) --resample_area, normalise--> psf_sensor
+//     (bands x S x S) --FFT--> OTF (bands x PY x PX, cached until the heights change)
+//   cube (bands x H x W) --FFT, x OTF, IFFT, crop--> blurred (bands x H x W)
+//     --sensor_integrate (+ noise)--> rgb (3 x H x W)
+#pragma once
+#include <CL/opencl.hpp>
+
+#include <Eigen/Dense>
+
+#include "qdo/config.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/types.hpp"
+
+namespace qdo {
+
+class Simulator {
+ public:
+  // Validates cfg (InputError) and the precision against the device (DeviceError); builds
+  // or loads the kernels, bakes the FFT plan and uploads the per-band tables.
+  Simulator(Runtime& rt, const SystemConfig& cfg, Precision p);
+
+  const SystemConfig& config() const { return cfg_; }
+  const PropagationGeometry& geometry() const { return geom_; }
+  Precision precision() const { return prec_; }
+  std::size_t sensor_size() const { return s_; }
+
+  // Uploads an N x N height map (metres, row-major). Rejects wrong shapes, NaN/Inf and
+  // heights outside [0, 2 h_max] before any device work.
+  void set_heights(const Map2D& height_m);
+
+  // Runs the PSF chain on the device (all bands in one batched pass). The results stay on the
+  // device; the accessors below copy them to the host. Honours cfg.strict_sampling.
+  void compute_psf();
+  RealStack psf_native() const;        // bands x N x N, each band sums to 1
+  RealStack psf_sensor() const;        // bands x S x S on the sensor pitch, each band sums to 1
+  const SamplingReport& sampling() const { return sampling_; }
+
+  // Field after the DOE (bands x M x M) and after propagation, for tests: runs the stages
+  // up to that point and returns a host copy.
+  ComplexStack debug_field_after_doe();
+  ComplexStack debug_field_after_propagation();
+  // Propagates an arbitrary bands x M x M field over z_m on the device (tests).
+  ComplexStack propagate_field(const ComplexStack& field, double z_m);
+
+  // Per-band convolution of cubes (bands x H x W each) with psf_sensor (compute_psf() first;
+  // the OTF is reused across calls and scenes until the heights change).
+  RealStack convolve(const RealStack& cube);
+  // Convolution then sensor integration and noise (cfg's noise settings): 3 x H x W.
+  RealStack sensor_image(const RealStack& cube);
+  // Sensor integration alone (no convolution) of a bands x H x W cube, with noise.
+  RealStack integrate(const RealStack& cube);
+
+  const Eigen::MatrixXd& srf() const { return srf_; }
+
+ private:
+  template <typename T>
+  cl::Buffer upload(const std::vector<T>& host, cl_mem_flags flags = CL_MEM_READ_ONLY) const;
+  cl::Buffer upload_real(const std::vector<double>& host) const;
+  cl::Buffer make_tf(double z_m) const;
+  cl::Buffer upload_complex(const std::vector<cdouble>& host) const;
+  std::vector<double> download_real(const cl::Buffer& b, std::size_t count) const;
+  std::vector<cdouble> download_complex(const cl::Buffer& b, std::size_t count) const;
+  void enqueue_1d(cl::Kernel& k, std::size_t n);
+  void run_doe_field();
+  void run_propagation(cl::Buffer& field, double z_m, bool record_sampling);
+  void band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len, cl::Buffer& sums);
+  void ensure_conv(std::size_t h, std::size_t w);
+  void run_convolution(const RealStack& cube);
+  void run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw);
+
+  Runtime& rt_;
+  SystemConfig cfg_;
+  Precision prec_;
+  PropagationGeometry geom_;
+  std::size_t s_ = 0;                  // sensor PSF size
+  std::size_t rsz_ = 4;                // bytes per real on the device
+  std::vector<double> wavelengths_nm_;
+  Eigen::MatrixXd srf_;
+  AreaWeights weights_;
+  bool heights_set_ = false, psf_valid_ = false, otf_valid_ = false;
+  SamplingReport sampling_;
+  static constexpr std::size_t kGroupsPerBand = 32;
+
+  cl::Buffer heights_, k_, dn_, field_, psf_, psf_s_, partial_, tf_, klim_, wstart_, wts_, srf_buf_;
+  cl::Buffer sums_total_, sums_crop_, sums_sensor_;  // per-band sums (bands reals each)
+  // Convolution buffers, sized for the last scene shape.
+  std::size_t ch_ = 0, cw_ = 0, py_ = 0, px_ = 0;
+  cl::Buffer otf_, sbuf_, cube_, blurred_, rgb_;
+
+  cl::Kernel k_field_, k_tf_, k_energy_, k_crop_, k_sums_, k_energy_sums_, k_finalize_, k_scale_, k_resample_,
+      k_place_scene_, k_place_psf_, k_cmul_, k_crop_real_, k_sensor_;
+};
+
+}  // namespace qdo

@@ -1,0 +1,30 @@
+// The field just after the DOE, for all bands in one launch.
+//
+// doe_field: out[b][y][x], shape bands x M x M complex (row-major), written in full: the DOE
+// samples (i, j) of the N x N height map land at (offset + i, offset + j); everything else,
+// and everything outside the circular aperture, is zero (so the buffer needs no clearing).
+// height_m: N x N real, row-major. k_per_m[b] = 2π/λ_b, dn[b] = n(λ_b) - 1 (bands reals).
+// Phase = k (r²/(sqrt(r² + d²) + d) + dn H): the source term is the exact spherical phase
+// minus the constant k·d, written without cancellation, so float32 keeps ~1e-6 rad
+// accuracy where k·d itself (1.6e7 rad) would lose everything. d <= 0 means a plane wave.
+__kernel void doe_field(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
+                        __global real2* out, const int n, const int m, const int offset, const int bands,
+                        const real pitch_m, const real distance_m, const real r_ap2_m2) {
+  const size_t gid = get_global_id(0);
+  const size_t mm = (size_t)m * m;
+  if (gid >= mm * bands) return;
+  const int b = (int)(gid / mm);
+  const int rem = (int)(gid - (size_t)b * mm);
+  const int wy = rem / m, wx = rem - wy * m;
+  const int i = wy - offset, j = wx - offset;
+  real2 v = (real2)(R(0.0), R(0.0));
+  if (i >= 0 && i < n && j >= 0 && j < n) {
+    const real y = (real)(i - n / 2) * pitch_m, x = (real)(j - n / 2) * pitch_m;
+    const real r2 = x * x + y * y;
+    if (r2 <= r_ap2_m2) {
+      const real src = distance_m > R(0.0) ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : R(0.0);
+      v = cexpi(k_per_m[b] * (src + dn[b] * height_m[i * n + j]));
+    }
+  }
+  out[gid] = v;
+}

@@ -1,0 +1,82 @@
+// Intensity, per-band sums, normalisation and area resampling of the PSF stack.
+
+// psf[b][i][j] = |field[b][offset + i][offset + j]|²: field bands x M x M complex,
+// psf bands x N x N real (row-major).
+__kernel void intensity_crop(__global const real2* field, __global real* psf, const int n, const int m,
+                             const int offset, const int bands) {
+  const size_t gid = get_global_id(0);
+  const size_t nn = (size_t)n * n;
+  if (gid >= nn * bands) return;
+  const int b = (int)(gid / nn);
+  const int rem = (int)(gid - (size_t)b * nn);
+  const int i = rem / n, j = rem - i * n;
+  const real2 v = field[(size_t)b * m * m + (size_t)(offset + i) * m + (offset + j)];
+  psf[gid] = v.x * v.x + v.y * v.y;
+}
+
+// Per-band partial sums. NDRange (groups_per_band * local, bands), local (local, 1).
+// x: bands x len real (band_sums) or complex (band_energy: sums |x|²).
+// partial: bands x groups_per_band.
+#define QDO_BAND_REDUCE(NAME, TYPE, EXPR)                                                             \
+  __kernel void NAME(__global const TYPE* x, const int len, __global real* partial, const int groups_per_band, \
+                     __local real* scratch) {                                                           \
+    const int b = get_group_id(1), g = get_group_id(0), lid = get_local_id(0), ls = get_local_size(0); \
+    real acc = R(0.0);                                                                                  \
+    for (size_t e = (size_t)g * ls + lid; e < (size_t)len; e += (size_t)groups_per_band * ls) {        \
+      const TYPE v = x[(size_t)b * len + e];                                                            \
+      acc += EXPR;                                                                                      \
+    }                                                                                                   \
+    scratch[lid] = acc;                                                                                 \
+    barrier(CLK_LOCAL_MEM_FENCE);                                                                       \
+    for (int s = ls / 2; s > 0; s >>= 1) {                                                              \
+      if (lid < s) scratch[lid] += scratch[lid + s];                                                    \
+      barrier(CLK_LOCAL_MEM_FENCE);                                                                     \
+    }                                                                                                   \
+    if (lid == 0) partial[(size_t)b * groups_per_band + g] = scratch[0];                                \
+  }
+QDO_BAND_REDUCE(band_sums, real, v)
+QDO_BAND_REDUCE(band_energy, real2, v.x* v.x + v.y * v.y)
+
+// sums[b] = sum_g partial[b][g] (one work-item per band).
+__kernel void finalize_sums(__global const real* partial, __global real* sums, const int groups_per_band,
+                            const int bands) {
+  const int b = get_global_id(0);
+  if (b >= bands) return;
+  real acc = R(0.0);
+  for (int g = 0; g < groups_per_band; ++g) acc += partial[(size_t)b * groups_per_band + g];
+  sums[b] = acc;
+}
+
+// x[b][e] /= sums[b] where sums[b] > 0; x: bands x len.
+__kernel void scale_by_sums(__global real* x, __global const real* sums, const int len, const int bands) {
+  const size_t gid = get_global_id(0);
+  if (gid >= (size_t)len * bands) return;
+  const real s = sums[gid / len];
+  if (s > R(0.0)) x[gid] /= s;
+}
+
+// Area resampling: out[b][oy][ox] = sum_{ty,tx} w[oy][ty] w[ox][tx] in[b][start[oy]+ty][start[ox]+tx]
+// in: bands x N x N, out: bands x S x S, start: S ints, w: S x taps reals (zero where the
+// tap falls outside the input).
+__kernel void resample_area(__global const real* in, __global real* out, __global const int* start,
+                            __global const real* w, const int n, const int s, const int taps, const int bands) {
+  const size_t gid = get_global_id(0);
+  const size_t ss = (size_t)s * s;
+  if (gid >= ss * bands) return;
+  const int b = (int)(gid / ss);
+  const int rem = (int)(gid - (size_t)b * ss);
+  const int oy = rem / s, ox = rem - oy * s;
+  real acc = R(0.0);
+  for (int ty = 0; ty < taps; ++ty) {
+    const real wy = w[oy * taps + ty];
+    const int iy = start[oy] + ty;
+    if (wy == R(0.0) || iy < 0 || iy >= n) continue;
+    for (int tx = 0; tx < taps; ++tx) {
+      const real wx = w[ox * taps + tx];
+      const int ix = start[ox] + tx;
+      if (wx == R(0.0) || ix < 0 || ix >= n) continue;
+      acc += wy * wx * in[((size_t)b * n + iy) * n + ix];
+    }
+  }
+  out[gid] = acc;
+}

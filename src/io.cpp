@@ -1,0 +1,906 @@
+// File I/O: HDF5 (contract files), MATLAB .mat cubes (libmatio), CSV tables, PNG figures.
+// Every writer goes through AtomicFile (temp "<path>.tmp-<pid>" + rename); every reader names
+// the file, the dataset/variable and the problem in its InputError.
+#include "qdo/io.hpp"
+
+#include <hdf5.h>
+#include <matio.h>
+#include <png.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <memory>
+#include <sstream>
+
+#include "qdo/error.hpp"
+
+namespace qdo {
+namespace {
+
+namespace fs = std::filesystem;
+
+// ---------------------------------------------------------------------------------------
+// Shared helpers
+// ---------------------------------------------------------------------------------------
+
+// "<file>: <what>: <problem>"
+[[noreturn]] void fail(const std::string& file, const std::string& what, const std::string& problem) {
+  throw InputError("file '" + file + "'" + (what.empty() ? "" : ": " + what) + ": " + problem);
+}
+
+std::string shape_str(const std::vector<std::size_t>& shape) {
+  std::string s = "[";
+  for (std::size_t i = 0; i < shape.size(); ++i) s += (i ? " x " : "") + std::to_string(shape[i]);
+  return s + "]";
+}
+
+// Product of dims; returns false when it overflows or exceeds max_elements.
+bool element_count(const std::vector<std::size_t>& shape, std::size_t max_elements, std::size_t& n) {
+  n = 1;
+  for (std::size_t d : shape) {
+    if (d != 0 && n > max_elements / d) return false;
+    n *= d;
+  }
+  return n <= max_elements;
+}
+
+std::size_t count_nonfinite(const std::vector<double>& v) {
+  return static_cast<std::size_t>(std::count_if(v.begin(), v.end(), [](double x) { return !std::isfinite(x); }));
+}
+
+// Writes go to "<path>.tmp-<pid>"; commit() renames onto path; the destructor removes the
+// temp file unless committed, so an exception anywhere leaves nothing behind.
+class AtomicFile {
+ public:
+  explicit AtomicFile(std::string path)
+      : path_(std::move(path)), tmp_(path_ + ".tmp-" + std::to_string(static_cast<long>(::getpid()))) {
+    if (path_.empty()) reject("path", "\"\"", "an output file name is required");
+  }
+  AtomicFile(const AtomicFile&) = delete;
+  AtomicFile& operator=(const AtomicFile&) = delete;
+  ~AtomicFile() {
+    if (!committed_) std::remove(tmp_.c_str());
+  }
+  const std::string& tmp() const { return tmp_; }
+  void commit() {
+    if (std::rename(tmp_.c_str(), path_.c_str()) != 0)
+      fail(path_, "", std::string("cannot rename temp file into place: ") + std::strerror(errno));
+    committed_ = true;
+  }
+
+ private:
+  std::string path_, tmp_;
+  bool committed_ = false;
+};
+
+void require_file(const std::string& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) fail(path, "", "no such file");
+}
+
+// ---------------------------------------------------------------------------------------
+// HDF5
+// ---------------------------------------------------------------------------------------
+
+// Owns one hid_t and closes it with the matching H5?close.
+class H5Id {
+ public:
+  using Closer = herr_t (*)(hid_t);
+  H5Id(hid_t id, Closer closer) : id_(id), closer_(closer) {}
+  H5Id(H5Id&& o) noexcept : id_(o.id_), closer_(o.closer_) { o.id_ = -1; }
+  H5Id(const H5Id&) = delete;
+  H5Id& operator=(const H5Id&) = delete;
+  H5Id& operator=(H5Id&&) = delete;
+  ~H5Id() { close(); }
+  hid_t get() const { return id_; }
+  bool valid() const { return id_ >= 0; }
+  // Closes now; returns false when HDF5 reports a failure (e.g. a flush on file close).
+  bool close() {
+    const hid_t id = id_;
+    id_ = -1;
+    return id < 0 || closer_(id) >= 0;
+  }
+
+ private:
+  hid_t id_;
+  Closer closer_;
+};
+
+void h5_quiet() { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); }
+
+// The most specific message on the HDF5 error stack (then clears it), e.g. "unable to open file".
+std::string h5_detail() {
+  std::string msg;
+  H5Ewalk2(
+      H5E_DEFAULT, H5E_WALK_UPWARD,
+      [](unsigned n, const H5E_error2_t* e, void* out) -> herr_t {
+        if (n == 0 && e && e->desc) *static_cast<std::string*>(out) = e->desc;
+        return 0;
+      },
+      &msg);
+  H5Eclear2(H5E_DEFAULT);
+  return msg.empty() ? "" : " (HDF5: " + msg + ")";
+}
+
+H5Id h5_open_read(const std::string& path) {
+  h5_quiet();
+  require_file(path);
+  H5Id f(H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose);
+  if (!f.valid()) fail(path, "", "not a readable HDF5 file" + h5_detail());
+  return f;
+}
+
+std::string h5_abs(const std::string& name) { return (!name.empty() && name[0] == '/') ? name : "/" + name; }
+
+// True when every link along the absolute path exists and the object is a dataset.
+bool h5_is_dataset(hid_t file, const std::string& name) {
+  const std::string abs = h5_abs(name);
+  if (abs == "/") return false;
+  std::size_t pos = 0;
+  while (pos != std::string::npos) {
+    pos = abs.find('/', pos + 1);
+    const std::string prefix = abs.substr(0, pos);
+    if (H5Lexists(file, prefix.c_str(), H5P_DEFAULT) <= 0) {
+      H5Eclear2(H5E_DEFAULT);
+      return false;
+    }
+  }
+  H5Id obj(H5Oopen(file, abs.c_str(), H5P_DEFAULT), H5Oclose);
+  if (!obj.valid()) {
+    H5Eclear2(H5E_DEFAULT);
+    return false;
+  }
+  return H5Iget_type(obj.get()) == H5I_DATASET;
+}
+
+// Numeric type of a dataset, for the automatic cube scale.
+struct NumKind {
+  bool integer = false;
+  double max = 1;  // largest representable value for integers
+};
+
+NumKind h5_num_kind(hid_t type) {
+  NumKind k;
+  if (H5Tget_class(type) == H5T_INTEGER) {
+    const double bits = 8.0 * static_cast<double>(H5Tget_size(type));
+    k.integer = true;
+    k.max = H5Tget_sign(type) == H5T_SGN_NONE ? std::pow(2.0, bits) - 1 : std::pow(2.0, bits - 1) - 1;
+  }
+  return k;
+}
+
+// Reads the scalar numeric and string attributes of an object into ds (others are ignored).
+void h5_read_attrs(hid_t obj, const std::string& path, H5Dataset& ds) {
+  std::vector<std::string> names;
+  hsize_t idx = 0;
+  if (H5Aiterate2(obj, H5_INDEX_NAME, H5_ITER_INC, &idx,
+                  [](hid_t, const char* n, const H5A_info_t*, void* out) -> herr_t {
+                    static_cast<std::vector<std::string>*>(out)->emplace_back(n);
+                    return 0;
+                  },
+                  &names) < 0)
+    fail(path, "dataset '" + ds.name + "'", "cannot list attributes" + h5_detail());
+  for (const std::string& an : names) {
+    const std::string what = "attribute '" + an + "' of '" + ds.name + "'";
+    H5Id attr(H5Aopen(obj, an.c_str(), H5P_DEFAULT), H5Aclose);
+    if (!attr.valid()) fail(path, what, "cannot open" + h5_detail());
+    H5Id type(H5Aget_type(attr.get()), H5Tclose);
+    H5Id space(H5Aget_space(attr.get()), H5Sclose);
+    if (!type.valid() || !space.valid()) fail(path, what, "cannot read type" + h5_detail());
+    if (H5Sget_simple_extent_npoints(space.get()) != 1) continue;  // arrays: not part of the contract
+    const H5T_class_t cls = H5Tget_class(type.get());
+    if (cls == H5T_INTEGER || cls == H5T_FLOAT) {
+      double v = 0;
+      if (H5Aread(attr.get(), H5T_NATIVE_DOUBLE, &v) < 0) fail(path, what, "cannot read" + h5_detail());
+      ds.num_attrs[an] = v;
+    } else if (cls == H5T_STRING) {
+      if (H5Tis_variable_str(type.get()) > 0) {
+        H5Id mem(H5Tcopy(H5T_C_S1), H5Tclose);
+        H5Tset_size(mem.get(), H5T_VARIABLE);
+        char* raw = nullptr;
+        if (H5Aread(attr.get(), mem.get(), &raw) < 0) fail(path, what, "cannot read" + h5_detail());
+        const std::unique_ptr<char, herr_t (*)(void*)> owned(raw, H5free_memory);
+        ds.str_attrs[an] = raw ? std::string(raw) : std::string();
+      } else {
+        const std::size_t len = H5Tget_size(type.get());
+        H5Id mem(H5Tcopy(type.get()), H5Tclose);
+        std::string buf(len + 1, '\0');
+        if (H5Aread(attr.get(), mem.get(), buf.data()) < 0) fail(path, what, "cannot read" + h5_detail());
+        ds.str_attrs[an] = std::string(buf.c_str());
+      }
+    }
+  }
+}
+
+// Reads one numeric dataset (converted to float64, C order) plus its attributes.
+H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::size_t max_elements,
+                       NumKind* kind) {
+  H5Id file = h5_open_read(path);
+  H5Dataset ds;
+  ds.name = h5_abs(name);
+  const std::string what = "dataset '" + ds.name + "'";
+  if (!h5_is_dataset(file.get(), ds.name)) fail(path, what, "missing (no such dataset)");
+  H5Id dset(H5Dopen2(file.get(), ds.name.c_str(), H5P_DEFAULT), H5Dclose);
+  if (!dset.valid()) fail(path, what, "cannot open" + h5_detail());
+  H5Id type(H5Dget_type(dset.get()), H5Tclose);
+  H5Id space(H5Dget_space(dset.get()), H5Sclose);
+  if (!type.valid() || !space.valid()) fail(path, what, "cannot read type/shape" + h5_detail());
+  const H5T_class_t cls = H5Tget_class(type.get());
+  if (cls != H5T_INTEGER && cls != H5T_FLOAT) fail(path, what, "not numeric (integer or float) data");
+  const int rank = H5Sget_simple_extent_ndims(space.get());
+  if (rank < 0) fail(path, what, "cannot read shape" + h5_detail());
+  std::vector<hsize_t> dims(static_cast<std::size_t>(rank));
+  H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
+  ds.shape.assign(dims.begin(), dims.end());
+  std::size_t n = 0;
+  if (!element_count(ds.shape, max_elements, n))
+    fail(path, what, "shape " + shape_str(ds.shape) + " exceeds the limit of " + std::to_string(max_elements) +
+                         " elements");
+  ds.data.resize(n);
+  if (n > 0 && H5Dread(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, ds.data.data()) < 0)
+    fail(path, what, "read failed" + h5_detail());
+  h5_read_attrs(dset.get(), path, ds);
+  if (kind) *kind = h5_num_kind(type.get());
+  return ds;
+}
+
+void h5_write_str_attr(hid_t obj, const std::string& file, const std::string& name, const std::string& value) {
+  H5Id type(H5Tcopy(H5T_C_S1), H5Tclose);
+  H5Id space(H5Screate(H5S_SCALAR), H5Sclose);
+  if (!type.valid() || !space.valid() || H5Tset_size(type.get(), value.size() + 1) < 0 ||
+      H5Tset_strpad(type.get(), H5T_STR_NULLTERM) < 0)
+    fail(file, "attribute '" + name + "'", "cannot create string type" + h5_detail());
+  H5Id attr(H5Acreate2(obj, name.c_str(), type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
+  if (!attr.valid() || H5Awrite(attr.get(), type.get(), value.c_str()) < 0)
+    fail(file, "attribute '" + name + "'", "cannot write" + h5_detail());
+}
+
+void h5_write_num_attr(hid_t obj, const std::string& file, const std::string& name, double value) {
+  H5Id space(H5Screate(H5S_SCALAR), H5Sclose);
+  H5Id attr(H5Acreate2(obj, name.c_str(), H5T_IEEE_F64LE, space.get(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
+  if (!attr.valid() || H5Awrite(attr.get(), H5T_NATIVE_DOUBLE, &value) < 0)
+    fail(file, "attribute '" + name + "'", "cannot write" + h5_detail());
+}
+
+// One dataset, shape in C order, float64 on disk; validates shape against data size first.
+void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
+  const std::string what = "dataset '" + d.name + "'";
+  if (d.name.size() < 2 || d.name[0] != '/') fail(path, what, "name must be an absolute path like \"/psf\"");
+  std::size_t n = 0;
+  if (!element_count(d.shape, std::numeric_limits<std::size_t>::max(), n) || n != d.data.size())
+    fail(path, what, "shape " + shape_str(d.shape) + " does not match the data size " + std::to_string(d.data.size()));
+  const std::vector<hsize_t> dims(d.shape.begin(), d.shape.end());
+  H5Id space(d.shape.empty() ? H5Screate(H5S_SCALAR)
+                             : H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr),
+             H5Sclose);
+  H5Id lcpl(H5Pcreate(H5P_LINK_CREATE), H5Pclose);
+  if (!space.valid() || !lcpl.valid() || H5Pset_create_intermediate_group(lcpl.get(), 1) < 0)
+    fail(path, what, "cannot create dataspace" + h5_detail());
+  H5Id dset(H5Dcreate2(file, d.name.c_str(), H5T_IEEE_F64LE, space.get(), lcpl.get(), H5P_DEFAULT, H5P_DEFAULT),
+            H5Dclose);
+  if (!dset.valid()) fail(path, what, "cannot create" + h5_detail());
+  if (n > 0 && H5Dwrite(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.data.data()) < 0)
+    fail(path, what, "write failed" + h5_detail());
+  for (const auto& kv : d.num_attrs) h5_write_num_attr(dset.get(), path, kv.first, kv.second);
+  for (const auto& kv : d.str_attrs) h5_write_str_attr(dset.get(), path, kv.first, kv.second);
+}
+
+// ---------------------------------------------------------------------------------------
+// MATLAB .mat (libmatio)
+// ---------------------------------------------------------------------------------------
+
+struct MatCloser {
+  void operator()(mat_t* m) const { Mat_Close(m); }
+};
+struct MatVarFreer {
+  void operator()(matvar_t* v) const { Mat_VarFree(v); }
+};
+using MatFile = std::unique_ptr<mat_t, MatCloser>;
+using MatVar = std::unique_ptr<matvar_t, MatVarFreer>;
+
+// matio reports problems through a log callback; keep the last message for our errors.
+thread_local std::string g_matio_last;
+void matio_log(int, char* message) { g_matio_last = message ? message : ""; }
+
+std::string matio_detail() {
+  std::string s = g_matio_last.empty() ? "" : " (matio: " + g_matio_last + ")";
+  g_matio_last.clear();
+  return s;
+}
+
+bool mat_numeric(const matvar_t& v) {
+  return v.class_type >= MAT_C_DOUBLE && v.class_type <= MAT_C_UINT64 && !v.isComplex;
+}
+
+std::vector<std::size_t> mat_dims(const matvar_t& v) {
+  return std::vector<std::size_t>(v.dims, v.dims + std::max(v.rank, 0));
+}
+
+const char* mat_class_name(matio_classes c) {
+  static const char* names[] = {"empty", "cell",  "struct", "object", "char",   "sparse", "double", "single", "int8",
+                                "uint8", "int16", "uint16", "int32",  "uint32", "int64",  "uint64", "function",
+                                "opaque"};
+  const int i = static_cast<int>(c);
+  return (i >= 0 && i < static_cast<int>(sizeof(names) / sizeof(names[0]))) ? names[i] : "unknown";
+}
+
+NumKind mat_num_kind(const matvar_t& v) {
+  NumKind k;
+  k.integer = v.class_type >= MAT_C_INT8;
+  switch (v.class_type) {
+    case MAT_C_INT8: k.max = 127; break;
+    case MAT_C_UINT8: k.max = v.isLogical ? 1 : 255; break;
+    case MAT_C_INT16: k.max = 32767; break;
+    case MAT_C_UINT16: k.max = 65535; break;
+    case MAT_C_INT32: k.max = 2147483647.0; break;
+    case MAT_C_UINT32: k.max = 4294967295.0; break;
+    case MAT_C_INT64: k.max = 9223372036854775807.0; break;
+    case MAT_C_UINT64: k.max = 18446744073709551615.0; break;
+    default: k.max = 1; break;
+  }
+  return k;
+}
+
+template <typename T>
+void mat_convert(const void* src, std::size_t n, std::vector<double>& out) {
+  const T* p = static_cast<const T*>(src);
+  out.resize(n);
+  for (std::size_t i = 0; i < n; ++i) out[i] = static_cast<double>(p[i]);
+}
+
+// A raw array as read from a file: dims in reading order, data in that file's memory order.
+struct RawArray {
+  std::string key;
+  std::vector<std::size_t> dims;
+  std::vector<double> data;
+  bool column_major = false;  // MATLAB order (first index fastest) vs C order
+  NumKind kind;
+};
+
+// libmatio reads a truncated v5 file without complaint (the missing data come back as
+// zeros), so check that every top-level data element of a v5 file fits inside the file.
+// v5 layout: a 128-byte header (endian mark "IM" at byte 126 for little-endian files), then
+// elements of an 8-byte tag (uint32 type, uint32 nbytes) and nbytes of data, padded to 8
+// bytes unless compressed (type 15).
+void check_mat5_extent(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::error_code ec;
+  const std::uintmax_t size = fs::file_size(path, ec);
+  unsigned char head[128];
+  if (ec || !in.read(reinterpret_cast<char*>(head), sizeof head)) fail(path, "", "truncated MATLAB v5 header");
+  const bool swap = head[126] == 'M';  // "MI": written big-endian
+  auto u32 = [swap](const unsigned char* b) {
+    return swap ? (std::uint32_t(b[0]) << 24) | (std::uint32_t(b[1]) << 16) | (std::uint32_t(b[2]) << 8) | b[3]
+                : (std::uint32_t(b[3]) << 24) | (std::uint32_t(b[2]) << 16) | (std::uint32_t(b[1]) << 8) | b[0];
+  };
+  std::uintmax_t pos = 128;
+  while (pos < size) {
+    unsigned char tag[8];
+    in.seekg(static_cast<std::streamoff>(pos));
+    if (size - pos < 8 || !in.read(reinterpret_cast<char*>(tag), sizeof tag))
+      fail(path, "", "truncated MATLAB v5 file: incomplete element tag at byte " + std::to_string(pos));
+    const std::uint32_t type = u32(tag), nbytes = u32(tag + 4);
+    const std::uintmax_t padded = type == 15 ? nbytes : (std::uintmax_t(nbytes) + 7) / 8 * 8;
+    if (pos + 8 + padded > size && pos + 8 + nbytes > size)
+      fail(path, "", "truncated MATLAB v5 file: the element at byte " + std::to_string(pos) + " declares " +
+                         std::to_string(nbytes) + " bytes but the file has " + std::to_string(size) + " bytes");
+    pos += 8 + padded;
+  }
+}
+
+// Reads a numeric variable from a MATLAB v4/v5/v7.3 file; dims are MATLAB's [d0 d1 d2],
+// data column-major (element (i,j,k) at i + d0*j + d0*d1*k).
+RawArray read_mat_raw(const std::string& path, const std::string& key) {
+  static const int log_once = Mat_LogInitFunc("qdo", matio_log);
+  (void)log_once;
+  h5_quiet();  // matio reads v7.3 through HDF5
+  g_matio_last.clear();
+  MatFile mat(Mat_Open(path.c_str(), MAT_ACC_RDONLY));
+  if (!mat) fail(path, "", "not a readable MATLAB .mat file" + matio_detail());
+  if (Mat_GetVersion(mat.get()) == MAT_FT_MAT5) check_mat5_extent(path);
+
+  RawArray raw;
+  raw.column_major = true;
+  // Every variable as "name [dims] class"; the numeric 3-D ones are the cube candidates.
+  std::vector<std::string> all, candidates;
+  auto list = [](const std::vector<std::string>& v) {
+    std::string s;
+    for (const auto& x : v) s += (s.empty() ? "" : ", ") + x;
+    return s.empty() ? std::string("none readable") : s;
+  };
+  auto scan = [&] {
+    Mat_Rewind(mat.get());
+    while (MatVar info{Mat_VarReadNextInfo(mat.get())}) {
+      all.push_back(std::string(info->name ? info->name : "?") + " " + shape_str(mat_dims(*info)) + " " +
+                    mat_class_name(info->class_type));
+      if (info->name && info->rank == 3 && mat_numeric(*info)) candidates.push_back(info->name);
+    }
+  };
+  if (key.empty()) {
+    scan();
+    if (candidates.empty()) fail(path, "", "no numeric 3-D variable (variables: " + list(all) + ")" + matio_detail());
+    if (candidates.size() > 1)
+      fail(path, "", "several numeric 3-D variables (" + list(candidates) + "); choose one with the cube key");
+    raw.key = candidates.front();
+  } else {
+    raw.key = key;
+  }
+  const std::string what = "variable '" + raw.key + "'";
+  {
+    MatVar info(Mat_VarReadInfo(mat.get(), raw.key.c_str()));
+    if (!info) {
+      const std::string detail = matio_detail();
+      scan();
+      fail(path, what, "missing or unreadable (variables: " + list(all) + ")" + detail);
+    }
+    raw.dims = mat_dims(*info);
+    if (!mat_numeric(*info))
+      fail(path, what, std::string("not a real numeric array (class ") + mat_class_name(info->class_type) +
+                           (info->isComplex ? ", complex" : "") + ")");
+    std::size_t n = 0;
+    if (!element_count(raw.dims, std::size_t(1) << 31, n))
+      fail(path, what, "shape " + shape_str(raw.dims) + " exceeds the limit of 2^31 elements");
+  }
+  MatVar var(Mat_VarRead(mat.get(), raw.key.c_str()));
+  if (!var || !var->data) fail(path, what, "cannot read data (truncated or corrupt file?)" + matio_detail());
+  std::size_t n = 0;
+  element_count(raw.dims, std::size_t(1) << 31, n);
+  if (var->rank != static_cast<int>(raw.dims.size()) || !std::equal(raw.dims.begin(), raw.dims.end(), var->dims) ||
+      var->data_size <= 0 || var->nbytes < n * static_cast<std::size_t>(var->data_size))
+    fail(path, what, "data size does not match its shape " + shape_str(raw.dims) + " (truncated or corrupt file?)");
+  switch (var->class_type) {
+    case MAT_C_DOUBLE: mat_convert<double>(var->data, n, raw.data); break;
+    case MAT_C_SINGLE: mat_convert<float>(var->data, n, raw.data); break;
+    case MAT_C_INT8: mat_convert<std::int8_t>(var->data, n, raw.data); break;
+    case MAT_C_UINT8: mat_convert<std::uint8_t>(var->data, n, raw.data); break;
+    case MAT_C_INT16: mat_convert<std::int16_t>(var->data, n, raw.data); break;
+    case MAT_C_UINT16: mat_convert<std::uint16_t>(var->data, n, raw.data); break;
+    case MAT_C_INT32: mat_convert<std::int32_t>(var->data, n, raw.data); break;
+    case MAT_C_UINT32: mat_convert<std::uint32_t>(var->data, n, raw.data); break;
+    case MAT_C_INT64: mat_convert<std::int64_t>(var->data, n, raw.data); break;
+    case MAT_C_UINT64: mat_convert<std::uint64_t>(var->data, n, raw.data); break;
+    default: fail(path, what, "unsupported class");
+  }
+  raw.kind = mat_num_kind(*var);
+  return raw;
+}
+
+// A MATLAB file starts with a 116-byte text header "MATLAB 5.0 MAT-file..." (v5 and v7.3).
+bool looks_like_mat(const std::string& path) {
+  std::string ext = fs::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  if (ext == ".mat") return true;
+  std::ifstream in(path, std::ios::binary);
+  char head[6] = {};
+  in.read(head, sizeof head);
+  return in.gcount() == 6 && std::memcmp(head, "MATLAB", 6) == 0;
+}
+
+// ---------------------------------------------------------------------------------------
+// PNG helpers
+// ---------------------------------------------------------------------------------------
+
+struct Rgb {
+  double r, g, b;
+};
+
+// Approximate colour of a visible wavelength (piecewise linear, after D. Bruton), with the
+// intensity fading towards the ends of 380..780 nm; outside that range a neutral gray.
+Rgb wavelength_rgb(double nm) {
+  if (!(nm >= 380 && nm <= 780)) return {0.7, 0.7, 0.7};
+  Rgb c{0, 0, 0};
+  if (nm < 440) c = {(440 - nm) / 60, 0, 1};
+  else if (nm < 490) c = {0, (nm - 440) / 50, 1};
+  else if (nm < 510) c = {0, 1, (510 - nm) / 20};
+  else if (nm < 580) c = {(nm - 510) / 70, 1, 0};
+  else if (nm < 645) c = {1, (645 - nm) / 65, 0};
+  else c = {1, 0, 0};
+  double f = 1;
+  if (nm < 420) f = 0.3 + 0.7 * (nm - 380) / 40;
+  else if (nm > 700) f = 0.3 + 0.7 * (780 - nm) / 80;
+  return {c.r * f, c.g * f, c.b * f};
+}
+
+unsigned char to_byte(double v01) {
+  const double v = std::clamp(v01, 0.0, 1.0);
+  return static_cast<unsigned char>(std::lround(v * 255.0));
+}
+
+double srgb_encode(double v) { return v <= 0.0031308 ? 12.92 * v : 1.055 * std::pow(v, 1 / 2.4) - 0.055; }
+
+void require_finite(const std::string& path, const std::string& what, const std::vector<double>& v) {
+  const std::size_t bad = count_nonfinite(v);
+  if (bad) fail(path, what, std::to_string(bad) + " non-finite values");
+}
+
+// One tile of a montage: plane p of stack cropped to (y0, x0, h, w), box-averaged by factor f.
+// Returns a (ceil(h/f) x ceil(w/f)) row-major image.
+std::vector<double> tile_of(const RealStack& s, std::size_t p, std::size_t y0, std::size_t x0, std::size_t h,
+                            std::size_t w, std::size_t f, std::size_t th, std::size_t tw) {
+  std::vector<double> t(th * tw, 0.0);
+  for (std::size_t ty = 0; ty < th; ++ty)
+    for (std::size_t tx = 0; tx < tw; ++tx) {
+      double sum = 0;
+      std::size_t cnt = 0;
+      for (std::size_t y = ty * f; y < std::min(h, ty * f + f); ++y)
+        for (std::size_t x = tx * f; x < std::min(w, tx * f + f); ++x, ++cnt) sum += s(p, y0 + y, x0 + x);
+      t[ty * tw + tx] = cnt ? sum / static_cast<double>(cnt) : 0.0;
+    }
+  return t;
+}
+
+}  // namespace
+
+// =========================================================================================
+// HDF5 public API
+// =========================================================================================
+
+void h5_write(const std::string& path, const std::vector<H5Dataset>& datasets,
+              const std::map<std::string, std::string>& root_str_attrs) {
+  h5_quiet();
+  AtomicFile out(path);
+  {
+    H5Id file(H5Fcreate(out.tmp().c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose);
+    if (!file.valid()) fail(path, "", "cannot create HDF5 file" + h5_detail());
+    {
+      H5Id root(H5Gopen2(file.get(), "/", H5P_DEFAULT), H5Gclose);
+      if (!root.valid()) fail(path, "", "cannot open root group" + h5_detail());
+      for (const auto& kv : root_str_attrs) h5_write_str_attr(root.get(), path, kv.first, kv.second);
+    }
+    for (const H5Dataset& d : datasets) h5_write_dataset(file.get(), path, d);
+    if (!file.close()) fail(path, "", "closing (flushing) the HDF5 file failed" + h5_detail());
+  }
+  out.commit();
+}
+
+H5Dataset h5_read(const std::string& path, const std::string& name, std::size_t max_elements) {
+  return h5_read_impl(path, name, max_elements, nullptr);
+}
+
+bool h5_has(const std::string& path, const std::string& name) {
+  H5Id file = h5_open_read(path);
+  return h5_is_dataset(file.get(), name);
+}
+
+// =========================================================================================
+// Contract helpers
+// =========================================================================================
+
+void write_design(const std::string& path, const Design& d, const std::map<std::string, std::string>& provenance) {
+  if (!(d.pitch_m > 0) || !std::isfinite(d.pitch_m)) reject("pitch_m", d.pitch_m, "a finite pitch > 0 in metres");
+  if (d.height_m.rows != d.height_m.cols || d.height_m.rows == 0)
+    reject("height_m", std::to_string(d.height_m.rows) + " x " + std::to_string(d.height_m.cols),
+           "a non-empty square N x N map");
+  H5Dataset h{"/height_m", {d.height_m.rows, d.height_m.cols}, d.height_m.data, {{"pitch_m", d.pitch_m}},
+              {{"units", "m"}}};
+  std::vector<H5Dataset> sets{h};
+  if (!d.levels_m.empty()) sets.push_back({"/levels_m", {d.levels_m.size()}, d.levels_m, {}, {{"units", "m"}}});
+  h5_write(path, sets, provenance);
+}
+
+Design read_design(const std::string& path) {
+  const H5Dataset h = h5_read(path, "/height_m");
+  const std::string what = "dataset '/height_m'";
+  if (h.shape.size() != 2 || h.shape[0] != h.shape[1] || h.shape[0] == 0)
+    fail(path, what, "shape " + shape_str(h.shape) + " is not a square N x N map");
+  require_finite(path, what, h.data);
+  const auto it = h.num_attrs.find("pitch_m");
+  if (it == h.num_attrs.end()) fail(path, what, "attribute 'pitch_m' is missing");
+  if (!(it->second > 0) || !std::isfinite(it->second))
+    fail(path, what, "attribute 'pitch_m' = " + to_str(it->second) + " is invalid (must be finite and > 0)");
+  Design d;
+  d.height_m = Map2D(h.shape[0], h.shape[1]);
+  d.height_m.data = h.data;
+  d.pitch_m = it->second;
+  if (h5_has(path, "/levels_m")) {
+    const H5Dataset l = h5_read(path, "/levels_m");
+    if (l.shape.size() != 1) fail(path, "dataset '/levels_m'", "shape " + shape_str(l.shape) + " is not 1-D");
+    require_finite(path, "dataset '/levels_m'", l.data);
+    d.levels_m = l.data;
+  }
+  return d;
+}
+
+void write_psf(const std::string& path, const RealStack& psf, const std::vector<double>& wavelengths_nm,
+               double pitch_m, const std::map<std::string, double>& extra_num_attrs) {
+  if (wavelengths_nm.size() != psf.planes)
+    reject("wavelengths_nm", wavelengths_nm.size(), "one wavelength per PSF plane (" + std::to_string(psf.planes) + ")");
+  if (!(pitch_m > 0) || !std::isfinite(pitch_m)) reject("pitch_m", pitch_m, "a finite pitch > 0 in metres");
+  H5Dataset p{"/psf", {psf.planes, psf.rows, psf.cols}, psf.data, extra_num_attrs, {}};
+  p.num_attrs["pitch_m"] = pitch_m;
+  h5_write(path, {p, H5Dataset{"/wavelengths_nm", {wavelengths_nm.size()}, wavelengths_nm, {}, {{"units", "nm"}}}});
+}
+
+void write_cube(const std::string& path, const RealStack& cube, const std::vector<double>& wavelengths_nm) {
+  if (wavelengths_nm.size() != cube.planes)
+    reject("wavelengths_nm", wavelengths_nm.size(), "one wavelength per cube band (" + std::to_string(cube.planes) + ")");
+  h5_write(path, {H5Dataset{"/cube", {cube.planes, cube.rows, cube.cols}, cube.data, {}, {}},
+                  H5Dataset{"/wavelengths_nm", {wavelengths_nm.size()}, wavelengths_nm, {}, {{"units", "nm"}}}});
+}
+
+void write_rgb(const std::string& path, const RealStack& rgb) {
+  if (rgb.planes != 3) reject("rgb planes", rgb.planes, "exactly 3 (R, G, B)");
+  h5_write(path, {H5Dataset{"/rgb", {rgb.planes, rgb.rows, rgb.cols}, rgb.data, {}, {}}});
+}
+
+// Output: (bands, H, W) row-major, divided by the scale. See io.hpp for the layout rules.
+RealStack read_cube(const std::string& path, const CubeReadOptions& opt) {
+  if (opt.layout != "auto" && opt.layout != "bhw" && opt.layout != "hwb")
+    reject("layout", opt.layout, "\"auto\", \"bhw\" or \"hwb\"");
+  if (!(opt.scale >= 0) || !std::isfinite(opt.scale)) reject("scale", opt.scale, "0 (auto) or a finite value > 0");
+  require_file(path);
+  const bool is_mat = looks_like_mat(path);
+  RawArray raw;
+  if (is_mat) {
+    raw = read_mat_raw(path, opt.key);
+  } else {
+    H5Dataset d = h5_read_impl(path, opt.key.empty() ? "/cube" : opt.key, std::size_t(1) << 31, &raw.kind);
+    raw.key = d.name;
+    raw.dims = d.shape;
+    raw.data = std::move(d.data);
+  }
+  const std::string what = std::string(is_mat ? "variable '" : "dataset '") + raw.key + "'";
+  if (raw.dims.size() != 3)
+    fail(path, what, "shape " + shape_str(raw.dims) + " is not a 3-D cube (H x W x bands or bands x H x W)");
+  const std::vector<std::size_t>& d = raw.dims;
+  if (d[0] == 0 || d[1] == 0 || d[2] == 0) fail(path, what, "shape " + shape_str(d) + " is empty");
+
+  // Band axis: 0 ("bhw") or 2 ("hwb").
+  std::size_t band_axis = 0;
+  const std::size_t nb = opt.expected_bands;
+  if (opt.layout == "auto") {
+    if (nb > 0) {
+      const std::size_t first = is_mat ? 2 : 0, second = is_mat ? 0 : 2;
+      if (d[first] == nb) band_axis = first;
+      else if (d[second] == nb) band_axis = second;
+      else fail(path, what, "shape " + shape_str(d) + " has no band axis of length " + std::to_string(nb) + " (bands expected)");
+    } else {
+      band_axis = is_mat ? 2 : 0;
+    }
+  } else {
+    band_axis = opt.layout == "bhw" ? 0 : 2;
+    if (nb > 0 && d[band_axis] != nb)
+      fail(path, what, "shape " + shape_str(d) + " with layout " + opt.layout + " has " + std::to_string(d[band_axis]) +
+                           " bands, " + std::to_string(nb) + " bands expected");
+  }
+  const std::size_t bad = count_nonfinite(raw.data);
+  if (bad) fail(path, what, std::to_string(bad) + " non-finite values");
+
+  double scale = opt.scale;
+  if (scale == 0) {
+    const std::string base = raw.key.substr(raw.key.find_last_of('/') == std::string::npos ? 0 : raw.key.find_last_of('/') + 1);
+    const double maxv = raw.data.empty() ? 0.0 : *std::max_element(raw.data.begin(), raw.data.end());
+    if (base == "rad" && maxv <= 4095) scale = 4095;
+    else scale = raw.kind.integer ? raw.kind.max : 1.0;
+  }
+
+  // (i, j, k) -> source index, in the file's memory order.
+  const std::size_t d0 = d[0], d1 = d[1], d2 = d[2];
+  auto src = [&](std::size_t i, std::size_t j, std::size_t k) {
+    return raw.column_major ? i + d0 * (j + d1 * k) : (i * d1 + j) * d2 + k;
+  };
+  RealStack out = band_axis == 0 ? RealStack(d0, d1, d2) : RealStack(d2, d0, d1);
+  for (std::size_t i = 0; i < d0; ++i)
+    for (std::size_t j = 0; j < d1; ++j)
+      for (std::size_t k = 0; k < d2; ++k) {
+        const double v = raw.data[src(i, j, k)] / scale;
+        if (band_axis == 0) out(i, j, k) = v;
+        else out(k, i, j) = v;
+      }
+  return out;
+}
+
+// =========================================================================================
+// CSV
+// =========================================================================================
+
+const std::vector<double>& CsvTable::column(const std::string& name) const {
+  for (std::size_t c = 0; c < header.size(); ++c)
+    if (header[c] == name) return columns[c];
+  std::string h;
+  for (const auto& x : header) h += (h.empty() ? "" : ", ") + x;
+  throw InputError("CSV column '" + name + "' not found (header: " + h + ")");
+}
+
+CsvTable parse_csv(const std::string& text, const std::string& origin) {
+  auto trim = [](const std::string& s) {
+    const std::size_t b = s.find_first_not_of(" \t\r\n");
+    if (b == std::string::npos) return std::string();
+    return s.substr(b, s.find_last_not_of(" \t\r\n") - b + 1);
+  };
+  auto split = [&](const std::string& line) {
+    std::vector<std::string> cells;
+    std::size_t start = 0;
+    for (;;) {
+      const std::size_t comma = line.find(',', start);
+      cells.push_back(trim(line.substr(start, comma == std::string::npos ? std::string::npos : comma - start)));
+      if (comma == std::string::npos) return cells;
+      start = comma + 1;
+    }
+  };
+  CsvTable t;
+  std::istringstream in(text);
+  std::string line;
+  std::size_t line_no = 0;
+  bool have_header = false;
+  while (std::getline(in, line)) {
+    ++line_no;
+    const std::string s = trim(line);
+    if (s.empty()) continue;
+    if (s[0] == '#') {
+      t.comments.push_back(trim(s.substr(1)));
+      continue;
+    }
+    std::vector<std::string> cells = split(s);
+    if (!have_header) {
+      for (std::size_t c = 0; c < cells.size(); ++c) {
+        if (cells[c].empty()) throw InputError(origin + ": line " + std::to_string(line_no) + ": empty column name in the header");
+        for (std::size_t e = 0; e < c; ++e)
+          if (cells[e] == cells[c])
+            throw InputError(origin + ": line " + std::to_string(line_no) + ": duplicate column '" + cells[c] + "'");
+      }
+      t.header = cells;
+      t.columns.assign(cells.size(), {});
+      t.raw.assign(cells.size(), {});
+      have_header = true;
+      continue;
+    }
+    if (cells.size() != t.header.size())
+      throw InputError(origin + ": line " + std::to_string(line_no) + ": " + std::to_string(cells.size()) +
+                       " cells, but the header has " + std::to_string(t.header.size()) + " columns");
+    for (std::size_t c = 0; c < cells.size(); ++c) {
+      const std::string& cell = cells[c];
+      char* end = nullptr;
+      errno = 0;
+      const double v = cell.empty() ? 0.0 : std::strtod(cell.c_str(), &end);
+      const bool numeric = !cell.empty() && end == cell.c_str() + cell.size();
+      t.columns[c].push_back(numeric ? v : std::numeric_limits<double>::quiet_NaN());
+      t.raw[c].push_back(cell);
+    }
+  }
+  if (!have_header) throw InputError(origin + ": no header line (only comments or blank lines)");
+  return t;
+}
+
+CsvTable read_csv(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail(path, "", "cannot open CSV file");
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  if (in.bad()) fail(path, "", "read error");
+  return parse_csv(ss.str(), path);
+}
+
+// =========================================================================================
+// PNG
+// =========================================================================================
+
+// pixels: height rows of width * channels bytes, interleaved (RGBRGB... or gray).
+void write_png(const std::string& path, std::size_t width, std::size_t height, int channels,
+               const std::vector<unsigned char>& pixels) {
+  if (channels != 1 && channels != 3) reject("channels", channels, "1 (gray) or 3 (RGB)");
+  const std::size_t max_dim = 0x7fffffffu;
+  if (width == 0 || height == 0 || width > max_dim || height > max_dim)
+    reject("png size", std::to_string(width) + " x " + std::to_string(height), "1 .. 2^31-1 pixels per side");
+  const std::size_t ch = static_cast<std::size_t>(channels);
+  if (pixels.size() != width * height * ch)
+    reject("pixels", pixels.size(), "width * height * channels = " + std::to_string(width * height * ch) + " bytes");
+  AtomicFile out(path);
+  png_image img;
+  std::memset(&img, 0, sizeof img);
+  img.version = PNG_IMAGE_VERSION;
+  img.width = static_cast<png_uint_32>(width);
+  img.height = static_cast<png_uint_32>(height);
+  img.format = channels == 1 ? PNG_FORMAT_GRAY : PNG_FORMAT_RGB;
+  const int ok = png_image_write_to_file(&img, out.tmp().c_str(), 0, pixels.data(),
+                                         static_cast<png_int_32>(width * ch), nullptr);
+  const std::string msg = img.message;
+  png_image_free(&img);
+  if (!ok) fail(path, "", "PNG write failed: " + msg);
+  out.commit();
+}
+
+// stack: planes x rows x cols; one tile per plane.
+void write_montage_png(const std::string& path, const RealStack& stack, const std::vector<double>& wavelengths_nm,
+                       double gamma, std::size_t crop) {
+  const std::size_t P = stack.planes;
+  if (P == 0 || stack.rows == 0 || stack.cols == 0 || stack.data.size() != P * stack.rows * stack.cols)
+    reject("stack", std::to_string(P) + " x " + std::to_string(stack.rows) + " x " + std::to_string(stack.cols),
+           "a non-empty stack whose data matches its shape");
+  if (!wavelengths_nm.empty() && wavelengths_nm.size() != P)
+    reject("wavelengths_nm", wavelengths_nm.size(), "empty or one per plane (" + std::to_string(P) + ")");
+  if (!(gamma > 0) || !std::isfinite(gamma)) reject("gamma", gamma, "a finite value > 0");
+  require_finite(path, "montage data", stack.data);
+  const std::size_t h = crop ? std::min(crop, stack.rows) : stack.rows;
+  const std::size_t w = crop ? std::min(crop, stack.cols) : stack.cols;
+  const std::size_t y0 = (stack.rows - h) / 2, x0 = (stack.cols - w) / 2;
+  const std::size_t grid_cols = static_cast<std::size_t>(std::ceil(std::sqrt(static_cast<double>(P))));
+  const std::size_t grid_rows = (P + grid_cols - 1) / grid_cols;
+  const std::size_t max_tile = std::max<std::size_t>(16, std::min<std::size_t>(256, 4096 / grid_cols));
+  const std::size_t f = (std::max(h, w) + max_tile - 1) / max_tile;  // box-average factor
+  const std::size_t th = (h + f - 1) / f, tw = (w + f - 1) / f, gap = 2;
+  const std::size_t W = grid_cols * tw + (grid_cols - 1) * gap, H = grid_rows * th + (grid_rows - 1) * gap;
+  std::vector<unsigned char> px(W * H * 3, 0);
+  for (std::size_t p = 0; p < P; ++p) {
+    const std::vector<double> t = tile_of(stack, p, y0, x0, h, w, f, th, tw);
+    const double mx = *std::max_element(t.begin(), t.end());
+    const Rgb tint = wavelengths_nm.empty() ? Rgb{1, 1, 1} : wavelength_rgb(wavelengths_nm[p]);
+    const std::size_t oy = (p / grid_cols) * (th + gap), ox = (p % grid_cols) * (tw + gap);
+    for (std::size_t y = 0; y < th; ++y)
+      for (std::size_t x = 0; x < tw; ++x) {
+        const double v = mx > 0 ? std::pow(std::max(t[y * tw + x], 0.0) / mx, gamma) : 0.0;
+        unsigned char* q = &px[((oy + y) * W + ox + x) * 3];
+        q[0] = to_byte(v * tint.r);
+        q[1] = to_byte(v * tint.g);
+        q[2] = to_byte(v * tint.b);
+      }
+  }
+  write_png(path, W, H, 3, px);
+}
+
+// rgb3: 3 x H x W (planes R, G, B), linear values.
+void write_rgb_png(const std::string& path, const RealStack& rgb3) {
+  if (rgb3.planes != 3 || rgb3.rows == 0 || rgb3.cols == 0 || rgb3.data.size() != 3 * rgb3.rows * rgb3.cols)
+    reject("rgb stack", std::to_string(rgb3.planes) + " x " + std::to_string(rgb3.rows) + " x " + std::to_string(rgb3.cols),
+           "a non-empty 3 x H x W stack");
+  require_finite(path, "rgb data", rgb3.data);
+  std::vector<double> sorted = rgb3.data;
+  const std::size_t k = std::min(sorted.size() - 1, static_cast<std::size_t>(0.999 * static_cast<double>(sorted.size())));
+  std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(k), sorted.end());
+  double ref = sorted[k];
+  if (!(ref > 0)) ref = *std::max_element(rgb3.data.begin(), rgb3.data.end());
+  if (!(ref > 0)) ref = 1;
+  const std::size_t n = rgb3.plane_size();
+  std::vector<unsigned char> px(n * 3);
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t c = 0; c < 3; ++c) px[i * 3 + c] = to_byte(srgb_encode(std::clamp(rgb3.data[c * n + i] / ref, 0.0, 1.0)));
+  write_png(path, rgb3.cols, rgb3.rows, 3, px);
+}
+
+// m: rows x cols, row-major.
+void write_map_png(const std::string& path, const Map2D& m) {
+  if (m.rows == 0 || m.cols == 0 || m.data.size() != m.rows * m.cols)
+    reject("map", std::to_string(m.rows) + " x " + std::to_string(m.cols), "a non-empty map whose data matches its shape");
+  require_finite(path, "map data", m.data);
+  static const Rgb viridis[] = {{68, 1, 84},    {71, 45, 123},  {59, 82, 139},  {44, 114, 142}, {33, 145, 140},
+                                {40, 174, 128}, {94, 201, 98},  {173, 220, 48}, {253, 231, 37}};
+  const std::size_t na = sizeof(viridis) / sizeof(viridis[0]);
+  const auto [lo_it, hi_it] = std::minmax_element(m.data.begin(), m.data.end());
+  const double lo = *lo_it, span = *hi_it - *lo_it;
+  std::vector<unsigned char> px(m.data.size() * 3);
+  for (std::size_t i = 0; i < m.data.size(); ++i) {
+    const double t = span > 0 ? (m.data[i] - lo) / span : 0.5;
+    const double pos = t * static_cast<double>(na - 1);
+    const std::size_t a = std::min(na - 2, static_cast<std::size_t>(pos));
+    const double u = pos - static_cast<double>(a);
+    const Rgb& c0 = viridis[a];
+    const Rgb& c1 = viridis[a + 1];
+    px[i * 3 + 0] = to_byte((c0.r + u * (c1.r - c0.r)) / 255);
+    px[i * 3 + 1] = to_byte((c0.g + u * (c1.g - c0.g)) / 255);
+    px[i * 3 + 2] = to_byte((c0.b + u * (c1.b - c0.b)) / 255);
+  }
+  write_png(path, m.cols, m.rows, 3, px);
+}
+
+void write_text_atomic(const std::string& path, const std::string& text) {
+  AtomicFile out(path);
+  {
+    std::ofstream f(out.tmp(), std::ios::binary | std::ios::trunc);
+    if (!f) fail(path, "", std::string("cannot create file: ") + std::strerror(errno));
+    f.write(text.data(), static_cast<std::streamsize>(text.size()));
+    f.close();
+    if (!f) fail(path, "", "write failed");
+  }
+  out.commit();
+}
+
+}  // namespace qdo

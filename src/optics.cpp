@@ -1,0 +1,180 @@
+#include "qdo/optics.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "qdo/embedded.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/materials.hpp"
+
+namespace qdo {
+
+std::size_t fast_fft_size(std::size_t min_len) {
+  if (min_len < 1) min_len = 1;
+  for (std::size_t m = min_len;; ++m) {
+    std::size_t r = m;
+    for (std::size_t p : {2, 3, 5, 7})
+      while (r % p == 0) r /= p;
+    if (r == 1) return m;
+  }
+}
+
+PropagationGeometry PropagationGeometry::from_config(const SystemConfig& c) {
+  PropagationGeometry g;
+  g.n = c.n;
+  g.m = fast_fft_size(c.n + 2 * c.padding_px);
+  // Keep M - N even so the axis stays on a sample in both grids.
+  while ((g.m - g.n) % 2) g.m = fast_fft_size(g.m + 1);
+  g.offset = (g.m - g.n) / 2;
+  g.pitch_m = c.pitch_m;
+  return g;
+}
+
+double transfer_function_limit_per_m(Propagator p, double wavelength_nm, double z_m, std::size_t m, double pitch_m) {
+  const double lambda = wavelength_nm * 1e-9;
+  const double window = double(m) * pitch_m;
+  const double az = std::fabs(z_m);
+  if (p == Propagator::Fresnel) return az > 0 ? window / (2.0 * lambda * az) : INFINITY;
+  const double q = 2.0 * az / window;
+  return 1.0 / (lambda * std::sqrt(q * q + 1.0));
+}
+
+bool SamplingReport::any_inaccurate() const {
+  for (const auto& b : bands)
+    if (b.undersampled && b.aliased_energy_fraction > kAliasTolerance) return true;
+  return false;
+}
+
+double SamplingReport::worst_aliased_fraction() const {
+  double w = 0;
+  for (const auto& b : bands) w = std::max(w, b.aliased_energy_fraction);
+  return w;
+}
+
+double SamplingReport::worst_energy_outside() const {
+  double w = 0;
+  for (const auto& b : bands) w = std::max(w, b.energy_outside_window);
+  return w;
+}
+
+std::string SamplingReport::summary() const {
+  std::ostringstream os;
+  os.precision(3);
+  std::size_t under = 0;
+  for (const auto& b : bands) under += b.undersampled;
+  os << "sampling: transfer function under-sampled in " << under << " of " << bands.size() << " bands";
+  if (under) {
+    const auto& b = bands.back();
+    os << " (at " << b.wavelength_nm << " nm it is reliable only up to |f| = " << b.f_limit_per_m
+       << " 1/m of the grid's " << b.f_nyquist_per_m << " 1/m)";
+  }
+  os << "; worst field energy beyond the limit " << worst_aliased_fraction()
+     << "; worst energy outside the N x N window " << worst_energy_outside() << ".";
+  if (any_inaccurate()) os << " INACCURATE: increase padding_px, reduce sensor_distance_m or pitch_m.";
+  return os.str();
+}
+
+void SamplingReport::enforce() const {
+  for (const auto& b : bands) {
+    if (b.undersampled && b.aliased_energy_fraction > kAliasTolerance) {
+      std::ostringstream os;
+      os << "strict_sampling: at " << b.wavelength_nm << " nm the transfer function is under-sampled beyond |f| = "
+         << b.f_limit_per_m << " 1/m (grid Nyquist " << b.f_nyquist_per_m << " 1/m) and "
+         << b.aliased_energy_fraction << " of the field energy lies there (allowed " << kAliasTolerance
+         << "); increase padding_px or reduce sensor_distance_m";
+      throw AccuracyError(os.str());
+    }
+  }
+}
+
+AreaWeights AreaWeights::make(std::size_t n, double pitch_in_m, std::size_t s, double pitch_out_m) {
+  if (!(pitch_out_m > 0) || !(pitch_in_m > 0)) reject("sensor_pitch_m", pitch_out_m, "> 0");
+  AreaWeights a;
+  a.n = n;
+  a.s = s;
+  a.taps = static_cast<std::size_t>(std::ceil(pitch_out_m / pitch_in_m)) + 1;
+  a.start.assign(s, 0);
+  a.w.assign(s * a.taps, 0.0);
+  for (std::size_t o = 0; o < s; ++o) {
+    // Output pixel edges in units of input cells, measured from input cell 0's left edge.
+    const double lo = ((double(o) - double(s / 2) - 0.5) * pitch_out_m) / pitch_in_m + double(n / 2) + 0.5;
+    const double hi = lo + pitch_out_m / pitch_in_m;
+    const long first = static_cast<long>(std::floor(lo));
+    a.start[o] = static_cast<int>(first);
+    for (std::size_t t = 0; t < a.taps; ++t) {
+      const long i = first + static_cast<long>(t);
+      if (i < 0 || i >= static_cast<long>(n)) continue;
+      const double ov = std::min(hi, double(i + 1)) - std::max(lo, double(i));
+      if (ov > 0) a.w[o * a.taps + t] = ov;
+    }
+  }
+  return a;
+}
+
+std::vector<std::string> builtin_cameras() { return {"FLIR_GS3-U3-41S4C"}; }
+
+Eigen::MatrixXd sensor_response(const SystemConfig& cfg) {
+  CsvTable t;
+  std::string origin = cfg.camera;
+  if (cfg.camera == "FLIR_GS3-U3-41S4C") {
+    t = parse_csv(embedded_file("srf_FLIR_GS3-U3-41S4C.csv"), "built-in camera FLIR_GS3-U3-41S4C");
+  } else if (cfg.camera.find('/') != std::string::npos || cfg.camera.find(".csv") != std::string::npos) {
+    t = read_csv(cfg.camera);
+  } else {
+    std::string names;
+    for (const auto& c : builtin_cameras()) names += c + " ";
+    reject("camera", cfg.camera, "a built-in camera (" + names + ") or the path of a CSV file with columns wavelength_nm,R,G,B");
+  }
+  const auto& wl = t.column("wavelength_nm");
+  const std::vector<const std::vector<double>*> ch = {&t.column("R"), &t.column("G"), &t.column("B")};
+  const auto bands = cfg.wavelengths_nm();
+  Eigen::MatrixXd s(3, static_cast<Eigen::Index>(bands.size()));
+  for (std::size_t b = 0; b < bands.size(); ++b) {
+    const double w = bands[b];
+    std::size_t exact = wl.size();
+    for (std::size_t r = 0; r < wl.size(); ++r)
+      if (std::fabs(wl[r] - w) < 1e-6) exact = r;
+    for (int c = 0; c < 3; ++c) {
+      double v = 0;
+      if (exact < wl.size()) {
+        v = (*ch[c])[exact];
+      } else if (cfg.srf_interpolate) {
+        std::size_t r = 1;
+        while (r < wl.size() && wl[r] < w) ++r;
+        if (wl.empty() || w < wl.front() || w > wl.back() || r >= wl.size())
+          reject("camera", origin, "a response covering " + to_str(w) + " nm (the table spans " +
+                                       to_str(wl.empty() ? 0 : wl.front()) + " to " + to_str(wl.empty() ? 0 : wl.back()) + " nm)");
+        const double f = (w - wl[r - 1]) / (wl[r] - wl[r - 1]);
+        v = (1 - f) * (*ch[c])[r - 1] + f * (*ch[c])[r];
+      } else {
+        reject("camera", origin, "a response sampled at every band of the configuration; it has no sample at " +
+                                     to_str(w) + " nm (set srf_interpolate to allow linear interpolation)");
+      }
+      if (!std::isfinite(v) || v < 0) reject("camera", origin, "finite non-negative responses (at " + to_str(w) + " nm)");
+      s(c, static_cast<Eigen::Index>(b)) = v;
+    }
+  }
+  for (int c = 0; c < 3; ++c) {
+    const double sum = s.row(c).sum();
+    if (!(sum > 0)) reject("camera", origin, "a response with a positive sum in every channel over the bands");
+    s.row(c) /= sum;
+  }
+  return s;
+}
+
+std::vector<double> delta_n_per_band(const SystemConfig& cfg) {
+  const Material& m = material_by_name(cfg.material);
+  std::vector<double> out;
+  for (double w : cfg.wavelengths_nm()) out.push_back(m.index(w, "wavelengths") - 1.0);
+  return out;
+}
+
+std::vector<double> wavenumber_per_band(const SystemConfig& cfg) {
+  std::vector<double> out;
+  for (double w : cfg.wavelengths_nm()) out.push_back(2.0 * M_PI / (w * 1e-9));
+  return out;
+}
+
+}  // namespace qdo

@@ -1,0 +1,292 @@
+#include "qdo/runtime.hpp"
+
+#include <algorithm>
+#include <cctype>
+#include <chrono>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <unistd.h>
+
+#include "qdo/embedded.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fft.hpp"
+
+namespace qdo {
+namespace {
+
+std::string lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+std::uint64_t fnv1a(const std::string& s, std::uint64_t h = 1469598103934665603ull) {
+  for (unsigned char c : s) {
+    h ^= c;
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+std::string device_type_name(cl_device_type t) {
+  if (t & CL_DEVICE_TYPE_GPU) return "GPU";
+  if (t & CL_DEVICE_TYPE_CPU) return "CPU";
+  if (t & CL_DEVICE_TYPE_ACCELERATOR) return "accelerator";
+  return "other";
+}
+
+std::vector<cl::Platform> platforms() {
+  std::vector<cl::Platform> ps;
+  try {
+    cl::Platform::get(&ps);
+  } catch (const cl::Error& e) {
+    if (e.err() != CL_PLATFORM_NOT_FOUND_KHR) throw DeviceError(std::string("OpenCL: ") + e.what() + " " + cl_error_name(e.err()));
+  }
+  if (ps.empty())
+    throw DeviceError(
+        "no OpenCL platform found: install an OpenCL driver (on Debian: pocl-opencl-icd for CPUs; "
+        "scripts/install-deps.sh does this) and check /etc/OpenCL/vendors");
+  return ps;
+}
+
+DeviceInfo describe(const cl::Platform& p, const cl::Device& d, std::size_t pi, std::size_t di) {
+  DeviceInfo i;
+  i.platform_index = pi;
+  i.device_index = di;
+  i.platform = p.getInfo<CL_PLATFORM_NAME>();
+  i.name = d.getInfo<CL_DEVICE_NAME>();
+  i.type = device_type_name(d.getInfo<CL_DEVICE_TYPE>());
+  i.driver_version = d.getInfo<CL_DRIVER_VERSION>();
+  i.version = d.getInfo<CL_DEVICE_VERSION>();
+  i.fp64 = d.getInfo<CL_DEVICE_EXTENSIONS>().find("cl_khr_fp64") != std::string::npos ||
+           d.getInfo<CL_DEVICE_DOUBLE_FP_CONFIG>() != 0;
+  i.global_mem_bytes = static_cast<std::size_t>(d.getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>());
+  i.max_alloc_bytes = static_cast<std::size_t>(d.getInfo<CL_DEVICE_MAX_MEM_ALLOC_SIZE>());
+  i.compute_units = d.getInfo<CL_DEVICE_MAX_COMPUTE_UNITS>();
+  // Strip the NUL terminators some drivers leave in strings.
+  for (std::string* s : {&i.platform, &i.name, &i.driver_version, &i.version})
+    s->erase(std::find(s->begin(), s->end(), '\0'), s->end());
+  return i;
+}
+
+std::filesystem::path cache_dir() {
+  if (const char* off = std::getenv("QDO_KERNEL_CACHE"); off && lower(off) == "off") return {};
+  if (const char* d = std::getenv("QDO_CACHE_DIR"); d && *d) return std::filesystem::path(d);
+  if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return std::filesystem::path(x) / "qdo" / "kernels";
+  if (const char* h = std::getenv("HOME"); h && *h) return std::filesystem::path(h) / ".cache" / "qdo" / "kernels";
+  return {};
+}
+
+}  // namespace
+
+std::string cl_error_name(int code) {
+  switch (code) {
+#define QDO_CL_ERR(x) \
+  case x:             \
+    return std::string(#x) + " (" + std::to_string(code) + ")";
+    QDO_CL_ERR(CL_DEVICE_NOT_FOUND)
+    QDO_CL_ERR(CL_DEVICE_NOT_AVAILABLE)
+    QDO_CL_ERR(CL_MEM_OBJECT_ALLOCATION_FAILURE)
+    QDO_CL_ERR(CL_OUT_OF_RESOURCES)
+    QDO_CL_ERR(CL_OUT_OF_HOST_MEMORY)
+    QDO_CL_ERR(CL_BUILD_PROGRAM_FAILURE)
+    QDO_CL_ERR(CL_INVALID_VALUE)
+    QDO_CL_ERR(CL_INVALID_BUFFER_SIZE)
+    QDO_CL_ERR(CL_INVALID_KERNEL_ARGS)
+    QDO_CL_ERR(CL_INVALID_WORK_GROUP_SIZE)
+    QDO_CL_ERR(CL_INVALID_GLOBAL_WORK_SIZE)
+    QDO_CL_ERR(CL_INVALID_ARG_SIZE)
+    QDO_CL_ERR(CL_INVALID_MEM_OBJECT)
+#undef QDO_CL_ERR
+    default:
+      return "OpenCL error " + std::to_string(code);
+  }
+}
+
+Precision precision_from_string(const std::string& s) {
+  if (s == "f32" || s == "float" || s == "float32") return Precision::F32;
+  if (s == "f64" || s == "double" || s == "float64") return Precision::F64;
+  reject("precision", s, "f32 or f64");
+}
+
+std::string to_string(Precision p) { return p == Precision::F64 ? "f64" : "f32"; }
+
+std::vector<DeviceInfo> list_devices() {
+  std::vector<DeviceInfo> out;
+  const auto ps = platforms();
+  for (std::size_t pi = 0; pi < ps.size(); ++pi) {
+    std::vector<cl::Device> ds;
+    try {
+      ps[pi].getDevices(CL_DEVICE_TYPE_ALL, &ds);
+    } catch (const cl::Error&) {
+      continue;  // a platform with no devices
+    }
+    for (std::size_t di = 0; di < ds.size(); ++di) out.push_back(describe(ps[pi], ds[di], pi, di));
+  }
+  return out;
+}
+
+Runtime::Runtime(const std::string& selector) {
+  ensure_fft_library();
+  std::string sel = selector;
+  if (sel.empty())
+    if (const char* e = std::getenv("QDO_DEVICE")) sel = e;
+  const auto ps = platforms();
+  struct Cand {
+    cl::Platform p;
+    cl::Device d;
+    DeviceInfo info;
+  };
+  std::vector<Cand> all;
+  for (std::size_t pi = 0; pi < ps.size(); ++pi) {
+    std::vector<cl::Device> ds;
+    try {
+      ps[pi].getDevices(CL_DEVICE_TYPE_ALL, &ds);
+    } catch (const cl::Error&) {
+      continue;
+    }
+    for (std::size_t di = 0; di < ds.size(); ++di) all.push_back({ps[pi], ds[di], describe(ps[pi], ds[di], pi, di)});
+  }
+  if (all.empty()) throw DeviceError("no OpenCL device found on any platform");
+  const Cand* pick = nullptr;
+  const std::string ls = lower(sel);
+  if (ls.empty()) {
+    for (const auto& c : all)
+      if (!pick && c.info.type == "GPU") pick = &c;
+    for (const auto& c : all)
+      if (!pick && c.info.type == "CPU") pick = &c;
+    if (!pick) pick = &all.front();
+  } else if (ls == "gpu" || ls == "cpu") {
+    for (const auto& c : all)
+      if (!pick && lower(c.info.type) == ls) pick = &c;
+  } else if (ls.find(':') != std::string::npos && std::isdigit(static_cast<unsigned char>(ls[0]))) {
+    std::size_t pi = 0, di = 0;
+    char colon = 0;
+    std::istringstream is(ls);
+    is >> pi >> colon >> di;
+    for (const auto& c : all)
+      if (!pick && c.info.platform_index == pi && c.info.device_index == di) pick = &c;
+  } else {
+    for (const auto& c : all)
+      if (!pick && lower(c.info.platform + " / " + c.info.name).find(ls) != std::string::npos) pick = &c;
+  }
+  if (!pick) {
+    std::string names;
+    for (const auto& c : all)
+      names += "\n  " + std::to_string(c.info.platform_index) + ":" + std::to_string(c.info.device_index) + "  " +
+               c.info.platform + " / " + c.info.name + " (" + c.info.type + ")";
+    reject("device", sel, "gpu, cpu, P:D or a substring of a device name; devices here:" + names);
+  }
+  device_ = pick->d;
+  info_ = pick->info;
+  context_ = cl::Context(device_);
+  queue_ = cl::CommandQueue(context_, device_);
+}
+
+Runtime::~Runtime() {
+  ffts_.clear();  // plans before the context goes
+}
+
+void Runtime::require(Precision p) const {
+  if (p == Precision::F64 && !info_.fp64)
+    throw DeviceError("device '" + info_.name + "' (" + info_.platform +
+                      ") has no double precision (cl_khr_fp64); use --precision f32 or another device");
+}
+
+cl::Program& Runtime::program(const std::string& label, const std::string& source, const std::string& options) {
+  const std::string key = label + "|" + options + "|" + std::to_string(fnv1a(source));
+  auto it = programs_.find(key);
+  if (it != programs_.end()) return it->second;
+
+  const std::uint64_t h = fnv1a(source, fnv1a(options + "|" + info_.platform + "|" + info_.name + "|" +
+                                               info_.driver_version + "|" + info_.version));
+  char hex[17];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(h));
+  const auto dir = cache_dir();
+  const auto path = dir.empty() ? std::filesystem::path() : dir / (std::string(hex) + ".bin");
+
+  const auto t0 = std::chrono::steady_clock::now();
+  cl::Program prog;
+  bool from_disk = false;
+  if (!path.empty() && std::filesystem::exists(path)) {
+    std::ifstream in(path, std::ios::binary);
+    std::vector<unsigned char> bin((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    try {
+      cl::Program::Binaries bins{bin};
+      prog = cl::Program(context_, {device_}, bins);
+      prog.build({device_}, options.c_str());
+      from_disk = true;
+    } catch (const cl::Error&) {
+      from_disk = false;  // stale or foreign binary: rebuild from source below
+    }
+  }
+  if (!from_disk) {
+    prog = cl::Program(context_, source);
+    try {
+      prog.build({device_}, options.c_str());
+    } catch (const cl::Error&) {
+      const std::string log = prog.getBuildInfo<CL_PROGRAM_BUILD_LOG>(device_);
+      throw DeviceError("kernel build of " + label + " failed on device '" + info_.name + "' (" +
+                        info_.platform + ", driver " + info_.driver_version + ") with options '" + options +
+                        "'. Build log:\n" + log);
+    }
+    ++built_;
+    if (!path.empty()) {
+      try {
+        auto bins = prog.getInfo<CL_PROGRAM_BINARIES>();
+        if (!bins.empty() && !bins[0].empty()) {
+          std::filesystem::create_directories(dir);
+          const auto tmp = path.string() + ".tmp-" + std::to_string(::getpid());
+          {
+            std::ofstream out(tmp, std::ios::binary);
+            out.write(reinterpret_cast<const char*>(bins[0].data()), static_cast<std::streamsize>(bins[0].size()));
+            if (!out) throw std::runtime_error("write failed");
+          }
+          std::filesystem::rename(tmp, path);
+        }
+      } catch (const std::exception&) {
+        // The disk cache is an optimisation only; an unwritable cache directory is not an error.
+      }
+    }
+  } else {
+    ++loaded_;
+  }
+  build_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return programs_.emplace(key, std::move(prog)).first->second;
+}
+
+cl::Kernel Runtime::kernel(const std::string& file, const std::string& name, Precision p, const std::string& options) {
+  return kernel_from_source("kernels/" + file, embedded_file(file), name, p, options);
+}
+
+cl::Kernel Runtime::kernel_from_source(const std::string& label, const std::string& source, const std::string& name,
+                                       Precision p, const std::string& options) {
+  require(p);
+  std::string opts = (p == Precision::F64 ? "-DQDO_FP64=1" : "-DQDO_FP64=0");
+  opts += " -cl-std=CL1.2";
+  if (!options.empty()) opts += " " + options;
+  try {
+    return cl::Kernel(program(label, embedded_file("common.cl") + "\n" + source, opts), name.c_str());
+  } catch (const cl::Error& e) {
+    throw DeviceError("kernel '" + name + "' in " + label + ": " + e.what() + " " + cl_error_name(e.err()));
+  }
+}
+
+FftPlan& Runtime::fft(std::size_t rows, std::size_t cols, std::size_t batch, Precision p) {
+  require(p);
+  const std::string key = std::to_string(rows) + "x" + std::to_string(cols) + "x" + std::to_string(batch) + to_string(p);
+  auto it = ffts_.find(key);
+  if (it == ffts_.end()) it = ffts_.emplace(key, std::make_unique<FftPlan>(*this, rows, cols, batch, p)).first;
+  return *it->second;
+}
+
+double Runtime::fft_bake_seconds() const {
+  double s = 0;
+  for (const auto& kv : ffts_) s += kv.second->bake_seconds();
+  return s;
+}
+
+}  // namespace qdo

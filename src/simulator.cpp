@@ -1,0 +1,455 @@
+#include "qdo/simulator.hpp"
+
+#include <cmath>
+
+#include "qdo/error.hpp"
+#include "qdo/fft.hpp"
+
+namespace qdo {
+
+Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p) : rt_(rt), cfg_(cfg), prec_(p) {
+  cfg_.validate();
+  rt_.require(p);
+  rsz_ = real_size(p);
+  geom_ = PropagationGeometry::from_config(cfg_);
+  s_ = cfg_.sensor_size_px();
+  wavelengths_nm_ = cfg_.wavelengths_nm();
+  srf_ = sensor_response(cfg_);
+  weights_ = AreaWeights::make(cfg_.n, cfg_.pitch_m, s_, cfg_.sensor_pitch_m);
+
+  const std::size_t bands = cfg_.bands, m = geom_.m;
+  const std::size_t field_bytes = bands * m * m * 2 * rsz_;
+  if (field_bytes > rt_.info().max_alloc_bytes)
+    reject("n", cfg_.n,
+           "a size whose padded field (" + to_str(bands) + " bands x " + to_str(m) + " x " + to_str(m) + " complex " +
+               to_string(p) + " = " + to_str(double(field_bytes) / 1048576.0) + " MiB) fits the device's largest allocation (" +
+               to_str(double(rt_.info().max_alloc_bytes) / 1048576.0) + " MiB); reduce n, padding_px or bands");
+
+  const std::string opts;
+  k_field_ = rt_.kernel("field.cl", "doe_field", p);
+  k_tf_ = rt_.kernel("propagate.cl", cfg_.propagator == Propagator::Fresnel ? "tf_separable" : "tf_table", p);
+  k_energy_ = rt_.kernel("propagate.cl", "spectrum_energy", p);
+  k_crop_ = rt_.kernel("psf.cl", "intensity_crop", p);
+  k_sums_ = rt_.kernel("psf.cl", "band_sums", p);
+  k_energy_sums_ = rt_.kernel("psf.cl", "band_energy", p);
+  k_finalize_ = rt_.kernel("psf.cl", "finalize_sums", p);
+  k_scale_ = rt_.kernel("psf.cl", "scale_by_sums", p);
+  k_resample_ = rt_.kernel("psf.cl", "resample_area", p);
+  k_place_scene_ = rt_.kernel("conv.cl", "place_scene", p);
+  k_place_psf_ = rt_.kernel("conv.cl", "place_psf", p);
+  k_cmul_ = rt_.kernel("conv.cl", "cmul_inplace", p);
+  k_crop_real_ = rt_.kernel("conv.cl", "crop_real", p);
+  k_sensor_ = rt_.kernel("sensor.cl", "sensor_integrate", p);
+
+  k_ = upload_real(wavenumber_per_band(cfg_));
+  dn_ = upload_real(delta_n_per_band(cfg_));
+  std::vector<int> klim(bands);
+  for (std::size_t b = 0; b < bands; ++b) {
+    const double f = transfer_function_limit_per_m(cfg_.propagator, wavelengths_nm_[b], cfg_.sensor_distance_m, m, cfg_.pitch_m);
+    klim[b] = std::isfinite(f) ? static_cast<int>(std::min(double(m), std::floor(f * double(m) * cfg_.pitch_m))) : int(m);
+  }
+  klim_ = upload(klim);
+  tf_ = make_tf(cfg_.sensor_distance_m);
+  wstart_ = upload(weights_.start);
+  wts_ = upload_real(weights_.w);
+  std::vector<double> srf(srf_.size());
+  for (Eigen::Index c = 0; c < 3; ++c)
+    for (Eigen::Index b = 0; b < srf_.cols(); ++b) srf[static_cast<std::size_t>(c * srf_.cols() + b)] = srf_(c, b);
+  srf_buf_ = upload_real(srf);
+
+  const auto& ctx = rt_.context();
+  heights_ = cl::Buffer(ctx, CL_MEM_READ_ONLY, cfg_.n * cfg_.n * rsz_);
+  field_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, field_bytes);
+  psf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * cfg_.n * cfg_.n * rsz_);
+  psf_s_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * s_ * s_ * rsz_);
+  partial_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * kGroupsPerBand * 2 * rsz_);
+  sums_total_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
+  sums_crop_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
+  sums_sensor_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
+  rt_.fft(m, m, bands, p);  // bake the plan now, so its cost is not charged to the first PSF
+}
+
+template <typename T>
+cl::Buffer Simulator::upload(const std::vector<T>& host, cl_mem_flags flags) const {
+  std::vector<T> copy(host.empty() ? std::vector<T>(1) : host);
+  return cl::Buffer(rt_.context(), flags | CL_MEM_COPY_HOST_PTR, copy.size() * sizeof(T), copy.data());
+}
+
+cl::Buffer Simulator::upload_real(const std::vector<double>& host) const {
+  if (prec_ == Precision::F64) return upload(host);
+  return upload(std::vector<float>(host.begin(), host.end()));
+}
+
+cl::Buffer Simulator::upload_complex(const std::vector<cdouble>& host) const {
+  std::vector<double> flat(host.size() * 2);
+  for (std::size_t i = 0; i < host.size(); ++i) {
+    flat[2 * i] = host[i].real();
+    flat[2 * i + 1] = host[i].imag();
+  }
+  return upload_real(flat);
+}
+
+std::vector<double> Simulator::download_real(const cl::Buffer& b, std::size_t count) const {
+  std::vector<double> out(count);
+  auto& q = const_cast<Runtime&>(rt_).queue();
+  if (prec_ == Precision::F64) {
+    q.enqueueReadBuffer(b, CL_TRUE, 0, count * 8, out.data());
+  } else {
+    std::vector<float> f(count);
+    q.enqueueReadBuffer(b, CL_TRUE, 0, count * 4, f.data());
+    std::copy(f.begin(), f.end(), out.begin());
+  }
+  return out;
+}
+
+std::vector<cdouble> Simulator::download_complex(const cl::Buffer& b, std::size_t count) const {
+  const auto flat = download_real(b, count * 2);
+  std::vector<cdouble> out(count);
+  for (std::size_t i = 0; i < count; ++i) out[i] = cdouble(flat[2 * i], flat[2 * i + 1]);
+  return out;
+}
+
+void Simulator::enqueue_1d(cl::Kernel& k, std::size_t n) {
+  rt_.queue().enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(Runtime::global_for(n)), cl::NDRange(Runtime::kLocalSize));
+}
+
+// Transfer function over z_m: Fresnel as the separable bands x M table t[b][k] =
+// exp(-iπ λ_b z f_k²); angular spectrum as the full bands x M x M table (zero beyond the
+// band limit). Both computed in double on the host, then converted to the device precision.
+cl::Buffer Simulator::make_tf(double z_m) const {
+  const std::size_t m = geom_.m, bands = cfg_.bands;
+  std::vector<cdouble> t;
+  if (cfg_.propagator == Propagator::Fresnel) {
+    t.resize(bands * m);
+    for (std::size_t b = 0; b < bands; ++b)
+      for (std::size_t k = 0; k < m; ++k) {
+        const double f = fft_frequency(k, m, cfg_.pitch_m);
+        t[b * m + k] = std::polar(1.0, -M_PI * wavelengths_nm_[b] * 1e-9 * z_m * f * f);
+      }
+  } else {
+    t.assign(bands * m * m, cdouble(0, 0));
+    for (std::size_t b = 0; b < bands; ++b) {
+      const double lambda = wavelengths_nm_[b] * 1e-9, inv_l = 1.0 / lambda;
+      const double flim = transfer_function_limit_per_m(Propagator::AngularSpectrum, wavelengths_nm_[b], z_m, m, cfg_.pitch_m);
+      for (std::size_t ky = 0; ky < m; ++ky) {
+        const double fy = fft_frequency(ky, m, cfg_.pitch_m);
+        for (std::size_t kx = 0; kx < m; ++kx) {
+          const double fx = fft_frequency(kx, m, cfg_.pitch_m);
+          const double f2 = fx * fx + fy * fy;
+          if (std::fabs(fx) > flim || std::fabs(fy) > flim || f2 * lambda * lambda >= 1.0) continue;
+          t[(b * m + ky) * m + kx] = std::polar(1.0, -2.0 * M_PI * z_m * f2 / (std::sqrt(inv_l * inv_l - f2) + inv_l));
+        }
+      }
+    }
+  }
+  return upload_complex(t);
+}
+
+void Simulator::set_heights(const Map2D& height_m) {
+  if (height_m.rows != cfg_.n || height_m.cols != cfg_.n)
+    reject("height_m", to_str(height_m.rows) + " x " + to_str(height_m.cols), "a square N x N map with N = " + to_str(cfg_.n));
+  const double hmax = cfg_.h_max_m();
+  for (std::size_t i = 0; i < height_m.data.size(); ++i) {
+    const double h = height_m.data[i];
+    if (!std::isfinite(h) || h < 0 || h > 2 * hmax)
+      reject("height_m[" + to_str(i / cfg_.n) + "][" + to_str(i % cfg_.n) + "]", h,
+             "finite heights in [0, 2 h_max] = [0, " + to_str(2 * hmax) + "] m");
+  }
+  if (prec_ == Precision::F64) {
+    rt_.queue().enqueueWriteBuffer(heights_, CL_TRUE, 0, height_m.data.size() * 8, height_m.data.data());
+  } else {
+    const std::vector<float> f(height_m.data.begin(), height_m.data.end());
+    rt_.queue().enqueueWriteBuffer(heights_, CL_TRUE, 0, f.size() * 4, f.data());
+  }
+  heights_set_ = true;
+  psf_valid_ = otf_valid_ = false;
+}
+
+void Simulator::run_doe_field() {
+  if (!heights_set_) throw Error("Simulator: set_heights() must be called before computing fields or PSFs");
+  const std::size_t m = geom_.m;
+  const double r = cfg_.aperture_radius();
+  const double d = cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m;
+  auto& k = k_field_;
+  k.setArg(0, heights_);
+  k.setArg(1, k_);
+  k.setArg(2, dn_);
+  k.setArg(3, field_);
+  k.setArg(4, int(cfg_.n));
+  k.setArg(5, int(m));
+  k.setArg(6, int(geom_.offset));
+  k.setArg(7, int(cfg_.bands));
+  if (prec_ == Precision::F64) {
+    k.setArg(8, cfg_.pitch_m);
+    k.setArg(9, d);
+    k.setArg(10, r * r);
+  } else {
+    k.setArg(8, float(cfg_.pitch_m));
+    k.setArg(9, float(d));
+    k.setArg(10, float(r * r));
+  }
+  enqueue_1d(k, cfg_.bands * m * m);
+}
+
+void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampling) {
+  const std::size_t m = geom_.m, bands = cfg_.bands;
+  FftPlan& fft = rt_.fft(m, m, bands, prec_);
+  fft.forward(field);
+  if (record_sampling) {
+    k_energy_.setArg(0, field);
+    k_energy_.setArg(1, klim_);
+    k_energy_.setArg(2, partial_);
+    k_energy_.setArg(3, int(m));
+    k_energy_.setArg(4, int(kGroupsPerBand));
+    k_energy_.setArg(5, cl::Local(2 * Runtime::kLocalSize * rsz_));
+    rt_.queue().enqueueNDRangeKernel(k_energy_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
+                                     cl::NDRange(Runtime::kLocalSize, 1));
+    const auto part = download_real(partial_, bands * kGroupsPerBand * 2);
+    sampling_.bands.assign(bands, BandSampling{});
+    for (std::size_t b = 0; b < bands; ++b) {
+      double tot = 0, beyond = 0;
+      for (std::size_t g = 0; g < kGroupsPerBand; ++g) {
+        tot += part[(b * kGroupsPerBand + g) * 2];
+        beyond += part[(b * kGroupsPerBand + g) * 2 + 1];
+      }
+      BandSampling& s = sampling_.bands[b];
+      s.wavelength_nm = wavelengths_nm_[b];
+      s.f_limit_per_m = transfer_function_limit_per_m(cfg_.propagator, wavelengths_nm_[b], z_m, m, cfg_.pitch_m);
+      s.f_nyquist_per_m = 0.5 / cfg_.pitch_m;
+      s.undersampled = s.f_limit_per_m < s.f_nyquist_per_m;
+      s.aliased_energy_fraction = tot > 0 ? beyond / tot : 0.0;
+    }
+  }
+  cl::Buffer tf = (z_m == cfg_.sensor_distance_m) ? tf_ : make_tf(z_m);
+  k_tf_.setArg(0, field);
+  k_tf_.setArg(1, tf);
+  if (cfg_.propagator == Propagator::Fresnel) {
+    k_tf_.setArg(2, int(m));
+    k_tf_.setArg(3, int(bands));
+  } else {
+    k_tf_.setArg(2, int(bands * m * m));
+  }
+  enqueue_1d(k_tf_, bands * m * m);
+  fft.inverse(field);
+}
+
+void Simulator::band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len, cl::Buffer& sums) {
+  const std::size_t bands = cfg_.bands;
+  k.setArg(0, x);
+  k.setArg(1, int(len));
+  k.setArg(2, partial_);
+  k.setArg(3, int(kGroupsPerBand));
+  k.setArg(4, cl::Local(Runtime::kLocalSize * rsz_));
+  rt_.queue().enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
+                                   cl::NDRange(Runtime::kLocalSize, 1));
+  k_finalize_.setArg(0, partial_);
+  k_finalize_.setArg(1, sums);
+  k_finalize_.setArg(2, int(kGroupsPerBand));
+  k_finalize_.setArg(3, int(bands));
+  enqueue_1d(k_finalize_, bands);
+}
+
+void Simulator::compute_psf() {
+  const std::size_t n = cfg_.n, m = geom_.m, bands = cfg_.bands;
+  run_doe_field();
+  run_propagation(field_, cfg_.sensor_distance_m, true);
+  band_reduce(k_energy_sums_, field_, m * m, sums_total_);
+  k_crop_.setArg(0, field_);
+  k_crop_.setArg(1, psf_);
+  k_crop_.setArg(2, int(n));
+  k_crop_.setArg(3, int(m));
+  k_crop_.setArg(4, int(geom_.offset));
+  k_crop_.setArg(5, int(bands));
+  enqueue_1d(k_crop_, bands * n * n);
+  band_reduce(k_sums_, psf_, n * n, sums_crop_);
+  k_scale_.setArg(0, psf_);
+  k_scale_.setArg(1, sums_crop_);
+  k_scale_.setArg(2, int(n * n));
+  k_scale_.setArg(3, int(bands));
+  enqueue_1d(k_scale_, bands * n * n);
+  k_resample_.setArg(0, psf_);
+  k_resample_.setArg(1, psf_s_);
+  k_resample_.setArg(2, wstart_);
+  k_resample_.setArg(3, wts_);
+  k_resample_.setArg(4, int(n));
+  k_resample_.setArg(5, int(s_));
+  k_resample_.setArg(6, int(weights_.taps));
+  k_resample_.setArg(7, int(bands));
+  enqueue_1d(k_resample_, bands * s_ * s_);
+  band_reduce(k_sums_, psf_s_, s_ * s_, sums_sensor_);
+  k_scale_.setArg(0, psf_s_);
+  k_scale_.setArg(1, sums_sensor_);
+  k_scale_.setArg(2, int(s_ * s_));
+  k_scale_.setArg(3, int(bands));
+  enqueue_1d(k_scale_, bands * s_ * s_);
+  const auto tot = download_real(sums_total_, bands);
+  const auto crop = download_real(sums_crop_, bands);
+  for (std::size_t b = 0; b < bands; ++b)
+    sampling_.bands[b].energy_outside_window = tot[b] > 0 ? std::max(0.0, 1.0 - crop[b] / tot[b]) : 0.0;
+  psf_valid_ = true;
+  otf_valid_ = false;
+  if (cfg_.strict_sampling) sampling_.enforce();
+}
+
+RealStack Simulator::psf_native() const {
+  if (!psf_valid_) throw Error("Simulator: compute_psf() has not run for the current heights");
+  RealStack out(cfg_.bands, cfg_.n, cfg_.n);
+  out.data = download_real(psf_, out.size());
+  return out;
+}
+
+RealStack Simulator::psf_sensor() const {
+  if (!psf_valid_) throw Error("Simulator: compute_psf() has not run for the current heights");
+  RealStack out(cfg_.bands, s_, s_);
+  out.data = download_real(psf_s_, out.size());
+  return out;
+}
+
+ComplexStack Simulator::debug_field_after_doe() {
+  run_doe_field();
+  ComplexStack out(cfg_.bands, geom_.m, geom_.m);
+  out.data = download_complex(field_, out.size());
+  return out;
+}
+
+ComplexStack Simulator::debug_field_after_propagation() {
+  run_doe_field();
+  run_propagation(field_, cfg_.sensor_distance_m, true);
+  ComplexStack out(cfg_.bands, geom_.m, geom_.m);
+  out.data = download_complex(field_, out.size());
+  return out;
+}
+
+ComplexStack Simulator::propagate_field(const ComplexStack& field, double z_m) {
+  if (field.planes != cfg_.bands || field.rows != geom_.m || field.cols != geom_.m)
+    reject("field", to_str(field.planes) + " x " + to_str(field.rows) + " x " + to_str(field.cols),
+           "bands x M x M = " + to_str(cfg_.bands) + " x " + to_str(geom_.m) + " x " + to_str(geom_.m));
+  cl::Buffer buf = upload_complex(field.data);
+  cl::Buffer rw(rt_.context(), CL_MEM_READ_WRITE, field.size() * 2 * rsz_);
+  rt_.queue().enqueueCopyBuffer(buf, rw, 0, 0, field.size() * 2 * rsz_);
+  run_propagation(rw, z_m, false);
+  ComplexStack out(field.planes, field.rows, field.cols);
+  out.data = download_complex(rw, out.size());
+  return out;
+}
+
+void Simulator::ensure_conv(std::size_t h, std::size_t w) {
+  if (h == ch_ && w == cw_ && otf_()) return;
+  if (h < 1 || w < 1) reject("cube", to_str(h) + " x " + to_str(w), "at least 1 x 1 pixels");
+  std::size_t py = h, px = w;
+  if (cfg_.convolution == ConvolutionMode::Linear) {
+    py = fast_fft_size(h + s_ - 1);
+    px = fast_fft_size(w + s_ - 1);
+  } else if (fast_fft_size(h) != h || fast_fft_size(w) != w) {
+    reject("cube", to_str(h) + " x " + to_str(w),
+           "sizes made of the factors 2, 3, 5 and 7 in circular convolution mode (the FFT runs on the scene grid)");
+  }
+  const std::size_t bands = cfg_.bands;
+  const auto& ctx = rt_.context();
+  ch_ = h;
+  cw_ = w;
+  py_ = py;
+  px_ = px;
+  otf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * py * px * 2 * rsz_);
+  sbuf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * py * px * 2 * rsz_);
+  cube_ = cl::Buffer(ctx, CL_MEM_READ_ONLY, bands * h * w * rsz_);
+  blurred_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * h * w * rsz_);
+  rgb_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, 3 * h * w * rsz_);
+  otf_valid_ = false;
+}
+
+void Simulator::run_convolution(const RealStack& cube) {
+  if (cube.planes != cfg_.bands)
+    reject("cube bands", cube.planes, "the configuration's band count (" + to_str(cfg_.bands) + ")");
+  if (!psf_valid_) throw Error("Simulator: compute_psf() must run before convolving");
+  ensure_conv(cube.rows, cube.cols);
+  const std::size_t bands = cfg_.bands, pp = py_ * px_;
+  FftPlan& fft = rt_.fft(py_, px_, bands, prec_);
+  if (!otf_valid_) {
+    k_place_psf_.setArg(0, psf_s_);
+    k_place_psf_.setArg(1, otf_);
+    k_place_psf_.setArg(2, int(s_));
+    k_place_psf_.setArg(3, int(py_));
+    k_place_psf_.setArg(4, int(px_));
+    k_place_psf_.setArg(5, int(bands));
+    enqueue_1d(k_place_psf_, bands * pp);
+    fft.forward(otf_);
+    otf_valid_ = true;
+  }
+  if (prec_ == Precision::F64) {
+    rt_.queue().enqueueWriteBuffer(cube_, CL_FALSE, 0, cube.size() * 8, cube.data.data());
+  } else {
+    const std::vector<float> f(cube.data.begin(), cube.data.end());
+    rt_.queue().enqueueWriteBuffer(cube_, CL_TRUE, 0, f.size() * 4, f.data());
+  }
+  k_place_scene_.setArg(0, cube_);
+  k_place_scene_.setArg(1, sbuf_);
+  k_place_scene_.setArg(2, int(ch_));
+  k_place_scene_.setArg(3, int(cw_));
+  k_place_scene_.setArg(4, int(py_));
+  k_place_scene_.setArg(5, int(px_));
+  k_place_scene_.setArg(6, int(bands));
+  enqueue_1d(k_place_scene_, bands * pp);
+  fft.forward(sbuf_);
+  k_cmul_.setArg(0, sbuf_);
+  k_cmul_.setArg(1, otf_);
+  k_cmul_.setArg(2, int(bands * pp));
+  k_cmul_.setArg(3, int(bands * pp));
+  enqueue_1d(k_cmul_, bands * pp);
+  fft.inverse(sbuf_);
+  k_crop_real_.setArg(0, sbuf_);
+  k_crop_real_.setArg(1, blurred_);
+  k_crop_real_.setArg(2, int(ch_));
+  k_crop_real_.setArg(3, int(cw_));
+  k_crop_real_.setArg(4, int(py_));
+  k_crop_real_.setArg(5, int(px_));
+  k_crop_real_.setArg(6, int(bands));
+  enqueue_1d(k_crop_real_, bands * ch_ * cw_);
+}
+
+RealStack Simulator::convolve(const RealStack& cube) {
+  run_convolution(cube);
+  RealStack out(cube.planes, cube.rows, cube.cols);
+  out.data = download_real(blurred_, out.size());
+  return out;
+}
+
+void Simulator::run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw) {
+  k_sensor_.setArg(0, in);
+  k_sensor_.setArg(1, srf_buf_);
+  k_sensor_.setArg(2, out);
+  k_sensor_.setArg(3, int(hw));
+  k_sensor_.setArg(4, int(cfg_.bands));
+  if (prec_ == Precision::F64) {
+    k_sensor_.setArg(5, cfg_.read_noise_sigma);
+    k_sensor_.setArg(6, cfg_.full_well_photons);
+  } else {
+    k_sensor_.setArg(5, float(cfg_.read_noise_sigma));
+    k_sensor_.setArg(6, float(cfg_.full_well_photons));
+  }
+  k_sensor_.setArg(7, cl_uint(cfg_.noise_seed & 0xffffffffull));
+  k_sensor_.setArg(8, cl_uint(cfg_.noise_seed >> 32));
+  enqueue_1d(k_sensor_, 3 * hw);
+}
+
+RealStack Simulator::sensor_image(const RealStack& cube) {
+  run_convolution(cube);
+  run_sensor(blurred_, rgb_, ch_ * cw_);
+  RealStack out(3, ch_, cw_);
+  out.data = download_real(rgb_, out.size());
+  return out;
+}
+
+RealStack Simulator::integrate(const RealStack& cube) {
+  if (cube.planes != cfg_.bands)
+    reject("cube bands", cube.planes, "the configuration's band count (" + to_str(cfg_.bands) + ")");
+  const std::size_t hw = cube.plane_size();
+  const cl::Buffer in = upload_real(cube.data);
+  cl::Buffer out_buf(rt_.context(), CL_MEM_READ_WRITE, 3 * hw * rsz_);
+  run_sensor(in, out_buf, hw);
+  RealStack out(3, cube.rows, cube.cols);
+  out.data = download_real(out_buf, out.size());
+  return out;
+}
+
+}  // namespace qdo

@@ -1,0 +1,93 @@
+// Helpers shared by the test files.
+#pragma once
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <complex>
+#include <filesystem>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/types.hpp"
+
+namespace qdo::test {
+
+// One Runtime for the whole test binary (device from QDO_DEVICE, PoCL in CI).
+inline Runtime& runtime() {
+  static Runtime rt;
+  return rt;
+}
+
+constexpr double kEps32 = 1.1920929e-7;  // float32 unit roundoff x 2 (machine epsilon)
+constexpr double kEps64 = 2.220446e-16;
+
+inline double eps(Precision p) { return p == Precision::F64 ? kEps64 : kEps32; }
+
+// ||a - b|| / ||b|| over all elements, and the index of the worst element (for reports).
+template <typename T>
+struct Diff {
+  double rel_l2 = 0, max_abs = 0;
+  std::size_t worst = 0;
+};
+template <typename T>
+Diff<T> diff(const std::vector<T>& a, const std::vector<T>& b) {
+  Diff<T> d;
+  double num = 0, den = 0;
+  REQUIRE(a.size() == b.size());
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    const double e = std::abs(a[i] - b[i]);
+    num += e * e;
+    den += std::abs(b[i]) * std::abs(b[i]);
+    if (e > d.max_abs) {
+      d.max_abs = e;
+      d.worst = i;
+    }
+  }
+  d.rel_l2 = den > 0 ? std::sqrt(num / den) : std::sqrt(num);
+  return d;
+}
+
+// A small configuration for kernel-vs-reference tests: N x N grid, few bands.
+inline SystemConfig tiny_config(std::size_t n = 32, std::size_t bands = 3) {
+  SystemConfig c = preset_config("small");
+  c.n = n;
+  c.padding_px = n / 4;
+  c.bands = bands;
+  c.wavelength_start_nm = 450;
+  c.wavelength_step_nm = bands > 1 ? 100.0 / double(bands - 1) : 10.0;
+  c.sensor_distance_m = 0.0125 * double(n) / 256.0;
+  c.srf_interpolate = true;
+  c.validate();
+  return c;
+}
+
+inline Map2D random_heights(std::size_t n, double h_max, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, h_max);
+  Map2D h(n, n);
+  for (auto& v : h.data) v = u(rng);
+  return h;
+}
+
+inline RealStack random_cube(std::size_t b, std::size_t h, std::size_t w, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  RealStack c(b, h, w);
+  for (auto& v : c.data) v = u(rng);
+  return c;
+}
+
+inline std::filesystem::path temp_dir(const std::string& tag) {
+  auto p = std::filesystem::temp_directory_path() / ("qdo_test_" + tag + "_" + std::to_string(std::random_device{}()));
+  std::filesystem::create_directories(p);
+  return p;
+}
+
+inline const char* shared_dir() { return QDO_SHARED_DIR; }
+inline bool have_shared() { return std::filesystem::exists(std::string(QDO_SHARED_DIR) + "/data/hsi/cave"); }
+
+}  // namespace qdo::test
