@@ -1,1 +1,367 @@
-int main() { return 0; }
+// qdo command line: devices, config, psf, quantize, simulate, demo.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <map>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/cpu_reference.hpp"
+#include "qdo/doe.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/scenes.hpp"
+#include "qdo/simulator.hpp"
+
+namespace fs = std::filesystem;
+using namespace qdo;
+
+namespace {
+
+const char* kUsage = R"(qdo: quantization-aware deep optics simulator (OpenCL)
+
+usage:
+  qdo devices
+  qdo config   [--preset paper|small] [--config FILE.json]
+  qdo psf      [--preset P | --config FILE] --design lens:NM|flat|FILE.h5 [--levels L --placement inclusive|wrapped]
+               [--precision f32|f64] [--device SEL] --out DIR
+  qdo quantize [--preset P | --config FILE] --design FILE.h5|lens:NM --levels L [--placement ...] --out FILE.h5
+  qdo simulate [--preset P | --config FILE] --design ... [--levels L ...] --scene builtin|CUBE.(h5|mat) [--key K]
+               [--precision ...] [--device ...] --out DIR
+  qdo demo     [--preset small|paper] [--levels L] [--device SEL] [--out DIR]
+
+Device selection: --device, else $QDO_DEVICE, else the first GPU, else the first CPU
+(gpu | cpu | P:D as 'qdo devices' prints | a substring of the device name).
+)";
+
+struct Args {
+  std::map<std::string, std::string> opt;
+  std::string get(const std::string& k, const std::string& def = "") const {
+    auto it = opt.find(k);
+    return it == opt.end() ? def : it->second;
+  }
+  bool has(const std::string& k) const { return opt.count(k) > 0; }
+};
+
+Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, const std::string& cmd) {
+  Args a;
+  for (int i = 2; i < argc; ++i) {
+    std::string s = argv[i];
+    if (s.rfind("--", 0) != 0) reject("argument " + std::to_string(i - 1), s, "options of the form --name VALUE");
+    s = s.substr(2);
+    std::string val;
+    const auto eq = s.find('=');
+    if (eq != std::string::npos) {
+      val = s.substr(eq + 1);
+      s = s.substr(0, eq);
+    } else {
+      if (i + 1 >= argc) reject("--" + s, "(missing)", "a value after the option");
+      val = argv[++i];
+    }
+    if (!allowed.count(s)) {
+      std::string list;
+      for (const auto& k : allowed) list += " --" + k;
+      reject("--" + s, val, "an option of 'qdo " + cmd + "':" + list);
+    }
+    a.opt[s] = val;
+  }
+  return a;
+}
+
+// The configuration from --config or --preset, with the camera response checked too, so every
+// configuration error surfaces before any device work or output.
+SystemConfig load_config(const Args& a) {
+  SystemConfig c;
+  if (a.has("config")) {
+    if (a.has("preset")) reject("--preset", a.get("preset"), "omitted when --config is given (put \"preset\" in the file)");
+    c = config_from_json_file(a.get("config"));
+  } else {
+    c = preset_config(a.get("preset", "small"));
+  }
+  sensor_response(c);
+  return c;
+}
+
+int parse_int(const std::string& name, const std::string& v, int lo, int hi) {
+  char* end = nullptr;
+  const long x = std::strtol(v.c_str(), &end, 10);
+  if (v.empty() || *end || x < lo || x > hi) reject(name, v, "an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
+  return int(x);
+}
+
+// lens:NM, flat, or an HDF5 design file matching the configuration's grid.
+Map2D load_design(const SystemConfig& cfg, const std::string& spec) {
+  if (spec.empty()) reject("--design", "(missing)", "lens:NM (a diffractive lens for NM nanometres), flat, or a design .h5 file");
+  if (spec == "flat") return flat_design(cfg);
+  if (spec.rfind("lens:", 0) == 0) {
+    char* end = nullptr;
+    const double nm = std::strtod(spec.c_str() + 5, &end);
+    if (*end || !(nm > 0)) reject("--design", spec, "lens:NM with NM a wavelength in nm, e.g. lens:550");
+    return lens_design(cfg, nm);
+  }
+  const Design d = read_design(spec);
+  if (d.height_m.rows != cfg.n)
+    reject("--design", spec, "a height map of N x N = " + std::to_string(cfg.n) + " x " + std::to_string(cfg.n) +
+                                 " samples (the file has " + std::to_string(d.height_m.rows) + ")");
+  if (std::fabs(d.pitch_m - cfg.pitch_m) > 1e-6 * cfg.pitch_m)
+    reject("--design", spec, "pitch_m = " + to_str(cfg.pitch_m) + " as configured (the file has " + to_str(d.pitch_m) + ")");
+  return d.height_m;
+}
+
+struct QuantSpec {
+  bool active = false;
+  Quantizer q;
+};
+QuantSpec load_quantizer(const Args& a) {
+  QuantSpec s;
+  if (!a.has("levels")) {
+    if (a.has("placement")) reject("--placement", a.get("placement"), "given together with --levels");
+    return s;
+  }
+  s.active = true;
+  s.q.levels = parse_int("--levels", a.get("levels"), 2, 65536);
+  s.q.placement = placement_from_string(a.get("placement", "inclusive"));
+  s.q.validate();
+  return s;
+}
+
+Map2D design_heights(const SystemConfig& cfg, const Args& a, QuantSpec* qs_out = nullptr) {
+  const QuantSpec qs = load_quantizer(a);
+  Map2D h = load_design(cfg, a.get("design"));
+  if (qs.active) h = quantize_heights(h, cfg.h_max_m(), qs.q);
+  if (qs_out) *qs_out = qs;
+  return h;
+}
+
+std::string out_dir(const Args& a, const std::string& def = "") {
+  const std::string d = a.get("out", def);
+  if (d.empty()) reject("--out", "(missing)", "an output folder");
+  fs::create_directories(d);
+  return d;
+}
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// Runs the PSF chain and writes DIR/psf.h5 + DIR/psf.png + DIR/design.png; returns the simulator.
+void write_psf_outputs(Simulator& sim, const Map2D& h, const std::string& dir, const std::string& tag) {
+  const SystemConfig& cfg = sim.config();
+  const RealStack psf = sim.psf_native(), psf_s = sim.psf_sensor();
+  std::vector<H5Dataset> ds;
+  ds.push_back({"/psf", {psf.planes, psf.rows, psf.cols}, psf.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "fraction of band energy per sample"}}});
+  ds.push_back({"/psf_sensor", {psf_s.planes, psf_s.rows, psf_s.cols}, psf_s.data, {{"pitch_m", cfg.sensor_pitch_m}},
+                {{"units", "fraction of band energy per sensor pixel"}}});
+  ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});
+  std::vector<double> alias, outside;
+  for (const auto& b : sim.sampling().bands) {
+    alias.push_back(b.aliased_energy_fraction);
+    outside.push_back(b.energy_outside_window);
+  }
+  ds.push_back({"/aliased_energy_fraction", {cfg.bands}, alias, {}, {{"units", "fraction"}}});
+  ds.push_back({"/energy_outside_window", {cfg.bands}, outside, {}, {{"units", "fraction"}}});
+  ds.push_back({"/height_m", {h.rows, h.cols}, h.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "m"}}});
+  h5_write(dir + "/psf.h5", ds, {{"config", config_to_json_text(cfg)}, {"design", tag}, {"precision", to_string(sim.precision())}});
+  write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
+  write_map_png(dir + "/design.png", h);
+}
+
+int cmd_devices() {
+  const auto devs = list_devices();
+  for (const auto& d : devs)
+    std::printf("%zu:%zu  %s / %s  [%s]  driver %s  %s  fp64 %s  %u CUs  %.1f GiB\n", d.platform_index, d.device_index,
+                d.platform.c_str(), d.name.c_str(), d.type.c_str(), d.driver_version.c_str(), d.version.c_str(),
+                d.fp64 ? "yes" : "no", d.compute_units, double(d.global_mem_bytes) / 1073741824.0);
+  Runtime rt;
+  std::printf("default: %zu:%zu %s\n", rt.info().platform_index, rt.info().device_index, rt.info().name.c_str());
+  return 0;
+}
+
+int cmd_config(int argc, char** argv) {
+  const Args a = parse_args(argc, argv, {"preset", "config"}, "config");
+  std::cout << config_to_json_text(load_config(a)) << "\n";
+  return 0;
+}
+
+int cmd_psf(int argc, char** argv) {
+  const Args a = parse_args(argc, argv, {"preset", "config", "design", "levels", "placement", "precision", "device", "out"}, "psf");
+  const SystemConfig cfg = load_config(a);
+  const Precision p = precision_from_string(a.get("precision", "f32"));
+  const Map2D h = design_heights(cfg, a);
+  const std::string dir = out_dir(a);
+  Runtime rt(a.get("device"));
+  const auto t0 = std::chrono::steady_clock::now();
+  Simulator sim(rt, cfg, p);
+  const double setup_s = seconds_since(t0);
+  sim.set_heights(h);
+  const auto t1 = std::chrono::steady_clock::now();
+  sim.compute_psf();
+  rt.queue().finish();
+  const double psf_s = seconds_since(t1);
+  write_psf_outputs(sim, h, dir, a.get("design"));
+  std::printf("device: %s (%s)\nPSF stack: %zu bands x %zu x %zu (window %zu), %s, %.3f s (setup %.3f s: kernels %.3f s, FFT plans %.3f s)\n%s\nwrote %s/psf.h5, psf.png, design.png\n",
+              rt.info().name.c_str(), rt.info().platform.c_str(), cfg.bands, cfg.n, cfg.n, sim.geometry().m,
+              to_string(p).c_str(), psf_s, setup_s, rt.build_seconds(), rt.fft_bake_seconds(), sim.sampling().summary().c_str(),
+              dir.c_str());
+  return 0;
+}
+
+int cmd_quantize(int argc, char** argv) {
+  const Args a = parse_args(argc, argv, {"preset", "config", "design", "levels", "placement", "out"}, "quantize");
+  const SystemConfig cfg = load_config(a);
+  if (!a.has("levels")) reject("--levels", "(missing)", "the number of levels L >= 2");
+  const std::string out = a.get("out");
+  if (out.empty()) reject("--out", "(missing)", "an output .h5 file");
+  const Map2D full = load_design(cfg, a.get("design"));
+  const QuantSpec qs = load_quantizer(a);
+  const Map2D hq = quantize_heights(full, cfg.h_max_m(), qs.q);
+  Design d;
+  d.height_m = hq;
+  d.pitch_m = cfg.pitch_m;
+  d.levels_m = qs.q.level_heights_m(cfg.h_max_m());
+  if (fs::path(out).has_parent_path()) fs::create_directories(fs::path(out).parent_path());
+  write_design(out, d, {{"source", a.get("design")}, {"mode", "DO (post-hoc uniform quantization)"},
+                        {"levels", std::to_string(qs.q.levels)}, {"placement", to_string(qs.q.placement)}});
+  std::printf("quantized to %d levels (%s): mean |H_q - H_f| = %.3f nm; levels (nm):", qs.q.levels,
+              to_string(qs.q.placement).c_str(), quantization_deviation_m(hq, full) * 1e9);
+  for (double l : d.levels_m) std::printf(" %.1f", l * 1e9);
+  std::printf("\nwrote %s\n", out.c_str());
+  return 0;
+}
+
+RealStack load_scene(const SystemConfig& cfg, const Args& a) {
+  const std::string s = a.get("scene", "builtin");
+  if (s == "builtin") return builtin_chart_scene(cfg);
+  CubeReadOptions o;
+  o.key = a.get("key");
+  o.expected_bands = cfg.bands;
+  return read_cube(s, o);
+}
+
+int cmd_simulate(int argc, char** argv) {
+  const Args a = parse_args(argc, argv,
+                            {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "out"},
+                            "simulate");
+  const SystemConfig cfg = load_config(a);
+  const Precision p = precision_from_string(a.get("precision", "f32"));
+  const Map2D h = design_heights(cfg, a);
+  const RealStack scene = load_scene(cfg, a);
+  const std::string dir = out_dir(a);
+  Runtime rt(a.get("device"));
+  Simulator sim(rt, cfg, p);
+  sim.set_heights(h);
+  const auto t0 = std::chrono::steady_clock::now();
+  sim.compute_psf();
+  const RealStack rgb = sim.sensor_image(scene);
+  const double secs = seconds_since(t0);
+  write_rgb(dir + "/sensor.h5", rgb);
+  write_rgb_png(dir + "/sensor.png", rgb);
+  write_rgb_png(dir + "/scene.png", ref::sensor_integrate(scene, sim.srf()));  // the same camera without the DOE blur
+  write_psf_outputs(sim, h, dir, a.get("design"));
+  std::printf("device: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s)\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png\n",
+              rt.info().name.c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
+              sim.sampling().summary().c_str(), dir.c_str());
+  return 0;
+}
+
+double rel_l2(const RealStack& a, const RealStack& b) {
+  double num = 0, den = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    num += (a.data[i] - b.data[i]) * (a.data[i] - b.data[i]);
+    den += b.data[i] * b.data[i];
+  }
+  return std::sqrt(num / den);
+}
+
+// The main job: a diffractive lens at 550 nm, full precision and quantized to L levels,
+// PSF stacks and simulated sensor images of the built-in chart, with figures.
+int cmd_demo(int argc, char** argv) {
+  const Args a = parse_args(argc, argv, {"preset", "levels", "device", "out", "precision"}, "demo");
+  const SystemConfig cfg = preset_config(a.get("preset", "small"));
+  const int levels = parse_int("--levels", a.get("levels", "4"), 2, 65536);
+  const Precision p = precision_from_string(a.get("precision", "f32"));
+  const std::string dir = out_dir(a, "out/demo");
+  Runtime rt(a.get("device"));
+  std::printf("qdo demo: preset %s (N = %zu, %zu bands, z = %.4g m), device %s (%s)\n", cfg.preset.c_str(), cfg.n,
+              cfg.bands, cfg.sensor_distance_m, rt.info().name.c_str(), rt.info().platform.c_str());
+  const auto t0 = std::chrono::steady_clock::now();
+  Simulator sim(rt, cfg, p);
+  std::printf("  setup %.2f s (kernel programs %.2f s, FFT plans %.2f s; cached on disk for the next run)\n", seconds_since(t0),
+              rt.build_seconds(), rt.fft_bake_seconds());
+  const RealStack scene = builtin_chart_scene(cfg);
+  write_cube(dir + "/scene.h5", scene, cfg.wavelengths_nm());
+  write_rgb_png(dir + "/scene.png", ref::sensor_integrate(scene, sim.srf()));
+  const Map2D full = lens_design(cfg, 550);
+  Quantizer q;
+  q.levels = levels;
+  const Map2D quant = quantize_heights(full, cfg.h_max_m(), q);
+  RealStack psf_full;
+  std::printf("  %-10s %10s %12s %14s %14s %10s\n", "design", "time [s]", "peak@550", "PSF change", "deviation", "aliased");
+  for (int k = 0; k < 2; ++k) {
+    const Map2D& h = k == 0 ? full : quant;
+    const std::string tag = k == 0 ? "full" : "levels" + std::to_string(levels);
+    const std::string sub = dir + "/" + tag;
+    fs::create_directories(sub);
+    const auto t1 = std::chrono::steady_clock::now();
+    sim.set_heights(h);
+    sim.compute_psf();
+    const RealStack rgb = sim.sensor_image(scene);
+    const double secs = seconds_since(t1);
+    const RealStack psf = sim.psf_sensor();
+    if (k == 0) psf_full = psf;
+    write_psf_outputs(sim, h, sub, tag == "full" ? "lens:550" : "lens:550 quantized to " + std::to_string(levels) + " levels");
+    write_rgb(sub + "/sensor.h5", rgb);
+    write_rgb_png(sub + "/sensor.png", rgb);
+    const std::size_t b550 = std::size_t(std::lround((550 - cfg.wavelength_start_nm) / cfg.wavelength_step_nm));
+    const double peak = *std::max_element(psf.plane(b550), psf.plane(b550) + psf.plane_size());
+    std::printf("  %-10s %10.3f %12.4f %14.4f %11.1f nm %10.2e\n", tag.c_str(), secs, peak, k == 0 ? 0.0 : rel_l2(psf, psf_full),
+                k == 0 ? 0.0 : quantization_deviation_m(quant, full) * 1e9, sim.sampling().worst_aliased_fraction());
+  }
+  std::printf("  %s\n", sim.sampling().summary().c_str());
+  std::printf("wrote %s/: scene.h5 scene.png, full/ and levels%d/ (psf.h5 psf.png design.png sensor.h5 sensor.png)\n",
+              dir.c_str(), levels);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h" || std::string(argv[1]) == "help") {
+    std::fputs(kUsage, argc < 2 ? stderr : stdout);
+    return argc < 2 ? 2 : 0;
+  }
+  const std::string cmd = argv[1];
+  try {
+    if (cmd == "devices") return cmd_devices();
+    if (cmd == "config") return cmd_config(argc, argv);
+    if (cmd == "psf") return cmd_psf(argc, argv);
+    if (cmd == "quantize") return cmd_quantize(argc, argv);
+    if (cmd == "simulate") return cmd_simulate(argc, argv);
+    if (cmd == "demo") return cmd_demo(argc, argv);
+    std::fprintf(stderr, "qdo: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
+    return 2;
+  } catch (const InputError& e) {
+    std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
+    return 2;
+  } catch (const AccuracyError& e) {
+    std::fprintf(stderr, "qdo %s: refused: %s\n", cmd.c_str(), e.what());
+    return 3;
+  } catch (const DeviceError& e) {
+    std::fprintf(stderr, "qdo %s: device error: %s\n", cmd.c_str(), e.what());
+    return 4;
+  } catch (const cl::Error& e) {
+    std::fprintf(stderr, "qdo %s: OpenCL error in %s: %s\n", cmd.c_str(), e.what(), cl_error_name(e.err()).c_str());
+    return 4;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
+    return 1;
+  }
+}

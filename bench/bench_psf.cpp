@@ -1,0 +1,401 @@
+// bench_psf: timing and accuracy of the PSF stack (REFERENCE §1 physics) for several DOE sizes.
+//
+// For each N (paper preset physics: 31 bands, 4 um pitch, z = 50 mm, d = 1 m, padding N/4 per
+// side, design = lens_design(cfg, 550 nm)) it measures
+//   1. OpenCL Simulator::compute_psf() + queue.finish() per precision (median/min/max of
+//      --repeats runs after --warmup runs); program build/load and FFT plan bake reported apart;
+//   2. the bare clFFT floor: one forward + one inverse batched 2-D FFT of bands x M x M complex
+//      values (the transforms compute_psf needs) on a device buffer, nothing else;
+//   3. the CPU reference ref::psf_stack (double, FFTW_ESTIMATE, single thread);
+//   4. the error of each OpenCL PSF stack (bands x N x N) against the CPU reference.
+// Speed is never asserted; this program only reports.
+//
+// Usage: bench_psf [--sizes 256,512,1024] [--repeats 5] [--warmup 1] [--precision f32,f64]
+//                  [--no-cpu] [--out FILE.md]
+// Device: QDO_DEVICE (see runtime.hpp); kernel disk cache: QDO_CACHE_DIR.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <fstream>
+#include <iostream>
+#include <memory>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/cpu_reference.hpp"
+#include "qdo/doe.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fft.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/simulator.hpp"
+#include "qdo/types.hpp"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+struct Options {
+  std::vector<std::size_t> sizes{256, 512, 1024};
+  int repeats = 5, warmup = 1;
+  std::vector<qdo::Precision> precisions{qdo::Precision::F32, qdo::Precision::F64};
+  bool cpu = true;
+  std::string out;
+};
+
+std::vector<std::string> split(const std::string& s, char sep) {
+  std::vector<std::string> parts;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, sep))
+    if (!item.empty()) parts.push_back(item);
+  return parts;
+}
+
+[[noreturn]] void usage(const std::string& err) {
+  if (!err.empty()) std::cerr << "bench_psf: " << err << "\n";
+  std::cerr << "usage: bench_psf [--sizes 256,512,1024] [--repeats R=5] [--warmup W=1] [--precision f32,f64]\n"
+               "                 [--no-cpu] [--out FILE.md]\n";
+  std::exit(err.empty() ? 0 : 2);
+}
+
+Options parse(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) usage("missing value after " + a);
+      return argv[++i];
+    };
+    try {
+      if (a == "--sizes") {
+        o.sizes.clear();
+        for (const auto& s : split(value(), ',')) o.sizes.push_back(static_cast<std::size_t>(std::stoul(s)));
+        if (o.sizes.empty()) usage("--sizes needs at least one size");
+      } else if (a == "--repeats") {
+        o.repeats = std::stoi(value());
+        if (o.repeats < 1) usage("--repeats must be >= 1");
+      } else if (a == "--warmup") {
+        o.warmup = std::stoi(value());
+        if (o.warmup < 0) usage("--warmup must be >= 0");
+      } else if (a == "--precision") {
+        o.precisions.clear();
+        for (const auto& s : split(value(), ',')) o.precisions.push_back(qdo::precision_from_string(s));
+        if (o.precisions.empty()) usage("--precision needs at least one of f32, f64");
+      } else if (a == "--no-cpu") {
+        o.cpu = false;
+      } else if (a == "--out") {
+        o.out = value();
+      } else if (a == "--help" || a == "-h") {
+        usage("");
+      } else {
+        usage("unknown argument " + a);
+      }
+    } catch (const std::logic_error&) {  // stoi/stoul failures
+      usage("bad value for " + a);
+    } catch (const qdo::Error& e) {
+      usage(e.what());
+    }
+  }
+  return o;
+}
+
+struct Timing {
+  double median = 0, min = 0, max = 0;  // seconds
+  int runs = 0;
+};
+
+Timing summarize(std::vector<double> t) {
+  Timing s;
+  if (t.empty()) return s;
+  std::sort(t.begin(), t.end());
+  const std::size_t k = t.size();
+  s.median = k % 2 ? t[k / 2] : 0.5 * (t[k / 2 - 1] + t[k / 2]);
+  s.min = t.front();
+  s.max = t.back();
+  s.runs = static_cast<int>(k);
+  return s;
+}
+
+// Runs f() `warmup` times untimed, then `repeats` times timed.
+template <typename F>
+Timing time_it(int warmup, int repeats, F&& f) {
+  for (int i = 0; i < warmup; ++i) f();
+  std::vector<double> t;
+  for (int i = 0; i < repeats; ++i) {
+    const auto t0 = Clock::now();
+    f();
+    t.push_back(seconds_since(t0));
+  }
+  return summarize(std::move(t));
+}
+
+struct ErrStats {
+  double rel_l2 = 0;       // ||a - b||_2 / ||b||_2 over the whole stack
+  double max_abs_rel = 0;  // max |a - b| / max |b|
+};
+
+ErrStats compare(const std::vector<double>& a, const std::vector<double>& ref) {
+  double num = 0, den = 0, max_abs = 0, max_ref = 0;
+  for (std::size_t i = 0; i < a.size() && i < ref.size(); ++i) {
+    const double d = a[i] - ref[i];
+    num += d * d;
+    den += ref[i] * ref[i];
+    max_abs = std::max(max_abs, std::abs(d));
+    max_ref = std::max(max_ref, std::abs(ref[i]));
+  }
+  ErrStats e;
+  e.rel_l2 = den > 0 ? std::sqrt(num / den) : 0;
+  e.max_abs_rel = max_ref > 0 ? max_abs / max_ref : 0;
+  return e;
+}
+
+std::string fmt(const char* f, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, f, v);
+  return buf;
+}
+
+std::string cpu_model() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("model name", 0) == 0) {
+      const auto c = line.find(':');
+      if (c != std::string::npos) return line.substr(line.find_first_not_of(" \t", c + 1));
+    }
+  return "unknown CPU";
+}
+
+// One row of the results table.
+struct Row {
+  std::size_t n = 0, m = 0;
+  std::string path;            // "OpenCL f32", "clFFT floor f64", "CPU ref f64", ...
+  std::optional<Timing> t;     // absent when the configuration failed
+  std::size_t bands = 0;
+  std::string floor_ratio;     // PSF time / FFT floor, OpenCL rows only
+  std::string rel_l2, max_err; // OpenCL rows with a CPU reference only
+  std::string note;
+};
+
+struct Setup {
+  std::size_t n = 0;
+  std::string precision;
+  double build_s = 0, bake_s = 0;
+  int built = 0, loaded = 0;
+};
+
+std::string table(const std::vector<Row>& rows) {
+  std::ostringstream o;
+  o << "| N | M | path | median ms | min ms | max ms | runs | bands/s | / FFT floor | rel. L2 err | max abs err / max |\n"
+       "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+  for (const auto& r : rows) {
+    o << "| " << r.n << " | " << r.m << " | " << r.path << " | ";
+    if (r.t) {
+      o << fmt("%.1f", r.t->median * 1e3) << " | " << fmt("%.1f", r.t->min * 1e3) << " | "
+        << fmt("%.1f", r.t->max * 1e3) << " | " << r.t->runs << " | "
+        << (r.bands ? fmt("%.1f", double(r.bands) / r.t->median) : std::string("-")) << " | ";
+    } else {
+      o << "- | - | - | - | - | ";
+    }
+    o << (r.floor_ratio.empty() ? "-" : r.floor_ratio) << " | " << (r.rel_l2.empty() ? "-" : r.rel_l2) << " | "
+      << (r.max_err.empty() ? "-" : r.max_err) << " |";
+    if (!r.note.empty()) o << " " << r.note;
+    o << "\n";
+  }
+  return o.str();
+}
+
+std::string setup_table(const std::vector<Setup>& s) {
+  std::ostringstream o;
+  o << "| N | precision | program build/load s | programs built / loaded from disk | FFT plan bake s |\n"
+       "|---:|---|---:|---:|---:|\n";
+  for (const auto& x : s)
+    o << "| " << x.n << " | " << x.precision << " | " << fmt("%.2f", x.build_s) << " | " << x.built << " / "
+      << x.loaded << " | " << fmt("%.2f", x.bake_s) << " |\n";
+  return o.str();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const Options opt = parse(argc, argv);
+  const auto t_start = Clock::now();
+
+  std::string device_line;
+  try {
+    qdo::Runtime probe;
+    const auto& i = probe.info();
+    device_line = i.platform + " / " + i.name + " (" + i.type + ", driver " + i.driver_version + ", " + i.version +
+                  ", " + std::to_string(i.compute_units) + " compute units, fp64 " + (i.fp64 ? "yes" : "no") + ")";
+  } catch (const std::exception& e) {
+    std::cerr << "bench_psf: no OpenCL device: " << e.what() << "\n";
+    return 1;
+  }
+  const std::string machine = "CPU: " + cpu_model() + ", nproc " + std::to_string(std::thread::hardware_concurrency()) +
+                              "; OpenCL device: " + device_line;
+  std::cout << "bench_psf: PSF stack (paper physics: 31 bands, 4 um pitch, z = 50 mm, d = 1 m, padding N/4,"
+               " lens_design 550 nm)\n"
+            << "repeats " << opt.repeats << ", warmup " << opt.warmup << "\n\n"
+            << std::flush;
+
+  std::vector<Row> rows;
+  std::vector<Setup> setups;
+  std::vector<std::string> notes;
+
+  for (const std::size_t n : opt.sizes) {
+    qdo::SystemConfig cfg = qdo::preset_config("paper");
+    cfg.n = n;
+    cfg.padding_px = n / 4;  // N/4 per side, as in the paper
+    std::optional<qdo::Map2D> design;
+    std::size_t m = 0;
+    try {
+      cfg.validate();
+      m = qdo::PropagationGeometry::from_config(cfg).m;
+      design = qdo::lens_design(cfg, 550);
+    } catch (const std::exception& e) {
+      Row r;
+      r.n = n;
+      r.path = "config";
+      r.note = std::string("FAILED: ") + e.what();
+      rows.push_back(r);
+      std::cerr << "N = " << n << ": " << r.note << "\n";
+      continue;
+    }
+    const std::size_t bands = cfg.bands;
+
+    // 3. CPU reference (bands x N x N, double). Stateless, so no warmup; fewer runs when slow.
+    std::optional<qdo::RealStack> ref_psf;
+    if (opt.cpu) {
+      Row r;
+      r.n = n;
+      r.m = m;
+      r.path = "CPU ref f64 (FFTW, 1 thread)";
+      r.bands = bands;
+      try {
+        std::vector<double> t;
+        int runs = opt.repeats;
+        for (int i = 0; i < runs; ++i) {
+          const auto t0 = Clock::now();
+          qdo::ref::PsfResult res = qdo::ref::psf_stack(cfg, *design);
+          t.push_back(seconds_since(t0));
+          if (!ref_psf) ref_psf = std::move(res.psf);
+          if (i == 0 && t[0] > 2.0 && runs > 3) {
+            runs = 3;
+            notes.push_back("N = " + std::to_string(n) + ": CPU reference timed over 3 runs (one run took " +
+                            fmt("%.1f", t[0]) + " s).");
+          }
+        }
+        r.t = summarize(t);
+      } catch (const std::exception& e) {
+        r.note = std::string("FAILED: ") + e.what();
+      }
+      std::cerr << "N = " << n << " CPU reference: " << (r.t ? fmt("%.1f ms", r.t->median * 1e3) : r.note) << "\n";
+      rows.push_back(r);
+    }
+
+    for (const qdo::Precision p : opt.precisions) {
+      const std::string ps = qdo::to_string(p);
+      Row psf_row, fft_row;
+      psf_row.n = fft_row.n = n;
+      psf_row.m = fft_row.m = m;
+      psf_row.bands = fft_row.bands = bands;
+      psf_row.path = "OpenCL " + ps + " compute_psf";
+      fft_row.path = "clFFT floor " + ps + " (fwd + inv)";
+      try {
+        // A fresh Runtime per configuration: its FFT plans and buffers are freed afterwards,
+        // and program build/load is measured per configuration (disk cache after the first).
+        qdo::Runtime rt;
+        const double build0 = rt.build_seconds(), bake0 = rt.fft_bake_seconds();
+        const int built0 = rt.programs_built(), loaded0 = rt.programs_loaded_from_disk();
+        qdo::Simulator sim(rt, cfg, p);
+        Setup s;
+        s.n = n;
+        s.precision = ps;
+        s.build_s = rt.build_seconds() - build0;
+        s.bake_s = rt.fft_bake_seconds() - bake0;
+        s.built = rt.programs_built() - built0;
+        s.loaded = rt.programs_loaded_from_disk() - loaded0;
+        setups.push_back(s);
+
+        sim.set_heights(*design);
+        // 1. compute_psf: DOE field, FFT, transfer function, IFFT, crop, normalise, resample.
+        psf_row.t = time_it(opt.warmup, opt.repeats, [&] {
+          sim.compute_psf();
+          rt.queue().finish();
+        });
+        if (ref_psf) {
+          const qdo::RealStack psf = sim.psf_native();  // bands x N x N
+          const ErrStats e = compare(psf.data, ref_psf->data);
+          psf_row.rel_l2 = fmt("%.2e", e.rel_l2);
+          psf_row.max_err = fmt("%.2e", e.max_abs_rel);
+        }
+        std::cerr << "N = " << n << " OpenCL " << ps << ": " << fmt("%.1f ms", psf_row.t->median * 1e3) << "\n";
+
+        // 2. Bare clFFT floor on its own buffer: bands x M x M complex, interleaved (re, im).
+        try {
+          qdo::FftPlan& fft = rt.fft(m, m, bands, p);  // the plan compute_psf baked
+          const std::size_t bytes = bands * m * m * 2 * qdo::real_size(p);
+          cl::Buffer buf(rt.context(), CL_MEM_READ_WRITE, bytes);
+          if (p == qdo::Precision::F64)
+            rt.queue().enqueueFillBuffer(buf, 1.0, 0, bytes);
+          else
+            rt.queue().enqueueFillBuffer(buf, 1.0f, 0, bytes);
+          rt.queue().finish();
+          fft_row.t = time_it(opt.warmup, opt.repeats, [&] {
+            fft.forward(buf);
+            fft.inverse(buf);
+            rt.queue().finish();
+          });
+          psf_row.floor_ratio = fmt("%.2f", psf_row.t->median / fft_row.t->median);
+          std::cerr << "N = " << n << " clFFT floor " << ps << ": " << fmt("%.1f ms", fft_row.t->median * 1e3) << "\n";
+        } catch (const std::exception& e) {
+          fft_row.note = std::string("FAILED: ") + e.what();
+          std::cerr << "N = " << n << " clFFT floor " << ps << ": " << fft_row.note << "\n";
+        }
+      } catch (const cl::Error& e) {
+        psf_row.note = std::string("FAILED: ") + e.what() + " " + qdo::cl_error_name(e.err());
+        std::cerr << "N = " << n << " OpenCL " << ps << ": " << psf_row.note << "\n";
+      } catch (const std::exception& e) {
+        psf_row.note = std::string("FAILED: ") + e.what();
+        std::cerr << "N = " << n << " OpenCL " << ps << ": " << psf_row.note << "\n";
+      }
+      rows.push_back(psf_row);
+      if (psf_row.t) rows.push_back(fft_row);
+    }
+  }
+
+  const double total_s = seconds_since(t_start);
+  std::ostringstream md;
+  md << "Machine: " << machine << "\n\n"
+     << "Times: median (min, max) of `runs` runs after " << opt.warmup
+     << " warmup run(s); OpenCL times are compute_psf() + queue.finish(). "
+        "bands/s = bands / median. Errors: OpenCL PSF stack (bands x N x N) against the CPU reference "
+        "(double, FFTW).\n\n"
+     << table(rows) << "\n"
+     << "Setup, not included above (per configuration, fresh Runtime):\n\n"
+     << setup_table(setups);
+  for (const auto& nt : notes) md << "\n" << nt << "\n";
+  md << "\nTotal benchmark wall time: " << fmt("%.1f", total_s) << " s.\n";
+
+  std::cout << md.str() << std::flush;
+  if (!opt.out.empty()) {
+    std::ofstream f(opt.out);
+    f << "# bench_psf\n\n" << md.str();
+    if (!f) {
+      std::cerr << "bench_psf: could not write " << opt.out << "\n";
+      return 1;
+    }
+    std::cout << "wrote " << opt.out << "\n";
+  }
+  return 0;
+}

@@ -1,0 +1,22 @@
+// Built-in scenes, so the main job needs no download.
+#pragma once
+#include "qdo/config.hpp"
+#include "qdo/types.hpp"
+
+namespace qdo {
+
+// A ColorChecker chart under D65 on the configuration's band grid: bands x S x S cube with
+// S = cfg.scene_size_px, values in [0, 1]. The 24 measured patch reflectances (BabelColor
+// average, data/colorchecker24_400-700nm_10nm.csv) times D65 (data/cie_d65_400-700nm_10nm.csv),
+// normalised so the brightest D65 sample is 1, on a dark background with a soft vertical
+// illumination gradient and three small bright white dots (point-like sources that show the
+// PSF directly). Wavelengths outside 400..700 nm are an InputError; others are linearly
+// interpolated from the 10 nm tables.
+RealStack builtin_chart_scene(const SystemConfig& cfg);
+
+// Linear interpolation of a tabulated spectrum (wl_nm ascending) at `at_nm`; InputError naming
+// `what` outside the table.
+std::vector<double> interpolate_spectrum(const std::vector<double>& wl_nm, const std::vector<double>& values,
+                                         const std::vector<double>& at_nm, const std::string& what);
+
+}  // namespace qdo

@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# Sets up (dependencies + build) and runs the default test suite with CTest on the OpenCL CPU
+# device (PoCL). Extra arguments go to ctest, e.g. scripts/test.sh -R physics.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/build.sh
+# Compiled kernels are cached per device/driver/options/source; keep the test cache apart.
+export QDO_CACHE_DIR="${QDO_CACHE_DIR:-$PWD/build/kernel-cache}"
+cd build
+ctest -L default --output-on-failure -j1 "$@"

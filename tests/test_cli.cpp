@@ -1,0 +1,137 @@
+// The qdo command line, run as a user would, and its input checks.
+#include <cstdlib>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include "common.hpp"
+#include "qdo/io.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+
+namespace {
+
+struct Run {
+  int code = -1;
+  std::string out;
+};
+
+// Runs `env_prefix qdo args` in a shell, capturing stdout+stderr.
+Run qdo_run(const std::string& args, const std::string& env_prefix = "") {
+  const auto dir = temp_dir("cli_out");
+  const std::string log = (dir / "log.txt").string();
+  const std::string cmd = env_prefix + " " + std::string(QDO_QDO_BINARY) + " " + args + " > " + log + " 2>&1";
+  const int status = std::system(cmd.c_str());
+  Run r;
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream f(log);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  r.out = ss.str();
+  std::filesystem::remove_all(dir);
+  return r;
+}
+
+void write_height_file(const std::string& path, std::size_t rows, std::size_t cols, double value, double pitch) {
+  H5Dataset d{"/height_m", {rows, cols}, std::vector<double>(rows * cols, value), {{"pitch_m", pitch}}, {}};
+  h5_write(path, {d});
+}
+
+}  // namespace
+
+TEST_SUITE("cli") {
+  TEST_CASE("qdo psf writes a normalised PSF stack and figures") {
+    const auto dir = temp_dir("cli_psf");
+    const Run r = qdo_run("psf --preset small --design lens:550 --levels 8 --out " + dir.string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    CHECK(r.out.find("sampling:") != std::string::npos);
+    const H5Dataset psf = h5_read((dir / "psf.h5").string(), "/psf");
+    REQUIRE(psf.shape == std::vector<std::size_t>{31, 256, 256});
+    for (std::size_t b = 0; b < 31; ++b) {
+      double s = 0;
+      for (std::size_t i = 0; i < 256 * 256; ++i) s += psf.data[b * 256 * 256 + i];
+      CHECK(s == doctest::Approx(1.0).epsilon(1e-4));
+    }
+    CHECK(h5_read((dir / "psf.h5").string(), "/wavelengths_nm").data.front() == 400.0);
+    CHECK(std::filesystem::file_size(dir / "psf.png") > 1000);
+    CHECK(std::filesystem::exists(dir / "design.png"));
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("qdo quantize writes a design with exactly L heights and its level table") {
+    const auto dir = temp_dir("cli_q");
+    const std::string full = (dir / "full.h5").string(), q = (dir / "q.h5").string();
+    // A smooth ramp design in a file.
+    Design d;
+    d.height_m = Map2D(256, 256);
+    d.pitch_m = 4e-6;
+    for (std::size_t i = 0; i < d.height_m.data.size(); ++i) d.height_m.data[i] = 1.5e-6 * double(i % 256) / 255.0;
+    write_design(full, d);
+    const Run r = qdo_run("quantize --preset small --design " + full + " --levels 4 --placement wrapped --out " + q);
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    const Design dq = read_design(q);
+    const std::set<double> distinct(dq.height_m.data.begin(), dq.height_m.data.end());
+    CHECK(distinct.size() == 4);
+    CHECK(dq.levels_m.size() == 4);
+    for (double v : distinct) CHECK(std::find(dq.levels_m.begin(), dq.levels_m.end(), v) != dq.levels_m.end());
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("qdo simulate writes a sensor image of the built-in scene") {
+    const auto dir = temp_dir("cli_sim");
+    const Run r = qdo_run("simulate --preset small --design lens:550 --scene builtin --out " + dir.string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    const H5Dataset rgb = h5_read((dir / "sensor.h5").string(), "/rgb");
+    CHECK(rgb.shape == std::vector<std::size_t>{3, 128, 128});
+    CHECK(std::filesystem::exists(dir / "sensor.png"));
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("bad input fails before any work with an error naming the argument") {
+    const auto dir = temp_dir("cli_bad");
+    const std::string out = (dir / "never").string();
+    auto expect = [&](const std::string& args, const std::string& needle, const std::string& env = "") {
+      const Run r = qdo_run(args, env);
+      CAPTURE(args);
+      CAPTURE(r.out);
+      CHECK(r.code != 0);
+      CHECK(r.out.find(needle) != std::string::npos);
+      CHECK_FALSE(std::filesystem::exists(out));  // nothing was started or written
+    };
+    const std::string nonsq = (dir / "nonsquare.h5").string(), nan = (dir / "nan.h5").string(), nods = (dir / "nods.h5").string();
+    write_height_file(nonsq, 256, 200, 0.0, 4e-6);
+    write_height_file(nan, 256, 256, std::nan(""), 4e-6);
+    h5_write(nods, {H5Dataset{"/something_else", {2}, {1.0, 2.0}, {}, {}}});
+    expect("psf --preset small --design " + nonsq + " --out " + out, "square");
+    expect("psf --preset small --design " + nan + " --out " + out, "non-finite");
+    expect("psf --preset small --design " + nods + " --out " + out, "/height_m");
+    const std::string cfg0 = (dir / "z0.json").string(), cfgneg = (dir / "dneg.json").string(), cfgwl = (dir / "wl.json").string();
+    std::ofstream(cfg0) << R"({"preset": "small", "sensor_distance_m": 0})";
+    std::ofstream(cfgneg) << R"({"preset": "small", "scene_distance_m": -1})";
+    std::ofstream(cfgwl) << R"({"preset": "small", "material": "NOA61", "wavelength_start_nm": 300})";
+    expect("psf --config " + cfg0 + " --design flat --out " + out, "sensor_distance_m");
+    expect("psf --config " + cfgneg + " --design flat --out " + out, "scene_distance_m");
+    expect("psf --config " + cfgwl + " --design flat --out " + out, "NOA61");
+    expect("psf --preset small --design lens:550 --levels 1 --out " + out, "--levels");
+    expect("psf --preset small --design lens:550 --bogus 3 --out " + out, "--bogus");
+    expect("psf --preset nope --design flat --out " + out, "preset");
+    // A cube whose bands don't match the configuration.
+    const std::string cube30 = (dir / "cube30.h5").string();
+    write_cube(cube30, RealStack(30, 8, 8, 0.5), std::vector<double>(30, 500.0));
+    expect("simulate --preset small --design flat --scene " + cube30 + " --out " + out, "31");
+    // An SRF on another band grid.
+    const std::string cam = (dir / "cam.csv").string(), cfgcam = (dir / "cam.json").string();
+    std::ofstream(cam) << "wavelength_nm,R,G,B\n400,1,1,1\n500,1,1,1\n600,1,1,1\n700,1,1,1\n";
+    std::ofstream(cfgcam) << R"({"preset": "small", "camera": ")" + cam + R"("})";
+    expect("simulate --config " + cfgcam + " --design flat --scene builtin --out " + out, "camera");
+    // No OpenCL platform at all (an empty ICD vendor directory).
+    const auto empty = dir / "no_vendors";
+    std::filesystem::create_directories(empty);
+    expect("devices", "no OpenCL platform", "OCL_ICD_VENDORS=" + empty.string());
+    std::filesystem::remove_all(dir);
+  }
+}
