@@ -12,39 +12,43 @@ inline uint4 philox4x32(uint4 c, uint2 k) {
 }
 inline real uniform_open(uint x) { return ((real)x + R(0.5)) * R(2.3283064365386963e-10); }
 
-// rgb[c][p] = sum_b srf[c][b] * cube[b][p] (+ noise). cube: bands x HW real, srf: 3 x bands
-// (rows normalised to unit sum), rgb: 3 x HW. Noise for element (c, p) uses counter p*3 + c:
+// rgb[k][c][p] = sum_b srf[c][b] * cube[k][b][p] (+ noise) for scenes k. cube: scenes x bands x HW
+// real, srf: 3 x bands (rows normalised to unit sum), rgb: scenes x 3 x HW. Noise for element
+// (k, c, p) uses counter (k*HW + p)*3 + c:
 // Poisson shot noise with full_well photons at 1.0 (skipped when full_well <= 0), then
 // Gaussian read noise of `sigma`. Exact inversion below a mean of 64, rounded normal above.
 __kernel void sensor_integrate(__global const real* cube, __constant real* srf, __global real* rgb, const int hw,
                                const int bands, const real sigma, const real full_well, const uint seed_lo,
-                               const uint seed_hi) {
+                               const uint seed_hi, const int scenes) {
   const size_t gid = get_global_id(0);
-  if (gid >= (size_t)hw * 3) return;
-  const int c = (int)(gid / hw);
-  const int p = (int)(gid - (size_t)c * hw);
+  if (gid >= (size_t)hw * 3 * scenes) return;
+  const int k = (int)(gid / ((size_t)hw * 3));
+  const int rem = (int)(gid - (size_t)k * hw * 3);
+  const int c = rem / hw;
+  const int p = rem - c * hw;
+  __global const real* scene = cube + (size_t)k * bands * hw;
   real v = R(0.0);
-  for (int b = 0; b < bands; ++b) v += srf[c * bands + b] * cube[(size_t)b * hw + p];
+  for (int b = 0; b < bands; ++b) v += srf[c * bands + b] * scene[(size_t)b * hw + p];
   if (sigma > R(0.0) || full_well > R(0.0)) {
-    const ulong idx = (ulong)p * 3 + c;
+    const ulong idx = ((ulong)k * hw + p) * 3 + c;
     const uint4 r = philox4x32((uint4)((uint)idx, (uint)(idx >> 32), 0x51ed27u, 0u), (uint2)(seed_lo, seed_hi));
     const real u0 = uniform_open(r.x), u1 = uniform_open(r.y), u2 = uniform_open(r.z);
     const real rad = sqrt(R(-2.0) * log(u0));
     const real ang = R(6.283185307179586) * u1;
     if (full_well > R(0.0)) {
       const real mean = fmax(v, R(0.0)) * full_well;
-      real k = R(0.0);
+      real cnt = R(0.0);
       if (mean > R(0.0) && mean < R(64.0)) {
         real pk = exp(-mean), cdf = pk;
-        while (u2 > cdf && k < R(1000.0)) {
-          k += R(1.0);
-          pk *= mean / k;
+        while (u2 > cdf && cnt < R(1000.0)) {
+          cnt += R(1.0);
+          pk *= mean / cnt;
           cdf += pk;
         }
       } else if (mean >= R(64.0)) {
-        k = fmax(R(0.0), floor(mean + sqrt(mean) * rad * sin(ang) + R(0.5)));
+        cnt = fmax(R(0.0), floor(mean + sqrt(mean) * rad * sin(ang) + R(0.5)));
       }
-      v = k / full_well;
+      v = cnt / full_well;
     }
     v += sigma * rad * cos(ang);
   }

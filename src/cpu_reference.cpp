@@ -213,14 +213,15 @@ RealStack sensor_integrate(const RealStack& blurred, const Eigen::MatrixXd& srf)
   return rgb;
 }
 
-void add_noise(RealStack& rgb, double read_noise_sigma, double full_well_photons, unsigned long long seed) {
+void add_noise(RealStack& rgb, double read_noise_sigma, double full_well_photons, unsigned long long seed,
+               std::size_t scene_index) {
   if (!(read_noise_sigma >= 0) || !std::isfinite(read_noise_sigma)) reject("read_noise_sigma", read_noise_sigma, ">= 0, finite");
   if (!(full_well_photons >= 0) || !std::isfinite(full_well_photons)) reject("full_well_photons", full_well_photons, ">= 0, finite");
   if (read_noise_sigma == 0 && full_well_photons == 0) return;
   const std::size_t hw = rgb.plane_size();
   for (std::size_t c = 0; c < rgb.planes; ++c)
     for (std::size_t p = 0; p < hw; ++p) {
-      const NoiseDraw d = noise_draw(seed, p * 3 + c);
+      const NoiseDraw d = noise_draw(seed, (scene_index * hw + p) * 3 + c);
       double v = rgb.plane(c)[p];
       if (full_well_photons > 0) v = poisson_from(std::fmax(v, 0.0) * full_well_photons, d) / full_well_photons;
       rgb.plane(c)[p] = v + read_noise_sigma * d.gaussian;

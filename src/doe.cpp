@@ -37,7 +37,11 @@ Map2D expand_parameters(Parameterization p, const std::vector<double>& params, s
       if (p == Parameterization::Full2D) {
         v = params[i * n + j];
       } else if (p == Parameterization::Radial) {
-        const long k = std::min(static_cast<long>(std::floor(std::sqrt(double(di * di + dj * dj)))), half - 1);
+        const long r2 = di * di + dj * dj;
+        long k = static_cast<long>(std::sqrt(double(r2)));
+        while (k * k > r2) --k;  // exact integer floor(sqrt), as kernels/doe.cl
+        while ((k + 1) * (k + 1) <= r2) ++k;
+        k = std::min(k, half - 1);
         v = params[static_cast<std::size_t>(k)];
       } else {
         const long a = std::min(std::labs(di), half - 1), b = std::min(std::labs(dj), half - 1);

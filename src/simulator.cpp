@@ -40,6 +40,8 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p) : rt_(rt
   k_cmul_ = rt_.kernel("conv.cl", "cmul_inplace", p);
   k_crop_real_ = rt_.kernel("conv.cl", "crop_real", p);
   k_sensor_ = rt_.kernel("sensor.cl", "sensor_integrate", p);
+  k_expand_ = rt_.kernel("doe.cl", "expand_params", p);
+  k_quantize_ = rt_.kernel("doe.cl", "quantize_blend", p);
 
   k_ = upload_real(wavenumber_per_band(cfg_));
   dn_ = upload_real(delta_n_per_band(cfg_));
@@ -58,7 +60,7 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p) : rt_(rt
   srf_buf_ = upload_real(srf);
 
   const auto& ctx = rt_.context();
-  heights_ = cl::Buffer(ctx, CL_MEM_READ_ONLY, cfg_.n * cfg_.n * rsz_);
+  heights_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, cfg_.n * cfg_.n * rsz_);
   field_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, field_bytes);
   psf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * cfg_.n * cfg_.n * rsz_);
   psf_s_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * s_ * s_ * rsz_);
@@ -163,6 +165,54 @@ void Simulator::set_heights(const Map2D& height_m) {
   }
   heights_set_ = true;
   psf_valid_ = otf_valid_ = false;
+}
+
+void Simulator::set_design(Parameterization kind, const std::vector<double>& params, const Quantizer* q, double alpha) {
+  const std::size_t n = cfg_.n;
+  if (params.size() != parameter_count(kind, n))
+    reject("params.size()", params.size(), "exactly " + to_str(parameter_count(kind, n)) + " for this parameterization and N");
+  for (std::size_t i = 0; i < params.size(); ++i)
+    if (!std::isfinite(params[i])) reject("params[" + to_str(i) + "]", params[i], "finite heights in metres");
+  if (q) {
+    q->validate();
+    if (!(alpha >= 0 && alpha <= 1)) reject("alpha", alpha, "within [0, 1]");
+  }
+  const double hmax = cfg_.h_max_m();
+  const cl::Buffer pbuf = upload_real(params);
+  k_expand_.setArg(0, pbuf);
+  k_expand_.setArg(1, heights_);
+  k_expand_.setArg(2, int(n));
+  k_expand_.setArg(3, int(kind == Parameterization::Full2D ? 0 : kind == Parameterization::Radial ? 1 : 2));
+  if (prec_ == Precision::F64) k_expand_.setArg(4, hmax);
+  else k_expand_.setArg(4, float(hmax));
+  enqueue_1d(k_expand_, n * n);
+  if (q) {
+    std::vector<double> off(q->offsets);
+    off.resize(static_cast<std::size_t>(q->levels), 0.0);
+    const cl::Buffer obuf = upload_real(off);
+    k_quantize_.setArg(0, heights_);
+    k_quantize_.setArg(1, int(n * n));
+    k_quantize_.setArg(3, int(q->levels));
+    k_quantize_.setArg(4, int(q->placement == Placement::Inclusive ? 0 : 1));
+    k_quantize_.setArg(5, obuf);
+    if (prec_ == Precision::F64) {
+      k_quantize_.setArg(2, hmax);
+      k_quantize_.setArg(6, alpha);
+    } else {
+      k_quantize_.setArg(2, float(hmax));
+      k_quantize_.setArg(6, float(alpha));
+    }
+    enqueue_1d(k_quantize_, n * n);
+  }
+  rt_.queue().finish();  // pbuf and obuf are released when this function returns
+  heights_set_ = true;
+  psf_valid_ = otf_valid_ = false;
+}
+
+Map2D Simulator::heights() const {
+  Map2D h(cfg_.n, cfg_.n);
+  h.data = download_real(heights_, h.data.size());
+  return h;
 }
 
 void Simulator::run_doe_field() {
@@ -333,8 +383,8 @@ ComplexStack Simulator::propagate_field(const ComplexStack& field, double z_m) {
   return out;
 }
 
-void Simulator::ensure_conv(std::size_t h, std::size_t w) {
-  if (h == ch_ && w == cw_ && otf_()) return;
+void Simulator::ensure_conv(std::size_t h, std::size_t w, std::size_t scenes) {
+  if (h == ch_ && w == cw_ && scenes == cn_ && otf_()) return;
   if (h < 1 || w < 1) reject("cube", to_str(h) + " x " + to_str(w), "at least 1 x 1 pixels");
   std::size_t py = h, px = w;
   if (cfg_.convolution == ConvolutionMode::Linear) {
@@ -346,25 +396,35 @@ void Simulator::ensure_conv(std::size_t h, std::size_t w) {
   }
   const std::size_t bands = cfg_.bands;
   const auto& ctx = rt_.context();
+  const bool same_grid = (h == ch_ && w == cw_ && otf_());
   ch_ = h;
   cw_ = w;
+  cn_ = scenes;
   py_ = py;
   px_ = px;
-  otf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * py * px * 2 * rsz_);
-  sbuf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * py * px * 2 * rsz_);
-  cube_ = cl::Buffer(ctx, CL_MEM_READ_ONLY, bands * h * w * rsz_);
-  blurred_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * h * w * rsz_);
-  rgb_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, 3 * h * w * rsz_);
-  otf_valid_ = false;
+  if (!same_grid) {
+    otf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * py * px * 2 * rsz_);
+    otf_valid_ = false;
+  }
+  sbuf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, scenes * bands * py * px * 2 * rsz_);
+  cube_ = cl::Buffer(ctx, CL_MEM_READ_ONLY, scenes * bands * h * w * rsz_);
+  blurred_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, scenes * bands * h * w * rsz_);
+  rgb_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, scenes * 3 * h * w * rsz_);
 }
 
-void Simulator::run_convolution(const RealStack& cube) {
-  if (cube.planes != cfg_.bands)
-    reject("cube bands", cube.planes, "the configuration's band count (" + to_str(cfg_.bands) + ")");
+void Simulator::run_convolution(const std::vector<RealStack>& cubes) {
+  if (cubes.empty()) reject("cubes", 0, "at least one scene");
+  for (std::size_t k = 0; k < cubes.size(); ++k) {
+    if (cubes[k].planes != cfg_.bands)
+      reject("cube bands", cubes[k].planes, "the configuration's band count (" + to_str(cfg_.bands) + ")");
+    if (cubes[k].rows != cubes[0].rows || cubes[k].cols != cubes[0].cols)
+      reject("cubes[" + to_str(k) + "]", to_str(cubes[k].rows) + " x " + to_str(cubes[k].cols),
+             "the shape of the first scene in the batch");
+  }
   if (!psf_valid_) throw Error("Simulator: compute_psf() must run before convolving");
-  ensure_conv(cube.rows, cube.cols);
-  const std::size_t bands = cfg_.bands, pp = py_ * px_;
-  FftPlan& fft = rt_.fft(py_, px_, bands, prec_);
+  const std::size_t scenes = cubes.size();
+  ensure_conv(cubes[0].rows, cubes[0].cols, scenes);
+  const std::size_t bands = cfg_.bands, pp = py_ * px_, per = bands * ch_ * cw_;
   if (!otf_valid_) {
     k_place_psf_.setArg(0, psf_s_);
     k_place_psf_.setArg(1, otf_);
@@ -373,29 +433,33 @@ void Simulator::run_convolution(const RealStack& cube) {
     k_place_psf_.setArg(4, int(px_));
     k_place_psf_.setArg(5, int(bands));
     enqueue_1d(k_place_psf_, bands * pp);
-    fft.forward(otf_);
+    rt_.fft(py_, px_, bands, prec_).forward(otf_);
     otf_valid_ = true;
   }
+  std::vector<double> host(scenes * per);
+  for (std::size_t k = 0; k < scenes; ++k) std::copy(cubes[k].data.begin(), cubes[k].data.end(), host.begin() + long(k * per));
   if (prec_ == Precision::F64) {
-    rt_.queue().enqueueWriteBuffer(cube_, CL_FALSE, 0, cube.size() * 8, cube.data.data());
+    rt_.queue().enqueueWriteBuffer(cube_, CL_TRUE, 0, host.size() * 8, host.data());
   } else {
-    const std::vector<float> f(cube.data.begin(), cube.data.end());
+    const std::vector<float> f(host.begin(), host.end());
     rt_.queue().enqueueWriteBuffer(cube_, CL_TRUE, 0, f.size() * 4, f.data());
   }
+  // All scenes x bands planes in one batched transform; the OTF stack repeats per scene.
+  FftPlan& fft = rt_.fft(py_, px_, scenes * bands, prec_);
   k_place_scene_.setArg(0, cube_);
   k_place_scene_.setArg(1, sbuf_);
   k_place_scene_.setArg(2, int(ch_));
   k_place_scene_.setArg(3, int(cw_));
   k_place_scene_.setArg(4, int(py_));
   k_place_scene_.setArg(5, int(px_));
-  k_place_scene_.setArg(6, int(bands));
-  enqueue_1d(k_place_scene_, bands * pp);
+  k_place_scene_.setArg(6, int(scenes * bands));
+  enqueue_1d(k_place_scene_, scenes * bands * pp);
   fft.forward(sbuf_);
   k_cmul_.setArg(0, sbuf_);
   k_cmul_.setArg(1, otf_);
-  k_cmul_.setArg(2, int(bands * pp));
+  k_cmul_.setArg(2, int(scenes * bands * pp));
   k_cmul_.setArg(3, int(bands * pp));
-  enqueue_1d(k_cmul_, bands * pp);
+  enqueue_1d(k_cmul_, scenes * bands * pp);
   fft.inverse(sbuf_);
   k_crop_real_.setArg(0, sbuf_);
   k_crop_real_.setArg(1, blurred_);
@@ -403,18 +467,24 @@ void Simulator::run_convolution(const RealStack& cube) {
   k_crop_real_.setArg(3, int(cw_));
   k_crop_real_.setArg(4, int(py_));
   k_crop_real_.setArg(5, int(px_));
-  k_crop_real_.setArg(6, int(bands));
-  enqueue_1d(k_crop_real_, bands * ch_ * cw_);
+  k_crop_real_.setArg(6, int(scenes * bands));
+  enqueue_1d(k_crop_real_, scenes * per);
 }
 
-RealStack Simulator::convolve(const RealStack& cube) {
-  run_convolution(cube);
-  RealStack out(cube.planes, cube.rows, cube.cols);
-  out.data = download_real(blurred_, out.size());
+std::vector<RealStack> Simulator::convolve_batch(const std::vector<RealStack>& cubes) {
+  run_convolution(cubes);
+  const auto all = download_real(blurred_, cubes.size() * cfg_.bands * ch_ * cw_);
+  std::vector<RealStack> out;
+  for (std::size_t k = 0; k < cubes.size(); ++k) {
+    out.emplace_back(cfg_.bands, ch_, cw_);
+    std::copy(all.begin() + long(k * out.back().size()), all.begin() + long((k + 1) * out.back().size()), out.back().data.begin());
+  }
   return out;
 }
 
-void Simulator::run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw) {
+RealStack Simulator::convolve(const RealStack& cube) { return convolve_batch({cube}).front(); }
+
+void Simulator::run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw, std::size_t scenes) {
   k_sensor_.setArg(0, in);
   k_sensor_.setArg(1, srf_buf_);
   k_sensor_.setArg(2, out);
@@ -429,16 +499,23 @@ void Simulator::run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw
   }
   k_sensor_.setArg(7, cl_uint(cfg_.noise_seed & 0xffffffffull));
   k_sensor_.setArg(8, cl_uint(cfg_.noise_seed >> 32));
-  enqueue_1d(k_sensor_, 3 * hw);
+  k_sensor_.setArg(9, int(scenes));
+  enqueue_1d(k_sensor_, scenes * 3 * hw);
 }
 
-RealStack Simulator::sensor_image(const RealStack& cube) {
-  run_convolution(cube);
-  run_sensor(blurred_, rgb_, ch_ * cw_);
-  RealStack out(3, ch_, cw_);
-  out.data = download_real(rgb_, out.size());
+std::vector<RealStack> Simulator::sensor_images(const std::vector<RealStack>& cubes) {
+  run_convolution(cubes);
+  run_sensor(blurred_, rgb_, ch_ * cw_, cubes.size());
+  const auto all = download_real(rgb_, cubes.size() * 3 * ch_ * cw_);
+  std::vector<RealStack> out;
+  for (std::size_t k = 0; k < cubes.size(); ++k) {
+    out.emplace_back(3, ch_, cw_);
+    std::copy(all.begin() + long(k * out.back().size()), all.begin() + long((k + 1) * out.back().size()), out.back().data.begin());
+  }
   return out;
 }
+
+RealStack Simulator::sensor_image(const RealStack& cube) { return sensor_images({cube}).front(); }
 
 RealStack Simulator::integrate(const RealStack& cube) {
   if (cube.planes != cfg_.bands)
@@ -446,7 +523,7 @@ RealStack Simulator::integrate(const RealStack& cube) {
   const std::size_t hw = cube.plane_size();
   const cl::Buffer in = upload_real(cube.data);
   cl::Buffer out_buf(rt_.context(), CL_MEM_READ_WRITE, 3 * hw * rsz_);
-  run_sensor(in, out_buf, hw);
+  run_sensor(in, out_buf, hw, 1);
   RealStack out(3, cube.rows, cube.cols);
   out.data = download_real(out_buf, out.size());
   return out;

@@ -2,6 +2,7 @@
 // random inputs. Tolerances are derived from the kernel precision eps (float32: 1.19e-7,
 // float64: 2.2e-16) and stated next to each check.
 #include <cmath>
+#include <random>
 
 #include "common.hpp"
 #include "qdo/cpu_reference.hpp"
@@ -30,6 +31,43 @@ double max_phase(const SystemConfig& c) {
 }  // namespace
 
 TEST_SUITE("kernels") {
+  TEST_CASE("parameter expansion and the alpha-blended quantizer match the CPU reference") {
+    for (Precision p : precisions()) {
+      CAPTURE(to_string(p));
+      const SystemConfig c = tiny_config(64, 1);
+      const double hmax = c.h_max_m();
+      Simulator sim(runtime(), c, p);
+      for (Parameterization kind : {Parameterization::Full2D, Parameterization::Radial, Parameterization::Quad}) {
+        CAPTURE(int(kind));
+        std::mt19937_64 rng(41);
+        std::uniform_real_distribution<double> u(-0.1 * hmax, 1.1 * hmax);  // some values get clamped
+        std::vector<double> params(parameter_count(kind, c.n));
+        for (double& v : params) v = u(rng);
+        const Map2D want_full = expand_parameters(kind, params, c.n, hmax);
+        sim.set_design(kind, params);
+        // Expansion is a gather plus a clamp: exact up to the conversion to the kernel precision.
+        CHECK(diff(sim.heights().data, want_full.data).max_abs <= eps(p) * hmax);
+        for (Placement pl : {Placement::Inclusive, Placement::Wrapped}) {
+          Quantizer q;
+          q.levels = 5;
+          q.placement = pl;
+          q.offsets = {0.0, 0.3, -0.7, 1.0, -1.0};
+          const Map2D want = quantize_heights(want_full, hmax, q, 0.6);
+          sim.set_design(kind, params, &q, 0.6);
+          const Map2D got = sim.heights();
+          // In float64 identical; in float32 a sample within rounding of a decision boundary may
+          // pick the neighbouring level: allow 0.5 % of samples, the rest within 4 eps h_max.
+          std::size_t off = 0;
+          for (std::size_t i = 0; i < got.data.size(); ++i)
+            if (std::fabs(got.data[i] - want.data[i]) > 4 * eps(p) * hmax) ++off;
+          CAPTURE(off);
+          if (p == Precision::F64) CHECK(off == 0);
+          else CHECK(double(off) <= 0.005 * double(got.data.size()));
+        }
+      }
+    }
+  }
+
   TEST_CASE("doe_field matches the CPU reference") {
     for (Precision p : precisions()) {
       for (bool inf : {false, true}) {
@@ -157,5 +195,28 @@ TEST_SUITE("kernels") {
       if (p == Precision::F64) CHECK(off == 0);
       else CHECK(double(off) <= 0.01 * double(got.size()));
     }
+  }
+
+  TEST_CASE("a batch of scenes gives the per-scene results, noise counters included") {
+    SystemConfig c = tiny_config(32, 3);
+    c.read_noise_sigma = 0.02;
+    c.noise_seed = 99;
+    const Precision p = runtime().has_fp64() ? Precision::F64 : Precision::F32;
+    Simulator sim(runtime(), c, p);
+    sim.set_heights(random_heights(c.n, c.h_max_m(), 17));
+    sim.compute_psf();
+    const RealStack psf = sim.psf_sensor();
+    std::vector<RealStack> cubes;
+    for (unsigned k = 0; k < 3; ++k) cubes.push_back(random_cube(c.bands, 20, 18, 100 + k));
+    const auto got = sim.sensor_images(cubes);
+    REQUIRE(got.size() == 3);
+    for (std::size_t k = 0; k < 3; ++k) {
+      RealStack want = ref::sensor_integrate(ref::convolve(cubes[k], psf, c.convolution), sim.srf());
+      ref::add_noise(want, c.read_noise_sigma, c.full_well_photons, c.noise_seed, k);
+      CHECK(diff(got[k].data, want.data).max_abs <= 1e3 * eps(p));
+    }
+    // Batch size does not change a scene's result.
+    const auto single = sim.sensor_images({cubes[0]});
+    CHECK(diff(single[0].data, got[0].data).max_abs <= 1e3 * eps(p));
   }
 }

@@ -47,8 +47,10 @@ RealStack convolve(const RealStack& cube, const RealStack& psf, ConvolutionMode 
 // rows already normalised to unit sum (sensor_response()).
 RealStack sensor_integrate(const RealStack& blurred, const Eigen::MatrixXd& srf);
 // Shot noise (Poisson with full_well_photons at value 1; skipped when 0) then Gaussian read
-// noise (sigma in full-scale units), element (c, y, x) drawing counter (y*W + x)*3 + c.
-void add_noise(RealStack& rgb, double read_noise_sigma, double full_well_photons, unsigned long long seed);
+// noise (sigma in full-scale units), element (c, y, x) of scene k in a batch drawing counter
+// ((k*H*W) + y*W + x)*3 + c.
+void add_noise(RealStack& rgb, double read_noise_sigma, double full_well_photons, unsigned long long seed,
+               std::size_t scene_index = 0);
 
 // A direct (O(N^4)) Fresnel diffraction integral of an N x N field at pitch_m over z_m, in the
 // same convention as the transfer function (constant exp(ikz) dropped): for tests.

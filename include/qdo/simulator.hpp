@@ -12,6 +12,7 @@
 #include <Eigen/Dense>
 
 #include "qdo/config.hpp"
+#include "qdo/doe.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
@@ -32,6 +33,13 @@ class Simulator {
   // Uploads an N x N height map (metres, row-major). Rejects wrong shapes, NaN/Inf and
   // heights outside [0, 2 h_max] before any device work.
   void set_heights(const Map2D& height_m);
+  // The same from design parameters, on the device: expands `params` (layout of
+  // parameter_count(kind, N), metres) onto the N x N grid (clamped to [0, h_max]) and, when q is
+  // given, applies the alpha-blended quantizer (kernels/doe.cl). Rejects NaN/Inf and wrong sizes.
+  void set_design(Parameterization kind, const std::vector<double>& params, const Quantizer* q = nullptr,
+                  double alpha = 1.0);
+  // The current N x N heights (a host copy).
+  Map2D heights() const;
 
   // Runs the PSF chain on the device (all bands in one batched pass). The results stay on the
   // device; the accessors below copy them to the host. Honours cfg.strict_sampling.
@@ -50,8 +58,12 @@ class Simulator {
   // Per-band convolution of cubes (bands x H x W each) with psf_sensor (compute_psf() first;
   // the OTF is reused across calls and scenes until the heights change).
   RealStack convolve(const RealStack& cube);
-  // Convolution then sensor integration and noise (cfg's noise settings): 3 x H x W.
+  // A batch of same-shape scenes in one batched FFT pass (scenes x bands planes).
+  std::vector<RealStack> convolve_batch(const std::vector<RealStack>& cubes);
+  // Convolution then sensor integration and noise (cfg's noise settings): 3 x H x W. In a
+  // batch, scene k draws noise counters ((k*H*W + pixel) * 3 + channel), as ref::add_noise.
   RealStack sensor_image(const RealStack& cube);
+  std::vector<RealStack> sensor_images(const std::vector<RealStack>& cubes);
   // Sensor integration alone (no convolution) of a bands x H x W cube, with noise.
   RealStack integrate(const RealStack& cube);
 
@@ -69,9 +81,9 @@ class Simulator {
   void run_doe_field();
   void run_propagation(cl::Buffer& field, double z_m, bool record_sampling);
   void band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len, cl::Buffer& sums);
-  void ensure_conv(std::size_t h, std::size_t w);
-  void run_convolution(const RealStack& cube);
-  void run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw);
+  void ensure_conv(std::size_t h, std::size_t w, std::size_t scenes);
+  void run_convolution(const std::vector<RealStack>& cubes);
+  void run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw, std::size_t scenes);
 
   Runtime& rt_;
   SystemConfig cfg_;
@@ -89,11 +101,11 @@ class Simulator {
   cl::Buffer heights_, k_, dn_, field_, psf_, psf_s_, partial_, tf_, klim_, wstart_, wts_, srf_buf_;
   cl::Buffer sums_total_, sums_crop_, sums_sensor_;  // per-band sums (bands reals each)
   // Convolution buffers, sized for the last scene shape.
-  std::size_t ch_ = 0, cw_ = 0, py_ = 0, px_ = 0;
+  std::size_t ch_ = 0, cw_ = 0, cn_ = 0, py_ = 0, px_ = 0;
   cl::Buffer otf_, sbuf_, cube_, blurred_, rgb_;
 
   cl::Kernel k_field_, k_tf_, k_energy_, k_crop_, k_sums_, k_energy_sums_, k_finalize_, k_scale_, k_resample_,
-      k_place_scene_, k_place_psf_, k_cmul_, k_crop_real_, k_sensor_;
+      k_place_scene_, k_place_psf_, k_cmul_, k_crop_real_, k_sensor_, k_expand_, k_quantize_;
 };
 
 }  // namespace qdo
