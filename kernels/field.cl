@@ -7,8 +7,9 @@
 // Phase = k (r²/(sqrt(r² + d²) + d) + dn H): the source term is the exact spherical phase
 // minus the constant k·d, written without cancellation, so float32 keeps ~1e-6 rad
 // accuracy where k·d itself (1.6e7 rad) would lose everything. d <= 0 means a plane wave.
+// (`unused` keeps the argument layout identical to phase_vjp in adjoint.cl.)
 __kernel void doe_field(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
-                        __global real2* out, const int n, const int m, const int offset, const int bands,
+                        __global real2* out, const int unused, const int n, const int m, const int offset, const int bands,
                         const real pitch_m, const real distance_m, const real r_ap2_m2) {
   const size_t gid = get_global_id(0);
   const size_t mm = (size_t)m * m;

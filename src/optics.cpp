@@ -113,6 +113,30 @@ AreaWeights AreaWeights::make(std::size_t n, double pitch_in_m, std::size_t s, d
   return a;
 }
 
+AreaWeights AreaWeights::transposed() const {
+  AreaWeights t;
+  t.n = s;
+  t.s = n;
+  std::vector<std::vector<std::pair<int, double>>> cols(n);
+  for (std::size_t o = 0; o < s; ++o)
+    for (std::size_t k = 0; k < taps; ++k) {
+      const double v = w[o * taps + k];
+      const long i = start[o] + static_cast<long>(k);
+      if (v != 0 && i >= 0 && i < static_cast<long>(n)) cols[static_cast<std::size_t>(i)].push_back({int(o), v});
+    }
+  t.taps = 1;
+  for (const auto& c : cols)
+    if (!c.empty()) t.taps = std::max<std::size_t>(t.taps, static_cast<std::size_t>(c.back().first - c.front().first + 1));
+  t.start.assign(n, 0);
+  t.w.assign(n * t.taps, 0.0);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (cols[i].empty()) continue;
+    t.start[i] = cols[i].front().first;
+    for (const auto& ov : cols[i]) t.w[i * t.taps + static_cast<std::size_t>(ov.first - t.start[i])] = ov.second;
+  }
+  return t;
+}
+
 std::vector<std::string> builtin_cameras() { return {"FLIR_GS3-U3-41S4C"}; }
 
 Eigen::MatrixXd sensor_response(const SystemConfig& cfg) {

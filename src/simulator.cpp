@@ -42,6 +42,10 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p) : rt_(rt
   k_sensor_ = rt_.kernel("sensor.cl", "sensor_integrate", p);
   k_expand_ = rt_.kernel("doe.cl", "expand_params", p);
   k_quantize_ = rt_.kernel("doe.cl", "quantize_blend", p);
+  k_dot_ = rt_.kernel("adjoint.cl", "band_dot", p);
+  k_norm_vjp_ = rt_.kernel("adjoint.cl", "normalize_vjp", p);
+  k_int_vjp_ = rt_.kernel("adjoint.cl", "intensity_vjp", p);
+  k_phase_vjp_ = rt_.kernel("adjoint.cl", "phase_vjp", p);
 
   k_ = upload_real(wavenumber_per_band(cfg_));
   dn_ = upload_real(delta_n_per_band(cfg_));
@@ -77,18 +81,18 @@ cl::Buffer Simulator::upload(const std::vector<T>& host, cl_mem_flags flags) con
   return cl::Buffer(rt_.context(), flags | CL_MEM_COPY_HOST_PTR, copy.size() * sizeof(T), copy.data());
 }
 
-cl::Buffer Simulator::upload_real(const std::vector<double>& host) const {
-  if (prec_ == Precision::F64) return upload(host);
-  return upload(std::vector<float>(host.begin(), host.end()));
+cl::Buffer Simulator::upload_real(const std::vector<double>& host, cl_mem_flags flags) const {
+  if (prec_ == Precision::F64) return upload(host, flags);
+  return upload(std::vector<float>(host.begin(), host.end()), flags);
 }
 
-cl::Buffer Simulator::upload_complex(const std::vector<cdouble>& host) const {
+cl::Buffer Simulator::upload_complex(const std::vector<cdouble>& host, cl_mem_flags flags) const {
   std::vector<double> flat(host.size() * 2);
   for (std::size_t i = 0; i < host.size(); ++i) {
     flat[2 * i] = host[i].real();
     flat[2 * i + 1] = host[i].imag();
   }
-  return upload_real(flat);
+  return upload_real(flat, flags);
 }
 
 std::vector<double> Simulator::download_real(const cl::Buffer& b, std::size_t count) const {
@@ -215,30 +219,35 @@ Map2D Simulator::heights() const {
   return h;
 }
 
-void Simulator::run_doe_field() {
-  if (!heights_set_) throw Error("Simulator: set_heights() must be called before computing fields or PSFs");
-  const std::size_t m = geom_.m;
+// Arguments shared by doe_field and phase_vjp: (height, k, dn, <buffer>, <buffer>) then
+// n, m, offset, bands, pitch, distance (<= 0: plane wave), aperture radius².
+void Simulator::set_phase_args(cl::Kernel& k) {
   const double r = cfg_.aperture_radius();
   const double d = cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m;
-  auto& k = k_field_;
   k.setArg(0, heights_);
   k.setArg(1, k_);
   k.setArg(2, dn_);
-  k.setArg(3, field_);
-  k.setArg(4, int(cfg_.n));
-  k.setArg(5, int(m));
-  k.setArg(6, int(geom_.offset));
-  k.setArg(7, int(cfg_.bands));
+  k.setArg(5, int(cfg_.n));
+  k.setArg(6, int(geom_.m));
+  k.setArg(7, int(geom_.offset));
+  k.setArg(8, int(cfg_.bands));
   if (prec_ == Precision::F64) {
-    k.setArg(8, cfg_.pitch_m);
-    k.setArg(9, d);
-    k.setArg(10, r * r);
+    k.setArg(9, cfg_.pitch_m);
+    k.setArg(10, d);
+    k.setArg(11, r * r);
   } else {
-    k.setArg(8, float(cfg_.pitch_m));
-    k.setArg(9, float(d));
-    k.setArg(10, float(r * r));
+    k.setArg(9, float(cfg_.pitch_m));
+    k.setArg(10, float(d));
+    k.setArg(11, float(r * r));
   }
-  enqueue_1d(k, cfg_.bands * m * m);
+}
+
+void Simulator::run_doe_field() {
+  if (!heights_set_) throw Error("Simulator: set_heights() must be called before computing fields or PSFs");
+  set_phase_args(k_field_);
+  k_field_.setArg(3, field_);
+  k_field_.setArg(4, 0);  // unused slot keeps the argument layout of phase_vjp
+  enqueue_1d(k_field_, cfg_.bands * geom_.m * geom_.m);
 }
 
 void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampling) {
@@ -270,7 +279,8 @@ void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampl
       s.aliased_energy_fraction = tot > 0 ? beyond / tot : 0.0;
     }
   }
-  cl::Buffer tf = (z_m == cfg_.sensor_distance_m) ? tf_ : make_tf(z_m);
+  if (z_m == -cfg_.sensor_distance_m && !tf_back_()) tf_back_ = make_tf(z_m);
+  cl::Buffer tf = z_m == cfg_.sensor_distance_m ? tf_ : z_m == -cfg_.sensor_distance_m ? tf_back_ : make_tf(z_m);
   k_tf_.setArg(0, field);
   k_tf_.setArg(1, tf);
   if (cfg_.propagator == Propagator::Fresnel) {
@@ -355,6 +365,91 @@ RealStack Simulator::psf_sensor() const {
   return out;
 }
 
+void Simulator::normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len, const cl::Buffer& sums) {
+  const std::size_t bands = cfg_.bands;
+  k_dot_.setArg(0, g);
+  k_dot_.setArg(1, y);
+  k_dot_.setArg(2, int(len));
+  k_dot_.setArg(3, partial_);
+  k_dot_.setArg(4, int(kGroupsPerBand));
+  k_dot_.setArg(5, cl::Local(Runtime::kLocalSize * rsz_));
+  rt_.queue().enqueueNDRangeKernel(k_dot_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
+                                   cl::NDRange(Runtime::kLocalSize, 1));
+  k_finalize_.setArg(0, partial_);
+  k_finalize_.setArg(1, dots_);
+  k_finalize_.setArg(2, int(kGroupsPerBand));
+  k_finalize_.setArg(3, int(bands));
+  enqueue_1d(k_finalize_, bands);
+  k_norm_vjp_.setArg(0, g);
+  k_norm_vjp_.setArg(1, dots_);
+  k_norm_vjp_.setArg(2, sums);
+  k_norm_vjp_.setArg(3, int(len));
+  k_norm_vjp_.setArg(4, int(bands));
+  enqueue_1d(k_norm_vjp_, bands * len);
+}
+
+Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
+  const std::size_t n = cfg_.n, m = geom_.m, bands = cfg_.bands;
+  if (!gfield_()) gfield_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * m * m * 2 * rsz_);
+  if (!dh_()) dh_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, n * n * rsz_);
+  k_int_vjp_.setArg(0, g_native);
+  k_int_vjp_.setArg(1, field_);
+  k_int_vjp_.setArg(2, gfield_);
+  k_int_vjp_.setArg(3, int(n));
+  k_int_vjp_.setArg(4, int(m));
+  k_int_vjp_.setArg(5, int(geom_.offset));
+  k_int_vjp_.setArg(6, int(bands));
+  enqueue_1d(k_int_vjp_, bands * m * m);
+  run_propagation(gfield_, -cfg_.sensor_distance_m, false);  // adjoint of +z propagation
+  set_phase_args(k_phase_vjp_);
+  k_phase_vjp_.setArg(3, gfield_);
+  k_phase_vjp_.setArg(4, dh_);
+  enqueue_1d(k_phase_vjp_, n * n);
+  Map2D out(n, n);
+  out.data = download_real(dh_, n * n);
+  return out;
+}
+
+Map2D Simulator::psf_native_vjp(const RealStack& g_psf) {
+  if (!psf_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
+  if (g_psf.planes != cfg_.bands || g_psf.rows != cfg_.n || g_psf.cols != cfg_.n)
+    reject("g_psf", to_str(g_psf.planes) + " x " + to_str(g_psf.rows) + " x " + to_str(g_psf.cols),
+           "bands x N x N = " + to_str(cfg_.bands) + " x " + to_str(cfg_.n) + " x " + to_str(cfg_.n));
+  if (!dots_()) dots_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, cfg_.bands * rsz_);
+  cl::Buffer g = upload_real(g_psf.data, CL_MEM_READ_WRITE);
+  normalize_vjp(g, psf_, cfg_.n * cfg_.n, sums_crop_);
+  return backward_from_native(g);
+}
+
+Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
+  if (!psf_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
+  if (g_psf_sensor.planes != cfg_.bands || g_psf_sensor.rows != s_ || g_psf_sensor.cols != s_)
+    reject("g_psf_sensor", to_str(g_psf_sensor.planes) + " x " + to_str(g_psf_sensor.rows) + " x " + to_str(g_psf_sensor.cols),
+           "bands x S x S = " + to_str(cfg_.bands) + " x " + to_str(s_) + " x " + to_str(s_));
+  const std::size_t n = cfg_.n, bands = cfg_.bands;
+  if (!dots_()) dots_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * rsz_);
+  if (!wts_t_()) {
+    weights_t_ = weights_.transposed();
+    wstart_t_ = upload(weights_t_.start);
+    wts_t_ = upload_real(weights_t_.w);
+  }
+  cl::Buffer g_sensor = upload_real(g_psf_sensor.data, CL_MEM_READ_WRITE);
+  normalize_vjp(g_sensor, psf_s_, s_ * s_, sums_sensor_);
+  // Transposed area resampling: the same kernel with the transposed weights (S -> N).
+  cl::Buffer g(rt_.context(), CL_MEM_READ_WRITE, bands * n * n * rsz_);
+  k_resample_.setArg(0, g_sensor);
+  k_resample_.setArg(1, g);
+  k_resample_.setArg(2, wstart_t_);
+  k_resample_.setArg(3, wts_t_);
+  k_resample_.setArg(4, int(s_));
+  k_resample_.setArg(5, int(n));
+  k_resample_.setArg(6, int(weights_t_.taps));
+  k_resample_.setArg(7, int(bands));
+  enqueue_1d(k_resample_, bands * n * n);
+  normalize_vjp(g, psf_, n * n, sums_crop_);
+  return backward_from_native(g);
+}
+
 ComplexStack Simulator::debug_field_after_doe() {
   run_doe_field();
   ComplexStack out(cfg_.bands, geom_.m, geom_.m);
@@ -374,9 +469,7 @@ ComplexStack Simulator::propagate_field(const ComplexStack& field, double z_m) {
   if (field.planes != cfg_.bands || field.rows != geom_.m || field.cols != geom_.m)
     reject("field", to_str(field.planes) + " x " + to_str(field.rows) + " x " + to_str(field.cols),
            "bands x M x M = " + to_str(cfg_.bands) + " x " + to_str(geom_.m) + " x " + to_str(geom_.m));
-  cl::Buffer buf = upload_complex(field.data);
-  cl::Buffer rw(rt_.context(), CL_MEM_READ_WRITE, field.size() * 2 * rsz_);
-  rt_.queue().enqueueCopyBuffer(buf, rw, 0, 0, field.size() * 2 * rsz_);
+  cl::Buffer rw = upload_complex(field.data, CL_MEM_READ_WRITE);
   run_propagation(rw, z_m, false);
   ComplexStack out(field.planes, field.rows, field.cols);
   out.data = download_complex(rw, out.size());

@@ -64,6 +64,8 @@ struct AreaWeights {
   std::vector<int> start;            // s
   std::vector<double> w;             // s x taps, row-major
   static AreaWeights make(std::size_t n, double pitch_in_m, std::size_t s, double pitch_out_m);
+  // The transpose (maps the length-s grid back onto the length-n grid): n and s swap roles.
+  AreaWeights transposed() const;
 };
 
 // The sensor response as a 3 x B matrix (rows R, G, B) on the configuration's band grid,

@@ -48,6 +48,12 @@ class Simulator {
   RealStack psf_sensor() const;        // bands x S x S on the sensor pitch, each band sums to 1
   const SamplingReport& sampling() const { return sampling_; }
 
+  // Adjoints at the current heights (compute_psf() must have run; its field, sums and PSFs are
+  // reused, all on the device): dL/dH (N x N, per metre) for a gradient of L with respect to
+  // psf_sensor() (bands x S x S) or psf_native() (bands x N x N). See include/qdo/adjoint.hpp.
+  Map2D psf_sensor_vjp(const RealStack& g_psf_sensor);
+  Map2D psf_native_vjp(const RealStack& g_psf);
+
   // Field after the DOE (bands x M x M) and after propagation, for tests: runs the stages
   // up to that point and returns a host copy.
   ComplexStack debug_field_after_doe();
@@ -72,9 +78,9 @@ class Simulator {
  private:
   template <typename T>
   cl::Buffer upload(const std::vector<T>& host, cl_mem_flags flags = CL_MEM_READ_ONLY) const;
-  cl::Buffer upload_real(const std::vector<double>& host) const;
+  cl::Buffer upload_real(const std::vector<double>& host, cl_mem_flags flags = CL_MEM_READ_ONLY) const;
   cl::Buffer make_tf(double z_m) const;
-  cl::Buffer upload_complex(const std::vector<cdouble>& host) const;
+  cl::Buffer upload_complex(const std::vector<cdouble>& host, cl_mem_flags flags = CL_MEM_READ_ONLY) const;
   std::vector<double> download_real(const cl::Buffer& b, std::size_t count) const;
   std::vector<cdouble> download_complex(const cl::Buffer& b, std::size_t count) const;
   void enqueue_1d(cl::Kernel& k, std::size_t n);
@@ -84,6 +90,9 @@ class Simulator {
   void ensure_conv(std::size_t h, std::size_t w, std::size_t scenes);
   void run_convolution(const std::vector<RealStack>& cubes);
   void run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw, std::size_t scenes);
+  void set_phase_args(cl::Kernel& k);
+  void normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len, const cl::Buffer& sums);
+  Map2D backward_from_native(const cl::Buffer& g_native);
 
   Runtime& rt_;
   SystemConfig cfg_;
@@ -105,7 +114,11 @@ class Simulator {
   cl::Buffer otf_, sbuf_, cube_, blurred_, rgb_;
 
   cl::Kernel k_field_, k_tf_, k_energy_, k_crop_, k_sums_, k_energy_sums_, k_finalize_, k_scale_, k_resample_,
-      k_place_scene_, k_place_psf_, k_cmul_, k_crop_real_, k_sensor_, k_expand_, k_quantize_;
+      k_place_scene_, k_place_psf_, k_cmul_, k_crop_real_, k_sensor_, k_expand_, k_quantize_,
+      k_dot_, k_norm_vjp_, k_int_vjp_, k_phase_vjp_;
+  // Adjoint state: transposed resampling weights, the back-propagation TF, gradient buffers.
+  AreaWeights weights_t_;
+  cl::Buffer wstart_t_, wts_t_, tf_back_, gfield_, dots_, dh_;
 };
 
 }  // namespace qdo

@@ -1,0 +1,95 @@
+// Host-side design optimisation: Adam over the DOE parameters (and the adaptive level offsets),
+// with the quantization modes of REFERENCE §2, driven by any differentiable objective of the
+// sensor PSF stack. Gradients come from Simulator::psf_sensor_vjp (OpenCL adjoint) and the
+// host adjoints of the quantizer and the parameterization (qdo/adjoint.hpp).
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "qdo/doe.hpp"
+#include "qdo/simulator.hpp"
+
+namespace qdo {
+
+// full: optimise and evaluate in full precision. do: optimise in full precision; quantize only
+// at evaluation (the paper's conventional deep optics). qdo: alpha-blended quantization with the
+// cubic schedule. ste: hard quantization with the straight-through estimator. qdo+a: blend plus
+// trainable per-level offsets and the adaptive-quantization loss beta * L_aq.
+enum class DesignMode { Full, DO, QDO, STE, QDOA };
+DesignMode design_mode_from_string(const std::string& s);
+std::string to_string(DesignMode m);
+
+// Adam (Kingma & Ba) with bias correction; one instance per parameter group.
+struct Adam {
+  double lr = 0.01, beta1 = 0.9, beta2 = 0.999, epsilon = 1e-8;
+  std::vector<double> m, v;
+  long t = 0;
+  // params -= lr_now * mhat / (sqrt(vhat) + eps), then clip to [lo, hi].
+  void step(std::vector<double>& params, const std::vector<double>& grad, double lr_now, double lo, double hi);
+};
+
+struct DesignOptions {
+  DesignMode mode = DesignMode::QDOA;
+  Parameterization parameterization = Parameterization::Radial;
+  Quantizer quantizer;                 // levels, placement (offsets are trained in qdo+a)
+  std::size_t steps_per_epoch = 10;
+  double t0_epochs = 5, t1_epochs = 40;  // alpha schedule (REFERENCE §2)
+  double lr_optics = 0.01;             // on the normalised weights w in [-1, 1]
+  double lr_offsets = 0.01;
+  double lr_decay_per_epoch = 0.8;
+  double beta_aq = 0.01;               // weight of L_aq (qdo+a)
+  double height_noise_m = 0;           // uniform fabrication noise +-height_noise_m per step (0: off)
+  std::uint64_t seed = 0;
+};
+
+// Optimisation state: everything a checkpoint needs to resume bit-identically.
+struct DesignState {
+  std::vector<double> w;               // normalised weights in [-1, 1], H = h_max (w + 1) / 2
+  std::vector<double> offsets;         // L adaptive offsets (qdo+a), a_0 = 0
+  Adam adam_w, adam_a;
+  long step = 0;
+};
+
+// Objective: given the sensor PSF stack (bands x S x S), return the loss and write dL/dpsf.
+using PsfObjective = std::function<double(const RealStack& psf_sensor, RealStack& grad)>;
+
+struct StepReport {
+  long step = 0;
+  double loss = 0, loss_aq = 0, alpha = 0, lr = 0;
+};
+
+class Designer {
+ public:
+  Designer(Simulator& sim, const DesignOptions& opt);
+  // A fresh state: w from an initial height map's parameters (metres), offsets zero.
+  DesignState initial_state(const std::vector<double>& params_m) const;
+  // Loss and gradients at the state (forward on the device, adjoint on the device, host adjoints
+  // of the quantizer and parameterization): dL/dw (size of w) and dL/da (L offsets).
+  struct Gradient {
+    StepReport report;
+    std::vector<double> g_w, g_offsets;
+  };
+  Gradient gradient(const DesignState& s, const PsfObjective& objective);
+  // One optimiser step (gradient, then Adam on each group); returns the loss before the update.
+  StepReport step(DesignState& s, const PsfObjective& objective);
+  // The heights the current state means at step s (blended, noise-free) and the design as it
+  // would be fabricated (hard-quantized unless mode is full).
+  Map2D training_heights(const DesignState& s) const;
+  Map2D fabricated_heights(const DesignState& s) const;
+  std::vector<double> params_m(const DesignState& s) const;   // H_f parameters in metres
+  Quantizer quantizer(const DesignState& s) const;            // with the trained offsets (qdo+a)
+  double alpha_at(long step) const;
+
+ private:
+  Simulator& sim_;
+  DesignOptions opt_;
+  double h_max_;
+};
+
+// Loss of matching a target PSF stack: mean over bands x S x S of (psf - target)^2, scaled by
+// S^2 so it is O(1) for PSFs that sum to 1.
+PsfObjective psf_target_objective(const RealStack& target);
+
+}  // namespace qdo

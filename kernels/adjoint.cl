@@ -1,0 +1,68 @@
+// Adjoint (vector-Jacobian product) kernels of the PSF chain; see include/qdo/adjoint.hpp for
+// the gradient convention (complex gradients g = dL/dRe + i dL/dIm).
+
+// Per-band partial dot products <a_b, b_b>. NDRange (groups_per_band * local, bands).
+// a, b: bands x len real; partial: bands x groups_per_band.
+__kernel void band_dot(__global const real* a, __global const real* b, const int len, __global real* partial,
+                       const int groups_per_band, __local real* scratch) {
+  const int band = get_group_id(1), g = get_group_id(0), lid = get_local_id(0), ls = get_local_size(0);
+  real acc = R(0.0);
+  for (size_t e = (size_t)g * ls + lid; e < (size_t)len; e += (size_t)groups_per_band * ls)
+    acc += a[(size_t)band * len + e] * b[(size_t)band * len + e];
+  scratch[lid] = acc;
+  barrier(CLK_LOCAL_MEM_FENCE);
+  for (int s = ls / 2; s > 0; s >>= 1) {
+    if (lid < s) scratch[lid] += scratch[lid + s];
+    barrier(CLK_LOCAL_MEM_FENCE);
+  }
+  if (lid == 0) partial[(size_t)band * groups_per_band + g] = scratch[0];
+}
+
+// VJP of y = x / sum(x) per band: g_x = (g_y - <g_y, y>) / sum(x). g: bands x len, in place.
+__kernel void normalize_vjp(__global real* g, __global const real* dots, __global const real* sums, const int len,
+                            const int bands) {
+  const size_t gid = get_global_id(0);
+  if (gid >= (size_t)len * bands) return;
+  const int b = (int)(gid / len);
+  const real s = sums[b];
+  g[gid] = s > R(0.0) ? (g[gid] - dots[b]) / s : R(0.0);
+}
+
+// VJP of P = |U2|² on the central N x N: gU (bands x M x M complex, written in full) =
+// 2 g_P U2 inside the crop, 0 outside. g_p: bands x N x N; u2: bands x M x M.
+__kernel void intensity_vjp(__global const real* g_p, __global const real2* u2, __global real2* gu, const int n,
+                            const int m, const int offset, const int bands) {
+  const size_t gid = get_global_id(0);
+  const size_t mm = (size_t)m * m;
+  if (gid >= mm * bands) return;
+  const int b = (int)(gid / mm);
+  const int rem = (int)(gid - (size_t)b * mm);
+  const int y = rem / m, x = rem - y * m;
+  const int i = y - offset, j = x - offset;
+  real2 v = (real2)(R(0.0), R(0.0));
+  if (i >= 0 && i < n && j >= 0 && j < n) v = R(2.0) * g_p[((size_t)b * n + i) * n + j] * u2[gid];
+  gu[gid] = v;
+}
+
+// VJP of the DOE phase: dH[i][j] = sum_b k_b dn_b Re(conj(gU1) i U1), U1 recomputed exactly as
+// doe_field does. gu: bands x M x M; dh: N x N.
+__kernel void phase_vjp(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
+                        __global const real2* gu, __global real* dh, const int n, const int m, const int offset,
+                        const int bands, const real pitch_m, const real distance_m, const real r_ap2_m2) {
+  const size_t gid = get_global_id(0);
+  if (gid >= (size_t)n * n) return;
+  const int i = (int)(gid / n), j = (int)(gid - (size_t)i * n);
+  const real y = (real)(i - n / 2) * pitch_m, x = (real)(j - n / 2) * pitch_m;
+  const real r2 = x * x + y * y;
+  real acc = R(0.0);
+  if (r2 <= r_ap2_m2) {
+    const real src = distance_m > R(0.0) ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : R(0.0);
+    const real h = height_m[gid];
+    for (int b = 0; b < bands; ++b) {
+      const real2 u = cexpi(k_per_m[b] * (src + dn[b] * h));
+      const real2 g = gu[(size_t)b * m * m + (size_t)(offset + i) * m + (offset + j)];
+      acc += k_per_m[b] * dn[b] * (g.y * u.x - g.x * u.y);
+    }
+  }
+  dh[gid] = acc;
+}

@@ -1,0 +1,190 @@
+#include "qdo/design.hpp"
+
+#include <cmath>
+#include <random>
+
+#include "qdo/adjoint.hpp"
+#include "qdo/error.hpp"
+
+namespace qdo {
+
+DesignMode design_mode_from_string(const std::string& s) {
+  if (s == "full") return DesignMode::Full;
+  if (s == "do") return DesignMode::DO;
+  if (s == "qdo") return DesignMode::QDO;
+  if (s == "ste") return DesignMode::STE;
+  if (s == "qdo+a" || s == "qdoa") return DesignMode::QDOA;
+  reject("mode", s, "one of full, do, qdo, ste, qdo+a");
+}
+
+std::string to_string(DesignMode m) {
+  switch (m) {
+    case DesignMode::Full: return "full";
+    case DesignMode::DO: return "do";
+    case DesignMode::QDO: return "qdo";
+    case DesignMode::STE: return "ste";
+    case DesignMode::QDOA: return "qdo+a";
+  }
+  return "?";
+}
+
+void Adam::step(std::vector<double>& params, const std::vector<double>& grad, double lr_now, double lo, double hi) {
+  if (grad.size() != params.size()) reject("grad.size()", grad.size(), "the parameter count " + to_str(params.size()));
+  if (m.size() != params.size()) {
+    m.assign(params.size(), 0.0);
+    v.assign(params.size(), 0.0);
+  }
+  ++t;
+  const double c1 = 1.0 - std::pow(beta1, double(t)), c2 = 1.0 - std::pow(beta2, double(t));
+  for (std::size_t i = 0; i < params.size(); ++i) {
+    m[i] = beta1 * m[i] + (1 - beta1) * grad[i];
+    v[i] = beta2 * v[i] + (1 - beta2) * grad[i] * grad[i];
+    params[i] -= lr_now * (m[i] / c1) / (std::sqrt(v[i] / c2) + epsilon);
+    params[i] = std::min(hi, std::max(lo, params[i]));
+  }
+}
+
+Designer::Designer(Simulator& sim, const DesignOptions& opt) : sim_(sim), opt_(opt), h_max_(sim.config().h_max_m()) {
+  opt_.quantizer.offsets.clear();
+  opt_.quantizer.validate();
+  if (opt_.steps_per_epoch < 1) reject("steps_per_epoch", opt_.steps_per_epoch, ">= 1");
+  if (!(opt_.t1_epochs > opt_.t0_epochs) || opt_.t0_epochs < 0)
+    reject("t1_epochs", opt_.t1_epochs, "> t0_epochs = " + to_str(opt_.t0_epochs) + " >= 0");
+  for (const auto& [name, v] : {std::pair<const char*, double>{"lr_optics", opt_.lr_optics}, {"lr_offsets", opt_.lr_offsets},
+                                {"lr_decay_per_epoch", opt_.lr_decay_per_epoch}, {"beta_aq", opt_.beta_aq},
+                                {"height_noise_m", opt_.height_noise_m}})
+    if (!(v >= 0) || !std::isfinite(v)) reject(name, v, "finite and >= 0");
+}
+
+DesignState Designer::initial_state(const std::vector<double>& params_m) const {
+  if (params_m.size() != parameter_count(opt_.parameterization, sim_.config().n))
+    reject("params_m.size()", params_m.size(), "exactly " + to_str(parameter_count(opt_.parameterization, sim_.config().n)));
+  DesignState s;
+  for (double p : params_m) s.w.push_back(std::min(1.0, std::max(-1.0, 2.0 * p / h_max_ - 1.0)));
+  s.offsets.assign(static_cast<std::size_t>(opt_.quantizer.levels), 0.0);
+  s.adam_w.lr = opt_.lr_optics;
+  s.adam_a.lr = opt_.lr_offsets;
+  return s;
+}
+
+double Designer::alpha_at(long step) const {
+  const double spe = double(opt_.steps_per_epoch);
+  return alpha_schedule(double(step), opt_.t0_epochs * spe, opt_.t1_epochs * spe);
+}
+
+std::vector<double> Designer::params_m(const DesignState& s) const {
+  std::vector<double> p;
+  p.reserve(s.w.size());
+  for (double w : s.w) p.push_back(h_max_ * (w + 1.0) / 2.0);
+  return p;
+}
+
+Quantizer Designer::quantizer(const DesignState& s) const {
+  Quantizer q = opt_.quantizer;
+  if (opt_.mode == DesignMode::QDOA) q.offsets = s.offsets;
+  return q;
+}
+
+Map2D Designer::training_heights(const DesignState& s) const {
+  const Map2D hf = expand_parameters(opt_.parameterization, params_m(s), sim_.config().n, h_max_);
+  switch (opt_.mode) {
+    case DesignMode::Full:
+    case DesignMode::DO: return hf;
+    case DesignMode::STE: return quantize_heights(hf, h_max_, quantizer(s), 1.0);
+    case DesignMode::QDO:
+    case DesignMode::QDOA: return quantize_heights(hf, h_max_, quantizer(s), alpha_at(s.step));
+  }
+  return hf;
+}
+
+Map2D Designer::fabricated_heights(const DesignState& s) const {
+  const Map2D hf = expand_parameters(opt_.parameterization, params_m(s), sim_.config().n, h_max_);
+  if (opt_.mode == DesignMode::Full) return hf;
+  return quantize_heights(hf, h_max_, quantizer(s), 1.0);
+}
+
+Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& objective) {
+  const SystemConfig& cfg = sim_.config();
+  const std::size_t n = cfg.n;
+  const std::vector<double> p = params_m(s);
+  const Map2D hf = expand_parameters(opt_.parameterization, p, n, h_max_);
+  const Quantizer q = quantizer(s);
+  const bool quantized = opt_.mode == DesignMode::QDO || opt_.mode == DesignMode::QDOA || opt_.mode == DesignMode::STE;
+  const double alpha = opt_.mode == DesignMode::STE ? 1.0 : quantized ? alpha_at(s.step) : 0.0;
+  Map2D h = training_heights(s);
+  if (opt_.height_noise_m > 0) {
+    std::mt19937_64 rng(opt_.seed * 0x9E3779B97F4A7C15ull + std::uint64_t(s.step));
+    std::uniform_real_distribution<double> u(-opt_.height_noise_m, opt_.height_noise_m);
+    for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + u(rng)));
+  }
+  sim_.set_heights(h);
+  sim_.compute_psf();
+  const RealStack psf = sim_.psf_sensor();
+  RealStack g(psf.planes, psf.rows, psf.cols);
+  StepReport rep;
+  rep.step = s.step;
+  rep.alpha = alpha;
+  rep.loss = objective(psf, g);
+  const Map2D gh = sim_.psf_sensor_vjp(g);
+
+  Map2D ghf = gh;
+  std::vector<double> ga(static_cast<std::size_t>(q.levels), 0.0);
+  if (quantized) {
+    const auto qv = ref::quantize_vjp(hf, h_max_, q, alpha, gh, opt_.mode == DesignMode::STE);
+    ghf = qv.g_full;
+    ga = qv.g_offsets;
+  }
+  if (opt_.mode == DesignMode::QDOA && opt_.beta_aq > 0) {
+    // L_aq = mean((F(Q(u)) - u)^2) on normalised heights u = H_f / h_max; Q(u) is held constant.
+    const double denom = q.placement == Placement::Inclusive ? double(q.levels - 1) : double(q.levels);
+    const double np = double(hf.data.size());
+    double laq = 0;
+    for (std::size_t i = 0; i < hf.data.size(); ++i) {
+      const double u = hf.data[i] / h_max_;
+      const int l = q.level_index(u);
+      const double r = q.level_value(l) - u;
+      laq += r * r / np;
+      ghf.data[i] += opt_.beta_aq * (-2.0 * r / np) / h_max_;
+      if (l > 0) ga[static_cast<std::size_t>(l)] += opt_.beta_aq * 2.0 * r / np * 0.5 / denom;
+    }
+    rep.loss_aq = laq;
+  }
+  std::vector<double> gw = ref::expand_parameters_vjp(opt_.parameterization, p, n, h_max_, ghf);
+  for (double& v : gw) v *= h_max_ / 2.0;
+  ga[0] = 0.0;  // level 0 is fixed
+  rep.loss += opt_.mode == DesignMode::QDOA ? opt_.beta_aq * rep.loss_aq : 0.0;
+  return {rep, gw, ga};
+}
+
+StepReport Designer::step(DesignState& s, const PsfObjective& objective) {
+  Gradient g = gradient(s, objective);
+  const double epoch = std::floor(double(s.step) / double(opt_.steps_per_epoch));
+  g.report.lr = opt_.lr_optics * std::pow(opt_.lr_decay_per_epoch, epoch);
+  s.adam_w.step(s.w, g.g_w, g.report.lr, -1.0, 1.0);
+  if (opt_.mode == DesignMode::QDOA) {
+    const double lim = opt_.quantizer.levels == 2 ? 0.2 : 1.0;
+    s.adam_a.step(s.offsets, g.g_offsets, opt_.lr_offsets * std::pow(opt_.lr_decay_per_epoch, epoch), -lim, lim);
+    s.offsets[0] = 0.0;
+  }
+  ++s.step;
+  return g.report;
+}
+
+PsfObjective psf_target_objective(const RealStack& target) {
+  return [target](const RealStack& psf, RealStack& grad) {
+    if (psf.size() != target.size())
+      reject("target PSF", to_str(target.planes) + " x " + to_str(target.rows) + " x " + to_str(target.cols),
+             "the sensor PSF shape " + to_str(psf.planes) + " x " + to_str(psf.rows) + " x " + to_str(psf.cols));
+    const double scale = double(psf.rows * psf.cols) * double(psf.rows * psf.cols) / double(psf.size());
+    double loss = 0;
+    grad = RealStack(psf.planes, psf.rows, psf.cols);
+    for (std::size_t i = 0; i < psf.size(); ++i) {
+      const double d = psf.data[i] - target.data[i];
+      loss += scale * d * d;
+      grad.data[i] = 2.0 * scale * d;
+    }
+    return loss;
+  };
+}
+
+}  // namespace qdo

@@ -1,0 +1,198 @@
+// The adjoint ladder (double precision, CPU reference): a dot-product test for each
+// forward/adjoint pair, a directional finite difference of the whole chain, central differences
+// on sampled parameters; then the OpenCL adjoint against the CPU reference.
+#include <cmath>
+#include <random>
+
+#include "common.hpp"
+#include "qdo/adjoint.hpp"
+#include "qdo/cpu_reference.hpp"
+#include "qdo/simulator.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+
+namespace {
+
+double dot(const std::vector<double>& a, const std::vector<double>& b) {
+  double s = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) s += a[i] * b[i];
+  return s;
+}
+double cdot(const std::vector<cdouble>& a, const std::vector<cdouble>& b) {  // Re <a, b>
+  double s = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) s += (std::conj(a[i]) * b[i]).real();
+  return s;
+}
+RealStack random_stack(std::size_t p, std::size_t r, std::size_t c, unsigned seed, double lo = -1, double hi = 1) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(lo, hi);
+  RealStack s(p, r, c);
+  for (auto& v : s.data) v = u(rng);
+  return s;
+}
+Map2D random_map(std::size_t n, unsigned seed, double scale) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> u(0, scale);
+  Map2D m(n, n);
+  for (auto& v : m.data) v = u(rng);
+  return m;
+}
+// A smooth design well inside (0, h_max) so finite differences never hit the clamp.
+Map2D smooth_heights(const SystemConfig& c, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0, 2 * M_PI);
+  const double a = u(rng), b = u(rng);
+  Map2D h(c.n, c.n);
+  for (std::size_t i = 0; i < c.n; ++i)
+    for (std::size_t j = 0; j < c.n; ++j)
+      h(i, j) = c.h_max_m() * (0.5 + 0.3 * std::sin(0.37 * double(i) + a) * std::cos(0.23 * double(j) + b));
+  return h;
+}
+constexpr double kDotTol = 1e-11;  // relative, double precision with O(M² log M) operations
+
+}  // namespace
+
+TEST_SUITE("adjoint") {
+  TEST_CASE("dot-product tests: propagation, resampling, normalisation, the whole PSF chain") {
+    SystemConfig c = tiny_config(32, 3);
+    c.sensor_pitch_m = 10e-6;
+    for (Propagator p : {Propagator::Fresnel, Propagator::AngularSpectrum}) {
+      CAPTURE(int(p));
+      const std::size_t m = 48;
+      ComplexStack x(3, m, m), y(3, m, m);
+      std::mt19937_64 rng(5);
+      std::normal_distribution<double> nd;
+      for (auto& v : x.data) v = cdouble(nd(rng), nd(rng));
+      for (auto& v : y.data) v = cdouble(nd(rng), nd(rng));
+      ComplexStack ax = x, aty = y;
+      ref::propagate(ax, c.wavelengths_nm(), c.pitch_m, c.sensor_distance_m, p);
+      ref::propagate(aty, c.wavelengths_nm(), c.pitch_m, -c.sensor_distance_m, p);
+      const double l = cdot(ax.data, y.data), r = cdot(x.data, aty.data);
+      CHECK(std::fabs(l - r) <= kDotTol * std::fabs(l));
+    }
+    const AreaWeights w = AreaWeights::make(c.n, c.pitch_m, c.sensor_size_px(), c.sensor_pitch_m);
+    const RealStack x = random_stack(3, c.n, c.n, 6), y = random_stack(3, w.s, w.s, 7);
+    const double l = dot(ref::resample_area(x, w).data, y.data), r = dot(x.data, ref::resample_area_adjoint(y, w).data);
+    CHECK(std::fabs(l - r) <= kDotTol * std::fabs(l));
+    // The transposed weights describe the same operator.
+    const AreaWeights wt = w.transposed();
+    CHECK(diff(ref::resample_area(y, wt).data, ref::resample_area_adjoint(y, w).data).max_abs <= 1e-14);
+    // Normalisation (a nonlinear stage: its JVP and VJP at a point).
+    RealStack pos = random_stack(3, 8, 8, 8, 0.1, 1.0);
+    std::vector<double> sums;
+    for (std::size_t b = 0; b < 3; ++b) {
+      double s = 0;
+      for (std::size_t i = 0; i < 64; ++i) s += pos.plane(b)[i];
+      sums.push_back(s);
+    }
+    RealStack yn = pos;
+    ref::normalize_planes(yn);
+    const RealStack dx = random_stack(3, 8, 8, 9), g = random_stack(3, 8, 8, 10);
+    const double ln = dot(ref::normalize_jvp(dx, yn, sums).data, g.data), rn = dot(dx.data, ref::normalize_vjp(g, yn, sums).data);
+    CHECK(std::fabs(ln - rn) <= kDotTol * std::fabs(ln));
+    // The whole chain H -> sensor PSF.
+    const Map2D h = smooth_heights(c, 1), dh = random_map(c.n, 2, 1e-8);
+    const RealStack gs = random_stack(c.bands, c.sensor_size_px(), c.sensor_size_px(), 3);
+    const double lc = dot(ref::psf_sensor_jvp(c, h, dh).data, gs.data);
+    const double rc = dot(dh.data, ref::psf_sensor_vjp(c, h, gs).data);
+    CHECK(std::fabs(lc - rc) <= 1e-9 * std::fabs(lc));
+  }
+
+  TEST_CASE("directional and central finite differences of the PSF chain") {
+    SystemConfig c = tiny_config(32, 3);
+    const Map2D h = smooth_heights(c, 4);
+    const RealStack g = random_stack(c.bands, c.sensor_size_px(), c.sensor_size_px(), 5);
+    auto loss = [&](const Map2D& hh) { return dot(ref::psf_sensor_stack(c, hh).data, g.data); };
+    const Map2D grad = ref::psf_sensor_vjp(c, h, g);
+    // Directional: (L(h + e d) - L(h - e d)) / 2e against <grad, d>.
+    const Map2D d = random_map(c.n, 6, 1.0);
+    const double e = 1e-12;  // metres: phase steps ~1e-5 rad
+    Map2D hp = h, hm = h;
+    for (std::size_t i = 0; i < h.data.size(); ++i) {
+      hp.data[i] += e * d.data[i];
+      hm.data[i] -= e * d.data[i];
+    }
+    const double fd = (loss(hp) - loss(hm)) / (2 * e), an = dot(grad.data, d.data);
+    CAPTURE(fd);
+    CAPTURE(an);
+    CHECK(std::fabs(fd - an) <= 1e-6 * std::fabs(an));
+    // Central differences on 12 sampled heights (inside the aperture).
+    std::mt19937_64 rng(7);
+    int checked = 0;
+    while (checked < 12) {
+      const std::size_t i = rng() % c.n, j = rng() % c.n;
+      const double y = (double(i) - 16) * c.pitch_m, x = (double(j) - 16) * c.pitch_m;
+      if (x * x + y * y > c.aperture_radius() * c.aperture_radius()) continue;
+      Map2D a = h, b = h;
+      a(i, j) += 1e-11;
+      b(i, j) -= 1e-11;
+      const double fdij = (loss(a) - loss(b)) / 2e-11;
+      CAPTURE(i);
+      CAPTURE(j);
+      CHECK(std::fabs(fdij - grad(i, j)) <= 1e-5 * std::fabs(grad(i, j)) + 1e-6 * std::sqrt(dot(grad.data, grad.data) / double(grad.data.size())));
+      ++checked;
+    }
+  }
+
+  TEST_CASE("parameterization and quantizer adjoints") {
+    const std::size_t n = 16;
+    const double hmax = 1.5e-6;
+    for (Parameterization p : {Parameterization::Full2D, Parameterization::Radial, Parameterization::Quad}) {
+      CAPTURE(int(p));
+      std::vector<double> params(parameter_count(p, n));
+      std::mt19937_64 rng(3);
+      std::uniform_real_distribution<double> u(0.1 * hmax, 0.9 * hmax);
+      for (double& v : params) v = u(rng);
+      std::vector<double> dp(params.size());
+      for (double& v : dp) v = u(rng);
+      const Map2D g = random_map(n, 8, 1.0);
+      // Expansion is linear inside the clamp: <E dp, g> = <dp, E^T g>.
+      const Map2D edp = expand_parameters(p, dp, n, 1e9);
+      const double l = dot(edp.data, g.data), r = dot(dp, ref::expand_parameters_vjp(p, params, n, hmax, g));
+      CHECK(std::fabs(l - r) <= 1e-12 * std::fabs(l));
+    }
+    // Quantizer: the blend passes (1 - alpha) to H_f; offsets get alpha h_max 0.5/denom per sample.
+    Quantizer q;
+    q.levels = 4;
+    q.offsets = {0.0, 0.2, -0.3, 0.1};
+    const Map2D hf = random_heights(n, hmax, 9);
+    const Map2D g = random_map(n, 10, 1.0);
+    const double alpha = 0.7;
+    const auto vjp = ref::quantize_vjp(hf, hmax, q, alpha, g);
+    for (std::size_t i = 0; i < hf.data.size(); ++i) CHECK(vjp.g_full.data[i] == doctest::Approx(0.3 * g.data[i]));
+    CHECK(ref::quantize_vjp(hf, hmax, q, alpha, g, true).g_full.data[5] == g.data[5]);
+    for (int l = 1; l < 4; ++l) {
+      Quantizer qp = q, qm = q;
+      qp.offsets[std::size_t(l)] += 1e-4;
+      qm.offsets[std::size_t(l)] -= 1e-4;
+      const double fd = (dot(quantize_heights(hf, hmax, qp, alpha).data, g.data) -
+                         dot(quantize_heights(hf, hmax, qm, alpha).data, g.data)) / 2e-4;
+      CHECK(vjp.g_offsets[std::size_t(l)] == doctest::Approx(fd).epsilon(1e-8));
+    }
+  }
+
+  TEST_CASE("the OpenCL adjoint matches the CPU reference adjoint") {
+    for (Precision p : {Precision::F32, Precision::F64}) {
+      if (p == Precision::F64 && !runtime().has_fp64()) continue;
+      CAPTURE(to_string(p));
+      SystemConfig c = tiny_config(48, 4);
+      c.sensor_pitch_m = 10e-6;
+      const Map2D h = smooth_heights(c, 11);
+      Simulator sim(runtime(), c, p);
+      sim.set_heights(h);
+      sim.compute_psf();
+      const RealStack gs = random_stack(c.bands, sim.sensor_size(), sim.sensor_size(), 12);
+      const Map2D got = sim.psf_sensor_vjp(gs);
+      const Map2D want = ref::psf_sensor_vjp(c, h, gs);
+      const auto d = diff(got.data, want.data);
+      // The gradient sums bands x M² terms of both signs: relative L2 within 2e3 eps (f32: 2.4e-4).
+      CAPTURE(d.rel_l2);
+      CHECK(d.rel_l2 <= 2e3 * eps(p));
+      const RealStack gn = random_stack(c.bands, c.n, c.n, 13);
+      const auto dn = diff(sim.psf_native_vjp(gn).data, ref::psf_native_vjp(c, h, gn).data);
+      CAPTURE(dn.rel_l2);
+      CHECK(dn.rel_l2 <= 2e3 * eps(p));
+    }
+  }
+}
