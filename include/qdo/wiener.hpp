@@ -61,10 +61,11 @@ struct SpectralPrior {
   void validate() const;
 };
 
-// Radial bin of DFT index (ky, kx) on a rows x cols grid: 0 for DC; otherwise with signed
-// frequencies νy = fftfreq(ky)/1, νx = fftfreq(kx) in cycles/pixel and ρ = sqrt(νy² + νx²)
-// (ρ_max = 1/√2 at the corner of an even grid): 1 + floor(ρ / ρ_max · (bins - 1)), capped at
-// bins - 1. f and -f always share a bin. Requires bins >= 2.
+// Radial bin of DFT index (ky, kx) on a rows x cols grid: 0 for DC; otherwise, with the signed
+// frequencies in cycles/pixel νy = k̃y/rows, νx = k̃x/cols (k̃ = k or k − size, as numpy
+// fftfreq) and ρ = sqrt(νy² + νx²) ∈ (0, 1/√2]: 1 + floor(ρ·√2 · (bins − 1)), capped at
+// bins − 1. The edges do not depend on the grid size; f and −f always share a bin.
+// Requires bins >= 2 and ky < rows, kx < cols (InputError).
 std::size_t radial_bin(std::size_t ky, std::size_t kx, std::size_t rows, std::size_t cols, std::size_t bins);
 
 // Estimates P per bin from training cubes (all B x H x W, same shape): the average over scenes

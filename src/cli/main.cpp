@@ -13,6 +13,7 @@
 
 #include "qdo/config.hpp"
 #include "qdo/cpu_reference.hpp"
+#include "qdo/design_run.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -37,6 +38,13 @@ usage:
   qdo simulate [--preset P | --config FILE] --design ... [--levels L ...] --scene builtin|CUBE.(h5|mat) [--key K]
                [--precision ...] [--device ...] --out DIR
   qdo demo     [--preset small|paper] [--levels L] [--device SEL] [--out DIR]
+  qdo design   [--preset P | --config FILE] --mode full|do|qdo|ste|qdo+a --levels L [--placement ...]
+               [--parameterization radial|quad|2d] [--objective wiener|wiener-mse|wiener-mae|psf-target]
+               [--target lens:NM|FILE.h5] [--data PATH[,PATH...]] [--epochs 50] [--steps-per-epoch 10]
+               [--t0 5] [--t1 40] [--lr 0.01] [--lr-offsets 0.01] [--decay 0.8] [--beta 0.01]
+               [--height-noise-nm 0] [--noise-sigma 0.001] [--init random|flat|lens:NM] [--seed S]
+               [--checkpoint-every 10] [--max-steps N] [--resume] [--check-gradients] [--precision ...] --out RUN
+  qdo gradcheck [--preset small] [--mode M] [--objective ...] [--levels 4] [--seed S]
 
 Device selection: --device, else $QDO_DEVICE, else the first GPU, else the first CPU
 (gpu | cpu | P:D as 'qdo devices' prints | a substring of the device name).
@@ -272,6 +280,99 @@ int cmd_simulate(int argc, char** argv) {
   return 0;
 }
 
+double parse_double(const std::string& name, const std::string& v) {
+  char* end = nullptr;
+  const double x = std::strtod(v.c_str(), &end);
+  if (v.empty() || *end || !std::isfinite(x)) reject(name, v, "a number");
+  return x;
+}
+
+std::vector<std::string> split_list(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ','))
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+// Options shared by design and gradcheck.
+DesignRunOptions design_options(const Args& a) {
+  DesignRunOptions o;
+  o.cfg = load_config(a);
+  o.design.mode = design_mode_from_string(a.get("mode", "qdo+a"));
+  o.design.parameterization = parameterization_from_string(a.get("parameterization", "radial"));
+  o.design.quantizer.levels = parse_int("--levels", a.get("levels", "4"), 2, 65536);
+  o.design.quantizer.placement = placement_from_string(a.get("placement", "inclusive"));
+  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch", "10"), 1, 1000000));
+  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", "50"), 1, 1000000));
+  o.design.t0_epochs = parse_double("--t0", a.get("t0", to_str(std::min(5.0, 0.1 * double(o.epochs)))));
+  o.design.t1_epochs = parse_double("--t1", a.get("t1", to_str(0.8 * double(o.epochs))));
+  o.design.lr_optics = parse_double("--lr", a.get("lr", "0.01"));
+  o.design.lr_offsets = parse_double("--lr-offsets", a.get("lr-offsets", "0.01"));
+  o.design.lr_decay_per_epoch = parse_double("--decay", a.get("decay", "0.8"));
+  o.design.beta_aq = parse_double("--beta", a.get("beta", "0.01"));
+  o.design.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", "0")) * 1e-9;
+  o.design.seed = std::uint64_t(parse_int("--seed", a.get("seed", "0"), 0, 2147483647));
+  o.objective = a.get("objective", "wiener");
+  o.target = a.get("target", "lens:550");
+  o.data = split_list(a.get("data", ""));
+  o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "12"), 1, 100000));
+  o.batch = std::size_t(parse_int("--batch", a.get("batch", "4"), 1, 100000));
+  o.decoder_noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma", "0.001"));
+  o.init = a.get("init", "random");
+  o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));
+  o.max_steps = a.has("max-steps") ? parse_int("--max-steps", a.get("max-steps"), 0, 2147483647) : -1;
+  o.precision = precision_from_string(a.get("precision", "f32"));
+  o.out = a.get("out");
+  return o;
+}
+
+int print_gradcheck(const std::vector<GradcheckRow>& rows) {
+  bool ok = true;
+  std::printf("%-78s %12s %10s  %s\n", "parameter group", "max rel err", "tolerance", "");
+  for (const auto& r : rows) {
+    std::printf("%-78s %12.3e %10.1e  %s\n", r.group.c_str(), r.max_rel_error, r.tolerance, r.ok() ? "ok" : "FAIL");
+    ok = ok && r.ok();
+  }
+  return ok ? 0 : 5;
+}
+
+int cmd_design(int argc, char** argv) {
+  const Args a = parse_args(argc, argv,
+                            {"preset", "config", "mode", "levels", "placement", "parameterization", "objective", "target", "data",
+                             "epochs", "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm",
+                             "noise-sigma", "init", "seed", "checkpoint-every", "max-steps", "resume", "check-gradients",
+                             "precision", "device", "out", "synthetic-scenes", "batch"},
+                            "design");
+  DesignRunOptions o = design_options(a);
+  const bool resume = a.get("resume", "no") == "yes" || a.get("resume", "no") == "1" || a.get("resume", "no") == "true";
+  if (!resume) o.validate();
+  Runtime rt(a.get("device"));
+  if (a.has("check-gradients")) {
+    std::printf("gradient check on this run's configuration (reduced to N <= 64):\n");
+    if (const int rc = print_gradcheck(gradcheck(rt, o, o.design.seed)); rc != 0) return rc;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  const DesignRunResult r = run_design(rt, o, resume);
+  std::printf("design: %ld steps, final loss %.6g, %.1f s; levels (nm):", r.steps_done, r.final_loss, seconds_since(t0));
+  for (double l : r.levels_m) std::printf(" %.1f", l * 1e9);
+  std::printf("\nwrote %s/ (config.json checkpoint.h5 log.csv design.h5 psf.h5 design.png psf.png loss.png)\n", o.out.c_str());
+  return 0;
+}
+
+int cmd_gradcheck(int argc, char** argv) {
+  const Args a = parse_args(argc, argv, {"preset", "config", "mode", "levels", "placement", "parameterization", "objective",
+                                         "target", "seed", "device"},
+                            "gradcheck");
+  Args b = a;
+  b.opt["out"] = "(unused)";
+  b.opt["epochs"] = "10";
+  DesignRunOptions o = design_options(b);
+  Runtime rt(a.get("device"));
+  return print_gradcheck(gradcheck(rt, o, o.design.seed));
+}
+
 double rel_l2(const RealStack& a, const RealStack& b) {
   double num = 0, den = 0;
   for (std::size_t i = 0; i < a.size(); ++i) {
@@ -346,6 +447,8 @@ int main(int argc, char** argv) {
     if (cmd == "quantize") return cmd_quantize(argc, argv);
     if (cmd == "simulate") return cmd_simulate(argc, argv);
     if (cmd == "demo") return cmd_demo(argc, argv);
+    if (cmd == "design") return cmd_design(argc, argv);
+    if (cmd == "gradcheck") return cmd_gradcheck(argc, argv);
     std::fprintf(stderr, "qdo: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
     return 2;
   } catch (const InputError& e) {

@@ -1,0 +1,57 @@
+// `qdo design` and `qdo gradcheck` as library calls (the CLI is a thin wrapper; tests call these).
+#pragma once
+#include <string>
+#include <vector>
+
+#include "qdo/design.hpp"
+#include "qdo/runtime.hpp"
+
+namespace qdo {
+
+struct DesignRunOptions {
+  SystemConfig cfg;
+  DesignOptions design;
+  // wiener (closed-form expected MSE under the scene prior, REFERENCE §3b), wiener-mse,
+  // wiener-mae (empirical, on batches of training scenes), psf-target (match `target`).
+  std::string objective = "wiener";
+  std::string target;                  // psf-target: lens:NM or a design .h5 whose PSF is the target
+  std::vector<std::string> data;       // scene files/folders; empty: synthetic scenes
+  std::string data_format = "auto";
+  std::size_t synthetic_scenes = 12;   // when data is empty
+  std::size_t batch = 4;               // scenes per step (wiener-mse, wiener-mae)
+  std::size_t epochs = 50;
+  double decoder_noise_sigma = 1e-3;   // σ of the Wiener filter (REFERENCE §1 training noise)
+  std::size_t prior_bins = 16;
+  std::string init = "random";         // random | flat | lens:NM
+  std::size_t checkpoint_every = 10;
+  long max_steps = -1;                 // stop after this many steps in total (-1: epochs * steps_per_epoch)
+  Precision precision = Precision::F32;
+  std::string out;                     // the run folder
+  bool quiet = false;                  // no progress line
+  void validate() const;               // InputError naming the option
+};
+
+std::string design_run_options_to_json(const DesignRunOptions& o);
+DesignRunOptions design_run_options_from_json(const std::string& text, const std::string& origin);
+
+struct DesignRunResult {
+  long steps_done = 0;
+  double final_loss = 0;
+  std::vector<double> levels_m;        // the fabricated design's level heights
+};
+// Runs (or, with resume, continues from RUN/checkpoint.h5 with RUN/config.json's options, of
+// which only max_steps and quiet are taken from `o`) and writes the run folder (run.hpp).
+DesignRunResult run_design(Runtime& rt, const DesignRunOptions& o, bool resume);
+
+struct GradcheckRow {
+  std::string group;
+  double max_rel_error = 0, tolerance = 0;
+  bool ok() const { return max_rel_error <= tolerance; }
+};
+// Compares every adjoint with central finite differences (double precision, OpenCL float64
+// where the device has it) on random inputs of the configuration: the PSF chain (OpenCL vs CPU
+// reference adjoint, and CPU adjoint vs differences), the parameterization and quantizer in
+// `mode`, the objective with respect to the PSF. N is capped at 64 to keep it quick.
+std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& o, std::uint64_t seed);
+
+}  // namespace qdo

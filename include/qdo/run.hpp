@@ -1,0 +1,26 @@
+// Run folders of `qdo design`: atomic checkpoints that resume bit-identically, a CSV log, and
+// a line plot of the loss. Layout:
+//   RUN/config.json      system configuration + design options (written once)
+//   RUN/checkpoint.h5    optimiser state (/w, /offsets, Adam moments, /step), atomic
+//   RUN/log.csv          one row per step: step, loss, loss_aq, alpha, lr, step_s, level heights
+//   RUN/design.h5        the fabrication-ready height map (only the L level heights) + /levels_m
+//   RUN/psf.h5, RUN/*.png
+#pragma once
+#include <string>
+#include <vector>
+
+#include "qdo/design.hpp"
+
+namespace qdo {
+
+void save_checkpoint(const std::string& path, const DesignState& s);
+// Throws InputError naming the file and dataset when missing, corrupt or mis-shaped
+// (expected_w and expected_levels are the sizes the run's configuration implies).
+DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std::size_t expected_levels);
+
+// A line plot (PNG, width x height) of one or more series against their index, log-scaled y
+// when every value is positive. For loss curves.
+void write_line_plot_png(const std::string& path, const std::vector<std::vector<double>>& series,
+                         std::size_t width = 640, std::size_t height = 360);
+
+}  // namespace qdo
