@@ -48,14 +48,15 @@ __kernel void intensity_vjp(__global const real* g_p, __global const real2* u2, 
 // doe_field does. gu: bands x M x M; dh: N x N.
 __kernel void phase_vjp(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
                         __global const real2* gu, __global real* dh, const int n, const int m, const int offset,
-                        const int bands, const real pitch_m, const real distance_m, const real r_ap2_m2) {
+                        const int bands, const real pitch_m, const real distance_m, const real r_ap2_px) {
   const size_t gid = get_global_id(0);
   if (gid >= (size_t)n * n) return;
   const int i = (int)(gid / n), j = (int)(gid - (size_t)i * n);
-  const real y = (real)(i - n / 2) * pitch_m, x = (real)(j - n / 2) * pitch_m;
+  const int di = i - n / 2, dj = j - n / 2;
+  const real y = (real)di * pitch_m, x = (real)dj * pitch_m;
   const real r2 = x * x + y * y;
   real acc = R(0.0);
-  if (r2 <= r_ap2_m2) {
+  if ((real)(di * di + dj * dj) <= r_ap2_px) {  // integer pixel radius²: exact in float too
     const real src = distance_m > R(0.0) ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : R(0.0);
     const real h = height_m[gid];
     for (int b = 0; b < bands; ++b) {

@@ -7,10 +7,12 @@
 // Phase = k (r²/(sqrt(r² + d²) + d) + dn H): the source term is the exact spherical phase
 // minus the constant k·d, written without cancellation, so float32 keeps ~1e-6 rad
 // accuracy where k·d itself (1.6e7 rad) would lose everything. d <= 0 means a plane wave.
+// The aperture test compares the integer pixel radius² with r_ap2_px = (r_ap / pitch)² (plus a
+// relative 1e-12, computed in double on the host), so boundary samples agree in every precision.
 // (`unused` keeps the argument layout identical to phase_vjp in adjoint.cl.)
 __kernel void doe_field(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
                         __global real2* out, const int unused, const int n, const int m, const int offset, const int bands,
-                        const real pitch_m, const real distance_m, const real r_ap2_m2) {
+                        const real pitch_m, const real distance_m, const real r_ap2_px) {
   const size_t gid = get_global_id(0);
   const size_t mm = (size_t)m * m;
   if (gid >= mm * bands) return;
@@ -20,9 +22,10 @@ __kernel void doe_field(__global const real* height_m, __global const real* k_pe
   const int i = wy - offset, j = wx - offset;
   real2 v = (real2)(R(0.0), R(0.0));
   if (i >= 0 && i < n && j >= 0 && j < n) {
-    const real y = (real)(i - n / 2) * pitch_m, x = (real)(j - n / 2) * pitch_m;
+    const int di = i - n / 2, dj = j - n / 2;
+    const real y = (real)di * pitch_m, x = (real)dj * pitch_m;
     const real r2 = x * x + y * y;
-    if (r2 <= r_ap2_m2) {
+    if ((real)(di * di + dj * dj) <= r_ap2_px) {  // integer pixel radius²: exact in float too
       const real src = distance_m > R(0.0) ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : R(0.0);
       v = cexpi(k_per_m[b] * (src + dn[b] * height_m[i * n + j]));
     }

@@ -51,14 +51,17 @@ ComplexStack doe_field(const SystemConfig& cfg, const Map2D& height_m, const Pro
     reject("height_m", to_str(height_m.rows) + " x " + to_str(height_m.cols), "an N x N map with N = " + to_str(cfg.n));
   const auto k = wavenumber_per_band(cfg);
   const auto dn = delta_n_per_band(cfg);
-  const double r_ap = cfg.aperture_radius(), d = cfg.scene_distance_m;
+  // Aperture: integer pixel radius² against (r_ap / pitch)² (1 + 1e-12), as kernels/field.cl.
+  const double r_px = cfg.aperture_radius() / g.pitch_m, r_ap2_px = r_px * r_px * (1 + 1e-12);
+  const double d = cfg.scene_distance_m;
   ComplexStack f(cfg.bands, g.m, g.m, cdouble(0, 0));
   for (std::size_t b = 0; b < cfg.bands; ++b) {
     for (std::size_t i = 0; i < g.n; ++i) {
       for (std::size_t j = 0; j < g.n; ++j) {
         const double y = (double(i) - double(g.n / 2)) * g.pitch_m, x = (double(j) - double(g.n / 2)) * g.pitch_m;
         const double r2 = x * x + y * y;
-        if (r2 > r_ap * r_ap) continue;
+        const double di = double(i) - double(g.n / 2), dj = double(j) - double(g.n / 2);
+        if (di * di + dj * dj > r_ap2_px) continue;
         const double src = cfg.scene_at_infinity ? 0.0 : r2 / (std::sqrt(r2 + d * d) + d);
         const double phase = k[b] * (src + dn[b] * height_m(i, j));
         f(b, g.offset + i, g.offset + j) = std::polar(1.0, phase);

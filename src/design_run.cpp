@@ -128,6 +128,25 @@ std::string fmt_time(double s) {
 
 }  // namespace
 
+void save_prior(const std::string& path, const wiener::SpectralPrior& p) {
+  h5_write(path, {H5Dataset{"/cov", {p.bins, p.bands, p.bands}, p.cov, {{"rows", double(p.rows)}, {"cols", double(p.cols)}},
+                            {{"meaning", "E[X(f) X(f)^H] / (H W) per radial bin (qdo/wiener.hpp)"}}}});
+}
+
+wiener::SpectralPrior load_prior(const std::string& path) {
+  const H5Dataset d = h5_read(path, "/cov");
+  if (d.shape.size() != 3 || d.shape[1] != d.shape[2] || !d.num_attrs.count("rows") || !d.num_attrs.count("cols"))
+    throw InputError("file '" + path + "': dataset '/cov' must be bins x B x B with attributes rows and cols");
+  wiener::SpectralPrior p;
+  p.bins = d.shape[0];
+  p.bands = d.shape[1];
+  p.rows = std::size_t(d.num_attrs.at("rows"));
+  p.cols = std::size_t(d.num_attrs.at("cols"));
+  p.cov = d.data;
+  p.validate();
+  return p;
+}
+
 void DesignRunOptions::validate() const {
   cfg.validate();
   design.quantizer.validate();
@@ -239,6 +258,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing
   fs::create_directories(dir);
   if (!resume) write_text_atomic(cfg_path.string(), design_run_options_to_json(o) + "\n");
+  if (o.objective != "psf-target") save_prior((dir / "prior.h5").string(), pb.prior);
 
   Simulator sim(rt, o.cfg, o.precision);
   Designer d(sim, o.design);
@@ -304,6 +324,10 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   write_design((dir / "design.h5").string(), out,
                {{"mode", to_string(o.design.mode)}, {"levels", std::to_string(levels)}, {"objective", o.objective},
                 {"steps", std::to_string(s.step)}, {"run", dir.string()}});
+  Design full;
+  full.height_m = expand_parameters(o.design.parameterization, d.params_m(s), o.cfg.n, o.cfg.h_max_m());
+  full.pitch_m = o.cfg.pitch_m;
+  write_design((dir / "design_full.h5").string(), full, {{"mode", to_string(o.design.mode)}, {"note", "full-precision H_f"}});
   sim.set_heights(out.height_m);
   sim.compute_psf();
   const RealStack psf = sim.psf_sensor();

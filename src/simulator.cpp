@@ -222,7 +222,8 @@ Map2D Simulator::heights() const {
 // Arguments shared by doe_field and phase_vjp: (height, k, dn, <buffer>, <buffer>) then
 // n, m, offset, bands, pitch, distance (<= 0: plane wave), aperture radius².
 void Simulator::set_phase_args(cl::Kernel& k) {
-  const double r = cfg_.aperture_radius();
+  const double r_px = cfg_.aperture_radius() / cfg_.pitch_m;
+  const double r_ap2_px = r_px * r_px * (1 + 1e-12);  // as ref::doe_field
   const double d = cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m;
   k.setArg(0, heights_);
   k.setArg(1, k_);
@@ -234,11 +235,11 @@ void Simulator::set_phase_args(cl::Kernel& k) {
   if (prec_ == Precision::F64) {
     k.setArg(9, cfg_.pitch_m);
     k.setArg(10, d);
-    k.setArg(11, r * r);
+    k.setArg(11, r_ap2_px);
   } else {
     k.setArg(9, float(cfg_.pitch_m));
     k.setArg(10, float(d));
-    k.setArg(11, float(r * r));
+    k.setArg(11, float(r_ap2_px));
   }
 }
 

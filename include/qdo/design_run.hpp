@@ -5,6 +5,7 @@
 
 #include "qdo/design.hpp"
 #include "qdo/runtime.hpp"
+#include "qdo/wiener.hpp"
 
 namespace qdo {
 
@@ -42,6 +43,38 @@ struct DesignRunResult {
 // Runs (or, with resume, continues from RUN/checkpoint.h5 with RUN/config.json's options, of
 // which only max_steps and quiet are taken from `o`) and writes the run folder (run.hpp).
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& o, bool resume);
+
+// The run's scene prior (RUN/prior.h5: /cov bins x B x B with attributes rows, cols).
+void save_prior(const std::string& path, const wiener::SpectralPrior& p);
+wiener::SpectralPrior load_prior(const std::string& path);
+
+// `qdo eval`: reconstruct test scenes through a run's design with the Wiener decoder.
+struct EvalOptions {
+  std::string run;                     // the run folder
+  std::vector<std::string> data;       // test scenes; empty: held-out synthetic scenes
+  std::string data_format = "auto";
+  std::size_t synthetic_scenes = 6;
+  int levels = 0;                      // > 0: re-quantize design_full.h5 uniformly to L levels (DO at L)
+  Placement placement = Placement::Inclusive;
+  // matched: the decoder is built for the evaluated design; mismatch: for the full-precision
+  // design (the paper's DO: a decoder trained for H_f, measurements through the quantized DOE).
+  std::string decoder = "matched";
+  double noise_sigma = -1;             // measurement noise; < 0: the run's decoder sigma
+  std::vector<std::pair<std::size_t, std::size_t>> pixels;  // spectral curves at (y, x); empty: centre
+  std::size_t renders = 4;             // scenes rendered as PNG and stored as HDF5
+  std::string out;
+  Precision precision = Precision::F32;
+};
+struct EvalRow {
+  std::string scene;
+  double psnr = 0, psnr_hyper = 0, ssim = 0, rmse = 0, ergas = 0, sam_rad = 0;
+};
+struct EvalResult {
+  std::vector<EvalRow> rows;
+  EvalRow mean;
+  double deviation_nm = 0;             // mean |H_eval - H_f| (Table 2)
+};
+EvalResult evaluate_run(Runtime& rt, const EvalOptions& e);
 
 struct GradcheckRow {
   std::string group;

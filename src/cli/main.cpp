@@ -44,6 +44,7 @@ usage:
                [--t0 5] [--t1 40] [--lr 0.01] [--lr-offsets 0.01] [--decay 0.8] [--beta 0.01]
                [--height-noise-nm 0] [--noise-sigma 0.001] [--init random|flat|lens:NM] [--seed S]
                [--checkpoint-every 10] [--max-steps N] [--resume] [--check-gradients] [--precision ...] --out RUN
+  qdo eval     RUN [--data PATH[,PATH...]] [--levels L] [--decoder matched|mismatch] [--pixels y:x,...] --out DIR
   qdo gradcheck [--preset small] [--mode M] [--objective ...] [--levels 4] [--seed S]
 
 Device selection: --device, else $QDO_DEVICE, else the first GPU, else the first CPU
@@ -361,6 +362,43 @@ int cmd_design(int argc, char** argv) {
   return 0;
 }
 
+int cmd_eval(int argc, char** argv) {
+  if (argc < 3 || std::string(argv[2]).rfind("--", 0) == 0) reject("RUN", "(missing)", "qdo eval RUN [options] --out DIR");
+  std::vector<char*> rest(argv, argv + argc);
+  rest.erase(rest.begin() + 2);  // the run folder is positional
+  const Args a = parse_args(argc - 1, rest.data(), {"data", "levels", "placement", "decoder", "noise-sigma", "pixels", "renders",
+                                                    "synthetic-scenes", "precision", "device", "out"},
+                            "eval");
+  EvalOptions e;
+  e.run = argv[2];
+  e.data = split_list(a.get("data", ""));
+  e.levels = a.has("levels") ? parse_int("--levels", a.get("levels"), 2, 65536) : 0;
+  e.placement = placement_from_string(a.get("placement", "inclusive"));
+  e.decoder = a.get("decoder", "matched");
+  e.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma")) : -1;
+  e.renders = std::size_t(parse_int("--renders", a.get("renders", "4"), 0, 1000));
+  e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "6"), 1, 100000));
+  for (const auto& p : split_list(a.get("pixels", ""))) {
+    const auto c = p.find(':');
+    if (c == std::string::npos) reject("--pixels", p, "y:x pairs separated by commas");
+    e.pixels.push_back({std::size_t(parse_int("--pixels", p.substr(0, c), 0, 1 << 20)),
+                        std::size_t(parse_int("--pixels", p.substr(c + 1), 0, 1 << 20))});
+  }
+  e.precision = precision_from_string(a.get("precision", "f32"));
+  e.out = a.get("out");
+  Runtime rt(a.get("device"));
+  const EvalResult r = evaluate_run(rt, e);
+  std::printf("%-28s %8s %8s %7s %8s %8s %8s\n", "scene", "PSNR", "PSNR-H", "SSIM", "RMSE", "ERGAS", "SAM");
+  for (const auto& row : r.rows)
+    std::printf("%-28s %8.2f %8.2f %7.4f %8.4f %8.2f %8.4f\n", row.scene.c_str(), row.psnr, row.psnr_hyper, row.ssim, row.rmse,
+                row.ergas, row.sam_rad);
+  std::printf("%-28s %8.2f %8.2f %7.4f %8.4f %8.2f %8.4f\n", "mean", r.mean.psnr, r.mean.psnr_hyper, r.mean.ssim, r.mean.rmse,
+              r.mean.ergas, r.mean.sam_rad);
+  std::printf("quantization deviation %.3f nm; wrote %s/ (metrics.csv metrics.json reconstructions.h5 render_*.png spectra_*.png)\n",
+              r.deviation_nm, e.out.c_str());
+  return 0;
+}
+
 int cmd_gradcheck(int argc, char** argv) {
   const Args a = parse_args(argc, argv, {"preset", "config", "mode", "levels", "placement", "parameterization", "objective",
                                          "target", "seed", "device"},
@@ -449,6 +487,7 @@ int main(int argc, char** argv) {
     if (cmd == "demo") return cmd_demo(argc, argv);
     if (cmd == "design") return cmd_design(argc, argv);
     if (cmd == "gradcheck") return cmd_gradcheck(argc, argv);
+    if (cmd == "eval") return cmd_eval(argc, argv);
     std::fprintf(stderr, "qdo: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
     return 2;
   } catch (const InputError& e) {
