@@ -10,6 +10,7 @@
 #include <fstream>
 #include <random>
 #include <sstream>
+#include <unistd.h>
 
 #include "qdo/adjoint.hpp"
 #include "qdo/datasets.hpp"
@@ -301,11 +302,14 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     const auto lv = d.quantizer(s).level_heights_m(o.cfg.h_max_m());
     for (std::size_t l = 0; l < lv.size(); ++l) row << (l ? ";" : "") << lv[l] * 1e9;
     rows.push_back(row.str());
-    if (!o.quiet) {
+    const bool tty = ::isatty(2) != 0;
+    const long every = std::max<long>(1, (stop - first) / 20);
+    if (!o.quiet && (tty || (s.step - first) % every == 0 || s.step == stop)) {
       const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
       const double eta = el / double(s.step - first) * double(stop - s.step);
-      std::fprintf(stderr, "\r[design %s] step %ld/%ld  loss %.5g  alpha %.3f  lr %.4g  %.2f s/step  ETA %s   ",
-                   to_string(o.design.mode).c_str(), s.step, total, rep.loss, rep.alpha, rep.lr, dt, fmt_time(eta).c_str());
+      std::fprintf(stderr, "%s[design %s] step %ld/%ld  loss %.5g  alpha %.3f  lr %.4g  %.2f s/step  ETA %s   %s", tty ? "\r" : "",
+                   to_string(o.design.mode).c_str(), s.step, total, rep.loss, rep.alpha, rep.lr, dt, fmt_time(eta).c_str(),
+                   tty ? "" : "\n");
       std::fflush(stderr);
     }
     if (s.step % long(o.checkpoint_every) == 0 || s.step == stop) {
@@ -313,7 +317,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       write_log();
     }
   }
-  if (!o.quiet) std::fprintf(stderr, "\n");
+  if (!o.quiet && ::isatty(2)) std::fprintf(stderr, "\n");
   if (first == s.step) write_log();
 
   // Outputs of the design as it would be fabricated.

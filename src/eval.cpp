@@ -76,8 +76,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   const wiener::SpectralPrior prior = load_prior((run / "prior.h5").string());
   const std::size_t s = cfg.sensor_size_px();
   if (prior.rows != s || prior.cols != s) reject("prior", (run / "prior.h5").string(), "a prior on the S x S sensor grid");
-  Map2D h_eval = fab.height_m;
-  if (e.levels > 0) {
+  Map2D h_eval = e.full_precision ? full.height_m : fab.height_m;
+  if (e.levels > 0 && !e.full_precision) {
     Quantizer q;
     q.levels = e.levels;
     q.placement = e.placement;
@@ -192,7 +192,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   nlohmann::json j;
   j["run"] = e.run;
   j["decoder"] = e.decoder;
-  j["levels"] = e.levels > 0 ? e.levels : o.design.quantizer.levels;
+  j["levels"] = e.full_precision ? 0 : e.levels > 0 ? e.levels : o.design.quantizer.levels;
+  j["full_precision"] = e.full_precision;
   j["requantized"] = e.levels > 0;
   j["noise_sigma"] = sigma;
   j["scenes"] = res.rows.size();

@@ -55,6 +55,7 @@ struct EvalOptions {
   std::string data_format = "auto";
   std::size_t synthetic_scenes = 6;
   int levels = 0;                      // > 0: re-quantize design_full.h5 uniformly to L levels (DO at L)
+  bool full_precision = false;         // evaluate design_full.h5 itself (the unquantized reference)
   Placement placement = Placement::Inclusive;
   // matched: the decoder is built for the evaluated design; mismatch: for the full-precision
   // design (the paper's DO: a decoder trained for H_f, measurements through the quantized DOE).

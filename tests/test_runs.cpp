@@ -1,0 +1,120 @@
+// `qdo design` run folders and `qdo eval`: resume equals an uninterrupted run, L fabricated
+// heights, no half-written outputs after a failure, corrupt checkpoints named, eval outputs.
+#include <fstream>
+#include <set>
+
+#include "common.hpp"
+#include "qdo/design_run.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/run.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+
+namespace {
+
+DesignRunOptions tiny_run(const std::string& out, DesignMode mode) {
+  DesignRunOptions o;
+  o.cfg = tiny_config(32, 3);
+  o.design.mode = mode;
+  o.design.quantizer.levels = 4;
+  o.design.steps_per_epoch = 2;
+  o.design.t0_epochs = 1;
+  o.design.t1_epochs = 4;
+  o.design.seed = 5;
+  o.epochs = 5;
+  o.synthetic_scenes = 3;
+  o.checkpoint_every = 3;
+  o.precision = runtime().has_fp64() ? Precision::F64 : Precision::F32;
+  o.out = out;
+  o.quiet = true;
+  return o;
+}
+
+}  // namespace
+
+TEST_SUITE("runs") {
+  TEST_CASE("a resumed run equals an uninterrupted one; the design holds L heights") {
+    const auto dir = temp_dir("runs");
+    const std::string a = (dir / "a").string(), b = (dir / "b").string();
+    run_design(runtime(), tiny_run(a, DesignMode::QDOA), false);
+    DesignRunOptions first = tiny_run(b, DesignMode::QDOA);
+    first.max_steps = 4;  // "killed" after step 4 (last checkpoint at step 3, then the final one at 4)
+    CHECK(run_design(runtime(), first, false).steps_done == 4);
+    CHECK_THROWS_WITH_AS(run_design(runtime(), tiny_run(b, DesignMode::QDOA), false), doctest::Contains("--resume"), InputError);
+    CHECK(run_design(runtime(), tiny_run(b, DesignMode::QDOA), true).steps_done == 10);
+    const std::size_t nw = 16;
+    const DesignState sa = load_checkpoint(a + "/checkpoint.h5", nw, 4), sb = load_checkpoint(b + "/checkpoint.h5", nw, 4);
+    CHECK(sa.w == sb.w);
+    CHECK(sa.offsets == sb.offsets);
+    CHECK(sa.adam_w.v == sb.adam_w.v);
+    const Design da = read_design(a + "/design.h5"), db = read_design(b + "/design.h5");
+    CHECK(da.height_m.data == db.height_m.data);
+    const std::set<double> distinct(da.height_m.data.begin(), da.height_m.data.end());
+    CHECK(distinct.size() <= 4);
+    REQUIRE(da.levels_m.size() == 4);
+    for (double v : distinct) CHECK(std::find(da.levels_m.begin(), da.levels_m.end(), v) != da.levels_m.end());
+    // The log has one row per step, the resumed one too.
+    std::ifstream lf(b + "/log.csv");
+    std::size_t lines = 0;
+    for (std::string l; std::getline(lf, l);) ++lines;
+    CHECK(lines == 11);
+    for (const char* f : {"config.json", "prior.h5", "design_full.h5", "psf.h5", "design.png", "psf.png", "loss.png"})
+      CHECK(std::filesystem::exists(std::filesystem::path(b) / f));
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("a failing run leaves nothing half-written; corrupt checkpoints are named") {
+    const auto dir = temp_dir("runs_fail");
+    const std::string bad = (dir / "bad.mat").string();
+    std::ofstream(bad) << "MATLAB 5.0 MAT-file, truncated";
+    DesignRunOptions o = tiny_run((dir / "run").string(), DesignMode::QDO);
+    o.data = {bad};
+    CHECK_THROWS_WITH_AS(run_design(runtime(), o, false), doctest::Contains("bad.mat"), InputError);
+    CHECK_FALSE(std::filesystem::exists(dir / "run" / "design.h5"));
+    CHECK_FALSE(std::filesystem::exists(dir / "run" / "config.json"));
+    // A truncated checkpoint.
+    const std::string run = (dir / "run2").string();
+    DesignRunOptions r = tiny_run(run, DesignMode::QDO);
+    r.max_steps = 2;
+    run_design(runtime(), r, false);
+    const auto ck = std::filesystem::path(run) / "checkpoint.h5";
+    std::filesystem::resize_file(ck, 300);
+    CHECK_THROWS_WITH_AS(run_design(runtime(), tiny_run(run, DesignMode::QDO), true), doctest::Contains("checkpoint.h5"), InputError);
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("eval: metrics and figures; do and do-refit differ exactly in the decoder") {
+    const auto dir = temp_dir("eval");
+    const std::string run = (dir / "do").string();
+    run_design(runtime(), tiny_run(run, DesignMode::DO), false);
+    EvalOptions e;
+    e.run = run;
+    e.synthetic_scenes = 2;
+    e.renders = 1;
+    e.out = (dir / "mismatch").string();
+    e.decoder = "mismatch";
+    const EvalResult mis = evaluate_run(runtime(), e);
+    e.out = (dir / "matched").string();
+    e.decoder = "matched";
+    const EvalResult mat = evaluate_run(runtime(), e);
+    REQUIRE(mis.rows.size() == 2);
+    CHECK(std::isfinite(mis.mean.psnr));
+    CHECK(mis.deviation_nm == mat.deviation_nm);  // the same quantized DOE is measured
+    CHECK(mis.deviation_nm > 0);
+    CHECK(mis.mean.psnr != mat.mean.psnr);       // ... decoded by two different filters
+    // For the full-precision design the two decoders coincide: identical results.
+    e.full_precision = true;
+    e.out = (dir / "full_matched").string();
+    const EvalResult fm = evaluate_run(runtime(), e);
+    e.decoder = "mismatch";
+    e.out = (dir / "full_mismatch").string();
+    const EvalResult fmm = evaluate_run(runtime(), e);
+    CHECK(fm.mean.psnr == fmm.mean.psnr);
+    CHECK(fm.deviation_nm == 0.0);
+    for (const char* f : {"metrics.csv", "metrics.json", "reconstructions.h5", "render_0.png", "spectra_0.png"})
+      CHECK(std::filesystem::exists(dir / "mismatch" / f));
+    std::filesystem::remove_all(dir);
+  }
+}
