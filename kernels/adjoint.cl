@@ -67,3 +67,43 @@ __kernel void phase_vjp(__global const real* height_m, __global const real* k_pe
   }
   dh[gid] = acc;
 }
+
+// VJP of the sensor integration: g_cube[k][b][p] = sum_c srf[c][b] g_rgb[k][c][p] (noise is
+// additive and independent of the inputs: it passes no gradient). g_rgb: scenes x 3 x HW,
+// g_cube: scenes x bands x HW.
+__kernel void sensor_vjp(__global const real* g_rgb, __constant real* srf, __global real* g_cube, const int hw,
+                         const int bands, const int scenes) {
+  const size_t gid = get_global_id(0);
+  if (gid >= (size_t)hw * bands * scenes) return;
+  const int k = (int)(gid / ((size_t)hw * bands));
+  const int rem = (int)(gid - (size_t)k * hw * bands);
+  const int b = rem / hw, p = rem - b * hw;
+  real acc = R(0.0);
+  for (int c = 0; c < 3; ++c) acc += srf[c * bands + b] * g_rgb[((size_t)k * 3 + c) * hw + p];
+  g_cube[gid] = acc;
+}
+
+// a[e] *= conj(b[e]) (same length).
+__kernel void cmul_conj_inplace(__global real2* a, __global const real2* b, const int count) {
+  const size_t gid = get_global_id(0);
+  if (gid >= (size_t)count) return;
+  const real2 x = a[gid], y = b[gid];
+  a[gid] = (real2)(x.x * y.x + x.y * y.y, x.y * y.x - x.x * y.y);
+}
+
+// Adjoint of place_psf (wrap and fold): g_psf[b][y][x] = sum_k Re buf[k][b][(y - c) mod PY][(x - c) mod PX],
+// c = S/2, summed over the scenes of the batch. buf: scenes x bands x PY x PX, g_psf: bands x S x S.
+__kernel void gather_psf_grad(__global const real2* buf, __global real* g_psf, const int s, const int py, const int px,
+                              const int bands, const int scenes) {
+  const size_t gid = get_global_id(0);
+  const size_t ss = (size_t)s * s;
+  if (gid >= ss * bands) return;
+  const int b = (int)(gid / ss);
+  const int rem = (int)(gid - (size_t)b * ss);
+  const int y = rem / s, x = rem - y * s;
+  const int c = s / 2;
+  const int u = ((y - c) % py + py) % py, v = ((x - c) % px + px) % px;
+  real acc = R(0.0);
+  for (int k = 0; k < scenes; ++k) acc += buf[(((size_t)k * bands + b) * py + u) * px + v].x;
+  g_psf[gid] = acc;
+}

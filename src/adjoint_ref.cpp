@@ -75,6 +75,50 @@ Map2D backward_from_intensity(const SystemConfig& cfg, const Forward& f, const R
 
 }  // namespace
 
+RealStack convolve_vjp_psf(const RealStack& cube, const RealStack& g_out, std::size_t psf_size, ConvolutionMode mode) {
+  if (g_out.planes != cube.planes || g_out.rows != cube.rows || g_out.cols != cube.cols)
+    reject("g_out", to_str(g_out.planes) + " x " + to_str(g_out.rows) + " x " + to_str(g_out.cols), "the cube's shape");
+  // <convolve(cube, psf), g> is linear in psf: probe it one PSF pixel at a time would be slow;
+  // instead correlate: g_psf[b][y][x] = sum_{p} g[b][p] * cube[b][p - (y - c, x - c)] over the
+  // same (zero-padded or periodic) grid the forward convolution uses.
+  const std::size_t h = cube.rows, w = cube.cols, s = psf_size, c = s / 2;
+  const bool lin = mode == ConvolutionMode::Linear;
+  const std::size_t py = lin ? fast_fft_size(h + s - 1) : h, px = lin ? fast_fft_size(w + s - 1) : w;
+  RealStack out(cube.planes, s, s);
+  for (std::size_t b = 0; b < cube.planes; ++b) {
+    // r[u][v] = sum_{y',x'} g[y'][x'] X[(y' - u) mod P][(x' - v) mod P] on the padded grid.
+    std::vector<double> r(py * px, 0.0);
+    for (std::size_t u = 0; u < py; ++u)
+      for (std::size_t v = 0; v < px; ++v) {
+        double acc = 0;
+        for (std::size_t y = 0; y < h; ++y) {
+          const std::size_t sy = (y + py - u) % py;
+          if (sy >= h) continue;
+          for (std::size_t x = 0; x < w; ++x) {
+            const std::size_t sx = (x + px - v) % px;
+            if (sx < w) acc += g_out(b, y, x) * cube(b, sy, sx);
+          }
+        }
+        r[u * px + v] = acc;
+      }
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) out(b, y, x) = r[((y + py * s - c) % py) * px + (x + px * s - c) % px];
+  }
+  return out;
+}
+
+RealStack sensor_integrate_vjp(const RealStack& g_rgb, const Eigen::MatrixXd& srf) {
+  if (g_rgb.planes != 3 || srf.rows() != 3) reject("g_rgb", g_rgb.planes, "3 channels");
+  RealStack out(static_cast<std::size_t>(srf.cols()), g_rgb.rows, g_rgb.cols);
+  for (std::size_t b = 0; b < out.planes; ++b)
+    for (std::size_t p = 0; p < out.plane_size(); ++p) {
+      double acc = 0;
+      for (std::size_t ch = 0; ch < 3; ++ch) acc += srf(Eigen::Index(ch), Eigen::Index(b)) * g_rgb.plane(ch)[p];
+      out.plane(b)[p] = acc;
+    }
+  return out;
+}
+
 RealStack resample_area_adjoint(const RealStack& g, const AreaWeights& w) {
   check_shape(g, g.planes, w.s, "g_psf_sensor");
   RealStack out(g.planes, w.n, w.n);

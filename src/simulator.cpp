@@ -46,6 +46,9 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p) : rt_(rt
   k_norm_vjp_ = rt_.kernel("adjoint.cl", "normalize_vjp", p);
   k_int_vjp_ = rt_.kernel("adjoint.cl", "intensity_vjp", p);
   k_phase_vjp_ = rt_.kernel("adjoint.cl", "phase_vjp", p);
+  k_sensor_vjp_ = rt_.kernel("adjoint.cl", "sensor_vjp", p);
+  k_cmul_conj_ = rt_.kernel("adjoint.cl", "cmul_conj_inplace", p);
+  k_gather_psf_ = rt_.kernel("adjoint.cl", "gather_psf_grad", p);
 
   k_ = upload_real(wavenumber_per_band(cfg_));
   dn_ = upload_real(delta_n_per_band(cfg_));
@@ -449,6 +452,58 @@ Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
   enqueue_1d(k_resample_, bands * n * n);
   normalize_vjp(g, psf_, n * n, sums_crop_);
   return backward_from_native(g);
+}
+
+RealStack Simulator::sensor_images_vjp(const std::vector<RealStack>& g_rgb) {
+  if (!cube_() || g_rgb.size() != cn_)
+    reject("g_rgb.size()", g_rgb.size(), "one gradient per scene of the last sensor_images() call (" + to_str(cn_) + ")");
+  const std::size_t bands = cfg_.bands, hw = ch_ * cw_, pp = py_ * px_, scenes = cn_;
+  std::vector<double> host;
+  for (const auto& g : g_rgb) {
+    if (g.planes != 3 || g.rows != ch_ || g.cols != cw_)
+      reject("g_rgb", to_str(g.planes) + " x " + to_str(g.rows) + " x " + to_str(g.cols), "3 x H x W = 3 x " + to_str(ch_) + " x " + to_str(cw_));
+    host.insert(host.end(), g.data.begin(), g.data.end());
+  }
+  const cl::Buffer grgb = upload_real(host);
+  cl::Buffer gcube(rt_.context(), CL_MEM_READ_WRITE, scenes * bands * hw * rsz_);
+  k_sensor_vjp_.setArg(0, grgb);
+  k_sensor_vjp_.setArg(1, srf_buf_);
+  k_sensor_vjp_.setArg(2, gcube);
+  k_sensor_vjp_.setArg(3, int(hw));
+  k_sensor_vjp_.setArg(4, int(bands));
+  k_sensor_vjp_.setArg(5, int(scenes));
+  enqueue_1d(k_sensor_vjp_, scenes * bands * hw);
+  // Correlate with the scenes: IFFT(FFT(pad g) * conj(FFT(pad x))), then the wrap transpose.
+  FftPlan& fft = rt_.fft(py_, px_, scenes * bands, prec_);
+  cl::Buffer gbuf(rt_.context(), CL_MEM_READ_WRITE, scenes * bands * pp * 2 * rsz_);
+  for (auto [src, dst] : {std::pair<const cl::Buffer*, cl::Buffer*>{&gcube, &gbuf}, {&cube_, &sbuf_}}) {
+    k_place_scene_.setArg(0, *src);
+    k_place_scene_.setArg(1, *dst);
+    k_place_scene_.setArg(2, int(ch_));
+    k_place_scene_.setArg(3, int(cw_));
+    k_place_scene_.setArg(4, int(py_));
+    k_place_scene_.setArg(5, int(px_));
+    k_place_scene_.setArg(6, int(scenes * bands));
+    enqueue_1d(k_place_scene_, scenes * bands * pp);
+    fft.forward(*dst);
+  }
+  k_cmul_conj_.setArg(0, gbuf);
+  k_cmul_conj_.setArg(1, sbuf_);
+  k_cmul_conj_.setArg(2, int(scenes * bands * pp));
+  enqueue_1d(k_cmul_conj_, scenes * bands * pp);
+  fft.inverse(gbuf);
+  cl::Buffer gpsf(rt_.context(), CL_MEM_READ_WRITE, bands * s_ * s_ * rsz_);
+  k_gather_psf_.setArg(0, gbuf);
+  k_gather_psf_.setArg(1, gpsf);
+  k_gather_psf_.setArg(2, int(s_));
+  k_gather_psf_.setArg(3, int(py_));
+  k_gather_psf_.setArg(4, int(px_));
+  k_gather_psf_.setArg(5, int(bands));
+  k_gather_psf_.setArg(6, int(scenes));
+  enqueue_1d(k_gather_psf_, bands * s_ * s_);
+  RealStack out(bands, s_, s_);
+  out.data = download_real(gpsf, out.size());
+  return out;
 }
 
 ComplexStack Simulator::debug_field_after_doe() {

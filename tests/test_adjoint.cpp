@@ -196,3 +196,67 @@ TEST_SUITE("adjoint") {
     }
   }
 }
+
+TEST_SUITE("adjoint") {
+  TEST_CASE("convolution and sensor adjoints: dot-product tests, OpenCL vs CPU, end-to-end differences") {
+    SystemConfig c = tiny_config(32, 3);
+    const std::size_t s = c.sensor_size_px();
+    for (ConvolutionMode mode : {ConvolutionMode::Linear, ConvolutionMode::Circular}) {
+      CAPTURE(int(mode));
+      const RealStack cube = random_stack(c.bands, 12, 15, 21, 0, 1), psf = random_stack(c.bands, s, s, 22, 0, 1);
+      const RealStack g = random_stack(c.bands, 12, 15, 23);
+      const double l = dot(ref::convolve(cube, psf, mode).data, g.data);
+      const double r = dot(psf.data, ref::convolve_vjp_psf(cube, g, s, mode).data);
+      CHECK(std::fabs(l - r) <= kDotTol * std::fabs(l));
+    }
+    const Eigen::MatrixXd srf = sensor_response(c);
+    const RealStack x = random_stack(c.bands, 5, 6, 24), gr = random_stack(3, 5, 6, 25);
+    CHECK(std::fabs(dot(ref::sensor_integrate(x, srf).data, gr.data) - dot(x.data, ref::sensor_integrate_vjp(gr, srf).data)) <=
+          1e-12 * std::fabs(dot(x.data, ref::sensor_integrate_vjp(gr, srf).data)));
+    for (Precision p : {Precision::F32, Precision::F64}) {
+      if (p == Precision::F64 && !runtime().has_fp64()) continue;
+      for (ConvolutionMode mode : {ConvolutionMode::Linear, ConvolutionMode::Circular}) {
+        CAPTURE(to_string(p));
+        CAPTURE(int(mode));
+        SystemConfig cm = c;
+        cm.convolution = mode;
+        cm.read_noise_sigma = 0.01;  // additive: no effect on gradients
+        Simulator sim(runtime(), cm, p);
+        const Map2D h = smooth_heights(cm, 26);
+        sim.set_heights(h);
+        sim.compute_psf();
+        const std::vector<RealStack> cubes = {random_stack(cm.bands, 20, 18, 27, 0, 1), random_stack(cm.bands, 20, 18, 28, 0, 1)};
+        sim.sensor_images(cubes);
+        const std::vector<RealStack> g = {random_stack(3, 20, 18, 29), random_stack(3, 20, 18, 30)};
+        const RealStack got = sim.sensor_images_vjp(g);
+        RealStack want(cm.bands, s, s);
+        for (std::size_t k = 0; k < 2; ++k) {
+          const RealStack part = ref::convolve_vjp_psf(cubes[k], ref::sensor_integrate_vjp(g[k], sim.srf()), s, mode);
+          for (std::size_t i = 0; i < want.size(); ++i) want.data[i] += part.data[i];
+        }
+        const auto d = diff(got.data, want.data);
+        CAPTURE(d.rel_l2);
+        CHECK(d.rel_l2 <= 1e3 * eps(p));
+        if (p == Precision::F64 && mode == ConvolutionMode::Linear) {
+          // End to end: L(H) = sum_k <g_k, sensor_image_k(H)>, gradient through every stage.
+          const Map2D dh = sim.psf_sensor_vjp(got);
+          auto loss = [&](const Map2D& hh) {
+            sim.set_heights(hh);
+            sim.compute_psf();
+            const auto imgs = sim.sensor_images(cubes);
+            return dot(imgs[0].data, g[0].data) + dot(imgs[1].data, g[1].data);
+          };
+          for (auto [i, j] : {std::pair<std::size_t, std::size_t>{16, 16}, {12, 20}, {20, 9}}) {
+            Map2D a = h, b = h;
+            a(i, j) += 1e-11;
+            b(i, j) -= 1e-11;
+            const double fd = (loss(a) - loss(b)) / 2e-11;
+            CAPTURE(i);
+            CAPTURE(j);
+            CHECK(std::fabs(fd - dh(i, j)) <= 1e-5 * std::fabs(dh(i, j)) + 1e-7 * std::sqrt(dot(dh.data, dh.data) / double(dh.data.size())));
+          }
+        }
+      }
+    }
+  }
+}

@@ -10,12 +10,21 @@
 //   s  = S / sum(S)
 //   dL/dH = sum_b k_b dn_b Re(conj(g_U1) i U1)
 #pragma once
+#include <Eigen/Dense>
+
 #include "qdo/config.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/types.hpp"
 
 namespace qdo::ref {
+
+// VJP of ref::convolve with respect to the PSF stack: cube bands x H x W, g_out bands x H x W ->
+// bands x S x S (correlation of the output gradient with the scene, then the transpose of the
+// wrap/fold). Linear in the PSF, so <convolve(cube, psf), g> = <psf, convolve_vjp_psf(cube, g)>.
+RealStack convolve_vjp_psf(const RealStack& cube, const RealStack& g_out, std::size_t psf_size, ConvolutionMode mode);
+// VJP of ref::sensor_integrate: g_rgb 3 x H x W -> bands x H x W (srf^T g).
+RealStack sensor_integrate_vjp(const RealStack& g_rgb, const Eigen::MatrixXd& srf);
 
 // Transpose of area resampling: g (planes x S x S) -> planes x N x N.
 RealStack resample_area_adjoint(const RealStack& g, const AreaWeights& w);

@@ -52,6 +52,11 @@ class Simulator {
   // reused, all on the device): dL/dH (N x N, per metre) for a gradient of L with respect to
   // psf_sensor() (bands x S x S) or psf_native() (bands x N x N). See include/qdo/adjoint.hpp.
   Map2D psf_sensor_vjp(const RealStack& g_psf_sensor);
+  // Adjoint of sensor_images() for the batch of its last call (same scenes, still on the
+  // device): gradients on the RGB images (3 x H x W per scene) -> gradient on psf_sensor()
+  // (bands x S x S), through the sensor integration and the per-band convolution. Noise is an
+  // additive constant. Chain with psf_sensor_vjp() for dL/dH.
+  RealStack sensor_images_vjp(const std::vector<RealStack>& g_rgb);
   Map2D psf_native_vjp(const RealStack& g_psf);
 
   // Field after the DOE (bands x M x M) and after propagation, for tests: runs the stages
@@ -115,7 +120,7 @@ class Simulator {
 
   cl::Kernel k_field_, k_tf_, k_energy_, k_crop_, k_sums_, k_energy_sums_, k_finalize_, k_scale_, k_resample_,
       k_place_scene_, k_place_psf_, k_cmul_, k_crop_real_, k_sensor_, k_expand_, k_quantize_,
-      k_dot_, k_norm_vjp_, k_int_vjp_, k_phase_vjp_;
+      k_dot_, k_norm_vjp_, k_int_vjp_, k_phase_vjp_, k_sensor_vjp_, k_cmul_conj_, k_gather_psf_;
   // Adjoint state: transposed resampling weights, the back-propagation TF, gradient buffers.
   AreaWeights weights_t_;
   cl::Buffer wstart_t_, wts_t_, tf_back_, gfield_, dots_, dh_;
