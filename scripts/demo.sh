@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Sets up (dependencies + build) and runs the main job: PSF stacks and simulated sensor images
-# of the built-in ColorChecker scene through a diffractive lens, full precision and 4 levels.
+# Sets up (dependencies + build) and runs the main job: a 4-level QDO+A design and a DO design
+# on synthetic scenes (small preset), evaluated on held-out synthetic and the CAVE scenes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh

@@ -117,4 +117,22 @@ TEST_SUITE("runs") {
       CHECK(std::filesystem::exists(dir / "mismatch" / f));
     std::filesystem::remove_all(dir);
   }
+
+  TEST_CASE("gradcheck passes through the Wiener objectives in every mode") {
+    for (const char* objective : {"wiener", "wiener-mse"})
+      for (DesignMode m : {DesignMode::DO, DesignMode::QDO, DesignMode::QDOA}) {
+        CAPTURE(objective);
+        CAPTURE(to_string(m));
+        DesignRunOptions o = tiny_run("(unused)", m);
+        o.objective = objective;
+        o.batch = 2;
+        const auto rows = gradcheck(runtime(), o, 11);
+        CHECK(rows.size() >= 4);
+        for (const auto& r : rows) {
+          CAPTURE(r.group);
+          CAPTURE(r.max_rel_error);
+          CHECK(r.ok());
+        }
+      }
+  }
 }

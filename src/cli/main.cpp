@@ -60,7 +60,9 @@ struct Args {
   bool has(const std::string& k) const { return opt.count(k) > 0; }
 };
 
-Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, const std::string& cmd) {
+// Options take a value (--name VALUE or --name=VALUE), except those in `flags` (--name alone).
+Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, const std::string& cmd,
+                const std::set<std::string>& flags = {}) {
   Args a;
   for (int i = 2; i < argc; ++i) {
     std::string s = argv[i];
@@ -71,6 +73,8 @@ Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, con
     if (eq != std::string::npos) {
       val = s.substr(eq + 1);
       s = s.substr(0, eq);
+    } else if (flags.count(s)) {
+      val = "yes";
     } else {
       if (i + 1 >= argc) reject("--" + s, "(missing)", "a value after the option");
       val = argv[++i];
@@ -345,9 +349,9 @@ int cmd_design(int argc, char** argv) {
                              "epochs", "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm",
                              "noise-sigma", "init", "seed", "checkpoint-every", "max-steps", "resume", "check-gradients",
                              "precision", "device", "out", "synthetic-scenes", "batch"},
-                            "design");
+                            "design", {"resume", "check-gradients"});
   DesignRunOptions o = design_options(a);
-  const bool resume = a.get("resume", "no") == "yes" || a.get("resume", "no") == "1" || a.get("resume", "no") == "true";
+  const bool resume = a.has("resume");
   if (!resume) o.validate();
   Runtime rt(a.get("device"));
   if (a.has("check-gradients")) {

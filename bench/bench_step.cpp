@@ -1,0 +1,137 @@
+// bench_step: one optimiser step of the design loop (forward + adjoint) at the `small` and
+// `paper` presets: OpenCL PSF forward alone, PSF forward + adjoint (dL/dH), the Wiener
+// expected-error objective and its PSF gradient (CPU, double), the complete Designer step, and
+// the CPU reference forward + adjoint (ref::psf_sensor_vjp). Median of --repeats runs after one
+// warm-up; kernel build and FFT plan bake time reported apart. Speed is never asserted.
+//
+// Usage: bench_step [--presets small,paper] [--repeats 3] [--precision f32] [--cpu-repeats 1]
+//                   [--out FILE.md]
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "qdo/adjoint.hpp"
+#include "qdo/datasets.hpp"
+#include "qdo/design.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/wiener.hpp"
+
+using namespace qdo;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+template <typename F>
+std::vector<double> timed(int repeats, F&& f) {
+  f();  // warm-up
+  std::vector<double> t;
+  for (int i = 0; i < repeats; ++i) {
+    const auto t0 = Clock::now();
+    f();
+    t.push_back(since(t0));
+  }
+  std::sort(t.begin(), t.end());
+  return t;
+}
+
+std::vector<std::string> split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  for (std::string x; std::getline(ss, x, ',');)
+    if (!x.empty()) out.push_back(x);
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::vector<std::string> presets{"small", "paper"};
+  int repeats = 3, cpu_repeats = 1;
+  Precision prec = Precision::F32;
+  std::string out;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string k = argv[i], v = argv[i + 1];
+    if (k == "--presets") presets = split(v);
+    else if (k == "--repeats") repeats = std::stoi(v);
+    else if (k == "--cpu-repeats") cpu_repeats = std::stoi(v);
+    else if (k == "--precision") prec = precision_from_string(v);
+    else if (k == "--out") out = v;
+    else {
+      std::fprintf(stderr, "bench_step: unknown option %s\n", k.c_str());
+      return 2;
+    }
+  }
+  Runtime rt;
+  std::ostringstream md;
+  md << "| preset | N | stage | median s | min s | max s | runs |\n|---|---:|---|---:|---:|---:|---:|\n";
+  auto row = [&](const std::string& p, std::size_t n, const std::string& stage, const std::vector<double>& t) {
+    char b[256];
+    std::snprintf(b, sizeof b, "| %s | %zu | %s | %.3f | %.3f | %.3f | %zu |\n", p.c_str(), n, stage.c_str(), t[t.size() / 2],
+                  t.front(), t.back(), t.size());
+    md << b;
+    std::printf("%-6s N=%-5zu %-58s median %8.3f s  (min %.3f, max %.3f, %zu runs)\n", p.c_str(), n, stage.c_str(), t[t.size() / 2],
+                t.front(), t.back(), t.size());
+    std::fflush(stdout);
+  };
+  std::printf("device: %s (%s, driver %s), precision %s\n", rt.info().name.c_str(), rt.info().platform.c_str(),
+              rt.info().driver_version.c_str(), to_string(prec).c_str());
+  for (const auto& pname : presets) {
+    const SystemConfig cfg = preset_config(pname);
+    const double b0 = rt.build_seconds(), f0 = rt.fft_bake_seconds();
+    Simulator sim(rt, cfg, prec);
+    std::printf("%s: setup: kernels %.2f s, FFT plans %.2f s (not in the times below)\n", pname.c_str(), rt.build_seconds() - b0,
+                rt.fft_bake_seconds() - f0);
+    const Map2D h = lens_design(cfg, 550);
+    sim.set_heights(h);
+    RealStack g(cfg.bands, sim.sensor_size(), sim.sensor_size(), 1.0 / double(sim.sensor_size()));
+    const auto fwd = timed(repeats, [&] {
+      sim.compute_psf();
+      sim.psf_sensor();
+    });
+    row(pname, cfg.n, "OpenCL PSF forward (" + to_string(prec) + ")", fwd);
+    const auto both = timed(repeats, [&] {
+      sim.compute_psf();
+      sim.psf_sensor();
+      sim.psf_sensor_vjp(g);
+    });
+    row(pname, cfg.n, "OpenCL PSF forward + adjoint dL/dH (" + to_string(prec) + ")", both);
+    std::printf("       forward + adjoint / forward = %.2f\n", both[both.size() / 2] / fwd[fwd.size() / 2]);
+    md << "| " << pname << " | " << cfg.n << " | ratio (forward + adjoint) / forward | " << both[both.size() / 2] / fwd[fwd.size() / 2]
+       << " | | | |\n";
+    // The Wiener objective (CPU) on the sensor grid with a prior from synthetic scenes.
+    const std::size_t s = cfg.sensor_size_px();
+    const SceneIndex idx = SceneIndex::synthetic(cfg, 4, s, 1);
+    std::vector<RealStack> scenes;
+    for (std::size_t i = 0; i < idx.size(); ++i) scenes.push_back(idx.load(i));
+    const wiener::SpectralPrior prior = wiener::estimate_prior(scenes, 16);
+    const Eigen::MatrixXd srf = sensor_response(cfg);
+    sim.compute_psf();
+    const RealStack psf = sim.psf_sensor();
+    row(pname, cfg.n, "Wiener expected error + PSF gradient (CPU double)",
+        timed(repeats, [&] { wiener::objective_psf(wiener::Loss::Expected, psf, srf, prior, 1e-3); }));
+    // A complete Designer step (qdo+a, radial).
+    DesignOptions o;
+    o.mode = DesignMode::QDOA;
+    Designer d(sim, o);
+    std::vector<double> p0(cfg.n / 2);
+    for (std::size_t k = 0; k < p0.size(); ++k) p0[k] = h(cfg.n / 2, cfg.n / 2 + k);
+    DesignState st = d.initial_state(p0);
+    const PsfObjective obj = [&](const RealStack& ps, RealStack& gr) {
+      auto r = wiener::objective_psf(wiener::Loss::Expected, ps, srf, prior, 1e-3);
+      gr = std::move(r.grad_psf);
+      return r.value;
+    };
+    row(pname, cfg.n, "complete qdo+a step (OpenCL PSF + CPU Wiener + Adam)", timed(repeats, [&] { d.step(st, obj); }));
+    if (cpu_repeats > 0)
+      row(pname, cfg.n, "CPU reference PSF forward + adjoint (double, FFTW)",
+          timed(cpu_repeats, [&] { ref::psf_sensor_vjp(cfg, h, g); }));
+  }
+  if (!out.empty()) std::ofstream(out) << md.str();
+  return 0;
+}
