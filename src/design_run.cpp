@@ -253,7 +253,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     o.max_steps = given.max_steps;
     o.quiet = given.quiet;
   } else if (fs::exists(ckpt_path)) {
-    reject("out", given.out, "a new folder (it holds a checkpoint: continue it with --resume)");
+    reject("out", given.out, "a folder without a checkpoint (this one holds one: continue it with --resume)");
   }
   o.validate();
   const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing

@@ -19,7 +19,7 @@ TEST_SUITE("runtime") {
     CHECK_THROWS_WITH_AS(Runtime("no-such-device-xyz"), doctest::Contains("'device'"), InputError);
   }
 
-  TEST_CASE("programs are cached on disk and reloaded by a new runtime") {
+  TEST_CASE("programs are cached on disk and reloaded by a fresh runtime") {
     const auto dir = temp_dir("kcache");
     setenv("QDO_CACHE_DIR", dir.c_str(), 1);
     {
