@@ -7,42 +7,14 @@
 #include <mutex>
 
 #include "qdo/error.hpp"
+#include "qdo/fftw2.hpp"
 #include "qdo/rng.hpp"
 
 namespace qdo::ref {
 namespace {
 
-std::mutex& fftw_planner_mutex() {  // FFTW's planner is not thread-safe
-  static std::mutex m;
-  return m;
-}
-
-struct PlanDeleter {
-  void operator()(fftw_plan_s* p) const {
-    std::lock_guard<std::mutex> lock(fftw_planner_mutex());
-    fftw_destroy_plan(p);
-  }
-};
-using PlanPtr = std::unique_ptr<fftw_plan_s, PlanDeleter>;
-
-// In-place batched 2-D FFT of `batch` planes of rows x cols complex doubles (row-major).
-// sign = FFTW_FORWARD or FFTW_BACKWARD; the backward transform is scaled by 1/(rows*cols).
-void fft2_batch(cdouble* data, std::size_t batch, std::size_t rows, std::size_t cols, int sign) {
-  PlanPtr plan;
-  {
-    std::lock_guard<std::mutex> lock(fftw_planner_mutex());
-    const int dims[2] = {static_cast<int>(rows), static_cast<int>(cols)};
-    auto* p = reinterpret_cast<fftw_complex*>(data);
-    plan.reset(fftw_plan_many_dft(2, dims, static_cast<int>(batch), p, nullptr, 1, static_cast<int>(rows * cols), p,
-                                  nullptr, 1, static_cast<int>(rows * cols), sign, FFTW_ESTIMATE));
-  }
-  if (!plan) throw Error("FFTW could not plan a " + to_str(rows) + " x " + to_str(cols) + " transform");
-  fftw_execute(plan.get());
-  if (sign == FFTW_BACKWARD) {
-    const double s = 1.0 / double(rows * cols);
-    for (std::size_t i = 0; i < batch * rows * cols; ++i) data[i] *= s;
-  }
-}
+// In-place batched 2-D FFT of the planes of s; the backward transform is scaled by 1/(rows*cols).
+void fft2_batch(ComplexStack& s, int sign) { fftw2(s, sign == FFTW_FORWARD, true); }
 
 }  // namespace
 
@@ -76,7 +48,7 @@ void propagate(ComplexStack& field, const std::vector<double>& wavelengths_nm, d
   if (field.rows != field.cols) reject("field", to_str(field.rows) + " x " + to_str(field.cols), "a square window");
   if (wavelengths_nm.size() != field.planes) reject("wavelengths_nm.size()", wavelengths_nm.size(), "one per plane");
   const std::size_t m = field.rows;
-  fft2_batch(field.data.data(), field.planes, m, m, FFTW_FORWARD);
+  fft2_batch(field, FFTW_FORWARD);
   if (sampling) sampling->assign(field.planes, BandSampling{});
   for (std::size_t b = 0; b < field.planes; ++b) {
     const double lambda = wavelengths_nm[b] * 1e-9;
@@ -116,7 +88,7 @@ void propagate(ComplexStack& field, const std::vector<double>& wavelengths_nm, d
       s.aliased_energy_fraction = e_total > 0 ? e_beyond / e_total : 0.0;
     }
   }
-  fft2_batch(field.data.data(), field.planes, m, m, FFTW_BACKWARD);
+  fft2_batch(field, FFTW_BACKWARD);
 }
 
 PsfResult psf_stack(const SystemConfig& cfg, const Map2D& height_m) {
@@ -192,10 +164,10 @@ RealStack convolve(const RealStack& cube, const RealStack& psf, ConvolutionMode 
         k(b, ty, tx) += psf(b, y, x);
       }
   }
-  fft2_batch(a.data.data(), a.planes, py, px, FFTW_FORWARD);
-  fft2_batch(k.data.data(), k.planes, py, px, FFTW_FORWARD);
+  fft2_batch(a, FFTW_FORWARD);
+  fft2_batch(k, FFTW_FORWARD);
   for (std::size_t i = 0; i < a.size(); ++i) a.data[i] *= k.data[i];
-  fft2_batch(a.data.data(), a.planes, py, px, FFTW_BACKWARD);
+  fft2_batch(a, FFTW_BACKWARD);
   RealStack out(cube.planes, h, w);
   for (std::size_t b = 0; b < cube.planes; ++b)
     for (std::size_t y = 0; y < h; ++y)

@@ -313,6 +313,31 @@ void Simulator::band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len,
   enqueue_1d(k_finalize_, bands);
 }
 
+// Per-band sums of x (bands x len) into `sums`, then x /= sums (on the device).
+void Simulator::normalize_bands(cl::Buffer& x, std::size_t len, cl::Buffer& sums) {
+  band_reduce(k_sums_, x, len, sums);
+  k_scale_.setArg(0, x);
+  k_scale_.setArg(1, sums);
+  k_scale_.setArg(2, int(len));
+  k_scale_.setArg(3, int(cfg_.bands));
+  enqueue_1d(k_scale_, cfg_.bands * len);
+}
+
+// Area resampling bands x n_in x n_in -> bands x n_out x n_out with the given weight table
+// (AreaWeights, or its transpose for the adjoint).
+void Simulator::resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer& start, const cl::Buffer& w, std::size_t n_in,
+                         std::size_t n_out, std::size_t taps) {
+  k_resample_.setArg(0, in);
+  k_resample_.setArg(1, out);
+  k_resample_.setArg(2, start);
+  k_resample_.setArg(3, w);
+  k_resample_.setArg(4, int(n_in));
+  k_resample_.setArg(5, int(n_out));
+  k_resample_.setArg(6, int(taps));
+  k_resample_.setArg(7, int(cfg_.bands));
+  enqueue_1d(k_resample_, cfg_.bands * n_out * n_out);
+}
+
 void Simulator::compute_psf() {
   const std::size_t n = cfg_.n, m = geom_.m, bands = cfg_.bands;
   run_doe_field();
@@ -325,27 +350,9 @@ void Simulator::compute_psf() {
   k_crop_.setArg(4, int(geom_.offset));
   k_crop_.setArg(5, int(bands));
   enqueue_1d(k_crop_, bands * n * n);
-  band_reduce(k_sums_, psf_, n * n, sums_crop_);
-  k_scale_.setArg(0, psf_);
-  k_scale_.setArg(1, sums_crop_);
-  k_scale_.setArg(2, int(n * n));
-  k_scale_.setArg(3, int(bands));
-  enqueue_1d(k_scale_, bands * n * n);
-  k_resample_.setArg(0, psf_);
-  k_resample_.setArg(1, psf_s_);
-  k_resample_.setArg(2, wstart_);
-  k_resample_.setArg(3, wts_);
-  k_resample_.setArg(4, int(n));
-  k_resample_.setArg(5, int(s_));
-  k_resample_.setArg(6, int(weights_.taps));
-  k_resample_.setArg(7, int(bands));
-  enqueue_1d(k_resample_, bands * s_ * s_);
-  band_reduce(k_sums_, psf_s_, s_ * s_, sums_sensor_);
-  k_scale_.setArg(0, psf_s_);
-  k_scale_.setArg(1, sums_sensor_);
-  k_scale_.setArg(2, int(s_ * s_));
-  k_scale_.setArg(3, int(bands));
-  enqueue_1d(k_scale_, bands * s_ * s_);
+  normalize_bands(psf_, n * n, sums_crop_);
+  resample(psf_, psf_s_, wstart_, wts_, n, s_, weights_.taps);
+  normalize_bands(psf_s_, s_ * s_, sums_sensor_);
   const auto tot = download_real(sums_total_, bands);
   const auto crop = download_real(sums_crop_, bands);
   for (std::size_t b = 0; b < bands; ++b)
@@ -441,15 +448,7 @@ Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
   normalize_vjp(g_sensor, psf_s_, s_ * s_, sums_sensor_);
   // Transposed area resampling: the same kernel with the transposed weights (S -> N).
   cl::Buffer g(rt_.context(), CL_MEM_READ_WRITE, bands * n * n * rsz_);
-  k_resample_.setArg(0, g_sensor);
-  k_resample_.setArg(1, g);
-  k_resample_.setArg(2, wstart_t_);
-  k_resample_.setArg(3, wts_t_);
-  k_resample_.setArg(4, int(s_));
-  k_resample_.setArg(5, int(n));
-  k_resample_.setArg(6, int(weights_t_.taps));
-  k_resample_.setArg(7, int(bands));
-  enqueue_1d(k_resample_, bands * n * n);
+  resample(g_sensor, g, wstart_t_, wts_t_, s_, n, weights_t_.taps);
   normalize_vjp(g, psf_, n * n, sums_crop_);
   return backward_from_native(g);
 }

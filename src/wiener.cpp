@@ -12,6 +12,7 @@
 // T and E are never formed: with Kh = K^H = M⁻¹ A P (C x B) and AP = A P, T = Kh^H A and
 // E = P − Kh^H AP have rank-C structure, so every product costs O(C·B²) instead of O(B³).
 #include "qdo/wiener.hpp"
+#include "qdo/fftw2.hpp"
 
 #include <fftw3.h>
 
@@ -34,43 +35,9 @@ using Eigen::MatrixXcd;
 using Eigen::MatrixXd;
 using Eigen::VectorXcd;
 
-// FFTW's planner is not thread-safe. cpu_reference.cpp keeps its own (file-local) mutex, so
-// planning here and there from two threads at once is not protected against each other.
-std::mutex& fftw_planner_mutex() {
-  static std::mutex m;
-  return m;
-}
-
-struct PlanDeleter {
-  void operator()(fftw_plan_s* p) const {
-    std::lock_guard<std::mutex> lock(fftw_planner_mutex());
-    fftw_destroy_plan(p);
-  }
-};
-using PlanPtr = std::unique_ptr<fftw_plan_s, PlanDeleter>;
-
 enum class Scale { None, InverseN };
 
-// In-place 2-D FFT of every plane of s. sign = FFTW_FORWARD (e^{-i...}) or FFTW_BACKWARD
-// (e^{+i...}); with Scale::InverseN the result is divided by rows·cols.
-void fft2(ComplexStack& s, int sign, Scale scale) {
-  if (s.size() == 0) return;
-  PlanPtr plan;
-  {
-    std::lock_guard<std::mutex> lock(fftw_planner_mutex());
-    const int dims[2] = {static_cast<int>(s.rows), static_cast<int>(s.cols)};
-    const int dist = static_cast<int>(s.plane_size());
-    auto* p = reinterpret_cast<fftw_complex*>(s.data.data());
-    plan.reset(fftw_plan_many_dft(2, dims, static_cast<int>(s.planes), p, nullptr, 1, dist, p, nullptr, 1, dist, sign,
-                                  FFTW_ESTIMATE));
-  }
-  if (!plan) throw Error("FFTW could not plan a " + to_str(s.rows) + " x " + to_str(s.cols) + " transform");
-  fftw_execute(plan.get());
-  if (scale == Scale::InverseN) {
-    const double f = 1.0 / double(s.plane_size());
-    for (cdouble& v : s.data) v *= f;
-  }
-}
+void fft2(ComplexStack& s, int sign, Scale scale) { fftw2(s, sign == FFTW_FORWARD, scale == Scale::InverseN); }
 
 ComplexStack to_complex(const RealStack& r) {
   ComplexStack c(r.planes, r.rows, r.cols);

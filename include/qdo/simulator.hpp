@@ -96,6 +96,9 @@ class Simulator {
   void run_convolution(const std::vector<RealStack>& cubes);
   void run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw, std::size_t scenes);
   void set_phase_args(cl::Kernel& k);
+  void normalize_bands(cl::Buffer& x, std::size_t len, cl::Buffer& sums);
+  void resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer& start, const cl::Buffer& w, std::size_t n_in,
+                std::size_t n_out, std::size_t taps);
   void normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len, const cl::Buffer& sums);
   Map2D backward_from_native(const cl::Buffer& g_native);
 
