@@ -21,9 +21,11 @@
 #include "qdo/runtime.hpp"
 #include "qdo/scenes.hpp"
 #include "qdo/simulator.hpp"
+#include "cli.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;
+using namespace qdo::cli;
 
 namespace {
 
@@ -50,120 +52,6 @@ usage:
 Device selection: --device, else $QDO_DEVICE, else the first GPU, else the first CPU
 (gpu | cpu | P:D as 'qdo devices' prints | a substring of the device name).
 )";
-
-struct Args {
-  std::map<std::string, std::string> opt;
-  std::string get(const std::string& k, const std::string& def = "") const {
-    auto it = opt.find(k);
-    return it == opt.end() ? def : it->second;
-  }
-  bool has(const std::string& k) const { return opt.count(k) > 0; }
-};
-
-// Options take a value (--name VALUE or --name=VALUE), except those in `flags` (--name alone).
-Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, const std::string& cmd,
-                const std::set<std::string>& flags = {}) {
-  Args a;
-  for (int i = 2; i < argc; ++i) {
-    std::string s = argv[i];
-    if (s.rfind("--", 0) != 0) reject("argument " + std::to_string(i - 1), s, "options of the form --name VALUE");
-    s = s.substr(2);
-    std::string val;
-    const auto eq = s.find('=');
-    if (eq != std::string::npos) {
-      val = s.substr(eq + 1);
-      s = s.substr(0, eq);
-    } else if (flags.count(s)) {
-      val = "yes";
-    } else {
-      if (i + 1 >= argc) reject("--" + s, "(missing)", "a value after the option");
-      val = argv[++i];
-    }
-    if (!allowed.count(s)) {
-      std::string list;
-      for (const auto& k : allowed) list += " --" + k;
-      reject("--" + s, val, "an option of 'qdo " + cmd + "':" + list);
-    }
-    a.opt[s] = val;
-  }
-  return a;
-}
-
-// The configuration from --config or --preset, with the camera response checked too, so every
-// configuration error surfaces before any device work or output.
-SystemConfig load_config(const Args& a) {
-  SystemConfig c;
-  if (a.has("config")) {
-    if (a.has("preset")) reject("--preset", a.get("preset"), "omitted when --config is given (put \"preset\" in the file)");
-    c = config_from_json_file(a.get("config"));
-  } else {
-    c = preset_config(a.get("preset", "small"));
-  }
-  sensor_response(c);
-  return c;
-}
-
-int parse_int(const std::string& name, const std::string& v, int lo, int hi) {
-  char* end = nullptr;
-  const long x = std::strtol(v.c_str(), &end, 10);
-  if (v.empty() || *end || x < lo || x > hi) reject(name, v, "an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
-  return int(x);
-}
-
-// lens:NM, flat, or an HDF5 design file matching the configuration's grid.
-Map2D load_design(const SystemConfig& cfg, const std::string& spec) {
-  if (spec.empty()) reject("--design", "(missing)", "lens:NM (a diffractive lens for NM nanometres), flat, or a design .h5 file");
-  if (spec == "flat") return flat_design(cfg);
-  if (spec.rfind("lens:", 0) == 0) {
-    char* end = nullptr;
-    const double nm = std::strtod(spec.c_str() + 5, &end);
-    if (*end || !(nm > 0)) reject("--design", spec, "lens:NM with NM a wavelength in nm, e.g. lens:550");
-    return lens_design(cfg, nm);
-  }
-  const Design d = read_design(spec);
-  if (d.height_m.rows != cfg.n)
-    reject("--design", spec, "a height map of N x N = " + std::to_string(cfg.n) + " x " + std::to_string(cfg.n) +
-                                 " samples (the file has " + std::to_string(d.height_m.rows) + ")");
-  if (std::fabs(d.pitch_m - cfg.pitch_m) > 1e-6 * cfg.pitch_m)
-    reject("--design", spec, "pitch_m = " + to_str(cfg.pitch_m) + " as configured (the file has " + to_str(d.pitch_m) + ")");
-  return d.height_m;
-}
-
-struct QuantSpec {
-  bool active = false;
-  Quantizer q;
-};
-QuantSpec load_quantizer(const Args& a) {
-  QuantSpec s;
-  if (!a.has("levels")) {
-    if (a.has("placement")) reject("--placement", a.get("placement"), "given together with --levels");
-    return s;
-  }
-  s.active = true;
-  s.q.levels = parse_int("--levels", a.get("levels"), 2, 65536);
-  s.q.placement = placement_from_string(a.get("placement", "inclusive"));
-  s.q.validate();
-  return s;
-}
-
-Map2D design_heights(const SystemConfig& cfg, const Args& a, QuantSpec* qs_out = nullptr) {
-  const QuantSpec qs = load_quantizer(a);
-  Map2D h = load_design(cfg, a.get("design"));
-  if (qs.active) h = quantize_heights(h, cfg.h_max_m(), qs.q);
-  if (qs_out) *qs_out = qs;
-  return h;
-}
-
-std::string out_dir(const Args& a, const std::string& def = "") {
-  const std::string d = a.get("out", def);
-  if (d.empty()) reject("--out", "(missing)", "an output folder");
-  fs::create_directories(d);
-  return d;
-}
-
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 
 // Runs the PSF chain and writes DIR/psf.h5 + DIR/psf.png + DIR/design.png; returns the simulator.
 void write_psf_outputs(Simulator& sim, const Map2D& h, const std::string& dir, const std::string& tag) {
@@ -283,22 +171,6 @@ int cmd_simulate(int argc, char** argv) {
               rt.info().name.c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
               sim.sampling().summary().c_str(), dir.c_str());
   return 0;
-}
-
-double parse_double(const std::string& name, const std::string& v) {
-  char* end = nullptr;
-  const double x = std::strtod(v.c_str(), &end);
-  if (v.empty() || *end || !std::isfinite(x)) reject(name, v, "a number");
-  return x;
-}
-
-std::vector<std::string> split_list(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ','))
-    if (!item.empty()) out.push_back(item);
-  return out;
 }
 
 // Options shared by design and gradcheck.
@@ -505,6 +377,7 @@ int cmd_demo(int argc, char** argv) {
 int main(int argc, char** argv) {
   if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h" || std::string(argv[1]) == "help") {
     std::fputs(kUsage, argc < 2 ? stderr : stdout);
+    for (const auto& [name, info] : registry()) std::fprintf(argc < 2 ? stderr : stdout, "  %s\n", info.usage.c_str());
     return argc < 2 ? 2 : 0;
   }
   const std::string cmd = argv[1];
@@ -518,7 +391,10 @@ int main(int argc, char** argv) {
     if (cmd == "design") return cmd_design(argc, argv);
     if (cmd == "gradcheck") return cmd_gradcheck(argc, argv);
     if (cmd == "eval") return cmd_eval(argc, argv);
+    const auto it = registry().find(cmd);
+    if (it != registry().end()) return it->second.run(argc, argv);
     std::fprintf(stderr, "qdo: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
+    for (const auto& [name, info] : registry()) std::fprintf(stderr, "  %s\n", info.usage.c_str());
     return 2;
   } catch (const InputError& e) {
     std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
