@@ -32,22 +32,15 @@ __kernel void expand_params(__global const real* params, __global real* heights,
 // Alpha-blended quantization, in place on heights (count values):
 // H = alpha * h_max * level(index(H / h_max)) + (1 - alpha) * H, with index = floor(u (L-1) + 0.5)
 // (placement 0, inclusive) or floor(u L + 0.5) mod L (placement 1, wrapped), u clamped to [0, 1],
-// and level(l) = (l + 0.5 offsets[l]) / (L - 1 or L). offsets: L reals (zeros when not adaptive).
+// and level_u[l] the normalised height of level l (L reals, from Quantizer::level_value on the
+// host: uniform placement plus adaptive offsets, or an explicit level table).
 __kernel void quantize_blend(__global real* heights, const int count, const real h_max, const int levels,
-                             const int placement, __global const real* offsets, const real alpha) {
+                             const int placement, __global const real* level_u, const real alpha) {
   const size_t gid = get_global_id(0);
   if (gid >= (size_t)count) return;
   const real hf = heights[gid];
   const real u = clamp(hf / h_max, R(0.0), R(1.0));
-  int l;
-  real denom;
-  if (placement == 0) {
-    l = min((int)floor(u * (real)(levels - 1) + R(0.5)), levels - 1);
-    denom = (real)(levels - 1);
-  } else {
-    l = ((int)floor(u * (real)levels + R(0.5))) % levels;
-    denom = (real)levels;
-  }
-  const real q = ((real)l + R(0.5) * offsets[l]) / denom;
-  heights[gid] = alpha * h_max * q + (R(1.0) - alpha) * hf;
+  const int l = placement == 0 ? min((int)floor(u * (real)(levels - 1) + R(0.5)), levels - 1)
+                                : ((int)floor(u * (real)levels + R(0.5))) % levels;
+  heights[gid] = alpha * h_max * level_u[l] + (R(1.0) - alpha) * hf;
 }

@@ -234,11 +234,13 @@ QuantizeVjp quantize_vjp(const Map2D& h_full_m, double h_max_m, const Quantizer&
   QuantizeVjp r;
   r.g_full = Map2D(h_full_m.rows, h_full_m.cols);
   r.g_offsets.assign(static_cast<std::size_t>(q.levels), 0.0);
+  r.g_levels.assign(static_cast<std::size_t>(q.levels), 0.0);
   const double denom = q.placement == Placement::Inclusive ? double(q.levels - 1) : double(q.levels);
   const double through = ste ? 1.0 : 1.0 - alpha;
   for (std::size_t i = 0; i < h_full_m.data.size(); ++i) {
     r.g_full.data[i] = through * g_out.data[i];
     const int l = q.level_index(h_full_m.data[i] / h_max_m);
+    r.g_levels[static_cast<std::size_t>(l)] += alpha * h_max_m * g_out.data[i];
     if (l > 0) r.g_offsets[static_cast<std::size_t>(l)] += alpha * h_max_m * 0.5 / denom * g_out.data[i];
   }
   return r;

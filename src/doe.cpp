@@ -64,6 +64,12 @@ std::string to_string(Placement p) { return p == Placement::Inclusive ? "inclusi
 
 void Quantizer::validate() const {
   if (levels < 2 || levels > 65536) reject("levels", levels, "an integer in [2, 65536]");
+  if (!level_table.empty()) {
+    if (level_table.size() != static_cast<std::size_t>(levels))
+      reject("level_table.size()", level_table.size(), "one value per level (" + to_str(levels) + ")");
+    for (std::size_t l = 0; l < level_table.size(); ++l)
+      if (!std::isfinite(level_table[l])) reject("level_table[" + to_str(l) + "]", level_table[l], "finite values");
+  }
   if (!offsets.empty()) {
     if (offsets.size() != static_cast<std::size_t>(levels))
       reject("offsets.size()", offsets.size(), "one offset per level (" + to_str(levels) + ")");
@@ -85,6 +91,7 @@ int Quantizer::level_index(double u) const {
 }
 
 double Quantizer::level_value(int l) const {
+  if (!level_table.empty()) return level_table[static_cast<std::size_t>(l)];
   const double a = offsets.empty() ? 0.0 : offsets[static_cast<std::size_t>(l)];
   const double denom = placement == Placement::Inclusive ? double(levels - 1) : double(levels);
   return (l + 0.5 * a) / denom;

@@ -194,9 +194,9 @@ void Simulator::set_design(Parameterization kind, const std::vector<double>& par
   else k_expand_.setArg(4, float(hmax));
   enqueue_1d(k_expand_, n * n);
   if (q) {
-    std::vector<double> off(q->offsets);
-    off.resize(static_cast<std::size_t>(q->levels), 0.0);
-    const cl::Buffer obuf = upload_real(off);
+    std::vector<double> table;
+    for (int l = 0; l < q->levels; ++l) table.push_back(q->level_value(l));
+    const cl::Buffer obuf = upload_real(table);
     k_quantize_.setArg(0, heights_);
     k_quantize_.setArg(1, int(n * n));
     k_quantize_.setArg(3, int(q->levels));

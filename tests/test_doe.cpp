@@ -123,4 +123,17 @@ TEST_SUITE("doe") {
     CHECK(h(32, 40) == doctest::Approx(h(40, 32)));
     CHECK(h(32, 24) == doctest::Approx(h(24, 32)));
   }
+
+  TEST_CASE("an explicit level table overrides the level values, not the index") {
+    Quantizer q;
+    q.levels = 4;
+    q.level_table = {0.0, 0.2, 0.45, 0.9};  // e.g. subset sums of etch depths 0.2 and 0.45 (+ both)
+    q.validate();
+    CHECK(q.level_value(2) == 0.45);
+    CHECK(q.quantize(0.7) == 0.45);  // index round(0.7 * 3) = 2
+    q.level_table = {0.0, 0.2, NAN, 0.9};
+    CHECK_THROWS_WITH_AS(q.validate(), doctest::Contains("level_table[2]"), InputError);
+    q.level_table = {0.0, 0.2};
+    CHECK_THROWS_WITH_AS(q.validate(), doctest::Contains("level_table.size()"), InputError);
+  }
 }

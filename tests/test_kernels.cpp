@@ -52,6 +52,7 @@ TEST_SUITE("kernels") {
           q.levels = 5;
           q.placement = pl;
           q.offsets = {0.0, 0.3, -0.7, 1.0, -1.0};
+          if (pl == Placement::Wrapped) q.level_table = {0.0, 0.15, 0.5, 0.55, 0.95};  // explicit table path
           const Map2D want = quantize_heights(want_full, hmax, q, 0.6);
           sim.set_design(kind, params, &q, 0.6);
           const Map2D got = sim.heights();

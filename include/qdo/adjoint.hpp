@@ -59,6 +59,7 @@ std::vector<double> expand_parameters_vjp(Parameterization p, const std::vector<
 struct QuantizeVjp {
   Map2D g_full;                  // N x N
   std::vector<double> g_offsets; // L
+  std::vector<double> g_levels;  // L: dL/du_l for the normalised level values (any level table)
 };
 QuantizeVjp quantize_vjp(const Map2D& h_full_m, double h_max_m, const Quantizer& q, double alpha, const Map2D& g_out,
                          bool ste = false);

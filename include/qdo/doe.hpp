@@ -36,6 +36,11 @@ struct Quantizer {
   // (l + 0.5 a_l) / (L - 1) [Inclusive] or (l + 0.5 a_l) / L [Wrapped]; a_0 is fixed at 0.
   // Empty means all zero. Size L when given; a_l must lie in [-1, 1] ([-0.2, 0.2] when L = 2).
   std::vector<double> offsets;
+  // Explicit normalised level heights u_l (size L), overriding placement values and offsets
+  // for the level *values* (the index still comes from the uniform grid of `placement`): for
+  // level sets that are not uniform plus offsets, e.g. subset sums of binary-mask etch depths.
+  // Empty means unused. Values must be finite.
+  std::vector<double> level_table;
 
   void validate() const;
   // Index of the level nearest in the uniform grid (round half up: floor(x + 0.5)).
