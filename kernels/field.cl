@@ -9,9 +9,11 @@
 // accuracy where k·d itself (1.6e7 rad) would lose everything. d <= 0 means a plane wave.
 // The aperture test compares the integer pixel radius² with r_ap2_px = (r_ap / pitch)² (plus a
 // relative 1e-12, computed in double on the host), so boundary samples agree in every precision.
-// (`unused` keeps the argument layout identical to phase_vjp in adjoint.cl.)
+// Several designs can share one launch: plane b (of `bands` planes in all) uses height map
+// b / bands_per_design of height_m (designs x N x N).
 __kernel void doe_field(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
-                        __global real2* out, const int unused, const int n, const int m, const int offset, const int bands,
+                        __global real2* out, const int bands_per_design, const int n, const int m, const int offset,
+                        const int bands,
                         const real pitch_m, const real distance_m, const real r_ap2_px) {
   const size_t gid = get_global_id(0);
   const size_t mm = (size_t)m * m;
@@ -27,7 +29,7 @@ __kernel void doe_field(__global const real* height_m, __global const real* k_pe
     const real r2 = x * x + y * y;
     if ((real)(di * di + dj * dj) <= r_ap2_px) {  // integer pixel radius²: exact in float too
       const real src = distance_m > R(0.0) ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : R(0.0);
-      v = cexpi(k_per_m[b] * (src + dn[b] * height_m[i * n + j]));
+      v = cexpi(k_per_m[b] * (src + dn[b] * height_m[(size_t)(b / bands_per_design) * n * n + i * n + j]));
     }
   }
   out[gid] = v;

@@ -79,7 +79,8 @@ void write_line_plot_png(const std::string& path, const std::vector<std::vector<
   const unsigned char axis[3] = {0, 0, 0};
   for (std::size_t x = m; x < width - m / 2; ++x) put(long(x), long(height - m), axis);
   for (std::size_t y = m / 2; y <= height - m; ++y) put(long(m), long(y), axis);
-  const unsigned char colors[3][3] = {{31, 119, 180}, {214, 39, 40}, {44, 160, 44}};
+  // Series colours in order: blue, red, green, orange, purple, brown (matplotlib's tab10).
+  const unsigned char colors[6][3] = {{31, 119, 180}, {214, 39, 40}, {44, 160, 44}, {255, 127, 14}, {148, 103, 189}, {140, 86, 75}};
   for (std::size_t k = 0; k < series.size(); ++k) {
     long px_prev = -1, py_prev = -1;
     for (std::size_t i = 0; i < series[k].size(); ++i) {
@@ -91,7 +92,7 @@ void write_line_plot_png(const std::string& path, const std::vector<std::vector<
       if (px_prev >= 0) {
         const long steps = std::max(std::labs(x - px_prev), std::labs(y - py_prev)) + 1;
         for (long t = 0; t <= steps; ++t)
-          put(px_prev + (x - px_prev) * t / steps, py_prev + (y - py_prev) * t / steps, colors[k % 3]);
+          put(px_prev + (x - px_prev) * t / steps, py_prev + (y - py_prev) * t / steps, colors[k % 6]);
       }
       px_prev = x;
       py_prev = y;

@@ -7,17 +7,22 @@
 
 namespace qdo {
 
-Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p) : rt_(rt), cfg_(cfg), prec_(p) {
+Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs)
+    : rt_(rt), cfg_(cfg), prec_(p), designs_(designs) {
   cfg_.validate();
   rt_.require(p);
   rsz_ = real_size(p);
   geom_ = PropagationGeometry::from_config(cfg_);
   s_ = cfg_.sensor_size_px();
-  wavelengths_nm_ = cfg_.wavelengths_nm();
+  if (designs_ < 1) reject("designs", designs_, ">= 1");
+  nb_ = cfg_.bands * designs_;
+  // Per-plane tables for designs x bands planes: the band grid repeats for every design.
+  for (std::size_t d = 0; d < designs_; ++d)
+    for (double w : cfg_.wavelengths_nm()) wavelengths_nm_.push_back(w);
   srf_ = sensor_response(cfg_);
   weights_ = AreaWeights::make(cfg_.n, cfg_.pitch_m, s_, cfg_.sensor_pitch_m);
 
-  const std::size_t bands = cfg_.bands, m = geom_.m;
+  const std::size_t bands = nb_, m = geom_.m;
   const std::size_t field_bytes = bands * m * m * 2 * rsz_;
   if (field_bytes > rt_.info().max_alloc_bytes)
     reject("n", cfg_.n,
@@ -50,8 +55,14 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p) : rt_(rt
   k_cmul_conj_ = rt_.kernel("adjoint.cl", "cmul_conj_inplace", p);
   k_gather_psf_ = rt_.kernel("adjoint.cl", "gather_psf_grad", p);
 
-  k_ = upload_real(wavenumber_per_band(cfg_));
-  dn_ = upload_real(delta_n_per_band(cfg_));
+  std::vector<double> kk, dd;
+  for (std::size_t d = 0; d < designs_; ++d) {
+    const auto k1 = wavenumber_per_band(cfg_), d1 = delta_n_per_band(cfg_);
+    kk.insert(kk.end(), k1.begin(), k1.end());
+    dd.insert(dd.end(), d1.begin(), d1.end());
+  }
+  k_ = upload_real(kk);
+  dn_ = upload_real(dd);
   std::vector<int> klim(bands);
   for (std::size_t b = 0; b < bands; ++b) {
     const double f = transfer_function_limit_per_m(cfg_.propagator, wavelengths_nm_[b], cfg_.sensor_distance_m, m, cfg_.pitch_m);
@@ -67,7 +78,7 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p) : rt_(rt
   srf_buf_ = upload_real(srf);
 
   const auto& ctx = rt_.context();
-  heights_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, cfg_.n * cfg_.n * rsz_);
+  heights_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, designs_ * cfg_.n * cfg_.n * rsz_);
   field_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, field_bytes);
   psf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * cfg_.n * cfg_.n * rsz_);
   psf_s_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * s_ * s_ * rsz_);
@@ -126,7 +137,7 @@ void Simulator::enqueue_1d(cl::Kernel& k, std::size_t n) {
 // exp(-iπ λ_b z f_k²); angular spectrum as the full bands x M x M table (zero beyond the
 // band limit). Both computed in double on the host, then converted to the device precision.
 cl::Buffer Simulator::make_tf(double z_m) const {
-  const std::size_t m = geom_.m, bands = cfg_.bands;
+  const std::size_t m = geom_.m, bands = nb_;
   std::vector<cdouble> t;
   if (cfg_.propagator == Propagator::Fresnel) {
     t.resize(bands * m);
@@ -154,7 +165,13 @@ cl::Buffer Simulator::make_tf(double z_m) const {
   return upload_complex(t);
 }
 
-void Simulator::set_heights(const Map2D& height_m) {
+void Simulator::set_heights(const Map2D& height_m) { set_heights_batch({height_m}); }
+
+void Simulator::set_heights_batch(const std::vector<Map2D>& maps) {
+  if (maps.size() != designs_) reject("height maps", maps.size(), "one per design of this simulator (" + to_str(designs_) + ")");
+  std::vector<double> all;
+  all.reserve(designs_ * cfg_.n * cfg_.n);
+  for (const Map2D& height_m : maps) {
   if (height_m.rows != cfg_.n || height_m.cols != cfg_.n)
     reject("height_m", to_str(height_m.rows) + " x " + to_str(height_m.cols), "a square N x N map with N = " + to_str(cfg_.n));
   const double hmax = cfg_.h_max_m();
@@ -164,10 +181,12 @@ void Simulator::set_heights(const Map2D& height_m) {
       reject("height_m[" + to_str(i / cfg_.n) + "][" + to_str(i % cfg_.n) + "]", h,
              "finite heights in [0, 2 h_max] = [0, " + to_str(2 * hmax) + "] m");
   }
+  all.insert(all.end(), height_m.data.begin(), height_m.data.end());
+  }
   if (prec_ == Precision::F64) {
-    rt_.queue().enqueueWriteBuffer(heights_, CL_TRUE, 0, height_m.data.size() * 8, height_m.data.data());
+    rt_.queue().enqueueWriteBuffer(heights_, CL_TRUE, 0, all.size() * 8, all.data());
   } else {
-    const std::vector<float> f(height_m.data.begin(), height_m.data.end());
+    const std::vector<float> f(all.begin(), all.end());
     rt_.queue().enqueueWriteBuffer(heights_, CL_TRUE, 0, f.size() * 4, f.data());
   }
   heights_set_ = true;
@@ -175,6 +194,7 @@ void Simulator::set_heights(const Map2D& height_m) {
 }
 
 void Simulator::set_design(Parameterization kind, const std::vector<double>& params, const Quantizer* q, double alpha) {
+  require_single_design("set_design");
   const std::size_t n = cfg_.n;
   if (params.size() != parameter_count(kind, n))
     reject("params.size()", params.size(), "exactly " + to_str(parameter_count(kind, n)) + " for this parameterization and N");
@@ -234,7 +254,7 @@ void Simulator::set_phase_args(cl::Kernel& k) {
   k.setArg(5, int(cfg_.n));
   k.setArg(6, int(geom_.m));
   k.setArg(7, int(geom_.offset));
-  k.setArg(8, int(cfg_.bands));
+  k.setArg(8, int(nb_));
   if (prec_ == Precision::F64) {
     k.setArg(9, cfg_.pitch_m);
     k.setArg(10, d);
@@ -250,12 +270,12 @@ void Simulator::run_doe_field() {
   if (!heights_set_) throw Error("Simulator: set_heights() must be called before computing fields or PSFs");
   set_phase_args(k_field_);
   k_field_.setArg(3, field_);
-  k_field_.setArg(4, 0);  // unused slot keeps the argument layout of phase_vjp
-  enqueue_1d(k_field_, cfg_.bands * geom_.m * geom_.m);
+  k_field_.setArg(4, int(cfg_.bands));  // planes per design: plane b uses height map b / bands
+  enqueue_1d(k_field_, nb_ * geom_.m * geom_.m);
 }
 
 void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampling) {
-  const std::size_t m = geom_.m, bands = cfg_.bands;
+  const std::size_t m = geom_.m, bands = nb_;
   FftPlan& fft = rt_.fft(m, m, bands, prec_);
   fft.forward(field);
   if (record_sampling) {
@@ -298,7 +318,7 @@ void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampl
 }
 
 void Simulator::band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len, cl::Buffer& sums) {
-  const std::size_t bands = cfg_.bands;
+  const std::size_t bands = nb_;
   k.setArg(0, x);
   k.setArg(1, int(len));
   k.setArg(2, partial_);
@@ -319,8 +339,8 @@ void Simulator::normalize_bands(cl::Buffer& x, std::size_t len, cl::Buffer& sums
   k_scale_.setArg(0, x);
   k_scale_.setArg(1, sums);
   k_scale_.setArg(2, int(len));
-  k_scale_.setArg(3, int(cfg_.bands));
-  enqueue_1d(k_scale_, cfg_.bands * len);
+  k_scale_.setArg(3, int(nb_));
+  enqueue_1d(k_scale_, nb_ * len);
 }
 
 // Area resampling bands x n_in x n_in -> bands x n_out x n_out with the given weight table
@@ -334,12 +354,12 @@ void Simulator::resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer
   k_resample_.setArg(4, int(n_in));
   k_resample_.setArg(5, int(n_out));
   k_resample_.setArg(6, int(taps));
-  k_resample_.setArg(7, int(cfg_.bands));
-  enqueue_1d(k_resample_, cfg_.bands * n_out * n_out);
+  k_resample_.setArg(7, int(nb_));
+  enqueue_1d(k_resample_, nb_ * n_out * n_out);
 }
 
 void Simulator::compute_psf() {
-  const std::size_t n = cfg_.n, m = geom_.m, bands = cfg_.bands;
+  const std::size_t n = cfg_.n, m = geom_.m, bands = nb_;
   run_doe_field();
   run_propagation(field_, cfg_.sensor_distance_m, true);
   band_reduce(k_energy_sums_, field_, m * m, sums_total_);
@@ -364,16 +384,22 @@ void Simulator::compute_psf() {
 
 RealStack Simulator::psf_native() const {
   if (!psf_valid_) throw Error("Simulator: compute_psf() has not run for the current heights");
-  RealStack out(cfg_.bands, cfg_.n, cfg_.n);
+  RealStack out(nb_, cfg_.n, cfg_.n);
   out.data = download_real(psf_, out.size());
   return out;
 }
 
 RealStack Simulator::psf_sensor() const {
   if (!psf_valid_) throw Error("Simulator: compute_psf() has not run for the current heights");
-  RealStack out(cfg_.bands, s_, s_);
+  RealStack out(nb_, s_, s_);
   out.data = download_real(psf_s_, out.size());
   return out;
+}
+
+void Simulator::require_single_design(const char* what) const {
+  if (designs_ != 1)
+    throw Error(std::string("Simulator: ") + what + " needs a simulator of one design (this one batches " + to_str(designs_) +
+                "); construct one with designs = 1");
 }
 
 void Simulator::normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len, const cl::Buffer& sums) {
@@ -422,6 +448,7 @@ Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
 }
 
 Map2D Simulator::psf_native_vjp(const RealStack& g_psf) {
+  require_single_design("psf_native_vjp");
   if (!psf_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
   if (g_psf.planes != cfg_.bands || g_psf.rows != cfg_.n || g_psf.cols != cfg_.n)
     reject("g_psf", to_str(g_psf.planes) + " x " + to_str(g_psf.rows) + " x " + to_str(g_psf.cols),
@@ -433,6 +460,7 @@ Map2D Simulator::psf_native_vjp(const RealStack& g_psf) {
 }
 
 Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
+  require_single_design("psf_sensor_vjp");
   if (!psf_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
   if (g_psf_sensor.planes != cfg_.bands || g_psf_sensor.rows != s_ || g_psf_sensor.cols != s_)
     reject("g_psf_sensor", to_str(g_psf_sensor.planes) + " x " + to_str(g_psf_sensor.rows) + " x " + to_str(g_psf_sensor.cols),
@@ -507,7 +535,7 @@ RealStack Simulator::sensor_images_vjp(const std::vector<RealStack>& g_rgb) {
 
 ComplexStack Simulator::debug_field_after_doe() {
   run_doe_field();
-  ComplexStack out(cfg_.bands, geom_.m, geom_.m);
+  ComplexStack out(nb_, geom_.m, geom_.m);
   out.data = download_complex(field_, out.size());
   return out;
 }
@@ -515,15 +543,15 @@ ComplexStack Simulator::debug_field_after_doe() {
 ComplexStack Simulator::debug_field_after_propagation() {
   run_doe_field();
   run_propagation(field_, cfg_.sensor_distance_m, true);
-  ComplexStack out(cfg_.bands, geom_.m, geom_.m);
+  ComplexStack out(nb_, geom_.m, geom_.m);
   out.data = download_complex(field_, out.size());
   return out;
 }
 
 ComplexStack Simulator::propagate_field(const ComplexStack& field, double z_m) {
-  if (field.planes != cfg_.bands || field.rows != geom_.m || field.cols != geom_.m)
+  if (field.planes != nb_ || field.rows != geom_.m || field.cols != geom_.m)
     reject("field", to_str(field.planes) + " x " + to_str(field.rows) + " x " + to_str(field.cols),
-           "bands x M x M = " + to_str(cfg_.bands) + " x " + to_str(geom_.m) + " x " + to_str(geom_.m));
+           "bands x M x M = " + to_str(nb_) + " x " + to_str(geom_.m) + " x " + to_str(geom_.m));
   cl::Buffer rw = upload_complex(field.data, CL_MEM_READ_WRITE);
   run_propagation(rw, z_m, false);
   ComplexStack out(field.planes, field.rows, field.cols);
@@ -561,6 +589,7 @@ void Simulator::ensure_conv(std::size_t h, std::size_t w, std::size_t scenes) {
 }
 
 void Simulator::run_convolution(const std::vector<RealStack>& cubes) {
+  require_single_design("convolution");
   if (cubes.empty()) reject("cubes", 0, "at least one scene");
   for (std::size_t k = 0; k < cubes.size(); ++k) {
     if (cubes[k].planes != cfg_.bands)
@@ -666,6 +695,7 @@ std::vector<RealStack> Simulator::sensor_images(const std::vector<RealStack>& cu
 RealStack Simulator::sensor_image(const RealStack& cube) { return sensor_images({cube}).front(); }
 
 RealStack Simulator::integrate(const RealStack& cube) {
+  require_single_design("integrate");
   if (cube.planes != cfg_.bands)
     reject("cube bands", cube.planes, "the configuration's band count (" + to_str(cfg_.bands) + ")");
   const std::size_t hw = cube.plane_size();

@@ -23,7 +23,11 @@ class Simulator {
  public:
   // Validates cfg (InputError) and the precision against the device (DeviceError); builds
   // or loads the kernels, bakes the FFT plan and uploads the per-band tables.
-  Simulator(Runtime& rt, const SystemConfig& cfg, Precision p);
+  // designs > 1 batches that many height maps through the PSF chain in one pass (planes =
+  // designs x bands, design-major: plane d * bands + b); adjoints, convolution and the sensor
+  // need designs = 1.
+  Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs = 1);
+  std::size_t designs() const { return designs_; }
 
   const SystemConfig& config() const { return cfg_; }
   const PropagationGeometry& geometry() const { return geom_; }
@@ -33,6 +37,8 @@ class Simulator {
   // Uploads an N x N height map (metres, row-major). Rejects wrong shapes, NaN/Inf and
   // heights outside [0, 2 h_max] before any device work.
   void set_heights(const Map2D& height_m);
+  // One N x N map per design (designs() of them), for batched PSF stacks.
+  void set_heights_batch(const std::vector<Map2D>& maps);
   // The same from design parameters, on the device: expands `params` (layout of
   // parameter_count(kind, N), metres) onto the N x N grid (clamped to [0, h_max]) and, when q is
   // given, applies the alpha-blended quantizer (kernels/doe.cl). Rejects NaN/Inf and wrong sizes.
@@ -44,8 +50,8 @@ class Simulator {
   // Runs the PSF chain on the device (all bands in one batched pass). The results stay on the
   // device; the accessors below copy them to the host. Honours cfg.strict_sampling.
   void compute_psf();
-  RealStack psf_native() const;        // bands x N x N, each band sums to 1
-  RealStack psf_sensor() const;        // bands x S x S on the sensor pitch, each band sums to 1
+  RealStack psf_native() const;        // (designs x bands) x N x N, each band sums to 1
+  RealStack psf_sensor() const;        // (designs x bands) x S x S on the sensor pitch, each band sums to 1
   const SamplingReport& sampling() const { return sampling_; }
 
   // Adjoints at the current heights (compute_psf() must have run; its field, sums and PSFs are
@@ -96,6 +102,7 @@ class Simulator {
   void run_convolution(const std::vector<RealStack>& cubes);
   void run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw, std::size_t scenes);
   void set_phase_args(cl::Kernel& k);
+  void require_single_design(const char* what) const;
   void normalize_bands(cl::Buffer& x, std::size_t len, cl::Buffer& sums);
   void resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer& start, const cl::Buffer& w, std::size_t n_in,
                 std::size_t n_out, std::size_t taps);
@@ -105,6 +112,8 @@ class Simulator {
   Runtime& rt_;
   SystemConfig cfg_;
   Precision prec_;
+  std::size_t designs_ = 1;
+  std::size_t nb_ = 0;                 // planes in the PSF chain: designs x bands
   PropagationGeometry geom_;
   std::size_t s_ = 0;                  // sensor PSF size
   std::size_t rsz_ = 4;                // bytes per real on the device

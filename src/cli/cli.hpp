@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "qdo/config.hpp"
+#include "qdo/design_run.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/types.hpp"
 
@@ -42,6 +43,8 @@ QuantSpec load_quantizer(const Args& a);
 Map2D design_heights(const SystemConfig& cfg, const Args& a, QuantSpec* qs_out = nullptr);
 std::string out_dir(const Args& a, const std::string& def = "");  // creates it
 double seconds_since(std::chrono::steady_clock::time_point t0);
+// The options of `qdo design` (also used by gradcheck and sweep); --mode and --out as given.
+DesignRunOptions design_options(const Args& a);
 
 // Command registry: a file registers its commands with a static Registrar, e.g.
 //   static const qdo::cli::Registrar reg("export", cmd_export, "qdo export RUN|DESIGN.h5 ...");

@@ -135,4 +135,36 @@ std::vector<std::string> split_list(const std::string& s) {
   return out;
 }
 
+// Options shared by design and gradcheck.
+DesignRunOptions design_options(const Args& a) {
+  DesignRunOptions o;
+  o.cfg = load_config(a);
+  o.design.mode = design_mode_from_string(a.get("mode", "qdo+a"));
+  o.design.parameterization = parameterization_from_string(a.get("parameterization", "radial"));
+  o.design.quantizer.levels = parse_int("--levels", a.get("levels", "4"), 2, 65536);
+  o.design.quantizer.placement = placement_from_string(a.get("placement", "inclusive"));
+  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch", "10"), 1, 1000000));
+  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", "50"), 1, 1000000));
+  o.design.t0_epochs = parse_double("--t0", a.get("t0", to_str(std::min(5.0, 0.1 * double(o.epochs)))));
+  o.design.t1_epochs = parse_double("--t1", a.get("t1", to_str(0.8 * double(o.epochs))));
+  o.design.lr_optics = parse_double("--lr", a.get("lr", "0.01"));
+  o.design.lr_offsets = parse_double("--lr-offsets", a.get("lr-offsets", "0.01"));
+  o.design.lr_decay_per_epoch = parse_double("--decay", a.get("decay", "0.8"));
+  o.design.beta_aq = parse_double("--beta", a.get("beta", "0.01"));
+  o.design.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", "0")) * 1e-9;
+  o.design.seed = std::uint64_t(parse_int("--seed", a.get("seed", "0"), 0, 2147483647));
+  o.objective = a.get("objective", "wiener");
+  o.target = a.get("target", "lens:550");
+  o.data = split_list(a.get("data", ""));
+  o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "12"), 1, 100000));
+  o.batch = std::size_t(parse_int("--batch", a.get("batch", "4"), 1, 100000));
+  o.decoder_noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma", "0.001"));
+  o.init = a.get("init", "random");
+  o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));
+  o.max_steps = a.has("max-steps") ? parse_int("--max-steps", a.get("max-steps"), 0, 2147483647) : -1;
+  o.precision = precision_from_string(a.get("precision", "f32"));
+  o.out = a.get("out");
+  return o;
+}
+
 }  // namespace qdo::cli

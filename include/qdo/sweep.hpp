@@ -1,0 +1,71 @@
+// Sweeps across quantization levels: PSF metrics per level (`qdo sweep-psf`) and the experiment
+// grid of the paper's comparisons (`qdo sweep`).
+#pragma once
+#include <map>
+#include <string>
+#include <vector>
+
+#include "qdo/design_run.hpp"
+#include "qdo/doe.hpp"
+#include "qdo/runtime.hpp"
+
+namespace qdo {
+
+// ---------- PSF sweep ----------
+struct PsfSweepVariant {
+  std::string label;                   // e.g. "L4", "L4-adaptive"
+  Quantizer quantizer;                 // applied (alpha = 1) to the full-precision design
+};
+struct PsfSweepOptions {
+  SystemConfig cfg;
+  Map2D design_full_m;                 // N x N full-precision heights
+  std::vector<PsfSweepVariant> variants;
+  std::size_t max_designs_per_pass = 0;  // 0: as many as fit the device's largest allocation
+  Precision precision = Precision::F32;
+  std::string out;                     // empty: no files
+};
+// Per variant and band, on the sensor-grid PSF (bands x S x S) against the full-precision one:
+struct PsfSweepRow {
+  std::string label;
+  int levels = 0;                      // 0 for the full-precision reference
+  double deviation_nm = 0;             // mean |H_q - H_f| (Table 2's measure)
+  std::vector<double> rel_l2;          // ||P_q - P_f|| / ||P_f||
+  std::vector<double> peak_ratio;      // max P_q / max P_f (Strehl-like)
+  std::vector<double> ee80_um;         // radius around the axis holding 80 % of the band's energy
+  std::vector<double> energy_outside;  // fraction of propagated energy outside the N x N window
+};
+// The full-precision reference comes first. All PSF stacks of a pass are computed in one batched
+// pass on the device (designs x bands planes); the transfer functions, FFT plan and kernels are
+// built once. Writes sweep.csv, sweep.json, psf.h5, psf_<label>.png and metric plots when out is set.
+std::vector<PsfSweepRow> sweep_psf(Runtime& rt, const PsfSweepOptions& o);
+
+// Radius (in units of the sensor pitch x pitch_m) around (S/2, S/2) within which `fraction` of
+// the plane's energy lies; pixel centres sorted by radius, linearly interpolated.
+double encircled_energy_radius(const RealStack& psf, std::size_t plane, double fraction, double pitch_m);
+
+// ---------- Experiment grid ----------
+struct GridOptions {
+  DesignRunOptions base;               // system, optimiser and objective settings of every run
+  std::vector<int> levels{2, 4, 8, 16, 32};
+  std::vector<std::string> modes{"do", "do-refit", "qdo", "qdo+a"};
+  // Training scenes are base.data (empty: synthetic scenes). Test scenes: test_data when given
+  // (all of it); else the test part of base.data's scene-level 80/10/10 split by
+  // base.design.seed; else held-out synthetic scenes.
+  std::vector<std::string> test_data;
+  std::size_t eval_synthetic_scenes = 4;
+  std::string out;
+  bool quiet = true;
+};
+struct GridCell {
+  std::string name, mode;              // mode: full, do, do-refit, qdo, qdo+a, ...
+  int levels = 0;
+  EvalRow mean;
+  double deviation_nm = 0;
+};
+// Runs every cell (training runs resume from their checkpoints and are skipped when finished;
+// evaluated cells are skipped when their metrics exist), evaluates on the test split, and writes
+// table1.md/.csv (PSNR, SSIM, RMSE, ERGAS per cell), table2.md/.csv (deviation in nm) and
+// psnr_vs_levels.png. DO is trained once at full precision and quantized per level.
+std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g);
+
+}  // namespace qdo

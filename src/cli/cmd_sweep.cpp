@@ -1,0 +1,142 @@
+// qdo sweep-psf and qdo sweep.
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "cli.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/run.hpp"
+#include "qdo/sweep.hpp"
+
+namespace fs = std::filesystem;
+using namespace qdo;
+using namespace qdo::cli;
+
+namespace {
+
+DesignRunOptions read_run_options(const std::string& run) {
+  const fs::path p = fs::path(run) / "config.json";
+  if (!fs::exists(p)) reject("run", run, "a run folder written by qdo design (config.json missing)");
+  std::ifstream f(p);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  return design_run_options_from_json(ss.str(), p.string());
+}
+
+int cmd_sweep_psf(int argc, char** argv) {
+  const Args a = parse_args(argc, argv, {"design", "levels", "placement", "adaptive-from", "preset", "config", "precision",
+                                         "device", "designs-per-pass", "out"},
+                            "sweep-psf");
+  PsfSweepOptions o;
+  const std::string design = a.get("design");
+  if (design.empty()) reject("--design", "(missing)", "a design .h5 file or a run folder");
+  if (fs::is_directory(design)) {
+    if (a.has("preset") || a.has("config")) reject("--preset", "(given)", "omitted with a run folder (its config.json is used)");
+    o.cfg = read_run_options(design).cfg;
+    o.design_full_m = read_design((fs::path(design) / "design_full.h5").string()).height_m;
+  } else {
+    o.cfg = load_config(a);
+    o.design_full_m = load_design(o.cfg, design);
+  }
+  const Placement pl = placement_from_string(a.get("placement", "inclusive"));
+  for (const auto& l : split_list(a.get("levels", "2,4,8,16,32"))) {
+    PsfSweepVariant v;
+    v.quantizer.levels = parse_int("--levels", l, 2, 65536);
+    v.quantizer.placement = pl;
+    v.label = "L" + l;
+    o.variants.push_back(v);
+  }
+  if (a.has("adaptive-from")) {
+    const std::string run = a.get("adaptive-from");
+    const DesignRunOptions ro = read_run_options(run);
+    if (ro.design.mode != DesignMode::QDOA) reject("--adaptive-from", run, "a qdo+a run (it is " + to_string(ro.design.mode) + ")");
+    const std::size_t L = std::size_t(ro.design.quantizer.levels);
+    const DesignState st = load_checkpoint((fs::path(run) / "checkpoint.h5").string(),
+                                           parameter_count(ro.design.parameterization, ro.cfg.n), L);
+    PsfSweepVariant v;
+    v.quantizer = ro.design.quantizer;
+    v.quantizer.offsets = st.offsets;
+    v.label = "L" + std::to_string(L) + "-adaptive";
+    o.variants.push_back(v);
+  }
+  o.precision = precision_from_string(a.get("precision", "f32"));
+  o.max_designs_per_pass = std::size_t(parse_int("--designs-per-pass", a.get("designs-per-pass", "0"), 0, 1000));
+  o.out = out_dir(a);
+  Runtime rt(a.get("device"));
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto rows = sweep_psf(rt, o);
+  std::printf("%-14s %7s %12s %12s %12s %12s %14s\n", "variant", "levels", "dev [nm]", "rel L2", "peak ratio", "EE80 [um]", "outside win.");
+  for (const auto& r : rows) {
+    auto mean = [](const std::vector<double>& v) {
+      double s = 0;
+      for (double x : v) s += x;
+      return s / double(v.size());
+    };
+    std::printf("%-14s %7d %12.3f %12.4f %12.4f %12.2f %14.4f\n", r.label.c_str(), r.levels, r.deviation_nm, mean(r.rel_l2),
+                mean(r.peak_ratio), mean(r.ee80_um), mean(r.energy_outside));
+  }
+  std::printf("(means over %zu bands) %.1f s; wrote %s/ (sweep.csv sweep.json psf.h5 psf_*.png *_vs_variant.png)\n", o.cfg.bands,
+              seconds_since(t0), o.out.c_str());
+  return 0;
+}
+
+int cmd_sweep(int argc, char** argv) {
+  // --grid levels=2,4,8 --grid mode=do,qdo,qdo+a (repeatable), plus every option of qdo design.
+  std::vector<std::string> grids;
+  std::vector<char*> rest;
+  for (int i = 0; i < argc; ++i) {
+    if (std::string(argv[i]) == "--grid" && i + 1 < argc) {
+      grids.push_back(argv[++i]);
+      continue;
+    }
+    rest.push_back(argv[i]);
+  }
+  const Args a = parse_args(int(rest.size()), rest.data(),
+                            {"preset", "config", "placement", "parameterization", "objective", "data", "test-data", "epochs",
+                             "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm", "noise-sigma",
+                             "init", "seed", "synthetic-scenes", "eval-scenes", "batch", "precision", "device", "out"},
+                            "sweep");
+  GridOptions g;
+  Args b = a;
+  b.opt["out"] = "(per run)";
+  b.opt["mode"] = "do";
+  g.base = design_options(b);  // qdo design's options; levels and mode are set per cell
+  for (const auto& spec : grids) {
+    const auto eq = spec.find('=');
+    if (eq == std::string::npos) reject("--grid", spec, "AXIS=V1,V2,... with AXIS levels or mode");
+    const std::string axis = spec.substr(0, eq);
+    const auto vals = split_list(spec.substr(eq + 1));
+    if (axis == "levels") {
+      g.levels.clear();
+      for (const auto& v : vals) g.levels.push_back(parse_int("--grid levels", v, 2, 256));
+    } else if (axis == "mode") {
+      g.modes = vals;
+    } else {
+      reject("--grid", axis, "levels or mode");
+    }
+  }
+  g.test_data = split_list(a.get("test-data", ""));
+  g.eval_synthetic_scenes = std::size_t(parse_int("--eval-scenes", a.get("eval-scenes", "4"), 1, 10000));
+  g.out = out_dir(a);
+  g.quiet = false;
+  Runtime rt(a.get("device"));
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto cells = run_grid(rt, g);
+  std::printf("%-7s %-9s %9s %8s %8s %8s %10s\n", "levels", "mode", "PSNR", "SSIM", "RMSE", "ERGAS", "dev [nm]");
+  for (const auto& c : cells)
+    std::printf("%-7s %-9s %9.2f %8.4f %8.4f %8.2f %10.2f\n", c.levels ? std::to_string(c.levels).c_str() : "full", c.mode.c_str(),
+                c.mean.psnr, c.mean.ssim, c.mean.rmse, c.mean.ergas, c.deviation_nm);
+  std::printf("%.0f s; wrote %s/ (runs/ cells/ table1.md table1.csv table2.md table2.csv psnr_vs_levels.png)\n", seconds_since(t0),
+              g.out.c_str());
+  return 0;
+}
+
+const Registrar reg_sweep_psf("sweep-psf", cmd_sweep_psf,
+                              "qdo sweep-psf --design FILE.h5|RUN [--levels 2,4,8,16,32] [--placement ...] [--adaptive-from RUN] --out DIR");
+const Registrar reg_sweep("sweep", cmd_sweep,
+                          "qdo sweep --grid levels=2,4,8 --grid mode=do,do-refit,qdo,qdo+a [--preset P] [--data PATH,...] "
+                          "[--test-data PATH,...] [qdo design options] --out DIR");
+
+}  // namespace

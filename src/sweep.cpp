@@ -1,0 +1,295 @@
+#include "qdo/sweep.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "qdo/datasets.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/run.hpp"
+#include "qdo/simulator.hpp"
+
+namespace fs = std::filesystem;
+
+namespace qdo {
+
+double encircled_energy_radius(const RealStack& psf, std::size_t plane, double fraction, double pitch_m) {
+  const std::size_t s = psf.rows;
+  std::vector<std::pair<double, double>> rv;  // (radius in pixels, energy)
+  double total = 0;
+  for (std::size_t y = 0; y < s; ++y)
+    for (std::size_t x = 0; x < psf.cols; ++x) {
+      const double dy = double(y) - double(s / 2), dx = double(x) - double(psf.cols / 2);
+      rv.push_back({std::sqrt(dy * dy + dx * dx), psf(plane, y, x)});
+      total += psf(plane, y, x);
+    }
+  if (!(total > 0)) return 0;
+  std::sort(rv.begin(), rv.end());
+  double acc = 0, prev_r = 0, prev_acc = 0;
+  for (const auto& [r, e] : rv) {
+    acc += e / total;
+    if (acc >= fraction) {
+      const double t = acc > prev_acc ? (fraction - prev_acc) / (acc - prev_acc) : 1.0;
+      return (prev_r + t * (r - prev_r)) * pitch_m;
+    }
+    prev_r = r;
+    prev_acc = acc;
+  }
+  return rv.back().first * pitch_m;
+}
+
+std::vector<PsfSweepRow> sweep_psf(Runtime& rt, const PsfSweepOptions& o) {
+  o.cfg.validate();
+  if (o.design_full_m.rows != o.cfg.n || o.design_full_m.cols != o.cfg.n)
+    reject("design", to_str(o.design_full_m.rows) + " x " + to_str(o.design_full_m.cols), "N x N = " + to_str(o.cfg.n));
+  for (const auto& v : o.variants) v.quantizer.validate();
+  const double hmax = o.cfg.h_max_m();
+  // Height maps: the reference first, then every variant.
+  std::vector<Map2D> maps{o.design_full_m};
+  std::vector<std::string> labels{"full"};
+  std::vector<int> levels{0};
+  for (const auto& v : o.variants) {
+    maps.push_back(quantize_heights(o.design_full_m, hmax, v.quantizer));
+    labels.push_back(v.label);
+    levels.push_back(v.quantizer.levels);
+  }
+  // How many designs fit one pass: the field buffer (designs x bands x M x M complex).
+  const auto g = PropagationGeometry::from_config(o.cfg);
+  const std::size_t per_design = o.cfg.bands * g.m * g.m * 2 * real_size(o.precision);
+  std::size_t per_pass = o.max_designs_per_pass;
+  if (per_pass == 0) per_pass = std::max<std::size_t>(1, rt.info().max_alloc_bytes / per_design);
+  per_pass = std::min(per_pass, maps.size());
+  const std::size_t bands = o.cfg.bands;
+  std::vector<RealStack> psfs(maps.size());
+  std::vector<std::vector<double>> outside(maps.size());
+  for (std::size_t first = 0; first < maps.size(); first += per_pass) {
+    const std::size_t count = std::min(per_pass, maps.size() - first);
+    Simulator sim(rt, o.cfg, o.precision, count);
+    sim.set_heights_batch(std::vector<Map2D>(maps.begin() + long(first), maps.begin() + long(first + count)));
+    sim.compute_psf();
+    const RealStack all = sim.psf_sensor();
+    for (std::size_t d = 0; d < count; ++d) {
+      RealStack p(bands, all.rows, all.cols);
+      std::copy(all.plane(d * bands), all.plane(d * bands) + p.size(), p.data.begin());
+      psfs[first + d] = std::move(p);
+      for (std::size_t b = 0; b < bands; ++b) outside[first + d].push_back(sim.sampling().bands[d * bands + b].energy_outside_window);
+    }
+  }
+  std::vector<PsfSweepRow> rows;
+  const RealStack& ref = psfs[0];
+  for (std::size_t k = 0; k < maps.size(); ++k) {
+    PsfSweepRow r;
+    r.label = labels[k];
+    r.levels = levels[k];
+    r.deviation_nm = quantization_deviation_m(maps[k], maps[0]) * 1e9;
+    r.energy_outside = outside[k];
+    for (std::size_t b = 0; b < bands; ++b) {
+      double num = 0, den = 0, pk = 0, pk0 = 0;
+      for (std::size_t i = 0; i < ref.plane_size(); ++i) {
+        const double a = psfs[k].plane(b)[i], c = ref.plane(b)[i];
+        num += (a - c) * (a - c);
+        den += c * c;
+        pk = std::max(pk, a);
+        pk0 = std::max(pk0, c);
+      }
+      r.rel_l2.push_back(den > 0 ? std::sqrt(num / den) : 0.0);
+      r.peak_ratio.push_back(pk0 > 0 ? pk / pk0 : 0.0);
+      r.ee80_um.push_back(encircled_energy_radius(psfs[k], b, 0.8, o.cfg.sensor_pitch_m) * 1e6);
+    }
+    rows.push_back(r);
+  }
+  if (!o.out.empty()) {
+    fs::create_directories(o.out);
+    const auto wl = o.cfg.wavelengths_nm();
+    std::ostringstream csv;
+    csv.precision(8);
+    csv << "variant,levels,deviation_nm,wavelength_nm,rel_l2,peak_ratio,ee80_um,energy_outside_window\n";
+    nlohmann::json j = nlohmann::json::array();
+    std::vector<H5Dataset> h5;
+    auto mean = [](const std::vector<double>& v) {
+      double s = 0;
+      for (double x : v) s += x;
+      return v.empty() ? 0.0 : s / double(v.size());
+    };
+    for (std::size_t k = 0; k < rows.size(); ++k) {
+      const auto& r = rows[k];
+      for (std::size_t b = 0; b < bands; ++b)
+        csv << r.label << "," << r.levels << "," << r.deviation_nm << "," << wl[b] << "," << r.rel_l2[b] << "," << r.peak_ratio[b] << ","
+            << r.ee80_um[b] << "," << r.energy_outside[b] << "\n";
+      j.push_back({{"variant", r.label},
+                   {"levels", r.levels},
+                   {"deviation_nm", r.deviation_nm},
+                   {"mean_rel_l2", mean(r.rel_l2)},
+                   {"mean_peak_ratio", mean(r.peak_ratio)},
+                   {"mean_ee80_um", mean(r.ee80_um)},
+                   {"rel_l2", r.rel_l2},
+                   {"peak_ratio", r.peak_ratio},
+                   {"ee80_um", r.ee80_um},
+                   {"energy_outside_window", r.energy_outside}});
+      h5.push_back({"/psf_" + r.label, {bands, psfs[k].rows, psfs[k].cols}, psfs[k].data, {{"pitch_m", o.cfg.sensor_pitch_m}}, {}});
+      write_montage_png((fs::path(o.out) / ("psf_" + r.label + ".png")).string(), psfs[k], wl, 0.5,
+                        std::min<std::size_t>(psfs[k].rows, 96));
+    }
+    h5.push_back({"/wavelengths_nm", {bands}, wl, {}, {{"units", "nm"}}});
+    h5_write((fs::path(o.out) / "psf.h5").string(), h5, {{"config", config_to_json_text(o.cfg)}});
+    write_text_atomic((fs::path(o.out) / "sweep.csv").string(), csv.str());
+    write_text_atomic((fs::path(o.out) / "sweep.json").string(), j.dump(2) + "\n");
+    // Metric vs variant (in the order given, reference first), mean over bands.
+    std::vector<double> l2, peak, ee;
+    for (const auto& r : rows) {
+      l2.push_back(mean(r.rel_l2));
+      peak.push_back(mean(r.peak_ratio));
+      ee.push_back(mean(r.ee80_um));
+    }
+    write_line_plot_png((fs::path(o.out) / "rel_l2_vs_variant.png").string(), {std::vector<double>(l2.begin() + 1, l2.end())});
+    write_line_plot_png((fs::path(o.out) / "peak_ratio_vs_variant.png").string(), {peak});
+    write_line_plot_png((fs::path(o.out) / "ee80_vs_variant.png").string(), {ee});
+  }
+  return rows;
+}
+
+namespace {
+
+bool run_finished(const fs::path& run) { return fs::exists(run / "DONE"); }
+
+void ensure_run(Runtime& rt, const DesignRunOptions& o, bool quiet) {
+  const fs::path dir(o.out);
+  if (run_finished(dir)) return;
+  DesignRunOptions r = o;
+  r.quiet = quiet;
+  const bool resume = fs::exists(dir / "checkpoint.h5");
+  if (!quiet) std::fprintf(stderr, "[sweep] %s run %s\n", resume ? "resuming" : "starting", o.out.c_str());
+  run_design(rt, r, resume);
+  write_text_atomic((dir / "DONE").string(), "finished\n");
+}
+
+}  // namespace
+
+std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
+  if (g.out.empty()) reject("out", "(missing)", "an output folder");
+  for (const auto& m : g.modes)
+    if (m != "do" && m != "do-refit" && m != "qdo" && m != "qdo+a" && m != "ste" && m != "qdo+m")
+      reject("grid mode", m, "do, do-refit, qdo, qdo+a, ste or qdo+m");
+  for (int l : g.levels)
+    if (l < 2 || l > 256) reject("grid levels", l, "integers in [2, 256]");
+  DesignRunOptions base = g.base;
+  base.out = "(set per run)";
+  base.validate();
+  // Test scenes.
+  std::vector<std::string> test = g.test_data;
+  if (test.empty() && !base.data.empty()) {
+    const SceneIndex idx(base.data, base.data_format, base.cfg.bands);
+    for (std::size_t i : idx.split(base.design.seed, 0.8, 0.1).test) test.push_back(idx[i].path);
+    if (test.empty()) reject("data", base.data.size(), "enough scenes for a test split (or pass test scenes explicitly)");
+  }
+  const fs::path out(g.out);
+  fs::create_directories(out / "runs");
+  fs::create_directories(out / "cells");
+  auto run_opts = [&](DesignMode mode, int levels, const std::string& name) {
+    DesignRunOptions o = base;
+    o.design.mode = mode;
+    o.design.quantizer.levels = levels;
+    o.out = (out / "runs" / name).string();
+    return o;
+  };
+  // DO is trained once in full precision; its levels only matter for design.h5.
+  const DesignRunOptions do_run = run_opts(DesignMode::DO, g.levels.front(), "do");
+  ensure_run(rt, do_run, g.quiet);
+  std::vector<GridCell> cells;
+  auto eval_cell = [&](const std::string& name, const std::string& mode, int levels, EvalOptions e) {
+    GridCell c;
+    c.name = name;
+    c.mode = mode;
+    c.levels = levels;
+    const fs::path dir = out / "cells" / name;
+    e.data = test;
+    e.synthetic_scenes = g.eval_synthetic_scenes;
+    e.out = dir.string();
+    e.renders = 1;
+    e.precision = base.precision;
+    if (fs::exists(dir / "metrics.json")) {  // finished earlier: read it back
+      std::ifstream f(dir / "metrics.json");
+      const nlohmann::json j = nlohmann::json::parse(f);
+      c.mean.psnr = j["mean"]["psnr_db"];
+      c.mean.psnr_hyper = j["mean"]["psnr_h_db"];
+      c.mean.ssim = j["mean"]["ssim"];
+      c.mean.rmse = j["mean"]["rmse"];
+      c.mean.ergas = j["mean"]["ergas"];
+      c.mean.sam_rad = j["mean"]["sam_rad"];
+      c.deviation_nm = j["deviation_nm"];
+    } else {
+      const EvalResult r = evaluate_run(rt, e);
+      c.mean = r.mean;
+      c.deviation_nm = r.deviation_nm;
+    }
+    if (!g.quiet) std::fprintf(stderr, "[sweep] %-16s PSNR %.2f dB\n", name.c_str(), c.mean.psnr);
+    cells.push_back(c);
+  };
+  {
+    EvalOptions e;
+    e.run = do_run.out;
+    e.full_precision = true;
+    eval_cell("full", "full", 0, e);
+  }
+  for (int L : g.levels)
+    for (const auto& m : g.modes) {
+      const std::string name = m + "_L" + std::to_string(L);
+      EvalOptions e;
+      if (m == "do" || m == "do-refit") {
+        e.run = do_run.out;
+        e.levels = L;
+        e.placement = base.design.quantizer.placement;
+        e.decoder = m == "do" ? "mismatch" : "matched";
+      } else {
+        const DesignRunOptions r = run_opts(design_mode_from_string(m), L, m + "_L" + std::to_string(L));
+        ensure_run(rt, r, g.quiet);
+        e.run = r.out;
+      }
+      eval_cell(name, m, L, e);
+    }
+  // Tables.
+  std::ostringstream t1, t1csv, t2, t2csv;
+  t1 << "| levels | mode | PSNR [dB] | SSIM | RMSE | ERGAS |\n|---|---|---|---|---|---|\n";
+  t1csv << "levels,mode,psnr_db,ssim,rmse,ergas,psnr_h_db,sam_rad\n";
+  t2 << "| levels | mode | deviation [nm] |\n|---|---|---|\n";
+  t2csv << "levels,mode,deviation_nm\n";
+  char buf[256];
+  for (const auto& c : cells) {
+    const std::string lv = c.levels == 0 ? "full" : std::to_string(c.levels);
+    std::snprintf(buf, sizeof buf, "| %s | %s | %.2f | %.4f | %.4f | %.2f |\n", lv.c_str(), c.mode.c_str(), c.mean.psnr, c.mean.ssim,
+                  c.mean.rmse, c.mean.ergas);
+    t1 << buf;
+    std::snprintf(buf, sizeof buf, "%s,%s,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g\n", lv.c_str(), c.mode.c_str(), c.mean.psnr, c.mean.ssim,
+                  c.mean.rmse, c.mean.ergas, c.mean.psnr_hyper, c.mean.sam_rad);
+    t1csv << buf;
+    if (c.levels > 0) {
+      std::snprintf(buf, sizeof buf, "| %d | %s | %.3f |\n", c.levels, c.mode.c_str(), c.deviation_nm);
+      t2 << buf;
+      std::snprintf(buf, sizeof buf, "%d,%s,%.6g\n", c.levels, c.mode.c_str(), c.deviation_nm);
+      t2csv << buf;
+    }
+  }
+  write_text_atomic((out / "table1.md").string(), t1.str());
+  write_text_atomic((out / "table1.csv").string(), t1csv.str());
+  write_text_atomic((out / "table2.md").string(), t2.str());
+  write_text_atomic((out / "table2.csv").string(), t2csv.str());
+  // PSNR vs levels, one series per mode (levels in the order given).
+  std::vector<std::vector<double>> series;
+  for (const auto& m : g.modes) {
+    std::vector<double> s;
+    for (int L : g.levels)
+      for (const auto& c : cells)
+        if (c.mode == m && c.levels == L) s.push_back(c.mean.psnr);
+    series.push_back(s);
+  }
+  write_line_plot_png((out / "psnr_vs_levels.png").string(), series);
+  return cells;
+}
+
+}  // namespace qdo

@@ -1,0 +1,132 @@
+// PSF sweeps across levels (batched designs) and the experiment grid.
+#include <filesystem>
+#include <fstream>
+
+#include "common.hpp"
+#include "qdo/error.hpp"
+#include "qdo/run.hpp"
+#include "qdo/simulator.hpp"
+#include "qdo/sweep.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+
+namespace {
+
+DesignRunOptions tiny_base() {
+  DesignRunOptions o;
+  o.cfg = tiny_config(32, 3);
+  o.design.steps_per_epoch = 2;
+  o.design.t0_epochs = 1;
+  o.design.t1_epochs = 3;
+  o.design.seed = 2;
+  o.epochs = 3;
+  o.synthetic_scenes = 3;
+  o.precision = Precision::F32;
+  o.quiet = true;
+  return o;
+}
+
+}  // namespace
+
+TEST_SUITE("sweep") {
+  TEST_CASE("a batched pass over several designs equals one design at a time") {
+    const SystemConfig c = tiny_config(48, 3);
+    std::vector<Map2D> maps = {lens_design(c, 500), random_heights(c.n, c.h_max_m(), 3), flat_design(c)};
+    Simulator batch(runtime(), c, Precision::F32, 3);
+    batch.set_heights_batch(maps);
+    batch.compute_psf();
+    const RealStack all = batch.psf_sensor();
+    REQUIRE(all.planes == 9);
+    for (std::size_t d = 0; d < 3; ++d) {
+      Simulator one(runtime(), c, Precision::F32);
+      one.set_heights(maps[d]);
+      one.compute_psf();
+      const RealStack p = one.psf_sensor();
+      std::vector<double> part(all.plane(d * 3), all.plane(d * 3) + p.size());
+      CAPTURE(d);
+      CHECK(diff(part, p.data).max_abs <= 1e-12);  // identical arithmetic, only batched
+      for (std::size_t b = 0; b < 3; ++b)
+        CHECK(batch.sampling().bands[d * 3 + b].energy_outside_window == one.sampling().bands[b].energy_outside_window);
+    }
+    CHECK_THROWS_AS(batch.psf_sensor_vjp(all), qdo::Error);  // adjoints need one design
+  }
+
+  TEST_CASE("PSF sweep: L = 32 is within 2 % of full precision on a smooth design; metrics move with L") {
+    PsfSweepOptions o;
+    o.cfg = tiny_config(64, 3);
+    o.cfg.padding_px = 24;  // sampled adequately: lambda z <= M pitch^2
+    o.cfg.wavelength_start_nm = 450;
+    o.cfg.wavelength_step_nm = 25;
+    o.design_full_m = lens_design(o.cfg, 475);
+    for (int L : {2, 4, 8, 16, 32}) {
+      PsfSweepVariant v;
+      v.quantizer.levels = L;
+      v.label = "L" + std::to_string(L);
+      o.variants.push_back(v);
+    }
+    o.max_designs_per_pass = 4;  // two passes: exercises the chunking
+    const auto dir = temp_dir("sweep_psf");
+    o.out = dir.string();
+    const auto rows = sweep_psf(runtime(), o);
+    REQUIRE(rows.size() == 6);
+    CHECK(rows[0].label == "full");
+    auto mean = [](const std::vector<double>& v) {
+      double s = 0;
+      for (double x : v) s += x;
+      return s / double(v.size());
+    };
+    CAPTURE(mean(rows[5].rel_l2));
+    CHECK(mean(rows[5].rel_l2) <= 0.02);  // the stated tolerance at L = 32
+    for (std::size_t k = 2; k < rows.size(); ++k) {
+      CHECK(rows[k].deviation_nm < rows[k - 1].deviation_nm);
+      CHECK(mean(rows[k].rel_l2) < mean(rows[k - 1].rel_l2));
+    }
+    CHECK(mean(rows[1].peak_ratio) < mean(rows[5].peak_ratio));
+    for (const char* f : {"sweep.csv", "sweep.json", "psf.h5", "psf_L4.png", "rel_l2_vs_variant.png"}) CHECK(std::filesystem::exists(dir / f));
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("experiment grid: every cell lands in the tables, a killed sweep resumes without redoing finished cells") {
+    const auto dir = temp_dir("grid");
+    GridOptions g;
+    g.base = tiny_base();
+    g.levels = {2, 4};
+    g.modes = {"do", "do-refit", "qdo+a"};
+    g.eval_synthetic_scenes = 2;
+    g.out = dir.string();
+    // A "killed" earlier sweep: the qdo+a run at L = 4 stopped after 2 of its 6 steps, no DONE.
+    DesignRunOptions partial = g.base;
+    partial.design.mode = DesignMode::QDOA;
+    partial.design.quantizer.levels = 4;
+    partial.out = (dir / "runs" / "qdo+a_L4").string();
+    partial.max_steps = 2;
+    run_design(runtime(), partial, false);
+    const auto cells = run_grid(runtime(), g);
+    REQUIRE(cells.size() == 1 + 2 * 3);
+    const DesignState st = load_checkpoint((dir / "runs" / "qdo+a_L4" / "checkpoint.h5").string(), 16, 4);
+    CHECK(st.step == 6);  // resumed to the end
+    std::ifstream t1(dir / "table1.md");
+    std::string text((std::istreambuf_iterator<char>(t1)), std::istreambuf_iterator<char>());
+    for (const char* needle : {"| full |", "| 2 | do |", "| 4 | do-refit |", "| 4 | qdo+a |"}) CHECK(text.find(needle) != std::string::npos);
+    // do and do-refit differ exactly in the decoder: same DOE (deviation), different reconstruction.
+    for (int L : {2, 4}) {
+      const GridCell *d = nullptr, *r = nullptr;
+      for (const auto& c : cells) {
+        if (c.levels == L && c.mode == "do") d = &c;
+        if (c.levels == L && c.mode == "do-refit") r = &c;
+      }
+      REQUIRE(d);
+      REQUIRE(r);
+      CHECK(d->deviation_nm == r->deviation_nm);
+      CHECK(d->mean.psnr != r->mean.psnr);
+    }
+    // A second call redoes nothing: the cells' metrics files are not rewritten.
+    const auto stamp = std::filesystem::last_write_time(dir / "cells" / "qdo+a_L2" / "metrics.json");
+    const auto again = run_grid(runtime(), g);
+    CHECK(std::filesystem::last_write_time(dir / "cells" / "qdo+a_L2" / "metrics.json") == stamp);
+    CHECK(again.size() == cells.size());
+    CHECK(again.back().mean.psnr == doctest::Approx(cells.back().mean.psnr).epsilon(1e-6));
+    std::filesystem::remove_all(dir);
+  }
+}
