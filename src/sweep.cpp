@@ -10,6 +10,8 @@
 #include <sstream>
 
 #include "qdo/datasets.hpp"
+#include "qdo/encoders.hpp"
+#include "qdo/optics.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/run.hpp"
@@ -158,6 +160,33 @@ namespace {
 
 bool run_finished(const fs::path& run) { return fs::exists(run / "DONE"); }
 
+// Test cubes as S x S patches, as evaluate_run cuts them.
+std::vector<RealStack> test_patches(const SystemConfig& cfg, const std::vector<std::string>& test, std::size_t synthetic,
+                                    std::uint64_t seed) {
+  const std::size_t s = cfg.sensor_size_px();
+  std::vector<RealStack> out;
+  if (test.empty()) {
+    const SceneIndex idx = SceneIndex::synthetic(cfg, synthetic, s, seed + 1000003);
+    for (std::size_t i = 0; i < idx.size(); ++i) out.push_back(idx.load(i));
+    return out;
+  }
+  const SceneIndex idx(test, "auto", cfg.bands);
+  for (std::size_t i = 0; i < idx.size(); ++i)
+    for (auto& p : extract_patches(idx.load(i), s, s)) out.push_back(std::move(p));
+  return out;
+}
+
+void write_cell_metrics(const fs::path& dir, const GridCell& c) {
+  fs::create_directories(dir);
+  nlohmann::json j;
+  j["mode"] = c.mode;
+  j["levels"] = c.levels;
+  j["deviation_nm"] = c.deviation_nm;
+  j["mean"] = {{"psnr_db", c.mean.psnr}, {"psnr_h_db", c.mean.psnr_hyper}, {"ssim", c.mean.ssim},
+               {"rmse", c.mean.rmse},    {"ergas", c.mean.ergas},          {"sam_rad", c.mean.sam_rad}};
+  write_text_atomic((dir / "metrics.json").string(), j.dump(2) + "\n");
+}
+
 void ensure_run(Runtime& rt, const DesignRunOptions& o, bool quiet) {
   const fs::path dir(o.out);
   if (run_finished(dir)) return;
@@ -237,8 +266,10 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     e.full_precision = true;
     eval_cell("full", "full", 0, e);
   }
+  const bool doe = std::find(g.encoders.begin(), g.encoders.end(), "doe") != g.encoders.end();
   for (int L : g.levels)
     for (const auto& m : g.modes) {
+      if (!doe) break;
       const std::string name = m + "_L" + std::to_string(L);
       EvalOptions e;
       if (m == "do" || m == "do-refit") {
@@ -253,6 +284,70 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
       }
       eval_cell(name, m, L, e);
     }
+  // Other encoders with the same decoder family and the DO run's prior.
+  const bool fresnel = std::find(g.encoders.begin(), g.encoders.end(), "fresnel") != g.encoders.end();
+  const bool cassi = std::find(g.encoders.begin(), g.encoders.end(), "cassi") != g.encoders.end();
+  for (const auto& e : g.encoders)
+    if (e != "doe" && e != "fresnel" && e != "cassi") reject("grid encoder", e, "doe, fresnel or cassi");
+  if (fresnel || cassi) {
+    const wiener::SpectralPrior prior = load_prior((fs::path(do_run.out) / "prior.h5").string());
+    const Eigen::MatrixXd srf = sensor_response(base.cfg);
+    const double sigma = base.decoder_noise_sigma;
+    std::vector<RealStack> cubes;
+    auto cached = [&](const std::string& name, GridCell& c) {
+      const fs::path f = out / "cells" / name / "metrics.json";
+      if (!fs::exists(f)) return false;
+      std::ifstream in(f);
+      const nlohmann::json j = nlohmann::json::parse(in);
+      c.mean.psnr = j["mean"]["psnr_db"];
+      c.mean.ssim = j["mean"]["ssim"];
+      c.mean.rmse = j["mean"]["rmse"];
+      c.mean.ergas = j["mean"]["ergas"];
+      c.mean.sam_rad = j["mean"]["sam_rad"];
+      c.deviation_nm = j["deviation_nm"];
+      return true;
+    };
+    auto finish = [&](GridCell& c, const EncoderEval& ev) {
+      c.mean.psnr = ev.psnr_db;
+      c.mean.ssim = ev.ssim;
+      c.mean.rmse = ev.rmse;
+      c.mean.ergas = ev.ergas;
+      c.mean.sam_rad = ev.sam_rad;
+      write_cell_metrics(out / "cells" / c.name, c);
+    };
+    if (fresnel)
+      for (int L : g.levels) {
+        GridCell c;
+        c.name = "fresnel_L" + std::to_string(L);
+        c.mode = "fresnel";
+        c.levels = L;
+        if (!cached(c.name, c)) {
+          if (cubes.empty()) cubes = test_patches(base.cfg, test, g.eval_synthetic_scenes, base.design.seed);
+          Simulator sim(rt, base.cfg, base.precision);
+          sim.set_heights(fresnel_lens_heights(base.cfg, g.fresnel_design_nm, L));
+          sim.compute_psf();
+          const ComplexStack otf = wiener::psf_to_otf(sim.psf_sensor(), prior.rows, prior.cols);
+          finish(c, evaluate_encoder(DoeEncoder(otf, srf), WienerDecoder(otf, srf, prior, sigma), cubes, sigma,
+                                     base.design.seed + 77));
+        }
+        if (!g.quiet) std::fprintf(stderr, "[sweep] %-16s PSNR %.2f dB\n", c.name.c_str(), c.mean.psnr);
+        cells.push_back(c);
+      }
+    if (cassi) {
+      GridCell c;
+      c.name = "cassi";
+      c.mode = "cassi";
+      c.levels = -1;
+      if (!cached(c.name, c)) {
+        if (cubes.empty()) cubes = test_patches(base.cfg, test, g.eval_synthetic_scenes, base.design.seed);
+        const std::size_t s = base.cfg.sensor_size_px();
+        auto enc = std::make_shared<CassiEncoder>(random_binary_mask(s, s, 0.5, base.design.seed + 5), base.cfg.bands, g.cassi_shift_px);
+        finish(c, evaluate_encoder(*enc, CgDecoder(enc, prior, sigma), cubes, sigma, base.design.seed + 77));
+      }
+      if (!g.quiet) std::fprintf(stderr, "[sweep] %-16s PSNR %.2f dB\n", c.name.c_str(), c.mean.psnr);
+      cells.push_back(c);
+    }
+  }
   // Tables.
   std::ostringstream t1, t1csv, t2, t2csv;
   t1 << "| levels | mode | PSNR [dB] | SSIM | RMSE | ERGAS |\n|---|---|---|---|---|---|\n";
@@ -261,14 +356,14 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   t2csv << "levels,mode,deviation_nm\n";
   char buf[256];
   for (const auto& c : cells) {
-    const std::string lv = c.levels == 0 ? "full" : std::to_string(c.levels);
+    const std::string lv = c.levels == 0 ? "full" : c.levels < 0 ? "n/a" : std::to_string(c.levels);
     std::snprintf(buf, sizeof buf, "| %s | %s | %.2f | %.4f | %.4f | %.2f |\n", lv.c_str(), c.mode.c_str(), c.mean.psnr, c.mean.ssim,
                   c.mean.rmse, c.mean.ergas);
     t1 << buf;
     std::snprintf(buf, sizeof buf, "%s,%s,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g\n", lv.c_str(), c.mode.c_str(), c.mean.psnr, c.mean.ssim,
                   c.mean.rmse, c.mean.ergas, c.mean.psnr_hyper, c.mean.sam_rad);
     t1csv << buf;
-    if (c.levels > 0) {
+    if (c.levels > 0 && c.mode != "fresnel") {
       std::snprintf(buf, sizeof buf, "| %d | %s | %.3f |\n", c.levels, c.mode.c_str(), c.deviation_nm);
       t2 << buf;
       std::snprintf(buf, sizeof buf, "%d,%s,%.6g\n", c.levels, c.mode.c_str(), c.deviation_nm);

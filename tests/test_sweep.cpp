@@ -129,4 +129,26 @@ TEST_SUITE("sweep") {
     CHECK(again.back().mean.psnr == doctest::Approx(cells.back().mean.psnr).epsilon(1e-6));
     std::filesystem::remove_all(dir);
   }
+
+  TEST_CASE("experiment grid: Fresnel lens and CASSI cells with the same decoder family") {
+    const auto dir = temp_dir("grid_enc");
+    GridOptions g;
+    g.base = tiny_base();
+    g.levels = {4};
+    g.modes = {"do"};
+    g.encoders = {"fresnel", "cassi"};
+    g.eval_synthetic_scenes = 2;
+    g.out = dir.string();
+    const auto cells = run_grid(runtime(), g);
+    REQUIRE(cells.size() == 3);  // full reference, fresnel_L4, cassi
+    CHECK(cells[1].mode == "fresnel");
+    CHECK(cells[2].mode == "cassi");
+    CHECK(cells[2].levels == -1);
+    for (const auto& c : cells) CHECK(std::isfinite(c.mean.psnr));
+    std::ifstream t1(dir / "table1.md");
+    std::string text((std::istreambuf_iterator<char>(t1)), std::istreambuf_iterator<char>());
+    CHECK(text.find("| n/a | cassi |") != std::string::npos);
+    CHECK(text.find("| 4 | fresnel |") != std::string::npos);
+    std::filesystem::remove_all(dir);
+  }
 }

@@ -53,12 +53,19 @@ struct GridOptions {
   // base.design.seed; else held-out synthetic scenes.
   std::vector<std::string> test_data;
   std::size_t eval_synthetic_scenes = 4;
+  // Encoders (Table 3): doe (the trained DOEs above), fresnel (a wrapped diffractive lens for
+  // fresnel_design_nm, quantized to each level count, Wiener decoder), cassi (single-disperser
+  // CASSI, random binary mask, cassi_shift_px per band, monochrome detector, prior-regularised
+  // conjugate-gradient decoder). All share the DO run's scene prior and noise sigma.
+  std::vector<std::string> encoders{"doe"};
+  double fresnel_design_nm = 550;
+  std::size_t cassi_shift_px = 1;
   std::string out;
   bool quiet = true;
 };
 struct GridCell {
-  std::string name, mode;              // mode: full, do, do-refit, qdo, qdo+a, ...
-  int levels = 0;
+  std::string name, mode;              // mode: full, do, do-refit, qdo, qdo+a, ..., fresnel, cassi
+  int levels = 0;                      // 0: full precision; -1: not applicable (cassi)
   EvalRow mean;
   double deviation_nm = 0;
 };

@@ -113,8 +113,10 @@ int cmd_sweep(int argc, char** argv) {
       for (const auto& v : vals) g.levels.push_back(parse_int("--grid levels", v, 2, 256));
     } else if (axis == "mode") {
       g.modes = vals;
+    } else if (axis == "encoder") {
+      g.encoders = vals;
     } else {
-      reject("--grid", axis, "levels or mode");
+      reject("--grid", axis, "levels, mode or encoder");
     }
   }
   g.test_data = split_list(a.get("test-data", ""));
@@ -126,7 +128,8 @@ int cmd_sweep(int argc, char** argv) {
   const auto cells = run_grid(rt, g);
   std::printf("%-7s %-9s %9s %8s %8s %8s %10s\n", "levels", "mode", "PSNR", "SSIM", "RMSE", "ERGAS", "dev [nm]");
   for (const auto& c : cells)
-    std::printf("%-7s %-9s %9.2f %8.4f %8.4f %8.2f %10.2f\n", c.levels ? std::to_string(c.levels).c_str() : "full", c.mode.c_str(),
+    std::printf("%-7s %-9s %9.2f %8.4f %8.4f %8.2f %10.2f\n",
+                c.levels == 0 ? "full" : c.levels < 0 ? "n/a" : std::to_string(c.levels).c_str(), c.mode.c_str(),
                 c.mean.psnr, c.mean.ssim, c.mean.rmse, c.mean.ergas, c.deviation_nm);
   std::printf("%.0f s; wrote %s/ (runs/ cells/ table1.md table1.csv table2.md table2.csv psnr_vs_levels.png)\n", seconds_since(t0),
               g.out.c_str());
@@ -136,7 +139,7 @@ int cmd_sweep(int argc, char** argv) {
 const Registrar reg_sweep_psf("sweep-psf", cmd_sweep_psf,
                               "qdo sweep-psf --design FILE.h5|RUN [--levels 2,4,8,16,32] [--placement ...] [--adaptive-from RUN] --out DIR");
 const Registrar reg_sweep("sweep", cmd_sweep,
-                          "qdo sweep --grid levels=2,4,8 --grid mode=do,do-refit,qdo,qdo+a [--preset P] [--data PATH,...] "
+                          "qdo sweep --grid levels=2,4,8 --grid mode=do,do-refit,qdo,qdo+a [--grid encoder=doe,fresnel,cassi] [--preset P] [--data PATH,...] "
                           "[--test-data PATH,...] [qdo design options] --out DIR");
 
 }  // namespace
