@@ -150,8 +150,20 @@ namespace {
 
 constexpr std::size_t kMaxJsonBytes = std::size_t{1} << 20;
 
+// A JSON value as quoted in an error message: scalars as written (strings shortened), arrays
+// and objects by type and size only. Never dumps a structured value: a value nested 100,000
+// deep (well under the 1 MiB cap) would overflow the stack in the recursive serializer.
+std::string quote(const json& v) {
+  constexpr std::size_t kMax = 60;
+  if (v.is_array()) return "an array of " + std::to_string(v.size()) + " elements";
+  if (v.is_object()) return "an object with " + std::to_string(v.size()) + " keys";
+  std::string s = v.dump(-1, ' ', false, json::error_handler_t::replace);
+  if (s.size() > kMax) s = s.substr(0, kMax) + "...\" (" + std::to_string(s.size()) + " characters)";
+  return s;
+}
+
 double get_number(const std::string& key, const json& v) {
-  if (!v.is_number()) reject(key, v.dump(), "expected a number");
+  if (!v.is_number()) reject(key, quote(v), "expected a number");
   return v.get<double>();
 }
 
@@ -161,22 +173,22 @@ unsigned long long get_uint(const std::string& key, const json& v) {
     const double d = v.get<double>();
     if (d >= 0 && d <= 9007199254740992.0 && d == std::floor(d)) return static_cast<unsigned long long>(d);
   }
-  reject(key, v.dump(), "expected a non-negative integer");
+  reject(key, quote(v), "expected a non-negative integer");
 }
 
 std::size_t get_size(const std::string& key, const json& v) {
   const unsigned long long u = get_uint(key, v);
-  if (u > std::numeric_limits<std::size_t>::max()) reject(key, v.dump(), "expected a non-negative integer");
+  if (u > std::numeric_limits<std::size_t>::max()) reject(key, quote(v), "expected a non-negative integer");
   return static_cast<std::size_t>(u);
 }
 
 bool get_bool(const std::string& key, const json& v) {
-  if (!v.is_boolean()) reject(key, v.dump(), "expected true or false");
+  if (!v.is_boolean()) reject(key, quote(v), "expected true or false");
   return v.get<bool>();
 }
 
 std::string get_string(const std::string& key, const json& v) {
-  if (!v.is_string()) reject(key, v.dump(), "expected a string");
+  if (!v.is_string()) reject(key, quote(v), "expected a string");
   return v.get<std::string>();
 }
 
@@ -195,11 +207,11 @@ const std::vector<std::pair<std::string, Setter>>& setters() {
       {"scene_distance_m",
        [](SystemConfig& c, const std::string& k, const json& v) {
          if (v.is_string()) {
-           if (v.get<std::string>() != "inf") reject(k, v.dump(), "expected a number of metres or the string \"inf\"");
+           if (v.get<std::string>() != "inf") reject(k, quote(v), "expected a number of metres or the string \"inf\"");
            c.scene_at_infinity = true;
            c.scene_distance_m = std::numeric_limits<double>::infinity();
          } else {
-           if (!v.is_number()) reject(k, v.dump(), "expected a number of metres or the string \"inf\"");
+           if (!v.is_number()) reject(k, quote(v), "expected a number of metres or the string \"inf\"");
            c.scene_at_infinity = false;
            c.scene_distance_m = v.get<double>();
          }
@@ -220,7 +232,7 @@ const std::vector<std::pair<std::string, Setter>>& setters() {
          const std::string s = get_string(k, v);
          if (s == "fresnel") c.propagator = Propagator::Fresnel;
          else if (s == "asm") c.propagator = Propagator::AngularSpectrum;
-         else reject(k, v.dump(), "\"fresnel\" or \"asm\"");
+         else reject(k, quote(v), "\"fresnel\" or \"asm\"");
        }},
       {"padding_px", [](SystemConfig& c, const std::string& k, const json& v) { c.padding_px = get_size(k, v); }},
       {"strict_sampling",
@@ -236,7 +248,7 @@ const std::vector<std::pair<std::string, Setter>>& setters() {
          const std::string s = get_string(k, v);
          if (s == "linear") c.convolution = ConvolutionMode::Linear;
          else if (s == "circular") c.convolution = ConvolutionMode::Circular;
-         else reject(k, v.dump(), "\"linear\" or \"circular\"");
+         else reject(k, quote(v), "\"linear\" or \"circular\"");
        }},
       {"read_noise_sigma",
        [](SystemConfig& c, const std::string& k, const json& v) { c.read_noise_sigma = get_number(k, v); }},
@@ -263,6 +275,7 @@ std::size_t edit_distance(const std::string& a, const std::string& b) {
 }
 
 [[noreturn]] void reject_unknown_key(const std::string& key) {
+  if (key.size() > 60) throw InputError("unknown key '" + key.substr(0, 60) + "...' (" + std::to_string(key.size()) + " characters)");
   std::string allowed = "preset";
   std::string best;
   std::size_t best_d = std::max<std::size_t>(3, key.size() / 3) + 1;
@@ -284,7 +297,7 @@ SystemConfig config_from_json_text(const std::string& text, const std::string& o
     json j;
     try {
       j = json::parse(text);
-    } catch (const json::parse_error& e) {
+    } catch (const json::exception& e) {  // parse_error, and out_of_range for numbers like 1e999
       throw InputError(std::string("invalid JSON: ") + e.what());
     }
     if (!j.is_object()) reject("top level", j.type_name(), "expected a JSON object {\"key\": value, ...}");

@@ -22,6 +22,12 @@
 #include "qdo/scenes.hpp"
 
 namespace qdo {
+namespace detail {
+// src/io.cpp: checks that a file is MATLAB v5 or v7.3 and, for v5, its element structure,
+// before libmatio reads its headers (libmatio allocates what a corrupt header declares);
+// InputError naming the file.
+void check_mat_file(const std::string& path);
+}  // namespace detail
 namespace {
 
 namespace fs = std::filesystem;
@@ -127,6 +133,7 @@ bool mat_numeric_class(matio_classes c) {
 // Every variable's name, dims and class, from the variable headers only (no data read).
 std::vector<MatVarInfo> mat_variables(const std::string& path) {
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);  // v7.3 files are read through HDF5
+  detail::check_mat_file(path);
   MatFile mat(Mat_Open(path.c_str(), MAT_ACC_RDONLY));
   if (!mat) fail(path, "not a readable MATLAB .mat file");
   std::vector<MatVarInfo> vars;
@@ -161,6 +168,23 @@ class H5Handle {
   hid_t id_;
   Closer closer_;
 };
+
+// Whether `elements` of at least `bytes_each` bytes could be stored in the file at `path`
+// (compressed at most ~1032:1, as read_cube checks before allocating). Probes only trust
+// header shapes that pass; others go through the reader, which names the problem.
+bool plausible_size(const std::string& path, std::uintmax_t elements, std::uintmax_t bytes_each) {
+  std::error_code ec;
+  const std::uintmax_t file = fs::file_size(path, ec);
+  return !ec && elements <= (file * 1100 + (std::uintmax_t{1} << 16)) / std::max<std::uintmax_t>(bytes_each, 1);
+}
+std::uintmax_t product(const std::vector<std::size_t>& d) {
+  std::uintmax_t n = 1;
+  for (std::size_t v : d) {
+    if (v != 0 && n > std::numeric_limits<std::uintmax_t>::max() / v) return std::numeric_limits<std::uintmax_t>::max();
+    n *= v;
+  }
+  return n;
+}
 
 // Dims (C order) of an HDF5 dataset; false when the file, the dataset or its shape cannot be
 // read (the caller then falls back to reading the scene, which reports the problem).
@@ -222,6 +246,17 @@ class PngRead {
       fail(path, "colour PNG (RGB/RGBA or a colour palette); a band image must be single-channel grayscale");
     if (img_.img.format & PNG_FORMAT_FLAG_ALPHA)
       fail(path, "grayscale PNG with an alpha channel; a band image must be single-channel grayscale");
+    // Decoding allocates what the header declares: check it against the file first. Each row
+    // holds a filter byte and at least 1 bit per pixel, deflated at most ~1032:1.
+    const std::uintmax_t w = img_.img.width, h = img_.img.height;
+    const std::string dims = std::to_string(h) + " x " + std::to_string(w);
+    if (w == 0 || h == 0 || w * h > (std::uintmax_t{1} << 28))
+      fail(path, "header declares " + dims + " pixels (rows x columns); at most 2^28 (16384 x 16384) per band are accepted");
+    std::error_code ec;
+    const std::uintmax_t file = fs::file_size(path, ec);
+    if (ec || h * (1 + (w + 7) / 8) > file * 1100 + (std::uintmax_t{1} << 16))
+      fail(path, "header declares " + dims + " pixels but the file has only " + std::to_string(file) +
+                     " bytes: truncated or corrupt");
   }
 
   std::size_t width() const { return img_.img.width; }
@@ -365,6 +400,9 @@ RealStack read_png_band_folder(const std::string& dir, std::size_t expected_band
   for (std::size_t k = 0; k < files.size(); ++k) {
     PngRead png(files[k]);
     if (k == 0) {
+      if (files.size() > (std::size_t{1} << 31) / (png.height() * png.width()))
+        fail_dir(dir, std::to_string(files.size()) + " bands of " + std::to_string(png.height()) + " x " +
+                          std::to_string(png.width()) + " pixels exceed the limit of 2^31 values per cube");
       cube = RealStack(files.size(), png.height(), png.width());
     } else if (png.height() != cube.rows || png.width() != cube.cols) {
       fail(files[k], std::to_string(png.height()) + " x " + std::to_string(png.width()) + " pixels, but '" + files[0] +
@@ -423,11 +461,13 @@ SceneShape probe_scene(const std::string& path, const std::string& format, std::
       if (found != 1) key.clear();
     }
     for (const auto& v : vars)
-      if (!key.empty() && v.name == key && v.numeric && orient(v.dims, true, expected_bands, s)) return s;
+      if (!key.empty() && v.name == key && v.numeric && plausible_size(path, product(v.dims), 1) &&
+          orient(v.dims, true, expected_bands, s))
+        return s;
   } else {
     std::vector<std::size_t> d;
     const std::string key = fmt == "h5" ? "/cube" : "/" + format_key(fmt);
-    if (h5_dims(path, key, d) && orient(d, false, expected_bands, s)) return s;
+    if (h5_dims(path, key, d) && plausible_size(path, product(d), 1) && orient(d, false, expected_bands, s)) return s;
   }
   // Anything unusual: read the scene, which either gives the shape or names the problem.
   const RealStack cube = load_scene(path, fmt, expected_bands);

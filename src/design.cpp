@@ -14,7 +14,8 @@ DesignMode design_mode_from_string(const std::string& s) {
   if (s == "qdo") return DesignMode::QDO;
   if (s == "ste") return DesignMode::STE;
   if (s == "qdo+a" || s == "qdoa") return DesignMode::QDOA;
-  reject("mode", s, "one of full, do, qdo, ste, qdo+a");
+  if (s == "qdo+m" || s == "qdom") return DesignMode::QDOM;
+  reject("mode", s, "one of full, do, qdo, ste, qdo+a, qdo+m");
 }
 
 std::string to_string(DesignMode m) {
@@ -24,8 +25,36 @@ std::string to_string(DesignMode m) {
     case DesignMode::QDO: return "qdo";
     case DesignMode::STE: return "ste";
     case DesignMode::QDOA: return "qdo+a";
+    case DesignMode::QDOM: return "qdo+m";
   }
   return "?";
+}
+
+int mask_count(int levels) {
+  int k = 0;
+  while ((1 << k) < levels && k < 30) ++k;
+  if (levels < 2 || (1 << k) != levels)
+    reject("levels", levels, "a power of two >= 2 for qdo+m (k binary-coded masks make 2^k levels)");
+  return k;
+}
+
+std::vector<double> uniform_mask_depths(const Quantizer& q) {
+  const int k = mask_count(q.levels);
+  const double denom = q.placement == Placement::Inclusive ? double(q.levels - 1) : double(q.levels);
+  std::vector<double> d(static_cast<std::size_t>(k));
+  for (int j = 0; j < k; ++j) d[static_cast<std::size_t>(j)] = double(1 << j) / denom;
+  return d;
+}
+
+std::vector<double> subset_sum_levels(const std::vector<double>& depths, int levels) {
+  const int k = mask_count(levels);
+  if (depths.size() != static_cast<std::size_t>(k))
+    reject("mask depths", depths.size(), "k = " + to_str(k) + " values for " + to_str(levels) + " levels");
+  std::vector<double> u(static_cast<std::size_t>(levels), 0.0);
+  for (int l = 0; l < levels; ++l)
+    for (int j = 0; j < k; ++j)
+      if (l & (1 << j)) u[static_cast<std::size_t>(l)] += depths[static_cast<std::size_t>(j)];
+  return u;
 }
 
 void Adam::step(std::vector<double>& params, const std::vector<double>& grad, double lr_now, double lo, double hi) {
@@ -54,6 +83,12 @@ Designer::Designer(Simulator& sim, const DesignOptions& opt) : sim_(sim), opt_(o
                                 {"lr_decay_per_epoch", opt_.lr_decay_per_epoch}, {"beta_aq", opt_.beta_aq},
                                 {"height_noise_m", opt_.height_noise_m}})
     if (!(v >= 0) || !std::isfinite(v)) reject(name, v, "finite and >= 0");
+  if (opt_.mode == DesignMode::QDOM) mask_count(opt_.quantizer.levels);
+}
+
+std::size_t Designer::level_parameter_count() const {
+  return opt_.mode == DesignMode::QDOM ? static_cast<std::size_t>(mask_count(opt_.quantizer.levels))
+                                       : static_cast<std::size_t>(opt_.quantizer.levels);
 }
 
 DesignState Designer::initial_state(const std::vector<double>& params_m) const {
@@ -61,7 +96,8 @@ DesignState Designer::initial_state(const std::vector<double>& params_m) const {
     reject("params_m.size()", params_m.size(), "exactly " + to_str(parameter_count(opt_.parameterization, sim_.config().n)));
   DesignState s;
   for (double p : params_m) s.w.push_back(std::min(1.0, std::max(-1.0, 2.0 * p / h_max_ - 1.0)));
-  s.offsets.assign(static_cast<std::size_t>(opt_.quantizer.levels), 0.0);
+  if (opt_.mode == DesignMode::QDOM) s.offsets = uniform_mask_depths(opt_.quantizer);
+  else s.offsets.assign(static_cast<std::size_t>(opt_.quantizer.levels), 0.0);
   s.adam_w.lr = opt_.lr_optics;
   s.adam_a.lr = opt_.lr_offsets;
   return s;
@@ -82,6 +118,7 @@ std::vector<double> Designer::params_m(const DesignState& s) const {
 Quantizer Designer::quantizer(const DesignState& s) const {
   Quantizer q = opt_.quantizer;
   if (opt_.mode == DesignMode::QDOA) q.offsets = s.offsets;
+  if (opt_.mode == DesignMode::QDOM) q.level_table = subset_sum_levels(s.offsets, q.levels);
   return q;
 }
 
@@ -92,7 +129,8 @@ Map2D Designer::training_heights(const DesignState& s) const {
     case DesignMode::DO: return hf;
     case DesignMode::STE: return quantize_heights(hf, h_max_, quantizer(s), 1.0);
     case DesignMode::QDO:
-    case DesignMode::QDOA: return quantize_heights(hf, h_max_, quantizer(s), alpha_at(s.step));
+    case DesignMode::QDOA:
+    case DesignMode::QDOM: return quantize_heights(hf, h_max_, quantizer(s), alpha_at(s.step));
   }
   return hf;
 }
@@ -109,7 +147,9 @@ Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& 
   const std::vector<double> p = params_m(s);
   const Map2D hf = expand_parameters(opt_.parameterization, p, n, h_max_);
   const Quantizer q = quantizer(s);
-  const bool quantized = opt_.mode == DesignMode::QDO || opt_.mode == DesignMode::QDOA || opt_.mode == DesignMode::STE;
+  const bool quantized = opt_.mode == DesignMode::QDO || opt_.mode == DesignMode::QDOA || opt_.mode == DesignMode::STE ||
+                         opt_.mode == DesignMode::QDOM;
+  const bool qdom = opt_.mode == DesignMode::QDOM;
   const double alpha = opt_.mode == DesignMode::STE ? 1.0 : quantized ? alpha_at(s.step) : 0.0;
   Map2D h = training_heights(s);
   if (opt_.height_noise_m > 0) {
@@ -129,10 +169,26 @@ Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& 
 
   Map2D ghf = gh;
   std::vector<double> ga(static_cast<std::size_t>(q.levels), 0.0);
+  std::vector<double> gu(static_cast<std::size_t>(q.levels), 0.0);  // dL/du_l (qdo+m)
   if (quantized) {
     const auto qv = ref::quantize_vjp(hf, h_max_, q, alpha, gh, opt_.mode == DesignMode::STE);
     ghf = qv.g_full;
     ga = qv.g_offsets;
+    gu = qv.g_levels;
+  }
+  if (qdom && opt_.beta_aq > 0) {
+    // L_aq = mean((u_l(i) - u_i)^2) with the level values u_l = subset sums of the depths.
+    const double np = double(hf.data.size());
+    double laq = 0;
+    for (std::size_t i = 0; i < hf.data.size(); ++i) {
+      const double u = hf.data[i] / h_max_;
+      const int l = q.level_index(u);
+      const double r = q.level_value(l) - u;
+      laq += r * r / np;
+      ghf.data[i] += opt_.beta_aq * (-2.0 * r / np) / h_max_;
+      gu[static_cast<std::size_t>(l)] += opt_.beta_aq * 2.0 * r / np;
+    }
+    rep.loss_aq = laq;
   }
   if (opt_.mode == DesignMode::QDOA && opt_.beta_aq > 0) {
     // L_aq = mean((F(Q(u)) - u)^2) on normalised heights u = H_f / h_max; Q(u) is held constant.
@@ -151,8 +207,16 @@ Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& 
   }
   std::vector<double> gw = ref::expand_parameters_vjp(opt_.parameterization, p, n, h_max_, ghf);
   for (double& v : gw) v *= h_max_ / 2.0;
-  ga[0] = 0.0;  // level 0 is fixed
-  rep.loss += opt_.mode == DesignMode::QDOA ? opt_.beta_aq * rep.loss_aq : 0.0;
+  if (qdom) {  // chain dL/du_l to the mask depths: du_l/ddelta_j = bit j of l
+    const std::size_t k = static_cast<std::size_t>(mask_count(q.levels));
+    ga.assign(k, 0.0);
+    for (std::size_t l = 0; l < gu.size(); ++l)
+      for (std::size_t j = 0; j < k; ++j)
+        if (l & (std::size_t(1) << j)) ga[j] += gu[l];
+  } else {
+    ga[0] = 0.0;  // level 0 is fixed
+  }
+  rep.loss += opt_.mode == DesignMode::QDOA || qdom ? opt_.beta_aq * rep.loss_aq : 0.0;
   return {rep, gw, ga};
 }
 
@@ -165,6 +229,14 @@ StepReport Designer::step(DesignState& s, const PsfObjective& objective) {
     const double lim = opt_.quantizer.levels == 2 ? 0.2 : 1.0;
     s.adam_a.step(s.offsets, g.g_offsets, opt_.lr_offsets * std::pow(opt_.lr_decay_per_epoch, epoch), -lim, lim);
     s.offsets[0] = 0.0;
+  }
+  if (opt_.mode == DesignMode::QDOM) {
+    // Depths stay >= 0 and their sum (the deepest etch) within h_max: scale down when above.
+    s.adam_a.step(s.offsets, g.g_offsets, opt_.lr_offsets * std::pow(opt_.lr_decay_per_epoch, epoch), 0.0, 1.0);
+    double sum = 0;
+    for (double v : s.offsets) sum += v;
+    if (sum > 1.0)
+      for (double& v : s.offsets) v /= sum;
   }
   ++s.step;
   return g.report;

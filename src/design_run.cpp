@@ -151,6 +151,7 @@ wiener::SpectralPrior load_prior(const std::string& path) {
 void DesignRunOptions::validate() const {
   cfg.validate();
   design.quantizer.validate();
+  if (design.mode == DesignMode::QDOM) mask_count(design.quantizer.levels);  // a power of two
   if (objective != "wiener" && objective != "wiener-mse" && objective != "wiener-mae" && objective != "psf-target")
     reject("objective", objective, "one of wiener, wiener-mse, wiener-mae, psf-target");
   if (objective == "psf-target" && target.rfind("lens:", 0) != 0 && !fs::exists(target))
@@ -264,7 +265,8 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   Simulator sim(rt, o.cfg, o.precision);
   Designer d(sim, o.design);
   const std::size_t levels = static_cast<std::size_t>(o.design.quantizer.levels);
-  DesignState s = resume ? load_checkpoint(ckpt_path.string(), parameter_count(o.design.parameterization, o.cfg.n), levels)
+  DesignState s = resume ? load_checkpoint(ckpt_path.string(), parameter_count(o.design.parameterization, o.cfg.n),
+                                           d.level_parameter_count(), o.design.mode == DesignMode::QDOM)
                          : d.initial_state(initial_params(o));
   std::vector<std::string> rows;
   std::vector<double> losses;
@@ -325,9 +327,16 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   out.height_m = d.fabricated_heights(s);
   out.pitch_m = o.cfg.pitch_m;
   if (o.design.mode != DesignMode::Full) out.levels_m = d.quantizer(s).level_heights_m(o.cfg.h_max_m());
-  write_design((dir / "design.h5").string(), out,
-               {{"mode", to_string(o.design.mode)}, {"levels", std::to_string(levels)}, {"objective", o.objective},
-                {"steps", std::to_string(s.step)}, {"run", dir.string()}});
+  std::map<std::string, std::string> provenance = {{"mode", to_string(o.design.mode)}, {"levels", std::to_string(levels)},
+                                                   {"objective", o.objective}, {"steps", std::to_string(s.step)},
+                                                   {"run", dir.string()}};
+  if (o.design.mode == DesignMode::QDOM) {  // the k binary-mask etch depths (level l = sum over the bits of l)
+    std::ostringstream md;
+    md.precision(12);
+    for (std::size_t j = 0; j < s.offsets.size(); ++j) md << (j ? "," : "") << s.offsets[j] * o.cfg.h_max_m() * 1e9;
+    provenance["mask_depths_nm"] = md.str();
+  }
+  write_design((dir / "design.h5").string(), out, provenance);
   Design full;
   full.height_m = expand_parameters(o.design.parameterization, d.params_m(s), o.cfg.n, o.cfg.h_max_m());
   full.pitch_m = o.cfg.pitch_m;
@@ -417,6 +426,9 @@ std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& given, 
   DesignState st = d.initial_state(initial_params(o));
   st.step = 6;  // mid-schedule
   for (std::size_t l = 1; l < st.offsets.size(); ++l) st.offsets[l] = 0.1 * double(l % 3) - 0.1;
+  if (o.design.mode == DesignMode::QDOM)  // mask depths: uniform, moved by +-10 % so levels are not uniform
+    for (std::size_t j = 0; j < st.offsets.size(); ++j)
+      st.offsets[j] = uniform_mask_depths(o.design.quantizer)[j] * (j % 2 ? 0.9 : 1.1);
   const auto gd = d.gradient(st, obj);
   worst = 0;
   for (int k = 0; k < 5; ++k) {
@@ -443,6 +455,17 @@ std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& given, 
       worst = std::max(worst, rel(fd, gd.g_offsets[l], rms(gd.g_offsets)));
     }
     rows.push_back({"level offsets a (qdo+a)", worst, tol_e2e});
+  }
+  if (o.design.mode == DesignMode::QDOM) {
+    worst = 0;
+    for (std::size_t j = 0; j < st.offsets.size(); ++j) {
+      DesignState a = st, b = st;
+      a.offsets[j] += 1e-5;
+      b.offsets[j] -= 1e-5;
+      const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / 2e-5;
+      worst = std::max(worst, rel(fd, gd.g_offsets[j], rms(gd.g_offsets)));
+    }
+    rows.push_back({"mask depths delta (qdo+m)", worst, tol_e2e});
   }
   // 5. The objective with respect to the PSF (CPU, double), at the 6 entries with the largest
   // gradient (most PSF entries barely matter, and their differences are round-off).

@@ -7,6 +7,7 @@
 #include <matio.h>
 #include <png.h>
 #include <unistd.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -17,6 +18,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <sstream>
@@ -51,6 +53,26 @@ bool element_count(const std::vector<std::size_t>& shape, std::size_t max_elemen
     n *= d;
   }
   return n <= max_elements;
+}
+
+// A reader allocates what a file declares, so a tiny corrupt file must not be able to declare
+// gigabytes. Uncompressed data must fit in the file; compressed data (deflate, the strongest
+// filter HDF5 and MATLAB files use) expand at most ~1032:1. Checked before any allocation.
+constexpr std::uintmax_t kMaxExpansion = 1100;
+constexpr std::uintmax_t kSlackBytes = std::uintmax_t{1} << 16;
+void check_declared_bytes(const std::string& path, const std::string& what, const std::vector<std::size_t>& shape,
+                          std::size_t elements, std::size_t bytes_per_element, bool compressed) {
+  std::error_code ec;
+  const std::uintmax_t file = fs::file_size(path, ec);
+  if (ec) fail(path, what, "cannot read the file size: " + ec.message());
+  const std::uintmax_t limit = compressed ? file * kMaxExpansion + kSlackBytes : file;
+  const std::uintmax_t bpe = std::max<std::size_t>(bytes_per_element, 1);
+  if (elements > limit / bpe)
+    fail(path, what,
+         "declares shape " + shape_str(shape) + " (" + std::to_string(elements) + " elements of " + std::to_string(bpe) +
+             " bytes) but the file holds only " + std::to_string(file) + " bytes" +
+             (compressed ? " (more than any compression could expand to)" : " (uncompressed)") +
+             ": truncated or corrupt file");
 }
 
 std::size_t count_nonfinite(const std::vector<double>& v) {
@@ -212,6 +234,7 @@ void h5_read_attrs(hid_t obj, const std::string& path, H5Dataset& ds) {
         ds.str_attrs[an] = raw ? std::string(raw) : std::string();
       } else {
         const std::size_t len = H5Tget_size(type.get());
+        if (len == 0 || len > (std::size_t{1} << 20)) fail(path, what, "string of " + std::to_string(len) + " bytes (at most 1 MiB)");
         H5Id mem(H5Tcopy(type.get()), H5Tclose);
         std::string buf(len + 1, '\0');
         if (H5Aread(attr.get(), mem.get(), buf.data()) < 0) fail(path, what, "cannot read" + h5_detail());
@@ -245,6 +268,13 @@ H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::si
   if (!element_count(ds.shape, max_elements, n))
     fail(path, what, "shape " + shape_str(ds.shape) + " exceeds the limit of " + std::to_string(max_elements) +
                          " elements");
+  {
+    H5Id dcpl(H5Dget_create_plist(dset.get()), H5Pclose);
+    if (!dcpl.valid()) fail(path, what, "cannot read the storage layout" + h5_detail());
+    const int filters = H5Pget_nfilters(dcpl.get());
+    if (filters < 0) fail(path, what, "cannot read the storage filters" + h5_detail());
+    check_declared_bytes(path, what, ds.shape, n, H5Tget_size(type.get()), filters > 0);
+  }
   ds.data.resize(n);
   if (n > 0 && H5Dread(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, ds.data.data()) < 0)
     fail(path, what, "read failed" + h5_detail());
@@ -367,10 +397,48 @@ struct RawArray {
 };
 
 // libmatio reads a truncated v5 file without complaint (the missing data come back as
-// zeros), so check that every top-level data element of a v5 file fits inside the file.
+// zeros), and it allocates whatever the tags inside a variable declare (a dims tag claiming
+// 500 MB became a 1 GB allocation while merely listing the variables: found by fuzz_mat). So
+// before matio sees a v5 file, check that every top-level data element fits inside the file and
+// that each variable's array header (flags, dims, name) fits inside its element, with at most
+// 32 dimensions; for compressed elements the header is inflated (zlib) and checked the same way.
 // v5 layout: a 128-byte header (endian mark "IM" at byte 126 for little-endian files), then
 // elements of an 8-byte tag (uint32 type, uint32 nbytes) and nbytes of data, padded to 8
-// bytes unless compressed (type 15).
+// bytes unless compressed (type 15). A sub-element tag in "small" format packs nbytes (<= 4)
+// into the upper 16 bits of its first word and its data into the second.
+void check_mat5_array_header(const std::string& path, std::uintmax_t pos, const unsigned char* p, std::size_t avail,
+                             std::uintmax_t element_bytes, const std::function<std::uint32_t(const unsigned char*)>& u32) {
+  const std::string where = "the variable at byte " + std::to_string(pos);
+  std::uintmax_t off = 0;
+  // Returns the sub-element's declared data size and advances off past it.
+  auto sub = [&](const char* what, std::uint32_t& type) -> std::uintmax_t {
+    if (off + 8 > element_bytes || off + 8 > avail)
+      fail(path, "", "corrupt MATLAB v5 file: " + where + " ends inside its " + what + " tag");
+    const std::uint32_t w0 = u32(p + off), w1 = u32(p + off + 4);
+    if (w0 >> 16) {  // small data element
+      type = w0 & 0xffff;
+      off += 8;
+      if ((w0 >> 16) > 4) fail(path, "", "corrupt MATLAB v5 file: " + where + " has a malformed " + what + " tag");
+      return w0 >> 16;
+    }
+    type = w0;
+    const std::uintmax_t padded = (std::uintmax_t(w1) + 7) / 8 * 8;
+    if (off + 8 + w1 > element_bytes)
+      fail(path, "", "corrupt MATLAB v5 file: " + where + " declares a " + what + " of " + std::to_string(w1) +
+                         " bytes in an element of " + std::to_string(element_bytes) + " bytes");
+    off += 8 + padded;
+    return w1;
+  };
+  std::uint32_t type = 0;
+  if (sub("array flags", type) != 8 || type != 6)
+    fail(path, "", "corrupt MATLAB v5 file: " + where + " has malformed array flags");
+  const std::uintmax_t dims = sub("dimensions", type);
+  if (type != 5 || dims % 4 != 0 || dims > 4 * 32)
+    fail(path, "", "corrupt MATLAB v5 file: " + where + " declares " + std::to_string(dims / 4) +
+                       " dimensions of type " + std::to_string(type) + " (int32, at most 32 expected)");
+  sub("name", type);
+}
+
 void check_mat5_extent(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::error_code ec;
@@ -378,10 +446,11 @@ void check_mat5_extent(const std::string& path) {
   unsigned char head[128];
   if (ec || !in.read(reinterpret_cast<char*>(head), sizeof head)) fail(path, "", "truncated MATLAB v5 header");
   const bool swap = head[126] == 'M';  // "MI": written big-endian
-  auto u32 = [swap](const unsigned char* b) {
+  const std::function<std::uint32_t(const unsigned char*)> u32 = [swap](const unsigned char* b) {
     return swap ? (std::uint32_t(b[0]) << 24) | (std::uint32_t(b[1]) << 16) | (std::uint32_t(b[2]) << 8) | b[3]
                 : (std::uint32_t(b[3]) << 24) | (std::uint32_t(b[2]) << 16) | (std::uint32_t(b[1]) << 8) | b[0];
   };
+  constexpr std::size_t kHeader = 256;  // enough for flags, 32 dims and a name tag
   std::uintmax_t pos = 128;
   while (pos < size) {
     unsigned char tag[8];
@@ -393,20 +462,66 @@ void check_mat5_extent(const std::string& path) {
     if (pos + 8 + padded > size && pos + 8 + nbytes > size)
       fail(path, "", "truncated MATLAB v5 file: the element at byte " + std::to_string(pos) + " declares " +
                          std::to_string(nbytes) + " bytes but the file has " + std::to_string(size) + " bytes");
+    if (type == 14 && nbytes > 0) {  // miMATRIX
+      std::vector<unsigned char> h(std::min<std::size_t>(kHeader, nbytes));
+      in.read(reinterpret_cast<char*>(h.data()), static_cast<std::streamsize>(h.size()));
+      check_mat5_array_header(path, pos, h.data(), static_cast<std::size_t>(in.gcount()), nbytes, u32);
+    } else if (type == 15 && nbytes > 0) {  // miCOMPRESSED: a zlib stream holding one miMATRIX element
+      std::vector<unsigned char> z(std::min<std::size_t>(nbytes, 1 << 16)), h(8 + kHeader);
+      in.read(reinterpret_cast<char*>(z.data()), static_cast<std::streamsize>(z.size()));
+      z_stream zs{};
+      if (inflateInit(&zs) != Z_OK) fail(path, "", "zlib initialisation failed");
+      zs.next_in = z.data();
+      zs.avail_in = static_cast<uInt>(in.gcount());
+      zs.next_out = h.data();
+      zs.avail_out = static_cast<uInt>(h.size());
+      const int rc = inflate(&zs, Z_SYNC_FLUSH);
+      const std::size_t got = h.size() - zs.avail_out;
+      inflateEnd(&zs);
+      if ((rc != Z_OK && rc != Z_STREAM_END && rc != Z_BUF_ERROR) || got < 8)
+        fail(path, "", "corrupt MATLAB v5 file: the compressed variable at byte " + std::to_string(pos) + " does not inflate");
+      const std::uint32_t inner_type = u32(h.data()), inner_bytes = u32(h.data() + 4);
+      if (inner_type == 14 && inner_bytes > 0) {
+        if (inner_bytes > std::uintmax_t(nbytes) * kMaxExpansion + kSlackBytes)
+          fail(path, "", "corrupt MATLAB v5 file: the compressed variable at byte " + std::to_string(pos) + " declares " +
+                             std::to_string(inner_bytes) + " bytes, more than " + std::to_string(nbytes) +
+                             " compressed bytes can hold");
+        check_mat5_array_header(path, pos, h.data() + 8, got - 8, inner_bytes, u32);
+      }
+    }
     pos += 8 + padded;
   }
 }
 
-// Reads a numeric variable from a MATLAB v4/v5/v7.3 file; dims are MATLAB's [d0 d1 d2],
+// Everything qdo reads is MATLAB v5 or v7.3: a 116-byte text header starting "MATLAB", the
+// version (0x0100 v5, 0x0200 v7.3) at byte 124 and the endian mark "IM" / "MI" at byte 126.
+// Anything else is refused before libmatio sees it: libmatio falls back to the v4 format,
+// whose reader allocates what the first bytes declare (a 208-byte file took 12 s and half a
+// gigabyte in fuzz_mat). v5 files then get the structure check above.
+void check_mat_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char head[128] = {};
+  in.read(reinterpret_cast<char*>(head), sizeof head);
+  const bool text = in.gcount() == 128 && std::memcmp(head, "MATLAB", 6) == 0;
+  const bool le = head[126] == 'I' && head[127] == 'M', be = head[126] == 'M' && head[127] == 'I';
+  const unsigned version = le ? head[124] | (unsigned(head[125]) << 8) : (unsigned(head[124]) << 8) | head[125];
+  if (!text || !(le || be) || (version != 0x0100 && version != 0x0200))
+    fail(path, "", "not a MATLAB v5 or v7.3 .mat file (no \"MATLAB\" text header with version 5 or 7.3; v4 files are not supported)");
+  if (version == 0x0100) check_mat5_extent(path);
+}
+
+// Reads a numeric variable from a MATLAB v5/v7.3 file; dims are MATLAB's [d0 d1 d2],
 // data column-major (element (i,j,k) at i + d0*j + d0*d1*k).
 RawArray read_mat_raw(const std::string& path, const std::string& key) {
   static const int log_once = Mat_LogInitFunc("qdo", matio_log);
   (void)log_once;
   h5_quiet();  // matio reads v7.3 through HDF5
   g_matio_last.clear();
+  check_mat_file(path);
   MatFile mat(Mat_Open(path.c_str(), MAT_ACC_RDONLY));
   if (!mat) fail(path, "", "not a readable MATLAB .mat file" + matio_detail());
-  if (Mat_GetVersion(mat.get()) == MAT_FT_MAT5) check_mat5_extent(path);
+  if (Mat_GetVersion(mat.get()) != MAT_FT_MAT5 && Mat_GetVersion(mat.get()) != MAT_FT_MAT73)
+    fail(path, "", "not a MATLAB v5 or v7.3 .mat file");
 
   RawArray raw;
   raw.column_major = true;
@@ -449,6 +564,10 @@ RawArray read_mat_raw(const std::string& path, const std::string& key) {
     std::size_t n = 0;
     if (!element_count(raw.dims, std::size_t(1) << 31, n))
       fail(path, what, "shape " + shape_str(raw.dims) + " exceeds the limit of 2^31 elements");
+    // v5 stores a variable raw unless it is compressed (possibly in a narrower type than its
+    // class, at least 1 byte per element); v7.3 (HDF5) may use any filter.
+    const bool raw_v5 = Mat_GetVersion(mat.get()) == MAT_FT_MAT5 && info->compression == MAT_COMPRESSION_NONE;
+    check_declared_bytes(path, what, raw.dims, n, 1, !raw_v5);
   }
   MatVar var(Mat_VarRead(mat.get(), raw.key.c_str()));
   if (!var || !var->data) fail(path, what, "cannot read data (truncated or corrupt file?)" + matio_detail());
@@ -772,6 +891,16 @@ CsvTable parse_csv(const std::string& text, const std::string& origin) {
 }
 
 CsvTable read_csv(const std::string& path) {
+  // Spectral tables are kilobytes; refuse devices, pipes and folders (/dev/zero would never
+  // end) and anything over 64 MiB before reading.
+  constexpr std::uintmax_t kMaxCsvBytes = std::uintmax_t{64} << 20;
+  std::error_code ec;
+  const fs::file_status st = fs::status(path, ec);
+  if (ec || !fs::exists(st)) fail(path, "", "no such CSV file");
+  if (!fs::is_regular_file(st)) fail(path, "", "not a regular file (a CSV table is expected)");
+  const std::uintmax_t size = fs::file_size(path, ec);
+  if (ec || size > kMaxCsvBytes)
+    fail(path, "", "a CSV table of " + std::to_string(size) + " bytes; at most 64 MiB is accepted");
   std::ifstream in(path, std::ios::binary);
   if (!in) fail(path, "", "cannot open CSV file");
   std::ostringstream ss;
@@ -890,6 +1019,11 @@ void write_map_png(const std::string& path, const Map2D& m) {
   }
   write_png(path, m.cols, m.rows, 3, px);
 }
+
+namespace detail {
+// For src/datasets.cpp, which lists .mat variables through libmatio too (declared there).
+void check_mat_file(const std::string& path) { qdo::check_mat_file(path); }
+}  // namespace detail
 
 void write_text_atomic(const std::string& path, const std::string& text) {
   AtomicFile out(path);

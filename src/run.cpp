@@ -18,7 +18,7 @@ void save_checkpoint(const std::string& path, const DesignState& s) {
   h5_write(path, ds, {{"format", "qdo checkpoint 1"}});
 }
 
-DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std::size_t expected_levels) {
+DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std::size_t expected_levels, bool mask_depths) {
   auto read = [&](const std::string& name, std::size_t expected, bool allow_empty) {
     const H5Dataset d = h5_read(path, name, 1u << 28);
     const std::size_t n = d.data.size();
@@ -37,8 +37,33 @@ DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std
   s.adam_a.m = read("/adam_a_m", expected_levels, true);
   s.adam_a.v = read("/adam_a_v", expected_levels, true);
   const auto c = read("/counters", 3, false);
+  // Counts up to 2^53 (exact in a double; converting larger values to long is undefined).
   for (double v : c)
-    if (v < 0 || v != std::floor(v)) throw InputError("file '" + path + "': dataset '/counters' holds " + to_str(v) + ", not a count");
+    if (v < 0 || v != std::floor(v) || v > 9007199254740992.0)
+      throw InputError("file '" + path + "': dataset '/counters' holds " + to_str(v) + ", not a count (0 .. 2^53)");
+  // Adam's second moments are averages of squares; a negative one would turn the weights into
+  // NaN on the first step after resuming.
+  for (const char* name : {"/adam_w_v", "/adam_a_v"})
+    for (double v : name == std::string("/adam_w_v") ? s.adam_w.v : s.adam_a.v)
+      if (v < 0) throw InputError("file '" + path + "': dataset '" + name + "' holds " + to_str(v) + " < 0 (second moments are >= 0)");
+  // Adaptive offsets: a_0 = 0, |a_l| within the clip limit (0.2 when L = 2, else 1), as the
+  // optimiser keeps them (Quantizer::validate).
+  const double lim = expected_levels == 2 ? 0.2 : 1.0;
+  if (mask_depths) {  // qdo+m: depths in [0, 1] whose sum (the deepest etch) stays within h_max
+    double sum = 0;
+    for (std::size_t j = 0; j < s.offsets.size(); ++j) {
+      if (!(s.offsets[j] >= 0 && s.offsets[j] <= 1))
+        throw InputError("file '" + path + "': dataset '/offsets' holds mask depth " + to_str(s.offsets[j]) + " (mask " + to_str(j) +
+                         ") outside [0, 1]");
+      sum += s.offsets[j];
+    }
+    if (sum > 1 + 1e-12)
+      throw InputError("file '" + path + "': dataset '/offsets' holds mask depths summing to " + to_str(sum) + " > 1 (h_max)");
+  }
+  for (std::size_t l = 0; l < s.offsets.size() && !mask_depths; ++l)
+    if ((l == 0 && s.offsets[l] != 0) || std::fabs(s.offsets[l]) > lim)
+      throw InputError("file '" + path + "': dataset '/offsets' holds " + to_str(s.offsets[l]) + " at level " + to_str(l) +
+                       (l == 0 ? " (level 0 is fixed at 0)" : " outside [-" + to_str(lim) + ", " + to_str(lim) + "]"));
   s.step = long(c[0]);
   s.adam_w.t = long(c[1]);
   s.adam_a.t = long(c[2]);

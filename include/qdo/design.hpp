@@ -16,8 +16,13 @@ namespace qdo {
 // full: optimise and evaluate in full precision. do: optimise in full precision; quantize only
 // at evaluation (the paper's conventional deep optics). qdo: alpha-blended quantization with the
 // cubic schedule. ste: hard quantization with the straight-through estimator. qdo+a: blend plus
-// trainable per-level offsets and the adaptive-quantization loss beta * L_aq.
-enum class DesignMode { Full, DO, QDO, STE, QDOA };
+// trainable per-level offsets and the adaptive-quantization loss beta * L_aq. qdo+m (mask-
+// constrained, beyond the paper): blend plus level values that are subset sums of k = log2(L)
+// trainable etch depths, u_l = sum_j bit_j(l) * delta_j (normalised, delta_j >= 0, sum <= 1),
+// so the L = 2^k levels come from k binary-coded masks; initialised uniform (delta_j =
+// 2^j / (L - 1) inclusive, 2^j / L wrapped), trained through the quantizer's level-value
+// gradient (dL/ddelta_j = sum over levels l with bit j set of dL/du_l) with beta * L_aq as qdo+a.
+enum class DesignMode { Full, DO, QDO, STE, QDOA, QDOM };
 DesignMode design_mode_from_string(const std::string& s);
 std::string to_string(DesignMode m);
 
@@ -47,10 +52,18 @@ struct DesignOptions {
 // Optimisation state: everything a checkpoint needs to resume bit-identically.
 struct DesignState {
   std::vector<double> w;               // normalised weights in [-1, 1], H = h_max (w + 1) / 2
-  std::vector<double> offsets;         // L adaptive offsets (qdo+a), a_0 = 0
+  std::vector<double> offsets;         // L adaptive offsets (qdo+a), a_0 = 0; in qdo+m the k
+                                       // normalised mask depths delta_j (heights / h_max)
   Adam adam_w, adam_a;
   long step = 0;
 };
+
+// qdo+m helpers. Number of binary-coded masks for L levels (L must be a power of two >= 2;
+// InputError otherwise), the uniform initial depths for a quantizer's placement, and the L level
+// values u_l = sum_j bit_j(l) depths[j] (normalised).
+int mask_count(int levels);
+std::vector<double> uniform_mask_depths(const Quantizer& q);
+std::vector<double> subset_sum_levels(const std::vector<double>& depths, int levels);
 
 // Objective: given the sensor PSF stack (bands x S x S), return the loss and write dL/dpsf.
 using PsfObjective = std::function<double(const RealStack& psf_sensor, RealStack& grad)>;
@@ -79,7 +92,10 @@ class Designer {
   Map2D training_heights(const DesignState& s) const;
   Map2D fabricated_heights(const DesignState& s) const;
   std::vector<double> params_m(const DesignState& s) const;   // H_f parameters in metres
-  Quantizer quantizer(const DesignState& s) const;            // with the trained offsets (qdo+a)
+  Quantizer quantizer(const DesignState& s) const;            // with the trained offsets (qdo+a) or
+                                                              // the subset-sum level table (qdo+m)
+  // Size of DesignState::offsets: L (qdo+a and the others), k = log2(L) (qdo+m).
+  std::size_t level_parameter_count() const;
   double alpha_at(long step) const;
 
  private:

@@ -40,7 +40,7 @@ usage:
   qdo simulate [--preset P | --config FILE] --design ... [--levels L ...] --scene builtin|CUBE.(h5|mat) [--key K]
                [--precision ...] [--device ...] --out DIR
   qdo demo     [--preset small|paper] [--levels L] [--device SEL] [--out DIR]
-  qdo design   [--preset P | --config FILE] --mode full|do|qdo|ste|qdo+a --levels L [--placement ...]
+  qdo design   [--preset P | --config FILE] --mode full|do|qdo|ste|qdo+a|qdo+m --levels L [--placement ...]
                [--parameterization radial|quad|2d] [--objective wiener|wiener-mse|wiener-mae|psf-target]
                [--target lens:NM|FILE.h5] [--data PATH[,PATH...]] [--epochs 50] [--steps-per-epoch 10]
                [--t0 5] [--t1 40] [--lr 0.01] [--lr-offsets 0.01] [--decay 0.8] [--beta 0.01]

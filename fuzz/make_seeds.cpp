@@ -1,0 +1,149 @@
+// qdo_fuzz_seeds: writes the seed inputs of every fuzz target into CORPUS_DIR/<target>/seed-*
+// (valid files of each format, plus a few typical broken ones). Regenerate with
+//   cmake --build build --target qdo_fuzz_seeds && build/qdo_fuzz_seeds fuzz/corpus
+// Regression inputs (crash-*) are kept as they are.
+#include <matio.h>
+#include <png.h>
+
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/design.hpp"
+#include "qdo/embedded.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/run.hpp"
+
+namespace fs = std::filesystem;
+using namespace qdo;
+
+namespace {
+
+void text(const fs::path& p, const std::string& s) {
+  std::ofstream out(p, std::ios::binary | std::ios::trunc);
+  out << s;
+  if (!out) throw Error("cannot write " + p.string());
+}
+
+struct MatCloser {
+  void operator()(mat_t* m) const { Mat_Close(m); }
+};
+struct MatVarFreer {
+  void operator()(matvar_t* v) const { Mat_VarFree(v); }
+};
+
+// One 3-D variable (MATLAB dims, column-major data) per file.
+template <typename T>
+void mat(const fs::path& p, mat_ft ver, const std::string& name, std::vector<std::size_t> dims, matio_classes cls,
+         matio_types type, std::vector<T> data, matio_compression comp) {
+  std::unique_ptr<mat_t, MatCloser> m(Mat_CreateVer(p.c_str(), nullptr, ver));
+  if (!m) throw Error("cannot create " + p.string());
+  std::unique_ptr<matvar_t, MatVarFreer> v(
+      Mat_VarCreate(name.c_str(), cls, type, int(dims.size()), dims.data(), data.data(), MAT_F_DONT_COPY_DATA));
+  if (!v || Mat_VarWrite(m.get(), v.get(), comp) != 0) throw Error("cannot write " + p.string());
+}
+
+void png(const fs::path& p, std::uint32_t w, std::uint32_t h, std::uint32_t format, const void* px) {
+  png_image img;
+  std::memset(&img, 0, sizeof img);
+  img.version = PNG_IMAGE_VERSION;
+  img.width = w;
+  img.height = h;
+  img.format = format;
+  const int ok = png_image_write_to_file(&img, p.c_str(), 0, px, 0, nullptr);
+  png_image_free(&img);
+  if (!ok) throw Error("cannot write " + p.string());
+}
+
+std::vector<double> ramp(std::size_t n, double scale) {
+  std::vector<double> v(n);
+  for (std::size_t i = 0; i < n; ++i) v[i] = scale * double(i % 17) / 16.0;
+  return v;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc != 2) {
+    std::fprintf(stderr, "usage: %s CORPUS_DIR\n", argv[0]);
+    return 2;
+  }
+  const fs::path root = argv[1];
+  auto dir = [&](const std::string& t) {
+    fs::create_directories(root / t);
+    return root / t;
+  };
+  try {
+    // ---- config (JSON)
+    const fs::path c = dir("config");
+    text(c / "seed-small.json", config_to_json_text(preset_config("small")));
+    text(c / "seed-paper.json", config_to_json_text(preset_config("paper")));
+    text(c / "seed-inf.json", R"({"preset": "small", "scene_distance_m": "inf", "propagator": "asm", "bands": 3})");
+    text(c / "seed-custom.json",
+         R"({"n": 64, "pitch_m": 2e-6, "bands": 301, "wavelength_start_nm": 400, "wavelength_step_nm": 1, "srf_interpolate": true, "camera": "x.csv"})");
+    text(c / "seed-badtype.json", R"({"n": "64", "strict_sampling": 1})");
+    text(c / "seed-unknown.json", R"({"pitch": 4e-6})");
+    text(c / "seed-truncated.json", R"({"preset": "small", "n": 2)");
+    text(c / "seed-nested.json", R"({"n": [[[[[[[[[[1]]]]]]]]]]})");
+    // ---- design (HDF5)
+    const fs::path d = dir("design_h5");
+    Design des;
+    des.height_m = Map2D(4, 4);
+    des.height_m.data = ramp(16, 1e-6);
+    des.pitch_m = 4e-6;
+    write_design((d / "seed-plain.h5").string(), des);
+    des.levels_m = {0, 0.5e-6, 1e-6};
+    write_design((d / "seed-levels.h5").string(), des, {{"mode", "qdo+a"}});
+    // ---- cube (HDF5)
+    const fs::path ch = dir("cube_h5");
+    RealStack cube(3, 4, 5);
+    cube.data = ramp(60, 1.0);
+    write_cube((ch / "seed-cube.h5").string(), cube, {450, 500, 550});
+    h5_write((ch / "seed-rad.h5").string(), {H5Dataset{"/rad", {3, 4, 5}, ramp(60, 4095), {}, {}}});
+    // ---- MATLAB
+    const fs::path m = dir("mat");
+    std::vector<std::uint16_t> u16(60);
+    for (std::size_t i = 0; i < u16.size(); ++i) u16[i] = std::uint16_t(i * 1000);
+    mat(m / "seed-v5-u16.mat", MAT_FT_MAT5, "cube", {4, 5, 3}, MAT_C_UINT16, MAT_T_UINT16, u16, MAT_COMPRESSION_NONE);
+    mat(m / "seed-v5-zlib.mat", MAT_FT_MAT5, "ref", {4, 5, 3}, MAT_C_DOUBLE, MAT_T_DOUBLE, ramp(60, 3.0), MAT_COMPRESSION_ZLIB);
+    mat(m / "seed-v73.mat", MAT_FT_MAT73, "rad", {4, 5, 3}, MAT_C_DOUBLE, MAT_T_DOUBLE, ramp(60, 4095), MAT_COMPRESSION_NONE);
+    mat(m / "seed-v5-single.mat", MAT_FT_MAT5, "HSI", {3, 4, 5}, MAT_C_SINGLE, MAT_T_SINGLE,
+        std::vector<float>(60, 0.25f), MAT_COMPRESSION_NONE);
+    // ---- checkpoint
+    const fs::path k = dir("checkpoint");
+    DesignState s;
+    s.w = ramp(16, 0.5);
+    s.offsets = {0, 0.1, -0.2, 0.05};
+    s.adam_w.m = ramp(16, 1e-3);
+    s.adam_w.v = ramp(16, 1e-6);
+    s.adam_w.t = 7;
+    s.step = 7;
+    save_checkpoint((k / "seed-checkpoint.h5").string(), s);
+    // ---- PNG bands
+    const fs::path p = dir("png");
+    const std::vector<std::uint8_t> g8 = {0, 64, 128, 255, 1, 2, 3, 4, 5, 6, 7, 8};
+    const std::vector<std::uint16_t> g16 = {0, 65535, 4096, 30000, 1, 2, 3, 4, 5, 6, 7, 8};
+    png(p / "seed-gray8.png", 4, 3, PNG_FORMAT_GRAY, g8.data());
+    png(p / "seed-gray16.png", 4, 3, PNG_FORMAT_LINEAR_Y, g16.data());
+    std::vector<std::uint8_t> rgb(36, 100);
+    png(p / "seed-rgb.png", 4, 3, PNG_FORMAT_RGB, rgb.data());
+    // ---- CSV
+    const fs::path v = dir("csv");
+    text(v / "seed-flir.csv", embedded_file("srf_FLIR_GS3-U3-41S4C.csv"));
+    text(v / "seed-small.csv", "# a comment\nwavelength_nm,R,G,B\n400,0.1,0.2,0.3\n500,0.5,0.6,0.1\n700,0.9,0.1,0.0\n");
+    text(v / "seed-ragged.csv", "wavelength_nm,R,G,B\n400,1,2\n");
+    text(v / "seed-names.csv", "name,400,410\nleaf,0.1,x\n");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "qdo_fuzz_seeds: %s\n", e.what());
+    return 1;
+  }
+  std::printf("seeds written under %s\n", root.c_str());
+  return 0;
+}

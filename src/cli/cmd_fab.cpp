@@ -1,0 +1,143 @@
+// qdo export (lithography mask sets) and qdo tolerance (Monte Carlo over fabrication errors).
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "cli.hpp"
+#include "qdo/design_run.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fab.hpp"
+#include "qdo/io.hpp"
+#include "qdo/runtime.hpp"
+
+namespace fs = std::filesystem;
+using namespace qdo;
+using namespace qdo::cli;
+
+namespace {
+
+// argv with the positional argv[2] (RUN or DESIGN.h5) removed, for parse_args.
+std::vector<char*> without_positional(int argc, char** argv, const std::string& usage) {
+  if (argc < 3 || std::string(argv[2]).rfind("--", 0) == 0) reject("RUN", "(missing)", usage);
+  std::vector<char*> rest(argv, argv + argc);
+  rest.erase(rest.begin() + 2);
+  return rest;
+}
+
+DesignRunOptions read_run(const std::string& run) {
+  const fs::path p = fs::path(run) / "config.json";
+  if (!fs::exists(p)) reject("RUN", run, "a run folder written by qdo design (config.json missing) or a design .h5 file");
+  std::ifstream f(p);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  return design_run_options_from_json(ss.str(), p.string());
+}
+
+int cmd_export(int argc, char** argv) {
+  const std::string usage = "qdo export RUN|DESIGN.h5 --scheme binary|nested|greyscale --out DIR";
+  std::vector<char*> rest = without_positional(argc, argv, usage);
+  const Args a = parse_args(argc - 1, rest.data(),
+                            {"scheme", "out", "preset", "config", "min-feature-um", "max-levels", "max-height-nm", "dose-curve",
+                             "tolerance-nm"},
+                            "export");
+  const std::string src = argv[2];
+  fab::ExportOptions o;
+  o.scheme = fab::scheme_from_string(a.get("scheme", "binary"));
+  o.out = a.get("out");
+  if (o.out.empty()) reject("--out", "(missing)", "an output folder");
+  o.constraints.min_feature_um = parse_double("--min-feature-um", a.get("min-feature-um", "1"));
+  o.constraints.max_levels = parse_int("--max-levels", a.get("max-levels", "0"), 0, 65536);
+  o.constraints.max_height_nm = parse_double("--max-height-nm", a.get("max-height-nm", "0"));
+  o.constraints.level_tolerance_nm = parse_double("--tolerance-nm", a.get("tolerance-nm", "0.001"));
+  o.dose_curve_csv = a.get("dose-curve");
+  SystemConfig cfg;
+  Design d;
+  if (fs::is_directory(src)) {
+    if (a.has("preset") || a.has("config")) reject("--preset", "(given)", "omitted with a run folder (its config.json is used)");
+    const DesignRunOptions r = read_run(src);
+    cfg = r.cfg;
+    d = read_design((fs::path(src) / "design.h5").string());
+    o.provenance = {{"source", src + "/design.h5"}, {"run", src}, {"mode", to_string(r.design.mode)},
+                    {"levels", std::to_string(r.design.quantizer.levels)}, {"placement", to_string(r.design.quantizer.placement)},
+                    {"objective", r.objective}, {"seed", std::to_string(r.design.seed)}};
+  } else {
+    if (!fs::exists(src)) reject("RUN", src, "an existing run folder or design .h5 file");
+    cfg = load_config(a);
+    d = read_design(src);
+    if (d.height_m.rows != cfg.n)
+      reject("DESIGN", src, "a height map of N x N = " + std::to_string(cfg.n) + " samples as configured (the file has " +
+                                std::to_string(d.height_m.rows) + "; pass --preset or --config)");
+    if (std::fabs(d.pitch_m - cfg.pitch_m) > 1e-6 * cfg.pitch_m)
+      reject("DESIGN", src, "pitch_m = " + to_str(cfg.pitch_m) + " as configured (the file has " + to_str(d.pitch_m) + ")");
+    o.provenance = {{"source", src}, {"levels", std::to_string(d.levels_m.size())}};
+  }
+  const fab::ExportResult r = fab::export_design(d, cfg, o);
+  std::printf("%s scheme (%s): %zu mask layer(s), blank top %.3f nm, %zu polygons (%zu vertices)\n", fab::to_string(r.plan.scheme).c_str(),
+              r.plan.method.c_str(), r.plan.masks.size(), r.plan.top_m * 1e9, r.polygons, r.vertices);
+  for (const auto& m : r.plan.masks)
+    std::printf("  layer %3d  %-16s etch %9.3f nm%s\n", m.layer, m.name.c_str(), m.etch_depth_m * 1e9,
+                r.plan.scheme == fab::Scheme::Greyscale ? (" dose " + to_str(m.relative_dose)).c_str() : "");
+  std::printf("read back: level map identical, max height error %.3g nm\nwrote %s/ (", r.max_height_error_nm, o.out.c_str());
+  for (std::size_t k = 0; k < r.files.size(); ++k) std::printf("%s%s", k ? " " : "", r.files[k].c_str());
+  std::printf(")\n");
+  return 0;
+}
+
+int cmd_tolerance(int argc, char** argv) {
+  const std::string usage =
+      "qdo tolerance RUN [--etch-depth-error-nm 20] [--overlay-um 0.5] [--edge-blur-um 0] [--height-noise-nm 0] [--trials 16] "
+      "[--seed 0] --out DIR";
+  std::vector<char*> rest = without_positional(argc, argv, usage);
+  const Args a = parse_args(argc - 1, rest.data(),
+                            {"etch-depth-error-nm", "overlay-um", "edge-blur-um", "height-noise-nm", "trials", "seed", "out", "scheme",
+                             "oversample", "data", "synthetic-scenes", "noise-sigma", "precision", "device"},
+                            "tolerance", {"no-per-source", "save-psfs"});
+  fab::ToleranceOptions t;
+  t.run = argv[2];
+  t.etch_depth_error_m = parse_double("--etch-depth-error-nm", a.get("etch-depth-error-nm", "20")) * 1e-9;
+  t.overlay_m = parse_double("--overlay-um", a.get("overlay-um", "0.5")) * 1e-6;
+  t.edge_blur_m = parse_double("--edge-blur-um", a.get("edge-blur-um", "0")) * 1e-6;
+  t.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", "0")) * 1e-9;
+  t.trials = std::size_t(parse_int("--trials", a.get("trials", "16"), 1, 100000));
+  t.seed = std::uint64_t(parse_int("--seed", a.get("seed", "0"), 0, 2147483647));
+  t.scheme = a.get("scheme", "auto");
+  if (t.scheme != "auto") fab::scheme_from_string(t.scheme);
+  t.oversample = std::size_t(parse_int("--oversample", a.get("oversample", "4"), 1, 16));
+  t.per_source = !a.has("no-per-source");
+  t.save_psfs = a.has("save-psfs");
+  t.data = split_list(a.get("data", ""));
+  t.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "6"), 1, 100000));
+  t.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma")) : -1;
+  t.precision = precision_from_string(a.get("precision", "f32"));
+  t.out = a.get("out");
+  if (t.out.empty()) reject("--out", "(missing)", "an output folder");
+  t.quiet = false;
+  Runtime rt(a.get("device"));
+  const auto t0 = std::chrono::steady_clock::now();
+  const fab::ToleranceResult r = fab::tolerance_analysis(rt, t);
+  std::printf("scheme %s, %zu mask layer(s); nominal PSNR %.3f dB, SSIM %.4f\n", fab::to_string(r.plan.scheme).c_str(),
+              r.plan.masks.size(), r.nominal.psnr, r.nominal.ssim);
+  std::printf("%-13s %6s %10s %8s %10s %10s | %10s %10s  (nominal decoder)\n", "scenario", "trials", "PSNR mean", "std", "worst",
+              "SSIM mean", "PSNR mean", "worst");
+  for (const auto& s : r.summary) {
+    const auto& p = s.calibrated.at("psnr_db");
+    const auto& q = s.calibrated.at("ssim");
+    const auto& pn = s.nominal_decoder.at("psnr_db");
+    std::printf("%-13s %6zu %10.3f %8.3f %10.3f %10.4f | %10.3f %10.3f\n", s.scenario.c_str(), s.trials, p.mean, p.std, p.min, q.mean,
+                pn.mean, pn.min);
+  }
+  std::printf("%.1f s; wrote %s/ (tolerance.csv tolerance.json tolerance.md psnr_by_scenario.png worst_height_error.png worst_psf.png)\n",
+              seconds_since(t0), t.out.c_str());
+  return 0;
+}
+
+const Registrar reg_export("export", cmd_export,
+                           "qdo export RUN|DESIGN.h5 --scheme binary|nested|greyscale --out DIR [--preset P | --config FILE]\n"
+                           "             [--min-feature-um 1] [--max-levels L] [--max-height-nm H] [--dose-curve CSV] [--tolerance-nm 0.001]");
+const Registrar reg_tolerance("tolerance", cmd_tolerance,
+                              "qdo tolerance RUN [--etch-depth-error-nm 20] [--overlay-um 0.5] [--edge-blur-um 0] [--height-noise-nm 0]\n"
+                              "             [--trials 16] [--seed 0] [--scheme auto|binary|nested|greyscale] [--oversample 4]\n"
+                              "             [--data PATH,...] [--no-per-source] [--save-psfs] [--precision f32|f64] [--device SEL] --out DIR");
+
+}  // namespace

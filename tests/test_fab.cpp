@@ -1,0 +1,643 @@
+// From design to fab: GDSII writer/reader, polygon merging, mask schemes and their round trip
+// (own reader and KLayout when installed), constraint errors, QDO+M designs, tolerance analysis.
+#include <cstdlib>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "common.hpp"
+#include "qdo/design_run.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fab.hpp"
+#include "qdo/gds.hpp"
+#include "qdo/io.hpp"
+#include "qdo/run.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+
+namespace {
+
+// A quantized design with L levels (uniform, inclusive unless a table is given): rings of random
+// width around the axis, overlaid with random 3 x 3 blocks, so masks get holes, islands, diagonal
+// contacts and every level.
+Design level_design(const SystemConfig& cfg, int L, unsigned seed, std::vector<double> table = {}) {
+  if (table.empty()) {
+    Quantizer q;
+    q.levels = L;
+    table = q.level_heights_m(cfg.h_max_m());
+  }
+  std::mt19937_64 rng(seed);
+  const std::size_t n = cfg.n;
+  std::vector<int> block((n / 3 + 1) * (n / 3 + 1));
+  for (auto& b : block) b = int(rng() % 5 == 0 ? rng() % std::uint64_t(L) : 1000);
+  Design d;
+  d.pitch_m = cfg.pitch_m;
+  d.levels_m = table;
+  d.height_m = Map2D(n, n);
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t j = 0; j < n; ++j) {
+      const double r = std::hypot(double(i) - double(n / 2), double(j) - double(n / 2));
+      int l = int(r / 2.5) % L;
+      const int b = block[(i / 3) * (n / 3 + 1) + j / 3];
+      if (b < 1000) l = b;
+      d.height_m(i, j) = table[std::size_t(l)];
+    }
+  for (int l = 0; l < L && std::size_t(l) < n; ++l) d.height_m(0, std::size_t(l)) = table[std::size_t(l)];  // every level used
+  return d;
+}
+
+std::vector<std::uint8_t> random_mask(std::size_t n, unsigned seed, int density_pct) {
+  std::mt19937_64 rng(seed);
+  std::vector<std::uint8_t> m(n * n);
+  for (auto& v : m) v = int(rng() % 100) < density_pct ? 1 : 0;
+  return m;
+}
+
+std::string slurp(const std::filesystem::path& p) {
+  std::ifstream f(p);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  return ss.str();
+}
+
+int run_shell(const std::string& cmd, std::string* out = nullptr) {
+  const auto dir = temp_dir("fab_sh");
+  const std::string log = (dir / "log.txt").string();
+  const int status = std::system((cmd + " > " + log + " 2>&1").c_str());
+  if (out) *out = slurp(log);
+  std::filesystem::remove_all(dir);
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+// KLayout on PATH (QDO_SKIP_KLAYOUT=1 pretends it is not, to exercise the skip).
+bool have_klayout() {
+  if (const char* e = std::getenv("QDO_SKIP_KLAYOUT"); e && std::string(e) == "1") return false;
+  return std::system("command -v klayout > /dev/null 2>&1") == 0;
+}
+
+// Asks KLayout (batch mode, one start for all files) for every layer of each GDSII file: shape
+// count, merged area (nm^2), the number of self-overlapping ("strange") polygons, and the pixels
+// whose centre lies inside the layer's region.
+struct KLayer {
+  std::size_t shapes = 0, strange = 0;
+  double area_nm2 = 0;
+  std::set<std::size_t> pixels;
+};
+struct KFile {
+  double dbu_um = 0;
+  std::map<int, KLayer> layers;
+};
+std::vector<KFile> klayout_layers(const std::vector<std::string>& gds, std::size_t n, std::int64_t pitch, std::int64_t org) {
+  const auto dir = temp_dir("fab_klayout");
+  const std::string script = (dir / "probe.py").string(), list = (dir / "files.txt").string();
+  {
+    std::ofstream lf(list);
+    for (std::size_t k = 0; k < gds.size(); ++k) lf << gds[k] << " " << (dir / ("out" + std::to_string(k) + ".txt")).string() << "\n";
+  }
+  std::ofstream(script) << R"(import pya
+N = int(n); P = int(pitch); O = int(org)
+centres = pya.Region()
+for i in range(N):
+    for j in range(N):
+        cx = O + j * P + P // 2
+        cy = O + i * P + P // 2
+        centres.insert(pya.Box(cx - 1, cy - 1, cx + 1, cy + 1))
+for line in open(files):
+    gds, out = line.split()
+    ly = pya.Layout()
+    ly.read(gds)
+    top = ly.top_cell()
+    with open(out, "w") as f:
+        f.write("dbu %.12g\n" % ly.dbu)
+        for li in ly.layer_indexes():
+            info = ly.get_info(li)
+            reg = pya.Region(top.begin_shapes_rec(li))
+            pix = []
+            for poly in centres.inside(reg).each():
+                c = poly.bbox().center()
+                pix.append(str(((c.y - O) // P) * N + (c.x - O) // P))
+            f.write("layer %d %d %d %d %s\n" % (info.layer, top.shapes(li).size(), reg.area(),
+                                                reg.strange_polygon_check().count(), " ".join(pix)))
+)";
+  const std::string cmd = "klayout -b -rd files=" + list + " -rd n=" + std::to_string(n) + " -rd pitch=" + std::to_string(pitch) +
+                          " -rd org=" + std::to_string(org) + " -r " + script;
+  std::string log;
+  REQUIRE_MESSAGE(run_shell(cmd, &log) == 0, log);
+  std::vector<KFile> files;
+  for (std::size_t k = 0; k < gds.size(); ++k) {
+    KFile kf;
+    std::istringstream in(slurp(dir / ("out" + std::to_string(k) + ".txt")));
+    std::string line;
+    while (std::getline(in, line)) {
+      std::istringstream ls(line);
+      std::string tag;
+      ls >> tag;
+      if (tag == "dbu") {
+        ls >> kf.dbu_um;
+        continue;
+      }
+      int layer = 0;
+      KLayer kl;
+      ls >> layer >> kl.shapes >> kl.area_nm2 >> kl.strange;
+      std::size_t p = 0;
+      while (ls >> p) kl.pixels.insert(p);
+      kf.layers[layer] = kl;
+    }
+    files.push_back(kf);
+  }
+  std::filesystem::remove_all(dir);
+  return files;
+}
+
+DesignRunOptions tiny_run(const std::string& out, DesignMode mode, int levels) {
+  DesignRunOptions o;
+  o.cfg = tiny_config(32, 3);
+  o.design.mode = mode;
+  o.design.quantizer.levels = levels;
+  o.design.steps_per_epoch = 2;
+  o.design.t0_epochs = 1;
+  o.design.t1_epochs = 4;
+  o.design.seed = 3;
+  o.design.lr_offsets = 0.05;
+  o.epochs = 5;
+  o.synthetic_scenes = 3;
+  o.checkpoint_every = 3;
+  o.precision = runtime().has_fp64() ? Precision::F64 : Precision::F32;
+  o.out = out;
+  o.quiet = true;
+  return o;
+}
+
+}  // namespace
+
+TEST_SUITE("fab") {
+  TEST_CASE("GDSII 8-byte reals and a written stream read back") {
+    CHECK(gds::encode_real(1.0) == 0x4110000000000000ull);
+    CHECK(gds::encode_real(-2.0) == 0xC120000000000000ull);
+    CHECK(gds::encode_real(0.0) == 0ull);
+    for (double v : {1e-3, 1e-9, 0.5, 1.0 / 3.0, 12345.678, -7.25e-7, 1e-30, 3e40}) CHECK(gds::decode_real(gds::encode_real(v)) == v);
+    // The UNITS words most tools write (mantissa truncated from the decimal value).
+    CHECK(gds::decode_real(0x3E4189374BC6A7EFull) == doctest::Approx(1e-3).epsilon(1e-15));
+    CHECK(gds::decode_real(0x3944B82FA09B5A51ull) == doctest::Approx(1e-9).epsilon(1e-15));
+
+    gds::Library lib;
+    lib.name = "T";
+    lib.timestamp[0] = 2024;
+    lib.timestamp[1] = 1;
+    lib.timestamp[2] = 2;
+    lib.boundaries.push_back({3, 0, {{0, 0}, {10, 0}, {10, 5}, {0, 5}, {0, 0}}});
+    lib.boundaries.push_back({7, 2, {{-2000000000, -5}, {2000000000, -5}, {0, 9}, {-2000000000, -5}}});
+    const auto bytes = gds::encode(lib);
+    REQUIRE(bytes.size() % 2 == 0);
+    CHECK(bytes[0] == 0x00);
+    CHECK(bytes[1] == 0x06);  // HEADER: 6 bytes
+    CHECK(bytes[2] == 0x00);  // record type HEADER
+    CHECK(bytes[4] == 0x02);
+    CHECK(bytes[5] == 0x58);  // version 600
+    const gds::Library back = gds::decode(bytes, "memory");
+    CHECK(back.name == "T");
+    CHECK(back.structure == "DOE");
+    CHECK(back.db_in_user_units == 1e-3);
+    CHECK(back.db_in_metres == 1e-9);
+    REQUIRE(back.boundaries.size() == 2);
+    for (std::size_t k = 0; k < 2; ++k) {
+      CHECK(back.boundaries[k].layer == lib.boundaries[k].layer);
+      CHECK(back.boundaries[k].datatype == lib.boundaries[k].datatype);
+      CHECK(back.boundaries[k].points == lib.boundaries[k].points);
+    }
+    // Broken streams and boundaries are named.
+    std::vector<std::uint8_t> cut(bytes.begin(), bytes.end() - 6);
+    CHECK_THROWS_WITH_AS(gds::decode(cut, "cut.gds"), doctest::Contains("cut.gds"), InputError);
+    gds::Library open = lib;
+    open.boundaries[0].points.pop_back();
+    CHECK_THROWS_WITH_AS(gds::encode(open), doctest::Contains("closed"), InputError);
+    gds::Library big = lib;
+    big.boundaries[0].points.assign(8192, {0, 0});
+    CHECK_THROWS_WITH_AS(gds::encode(big), doctest::Contains("8191"), InputError);
+    gds::Library far = lib;
+    far.boundaries[0].points = {{0, 0}, {std::int64_t(1) << 32, 0}, {0, 1}, {0, 0}};
+    CHECK_THROWS_WITH_AS(gds::encode(far), doctest::Contains("int32"), InputError);
+  }
+
+  TEST_CASE("merged polygons: simple, within the point limit, exact pixel coverage") {
+    for (unsigned seed = 1; seed <= 6; ++seed)
+      for (int density : {15, 50, 85}) {
+        CAPTURE(seed);
+        CAPTURE(density);
+        const std::size_t n = 40;
+        const auto mask = random_mask(n, seed, density);
+        const std::size_t max_points = seed % 2 ? gds::kMaxBoundaryPoints : 13;  // small limit: forces splits
+        const auto polys = gds::merge_pixels(mask, n, n, max_points);
+        double area = 0;
+        for (const auto& p : polys) {
+          REQUIRE(p.size() >= 5);
+          CHECK(p.size() <= max_points);
+          CHECK(p.front() == p.back());
+          CHECK(gds::is_simple(p));
+          CHECK(gds::signed_area(p) > 0);
+          area += gds::signed_area(p);
+        }
+        CHECK(area == double(std::count(mask.begin(), mask.end(), std::uint8_t(1))));
+        CHECK(gds::rasterize(polys, n, n) == mask);
+        // Merging pays: far fewer polygons than pixel runs.
+        std::size_t runs = 0;
+        for (std::size_t i = 0; i < n; ++i)
+          for (std::size_t j = 0; j < n; ++j) runs += mask[i * n + j] && (j == 0 || !mask[i * n + j - 1]);
+        CHECK(polys.size() <= runs);
+      }
+    // A full block is one rectangle; a ring (a region with a hole) splits into hole-free polygons.
+    std::vector<std::uint8_t> block(64, 1);
+    CHECK(gds::merge_pixels(block, 8, 8).size() == 1);
+    std::vector<std::uint8_t> ring(64, 1);
+    for (std::size_t i = 2; i < 6; ++i)
+      for (std::size_t j = 2; j < 6; ++j) ring[i * 8 + j] = 0;
+    const auto rp = gds::merge_pixels(ring, 8, 8);
+    CHECK(rp.size() == 2);
+    CHECK(gds::rasterize(rp, 8, 8) == ring);
+    // A tall staircase under the 8191-point limit is split, still exact.
+    const std::size_t tall = 5000;
+    std::vector<std::uint8_t> stairs(tall * 4, 0);
+    for (std::size_t i = 0; i < tall; ++i)
+      for (std::size_t j = 0; j <= (i % 2) + 1; ++j) stairs[i * 4 + j] = 1;
+    const auto sp = gds::merge_pixels(stairs, tall, 4);
+    CHECK(sp.size() >= 2);
+    for (const auto& p : sp) CHECK(p.size() <= gds::kMaxBoundaryPoints);
+    CHECK(gds::rasterize(sp, tall, 4) == stairs);
+  }
+
+  TEST_CASE("export round trip is exact for 2, 4, 8 and 16 levels in every scheme") {
+    const SystemConfig cfg = tiny_config(32, 3);
+    const auto dir = temp_dir("fab_export");
+    const bool klayout = have_klayout();
+    if (!klayout) MESSAGE("klayout not on PATH: the independent-reader check is skipped (apt-get install klayout)");
+    struct Case {
+      std::string dir;
+      Design design;
+      fab::MaskPlan plan;
+    };
+    std::vector<Case> cases;
+    for (int L : {2, 4, 8, 16})
+      for (fab::Scheme s : {fab::Scheme::Binary, fab::Scheme::Nested, fab::Scheme::Greyscale}) {
+        CAPTURE(L);
+        CAPTURE(fab::to_string(s));
+        const Design d = level_design(cfg, L, unsigned(L) * 7 + 1);
+        fab::ExportOptions o;
+        o.scheme = s;
+        o.out = (dir / (fab::to_string(s) + std::to_string(L))).string();
+        o.provenance = {{"test", "round trip"}};
+        const fab::ExportResult r = fab::export_design(d, cfg, o);
+        const std::size_t expect_masks = s == fab::Scheme::Binary ? std::size_t(std::log2(L) + 0.5)
+                                         : s == fab::Scheme::Nested ? std::size_t(L - 1) : std::size_t(L);
+        CHECK(r.plan.masks.size() == expect_masks);
+        if (s == fab::Scheme::Binary) {
+          CHECK(r.plan.method == "index-coded");
+          for (std::size_t j = 0; j < r.plan.masks.size(); ++j)  // depths d, 2d, 4d, ...
+            CHECK(r.plan.masks[j].etch_depth_m == doctest::Approx(double(1 << j) * cfg.h_max_m() / (L - 1)).epsilon(1e-12));
+        }
+        // The project's reader, from the files alone.
+        const fab::Reconstruction rec = fab::reconstruct_export(o.out);
+        CHECK(rec.level_of_pixel == r.plan.level_of_pixel);
+        double worst = 0;
+        for (std::size_t i = 0; i < rec.height_m.data.size(); ++i)
+          worst = std::max(worst, std::fabs(rec.height_m.data[i] - d.height_m.data[i]));
+        CHECK(worst < 1e-18);  // 1e-9 nm: float rounding of the depth sums only
+        for (const char* f : {"masks.gds", "manifest.json", "manifest.md", "heights_from_masks.png", "mask_L1.png"})
+          CHECK(std::filesystem::exists(std::filesystem::path(o.out) / f));
+        // Polygon areas match the pixel counts, layer by layer.
+        const gds::Library lib = gds::read(o.out + "/masks.gds");
+        const double p2 = cfg.pitch_m * 1e9 * cfg.pitch_m * 1e9;
+        for (const auto& mk : r.plan.masks) {
+          double area = 0;
+          for (const auto& b : lib.boundaries)
+            if (b.layer == mk.layer) {
+              CHECK(b.points.size() <= gds::kMaxBoundaryPoints);
+              area += gds::signed_area(b.points);
+            }
+          CHECK(area == double(mk.pixels) * p2);
+        }
+        cases.push_back({o.out, d, r.plan});
+      }
+    // An independent reader: KLayout in batch mode reads every file; its pixel coverage rebuilds
+    // the height map.
+    if (klayout) {
+      std::vector<std::string> files;
+      for (const auto& c : cases) files.push_back(c.dir + "/masks.gds");
+      const std::int64_t pitch = std::llround(cfg.pitch_m * 1e9), org = -std::int64_t(cfg.n / 2) * pitch - pitch / 2;
+      const double p2 = double(pitch) * double(pitch);
+      const auto kfiles = klayout_layers(files, cfg.n, pitch, org);
+      REQUIRE(kfiles.size() == cases.size());
+      for (std::size_t c = 0; c < cases.size(); ++c) {
+        CAPTURE(cases[c].dir);
+        const auto& layers = kfiles[c].layers;
+        const auto& plan = cases[c].plan;
+        CHECK(kfiles[c].dbu_um == doctest::Approx(1e-3));
+        CHECK(layers.count(fab::kMarkLayer) == 1);
+        CHECK(layers.count(fab::kApertureLayer) == 1);
+        std::vector<std::vector<std::uint8_t>> drawn;
+        for (const auto& mk : plan.masks) {
+          const auto it = layers.find(mk.layer);
+          std::vector<std::uint8_t> bits(cfg.n * cfg.n, 0);
+          REQUIRE(it != layers.end());
+          CHECK(it->second.strange == 0);
+          CHECK(it->second.area_nm2 == double(mk.pixels) * p2);
+          for (std::size_t pix : it->second.pixels) bits[pix] = 1;
+          drawn.push_back(bits);
+        }
+        const fab::Reconstruction kr = fab::reconstruct(plan, drawn);
+        CHECK(kr.level_of_pixel == plan.level_of_pixel);
+        double kw = 0;
+        for (std::size_t i = 0; i < kr.height_m.data.size(); ++i)
+          kw = std::max(kw, std::fabs(kr.height_m.data[i] - cases[c].design.height_m.data[i]));
+        CHECK(kw < 1e-18);
+      }
+    }
+    // Wrapped levels are multiples of h_max / L: index-coded binary masks below the top level.
+    Quantizer w;
+    w.levels = 8;
+    w.placement = Placement::Wrapped;
+    const Design dw = level_design(cfg, 8, 99, w.level_heights_m(cfg.h_max_m()));
+    fab::ExportOptions ow;
+    ow.out = (dir / "wrapped").string();
+    const auto rw = fab::export_design(dw, cfg, ow);
+    CHECK(rw.plan.masks.size() == 3);
+    CHECK(rw.plan.top_m == doctest::Approx(cfg.h_max_m() * 7.0 / 8.0));
+    // The manifest says what the fab needs.
+    const nlohmann::json j = nlohmann::json::parse(slurp(std::filesystem::path(ow.out) / "manifest.json"));
+    CHECK(j["scheme"] == "binary");
+    CHECK(j["material"] == cfg.material);
+    CHECK(j["levels"].size() == 8);
+    CHECK(j["masks"].size() == 3);
+    CHECK(j["masks"][0]["polygons"].get<int>() > 0);
+    CHECK(j["check"]["level_map_identical"] == true);
+    CHECK(j["gds"]["database_unit_m"] == 1e-9);
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("constraint violations are errors naming the level, the scheme limit or the region; nothing is written") {
+    const SystemConfig cfg = tiny_config(32, 3);
+    const auto dir = temp_dir("fab_constraints");
+    const double hm = cfg.h_max_m();
+    fab::ExportOptions o;
+    o.out = (dir / "out").string();
+    // Free per-level heights (QDO+A-like) with binary-coded masks.
+    const Design qa = level_design(cfg, 4, 5, {0.0, 0.30 * hm, 0.71 * hm, 0.98 * hm});
+    CHECK_THROWS_WITH_AS(fab::export_design(qa, cfg, o), doctest::Contains("level 0"), InputError);
+    CHECK_THROWS_WITH_AS(fab::export_design(qa, cfg, o), doctest::Contains("--scheme nested"), InputError);
+    o.scheme = fab::Scheme::Nested;  // ... which nested masks make: three free steps
+    const auto rn = fab::export_design(qa, cfg, o);
+    CHECK(rn.plan.masks.size() == 3);
+    CHECK(rn.plan.masks[0].etch_depth_m == doctest::Approx(0.27 * hm));
+    std::filesystem::remove_all(o.out);
+    // Too many levels for the scheme.
+    const Design d32 = level_design(cfg, 32, 6);
+    for (fab::Scheme s : {fab::Scheme::Binary, fab::Scheme::Nested}) {
+      o.scheme = s;
+      CHECK_THROWS_WITH_AS(fab::export_design(d32, cfg, o), doctest::Contains("allows at most 16"), InputError);
+    }
+    o.scheme = fab::Scheme::Greyscale;
+    CHECK(fab::export_design(d32, cfg, o).plan.masks.size() == 32);
+    std::filesystem::remove_all(o.out);
+    o.constraints.max_levels = 8;
+    CHECK_THROWS_WITH_AS(fab::export_design(d32, cfg, o), doctest::Contains("--max-levels"), InputError);
+    o.constraints = {};
+    // Features below the minimum size: the mask, its layer and the pixel region are named.
+    o.scheme = fab::Scheme::Binary;
+    o.constraints.min_feature_um = 10;  // 3 pixels at 4 um
+    const Design d4 = level_design(cfg, 4, 7);
+    CHECK_THROWS_WITH_AS(fab::export_design(d4, cfg, o), doctest::Contains("minimum feature size 10 um"), InputError);
+    CHECK_THROWS_WITH_AS(fab::export_design(d4, cfg, o), doctest::Contains("pixel (row"), InputError);
+    // A single-pixel gap in a mask is named too.
+    {
+      Design g = level_design(cfg, 2, 1);
+      for (double& v : g.height_m.data) v = g.levels_m[0];
+      for (std::size_t i = 4; i < 20; ++i) g.height_m(i, 10) = g.levels_m[1];  // a 1-pixel-wide unetched line
+      o.constraints.min_feature_um = 6;
+      CHECK_THROWS_WITH_AS(fab::export_design(g, cfg, o), doctest::Contains("gaps between drawn features"), InputError);
+      CHECK_THROWS_WITH_AS(fab::export_design(g, cfg, o), doctest::Contains("pixel (row 4, col 10)"), InputError);
+    }
+    o.constraints = {};
+    // Heights outside the etchable range.
+    const Design high = level_design(cfg, 4, 8, {0.0, 0.4 * hm, 0.8 * hm, 1.2 * hm});
+    CHECK_THROWS_WITH_AS(fab::export_design(high, cfg, o), doctest::Contains("level 3"), InputError);
+    CHECK_THROWS_WITH_AS(fab::export_design(high, cfg, o), doctest::Contains("etchable range"), InputError);
+    o.constraints.max_height_nm = 1.3 * hm * 1e9;  // a thicker relief layer makes it possible (nested)
+    o.scheme = fab::Scheme::Nested;
+    CHECK_NOTHROW(fab::export_design(high, cfg, o));
+    std::filesystem::remove_all(o.out);
+    o.constraints = {};
+    // Heights that are no level; a pitch off the 1 nm grid.
+    Design odd = d4;
+    odd.height_m(3, 5) += 7e-9;
+    CHECK_THROWS_WITH_AS(fab::export_design(odd, cfg, o), doctest::Contains("pixel (row 3, col 5)"), InputError);
+    SystemConfig c3 = cfg;
+    c3.pitch_m = 4.0005e-6;
+    CHECK_THROWS_WITH_AS(fab::export_design(d4, c3, o), doctest::Contains("pitch_m"), InputError);
+    CHECK_FALSE(std::filesystem::exists(o.out));  // every check runs before anything is written
+
+    // The command line: exit code 2 and the message.
+    const std::string cfg_path = (dir / "cfg.json").string(), design_path = (dir / "qa.h5").string();
+    write_text_atomic(cfg_path, config_to_json_text(cfg));
+    write_design(design_path, qa);
+    std::string out;
+    const int rc = run_shell(std::string(QDO_QDO_BINARY) + " export " + design_path + " --config " + cfg_path + " --scheme binary --out " +
+                                 (dir / "cli").string(),
+                             &out);
+    CHECK(rc == 2);
+    CHECK(out.find("level 0") != std::string::npos);
+    CHECK(run_shell(std::string(QDO_QDO_BINARY) + " export " + design_path + " --config " + cfg_path + " --scheme nested --out " +
+                    (dir / "cli").string(),
+                    &out) == 0);
+    CHECK(out.find("nested scheme") != std::string::npos);
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("QDO+M: subset-sum levels, exact gradients, resumable, exported exactly with binary masks") {
+    const auto dir = temp_dir("fab_qdom");
+    const std::string a = (dir / "a").string(), b = (dir / "b").string();
+    const DesignRunResult ra = run_design(runtime(), tiny_run(a, DesignMode::QDOM, 4), false);
+    DesignRunOptions first = tiny_run(b, DesignMode::QDOM, 4);
+    first.max_steps = 4;
+    run_design(runtime(), first, false);
+    run_design(runtime(), tiny_run(b, DesignMode::QDOM, 4), true);
+    const DesignState sa = load_checkpoint(a + "/checkpoint.h5", 16, 2, true), sb = load_checkpoint(b + "/checkpoint.h5", 16, 2, true);
+    CHECK(sa.offsets == sb.offsets);  // two mask depths, resumed bit-identically
+    CHECK(sa.w == sb.w);
+    // The levels are subset sums of the two trained depths, and the depths moved.
+    const Design d = read_design(a + "/design.h5");
+    REQUIRE(d.levels_m.size() == 4);
+    CHECK(ra.levels_m == d.levels_m);
+    const double hm = tiny_config(32, 3).h_max_m();
+    CHECK(d.levels_m[0] == 0.0);
+    CHECK(d.levels_m[3] == doctest::Approx(d.levels_m[1] + d.levels_m[2]).epsilon(1e-14));
+    CHECK(sa.offsets[0] * hm == doctest::Approx(d.levels_m[1]).epsilon(1e-14));
+    CHECK(sa.offsets[1] * hm == doctest::Approx(d.levels_m[2]).epsilon(1e-14));
+    CHECK(std::fabs(sa.offsets[0] - 1.0 / 3.0) + std::fabs(sa.offsets[1] - 2.0 / 3.0) > 1e-4);
+    CHECK(sa.offsets[0] + sa.offsets[1] <= 1.0 + 1e-15);
+    const std::set<double> distinct(d.height_m.data.begin(), d.height_m.data.end());
+    for (double v : distinct) CHECK(std::find(d.levels_m.begin(), d.levels_m.end(), v) != d.levels_m.end());
+    // Binary export: index-coded, the masks' depths are the trained depths, round trip exact.
+    fab::ExportOptions o;
+    o.out = (dir / "export").string();
+    const auto r = fab::export_design(d, tiny_config(32, 3), o);
+    CHECK(r.plan.method == "index-coded");
+    REQUIRE(r.plan.masks.size() == 2);
+    CHECK(r.plan.masks[0].etch_depth_m == doctest::Approx(sa.offsets[0] * hm).epsilon(1e-12));
+    CHECK(r.plan.masks[1].etch_depth_m == doctest::Approx(sa.offsets[1] * hm).epsilon(1e-12));
+    CHECK(fab::reconstruct_export(o.out).level_of_pixel == r.plan.level_of_pixel);
+    // Gradients of the mask depths against central differences; and the level count rule.
+    DesignRunOptions g = tiny_run("(unused)", DesignMode::QDOM, 8);
+    const auto rows = gradcheck(runtime(), g, 5);
+    bool saw_depths = false;
+    for (const auto& row : rows) {
+      CAPTURE(row.group);
+      CAPTURE(row.max_rel_error);
+      CHECK(row.ok());
+      saw_depths = saw_depths || row.group.find("mask depths") != std::string::npos;
+    }
+    CHECK(saw_depths);
+    CHECK_THROWS_WITH_AS(run_design(runtime(), tiny_run((dir / "c").string(), DesignMode::QDOM, 6), false),
+                         doctest::Contains("power of two"), InputError);
+    CHECK(design_mode_from_string("qdo+m") == DesignMode::QDOM);
+    CHECK(to_string(DesignMode::QDOM) == "qdo+m");
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("fabricated heights: no error is the design bit for bit; shifts, depths and blur act as modelled") {
+    const SystemConfig cfg = tiny_config(32, 3);
+    const Design d = level_design(cfg, 4, 11);
+    const fab::MaskPlan plan = fab::plan_masks(d, cfg, fab::Scheme::Binary, {});
+    CHECK(fab::perturbed_heights(plan, d.height_m, {}).data == d.height_m.data);
+    fab::Perturbation z;
+    z.depth_error_m.assign(plan.masks.size(), 0.0);
+    z.shift_x_m.assign(plan.masks.size(), 0.0);
+    z.shift_y_m.assign(plan.masks.size(), 0.0);
+    CHECK(fab::perturbed_heights(plan, d.height_m, z, 4).data == d.height_m.data);
+    // A depth error of mask 2 lowers exactly its open pixels.
+    fab::Perturbation e = z;
+    e.depth_error_m[1] = 10e-9;
+    const Map2D he = fab::perturbed_heights(plan, d.height_m, e);
+    const double lift = 10e-9;  // level 0 (etched by every mask) would go below 0: all heights are raised by 10 nm
+    for (std::size_t i = 0; i < he.data.size(); ++i)
+      CHECK(he.data[i] == doctest::Approx(d.height_m.data[i] - (plan.masks[1].drawn[i] ? 10e-9 : 0.0) + lift).epsilon(1e-12));
+    // A shift by one whole pixel moves the mask's etch by one pixel; a sub-pixel shift keeps the
+    // etched volume of a mask away from the border and leaves partially etched (sliver) pixels.
+    fab::Perturbation s = z;
+    s.shift_x_m[0] = cfg.pitch_m;
+    const Map2D hs = fab::perturbed_heights(plan, d.height_m, s);
+    const double D0 = plan.masks[0].etch_depth_m;
+    for (std::size_t i = 0; i < cfg.n; ++i)
+      for (std::size_t j = 1; j < cfg.n; ++j) {
+        const double want = d.height_m(i, j) + D0 * (plan.masks[0].drawn[i * cfg.n + j] ? 1.0 : 0.0) -
+                            D0 * (plan.masks[0].drawn[i * cfg.n + j - 1] ? 1.0 : 0.0);
+        CHECK(hs(i, j) == doctest::Approx(want).epsilon(1e-9));
+      }
+    Design box = d;
+    for (std::size_t i = 0; i < cfg.n; ++i)
+      for (std::size_t j = 0; j < cfg.n; ++j) box.height_m(i, j) = (i >= 8 && i < 20 && j >= 8 && j < 22) ? d.levels_m[0] : d.levels_m[3];
+    const fab::MaskPlan bp = fab::plan_masks(box, cfg, fab::Scheme::Nested, {});
+    fab::Perturbation sub;
+    REQUIRE(bp.masks.size() == 1);
+    sub.shift_x_m = {0.37 * cfg.pitch_m};
+    sub.shift_y_m = {-0.21 * cfg.pitch_m};
+    const Map2D hb = fab::perturbed_heights(bp, box.height_m, sub, 4);
+    double vol0 = 0, vol1 = 0;
+    std::size_t slivers = 0;
+    for (std::size_t i = 0; i < hb.data.size(); ++i) {
+      vol0 += box.height_m.data[i];
+      vol1 += hb.data[i];
+      const double f = (box.levels_m[3] - hb.data[i]) / (box.levels_m[3] - box.levels_m[0]);
+      slivers += f > 0.01 && f < 0.99;
+    }
+    CHECK(vol1 == doctest::Approx(vol0).epsilon(1e-12));
+    CHECK(slivers > 10);
+    // Edge blur keeps the volume too and softens the edges.
+    fab::Perturbation bl;
+    bl.edge_blur_m = 1e-6;
+    const Map2D hbl = fab::perturbed_heights(bp, box.height_m, bl, 4);
+    double vol2 = 0;
+    for (double v : hbl.data) vol2 += v;
+    CHECK(vol2 == doctest::Approx(vol0).epsilon(1e-9));
+    CHECK(hbl(8, 14) > box.height_m(8, 14));
+  }
+
+  TEST_CASE("tolerance: zero error reproduces qdo eval exactly; errors degrade the metrics monotonically on average") {
+    const auto dir = temp_dir("fab_tol");
+    const std::string run = (dir / "run").string();
+    DesignRunOptions ro = tiny_run(run, DesignMode::QDOM, 4);
+    ro.precision = Precision::F32;
+    run_design(runtime(), ro, false);
+    EvalOptions e;
+    e.run = run;
+    e.synthetic_scenes = 3;
+    e.renders = 0;
+    e.out = (dir / "eval").string();
+    const EvalResult ev = evaluate_run(runtime(), e);
+
+    fab::ToleranceOptions t;
+    t.run = run;
+    t.synthetic_scenes = 3;
+    t.etch_depth_error_m = 0;
+    t.overlay_m = 0;
+    t.trials = 1;
+    t.out = (dir / "zero").string();
+    t.save_psfs = true;
+    const fab::ToleranceResult z = fab::tolerance_analysis(runtime(), t);
+    CHECK(h5_read(t.out + "/psfs.h5", "/psf_all_0").data == h5_read(t.out + "/psfs.h5", "/psf_nominal").data);
+    t.save_psfs = false;
+    CHECK(z.plan.scheme == fab::Scheme::Binary);
+    CHECK(z.nominal.psnr == ev.mean.psnr);
+    CHECK(z.nominal.ssim == ev.mean.ssim);
+    CHECK(z.nominal.rmse == ev.mean.rmse);
+    CHECK(z.nominal.ergas == ev.mean.ergas);
+    CHECK(z.nominal.sam_rad == ev.mean.sam_rad);
+    CHECK(z.nominal.psnr_hyper == ev.mean.psnr_hyper);
+    REQUIRE(z.trials.size() == 1);
+    CHECK(z.trials[0].calibrated.psnr == ev.mean.psnr);
+    CHECK(z.trials[0].nominal_decoder.psnr == ev.mean.psnr);
+    CHECK(z.trials[0].calibrated.ssim == ev.mean.ssim);
+    CHECK(z.trials[0].psf_rel_change == 0.0);
+    CHECK(z.trials[0].height_rms_change_m == 0.0);
+    for (const char* f : {"tolerance.csv", "tolerance.json", "tolerance.md", "psnr_by_scenario.png", "worst_height_error.png"})
+      CHECK(std::filesystem::exists(std::filesystem::path(t.out) / f));
+
+    // Increasing etch-depth errors and overlay: mean PSNR falls at every step (fixed seed, the
+    // same draws scaled, several trials each; steps wide enough to beat the trial spread).
+    t.out.clear();
+    t.trials = 4;
+    t.seed = 7;
+    t.per_source = false;
+    std::vector<double> psnr_nd, psnr_cal;
+    for (double s : {0.0, 40e-9, 120e-9, 300e-9}) {
+      t.etch_depth_error_m = s;
+      t.overlay_m = s * 20;  // 0, 0.8, 2.4, 6 um
+      const fab::ToleranceResult r = fab::tolerance_analysis(runtime(), t);
+      psnr_nd.push_back(r.summary[0].nominal_decoder.at("psnr_db").mean);
+      psnr_cal.push_back(r.summary[0].calibrated.at("psnr_db").mean);
+    }
+    CAPTURE(psnr_nd[0]);
+    CAPTURE(psnr_nd[1]);
+    CAPTURE(psnr_nd[2]);
+    CAPTURE(psnr_nd[3]);
+    CHECK(psnr_nd[0] == ev.mean.psnr);
+    for (std::size_t k = 1; k < psnr_nd.size(); ++k) CHECK(psnr_nd[k] < psnr_nd[k - 1]);
+    CHECK(psnr_cal.back() < psnr_cal.front());
+    // Each source alone is reported, and reuses the combined trial's draws.
+    t.trials = 2;
+    t.etch_depth_error_m = 20e-9;
+    t.overlay_m = 0.5e-6;
+    t.height_noise_m = 10e-9;
+    t.edge_blur_m = 0.3e-6;
+    t.per_source = true;
+    const fab::ToleranceResult all = fab::tolerance_analysis(runtime(), t);
+    REQUIRE(all.summary.size() == 5);
+    CHECK(all.summary[1].scenario == "etch depth");
+    CHECK(all.trials[1].depth_error_m == all.trials[0].depth_error_m);
+    CHECK(all.trials[2].shift_x_m == all.trials[0].shift_x_m);
+    CHECK(all.trials[0].shift_x_m[0] == 0.0);  // mask 1 is the reference
+    CHECK(all.trials[0].shift_x_m[1] != 0.0);
+    std::filesystem::remove_all(dir);
+  }
+}
