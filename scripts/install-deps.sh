@@ -13,6 +13,7 @@ pkgs=(
   nlohmann-json3-dev     # configuration files
   libpng-dev             # figures
   doctest-dev            # tests
+  klayout                # tests: an independent GDSII reader for the mask round trip (issue 7)
 )
 missing=()
 for p in "${pkgs[@]}"; do
