@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -274,11 +275,24 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     std::ifstream f(log_path);
     std::string line;
     std::getline(f, line);  // header
-    while (std::getline(f, line)) {
-      const long st = std::stol(line.substr(0, line.find(',')));
-      if (st < s.step) {
+    for (std::size_t lineno = 2; std::getline(f, line); ++lineno) {
+      // step,loss,...: both numbers must parse, or the log is not ours.
+      const char* p = line.c_str();
+      char* end = nullptr;
+      const long st = std::strtol(p, &end, 10);
+      double loss = 0;
+      bool ok = end != p && *end == ',';
+      if (ok) {
+        const char* q = end + 1;
+        loss = std::strtod(q, &end);
+        ok = end != q;
+      }
+      if (!ok)
+        throw InputError("file '" + log_path.string() + "': line " + std::to_string(lineno) +
+                         " is not a log row (step,loss,...): '" + line.substr(0, 60) + "'");
+      if (st < s.step) {  // rows at or after the checkpoint's step are redone
         rows.push_back(line);
-        losses.push_back(std::stod(line.substr(line.find(',') + 1)));
+        losses.push_back(loss);
       }
     }
   }
@@ -315,8 +329,8 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       std::fflush(stderr);
     }
     if (s.step % long(o.checkpoint_every) == 0 || s.step == stop) {
+      write_log();  // the log first: a kill between the two leaves rows the resume redoes, never a gap
       save_checkpoint(ckpt_path.string(), s);
-      write_log();
     }
   }
   if (!o.quiet && ::isatty(2)) std::fprintf(stderr, "\n");

@@ -872,7 +872,7 @@ const std::vector<double>& CsvTable::column(const std::string& name) const {
     if (header[c] == name) return columns[c];
   std::string h;
   for (const auto& x : header) h += (h.empty() ? "" : ", ") + x;
-  throw InputError("CSV column '" + name + "' not found (header: " + h + ")");
+  throw InputError((origin.empty() ? std::string() : "file '" + origin + "': ") + "CSV column '" + name + "' not found (header: " + h + ")");
 }
 
 CsvTable parse_csv(const std::string& text, const std::string& origin) {
@@ -892,6 +892,7 @@ CsvTable parse_csv(const std::string& text, const std::string& origin) {
     }
   };
   CsvTable t;
+  t.origin = origin;
   std::istringstream in(text);
   std::string line;
   std::size_t line_no = 0;

@@ -152,6 +152,10 @@ Eigen::MatrixXd sensor_response(const SystemConfig& cfg) {
     reject("camera", cfg.camera, "a built-in camera (" + names + ") or the path of a CSV file with columns wavelength_nm,R,G,B");
   }
   const auto& wl = t.column("wavelength_nm");
+  for (std::size_t r = 0; r < wl.size(); ++r)
+    if (!std::isfinite(wl[r]) || (r > 0 && !(wl[r] > wl[r - 1])))
+      reject("camera", origin, "a wavelength_nm column that is strictly increasing (row " + to_str(r + 1) + " holds " +
+                                   to_str(wl[r]) + " nm)");
   const std::vector<const std::vector<double>*> ch = {&t.column("R"), &t.column("G"), &t.column("B")};
   const auto bands = cfg.wavelengths_nm();
   Eigen::MatrixXd s(3, static_cast<Eigen::Index>(bands.size()));

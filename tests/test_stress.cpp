@@ -1048,6 +1048,11 @@ TEST_SUITE("stress") {
       H5Fclose(f);
     }
     CHECK(has(input_error([&] { read_design(h5); }), "unwritten"));
+    // Regression (fuzz_mat, fuzz/corpus/mat/crash-v73-datatype-4gb.mat): a v7.3 variable whose
+    // datatype claims 4 GiB per element made libhdf5 (through libmatio) zero 4 GB for a 3.8 KiB
+    // file. The variable's dataset is now checked like any HDF5 dataset first.
+    const std::string v73 = (corpus / "mat" / "crash-v73-datatype-4gb.mat").string();
+    CHECK(has(input_error([&] { read_cube(v73, {}); }), "corrupt datatype"));
     // MATLAB v5: a 4 x 5 x 3 double variable whose header is patched to claim 32768 x 32768 x 2.
     const std::string mat = (dir / "big.mat").string();
     write_mat(mat, MAT_FT_MAT5, "cube", {4, 5, 3}, MAT_C_DOUBLE, MAT_T_DOUBLE, std::vector<double>(60, 0.5));
@@ -1208,10 +1213,8 @@ TEST_SUITE("stress") {
     fs::remove_all(dir);
   }
 
-  TEST_CASE("CSV camera tables: a missing column is named with its file" * doctest::skip(true)) {
-    // BUG (include/qdo/io.hpp, src/io.cpp CsvTable::column; needs a header change): the error is
-    // "CSV column 'R' not found (header: ...)" without the file. Proposed: CsvTable gets
-    // `std::string origin` (set by parse_csv) and column() prefixes it.
+  TEST_CASE("CSV camera tables: a missing column is named with its file") {
+    // Regression: the error used to lack the file; CsvTable now keeps its origin.
     const auto dir = temp_dir("stress_csvcol");
     SystemConfig c = tiny_config(32, 3);
     c.camera = (dir / "cam.csv").string();
@@ -1220,11 +1223,9 @@ TEST_SUITE("stress") {
     fs::remove_all(dir);
   }
 
-  TEST_CASE("CSV camera tables with unsorted or repeated wavelengths are refused, not misinterpolated" * doctest::skip(true)) {
-    // BUG (src/optics.cpp sensor_response): with srf_interpolate the table is assumed sorted.
-    // Wavelengths 400, 600, 500, 700 interpolate 450 nm between 400 and 600 (giving 1) although
-    // the table holds 500 nm = 100: a silently wrong camera. Proposed: reject a wavelength_nm
-    // column that is not strictly increasing (or NaN), naming the file and the row.
+  TEST_CASE("CSV camera tables with unsorted or repeated wavelengths are refused, not misinterpolated") {
+    // Regression: with srf_interpolate an unsorted table (400, 600, 500, 700) used to interpolate
+    // 450 nm between 400 and 600 although the table holds 500 nm = 100; now it is refused.
     const auto dir = temp_dir("stress_csvsort");
     SystemConfig c = tiny_config(32, 3);
     c.camera = (dir / "cam.csv").string();
@@ -1233,13 +1234,11 @@ TEST_SUITE("stress") {
     fs::remove_all(dir);
   }
 
-  TEST_CASE("a run killed between its checkpoint and its log write keeps every log row after resuming" * doctest::skip(true)) {
-    // BUG (src/design_run.cpp run_design): the checkpoint is saved before log.csv is rewritten,
-    // so a kill between the two (seen in the kill -9 test) leaves the log one checkpoint
-    // interval behind; the resume keeps only rows before the checkpoint's step and the rows in
-    // between are lost for good (293 of 300 rows). Proposed: write the log first, then the
-    // checkpoint (the resume already drops rows at or after the checkpoint's step). The kill is
-    // reproduced deterministically here by restoring the previous log.
+  TEST_CASE("a run killed between its log write and its checkpoint keeps every log row after resuming") {
+    // Regression: the checkpoint used to be saved before log.csv, so a kill between the two lost
+    // the rows in between for good. Now the log is written first; a kill in the new window
+    // leaves the log ahead of the checkpoint, and the resume redoes those rows. Reproduced here
+    // by restoring the previous checkpoint after a completed segment.
     const auto dir = temp_dir("stress_logloss");
     DesignRunOptions o;
     o.cfg = tiny_config(32, 3);
@@ -1254,10 +1253,10 @@ TEST_SUITE("stress") {
     o.quiet = true;
     o.max_steps = 3;
     run_design(runtime(), o, false);
-    const std::string old_log = slurp(o.out + "/log.csv");
+    const std::string old_ckpt = slurp(o.out + "/checkpoint.h5");
     o.max_steps = 6;
-    run_design(runtime(), o, true);  // checkpoint at step 6 written ...
-    spit(o.out + "/log.csv", old_log);  // ... and killed before the log was
+    run_design(runtime(), o, true);  // log rows up to step 5 written ...
+    spit(o.out + "/checkpoint.h5", old_ckpt);  // ... and killed before the step-6 checkpoint was
     o.max_steps = -1;
     run_design(runtime(), o, true);
     std::istringstream in(slurp(o.out + "/log.csv"));
@@ -1267,11 +1266,9 @@ TEST_SUITE("stress") {
     fs::remove_all(dir);
   }
 
-  TEST_CASE("a run folder with a corrupt log.csv resumes or fails with an InputError naming it" * doctest::skip(true)) {
-    // BUG (src/design_run.cpp run_design, resume): log rows are parsed with std::stol/std::stod,
-    // so a damaged log.csv throws std::invalid_argument ("stol"; the CLI exits 1 with "error:
-    // stol") instead of an InputError naming the file and line. Proposed: parse with strtol/
-    // strtod and reject (or drop) malformed rows, naming RUN/log.csv and the line number.
+  TEST_CASE("a run folder with a corrupt log.csv resumes or fails with an InputError naming it") {
+    // Regression: a damaged log.csv used to throw std::invalid_argument ("stol"); now an
+    // InputError names RUN/log.csv and the line.
     const auto dir = temp_dir("stress_log");
     DesignRunOptions o;
     o.cfg = tiny_config(32, 3);

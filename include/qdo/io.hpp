@@ -72,7 +72,8 @@ struct CsvTable {
   std::vector<std::vector<double>> columns;  // columns[c][row]; NaN where a cell is not a number
   std::vector<std::vector<std::string>> raw; // raw[c][row], the cell text (e.g. a name column)
   std::vector<std::string> comments;
-  const std::vector<double>& column(const std::string& name) const;  // throws InputError naming it
+  std::string origin;                        // the file (or description) it was parsed from
+  const std::vector<double>& column(const std::string& name) const;  // throws InputError naming it and origin
 };
 CsvTable parse_csv(const std::string& text, const std::string& origin);
 CsvTable read_csv(const std::string& path);
