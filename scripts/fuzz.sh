@@ -47,8 +47,16 @@ for t in "${TARGETS[@]}"; do
   if ! "$BUILD/fuzz_$t" -max_total_time="$SECONDS_EACH" -timeout=10 -rss_limit_mb=2048 -malloc_limit_mb=1024 \
        -max_len=16384 -print_final_stats=1 -artifact_prefix="$BUILD/artifacts/$t-" \
        "$BUILD/corpus/$t" "fuzz/corpus/$t" 2> "$BUILD/fuzz_$t.log"; then
+    # Known and not ours (STABILITY.md): libhdf5 1.10.8 requests blocks of the sizes a corrupt
+    # file declares in its metadata cache (H5C_protect) while opening it, before qdo can check
+    # anything. Reported, not counted as a failure.
+    if grep -q 'libFuzzer: out-of-memory (malloc' "$BUILD/fuzz_$t.log" &&
+       grep -E '#[0-9]+ 0x' "$BUILD/fuzz_$t.log" | grep -v -E 'fuzzer::|__sanitizer|__asan|malloc' | head -n 1 | grep -q 'H5C_protect'; then
+      echo "   known libhdf5 issue (allocation request in H5C_protect while opening a corrupt file): $(ls "$BUILD/artifacts/$t-"* | tail -n 1)"
+      continue
+    fi
     status=1
-    echo "   FOUND a problem: $(grep -m1 -E 'ERROR|==[0-9]+==|deadly|leak|uncaught|invariant' "$BUILD/fuzz_$t.log" || true)"
+    echo "   FOUND a problem: $(grep -m1 -E 'ERROR|deadly signal|uncaught|invariant violated' "$BUILD/fuzz_$t.log" || true)"
     ls "$BUILD/artifacts/$t-"* 2>/dev/null | sed 's/^/   input: /'
     echo "   log: $BUILD/fuzz_$t.log"
   else

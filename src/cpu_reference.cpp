@@ -112,6 +112,7 @@ PsfResult psf_stack(const SystemConfig& cfg, const Map2D& height_m) {
     out.sampling.bands[b].energy_outside_window = total > 0 ? 1.0 - inside / total : 0.0;
   }
   normalize_planes(out.psf);
+  check_source_sampling(cfg, out.sampling.bands);
   if (cfg.strict_sampling) out.sampling.enforce();
   return out;
 }

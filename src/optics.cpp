@@ -41,9 +41,18 @@ double transfer_function_limit_per_m(Propagator p, double wavelength_nm, double 
   return 1.0 / (lambda * std::sqrt(q * q + 1.0));
 }
 
+void check_source_sampling(const SystemConfig& cfg, std::vector<BandSampling>& bands) {
+  const double r = cfg.aperture_radius(), d = cfg.scene_distance_m;
+  for (auto& b : bands) {
+    b.source_frequency_per_m =
+        cfg.scene_at_infinity ? 0.0 : r / (b.wavelength_nm * 1e-9 * std::sqrt(r * r + d * d));
+    b.source_undersampled = b.source_frequency_per_m > 0.5 / cfg.pitch_m;
+  }
+}
+
 bool SamplingReport::any_inaccurate() const {
   for (const auto& b : bands)
-    if (b.undersampled && b.aliased_energy_fraction > kAliasTolerance) return true;
+    if ((b.undersampled && b.aliased_energy_fraction > kAliasTolerance) || b.source_undersampled) return true;
   return false;
 }
 
@@ -72,12 +81,23 @@ std::string SamplingReport::summary() const {
   }
   os << "; worst field energy beyond the limit " << worst_aliased_fraction()
      << "; worst energy outside the N x N window " << worst_energy_outside() << ".";
+  std::size_t src = 0;
+  for (const auto& b : bands) src += b.source_undersampled;
+  if (src) os << " The point source's spherical wave is under-sampled on the DOE grid in " << src
+              << " bands (increase scene_distance_m or use a finer pitch_m).";
   if (any_inaccurate()) os << " INACCURATE: increase padding_px, reduce sensor_distance_m or pitch_m.";
   return os.str();
 }
 
 void SamplingReport::enforce() const {
   for (const auto& b : bands) {
+    if (b.source_undersampled) {
+      std::ostringstream os;
+      os << "strict_sampling: at " << b.wavelength_nm << " nm the point source's spherical wave reaches a local frequency of "
+         << b.source_frequency_per_m << " 1/m at the aperture rim, above the DOE grid's Nyquist " << b.f_nyquist_per_m
+         << " 1/m; the field after the DOE aliases. Increase scene_distance_m or use a finer pitch_m";
+      throw AccuracyError(os.str());
+    }
     if (b.undersampled && b.aliased_energy_fraction > kAliasTolerance) {
       std::ostringstream os;
       os << "strict_sampling: at " << b.wavelength_nm << " nm the transfer function is under-sampled beyond |f| = "

@@ -63,6 +63,8 @@ DeviceInfo describe(const cl::Platform& p, const cl::Device& d, std::size_t pi, 
   i.version = d.getInfo<CL_DEVICE_VERSION>();
   i.fp64 = d.getInfo<CL_DEVICE_EXTENSIONS>().find("cl_khr_fp64") != std::string::npos ||
            d.getInfo<CL_DEVICE_DOUBLE_FP_CONFIG>() != 0;
+  // QDO_DISABLE_FP64=1 makes every device look float32-only (to exercise that path anywhere).
+  if (const char* off = std::getenv("QDO_DISABLE_FP64"); off && std::string(off) == "1") i.fp64 = false;
   i.global_mem_bytes = static_cast<std::size_t>(d.getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>());
   i.max_alloc_bytes = static_cast<std::size_t>(d.getInfo<CL_DEVICE_MAX_MEM_ALLOC_SIZE>());
   i.compute_units = d.getInfo<CL_DEVICE_MAX_COMPUTE_UNITS>();

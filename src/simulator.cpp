@@ -377,6 +377,7 @@ void Simulator::compute_psf() {
   const auto crop = download_real(sums_crop_, bands);
   for (std::size_t b = 0; b < bands; ++b)
     sampling_.bands[b].energy_outside_window = tot[b] > 0 ? std::max(0.0, 1.0 - crop[b] / tot[b]) : 0.0;
+  check_source_sampling(cfg_, sampling_.bands);
   psf_valid_ = true;
   otf_valid_ = false;
   if (cfg_.strict_sampling) sampling_.enforce();

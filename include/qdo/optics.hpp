@@ -41,7 +41,13 @@ struct BandSampling {
   bool undersampled = false;         // f_limit < f_nyquist: part of the band is unreliable
   double aliased_energy_fraction = 0;  // field spectral energy beyond f_limit (either axis)
   double energy_outside_window = 0;  // energy of the propagated field outside the N x N crop
+  // The point source's spherical wave on the DOE grid: its local frequency at the aperture rim,
+  // r_ap / (λ sqrt(r_ap² + d²)) (0 for a plane wave), and whether it exceeds the grid's Nyquist.
+  double source_frequency_per_m = 0;
+  bool source_undersampled = false;
 };
+// Fills the source fields of every band from the configuration (bands repeat per design).
+void check_source_sampling(const SystemConfig& cfg, std::vector<BandSampling>& bands);
 
 struct SamplingReport {
   std::vector<BandSampling> bands;
