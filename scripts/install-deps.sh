@@ -6,6 +6,7 @@ pkgs=(
   build-essential cmake pkg-config
   ocl-icd-opencl-dev opencl-c-headers opencl-clhpp-headers pocl-opencl-icd clinfo
   libclfft-dev           # FFT on the OpenCL device
+  libvkfft-dev           # second FFT backend on the OpenCL device (header-only VkFFT)
   libfftw3-dev           # CPU reference FFT (double)
   libeigen3-dev          # host linear algebra
   libhdf5-dev            # result files and HDF5 / .mat v7.3 cubes

@@ -380,6 +380,7 @@ void Simulator::compute_psf() {
   check_source_sampling(cfg_, sampling_.bands);
   psf_valid_ = true;
   otf_valid_ = false;
+  ++psf_generation_;
   if (cfg_.strict_sampling) sampling_.enforce();
 }
 

@@ -11,6 +11,8 @@
 
 #include <Eigen/Dense>
 
+#include <cstdint>
+
 #include "qdo/config.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/optics.hpp"
@@ -30,6 +32,7 @@ class Simulator {
   std::size_t designs() const { return designs_; }
 
   const SystemConfig& config() const { return cfg_; }
+  Runtime& runtime() const { return rt_; }
   const PropagationGeometry& geometry() const { return geom_; }
   Precision precision() const { return prec_; }
   std::size_t sensor_size() const { return s_; }
@@ -53,6 +56,13 @@ class Simulator {
   RealStack psf_native() const;        // (designs x bands) x N x N, each band sums to 1
   RealStack psf_sensor() const;        // (designs x bands) x S x S on the sensor pitch, each band sums to 1
   const SamplingReport& sampling() const { return sampling_; }
+  // The device buffer behind psf_sensor(): (designs x bands) x S x S reals of precision(),
+  // row-major, valid after compute_psf() until the heights change. For stages that consume
+  // the PSF on the device (src/imaging.cpp) without a host round trip.
+  const cl::Buffer& psf_sensor_buffer() const { return psf_s_; }
+  // Incremented by every compute_psf(): consumers that cache something derived from the PSF
+  // (OTFs, crops) compare it to know when to rebuild.
+  std::uint64_t psf_generation() const { return psf_generation_; }
 
   // Adjoints at the current heights (compute_psf() must have run; its field, sums and PSFs are
   // reused, all on the device): dL/dH (N x N, per metre) for a gradient of L with respect to
@@ -122,6 +132,7 @@ class Simulator {
   AreaWeights weights_;
   bool heights_set_ = false, psf_valid_ = false, otf_valid_ = false;
   SamplingReport sampling_;
+  std::uint64_t psf_generation_ = 0;
   static constexpr std::size_t kGroupsPerBand = 32;
 
   cl::Buffer heights_, k_, dn_, field_, psf_, psf_s_, partial_, tf_, klim_, wstart_, wts_, srf_buf_;
