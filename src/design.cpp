@@ -30,6 +30,22 @@ std::string to_string(DesignMode m) {
   return "?";
 }
 
+PsfPath psf_path_from_string(const std::string& s) {
+  if (s == "auto") return PsfPath::Auto;
+  if (s == "2d") return PsfPath::TwoD;
+  if (s == "radial") return PsfPath::Radial;
+  reject("psf_path", s, "one of auto, 2d, radial");
+}
+
+std::string to_string(PsfPath p) {
+  switch (p) {
+    case PsfPath::Auto: return "auto";
+    case PsfPath::TwoD: return "2d";
+    case PsfPath::Radial: return "radial";
+  }
+  return "?";
+}
+
 int mask_count(int levels) {
   int k = 0;
   while ((1 << k) < levels && k < 30) ++k;
@@ -84,6 +100,20 @@ Designer::Designer(Simulator& sim, const DesignOptions& opt) : sim_(sim), opt_(o
                                 {"height_noise_m", opt_.height_noise_m}})
     if (!(v >= 0) || !std::isfinite(v)) reject(name, v, "finite and >= 0");
   if (opt_.mode == DesignMode::QDOM) mask_count(opt_.quantizer.levels);
+  if (opt_.psf_path == PsfPath::Radial && opt_.parameterization != Parameterization::Radial)
+    reject("psf_path", "radial", "auto or 2d unless the parameterization is radial (the radial engine needs ring heights)");
+  opt_.radial.validate();
+}
+
+bool Designer::uses_radial() const {
+  return opt_.psf_path == PsfPath::Radial ||
+         (opt_.psf_path == PsfPath::Auto && opt_.parameterization == Parameterization::Radial);
+}
+
+RadialEngine* Designer::radial_engine() {
+  if (!uses_radial()) return nullptr;
+  if (!radial_) radial_ = std::make_unique<RadialEngine>(sim_.runtime(), sim_.config(), sim_.precision(), opt_.radial);
+  return radial_.get();
 }
 
 std::size_t Designer::level_parameter_count() const {
@@ -152,20 +182,32 @@ Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& 
   const bool qdom = opt_.mode == DesignMode::QDOM;
   const double alpha = opt_.mode == DesignMode::STE ? 1.0 : quantized ? alpha_at(s.step) : 0.0;
   Map2D h = training_heights(s);
-  if (opt_.height_noise_m > 0) {
-    std::mt19937_64 rng(opt_.seed * 0x9E3779B97F4A7C15ull + std::uint64_t(s.step));
-    std::uniform_real_distribution<double> u(-opt_.height_noise_m, opt_.height_noise_m);
-    for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + u(rng)));
+  std::mt19937_64 rng(opt_.seed * 0x9E3779B97F4A7C15ull + std::uint64_t(s.step));
+  std::uniform_real_distribution<double> noise(-opt_.height_noise_m, opt_.height_noise_m);
+  RadialEngine* radial = radial_engine();
+  RealStack psf;
+  if (radial) {
+    // Ring heights of the same blended/quantized map; noise drawn per ring (it cannot be per pixel).
+    std::vector<double> rings = ring_heights_of_map(h);
+    if (opt_.height_noise_m > 0)
+      for (double& v : rings) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
+    radial->compute_psf(rings);
+    psf = radial->psf_sensor();
+  } else {
+    if (opt_.height_noise_m > 0)
+      for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
+    sim_.set_heights(h);
+    sim_.compute_psf();
+    psf = sim_.psf_sensor();
   }
-  sim_.set_heights(h);
-  sim_.compute_psf();
-  const RealStack psf = sim_.psf_sensor();
   RealStack g(psf.planes, psf.rows, psf.cols);
   StepReport rep;
   rep.step = s.step;
   rep.alpha = alpha;
   rep.loss = objective(psf, g);
-  const Map2D gh = sim_.psf_sensor_vjp(g);
+  // dL/dH on the N x N map; on the radial path the per-ring gradient spread evenly over each ring's
+  // pixels, so the per-pixel quantizer adjoint and expand_parameters_vjp below give it back per ring.
+  const Map2D gh = radial ? spread_ring_gradient(radial->psf_sensor_vjp(g), n) : sim_.psf_sensor_vjp(g);
 
   Map2D ghf = gh;
   std::vector<double> ga(static_cast<std::size_t>(q.levels), 0.0);

@@ -5,10 +5,12 @@
 #pragma once
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "qdo/doe.hpp"
+#include "qdo/radial.hpp"
 #include "qdo/simulator.hpp"
 
 namespace qdo {
@@ -25,6 +27,19 @@ namespace qdo {
 enum class DesignMode { Full, DO, QDO, STE, QDOA, QDOM };
 DesignMode design_mode_from_string(const std::string& s);
 std::string to_string(DesignMode m);
+
+// Which PSF engine Designer::gradient uses. twod: the Simulator's 2-D FFT path on the N x N pixel map.
+// radial: the rotationally symmetric engine (qdo/radial.hpp) on the N/2 ring heights, no 2-D FFT;
+// only for Parameterization::Radial. auto: radial when the parameterization is radial, else 2-D.
+// The radial path feeds the engine the per-ring values of the same blended/quantized N x N map and
+// spreads its per-ring gradient back over the ring's pixels, so the quantizer, blend, L_aq and
+// parameterization adjoints are exactly those of the 2-D path. Per-pixel height noise cannot be
+// radial: with height_noise_m > 0 the radial path draws one uniform value per ring (same generator
+// and seed). Evaluation and export (fabricated_heights, design_run's final report) stay on the 2-D
+// pixel path.
+enum class PsfPath { Auto, TwoD, Radial };
+PsfPath psf_path_from_string(const std::string& s);  // "auto", "2d", "radial"
+std::string to_string(PsfPath p);
 
 // Adam (Kingma & Ba) with bias correction; one instance per parameter group.
 struct Adam {
@@ -47,6 +62,8 @@ struct DesignOptions {
   double beta_aq = 0.01;               // weight of L_aq (qdo+a)
   double height_noise_m = 0;           // uniform fabrication noise +-height_noise_m per step (0: off)
   std::uint64_t seed = 0;
+  PsfPath psf_path = PsfPath::Auto;    // PSF engine of gradient() (see PsfPath)
+  RadialOptions radial;                // sampling of the radial engine (qdo/radial.hpp)
 };
 
 // Optimisation state: everything a checkpoint needs to resume bit-identically.
@@ -97,11 +114,17 @@ class Designer {
   // Size of DesignState::offsets: L (qdo+a and the others), k = log2(L) (qdo+m).
   std::size_t level_parameter_count() const;
   double alpha_at(long step) const;
+  // Whether gradient() runs the radial engine (psf_path radial, or auto with a radial parameterization).
+  bool uses_radial() const;
+  // The radial engine (built on first use, on the Simulator's runtime and precision); nullptr on the
+  // 2-D path.
+  RadialEngine* radial_engine();
 
  private:
   Simulator& sim_;
   DesignOptions opt_;
   double h_max_;
+  std::unique_ptr<RadialEngine> radial_;
 };
 
 // Loss of matching a target PSF stack: mean over bands x S x S of (psf - target)^2, scaled by

@@ -153,6 +153,10 @@ DesignRunOptions design_options(const Args& a) {
   o.design.beta_aq = parse_double("--beta", a.get("beta", "0.01"));
   o.design.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", "0")) * 1e-9;
   o.design.seed = std::uint64_t(parse_int("--seed", a.get("seed", "0"), 0, 2147483647));
+  // PSF engine of the optimisation: auto (radial engine for radial designs), 2d or radial.
+  o.design.psf_path = psf_path_from_string(a.get("psf-path", "auto"));
+  if (o.design.psf_path == PsfPath::Radial && o.design.parameterization != Parameterization::Radial)
+    reject("--psf-path", "radial", "auto or 2d unless --parameterization is radial");
   o.objective = a.get("objective", "wiener");
   o.target = a.get("target", "lens:550");
   o.data = split_list(a.get("data", ""));
