@@ -34,3 +34,36 @@ __kernel void doe_field(__global const real* height_m, __global const real* k_pe
   }
   out[gid] = v;
 }
+
+#if QDO_PHASE_FP64 && !QDO_FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+// doe_field with the phase in double on a float32 field ("float32 with float64 phase"): same
+// layout and arguments as doe_field, but k_per_m, dn, pitch_m, distance_m and r_ap2_px are
+// double, and the phase and its sine/cosine are evaluated in double before rounding the field
+// to float. Built only with -DQDO_PHASE_FP64=1 on devices with cl_khr_fp64.
+__kernel void doe_field_p64(__global const real* height_m, __global const double* k_per_m, __global const double* dn,
+                            __global real2* out, const int bands_per_design, const int n, const int m, const int offset,
+                            const int bands, const double pitch_m, const double distance_m, const double r_ap2_px) {
+  const size_t gid = get_global_id(0);
+  const size_t mm = (size_t)m * m;
+  if (gid >= mm * bands) return;
+  const int b = (int)(gid / mm);
+  const int rem = (int)(gid - (size_t)b * mm);
+  const int wy = rem / m, wx = rem - wy * m;
+  const int i = wy - offset, j = wx - offset;
+  real2 v = (real2)(0.0f, 0.0f);
+  if (i >= 0 && i < n && j >= 0 && j < n) {
+    const int di = i - n / 2, dj = j - n / 2;
+    const double y = (double)di * pitch_m, x = (double)dj * pitch_m;
+    const double r2 = x * x + y * y;
+    if ((double)(di * di + dj * dj) <= r_ap2_px) {
+      const double src = distance_m > 0.0 ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : 0.0;
+      const double h = (double)height_m[(size_t)(b / bands_per_design) * n * n + i * n + j];
+      double c;
+      const double s = sincos(k_per_m[b] * (src + dn[b] * h), &c);
+      v = (real2)((float)c, (float)s);
+    }
+  }
+  out[gid] = v;
+}
+#endif

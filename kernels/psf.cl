@@ -80,3 +80,30 @@ __kernel void resample_area(__global const real* in, __global real* out, __globa
   }
   out[gid] = acc;
 }
+
+// Fused intensity + crop + per-band partial sums (the forward PSF pass after the inverse FFT):
+// psf[b][i][j] = |field[b][offset + i][offset + j]|² (unnormalised) and partial[b][g] = the
+// work-group's share of Σ_ij psf[b][i][j]. field: bands x M x M complex; psf: bands x N x N
+// real (row-major); partial: bands x groups_per_band (finalize_sums completes the sums).
+// NDRange (groups_per_band * local, bands), local (local, 1).
+__kernel void intensity_crop_sums(__global const real2* field, __global real* psf, const int n, const int m,
+                                  const int offset, __global real* partial, const int groups_per_band,
+                                  __local real* scratch) {
+  const int b = get_group_id(1), g = get_group_id(0), lid = get_local_id(0), ls = get_local_size(0);
+  const size_t nn = (size_t)n * n;
+  real acc = R(0.0);
+  for (size_t e = (size_t)g * ls + lid; e < nn; e += (size_t)groups_per_band * ls) {
+    const int i = (int)(e / n), j = (int)(e - (size_t)i * n);
+    const real2 v = field[(size_t)b * m * m + (size_t)(offset + i) * m + (offset + j)];
+    const real p = v.x * v.x + v.y * v.y;
+    psf[(size_t)b * nn + e] = p;
+    acc += p;
+  }
+  scratch[lid] = acc;
+  barrier(CLK_LOCAL_MEM_FENCE);
+  for (int s = ls / 2; s > 0; s >>= 1) {
+    if (lid < s) scratch[lid] += scratch[lid + s];
+    barrier(CLK_LOCAL_MEM_FENCE);
+  }
+  if (lid == 0) partial[(size_t)b * groups_per_band + g] = scratch[0];
+}

@@ -7,10 +7,12 @@
 
 namespace qdo {
 
-Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs)
-    : rt_(rt), cfg_(cfg), prec_(p), designs_(designs) {
+Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs, bool phase_fp64)
+    : rt_(rt), cfg_(cfg), prec_(p), designs_(designs), phase_fp64_(phase_fp64 && p == Precision::F32) {
   cfg_.validate();
   rt_.require(p);
+  if (phase_fp64_ && !rt_.has_fp64())
+    reject("phase_fp64", "true", "false on this device (" + rt_.info().name + " has no cl_khr_fp64)");
   rsz_ = real_size(p);
   geom_ = PropagationGeometry::from_config(cfg_);
   s_ = cfg_.sensor_size_px();
@@ -31,12 +33,13 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::siz
                to_str(double(rt_.info().max_alloc_bytes) / 1048576.0) + " MiB); reduce n, padding_px or bands");
 
   const std::string opts;
-  k_field_ = rt_.kernel("field.cl", "doe_field", p);
+  k_field_ = phase_fp64_ ? rt_.kernel("field.cl", "doe_field_p64", p, "-DQDO_PHASE_FP64=1")
+                        : rt_.kernel("field.cl", "doe_field", p);
   k_tf_ = rt_.kernel("propagate.cl", cfg_.propagator == Propagator::Fresnel ? "tf_separable" : "tf_table", p);
-  k_energy_ = rt_.kernel("propagate.cl", "spectrum_energy", p);
-  k_crop_ = rt_.kernel("psf.cl", "intensity_crop", p);
+  k_tf_energy_ = rt_.kernel("propagate.cl", cfg_.propagator == Propagator::Fresnel ? "tf_energy_separable" : "tf_energy_table", p);
+  k_finalize3_ = rt_.kernel("propagate.cl", "finalize_sums3", p);
+  k_crop_sums_ = rt_.kernel("psf.cl", "intensity_crop_sums", p);
   k_sums_ = rt_.kernel("psf.cl", "band_sums", p);
-  k_energy_sums_ = rt_.kernel("psf.cl", "band_energy", p);
   k_finalize_ = rt_.kernel("psf.cl", "finalize_sums", p);
   k_scale_ = rt_.kernel("psf.cl", "scale_by_sums", p);
   k_resample_ = rt_.kernel("psf.cl", "resample_area", p);
@@ -63,6 +66,10 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::siz
   }
   k_ = upload_real(kk);
   dn_ = upload_real(dd);
+  if (phase_fp64_) {
+    k64_ = upload(kk);
+    dn64_ = upload(dd);
+  }
   std::vector<int> klim(bands);
   for (std::size_t b = 0; b < bands; ++b) {
     const double f = transfer_function_limit_per_m(cfg_.propagator, wavelengths_nm_[b], cfg_.sensor_distance_m, m, cfg_.pitch_m);
@@ -82,8 +89,8 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::siz
   field_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, field_bytes);
   psf_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * cfg_.n * cfg_.n * rsz_);
   psf_s_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * s_ * s_ * rsz_);
-  partial_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * kGroupsPerBand * 2 * rsz_);
-  sums_total_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
+  partial_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * kGroupsPerBand * 3 * rsz_);
+  energy3_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * 3 * rsz_);
   sums_crop_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
   sums_sensor_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
   rt_.fft(m, m, bands, p);  // bake the plan now, so its cost is not charged to the first PSF
@@ -268,7 +275,21 @@ void Simulator::set_phase_args(cl::Kernel& k) {
 
 void Simulator::run_doe_field() {
   if (!heights_set_) throw Error("Simulator: set_heights() must be called before computing fields or PSFs");
-  set_phase_args(k_field_);
+  if (phase_fp64_) {  // doe_field_p64: the same arguments with the tables and scalars in double
+    const double r_px = cfg_.aperture_radius() / cfg_.pitch_m;
+    k_field_.setArg(0, heights_);
+    k_field_.setArg(1, k64_);
+    k_field_.setArg(2, dn64_);
+    k_field_.setArg(5, int(cfg_.n));
+    k_field_.setArg(6, int(geom_.m));
+    k_field_.setArg(7, int(geom_.offset));
+    k_field_.setArg(8, int(nb_));
+    k_field_.setArg(9, cfg_.pitch_m);
+    k_field_.setArg(10, cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m);
+    k_field_.setArg(11, r_px * r_px * (1 + 1e-12));
+  } else {
+    set_phase_args(k_field_);
+  }
   k_field_.setArg(3, field_);
   k_field_.setArg(4, int(cfg_.bands));  // planes per design: plane b uses height map b / bands
   enqueue_1d(k_field_, nb_ * geom_.m * geom_.m);
@@ -278,43 +299,64 @@ void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampl
   const std::size_t m = geom_.m, bands = nb_;
   FftPlan& fft = rt_.fft(m, m, bands, prec_);
   fft.forward(field);
-  if (record_sampling) {
-    k_energy_.setArg(0, field);
-    k_energy_.setArg(1, klim_);
-    k_energy_.setArg(2, partial_);
-    k_energy_.setArg(3, int(m));
-    k_energy_.setArg(4, int(kGroupsPerBand));
-    k_energy_.setArg(5, cl::Local(2 * Runtime::kLocalSize * rsz_));
-    rt_.queue().enqueueNDRangeKernel(k_energy_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
-                                     cl::NDRange(Runtime::kLocalSize, 1));
-    const auto part = download_real(partial_, bands * kGroupsPerBand * 2);
-    sampling_.bands.assign(bands, BandSampling{});
-    for (std::size_t b = 0; b < bands; ++b) {
-      double tot = 0, beyond = 0;
-      for (std::size_t g = 0; g < kGroupsPerBand; ++g) {
-        tot += part[(b * kGroupsPerBand + g) * 2];
-        beyond += part[(b * kGroupsPerBand + g) * 2 + 1];
-      }
-      BandSampling& s = sampling_.bands[b];
-      s.wavelength_nm = wavelengths_nm_[b];
-      s.f_limit_per_m = transfer_function_limit_per_m(cfg_.propagator, wavelengths_nm_[b], z_m, m, cfg_.pitch_m);
-      s.f_nyquist_per_m = 0.5 / cfg_.pitch_m;
-      s.undersampled = s.f_limit_per_m < s.f_nyquist_per_m;
-      s.aliased_energy_fraction = tot > 0 ? beyond / tot : 0.0;
-    }
-  }
   if (z_m == -cfg_.sensor_distance_m && !tf_back_()) tf_back_ = make_tf(z_m);
   cl::Buffer tf = z_m == cfg_.sensor_distance_m ? tf_ : z_m == -cfg_.sensor_distance_m ? tf_back_ : make_tf(z_m);
-  k_tf_.setArg(0, field);
-  k_tf_.setArg(1, tf);
-  if (cfg_.propagator == Propagator::Fresnel) {
-    k_tf_.setArg(2, int(m));
-    k_tf_.setArg(3, int(bands));
+  if (record_sampling) {
+    // One pass: TF multiplication plus the sampling-check and energy reductions; the sums
+    // stay on the device (energy3_) until sampling() asks for them.
+    k_tf_energy_.setArg(0, field);
+    k_tf_energy_.setArg(1, tf);
+    k_tf_energy_.setArg(2, klim_);
+    k_tf_energy_.setArg(3, partial_);
+    k_tf_energy_.setArg(4, int(m));
+    k_tf_energy_.setArg(5, int(kGroupsPerBand));
+    k_tf_energy_.setArg(6, cl::Local(3 * Runtime::kLocalSize * rsz_));
+    rt_.queue().enqueueNDRangeKernel(k_tf_energy_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
+                                     cl::NDRange(Runtime::kLocalSize, 1));
+    k_finalize3_.setArg(0, partial_);
+    k_finalize3_.setArg(1, energy3_);
+    k_finalize3_.setArg(2, int(kGroupsPerBand));
+    k_finalize3_.setArg(3, int(bands));
+    enqueue_1d(k_finalize3_, bands);
+    sampling_z_m_ = z_m;
+    sampling_fresh_ = false;
   } else {
-    k_tf_.setArg(2, int(bands * m * m));
+    k_tf_.setArg(0, field);
+    k_tf_.setArg(1, tf);
+    if (cfg_.propagator == Propagator::Fresnel) {
+      k_tf_.setArg(2, int(m));
+      k_tf_.setArg(3, int(bands));
+    } else {
+      k_tf_.setArg(2, int(bands * m * m));
+    }
+    enqueue_1d(k_tf_, bands * m * m);
   }
-  enqueue_1d(k_tf_, bands * m * m);
   fft.inverse(field);
+}
+
+const SamplingReport& Simulator::sampling() const {
+  if (sampling_fresh_) return sampling_;
+  // The per-band energies of the last compute_psf(), read back once (bands x 3 and bands).
+  const std::size_t m = geom_.m, bands = nb_;
+  const auto e3 = download_real(energy3_, bands * 3);
+  // The crop sums exist only once compute_psf() has run past propagation (not for the debug
+  // accessors, which stop after it).
+  const auto crop = psf_valid_ ? download_real(sums_crop_, bands) : std::vector<double>(bands, 0.0);
+  const double z_m = sampling_z_m_;
+  sampling_.bands.assign(bands, BandSampling{});
+  for (std::size_t b = 0; b < bands; ++b) {
+    const double tot = e3[3 * b], beyond = e3[3 * b + 1], after = e3[3 * b + 2] / double(m * m);
+    BandSampling& bs = sampling_.bands[b];
+    bs.wavelength_nm = wavelengths_nm_[b];
+    bs.f_limit_per_m = transfer_function_limit_per_m(cfg_.propagator, wavelengths_nm_[b], z_m, m, cfg_.pitch_m);
+    bs.f_nyquist_per_m = 0.5 / cfg_.pitch_m;
+    bs.undersampled = bs.f_limit_per_m < bs.f_nyquist_per_m;
+    bs.aliased_energy_fraction = tot > 0 ? beyond / tot : 0.0;
+    bs.energy_outside_window = psf_valid_ && after > 0 ? std::max(0.0, 1.0 - crop[b] / after) : 0.0;
+  }
+  check_source_sampling(cfg_, sampling_.bands);
+  sampling_fresh_ = true;
+  return sampling_;
 }
 
 void Simulator::band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len, cl::Buffer& sums) {
@@ -362,32 +404,58 @@ void Simulator::compute_psf() {
   const std::size_t n = cfg_.n, m = geom_.m, bands = nb_;
   run_doe_field();
   run_propagation(field_, cfg_.sensor_distance_m, true);
-  band_reduce(k_energy_sums_, field_, m * m, sums_total_);
-  k_crop_.setArg(0, field_);
-  k_crop_.setArg(1, psf_);
-  k_crop_.setArg(2, int(n));
-  k_crop_.setArg(3, int(m));
-  k_crop_.setArg(4, int(geom_.offset));
-  k_crop_.setArg(5, int(bands));
-  enqueue_1d(k_crop_, bands * n * n);
-  normalize_bands(psf_, n * n, sums_crop_);
+  // Intensity of the N x N crop and its per-band sums in one pass. The native stack stays
+  // unnormalised (normalising it before the linear area resampling would not change the
+  // normalised sensor stack); psf_native() and the adjoints normalise it when they need it.
+  k_crop_sums_.setArg(0, field_);
+  k_crop_sums_.setArg(1, psf_);
+  k_crop_sums_.setArg(2, int(n));
+  k_crop_sums_.setArg(3, int(m));
+  k_crop_sums_.setArg(4, int(geom_.offset));
+  k_crop_sums_.setArg(5, partial_);
+  k_crop_sums_.setArg(6, int(kGroupsPerBand));
+  k_crop_sums_.setArg(7, cl::Local(Runtime::kLocalSize * rsz_));
+  rt_.queue().enqueueNDRangeKernel(k_crop_sums_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
+                                   cl::NDRange(Runtime::kLocalSize, 1));
+  k_finalize_.setArg(0, partial_);
+  k_finalize_.setArg(1, sums_crop_);
+  k_finalize_.setArg(2, int(kGroupsPerBand));
+  k_finalize_.setArg(3, int(bands));
+  enqueue_1d(k_finalize_, bands);
+  native_normalized_ = false;
   resample(psf_, psf_s_, wstart_, wts_, n, s_, weights_.taps);
   normalize_bands(psf_s_, s_ * s_, sums_sensor_);
-  const auto tot = download_real(sums_total_, bands);
-  const auto crop = download_real(sums_crop_, bands);
-  for (std::size_t b = 0; b < bands; ++b)
-    sampling_.bands[b].energy_outside_window = tot[b] > 0 ? std::max(0.0, 1.0 - crop[b] / tot[b]) : 0.0;
-  check_source_sampling(cfg_, sampling_.bands);
   psf_valid_ = true;
   otf_valid_ = false;
   ++psf_generation_;
-  if (cfg_.strict_sampling) sampling_.enforce();
+  if (cfg_.strict_sampling) {
+    sampling();
+    sampling_.enforce();
+  }
+}
+
+void Simulator::ensure_native_normalized() {
+  if (native_normalized_) return;
+  k_scale_.setArg(0, psf_);
+  k_scale_.setArg(1, sums_crop_);
+  k_scale_.setArg(2, int(cfg_.n * cfg_.n));
+  k_scale_.setArg(3, int(nb_));
+  enqueue_1d(k_scale_, nb_ * cfg_.n * cfg_.n);
+  native_normalized_ = true;
 }
 
 RealStack Simulator::psf_native() const {
   if (!psf_valid_) throw Error("Simulator: compute_psf() has not run for the current heights");
   RealStack out(nb_, cfg_.n, cfg_.n);
   out.data = download_real(psf_, out.size());
+  if (!native_normalized_) {
+    // Normalise on the host (in double) with the device's per-band sums, as scale_by_sums.
+    const auto sums = download_real(sums_crop_, nb_);
+    const std::size_t nn = cfg_.n * cfg_.n;
+    for (std::size_t b = 0; b < nb_; ++b)
+      if (sums[b] > 0)
+        for (std::size_t e = 0; e < nn; ++e) out.data[b * nn + e] /= sums[b];
+  }
   return out;
 }
 
@@ -457,6 +525,7 @@ Map2D Simulator::psf_native_vjp(const RealStack& g_psf) {
            "bands x N x N = " + to_str(cfg_.bands) + " x " + to_str(cfg_.n) + " x " + to_str(cfg_.n));
   if (!dots_()) dots_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, cfg_.bands * rsz_);
   cl::Buffer g = upload_real(g_psf.data, CL_MEM_READ_WRITE);
+  ensure_native_normalized();
   normalize_vjp(g, psf_, cfg_.n * cfg_.n, sums_crop_);
   return backward_from_native(g);
 }
@@ -478,8 +547,9 @@ Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
   normalize_vjp(g_sensor, psf_s_, s_ * s_, sums_sensor_);
   // Transposed area resampling: the same kernel with the transposed weights (S -> N).
   cl::Buffer g(rt_.context(), CL_MEM_READ_WRITE, bands * n * n * rsz_);
+  // The forward resampled the unnormalised intensity (the native normalisation cancels in
+  // the sensor normalisation), so the transposed resampling already gives dL/d|U|².
   resample(g_sensor, g, wstart_t_, wts_t_, s_, n, weights_t_.taps);
-  normalize_vjp(g, psf_, n * n, sums_crop_);
   return backward_from_native(g);
 }
 
@@ -536,6 +606,7 @@ RealStack Simulator::sensor_images_vjp(const std::vector<RealStack>& g_rgb) {
 }
 
 ComplexStack Simulator::debug_field_after_doe() {
+  psf_valid_ = false;  // field_ is overwritten: the adjoints need compute_psf() again
   run_doe_field();
   ComplexStack out(nb_, geom_.m, geom_.m);
   out.data = download_complex(field_, out.size());
@@ -543,6 +614,7 @@ ComplexStack Simulator::debug_field_after_doe() {
 }
 
 ComplexStack Simulator::debug_field_after_propagation() {
+  psf_valid_ = false;
   run_doe_field();
   run_propagation(field_, cfg_.sensor_distance_m, true);
   ComplexStack out(nb_, geom_.m, geom_.m);

@@ -28,7 +28,11 @@ class Simulator {
   // designs > 1 batches that many height maps through the PSF chain in one pass (planes =
   // designs x bands, design-major: plane d * bands + b); adjoints, convolution and the sensor
   // need designs = 1.
-  Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs = 1);
+  // phase_fp64 (float32 only; needs cl_khr_fp64): evaluate the DOE phase and its sine/cosine in
+  // double before rounding the field to float ("float32 with float64 phase"; the adjoint's
+  // phase recomputation stays float32). Ignored for Precision::F64.
+  Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs = 1, bool phase_fp64 = false);
+  bool phase_fp64() const { return phase_fp64_; }
   std::size_t designs() const { return designs_; }
 
   const SystemConfig& config() const { return cfg_; }
@@ -55,7 +59,9 @@ class Simulator {
   void compute_psf();
   RealStack psf_native() const;        // (designs x bands) x N x N, each band sums to 1
   RealStack psf_sensor() const;        // (designs x bands) x S x S on the sensor pitch, each band sums to 1
-  const SamplingReport& sampling() const { return sampling_; }
+  // Read back from the device on first use after each compute_psf() (a small bands x 4
+  // transfer), so the PSF loop itself has no host round trip.
+  const SamplingReport& sampling() const;
   // The device buffer behind psf_sensor(): (designs x bands) x S x S reals of precision(),
   // row-major, valid after compute_psf() until the heights change. For stages that consume
   // the PSF on the device (src/imaging.cpp) without a host round trip.
@@ -116,6 +122,7 @@ class Simulator {
   void normalize_bands(cl::Buffer& x, std::size_t len, cl::Buffer& sums);
   void resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer& start, const cl::Buffer& w, std::size_t n_in,
                 std::size_t n_out, std::size_t taps);
+  void ensure_native_normalized();
   void normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len, const cl::Buffer& sums);
   Map2D backward_from_native(const cl::Buffer& g_native);
 
@@ -123,6 +130,8 @@ class Simulator {
   SystemConfig cfg_;
   Precision prec_;
   std::size_t designs_ = 1;
+  bool phase_fp64_ = false;
+  cl::Buffer k64_, dn64_;  // double copies of k_ and dn_ for doe_field_p64
   std::size_t nb_ = 0;                 // planes in the PSF chain: designs x bands
   PropagationGeometry geom_;
   std::size_t s_ = 0;                  // sensor PSF size
@@ -131,17 +140,21 @@ class Simulator {
   Eigen::MatrixXd srf_;
   AreaWeights weights_;
   bool heights_set_ = false, psf_valid_ = false, otf_valid_ = false;
-  SamplingReport sampling_;
+  mutable SamplingReport sampling_;
+  mutable bool sampling_fresh_ = true;
+  double sampling_z_m_ = 0;
+  bool native_normalized_ = true;  // psf_ holds normalised values (else raw |U|², sums in sums_crop_)
   std::uint64_t psf_generation_ = 0;
   static constexpr std::size_t kGroupsPerBand = 32;
 
   cl::Buffer heights_, k_, dn_, field_, psf_, psf_s_, partial_, tf_, klim_, wstart_, wts_, srf_buf_;
-  cl::Buffer sums_total_, sums_crop_, sums_sensor_;  // per-band sums (bands reals each)
+  cl::Buffer energy3_;                              // per band: spectrum total, beyond limit, after TF (bands x 3)
+  cl::Buffer sums_crop_, sums_sensor_;              // per-band sums (bands reals each)
   // Convolution buffers, sized for the last scene shape.
   std::size_t ch_ = 0, cw_ = 0, cn_ = 0, py_ = 0, px_ = 0;
   cl::Buffer otf_, sbuf_, cube_, blurred_, rgb_;
 
-  cl::Kernel k_field_, k_tf_, k_energy_, k_crop_, k_sums_, k_energy_sums_, k_finalize_, k_scale_, k_resample_,
+  cl::Kernel k_field_, k_tf_, k_tf_energy_, k_finalize3_, k_crop_sums_, k_sums_, k_finalize_, k_scale_, k_resample_,
       k_place_scene_, k_place_psf_, k_cmul_, k_crop_real_, k_sensor_, k_expand_, k_quantize_,
       k_dot_, k_norm_vjp_, k_int_vjp_, k_phase_vjp_, k_sensor_vjp_, k_cmul_conj_, k_gather_psf_;
   // Adjoint state: transposed resampling weights, the back-propagation TF, gradient buffers.

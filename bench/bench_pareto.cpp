@@ -1,0 +1,473 @@
+// bench_pareto: run time against error for every knob that trades one for the other (issue 5).
+//
+// Workloads (paper physics: 31 bands 400-700 nm, 4 um pitch, z = 50 mm, d = 1 m, N = --n):
+//   psf    the PSF stack on the sensor grid. Axes: float32 / float64 / float32 with float64 phase,
+//          padding per side (N/8, N/4 = the paper's, N/2), hence the FFT size M (always rounded up
+//          to a 7-smooth length: clFFT has radices 2, 3, 5, 7 only), the number of spectral samples
+//          (31, 16, 11, 7 bands), and the FFT backend. Beside each: the bare FFT floor (one forward
+//          plus one inverse batched 2-D FFT of bands x M x M, nothing else) and the CPU reference.
+//   image  RGB sensor images of the three CAVE scenes (one batch) through the PSF of the lens
+//          design: per-band linear convolution + sensor integration, and the bare convolution FFTs.
+//   step   one optimiser step: the PSF forward alone and forward + adjoint dL/dH.
+//   sweep  a 5-level PSF sweep: five quantized designs sequentially and batched in one pass.
+// Error reference: float64, padding N/2 per side (M = 2N, generous), the 2-D path, all 31 bands,
+// compared as the RGB PSF (3 x S x S: each band's sensor PSF weighted by the camera response,
+// what the sensor sees of a white point) so that configurations with fewer bands are comparable;
+// "band err" is the per-band sensor PSF stack error where the band grids agree.
+// Timing: median (min, max) of --repeats runs after one warm-up; each configuration gets a fresh
+// Runtime and its program build/load and FFT plan bake times are reported apart, never in a median.
+// Nothing is asserted: this program only reports.
+//
+// Usage: bench_pareto [--n 1024] [--repeats 5] [--sections psf,image,step,sweep]
+//                     [--cave DIR] [--no-cpu] [--out FILE.md]
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <functional>
+#include <iostream>
+#include <memory>
+#include <set>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/cpu_reference.hpp"
+#include "qdo/datasets.hpp"
+#include "qdo/doe.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fft.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/simulator.hpp"
+#include "qdo/types.hpp"
+
+using namespace qdo;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+struct Options {
+  std::size_t n = 1024;
+  int repeats = 5;
+  std::set<std::string> sections{"psf", "image", "step", "sweep"};
+  std::string cave = "../shared/data/hsi/cave";
+  bool cpu = true;
+  std::string out;
+};
+
+std::vector<std::string> split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  for (std::string x; std::getline(ss, x, ',');)
+    if (!x.empty()) out.push_back(x);
+  return out;
+}
+
+struct Timing {
+  std::vector<double> s;  // sorted seconds
+  double median() const { return s.empty() ? NAN : s[s.size() / 2]; }
+};
+
+Timing timed(int repeats, const std::function<void()>& f) {
+  f();  // warm-up
+  Timing t;
+  for (int i = 0; i < repeats; ++i) {
+    const auto t0 = Clock::now();
+    f();
+    t.s.push_back(since(t0));
+  }
+  std::sort(t.s.begin(), t.s.end());
+  return t;
+}
+
+struct Row {
+  std::string workload, config;
+  Timing t;
+  double units = 1;           // work units per run (bands, images, ...)
+  std::string unit = "bands";
+  double err = NAN, band_err = NAN;
+  std::string note;
+};
+struct Setup {
+  std::string config;
+  double build_s = 0, bake_s = 0;
+  int built = 0, loaded = 0;
+};
+
+std::vector<Row> rows;
+std::vector<Setup> setups;
+
+void print_row(const Row& r) {
+  std::fprintf(stderr, "  %-6s %-58s %9.1f ms  err %.2e  %s\n", r.workload.c_str(), r.config.c_str(), 1e3 * r.t.median(),
+               r.err, r.note.c_str());
+}
+void add(Row r) {
+  print_row(r);
+  rows.push_back(std::move(r));
+}
+void add_setup(const std::string& config, const Runtime& rt) {
+  setups.push_back({config, rt.build_seconds(), rt.fft_bake_seconds(), rt.programs_built(), rt.programs_loaded_from_disk()});
+}
+
+double rel_l2(const std::vector<double>& a, const std::vector<double>& b) {
+  double num = 0, den = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    num += (a[i] - b[i]) * (a[i] - b[i]);
+    den += b[i] * b[i];
+  }
+  return den > 0 ? std::sqrt(num / den) : std::sqrt(num);
+}
+
+// RGB PSF (3 x S x S): sum_b srf(c, b) psf_b, srf rows summing to 1 (sensor_response()).
+RealStack rgb_psf(const RealStack& psf, const Eigen::MatrixXd& srf) {
+  const std::size_t ss = psf.rows * psf.cols;
+  RealStack out(3, psf.rows, psf.cols);
+  for (std::size_t c = 0; c < 3; ++c)
+    for (std::size_t b = 0; b < psf.planes; ++b) {
+      const double w = srf(Eigen::Index(c), Eigen::Index(b));
+      for (std::size_t e = 0; e < ss; ++e) out.data[c * ss + e] += w * psf.data[b * ss + e];
+    }
+  return out;
+}
+
+SystemConfig paper(std::size_t n) {
+  SystemConfig c = preset_config("paper");
+  c.n = n;
+  c.padding_px = n / 4;
+  return c;
+}
+
+struct Reference {
+  SystemConfig cfg;
+  RealStack psf_sensor, rgb;
+  Map2D heights;
+};
+
+// Bare FFT floor: forward + inverse of `batch` x rows x cols on a device buffer.
+Row fft_floor(const std::string& workload, std::size_t rows_, std::size_t cols, std::size_t batch, Precision p, int repeats,
+              const std::string& label) {
+  Runtime rt;
+  FftPlan& plan = rt.fft(rows_, cols, batch, p);
+  cl::Buffer buf(rt.context(), CL_MEM_READ_WRITE, batch * rows_ * cols * 2 * real_size(p));
+  rt.queue().enqueueFillBuffer(buf, cl_uchar(0), 0, batch * rows_ * cols * 2 * real_size(p));
+  rt.queue().finish();
+  Row r;
+  r.workload = workload;
+  r.config = label + " FFT floor " + to_string(p) + " (fwd + inv, " + std::to_string(batch) + " x " + std::to_string(rows_) +
+             " x " + std::to_string(cols) + ")";
+  r.t = timed(repeats, [&] {
+    plan.forward(buf);
+    plan.inverse(buf);
+    rt.queue().finish();
+  });
+  r.units = double(batch);
+  r.note = "plan bake " + to_str(plan.bake_seconds()) + " s";
+  return r;
+}
+
+void section_psf(const Options& o, const Reference& ref) {
+  const std::size_t n = o.n;
+  const Map2D& h = ref.heights;
+  struct Cfg {
+    std::string label;
+    Precision p;
+    bool p64;
+    std::size_t pad, bands;
+  };
+  std::vector<Cfg> cfgs{
+      {"2-D f32, pad N/4 (default)", Precision::F32, false, n / 4, 31},
+      {"2-D f64, pad N/4", Precision::F64, false, n / 4, 31},
+      {"2-D f32 + f64 phase, pad N/4", Precision::F32, true, n / 4, 31},
+      {"2-D f32, pad N/8", Precision::F32, false, n / 8, 31},
+      {"2-D f32, pad N/2", Precision::F32, false, n / 2, 31},
+      {"2-D f64, pad N/2", Precision::F64, false, n / 2, 31},
+      {"2-D f32, pad N/4, 16 bands (20 nm)", Precision::F32, false, n / 4, 16},
+      {"2-D f32, pad N/4, 11 bands (30 nm)", Precision::F32, false, n / 4, 11},
+      {"2-D f32, pad N/4, 7 bands (50 nm)", Precision::F32, false, n / 4, 7},
+  };
+  std::set<std::pair<std::size_t, int>> floors;  // (M, precision) floors already measured
+  for (const Cfg& c : cfgs) {
+    SystemConfig cfg = ref.cfg;
+    cfg.padding_px = c.pad;
+    cfg.bands = c.bands;
+    cfg.wavelength_step_nm = 300.0 / double(c.bands - 1);
+    Runtime rt;
+    Simulator sim(rt, cfg, c.p, 1, c.p64);
+    add_setup("psf: " + c.label, rt);
+    sim.set_heights(h);
+    Row r;
+    r.workload = "psf";
+    const std::size_t m = sim.geometry().m;
+    r.config = c.label + ", M = " + std::to_string(m);
+    r.t = timed(o.repeats, [&] {
+      sim.compute_psf();
+      rt.queue().finish();
+    });
+    r.units = double(cfg.bands);
+    const RealStack ps = sim.psf_sensor();
+    r.err = rel_l2(rgb_psf(ps, sim.srf()).data, ref.rgb.data);
+    if (c.bands == 31) r.band_err = rel_l2(ps.data, ref.psf_sensor.data);
+    const int key = c.p == Precision::F64 ? 64 : 32;
+    if (!floors.count({m, key}) && c.bands == 31) {
+      floors.insert({m, key});
+      Row f = fft_floor("psf", m, m, cfg.bands, c.p, o.repeats, "clFFT");
+      r.note = "x" + to_str(std::round(100 * r.t.median() / f.t.median()) / 100) + " of FFT floor";
+      add(r);
+      add(f);
+    } else {
+      add(r);
+    }
+  }
+  if (o.cpu) {
+    Row r;
+    r.workload = "psf";
+    r.config = "CPU reference f64 (FFTW, 1 thread), pad N/4";
+    SystemConfig cfg = ref.cfg;
+    RealStack ps;
+    const AreaWeights w = AreaWeights::make(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m);
+    r.t = timed(std::max(1, o.repeats / 3), [&] {
+      ps = ref::resample_area(ref::psf_stack(cfg, h).psf, w);
+      ref::normalize_planes(ps);
+    });
+    r.units = double(cfg.bands);
+    r.err = rel_l2(rgb_psf(ps, sensor_response(cfg)).data, ref.rgb.data);
+    r.band_err = rel_l2(ps.data, ref.psf_sensor.data);
+    add(r);
+  }
+}
+
+void section_image(const Options& o, const Reference& ref) {
+  std::vector<RealStack> scenes;
+  for (const char* f : {"balloons_256.mat", "chart_and_stuffed_toy_256.mat", "cloth_256.mat"})
+    scenes.push_back(load_scene(o.cave + "/" + f));
+  SystemConfig cfg = ref.cfg;
+  cfg.read_noise_sigma = 0;
+  cfg.full_well_photons = 0;
+  std::vector<RealStack> want;
+  {
+    Runtime rt;
+    Simulator sim(rt, cfg, Precision::F64);
+    sim.set_heights(ref.heights);
+    sim.compute_psf();
+    want = sim.sensor_images(scenes);
+  }
+  std::vector<double> want_flat;
+  for (const auto& w : want) want_flat.insert(want_flat.end(), w.data.begin(), w.data.end());
+  for (Precision p : {Precision::F32, Precision::F64}) {
+    Runtime rt;
+    Simulator sim(rt, cfg, p);
+    sim.set_heights(ref.heights);
+    sim.compute_psf();
+    std::vector<RealStack> got;
+    Row r;
+    r.workload = "image";
+    r.config = "3 CAVE scenes 256 x 256, unskipped, " + to_string(p);
+    r.t = timed(o.repeats, [&] { got = sim.sensor_images(scenes); });
+    add_setup("image: " + r.config, rt);
+    std::vector<double> flat;
+    for (const auto& g : got) flat.insert(flat.end(), g.data.begin(), g.data.end());
+    r.units = 3;
+    r.unit = "images";
+    double mx = 0;
+    for (std::size_t i = 0; i < flat.size(); ++i) mx = std::max(mx, std::fabs(flat[i] - want_flat[i]));
+    r.err = mx;
+    r.note = "err = max abs vs f64 unskipped";
+    add(r);
+    const std::size_t s = sim.sensor_size();
+    const std::size_t py = fast_fft_size(256 + s - 1);
+    add(fft_floor("image", py, py, 3 * cfg.bands, p, o.repeats, "clFFT"));
+  }
+}
+
+void section_step(const Options& o, const Reference& ref) {
+  for (Precision p : {Precision::F32, Precision::F64}) {
+    Runtime rt;
+    Simulator sim(rt, ref.cfg, p);
+    sim.set_heights(ref.heights);
+    const std::size_t s = sim.sensor_size();
+    RealStack g(ref.cfg.bands, s, s);
+    std::uint64_t state = 7;
+    for (double& v : g.data) {
+      state = state * 6364136223846793005ull + 1442695040888963407ull;
+      v = double(state >> 11) / 9007199254740992.0 - 0.5;
+    }
+    Row fwd;
+    fwd.workload = "step";
+    fwd.config = "2-D forward (PSF on the sensor grid), " + to_string(p);
+    fwd.t = timed(o.repeats, [&] {
+      sim.compute_psf();
+      rt.queue().finish();
+    });
+    fwd.units = double(ref.cfg.bands);
+    add(fwd);
+    Row both;
+    both.workload = "step";
+    both.config = "2-D forward + adjoint dL/dH, " + to_string(p);
+    Map2D gh;
+    both.t = timed(o.repeats, [&] {
+      sim.compute_psf();
+      gh = sim.psf_sensor_vjp(g);
+    });
+    both.units = double(ref.cfg.bands);
+    both.note = "x" + to_str(std::round(100 * both.t.median() / fwd.t.median()) / 100) + " of forward";
+    add(both);
+    add_setup("step: " + to_string(p), rt);
+  }
+}
+
+void section_sweep(const Options& o, const Reference& ref) {
+  const std::vector<int> levels{2, 4, 8, 16, 32};
+  std::vector<Map2D> maps;
+  for (int l : levels) {
+    Quantizer q;
+    q.levels = l;
+    maps.push_back(quantize_heights(ref.heights, ref.cfg.h_max_m(), q, 1.0));
+  }
+  {
+    Runtime rt;
+    Simulator sim(rt, ref.cfg, Precision::F32);
+    Row r;
+    r.workload = "sweep";
+    r.config = "5 levels, one design at a time, f32";
+    r.t = timed(std::max(1, o.repeats / 2), [&] {
+      for (const Map2D& m : maps) {
+        sim.set_heights(m);
+        sim.compute_psf();
+      }
+      rt.queue().finish();
+    });
+    r.units = double(5 * ref.cfg.bands);
+    add(r);
+  }
+  {
+    Runtime rt;
+    Simulator sim(rt, ref.cfg, Precision::F32, maps.size());
+    Row r;
+    r.workload = "sweep";
+    r.config = "5 levels batched in one pass (designs = 5), f32";
+    r.t = timed(std::max(1, o.repeats / 2), [&] {
+      sim.set_heights_batch(maps);
+      sim.compute_psf();
+      rt.queue().finish();
+    });
+    r.units = double(5 * ref.cfg.bands);
+    add(r);
+  }
+}
+
+std::string machine() {
+  std::string cpu = "unknown CPU";
+  std::ifstream f("/proc/cpuinfo");
+  for (std::string line; std::getline(f, line);)
+    if (line.rfind("model name", 0) == 0) {
+      cpu = line.substr(line.find(':') + 2);
+      break;
+    }
+  Runtime rt;
+  const DeviceInfo& d = rt.info();
+  return "CPU: " + cpu + ", " + std::to_string(std::thread::hardware_concurrency()) + " hardware threads; OpenCL device: " +
+         d.platform + " / " + d.name + " (driver " + d.driver_version + ", " + std::to_string(d.compute_units) +
+         " compute units, fp64 " + (d.fp64 ? "yes" : "no") + ")";
+}
+
+void write_report(const Options& o, double total_s) {
+  std::ostringstream md;
+  md << "Machine: " << machine() << "\n\nN = " << o.n << ", repeats = " << o.repeats
+     << " (median (min, max) after one warm-up). err = relative L2 error of the RGB PSF (3 x S x S) against "
+        "the float64 / pad N/2 / 2-D / 31-band reference unless the note says otherwise; band err = the same for the "
+        "per-band sensor PSF stack.\n\n";
+  md << "| workload | configuration | median ms | min ms | max ms | runs | throughput | err | band err | note |\n";
+  md << "|---|---|---:|---:|---:|---:|---:|---:|---:|---|\n";
+  char buf[512];
+  for (const Row& r : rows) {
+    auto e = [](double v) {
+      if (std::isnan(v)) return std::string("-");
+      char b[32];
+      std::snprintf(b, sizeof b, "%.2e", v);
+      return std::string(b);
+    };
+    std::snprintf(buf, sizeof buf, "| %s | %s | %.1f | %.1f | %.1f | %zu | %.1f %s/s | %s | %s | %s |\n", r.workload.c_str(),
+                  r.config.c_str(), 1e3 * r.t.median(), 1e3 * r.t.s.front(), 1e3 * r.t.s.back(), r.t.s.size(),
+                  r.units / r.t.median(), r.unit.c_str(), e(r.err).c_str(), e(r.band_err).c_str(), r.note.c_str());
+    md << buf;
+  }
+  md << "\nSetup per configuration (fresh Runtime; not in the times above):\n\n| configuration | program build/load s | "
+        "built / from disk | FFT plan bake s |\n|---|---:|---:|---:|\n";
+  for (const Setup& s : setups) {
+    std::snprintf(buf, sizeof buf, "| %s | %.2f | %d / %d | %.2f |\n", s.config.c_str(), s.build_s, s.built, s.loaded, s.bake_s);
+    md << buf;
+  }
+  md << "\nTotal wall time " << to_str(std::round(total_s)) << " s.\n";
+  std::cout << md.str();
+  if (!o.out.empty()) {
+    const std::string tmp = o.out + ".tmp";
+    std::ofstream f(tmp);
+    f << md.str();
+    f.close();
+    if (!f || std::rename(tmp.c_str(), o.out.c_str()) != 0) throw Error("bench_pareto: could not write " + o.out);
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto val = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::cerr << "bench_pareto: missing value after " << a << "\n";
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--n") o.n = std::stoul(val());
+    else if (a == "--repeats") o.repeats = std::stoi(val());
+    else if (a == "--sections") {
+      const auto v = split(val());
+      o.sections = std::set<std::string>(v.begin(), v.end());
+    } else if (a == "--cave") o.cave = val();
+    else if (a == "--no-cpu") o.cpu = false;
+    else if (a == "--out") o.out = val();
+    else {
+      std::cerr << "usage: bench_pareto [--n 1024] [--repeats 5] [--sections psf,image,step,sweep] [--cave DIR] [--no-cpu] "
+                   "[--out FILE.md]\n";
+      return a == "--help" ? 0 : 2;
+    }
+  }
+  try {
+    if (o.n < 32 || o.n % 8) reject("--n", o.n, "a multiple of 8, at least 32");
+    if (o.repeats < 1) reject("--repeats", o.repeats, ">= 1");
+    const auto t0 = Clock::now();
+    Reference ref;
+    ref.cfg = paper(o.n);
+    ref.heights = lens_design(ref.cfg, 550);
+    {
+      SystemConfig rc = ref.cfg;
+      rc.padding_px = o.n / 2;
+      Runtime rt;
+      Simulator sim(rt, rc, Precision::F64);
+      sim.set_heights(ref.heights);
+      sim.compute_psf();
+      ref.psf_sensor = sim.psf_sensor();
+      ref.rgb = rgb_psf(ref.psf_sensor, sim.srf());
+      std::fprintf(stderr, "reference: f64, pad N/2 (M = %zu), 31 bands; %s\n", sim.geometry().m, sim.sampling().summary().c_str());
+    }
+    if (o.sections.count("psf")) section_psf(o, ref);
+    if (o.sections.count("image")) section_image(o, ref);
+    if (o.sections.count("step")) section_step(o, ref);
+    if (o.sections.count("sweep")) section_sweep(o, ref);
+    write_report(o, since(t0));
+  } catch (const std::exception& e) {
+    std::cerr << "bench_pareto: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
+}
