@@ -176,6 +176,7 @@ std::string design_run_options_to_json(const DesignRunOptions& o) {
   json d;
   d["mode"] = to_string(o.design.mode);
   d["parameterization"] = param_name(o.design.parameterization);
+  d["psf_path"] = to_string(o.design.psf_path);
   d["levels"] = o.design.quantizer.levels;
   d["placement"] = placement_name(o.design.quantizer.placement);
   d["steps_per_epoch"] = o.design.steps_per_epoch;
@@ -211,6 +212,8 @@ DesignRunOptions design_run_options_from_json(const std::string& text, const std
     const json& d = j.at("design");
     o.design.mode = design_mode_from_string(d.at("mode").get<std::string>());
     o.design.parameterization = parameterization_from_string(d.at("parameterization").get<std::string>());
+    // Run folders written before the radial path existed ran the 2-D path: resume them on it.
+    o.design.psf_path = psf_path_from_string(d.value("psf_path", std::string("2d")));
     o.design.quantizer.levels = d.at("levels").get<int>();
     o.design.quantizer.placement = placement_from_string(d.at("placement").get<std::string>());
     o.design.steps_per_epoch = d.at("steps_per_epoch").get<std::size_t>();

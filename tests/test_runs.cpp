@@ -3,6 +3,8 @@
 #include <fstream>
 #include <set>
 
+#include <nlohmann/json.hpp>
+
 #include "common.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
@@ -35,6 +37,22 @@ DesignRunOptions tiny_run(const std::string& out, DesignMode mode) {
 }  // namespace
 
 TEST_SUITE("runs") {
+  TEST_CASE("the PSF path is saved with a run; runs saved before it existed resume on the 2-D path") {
+    DesignRunOptions o;
+    o.cfg = preset_config("small");
+    for (PsfPath p : {PsfPath::Auto, PsfPath::TwoD, PsfPath::Radial}) {
+      o.design.psf_path = p;
+      const DesignRunOptions back = design_run_options_from_json(design_run_options_to_json(o), "test");
+      CHECK(back.design.psf_path == p);
+    }
+    // An older config.json has no "psf_path": it ran (and must resume) on the 2-D path.
+    auto j = nlohmann::json::parse(design_run_options_to_json(o));
+    j["design"].erase("psf_path");
+    CHECK(design_run_options_from_json(j.dump(), "old").design.psf_path == PsfPath::TwoD);
+    j["design"]["psf_path"] = "hankel";
+    CHECK_THROWS_AS(design_run_options_from_json(j.dump(), "bad"), InputError);
+  }
+
   TEST_CASE("a resumed run equals an uninterrupted one; the design holds L heights") {
     const auto dir = temp_dir("runs");
     const std::string a = (dir / "a").string(), b = (dir / "b").string();

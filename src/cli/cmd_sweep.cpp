@@ -96,7 +96,7 @@ int cmd_sweep(int argc, char** argv) {
   const Args a = parse_args(int(rest.size()), rest.data(),
                             {"preset", "config", "placement", "parameterization", "objective", "data", "test-data", "epochs",
                              "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm", "noise-sigma",
-                             "init", "seed", "synthetic-scenes", "eval-scenes", "batch", "precision", "device", "out"},
+                             "init", "seed", "synthetic-scenes", "eval-scenes", "batch", "precision", "device", "out", "psf-path"},
                             "sweep");
   GridOptions g;
   Args b = a;

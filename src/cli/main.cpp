@@ -41,7 +41,7 @@ usage:
                [--precision ...] [--device ...] --out DIR
   qdo demo     [--preset small|paper] [--levels L] [--device SEL] [--out DIR]
   qdo design   [--preset P | --config FILE] --mode full|do|qdo|ste|qdo+a|qdo+m --levels L [--placement ...]
-               [--parameterization radial|quad|2d] [--objective wiener|wiener-mse|wiener-mae|psf-target]
+               [--parameterization radial|quad|2d] [--psf-path auto|2d|radial] [--objective wiener|wiener-mse|wiener-mae|psf-target]
                [--target lens:NM|FILE.h5] [--data PATH[,PATH...]] [--epochs 50] [--steps-per-epoch 10]
                [--t0 5] [--t1 40] [--lr 0.01] [--lr-offsets 0.01] [--decay 0.8] [--beta 0.01]
                [--height-noise-nm 0] [--noise-sigma 0.001] [--init random|flat|lens:NM] [--seed S]
@@ -188,7 +188,7 @@ int cmd_design(int argc, char** argv) {
                             {"preset", "config", "mode", "levels", "placement", "parameterization", "objective", "target", "data",
                              "epochs", "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm",
                              "noise-sigma", "init", "seed", "checkpoint-every", "max-steps", "resume", "check-gradients",
-                             "precision", "device", "out", "synthetic-scenes", "batch"},
+                             "precision", "device", "out", "synthetic-scenes", "batch", "psf-path"},
                             "design", {"resume", "check-gradients"});
   DesignRunOptions o = design_options(a);
   const bool resume = a.has("resume");
@@ -245,7 +245,7 @@ int cmd_eval(int argc, char** argv) {
 
 int cmd_gradcheck(int argc, char** argv) {
   const Args a = parse_args(argc, argv, {"preset", "config", "mode", "levels", "placement", "parameterization", "objective",
-                                         "target", "seed", "device"},
+                                         "target", "seed", "device", "psf-path"},
                             "gradcheck");
   Args b = a;
   b.opt["out"] = "(unused)";
