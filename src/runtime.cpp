@@ -131,7 +131,26 @@ std::vector<DeviceInfo> list_devices() {
   return out;
 }
 
-Runtime::Runtime(const std::string& selector) {
+FftBackend fft_backend_from_string(const std::string& s, const std::string& argument) {
+  const std::string l = lower(s);
+  if (l == "clfft") return FftBackend::ClFFT;
+  if (l == "vkfft") return FftBackend::VkFFT;
+  reject(argument, s, "clfft or vkfft");
+}
+
+std::string to_string(FftBackend b) { return b == FftBackend::VkFFT ? "vkfft" : "clfft"; }
+
+namespace {
+// QDO_FFT, else clFFT; a bad value is rejected before any device work.
+FftBackend fft_backend_from_env() {
+  const char* e = std::getenv("QDO_FFT");
+  return e && *e ? fft_backend_from_string(e, "QDO_FFT") : FftBackend::ClFFT;
+}
+}  // namespace
+
+Runtime::Runtime(const std::string& selector) : Runtime(selector, fft_backend_from_env()) {}
+
+Runtime::Runtime(const std::string& selector, FftBackend fft_backend) : fft_backend_(fft_backend) {
   ensure_fft_library();
   std::string sel = selector;
   if (sel.empty())
@@ -278,11 +297,56 @@ cl::Kernel Runtime::kernel_from_source(const std::string& label, const std::stri
 }
 
 FftPlan& Runtime::fft(std::size_t rows, std::size_t cols, std::size_t batch, Precision p) {
+  return fft(rows, cols, batch, p, fft_backend_);
+}
+
+FftPlan& Runtime::fft(std::size_t rows, std::size_t cols, std::size_t batch, Precision p, FftBackend backend,
+                      const FftZeroPad& zero_pad) {
+  if (rows == 0) reject("rows", rows, "a positive FFT size");
+  if (cols == 0) reject("cols", cols, "a positive FFT size");
+  if (batch == 0) reject("batch", batch, "a positive number of transforms");
+  if (zero_pad.row_begin > zero_pad.row_end || zero_pad.row_end > rows)
+    reject("zero_pad rows", to_str(zero_pad.row_begin) + ".." + to_str(zero_pad.row_end),
+           "a range begin <= end <= rows = " + to_str(rows));
+  if (zero_pad.col_begin > zero_pad.col_end || zero_pad.col_end > cols)
+    reject("zero_pad cols", to_str(zero_pad.col_begin) + ".." + to_str(zero_pad.col_end),
+           "a range begin <= end <= cols = " + to_str(cols));
   require(p);
-  const std::string key = std::to_string(rows) + "x" + std::to_string(cols) + "x" + std::to_string(batch) + to_string(p);
+  // Empty ranges are normalised so that every "no hint" spelling shares one plan.
+  FftZeroPad zp = zero_pad;
+  if (zp.row_begin == zp.row_end) zp.row_begin = zp.row_end = 0;
+  if (zp.col_begin == zp.col_end) zp.col_begin = zp.col_end = 0;
+  std::string key = to_string(backend) + ":" + std::to_string(rows) + "x" + std::to_string(cols) + "x" +
+                    std::to_string(batch) + to_string(p);
+  if (zp.any())
+    key += ":zero" + std::to_string(zp.row_begin) + "-" + std::to_string(zp.row_end) + "," +
+           std::to_string(zp.col_begin) + "-" + std::to_string(zp.col_end);
   auto it = ffts_.find(key);
-  if (it == ffts_.end()) it = ffts_.emplace(key, std::make_unique<FftPlan>(*this, rows, cols, batch, p)).first;
+  if (it == ffts_.end()) {
+    auto plan = backend == FftBackend::VkFFT ? detail::make_vkfft_plan(*this, rows, cols, batch, p, zp)
+                                             : detail::make_clfft_plan(*this, rows, cols, batch, p, zp);
+    it = ffts_.emplace(key, std::move(plan)).first;
+  }
   return *it->second;
+}
+
+void FftPlan::check_buffer(const cl::Buffer& data) const {
+  if (!data()) reject("data", "a null cl::Buffer", "a buffer of at least " + to_str(bytes()) + " bytes");
+  const std::size_t have = data.getInfo<CL_MEM_SIZE>();
+  if (have < bytes())
+    reject("data", to_str(have) + " bytes",
+           "at least " + to_str(bytes()) + " bytes (" + to_str(batch_) + " x " + to_str(rows_) + " x " + to_str(cols_) +
+               " complex " + to_string(precision_) + ")");
+}
+
+void FftPlan::forward(cl::Buffer& data) {
+  check_buffer(data);
+  run(data, true);
+}
+
+void FftPlan::inverse(cl::Buffer& data) {
+  check_buffer(data);
+  run(data, false);
 }
 
 double Runtime::fft_bake_seconds() const {

@@ -1,43 +1,72 @@
 // The FFT interface: batched, in-place, complex-interleaved 2-D transforms on device buffers.
-// One backend today (clFFT); plans are baked once and cached by the Runtime.
+// Two backends behind one interface (FftBackend in runtime.hpp): clFFT (src/fft_clfft.cpp) and
+// VkFFT's OpenCL backend (src/fft_vkfft.cpp). Plans are baked once and cached by the Runtime
+// (Runtime::fft); the backend is chosen per Runtime (constructor argument or QDO_FFT).
 #pragma once
 #include <CL/opencl.hpp>
 
 #include <cstddef>
+#include <memory>
+#include <string>
 
 #include "qdo/runtime.hpp"
 
 namespace qdo {
 
-// Process-wide FFT library setup (idempotent). Called by every Runtime's constructor.
+// Process-wide FFT library setup (idempotent; clFFT's clfftSetup). Called by every Runtime's
+// constructor so the library outlives every Runtime.
 void ensure_fft_library();
+
+// VkFFT's version as VkFFTGetVersion() reports it, e.g. "1.2.26".
+std::string vkfft_version();
 
 class FftPlan {
  public:
-  // `batch` transforms of rows x cols complex values (interleaved re, im in precision p),
-  // contiguous: transform t occupies elements [t*rows*cols, (t+1)*rows*cols).
-  FftPlan(Runtime& rt, std::size_t rows, std::size_t cols, std::size_t batch, Precision p);
-  ~FftPlan();
+  virtual ~FftPlan() = default;
   FftPlan(const FftPlan&) = delete;
   FftPlan& operator=(const FftPlan&) = delete;
 
-  // Enqueues an in-place transform of `data` (at least batch*rows*cols complex values).
-  // Forward: e^{-i2π(...)} unscaled; inverse: scaled by 1/(rows*cols).
+  // Enqueue an in-place transform of `data` on the Runtime's queue (asynchronous, like every
+  // kernel). Layout: `batch` transforms of rows x cols complex values, interleaved (re, im) in
+  // the plan's precision, row-major, contiguous: element (t, y, x) at complex index
+  // (t * rows + y) * cols + x. `data` must hold at least bytes() bytes (else InputError).
+  // Forward: X(ky,kx) = sum x(y,x) e^{-i2π(ky·y/rows + kx·x/cols)}, unscaled.
+  // Inverse: e^{+i2π(...)}, scaled by 1/(rows*cols), so inverse(forward(x)) = x.
+  // With a zero-padding hint (zero_pad().any()) see FftZeroPad for what is read and written.
   void forward(cl::Buffer& data);
   void inverse(cl::Buffer& data);
 
-  double bake_seconds() const { return bake_seconds_; }
+  double bake_seconds() const { return bake_seconds_; }  // plan creation (kernel builds included)
   std::size_t rows() const { return rows_; }
   std::size_t cols() const { return cols_; }
   std::size_t batch() const { return batch_; }
+  Precision precision() const { return precision_; }
+  FftBackend backend() const { return backend_; }
+  const FftZeroPad& zero_pad() const { return zero_pad_; }
+  // batch * rows * cols complex values of the plan's precision.
+  std::size_t bytes() const { return batch_ * rows_ * cols_ * 2 * real_size(precision_); }
+
+ protected:
+  FftPlan(FftBackend backend, std::size_t rows, std::size_t cols, std::size_t batch, Precision p,
+          const FftZeroPad& zero_pad)
+      : backend_(backend), rows_(rows), cols_(cols), batch_(batch), precision_(p), zero_pad_(zero_pad) {}
+  virtual void run(cl::Buffer& data, bool forward) = 0;
+  double bake_seconds_ = 0;
 
  private:
-  void run(cl::Buffer& data, bool forward);
-  Runtime& rt_;
+  void check_buffer(const cl::Buffer& data) const;
+  FftBackend backend_;
   std::size_t rows_, cols_, batch_;
-  std::size_t handle_ = 0;
-  cl::Buffer tmp_;
-  double bake_seconds_ = 0;
+  Precision precision_;
+  FftZeroPad zero_pad_;
 };
+
+namespace detail {
+// Backend factories, called by Runtime::fft after it validated the arguments.
+std::unique_ptr<FftPlan> make_clfft_plan(Runtime& rt, std::size_t rows, std::size_t cols, std::size_t batch,
+                                         Precision p, const FftZeroPad& zero_pad);
+std::unique_ptr<FftPlan> make_vkfft_plan(Runtime& rt, std::size_t rows, std::size_t cols, std::size_t batch,
+                                         Precision p, const FftZeroPad& zero_pad);
+}  // namespace detail
 
 }  // namespace qdo

@@ -3,6 +3,9 @@
 // variable QDO_DEVICE, else the first GPU, else the first CPU device, else any device.
 // Selector forms: "gpu", "cpu", "P:D" (platform and device index as `qdo devices` prints),
 // or a case-insensitive substring of "platform name / device name".
+// FFT backend (first match wins): the constructor argument, the environment variable
+// QDO_FFT=clfft|vkfft, else clFFT. Plans are cached per (backend, sizes, batch, precision,
+// zero-padding hint) for the Runtime's lifetime.
 // Kernel programs are cached in memory per (file, options) and on disk per (platform,
 // device, driver version, options, source) under $QDO_CACHE_DIR, else
 // $XDG_CACHE_HOME/qdo/kernels, else ~/.cache/qdo/kernels; QDO_KERNEL_CACHE=off disables it.
@@ -21,6 +24,28 @@ Precision precision_from_string(const std::string& s);
 std::string to_string(Precision p);
 inline std::size_t real_size(Precision p) { return p == Precision::F64 ? 8 : 4; }
 
+// The library behind FftPlan: clFFT (src/fft_clfft.cpp) or VkFFT's OpenCL backend
+// (src/fft_vkfft.cpp). Both give the same transform (see fft.hpp).
+enum class FftBackend { ClFFT, VkFFT };
+// "clfft" or "vkfft" (case-insensitive); anything else is rejected naming `argument`.
+FftBackend fft_backend_from_string(const std::string& s, const std::string& argument = "fft backend");
+std::string to_string(FftBackend b);
+
+// Zero-padding hint of a 2-D transform of rows x cols: the input is zero in every row of
+// [row_begin, row_end) and every column of [col_begin, col_end) (one contiguous block per axis,
+// no wrap-around; an empty range, begin == end, means no hint on that axis), so only the
+// rectangle (rows outside the row block) x (columns outside the column block) carries data.
+// Contract for both backends: before forward() the caller leaves zeros outside the rectangle
+// (VkFFT skips reading them and the 1-D transforms of all-zero rows; clFFT reads them); the
+// forward output is the full spectrum. inverse() defines its output only inside the rectangle
+// (VkFFT does not write the rest, clFFT writes everything). Made for zero-padded fields: data in
+// one corner, or, stored with the optical axis at index 0 (the PSF path's N x N field in its
+// M x M window), at the four corners with the zero block [N/2, M - N/2) on both axes.
+struct FftZeroPad {
+  std::size_t row_begin = 0, row_end = 0, col_begin = 0, col_end = 0;
+  bool any() const { return row_end > row_begin || col_end > col_begin; }
+};
+
 struct DeviceInfo {
   std::size_t platform_index = 0, device_index = 0;
   std::string platform, name, type, driver_version, version;
@@ -36,6 +61,8 @@ class FftPlan;
 class Runtime {
  public:
   explicit Runtime(const std::string& selector = "");
+  // The same with an explicit FFT backend (QDO_FFT is then not consulted).
+  Runtime(const std::string& selector, FftBackend fft_backend);
   ~Runtime();
   Runtime(const Runtime&) = delete;
   Runtime& operator=(const Runtime&) = delete;
@@ -55,8 +82,18 @@ class Runtime {
   // errors. Cached like the embedded kernels.
   cl::Kernel kernel_from_source(const std::string& label, const std::string& source, const std::string& name,
                                 Precision p, const std::string& options = "");
-  // A cached FFT plan for `batch` complex rows x cols transforms in place.
+  // A cached FFT plan for `batch` complex rows x cols transforms in place, made by this
+  // Runtime's backend (fft_backend()). rows, cols and batch must be positive.
   FftPlan& fft(std::size_t rows, std::size_t cols, std::size_t batch, Precision p);
+  // The same with an explicit backend and an optional zero-padding hint (FftZeroPad; its ranges
+  // must lie within [0, rows] and [0, cols] with begin <= end). The same key returns the
+  // same plan object.
+  FftPlan& fft(std::size_t rows, std::size_t cols, std::size_t batch, Precision p, FftBackend backend,
+               const FftZeroPad& zero_pad = {});
+  FftBackend fft_backend() const { return fft_backend_; }
+  // Later fft() calls without a backend use b; plans already made stay cached.
+  void set_fft_backend(FftBackend b) { fft_backend_ = b; }
+  std::size_t fft_plan_count() const { return ffts_.size(); }
 
   // Statistics (tests and benchmarks): programs built from source / loaded from disk, and
   // the seconds spent building programs and baking FFT plans.
@@ -77,6 +114,7 @@ class Runtime {
   DeviceInfo info_;
   std::map<std::string, cl::Program> programs_;
   std::map<std::string, std::unique_ptr<FftPlan>> ffts_;
+  FftBackend fft_backend_ = FftBackend::ClFFT;
   int built_ = 0, loaded_ = 0;
   double build_seconds_ = 0;
 };
