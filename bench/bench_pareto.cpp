@@ -41,6 +41,7 @@
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
 #include "qdo/fft.hpp"
+#include "qdo/imaging.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/radial.hpp"
 #include "qdo/runtime.hpp"
@@ -155,8 +156,9 @@ struct Reference {
 
 // Bare FFT floor: forward + inverse of `batch` x rows x cols on a device buffer.
 Row fft_floor(const std::string& workload, std::size_t rows_, std::size_t cols, std::size_t batch, Precision p, int repeats,
-              const std::string& label) {
-  Runtime rt;
+              FftBackend backend) {
+  Runtime rt("", backend);
+  const std::string label = backend == FftBackend::VkFFT ? "VkFFT" : "clFFT";
   FftPlan& plan = rt.fft(rows_, cols, batch, p);
   cl::Buffer buf(rt.context(), CL_MEM_READ_WRITE, batch * rows_ * cols * 2 * real_size(p));
   rt.queue().enqueueFillBuffer(buf, cl_uchar(0), 0, batch * rows_ * cols * 2 * real_size(p));
@@ -183,11 +185,14 @@ void section_psf(const Options& o, const Reference& ref) {
     Precision p;
     bool p64;
     std::size_t pad, bands;
+    FftBackend fft = FftBackend::ClFFT;
   };
   std::vector<Cfg> cfgs{
       {"2-D f32, pad N/4 (default)", Precision::F32, false, n / 4, 31},
       {"2-D f64, pad N/4", Precision::F64, false, n / 4, 31},
       {"2-D f32 + f64 phase, pad N/4", Precision::F32, true, n / 4, 31},
+      {"2-D f32, pad N/4, VkFFT", Precision::F32, false, n / 4, 31, FftBackend::VkFFT},
+      {"2-D f64, pad N/4, VkFFT", Precision::F64, false, n / 4, 31, FftBackend::VkFFT},
       {"2-D f32, pad N/8", Precision::F32, false, n / 8, 31},
       {"2-D f32, pad N/2", Precision::F32, false, n / 2, 31},
       {"2-D f64, pad N/2", Precision::F64, false, n / 2, 31},
@@ -195,13 +200,13 @@ void section_psf(const Options& o, const Reference& ref) {
       {"2-D f32, pad N/4, 11 bands (30 nm)", Precision::F32, false, n / 4, 11},
       {"2-D f32, pad N/4, 7 bands (50 nm)", Precision::F32, false, n / 4, 7},
   };
-  std::set<std::pair<std::size_t, int>> floors;  // (M, precision) floors already measured
+  std::set<std::pair<std::size_t, int>> floors;  // (M, precision x backend) floors already measured
   for (const Cfg& c : cfgs) {
     SystemConfig cfg = ref.cfg;
     cfg.padding_px = c.pad;
     cfg.bands = c.bands;
     cfg.wavelength_step_nm = 300.0 / double(c.bands - 1);
-    Runtime rt;
+    Runtime rt("", c.fft);
     Simulator sim(rt, cfg, c.p, 1, c.p64);
     add_setup("psf: " + c.label, rt);
     sim.set_heights(h);
@@ -217,10 +222,10 @@ void section_psf(const Options& o, const Reference& ref) {
     const RealStack ps = sim.psf_sensor();
     r.err = rel_l2(rgb_psf(ps, sim.srf()).data, ref.rgb.data);
     if (c.bands == 31) r.band_err = rel_l2(ps.data, ref.psf_sensor.data);
-    const int key = c.p == Precision::F64 ? 64 : 32;
+    const int key = (c.p == Precision::F64 ? 64 : 32) + (c.fft == FftBackend::VkFFT ? 1 : 0);
     if (!floors.count({m, key}) && c.bands == 31) {
       floors.insert({m, key});
-      Row f = fft_floor("psf", m, m, cfg.bands, c.p, o.repeats, "clFFT");
+      Row f = fft_floor("psf", m, m, cfg.bands, c.p, o.repeats, c.fft);
       r.note = "x" + to_str(std::round(100 * r.t.median() / f.t.median()) / 100) + " of FFT floor";
       add(r);
       add(f);
@@ -303,9 +308,35 @@ void section_image(const Options& o, const Reference& ref) {
     r.err = mx;
     r.note = "err = max abs vs f64 unskipped";
     add(r);
+    // The skipping imager on the same PSF: exact reorganisation, the defaults, looser budgets.
+    SceneImager imager(sim);
+    const std::vector<std::pair<std::string, SkipOptions>> variants{
+        {"exact (no rule)", [] { SkipOptions x; x.exact = true; return x; }()},
+        {"default tolerances (3e-7 total)", SkipOptions{}},
+        {"total tolerance 1e-4", SkipOptions::split(1e-4)},
+        {"total tolerance 1e-2", SkipOptions::split(1e-2)}};
+    for (const auto& [label, opt] : variants) {
+      Row ri;
+      ri.workload = "image";
+      ri.config = "SceneImager " + label + ", " + to_string(p);
+      ri.t = timed(o.repeats, [&] { got = imager.images(scenes, opt); });
+      flat.clear();
+      for (const auto& g : got) flat.insert(flat.end(), g.data.begin(), g.data.end());
+      double m2 = 0;
+      for (std::size_t i = 0; i < flat.size(); ++i) m2 = std::max(m2, std::fabs(flat[i] - want_flat[i]));
+      ri.err = m2;
+      ri.units = 3;
+      ri.unit = "images";
+      const SkipReport& rep = imager.last_report();
+      ri.note = "bound " + to_str(rep.total_bound) + "; x" + to_str(std::round(10 * r.t.median() / ri.t.median()) / 10) +
+                " faster than unskipped; " + to_str(rep.bands_skipped.size()) + " bands, " + to_str(rep.tiles_skipped) +
+                " tiles skipped, crop radius " + to_str(rep.crop_radius_px) + " of " + to_str(sim.sensor_size() / 2);
+      add(ri);
+    }
     const std::size_t s = sim.sensor_size();
     const std::size_t py = fast_fft_size(256 + s - 1);
-    add(fft_floor("image", py, py, 3 * cfg.bands, p, o.repeats, "clFFT"));
+    add(fft_floor("image", py, py, 3 * cfg.bands, p, o.repeats, FftBackend::ClFFT));
+    add(fft_floor("image", py, py, 3 * cfg.bands, p, o.repeats, FftBackend::VkFFT));
   }
 }
 
@@ -567,6 +598,10 @@ int main(int argc, char** argv) {
   }
   try {
     if (o.n < 32 || o.n % 8) reject("--n", o.n, "a multiple of 8, at least 32");
+    // The default scene folder is ../shared/... of the repository: try it from the repository
+    // root and from a build folder inside it.
+    if (o.cave == "../shared/data/hsi/cave" && !std::ifstream(o.cave + "/cloth_256.mat"))
+      o.cave = "../../shared/data/hsi/cave";
     if (o.repeats < 1) reject("--repeats", o.repeats, ">= 1");
     const auto t0 = Clock::now();
     Reference ref;
