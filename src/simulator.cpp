@@ -425,7 +425,7 @@ void Simulator::compute_psf() {
   native_normalized_ = false;
   resample(psf_, psf_s_, wstart_, wts_, n, s_, weights_.taps);
   normalize_bands(psf_s_, s_ * s_, sums_sensor_);
-  psf_valid_ = true;
+  psf_valid_ = field_valid_ = true;
   otf_valid_ = false;
   ++psf_generation_;
   if (cfg_.strict_sampling) {
@@ -519,7 +519,7 @@ Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
 
 Map2D Simulator::psf_native_vjp(const RealStack& g_psf) {
   require_single_design("psf_native_vjp");
-  if (!psf_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
+  if (!psf_valid_ || !field_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
   if (g_psf.planes != cfg_.bands || g_psf.rows != cfg_.n || g_psf.cols != cfg_.n)
     reject("g_psf", to_str(g_psf.planes) + " x " + to_str(g_psf.rows) + " x " + to_str(g_psf.cols),
            "bands x N x N = " + to_str(cfg_.bands) + " x " + to_str(cfg_.n) + " x " + to_str(cfg_.n));
@@ -532,7 +532,7 @@ Map2D Simulator::psf_native_vjp(const RealStack& g_psf) {
 
 Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
   require_single_design("psf_sensor_vjp");
-  if (!psf_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
+  if (!psf_valid_ || !field_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
   if (g_psf_sensor.planes != cfg_.bands || g_psf_sensor.rows != s_ || g_psf_sensor.cols != s_)
     reject("g_psf_sensor", to_str(g_psf_sensor.planes) + " x " + to_str(g_psf_sensor.rows) + " x " + to_str(g_psf_sensor.cols),
            "bands x S x S = " + to_str(cfg_.bands) + " x " + to_str(s_) + " x " + to_str(s_));
@@ -606,7 +606,7 @@ RealStack Simulator::sensor_images_vjp(const std::vector<RealStack>& g_rgb) {
 }
 
 ComplexStack Simulator::debug_field_after_doe() {
-  psf_valid_ = false;  // field_ is overwritten: the adjoints need compute_psf() again
+  field_valid_ = false;  // field_ now holds the field before propagation: the adjoints need it after
   run_doe_field();
   ComplexStack out(nb_, geom_.m, geom_.m);
   out.data = download_complex(field_, out.size());
@@ -614,9 +614,9 @@ ComplexStack Simulator::debug_field_after_doe() {
 }
 
 ComplexStack Simulator::debug_field_after_propagation() {
-  psf_valid_ = false;
   run_doe_field();
   run_propagation(field_, cfg_.sensor_distance_m, true);
+  field_valid_ = true;  // the same propagated field compute_psf() leaves for the adjoints
   ComplexStack out(nb_, geom_.m, geom_.m);
   out.data = download_complex(field_, out.size());
   return out;

@@ -5,6 +5,7 @@
 #include <random>
 
 #include "common.hpp"
+#include "qdo/error.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/simulator.hpp"
@@ -91,6 +92,18 @@ TEST_SUITE("kernels") {
         CHECK(d.max_abs <= tol);
       }
     }
+  }
+
+  TEST_CASE("the adjoints refuse a field the debug accessors left before propagation") {
+    SystemConfig c = tiny_config(32, 2);
+    Simulator sim(runtime(), c, Precision::F32);
+    sim.set_heights(random_heights(c.n, c.h_max_m(), 3));
+    sim.compute_psf();
+    const RealStack g(c.bands, sim.sensor_size(), sim.sensor_size());
+    sim.debug_field_after_doe();
+    CHECK_THROWS_WITH_AS(sim.psf_sensor_vjp(g), doctest::Contains("compute_psf() must run"), qdo::Error);
+    sim.debug_field_after_propagation();  // the propagated field is back: the adjoint is valid again
+    CHECK_NOTHROW(sim.psf_sensor_vjp(g));
   }
 
   TEST_CASE("float32 with float64 phase: the field is the double field rounded once") {

@@ -140,6 +140,7 @@ class Simulator {
   Eigen::MatrixXd srf_;
   AreaWeights weights_;
   bool heights_set_ = false, psf_valid_ = false, otf_valid_ = false;
+  bool field_valid_ = false;  // field_ holds the propagated field of the current heights (adjoints need it)
   mutable SamplingReport sampling_;
   mutable bool sampling_fresh_ = true;
   double sampling_z_m_ = 0;
