@@ -32,12 +32,10 @@ __kernel void normalize_vjp(__global real* g, __global const real* dots, __globa
 // 2 g_P U2 inside the crop, 0 outside. g_p: bands x N x N; u2: bands x M x M.
 __kernel void intensity_vjp(__global const real* g_p, __global const real2* u2, __global real2* gu, const int n,
                             const int m, const int offset, const int bands) {
-  const size_t gid = get_global_id(0);
-  const size_t mm = (size_t)m * m;
-  if (gid >= mm * bands) return;
-  const int b = (int)(gid / mm);
-  const int rem = (int)(gid - (size_t)b * mm);
-  const int y = rem / m, x = rem - y * m;
+  // 3-D NDRange (columns rounded up to the work-group size, rows, bands): no integer division.
+  const int x = (int)get_global_id(0), y = (int)get_global_id(1), b = (int)get_global_id(2);
+  if (x >= m || y >= m || b >= bands) return;
+  const size_t gid = ((size_t)b * m + y) * m + x;
   const int i = y - offset, j = x - offset;
   real2 v = (real2)(R(0.0), R(0.0));
   if (i >= 0 && i < n && j >= 0 && j < n) v = R(2.0) * g_p[((size_t)b * n + i) * n + j] * u2[gid];

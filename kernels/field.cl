@@ -15,12 +15,10 @@ __kernel void doe_field(__global const real* height_m, __global const real* k_pe
                         __global real2* out, const int bands_per_design, const int n, const int m, const int offset,
                         const int bands,
                         const real pitch_m, const real distance_m, const real r_ap2_px) {
-  const size_t gid = get_global_id(0);
-  const size_t mm = (size_t)m * m;
-  if (gid >= mm * bands) return;
-  const int b = (int)(gid / mm);
-  const int rem = (int)(gid - (size_t)b * mm);
-  const int wy = rem / m, wx = rem - wy * m;
+  // 3-D NDRange (columns rounded up to the work-group size, rows, planes): no integer division.
+  const int wx = (int)get_global_id(0), wy = (int)get_global_id(1), b = (int)get_global_id(2);
+  if (wx >= m || wy >= m || b >= bands) return;
+  const size_t gid = ((size_t)b * m + wy) * m + wx;
   const int i = wy - offset, j = wx - offset;
   real2 v = (real2)(R(0.0), R(0.0));
   if (i >= 0 && i < n && j >= 0 && j < n) {
@@ -44,12 +42,10 @@ __kernel void doe_field(__global const real* height_m, __global const real* k_pe
 __kernel void doe_field_p64(__global const real* height_m, __global const double* k_per_m, __global const double* dn,
                             __global real2* out, const int bands_per_design, const int n, const int m, const int offset,
                             const int bands, const double pitch_m, const double distance_m, const double r_ap2_px) {
-  const size_t gid = get_global_id(0);
-  const size_t mm = (size_t)m * m;
-  if (gid >= mm * bands) return;
-  const int b = (int)(gid / mm);
-  const int rem = (int)(gid - (size_t)b * mm);
-  const int wy = rem / m, wx = rem - wy * m;
+  // 3-D NDRange (columns rounded up to the work-group size, rows, planes): no integer division.
+  const int wx = (int)get_global_id(0), wy = (int)get_global_id(1), b = (int)get_global_id(2);
+  if (wx >= m || wy >= m || b >= bands) return;
+  const size_t gid = ((size_t)b * m + wy) * m + wx;
   const int i = wy - offset, j = wx - offset;
   real2 v = (real2)(0.0f, 0.0f);
   if (i >= 0 && i < n && j >= 0 && j < n) {

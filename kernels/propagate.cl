@@ -4,13 +4,11 @@
 // Fresnel: exp(-iπλz(fx² + fy²)) = t[b][ky] * t[b][kx] with t[b][k] = exp(-iπλz f_k²),
 // a bands x M complex table computed in double on the host (separable, so the float32 path
 // never evaluates a phase of thousands of radians).
+// 3-D NDRange (columns rounded up to the work-group size, rows, bands): no integer division.
 __kernel void tf_separable(__global real2* spec, __global const real2* t, const int m, const int bands) {
-  const size_t gid = get_global_id(0);
-  const size_t mm = (size_t)m * m;
-  if (gid >= mm * bands) return;
-  const int b = (int)(gid / mm);
-  const int rem = (int)(gid - (size_t)b * mm);
-  const int ky = rem / m, kx = rem - ky * m;
+  const int kx = (int)get_global_id(0), ky = (int)get_global_id(1), b = (int)get_global_id(2);
+  if (kx >= m || ky >= m || b >= bands) return;
+  const size_t gid = ((size_t)b * m + ky) * m + kx;
   spec[gid] = cmul(spec[gid], cmul(t[(size_t)b * m + ky], t[(size_t)b * m + kx]));
 }
 
@@ -74,18 +72,25 @@ __kernel void spectrum_energy(__global const real2* spec, __global const int* kl
     const size_t mm = (size_t)m * m;                                                                   \
     const int lim = klim[b];                                                                           \
     real tot = R(0.0), beyond = R(0.0), after = R(0.0);                                                \
-    for (size_t e = (size_t)g * ls + lid; e < mm; e += (size_t)groups_per_band * ls) {                \
-      const int ky = (int)(e / m), kx = (int)(e - (size_t)ky * m);                                    \
-      const int fy = ky < (m + 1) / 2 ? ky : ky - m, fx = kx < (m + 1) / 2 ? kx : kx - m;             \
-      const size_t idx = (size_t)b * mm + e;                                                           \
-      const real2 v = spec[idx];                                                                       \
-      const real p = v.x * v.x + v.y * v.y;                                                            \
-      tot += p;                                                                                        \
-      if (abs(fy) > lim || abs(fx) > lim) beyond += p;                                                 \
-      const real2 tf = TF_SEPARABLE ? cmul(t[(size_t)b * m + ky], t[(size_t)b * m + kx]) : t[idx];     \
-      const real2 w = cmul(v, tf);                                                                     \
-      after += w.x * w.x + w.y * w.y;                                                                  \
-      spec[idx] = w;                                                                                   \
+    /* rows ky = g, g + G, ... of the band; the lanes of the group stride along the row (no     */ \
+    /* integer division per element)                                                            */ \
+    for (int ky = g; ky < m; ky += groups_per_band) {                                                  \
+      const int fy = ky < (m + 1) / 2 ? ky : ky - m;                                                   \
+      const bool row_beyond = abs(fy) > lim;                                                           \
+      const real2 ty = t[(size_t)b * m + ky];                                                          \
+      const size_t row = (size_t)b * mm + (size_t)ky * m;                                              \
+      for (int kx = lid; kx < m; kx += ls) {                                                           \
+        const int fx = kx < (m + 1) / 2 ? kx : kx - m;                                                 \
+        const size_t idx = row + kx;                                                                   \
+        const real2 v = spec[idx];                                                                     \
+        const real p = v.x * v.x + v.y * v.y;                                                          \
+        tot += p;                                                                                      \
+        if (row_beyond || abs(fx) > lim) beyond += p;                                                  \
+        const real2 tf = TF_SEPARABLE ? cmul(ty, t[(size_t)b * m + kx]) : t[idx];                      \
+        const real2 w = cmul(v, tf);                                                                   \
+        after += w.x * w.x + w.y * w.y;                                                                \
+        spec[idx] = w;                                                                                 \
+      }                                                                                                \
     }                                                                                                  \
     scratch[3 * lid] = tot;                                                                            \
     scratch[3 * lid + 1] = beyond;                                                                     \

@@ -92,12 +92,14 @@ __kernel void intensity_crop_sums(__global const real2* field, __global real* ps
   const int b = get_group_id(1), g = get_group_id(0), lid = get_local_id(0), ls = get_local_size(0);
   const size_t nn = (size_t)n * n;
   real acc = R(0.0);
-  for (size_t e = (size_t)g * ls + lid; e < nn; e += (size_t)groups_per_band * ls) {
-    const int i = (int)(e / n), j = (int)(e - (size_t)i * n);
-    const real2 v = field[(size_t)b * m * m + (size_t)(offset + i) * m + (offset + j)];
-    const real p = v.x * v.x + v.y * v.y;
-    psf[(size_t)b * nn + e] = p;
-    acc += p;
+  for (int i = g; i < n; i += groups_per_band) {  // rows i = g, g + G, ...; lanes along the row
+    const size_t src = (size_t)b * m * m + (size_t)(offset + i) * m + offset, dst = (size_t)b * nn + (size_t)i * n;
+    for (int j = lid; j < n; j += ls) {
+      const real2 v = field[src + j];
+      const real p = v.x * v.x + v.y * v.y;
+      psf[dst + j] = p;
+      acc += p;
+    }
   }
   scratch[lid] = acc;
   barrier(CLK_LOCAL_MEM_FENCE);

@@ -292,7 +292,9 @@ void Simulator::run_doe_field() {
   }
   k_field_.setArg(3, field_);
   k_field_.setArg(4, int(cfg_.bands));  // planes per design: plane b uses height map b / bands
-  enqueue_1d(k_field_, nb_ * geom_.m * geom_.m);
+  const std::size_t m = geom_.m;  // 3-D NDRange (columns, rows, planes), work-group (kLocalSize, 1, 1)
+  rt_.queue().enqueueNDRangeKernel(k_field_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, nb_),
+                                   cl::NDRange(Runtime::kLocalSize, 1, 1));
 }
 
 void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampling) {
@@ -326,10 +328,12 @@ void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampl
     if (cfg_.propagator == Propagator::Fresnel) {
       k_tf_.setArg(2, int(m));
       k_tf_.setArg(3, int(bands));
+      rt_.queue().enqueueNDRangeKernel(k_tf_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, bands),
+                                       cl::NDRange(Runtime::kLocalSize, 1, 1));
     } else {
       k_tf_.setArg(2, int(bands * m * m));
+      enqueue_1d(k_tf_, bands * m * m);
     }
-    enqueue_1d(k_tf_, bands * m * m);
   }
   fft.inverse(field);
 }
@@ -506,7 +510,8 @@ Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
   k_int_vjp_.setArg(4, int(m));
   k_int_vjp_.setArg(5, int(geom_.offset));
   k_int_vjp_.setArg(6, int(bands));
-  enqueue_1d(k_int_vjp_, bands * m * m);
+  rt_.queue().enqueueNDRangeKernel(k_int_vjp_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, bands),
+                                   cl::NDRange(Runtime::kLocalSize, 1, 1));
   run_propagation(gfield_, -cfg_.sensor_distance_m, false);  // adjoint of +z propagation
   set_phase_args(k_phase_vjp_);
   k_phase_vjp_.setArg(3, gfield_);
