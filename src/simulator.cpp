@@ -116,6 +116,19 @@ cl::Buffer Simulator::upload_complex(const std::vector<cdouble>& host, cl_mem_fl
   return upload_real(flat, flags);
 }
 
+// Writes host reals into a scratch buffer kept across calls (allocated on first use with the
+// size of `host`, which is fixed per call site), in the device precision.
+cl::Buffer& Simulator::write_scratch(cl::Buffer& buf, const std::vector<double>& host) {
+  if (!buf()) buf = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, host.size() * rsz_);
+  if (prec_ == Precision::F64) {
+    rt_.queue().enqueueWriteBuffer(buf, CL_TRUE, 0, host.size() * 8, host.data());
+  } else {
+    const std::vector<float> f(host.begin(), host.end());
+    rt_.queue().enqueueWriteBuffer(buf, CL_TRUE, 0, f.size() * 4, f.data());
+  }
+  return buf;
+}
+
 std::vector<double> Simulator::download_real(const cl::Buffer& b, std::size_t count) const {
   std::vector<double> out(count);
   auto& q = const_cast<Runtime&>(rt_).queue();
@@ -529,7 +542,7 @@ Map2D Simulator::psf_native_vjp(const RealStack& g_psf) {
     reject("g_psf", to_str(g_psf.planes) + " x " + to_str(g_psf.rows) + " x " + to_str(g_psf.cols),
            "bands x N x N = " + to_str(cfg_.bands) + " x " + to_str(cfg_.n) + " x " + to_str(cfg_.n));
   if (!dots_()) dots_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, cfg_.bands * rsz_);
-  cl::Buffer g = upload_real(g_psf.data, CL_MEM_READ_WRITE);
+  cl::Buffer& g = write_scratch(g_native_, g_psf.data);
   ensure_native_normalized();
   normalize_vjp(g, psf_, cfg_.n * cfg_.n, sums_crop_);
   return backward_from_native(g);
@@ -548,10 +561,11 @@ Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
     wstart_t_ = upload(weights_t_.start);
     wts_t_ = upload_real(weights_t_.w);
   }
-  cl::Buffer g_sensor = upload_real(g_psf_sensor.data, CL_MEM_READ_WRITE);
+  cl::Buffer& g_sensor = write_scratch(g_sensor_, g_psf_sensor.data);
   normalize_vjp(g_sensor, psf_s_, s_ * s_, sums_sensor_);
   // Transposed area resampling: the same kernel with the transposed weights (S -> N).
-  cl::Buffer g(rt_.context(), CL_MEM_READ_WRITE, bands * n * n * rsz_);
+  if (!g_native_()) g_native_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * n * n * rsz_);
+  cl::Buffer& g = g_native_;
   // The forward resampled the unnormalised intensity (the native normalisation cancels in
   // the sensor normalisation), so the transposed resampling already gives dL/d|U|².
   resample(g_sensor, g, wstart_t_, wts_t_, s_, n, weights_t_.taps);

@@ -109,6 +109,7 @@ class Simulator {
   cl::Buffer make_tf(double z_m) const;
   cl::Buffer upload_complex(const std::vector<cdouble>& host, cl_mem_flags flags = CL_MEM_READ_ONLY) const;
   std::vector<double> download_real(const cl::Buffer& b, std::size_t count) const;
+  cl::Buffer& write_scratch(cl::Buffer& buf, const std::vector<double>& host);
   std::vector<cdouble> download_complex(const cl::Buffer& b, std::size_t count) const;
   void enqueue_1d(cl::Kernel& k, std::size_t n);
   void run_doe_field();
@@ -161,6 +162,7 @@ class Simulator {
   // Adjoint state: transposed resampling weights, the back-propagation TF, gradient buffers.
   AreaWeights weights_t_;
   cl::Buffer wstart_t_, wts_t_, tf_back_, gfield_, dots_, dh_;
+  cl::Buffer g_native_, g_sensor_;  // adjoint inputs (bands x N x N, bands x S x S), reused across calls
 };
 
 }  // namespace qdo
