@@ -3,7 +3,6 @@
 // central differences on sampled rings), OpenCL (float32 / float64) against the CPU reference,
 // and accuracy against the 2-D FFT path on the paper physics at a test-sized N.
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <random>
@@ -418,50 +417,6 @@ TEST_SUITE("radial") {
     // N = 128: radial - 2-D -0.29 dB, 2-D(pitch/2) - 2-D -0.39 dB, radial - 2-D(pitch/2) +0.09 dB).
     CHECK(std::fabs(pr - pf) <= std::fabs(p2 - pf) + 0.05);
     CHECK(std::fabs(pr - p2) < 0.5);
-  }
-
-  TEST_CASE("[timing] N = 1024 paper preset: radial forward and forward + adjoint vs the 2-D path") {
-    // Indicative timing for the lead (set QDO_RADIAL_TIMING=1; skipped otherwise): prints the numbers
-    // and asserts only that the radial forward is faster than the 2-D forward.
-    if (!std::getenv("QDO_RADIAL_TIMING")) return;
-    const SystemConfig c = preset_config("paper");
-    const auto rings = lens_rings(c, 550);
-    using clk = std::chrono::steady_clock;
-    auto secs = [](clk::time_point a) { return std::chrono::duration<double>(clk::now() - a).count(); };
-    for (Precision p : {Precision::F32, Precision::F64}) {
-      auto t0 = clk::now();
-      RadialEngine e(runtime(), c, p);
-      const double setup = secs(t0);
-      e.compute_psf(rings);  // warm-up (kernel build / first launch)
-      double fwd = 1e9, both = 1e9;
-      RealStack g = random_stack(c.bands, e.sensor_size(), e.sensor_size(), 3);
-      for (int r = 0; r < 3; ++r) {
-        t0 = clk::now();
-        e.compute_psf(rings);
-        fwd = std::min(fwd, secs(t0));
-        t0 = clk::now();
-        e.compute_psf(rings);
-        (void)e.psf_sensor();
-        (void)e.psf_sensor_vjp(g);
-        both = std::min(both, secs(t0));
-      }
-      Simulator sim(runtime(), c, p);
-      sim.set_heights(expand_parameters(Parameterization::Radial, rings, c.n, c.h_max_m()));
-      sim.compute_psf();
-      t0 = clk::now();
-      sim.compute_psf();
-      const double fwd2 = secs(t0);
-      t0 = clk::now();
-      sim.compute_psf();
-      (void)sim.psf_sensor();
-      (void)sim.psf_sensor_vjp(g);
-      const double both2 = secs(t0);
-      MESSAGE(to_string(p) << ": K " << e.tables().k << ", J " << e.tables().j << ", unique " << e.tables().unique
-                           << "; tables " << setup << " s; radial forward " << fwd << " s, forward+adjoint " << both
-                           << " s; 2-D forward " << fwd2 << " s, forward+adjoint " << both2 << " s; speed-up "
-                           << fwd2 / fwd << "x / " << both2 / both << "x");
-      CHECK(fwd < fwd2);
-    }
   }
 
   TEST_CASE("[measure] choosing the sampling defaults: radial vs 2-D and vs 2-D at half the pitch") {
