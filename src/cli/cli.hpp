@@ -30,6 +30,9 @@ Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, con
                 const std::set<std::string>& flags = {});
 // The configuration from --config or --preset (default small), the camera response checked too.
 SystemConfig load_config(const Args& a);
+// --scene builtin (the configuration's chart scene, the default) or a cube file (.mat / .h5,
+// read_cube with --key), checked to have cfg.bands bands: bands x H x W.
+RealStack scene_from_args(const SystemConfig& cfg, const Args& a);
 int parse_int(const std::string& name, const std::string& v, int lo, int hi);
 double parse_double(const std::string& name, const std::string& v);
 std::vector<std::string> split_list(const std::string& s);  // comma-separated

@@ -8,6 +8,7 @@
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
+#include "qdo/scenes.hpp"
 
 namespace fs = std::filesystem;
 
@@ -49,6 +50,15 @@ Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, con
 
 // The configuration from --config or --preset, with the camera response checked too, so every
 // configuration error surfaces before any device work or output.
+RealStack scene_from_args(const SystemConfig& cfg, const Args& a) {
+  const std::string s = a.get("scene", "builtin");
+  if (s == "builtin") return builtin_chart_scene(cfg);
+  CubeReadOptions o;
+  o.key = a.get("key");
+  o.expected_bands = cfg.bands;
+  return read_cube(s, o);
+}
+
 SystemConfig load_config(const Args& a) {
   SystemConfig c;
   if (a.has("config")) {

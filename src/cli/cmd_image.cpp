@@ -15,16 +15,6 @@ using namespace qdo::cli;
 
 namespace {
 
-// --scene builtin (the chart scene of the configuration) or a cube file (.mat / .h5, read_cube).
-RealStack image_scene(const SystemConfig& cfg, const Args& a) {
-  const std::string s = a.get("scene", "builtin");
-  if (s == "builtin") return builtin_chart_scene(cfg);
-  CubeReadOptions o;
-  o.key = a.get("key");
-  o.expected_bands = cfg.bands;
-  return read_cube(s, o);
-}
-
 int cmd_image(int argc, char** argv) {
   const Args a = parse_args(argc, argv,
                             {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device",
@@ -39,7 +29,7 @@ int cmd_image(int argc, char** argv) {
   opt.validate();
   if (!a.has("design")) reject("--design", "(missing)", "lens:NM, flat, or a design .h5 file");
   const Map2D h = design_heights(cfg, a);
-  const RealStack scene = image_scene(cfg, a);
+  const RealStack scene = scene_from_args(cfg, a);
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
   Simulator sim(rt, cfg, p);

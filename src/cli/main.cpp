@@ -138,15 +138,6 @@ int cmd_quantize(int argc, char** argv) {
   return 0;
 }
 
-RealStack load_scene(const SystemConfig& cfg, const Args& a) {
-  const std::string s = a.get("scene", "builtin");
-  if (s == "builtin") return builtin_chart_scene(cfg);
-  CubeReadOptions o;
-  o.key = a.get("key");
-  o.expected_bands = cfg.bands;
-  return read_cube(s, o);
-}
-
 int cmd_simulate(int argc, char** argv) {
   const Args a = parse_args(argc, argv,
                             {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "out"},
@@ -154,7 +145,7 @@ int cmd_simulate(int argc, char** argv) {
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision", "f32"));
   const Map2D h = design_heights(cfg, a);
-  const RealStack scene = load_scene(cfg, a);
+  const RealStack scene = scene_from_args(cfg, a);
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
   Simulator sim(rt, cfg, p);
