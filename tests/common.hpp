@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <complex>
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <random>
@@ -89,5 +90,42 @@ inline std::filesystem::path temp_dir(const std::string& tag) {
 
 inline const char* shared_dir() { return QDO_SHARED_DIR; }
 inline bool have_shared() { return std::filesystem::exists(std::string(QDO_SHARED_DIR) + "/data/hsi/cave"); }
+
+// --- Missing prerequisites (../shared data, KLayout, a float64 device) ----------------------
+// A test that cannot run (all or part of itself) for a missing prerequisite says so through
+// skip_unless(): the case prints "SKIPPED: <why>", and the test binary then exits with
+// kSkipExitCode (CTest's SKIP_RETURN_CODE) unless a case failed, so CTest shows the entry as
+// skipped instead of passed. With QDO_REQUIRE_ALL=1 (CI sets it) a missing prerequisite is a
+// failure instead. Never `return` from a test without one of these.
+constexpr int kSkipExitCode = 77;
+inline int& skipped_parts() {
+  static int n = 0;
+  return n;
+}
+inline bool require_all() {
+  const char* e = std::getenv("QDO_REQUIRE_ALL");
+  return e != nullptr && std::string(e) == "1";
+}
+// True when `have`; otherwise records a skip (or fails under QDO_REQUIRE_ALL=1) and returns false.
+// Use as `if (!skip_unless(have_shared(), "no CAVE scenes in ../shared")) return;` or to guard
+// one part of a case.
+inline bool skip_unless(bool have, const std::string& why) {
+  if (have) return true;
+  if (require_all()) {
+    FAIL_CHECK("missing prerequisite with QDO_REQUIRE_ALL=1: " << why);
+    return false;
+  }
+  ++skipped_parts();
+  MESSAGE("SKIPPED: " << why);
+  return false;
+}
+
+// The precisions a kernel test runs in: float32, and float64 where the device has it (a
+// missing float64 is a reported skip, a failure under QDO_REQUIRE_ALL=1).
+inline std::vector<Precision> device_precisions(const Runtime& rt) {
+  std::vector<Precision> ps{Precision::F32};
+  if (skip_unless(rt.has_fp64(), "float64 cases: the device has no float64")) ps.push_back(Precision::F64);
+  return ps;
+}
 
 }  // namespace qdo::test

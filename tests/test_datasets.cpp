@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "common.hpp"
 #include "qdo/config.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/embedded.hpp"
@@ -273,10 +274,7 @@ TEST_SUITE("datasets") {
 
   TEST_CASE("the real CAVE .mat scenes in ../shared") {
     const std::string dir = kSharedDir + "/data/hsi/cave";
-    if (!fs::exists(dir)) {
-      MESSAGE("skipped: " << dir << " is absent");
-      return;
-    }
+    if (!qdo::test::skip_unless(fs::exists(dir), dir + " is absent")) return;
     const SceneIndex idx({dir});
     REQUIRE(idx.size() == 3);
     for (std::size_t i = 0; i < idx.size(); ++i) {

@@ -272,7 +272,6 @@ TEST_SUITE("fab") {
     const SystemConfig cfg = tiny_config(32, 3);
     const auto dir = temp_dir("fab_export");
     const bool klayout = have_klayout();
-    if (!klayout) MESSAGE("klayout not on PATH: the independent-reader check is skipped (apt-get install klayout)");
     struct Case {
       std::string dir;
       Design design;
@@ -322,7 +321,7 @@ TEST_SUITE("fab") {
       }
     // An independent reader: KLayout in batch mode reads every file; its pixel coverage rebuilds
     // the height map.
-    if (klayout) {
+    if (skip_unless(klayout, "klayout not on PATH: the independent-reader check (apt-get install klayout)")) {
       std::vector<std::string> files;
       for (const auto& c : cases) files.push_back(c.dir + "/masks.gds");
       const std::int64_t pitch = std::llround(cfg.pitch_m * 1e9), org = -std::int64_t(cfg.n / 2) * pitch - pitch / 2;

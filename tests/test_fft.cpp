@@ -32,11 +32,7 @@ double tol(Precision p, std::size_t rows, std::size_t cols) {
   return kTolC * eps(p) * std::log2(double(rows * cols));
 }
 
-std::vector<Precision> precisions(const Runtime& rt) {
-  std::vector<Precision> ps{Precision::F32};
-  if (rt.has_fp64()) ps.push_back(Precision::F64);
-  return ps;
-}
+std::vector<Precision> precisions(const Runtime& rt) { return device_precisions(rt); }
 
 // planes x rows x cols complex values, re and im uniform in [-1, 1], rounded to precision p
 // (so the FFTW reference sees exactly what the device sees).

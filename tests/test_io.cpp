@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "common.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 
@@ -274,10 +275,7 @@ TEST_SUITE("io") {
   }
 
   TEST_CASE("read_cube on the CAVE scenes") {
-    if (!fs::is_directory(kCave)) {
-      MESSAGE("skipped: no CAVE data at " << kCave);
-      return;
-    }
+    if (!qdo::test::skip_unless(fs::is_directory(kCave), "no CAVE data at " + kCave)) return;
     const std::array<std::pair<const char*, const char*>, 3> scenes{
         {{"balloons_256.mat", "Omsi"}, {"chart_and_stuffed_toy_256.mat", "NRD"}, {"cloth_256.mat", "NRD"}}};
     for (const auto& [file, key] : scenes) {
@@ -333,10 +331,7 @@ TEST_SUITE("io") {
   }
 
   TEST_CASE("read_cube on a truncated .mat file fails cleanly") {
-    if (!fs::is_directory(kCave)) {
-      MESSAGE("skipped: no CAVE data at " << kCave);
-      return;
-    }
+    if (!qdo::test::skip_unless(fs::is_directory(kCave), "no CAVE data at " + kCave)) return;
     TmpDir tmp;
     const std::string cut = tmp / "truncated.mat";
     for (std::size_t bytes : {1000u, 100u, 10u, 0u}) {

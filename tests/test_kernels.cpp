@@ -15,11 +15,7 @@ using namespace qdo::test;
 
 namespace {
 
-std::vector<Precision> precisions() {
-  std::vector<Precision> p{Precision::F32};
-  if (runtime().has_fp64()) p.push_back(Precision::F64);
-  return p;
-}
+std::vector<Precision> precisions() { return device_precisions(runtime()); }
 
 // Largest |phase| the DOE stage evaluates: source term plus DOE term at the shortest band.
 double max_phase(const SystemConfig& c) {
@@ -107,7 +103,7 @@ TEST_SUITE("kernels") {
   }
 
   TEST_CASE("float32 with float64 phase: the field is the double field rounded once") {
-    if (!runtime().has_fp64()) return;
+    if (!skip_unless(runtime().has_fp64(), "the device has no float64")) return;
     // A large phase (short scene distance, big heights) where float32 phase arithmetic loses
     // digits: the plain float32 field errs by ~eps32 x |phase|, the phase_fp64 field only by the
     // final rounding of cos/sin to float (<= eps32 per component).
