@@ -236,6 +236,17 @@ TEST_SUITE("references") {
   }
 
   TEST_CASE("a single-band cube gives that band's camera-response column (CSV parsed here; kernels, imager, CPU reference)") {
+    const SystemConfig c = srf_config();
+    {
+      // Without ../shared too: ratios of raw values typed from the upstream constants.py
+      // ([B,G,R] rows) — B 460/400 nm, G 540/400 nm, R 610/400 nm, R 450/460 nm — against the
+      // built-in response (ratios cancel the row normalisation). Double: 1e-9 relative.
+      const Eigen::MatrixXd s0 = sensor_response(c);
+      CHECK(s0(2, 6) / s0(2, 0) == doctest::Approx(49.34113124 / 18.73589729).epsilon(1e-9));
+      CHECK(s0(1, 14) / s0(1, 0) == doctest::Approx(61.75104661 / 6.425137553).epsilon(1e-9));
+      CHECK(s0(0, 21) / s0(0, 0) == doctest::Approx(56.03542013 / 7.111793475).epsilon(1e-9));
+      CHECK(s0(0, 5) / s0(0, 6) == doctest::Approx(2.011189415 / 1.765684355).epsilon(1e-9));
+    }
     const std::string path = std::string(shared_dir()) + kSharedSrf;
     SrfTable t;
     if (!read_srf_csv(path, t)) {
@@ -243,7 +254,6 @@ TEST_SUITE("references") {
       return;
     }
     REQUIRE(t.wl.size() == 31);
-    const SystemConfig c = srf_config();
     const auto want = expected_srf(t, c.wavelength_start_nm, c.wavelength_step_nm, c.bands);
     // Spot values typed from the upstream constants.py ([B,G,R] rows), independent of any file:
     // channel peaks B at 460 nm, G at 540 nm, R at 610 nm against the 400 nm row.
@@ -361,8 +371,8 @@ TEST_SUITE("references") {
           CHECK(std::fabs(m[o * n + i] - overlap_weight(o, s, pitch_out, i, n, 4e-6)) <= 1e-12);
         }
       // A point on the native axis (cell n/2, [-2, 2] µm) lies wholly in the centre pixel
-      // ([-p/2, p/2]); its neighbour (cell n/2 + 1, [2, 6] µm) splits 1 : 0 at p = 8 µm
-      // ([-4, 4] µm holds [2, 4]: 0.5) and 0.75 : 0.25 at p = 10 µm ([-5, 5] holds [2, 5]).
+      // ([-p/2, p/2]); its neighbour (cell n/2 + 1, [2, 6] µm) splits 0.5 : 0.5 at p = 8 µm
+      // ([-4, 4] µm holds [2, 4]) and 0.75 : 0.25 at p = 10 µm ([-5, 5] holds [2, 5]).
       CHECK(m[(s / 2) * n + n / 2] == 1.0);
       for (std::size_t o = 0; o < s; ++o)
         if (o != s / 2) CHECK(m[o * n + n / 2] == 0.0);
