@@ -495,7 +495,9 @@ TEST_SUITE("encoders") {
     const EncoderEval c1 = evaluate_encoder(*cassi, CassiDecoder(cassi, p, 0.1), cubes, 0.1, 5);
     const EncoderEval c2 = evaluate_encoder(*cassi, CassiDecoder(cassi, p, 0.001), cubes, 0.001, 5);
     MESSAGE("CASSI psnr " << c1.psnr_db << " (sigma 0.1), " << c2.psnr_db << " (sigma 0.001)");
-    CHECK(std::isfinite(c1.psnr_db));
+    // A decoder that recovers anything beats 10 dB on scenes in [0, 1]; none reaches 60 dB here.
+    CHECK(c1.psnr_db > 10);
+    CHECK(c2.psnr_db < 60);
     CHECK(c2.psnr_db > c1.psnr_db);
     CHECK(c2.rmse < c1.rmse);
   }

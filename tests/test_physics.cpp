@@ -125,6 +125,7 @@ TEST_SUITE("physics") {
   }
 
   TEST_CASE("+z then -z returns the field") {
+    // Invertibility only: blind to the transfer function's sign (see the closed-form case below).
     SystemConfig c = tiny_config(48, 2);
     const Map2D h = random_heights(c.n, c.h_max_m(), 22);
     const auto g = PropagationGeometry::from_config(c);
@@ -144,6 +145,51 @@ TEST_SUITE("physics") {
     Simulator sim(runtime(), c, Precision::F32);
     const ComplexStack back = sim.propagate_field(sim.propagate_field(f0, c.sensor_distance_m), -c.sensor_distance_m);
     CHECK(diff(back.data, f0.data).rel_l2 <= 1e-5);
+  }
+
+  TEST_CASE("+z then -z is blind to the transfer function's sign: a closed-form diverging Gaussian goes back to its waist") {
+    // The round trip above only shows that -z inverts +z, which holds for either sign of the
+    // transfer function (a flipped sign inverts itself). Here one leg is the closed form:
+    // the Gaussian exp(-r²/w0²) after z is (q0 / (q0 + z)) exp(iπ r² / (λ (q0 + z))), q0 = -i zR,
+    // zR = π w0² / λ (diverging phase +k r² / 2R in the exp(+ikr) convention of the reference).
+    // Propagating the computed field must equal it, and propagating the closed form by -z must
+    // give back the waist; with the opposite sign, -z would spread it to w(2z) instead.
+    const std::size_t n = 128;
+    SystemConfig c = preset_config("small");
+    c.n = n;
+    c.padding_px = 64;  // M = 256
+    c.pitch_m = 2e-6;
+    c.bands = 1;
+    c.wavelength_start_nm = 500;
+    c.validate();
+    const std::size_t m = 256;
+    const double lambda = 500e-9, w0 = 20e-6, zr = M_PI * w0 * w0 / lambda, z = std::sqrt(3.0) * zr;  // w(z) = 2 w0
+    const ComplexStack waist = gaussian_beam(m, c.pitch_m, w0);
+    ComplexStack at_z(1, m, m);
+    const cdouble q = cdouble(z, -zr);
+    for (std::size_t i = 0; i < m; ++i)
+      for (std::size_t j = 0; j < m; ++j) {
+        const double y = (double(i) - double(m / 2)) * c.pitch_m, x = (double(j) - double(m / 2)) * c.pitch_m;
+        at_z(0, i, j) = cdouble(0, -zr) / q * std::exp(cdouble(0, M_PI * (x * x + y * y) / lambda) / q);
+      }
+    // Tolerances: the Gaussian's spectrum at the transfer function's limit and its tails at
+    // the window edge are < e^-38, so the double Fresnel result is exact to rounding (1e-9);
+    // the angular spectrum differs from the paraxial closed form by k z θ⁴ / 8 ~ 3e-5 rad
+    // (θ = λ / (π w0)), and float32 FFTs of M = 256 give ~1e-6: 1e-4 for both. A flipped sign
+    // gives a relative L2 error of order 1.
+    for (Propagator p : {Propagator::Fresnel, Propagator::AngularSpectrum}) {
+      CAPTURE(int(p));
+      const double tol_ref = p == Propagator::Fresnel ? 1e-9 : 1e-4;
+      ComplexStack fwd = waist, back = at_z;
+      ref::propagate(fwd, {500}, c.pitch_m, z, p);
+      ref::propagate(back, {500}, c.pitch_m, -z, p);
+      CHECK(diff(fwd.data, at_z.data).rel_l2 <= tol_ref);
+      CHECK(diff(back.data, waist.data).rel_l2 <= tol_ref);
+      c.propagator = p;
+      Simulator sim(runtime(), c, Precision::F32);
+      CHECK(diff(sim.propagate_field(waist, z).data, at_z.data).rel_l2 <= 1e-4);
+      CHECK(diff(sim.propagate_field(at_z, -z).data, waist.data).rel_l2 <= 1e-4);
+    }
   }
 
   TEST_CASE("Fresnel transfer function agrees with a direct Fresnel integral") {

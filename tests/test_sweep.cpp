@@ -144,7 +144,10 @@ TEST_SUITE("sweep") {
     CHECK(cells[1].mode == "fresnel");
     CHECK(cells[2].mode == "cassi");
     CHECK(cells[2].levels == -1);
-    for (const auto& c : cells) CHECK(std::isfinite(c.mean.psnr));
+    for (const auto& c : cells) {  // plausible reconstruction PSNRs (scenes in [0, 1])
+      CHECK(c.mean.psnr > 10);
+      CHECK(c.mean.psnr < 60);
+    }
     std::ifstream t1(dir / "table1.md");
     std::string text((std::istreambuf_iterator<char>(t1)), std::istreambuf_iterator<char>());
     CHECK(text.find("| n/a | cassi |") != std::string::npos);
