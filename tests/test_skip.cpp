@@ -18,6 +18,11 @@ using namespace qdo::test;
 
 namespace {
 
+// One scene shape for every case that does not need its own (tiling, alignment), so each FFT
+// grid is planned and compiled once: PoCL compiles the FFT kernels per size, and one-off shapes
+// made this suite a third of the cold default run. Non-square, and neither side a power of two.
+constexpr std::size_t kSceneRows = 40, kSceneCols = 52;
+
 // "small" physics at N = 128 (sensor PSF S = 64), 31 bands on the FLIR response.
 SystemConfig skip_config(std::size_t n = 128) {
   SystemConfig c = preset_config("small");
@@ -82,7 +87,7 @@ TEST_SUITE("skip") {
 TEST_CASE("exact mode equals Simulator::sensor_images in float32 and float64") {
   const SystemConfig cfg = skip_config();
   const Map2D lens = lens_design(cfg, 550);
-  const std::vector<RealStack> cubes{random_cube(31, 40, 52, 1), textured_cube(31, 40, 52, 2)};
+  const std::vector<RealStack> cubes{random_cube(31, kSceneRows, kSceneCols, 1), textured_cube(31, kSceneRows, kSceneCols, 2)};
   for (Precision p : {Precision::F64, Precision::F32}) {
     CAPTURE(to_string(p));
     Rig rig(cfg, p, lens);
@@ -92,7 +97,7 @@ TEST_CASE("exact mode equals Simulator::sensor_images in float32 and float64") {
     const auto got = im.images(cubes, o);
     const auto want = rig.sim->sensor_images(cubes);
     const std::size_t s = rig.sim->sensor_size();
-    const double tol = fft_tol(p, double(fast_fft_size(40 + s - 1) * fast_fft_size(52 + s - 1)));
+    const double tol = fft_tol(p, double(fast_fft_size(kSceneRows + s - 1) * fast_fft_size(kSceneCols + s - 1)));
     const double err = max_abs_diff(got, want);
     MESSAGE("exact vs sensor_images, " << to_string(p) << ": max |diff| = " << err << " (tol " << tol << ")");
     CHECK(err <= tol);
@@ -112,7 +117,7 @@ TEST_CASE("exact mode reproduces the simulator's noise and circular convolution"
   cfg.read_noise_sigma = 0.01;
   cfg.noise_seed = 77;
   const Map2D h = random_heights(cfg.n, cfg.h_max_m(), 5);
-  const std::vector<RealStack> cubes{random_cube(31, 36, 30, 3), random_cube(31, 36, 30, 4)};
+  const std::vector<RealStack> cubes{random_cube(31, kSceneRows, kSceneCols, 3), random_cube(31, kSceneRows, kSceneCols, 4)};
   SkipOptions o;
   o.exact = true;
   {
@@ -123,7 +128,7 @@ TEST_CASE("exact mode reproduces the simulator's noise and circular convolution"
   }
   cfg.read_noise_sigma = 0;
   cfg.convolution = ConvolutionMode::Circular;
-  const std::vector<RealStack> sq{random_cube(31, 48, 40, 6)};
+  const std::vector<RealStack> sq{random_cube(31, kSceneRows, kSceneCols, 6)};
   Rig rig(cfg, Precision::F64, h);
   SceneImager im(*rig.sim);
   CHECK(max_abs_diff(im.images(sq, o), rig.sim->sensor_images(sq)) <= 1e-12);
@@ -136,7 +141,7 @@ TEST_CASE("exact mode reproduces the simulator's noise and circular convolution"
 TEST_CASE("crop rule: matches the CPU reference of the cropped computation and stays within its bound") {
   const SystemConfig cfg = skip_config();
   const Map2D lens = lens_design(cfg, 550);
-  const std::vector<RealStack> cubes{textured_cube(31, 44, 38, 11), random_cube(31, 44, 38, 12)};
+  const std::vector<RealStack> cubes{textured_cube(31, kSceneRows, kSceneCols, 11), random_cube(31, kSceneRows, kSceneCols, 12)};
   Rig ref64(cfg, Precision::F64, lens);
   const auto unskipped = ref64.sim->sensor_images(cubes);
   const RealStack psf = ref64.sim->psf_sensor();
@@ -184,7 +189,7 @@ TEST_CASE("band rule: zero-response and dark bands are skipped within the bound"
   }
   cfg.camera = csv;
   const Map2D h = random_heights(cfg.n, cfg.h_max_m(), 21);
-  std::vector<RealStack> cubes{textured_cube(31, 33, 41, 22)};
+  std::vector<RealStack> cubes{textured_cube(31, kSceneRows, kSceneCols, 22)};
   for (std::size_t b = 27; b < 31; ++b)
     for (std::size_t i = 0; i < cubes[0].plane_size(); ++i) cubes[0].plane(b)[i] *= 1e-5;
   Rig r64(cfg, Precision::F64, h);
@@ -324,17 +329,17 @@ TEST_CASE("alignment: off-centre point PSFs shift the scene exactly as the unski
   dx[1] = -3;
   RealStack psf(bands, s, s);
   for (std::size_t b = 0; b < bands; ++b) psf(b, std::size_t(int(c) + dy[b]), std::size_t(int(c) + dx[b])) = 1.0;
-  const RealStack cube = random_cube(bands, 37, 45, 52);
+  const RealStack cube = random_cube(bands, kSceneRows, kSceneCols, 52);
   const Eigen::MatrixXd srf = sensor_response(cfg);
   // Expected: I_c(y, x) = sum_b srf(c, b) cube_b(y - dy_b, x - dx_b), zero outside.
-  RealStack want(3, 37, 45);
+  RealStack want(3, kSceneRows, kSceneCols);
   for (std::size_t ch = 0; ch < 3; ++ch)
-    for (int y = 0; y < 37; ++y)
-      for (int x = 0; x < 45; ++x) {
+    for (int y = 0; y < int(kSceneRows); ++y)
+      for (int x = 0; x < int(kSceneCols); ++x) {
         double v = 0;
         for (std::size_t b = 0; b < bands; ++b) {
           const int yy = y - dy[b], xx = x - dx[b];
-          if (yy >= 0 && yy < 37 && xx >= 0 && xx < 45) v += srf(Eigen::Index(ch), Eigen::Index(b)) * cube(b, std::size_t(yy), std::size_t(xx));
+          if (yy >= 0 && yy < int(kSceneRows) && xx >= 0 && xx < int(kSceneCols)) v += srf(Eigen::Index(ch), Eigen::Index(b)) * cube(b, std::size_t(yy), std::size_t(xx));
         }
         want(ch, std::size_t(y), std::size_t(x)) = v;
       }
@@ -346,14 +351,14 @@ TEST_CASE("alignment: off-centre point PSFs shift the scene exactly as the unski
   for (std::size_t b = 0; b < bands; ++b) psf2(b, c + 2, c - 1) = 1.0;
   psf2(0, c + 2, c - 1) = 0;
   psf2(0, c - 4, c + 6) = 1.0;
-  RealStack want2(3, 37, 45);
+  RealStack want2(3, kSceneRows, kSceneCols);
   for (std::size_t ch = 0; ch < 3; ++ch)
-    for (int y = 0; y < 37; ++y)
-      for (int x = 0; x < 45; ++x) {
+    for (int y = 0; y < int(kSceneRows); ++y)
+      for (int x = 0; x < int(kSceneCols); ++x) {
         double v = 0;
         for (std::size_t b = 0; b < bands; ++b) {
           const int yy = y - (b == 0 ? -4 : 2), xx = x - (b == 0 ? 6 : -1);
-          if (yy >= 0 && yy < 37 && xx >= 0 && xx < 45) v += srf(Eigen::Index(ch), Eigen::Index(b)) * cube(b, std::size_t(yy), std::size_t(xx));
+          if (yy >= 0 && yy < int(kSceneRows) && xx >= 0 && xx < int(kSceneCols)) v += srf(Eigen::Index(ch), Eigen::Index(b)) * cube(b, std::size_t(yy), std::size_t(xx));
         }
         want2(ch, std::size_t(y), std::size_t(x)) = v;
       }
@@ -391,7 +396,7 @@ TEST_CASE("reuse: OTFs built once per PSF generation and shared across calls and
   const SystemConfig cfg = skip_config();
   Rig rig(cfg, Precision::F32, lens_design(cfg, 550));
   SceneImager im(*rig.sim);
-  const std::vector<RealStack> one{random_cube(31, 32, 32, 61)}, two{random_cube(31, 32, 32, 62), random_cube(31, 32, 32, 61)};
+  const std::vector<RealStack> one{random_cube(31, kSceneRows, kSceneCols, 61)}, two{random_cube(31, kSceneRows, kSceneCols, 62), random_cube(31, kSceneRows, kSceneCols, 61)};
   const SkipOptions o = SkipOptions::split(1e-4);
   const auto a = im.images(one, o);
   CHECK(im.otf_builds() == 1);
@@ -410,7 +415,7 @@ TEST_CASE("reuse: OTFs built once per PSF generation and shared across calls and
 
 TEST_CASE("bad options and inputs are rejected before any work") {
   const SystemConfig cfg = skip_config();
-  const std::vector<RealStack> cubes{random_cube(31, 16, 16, 71)};
+  const std::vector<RealStack> cubes{random_cube(31, kSceneRows, kSceneCols, 71)};
   {
     Simulator sim(runtime(), cfg, Precision::F32);
     SceneImager im(sim);
@@ -439,8 +444,8 @@ TEST_CASE("bad options and inputs are rejected before any work") {
   CHECK_THROWS_WITH_AS(tile_mode_from_string("sometimes"), doctest::Contains("tiles"), InputError);
   CHECK_THROWS_WITH_AS(SkipOptions::split(-1), doctest::Contains("tolerance"), InputError);
   CHECK_THROWS_WITH_AS((void)im.images({}), doctest::Contains("cubes"), InputError);
-  CHECK_THROWS_WITH_AS((void)im.images({random_cube(30, 16, 16, 1)}), doctest::Contains("bands"), InputError);
-  CHECK_THROWS_WITH_AS((void)im.images({cubes[0], random_cube(31, 16, 17, 1)}), doctest::Contains("cubes[1]"), InputError);
+  CHECK_THROWS_WITH_AS((void)im.images({random_cube(30, kSceneRows, kSceneCols, 1)}), doctest::Contains("bands"), InputError);
+  CHECK_THROWS_WITH_AS((void)im.images({cubes[0], random_cube(31, kSceneRows, kSceneCols + 1, 1)}), doctest::Contains("cubes[1]"), InputError);
   RealStack nan_cube = cubes[0];
   nan_cube(3, 2, 1) = std::nan("");
   CHECK_THROWS_WITH_AS((void)im.images({nan_cube}), doctest::Contains("finite"), InputError);
