@@ -80,9 +80,22 @@ std::vector<double> split_doubles(const std::string& s, char sep) {
 // The tiny system of the other tests (tiny_config: N = 32, 3 bands), as a --config file.
 SystemConfig tiny() { return tiny_config(32, 3); }
 
+// A temporary folder removed when the test binary exits (for the files shared between cases).
+struct ScratchDir {
+  fs::path dir;
+  explicit ScratchDir(const std::string& tag) : dir(temp_dir(tag)) {}
+  ScratchDir(const ScratchDir&) = delete;
+  ScratchDir& operator=(const ScratchDir&) = delete;
+  ~ScratchDir() {
+    std::error_code ec;
+    fs::remove_all(dir, ec);
+  }
+};
+
 const fs::path& tiny_config_file() {
+  static const ScratchDir d("cmd_cfg");
   static const fs::path p = [] {
-    const fs::path f = temp_dir("cmd_cfg") / "tiny.json";
+    const fs::path f = d.dir / "tiny.json";
     std::ofstream(f) << config_to_json_text(tiny()) << "\n";
     return f;
   }();
@@ -100,9 +113,10 @@ struct SharedRun {
   Run result;
 };
 const SharedRun& shared_run() {
+  static const ScratchDir d("cmd_run");
   static const SharedRun r = [] {
     SharedRun s;
-    s.dir = temp_dir("cmd_run") / "run";
+    s.dir = d.dir / "run";
     s.result = qdo_run("design " + cfg_arg() + " --mode qdo+a --levels " + std::to_string(kLevels) +
                        " --epochs 5 --steps-per-epoch 2 --t0 1 --t1 4 --synthetic-scenes 3 --seed 3 --max-steps " +
                        std::to_string(kSteps) + " --out " + s.dir.string());
@@ -235,6 +249,20 @@ TEST_SUITE("commands") {
     CHECK(again.code == 2);
     CHECK(again.out.find("--resume") != std::string::npos);
     CHECK(fs::last_write_time(run / "checkpoint.h5") == stamp);
+    // --resume on a copy continues from the checkpoint with config.json's options: one more step,
+    // the first two log rows kept as they were.
+    const auto copy_dir = temp_dir("cmd_resume");
+    const fs::path copy = copy_dir / "run";
+    fs::copy(run, copy, fs::copy_options::recursive);
+    const Run res = qdo_run("design --resume --max-steps 3 --out " + copy.string());
+    CAPTURE(res.out);
+    REQUIRE(res.code == 0);
+    CHECK(load_checkpoint((copy / "checkpoint.h5").string(), parameter_count(o.design.parameterization, 32), kLevels).step == 3);
+    const CsvTable log3 = read_csv((copy / "log.csv").string());
+    REQUIRE(log3.column("step").size() == 3);
+    for (std::size_t c = 0; c < 5; ++c)  // step, loss, loss_aq, alpha, lr (not the step time)
+      for (std::size_t i = 0; i < 2; ++i) CHECK(log3.raw[c][i] == log.raw[c][i]);
+    fs::remove_all(copy_dir);
   }
 
   TEST_CASE("qdo eval writes metrics that parse, are plausible and equal the library's") {
@@ -532,13 +560,16 @@ TEST_SUITE("commands") {
     fs::remove_all(dir);
   }
 
-  TEST_CASE("documented exit codes: 0 ok, 2 bad input, 3 accuracy refusal, 4 device error") {
+  TEST_CASE("documented exit codes: 0 ok, 2 bad input, 3 accuracy refusal, 4 device error, 1 other") {
     const auto dir = temp_dir("cmd_codes");
     const std::string out = (dir / "out").string();
     // 0: help.
     const Run help = qdo_run("--help");
     CHECK(help.code == 0);
     CHECK(help.out.find("usage:") != std::string::npos);
+    const Run devices = qdo_run("devices");
+    CHECK(devices.code == 0);
+    CHECK(devices.out.find("default: ") != std::string::npos);
     // 2: no command, an unknown command, an unknown option, a bad value, a missing --out.
     CHECK(qdo_run("").code == 2);
     const Run unk = qdo_run("frobnicate");
@@ -573,6 +604,12 @@ TEST_SUITE("commands") {
     CAPTURE(nodev.out);
     CHECK(nodev.code == 4);
     CHECK(nodev.out.find("device error") != std::string::npos);
+    // 1: any other failure, e.g. an output folder that cannot be created (a regular file in its path:
+    // the filesystem error is not classified as an input error).
+    std::ofstream(dir / "a_file") << "x";
+    const Run other = qdo_run("psf " + cfg_arg() + " --design flat --out " + (dir / "a_file" / "sub").string());
+    CHECK(other.code == 1);
+    CHECK(other.out.find("cannot create directories") != std::string::npos);
     // 5 (gradient check failed) cannot be forced: see the gradcheck case.
     fs::remove_all(dir);
   }
