@@ -3,7 +3,9 @@
 // and `qdo simulate`'s image against the library's.
 //
 // One qdo+a run (`qdo design --max-steps 2`) is made on first use and shared by the cases that
-// consume a run folder (eval, sweep-psf --adaptive-from, tolerance, export, simulate).
+// consume a run folder (eval, sweep-psf --adaptive-from, tolerance, export, simulate). `qdo demo`
+// has no --config, so it runs on the small preset (N = 256, 31 bands) with 2 steps per design.
+// No case needs ../shared. Warm, the suite takes about 15-25 s on 2 CPU cores (PoCL).
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -191,7 +193,7 @@ TEST_SUITE("commands") {
     CHECK(o.synthetic_scenes == 3);
     CHECK(o.design.seed == 3);
     CHECK(config_to_json_text(o.cfg) == config_to_json_text(tiny()));
-    // The checkpoint stopped at step 2 (of 10), with one offset per level.
+    // The checkpoint stopped at step 2 (of 5 epochs x 2 steps), with one offset per level.
     const DesignState st = load_checkpoint((run / "checkpoint.h5").string(), parameter_count(o.design.parameterization, 32), kLevels);
     CHECK(st.step == kSteps);
     CHECK(st.offsets.size() == std::size_t(kLevels));
@@ -591,8 +593,9 @@ TEST_SUITE("commands") {
     const Run nodevice = qdo_run("psf " + cfg_arg() + " --design flat --device no-such-device-anywhere --out " + out);
     CHECK(nodevice.code == 2);
     CHECK(nodevice.out.find("no-such-device-anywhere") != std::string::npos);
-    // 3: strict_sampling refuses an under-sampled transfer function. The tiny system has the paper's
-    // sampling ratio (under-sampled at 550 nm and beyond); a strong lens puts energy past the limit.
+    // 3: strict_sampling refuses an under-sampled transfer function. The tiny system keeps the paper's
+    // sampling ratio, so its longer bands are under-sampled; a lens for 450 nm puts 0.8 % of the field
+    // energy at 500 nm beyond the limit (1e-4 allowed).
     SystemConfig strict = tiny();
     strict.strict_sampling = true;
     std::ofstream(dir / "strict.json") << config_to_json_text(strict);
