@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "qdo/error.hpp"
+#include "json_strict.hpp"
 #include "qdo/materials.hpp"
 
 namespace qdo {
@@ -296,7 +297,7 @@ SystemConfig config_from_json_text(const std::string& text, const std::string& o
       reject("configuration size", std::to_string(text.size()) + " bytes", "at most 1 MiB of JSON");
     json j;
     try {
-      j = json::parse(text);
+      j = parse_json_strict(text, "");
     } catch (const json::exception& e) {  // parse_error, and out_of_range for numbers like 1e999
       throw InputError(std::string("invalid JSON: ") + e.what());
     }

@@ -16,6 +16,7 @@
 #include "qdo/adjoint.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
+#include "json_strict.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
@@ -207,7 +208,7 @@ std::string design_run_options_to_json(const DesignRunOptions& o) {
 DesignRunOptions design_run_options_from_json(const std::string& text, const std::string& origin) {
   DesignRunOptions o;
   try {
-    const json j = json::parse(text);
+    const json j = parse_json_strict(text, "file '" + origin + "'");
     o.cfg = config_from_json_text(j.at("system").dump(), origin + " (system)");
     const json& d = j.at("design");
     o.design.mode = design_mode_from_string(d.at("mode").get<std::string>());

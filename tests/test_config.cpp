@@ -226,6 +226,26 @@ TEST_SUITE("config") {
     CHECK_THROWS_WITH_AS(zero_bands.validate(), doctest::Contains("bands"), qdo::InputError);
   }
 
+  TEST_CASE("a key given twice in one JSON object is refused, naming the key and the file") {
+    // nlohmann::json keeps the last of two equal keys silently: {"n": 256, "n": 4096} read as 4096.
+    CHECK_THROWS_WITH_AS(from_json(R"({"n": 256, "bands": 4, "n": 4096})"), doctest::Contains("test.json: duplicate key 'n'"),
+                         qdo::InputError);
+    CHECK_THROWS_WITH_AS(from_json(R"({"read_noise_sigma": 0.01, "read_noise_sigma": 0.01})"),
+                         doctest::Contains("duplicate key 'read_noise_sigma'"), qdo::InputError);
+    CHECK_THROWS_WITH_AS(from_json(R"({"preset": "small", "preset": "paper"})"), doctest::Contains("duplicate key 'preset'"),
+                         qdo::InputError);
+    // Equal keys in different objects, and keys differing only in case, are not duplicates.
+    CHECK(from_json(R"({"preset": "small", "bands": 4})").bands == 4);
+    CHECK_THROWS_WITH_AS(from_json(R"({"N": 256})"), doctest::Contains("unknown key 'N'"), qdo::InputError);
+    const std::string path = "/tmp/qdo_test_dup_" + std::to_string(std::rand()) + ".json";
+    {
+      std::ofstream out(path);
+      out << "{\n  \"preset\": \"small\",\n  \"bands\": 4,\n  \"bands\": 31\n}\n";
+    }
+    CHECK_THROWS_WITH_AS(qdo::config_from_json_file(path), doctest::Contains((path + ": duplicate key 'bands'").c_str()), qdo::InputError);
+    std::remove(path.c_str());
+  }
+
   TEST_CASE("config files") {
     const std::string missing = "/nonexistent_dir_qdo/config.json";
     CHECK_THROWS_WITH_AS(qdo::config_from_json_file(missing), doctest::Contains(missing.c_str()), qdo::InputError);

@@ -57,6 +57,24 @@ TEST_SUITE("runs") {
     CHECK_THROWS_AS(design_run_options_from_json(j.dump(), "bad"), InputError);
   }
 
+  TEST_CASE("a run's config.json with a key given twice is refused, naming the key path and the file") {
+    DesignRunOptions o;
+    o.cfg = preset_config("small");
+    const std::string text = design_run_options_to_json(o);
+    // Repeat "levels" inside "design" and "n" inside "system" (text edits: nlohmann keeps one).
+    const std::size_t at = text.find("\"levels\"");
+    REQUIRE(at != std::string::npos);
+    const std::string twice = text.substr(0, at) + "\"levels\": 2, " + text.substr(at);
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(twice, "run/config.json"),
+                         doctest::Contains("file 'run/config.json': duplicate key 'design.levels'"), InputError);
+    const std::size_t n_at = text.find("\"n\"");
+    REQUIRE(n_at != std::string::npos);
+    const std::string n_twice = text.substr(0, n_at) + "\"n\": 64, " + text.substr(n_at);
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(n_twice, "run/config.json"), doctest::Contains("duplicate key 'system.n'"),
+                         InputError);
+    CHECK(design_run_options_from_json(text, "run/config.json").cfg.n == o.cfg.n);
+  }
+
   TEST_CASE("a resumed run equals an uninterrupted one; the design holds L heights") {
     const auto dir = temp_dir("runs");
     const std::string a = (dir / "a").string(), b = (dir / "b").string();
