@@ -246,6 +246,28 @@ TEST_SUITE("config") {
     std::remove(path.c_str());
   }
 
+  TEST_CASE("values beyond the float32 range are refused at validation, naming key, value and range") {
+    // Finite doubles that overflow float32 (1e300 read noise wrote an all-Inf sensor.h5 in f32).
+    for (const char* text : {R"({"read_noise_sigma": 1e300})", R"({"full_well_photons": 1e39})",
+                             R"({"scene_distance_m": 1e39})", R"({"base_plate_m": 1e300})"}) {
+      CAPTURE(text);
+      CHECK_THROWS_WITH_AS(from_json(text), doctest::Contains("float32 range"), qdo::InputError);
+    }
+    CHECK_THROWS_WITH_AS(from_json(R"({"read_noise_sigma": 1e300})"), doctest::Contains("'read_noise_sigma' = 1e+300"),
+                         qdo::InputError);
+    CHECK_THROWS_WITH_AS(from_json(R"({"read_noise_sigma": 1e300})"), doctest::Contains("3.402823466e+38"), qdo::InputError);
+    // Underflow to a float32 denormal or zero.
+    CHECK_THROWS_WITH_AS(from_json(R"({"read_noise_sigma": 1e-300})"), doctest::Contains("'read_noise_sigma'"), qdo::InputError);
+    CHECK_THROWS_WITH_AS(from_json(R"({"base_plate_m": 1e-40})"), doctest::Contains("'base_plate_m'"), qdo::InputError);
+    // validate() itself, not only the JSON reader.
+    SystemConfig c = qdo::preset_config("small");
+    c.full_well_photons = 5e38;
+    CHECK_THROWS_WITH_AS(c.validate(), doctest::Contains("'full_well_photons'"), qdo::InputError);
+    // Inside the range: accepted.
+    CHECK(from_json(R"({"read_noise_sigma": 0, "full_well_photons": 1e30, "scene_distance_m": 1e30})").full_well_photons == 1e30);
+    CHECK(from_json(R"({"scene_distance_m": "inf"})").scene_at_infinity);
+  }
+
   TEST_CASE("config files") {
     const std::string missing = "/nonexistent_dir_qdo/config.json";
     CHECK_THROWS_WITH_AS(qdo::config_from_json_file(missing), doctest::Contains(missing.c_str()), qdo::InputError);
