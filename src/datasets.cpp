@@ -442,6 +442,15 @@ RealStack load_scene(const std::string& path, const std::string& format, std::si
   return cube;
 }
 
+void check_training_scene(const RealStack& cube, const std::string& path) {
+  if (cube.data.empty()) fail(path, "an empty scene (0 values) cannot be training data");
+  const auto [lo, hi] = std::minmax_element(cube.data.begin(), cube.data.end());
+  if (*lo == *hi)
+    fail(path, std::string(*lo == 0 ? "an all-zero" : "a constant") + " scene (every one of its " +
+                   std::to_string(cube.data.size()) + " values is " + to_str(*lo) +
+                   "): training scenes must vary (remove it from the training data)");
+}
+
 SceneShape probe_scene(const std::string& path, const std::string& format, std::size_t expected_bands) {
   const std::string fmt = resolve_format(path, format);
   if (fmt == "cave-png") return png_folder_shape(path, expected_bands);

@@ -48,6 +48,7 @@ std::vector<RealStack> training_scenes(const DesignRunOptions& o) {
   const auto& use = split.train.empty() ? split.test : split.train;
   for (std::size_t i : use) {
     const RealStack cube = idx.load(i);
+    check_training_scene(cube, idx[i].path);
     if (cube.rows < s || cube.cols < s)
       reject("data", idx[i].path, "scenes of at least " + to_str(s) + " x " + to_str(s) + " pixels (the sensor PSF size)");
     for (auto& p : extract_patches(cube, s, s / 2)) out.push_back(std::move(p));

@@ -147,6 +147,18 @@ bool same(const RealStack& a, const RealStack& b) {
 }  // namespace
 
 TEST_SUITE("datasets") {
+  TEST_CASE("an all-zero or constant training scene is refused, naming the file") {
+    CHECK_THROWS_WITH_AS(check_training_scene(RealStack(3, 8, 8, 0.0), "zeros.h5"),
+                         doctest::Contains("file 'zeros.h5': an all-zero scene"), InputError);
+    CHECK_THROWS_WITH_AS(check_training_scene(RealStack(3, 8, 8, 0.5), "gray.h5"),
+                         doctest::Contains("file 'gray.h5': a constant scene"), InputError);
+    CHECK_THROWS_WITH_AS(check_training_scene(RealStack(3, 8, 8, 0.5), "gray.h5"), doctest::Contains("0.5"), InputError);
+    CHECK_THROWS_AS(check_training_scene(RealStack(), "empty.h5"), InputError);
+    RealStack one_pixel(3, 8, 8, 0.0);
+    one_pixel(2, 7, 7) = 1e-3;  // any variation is information
+    CHECK_NOTHROW(check_training_scene(one_pixel, "x.h5"));
+  }
+
   TEST_CASE("HDF5 /cube files read back exactly (format h5 and auto)") {
     TempDir tmp("h5");
     const RealStack cube = random_stack(4, 5, 7, 1);

@@ -191,6 +191,23 @@ TEST_SUITE("runs") {
     std::filesystem::remove_all(dir);
   }
 
+  TEST_CASE("a design run refuses an all-zero training scene, naming it, before writing anything") {
+    const auto dir = temp_dir("runs_zero_scene");
+    DesignRunOptions o = tiny_run((dir / "run").string(), DesignMode::QDO);
+    const std::size_t s = o.cfg.sensor_size_px();
+    std::vector<std::string> paths;
+    for (int k = 0; k < 3; ++k) {
+      paths.push_back((dir / ("zero" + std::to_string(k) + ".h5")).string());
+      write_cube(paths.back(), RealStack(o.cfg.bands, 2 * s, 2 * s, 0.0), o.cfg.wavelengths_nm());
+    }
+    o.data = paths;
+    o.data_format = "h5";
+    CHECK_THROWS_WITH_AS(run_design(runtime(), o, false), doctest::Contains("an all-zero scene"), InputError);
+    CHECK_THROWS_WITH_AS(run_design(runtime(), o, false), doctest::Contains("zero"), InputError);
+    CHECK_FALSE(std::filesystem::exists(dir / "run" / "design.h5"));
+    std::filesystem::remove_all(dir);
+  }
+
   TEST_CASE("eval: metrics and figures; do and do-refit differ exactly in the decoder") {
     const auto dir = temp_dir("eval");
     const std::string run = (dir / "do").string();

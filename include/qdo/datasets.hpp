@@ -72,6 +72,12 @@ bool operator==(const SceneShape& a, const SceneShape& b);
 // info, HDF5 dataspace, PNG headers) and by reading the scene otherwise.
 SceneShape probe_scene(const std::string& path, const std::string& format = "auto", std::size_t expected_bands = 31);
 
+// Training data must carry information: InputError naming `path` when every value of the
+// cube is the same (all zero, or constant). Such a scene gives the spectral prior nothing
+// (an all-zero one makes every reconstruction score perfectly) and is refused when a design
+// run loads its training scenes.
+void check_training_scene(const RealStack& cube, const std::string& path);
+
 // =========================================================================================
 // Scene index and split
 // =========================================================================================
