@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "qdo/error.hpp"
+#include "json_strict.hpp"
 #include "qdo/materials.hpp"
 
 namespace qdo {
@@ -48,6 +49,19 @@ namespace {
 // Rejects NaN and infinities as well as values outside [lo, hi].
 void check_finite_range(const char* key, double v, double lo, double hi, const std::string& allowed) {
   if (!std::isfinite(v) || v < lo || v > hi) reject(key, v, allowed);
+}
+
+// Kernels may run in float32 (--precision f32, or a device without fp64), and sensor images
+// are float32 either way: a value that is a finite double but overflows float32 (1e300 read
+// noise wrote an all-Inf sensor.h5) or underflows to 0 / a denormal is refused here, naming the
+// key, the value and the representable range.
+void check_float32(const char* key, double v) {
+  constexpr double lo = std::numeric_limits<float>::min(), hi = std::numeric_limits<float>::max();
+  const double a = std::fabs(v);
+  if (!std::isfinite(v) || a > hi || (a != 0 && a < lo))
+    reject(key, v,
+           "0 or a magnitude from " + to_str(lo) + " to " + to_str(hi) +
+               " (the float32 range: kernels run in float32 with --precision f32)");
 }
 
 }  // namespace
@@ -93,6 +107,19 @@ void SystemConfig::validate() const {
     reject("convolution", static_cast<int>(convolution), "\"linear\" or \"circular\"");
   check_finite_range("read_noise_sigma", read_noise_sigma, 0.0, inf, "a finite sigma >= 0 (units of full scale)");
   check_finite_range("full_well_photons", full_well_photons, 0.0, inf, "a finite count >= 0 (0 disables shot noise)");
+  // Last, so that the range checks above name their own limits first.
+  for (const auto& [key, value] : {std::pair<const char*, double>{"pitch_m", pitch_m},
+                                   {"wavelength_start_nm", wavelength_start_nm},
+                                   {"wavelength_step_nm", wavelength_step_nm},
+                                   {"sensor_distance_m", sensor_distance_m},
+                                   {"aperture_radius_m", aperture_radius_m},
+                                   {"base_wavelength_nm", base_wavelength_nm},
+                                   {"base_plate_m", base_plate_m},
+                                   {"sensor_pitch_m", sensor_pitch_m},
+                                   {"read_noise_sigma", read_noise_sigma},
+                                   {"full_well_photons", full_well_photons}})
+    check_float32(key, value);
+  if (!scene_at_infinity && std::isfinite(scene_distance_m)) check_float32("scene_distance_m", scene_distance_m);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -296,7 +323,7 @@ SystemConfig config_from_json_text(const std::string& text, const std::string& o
       reject("configuration size", std::to_string(text.size()) + " bytes", "at most 1 MiB of JSON");
     json j;
     try {
-      j = json::parse(text);
+      j = parse_json_strict(text, "");
     } catch (const json::exception& e) {  // parse_error, and out_of_range for numbers like 1e999
       throw InputError(std::string("invalid JSON: ") + e.what());
     }

@@ -242,10 +242,9 @@ class PngRead {
   explicit PngRead(const std::string& path) : path_(path) {
     if (!png_image_begin_read_from_file(&img_.img, path.c_str()))
       fail(path, std::string("not a readable PNG file (") + img_.img.message + ")");
-    if (img_.img.format & PNG_FORMAT_FLAG_COLOR)
-      fail(path, "colour PNG (RGB/RGBA or a colour palette); a band image must be single-channel grayscale");
-    if (img_.img.format & PNG_FORMAT_FLAG_ALPHA)
-      fail(path, "grayscale PNG with an alpha channel; a band image must be single-channel grayscale");
+    // Colour (RGB, RGBA, colour palette) and alpha files are decoded to four channels and
+    // accepted when every pixel is grey (R = G = B) and opaque (checked in finish()).
+    four_channels_ = (img_.img.format & (PNG_FORMAT_FLAG_COLOR | PNG_FORMAT_FLAG_ALPHA)) != 0;
     // Decoding allocates what the header declares: check it against the file first. Each row
     // holds a filter byte and at least 1 bit per pixel, deflated at most ~1032:1.
     const std::uintmax_t w = img_.img.width, h = img_.img.height;
@@ -267,6 +266,18 @@ class PngRead {
   std::vector<double> finish() {
     const std::size_t n = width() * height();
     std::vector<double> out(n);
+    if (four_channels_) {
+      if (sixteen_bit()) {
+        std::vector<png_uint_16> buf(4 * n);
+        decode(PNG_FORMAT_LINEAR_RGB_ALPHA, buf.data());
+        grey_opaque(buf, 65535, out);
+      } else {
+        std::vector<png_byte> buf(4 * n);
+        decode(PNG_FORMAT_RGBA, buf.data());
+        grey_opaque(buf, 255, out);
+      }
+      return out;
+    }
     if (sixteen_bit()) {
       img_.img.format = PNG_FORMAT_LINEAR_Y;
       std::vector<png_uint_16> buf(n);
@@ -284,8 +295,33 @@ class PngRead {
   }
 
  private:
+  void decode(png_uint_32 format, void* buf) {
+    img_.img.format = format;
+    if (!png_image_finish_read(&img_.img, nullptr, buf, 0, nullptr))
+      fail(path_, std::string("cannot decode the PNG data, truncated or corrupt file (") + img_.img.message + ")");
+  }
+  // RGBA pixels to one grey channel: R = G = B and alpha at full scale everywhere, else an
+  // InputError naming the first pixel that is coloured or transparent. (libpng premultiplies
+  // 16-bit colour by alpha, so only opaque pixels keep their value.)
+  template <typename T>
+  void grey_opaque(const std::vector<T>& buf, double full, std::vector<double>& out) const {
+    const std::size_t w = width();
+    for (std::size_t i = 0; i < out.size(); ++i) {
+      const T r = buf[4 * i], g = buf[4 * i + 1], b = buf[4 * i + 2], a = buf[4 * i + 3];
+      auto at = [&] { return "pixel (row " + std::to_string(i / w) + ", column " + std::to_string(i % w) + ")"; };
+      if (r != g || g != b)
+        fail(path_, "colour PNG with a coloured " + at() + " (R, G, B = " + std::to_string(r) + ", " + std::to_string(g) +
+                        ", " + std::to_string(b) + "); a band image must be grayscale, or RGB(A) with R = G = B");
+      if (a != static_cast<T>(full))
+        fail(path_, "PNG with a transparent " + at() + " (alpha " + std::to_string(a) + " of " + to_str(full) +
+                        "); a band image must be opaque");
+      out[i] = r / full;
+    }
+  }
+
   std::string path_;
   PngImage img_;
+  bool four_channels_ = false;
 };
 
 std::vector<std::string> checked_band_files(const std::string& dir, std::size_t expected_bands) {
@@ -440,6 +476,15 @@ RealStack load_scene(const std::string& path, const std::string& format, std::si
     cube = read_cube(path, opt);
   }
   return cube;
+}
+
+void check_training_scene(const RealStack& cube, const std::string& path) {
+  if (cube.data.empty()) fail(path, "an empty scene (0 values) cannot be training data");
+  const auto [lo, hi] = std::minmax_element(cube.data.begin(), cube.data.end());
+  if (*lo == *hi)
+    fail(path, std::string(*lo == 0 ? "an all-zero" : "a constant") + " scene (every one of its " +
+                   std::to_string(cube.data.size()) + " values is " + to_str(*lo) +
+                   "): training scenes must vary (remove it from the training data)");
 }
 
 SceneShape probe_scene(const std::string& path, const std::string& format, std::size_t expected_bands) {

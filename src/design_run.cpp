@@ -16,6 +16,7 @@
 #include "qdo/adjoint.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
+#include "json_strict.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
@@ -47,6 +48,7 @@ std::vector<RealStack> training_scenes(const DesignRunOptions& o) {
   const auto& use = split.train.empty() ? split.test : split.train;
   for (std::size_t i : use) {
     const RealStack cube = idx.load(i);
+    check_training_scene(cube, idx[i].path);
     if (cube.rows < s || cube.cols < s)
       reject("data", idx[i].path, "scenes of at least " + to_str(s) + " x " + to_str(s) + " pixels (the sensor PSF size)");
     for (auto& p : extract_patches(cube, s, s / 2)) out.push_back(std::move(p));
@@ -207,7 +209,7 @@ std::string design_run_options_to_json(const DesignRunOptions& o) {
 DesignRunOptions design_run_options_from_json(const std::string& text, const std::string& origin) {
   DesignRunOptions o;
   try {
-    const json j = json::parse(text);
+    const json j = parse_json_strict(text, "file '" + origin + "'");
     o.cfg = config_from_json_text(j.at("system").dump(), origin + " (system)");
     const json& d = j.at("design");
     o.design.mode = design_mode_from_string(d.at("mode").get<std::string>());

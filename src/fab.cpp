@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <memory>
 #include <numeric>
@@ -17,6 +18,7 @@
 #include "qdo/datasets.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
+#include "json_strict.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/wiener.hpp"
@@ -477,7 +479,8 @@ Reconstruction reconstruct_export(const std::string& dir) {
   if (!f) throw InputError("file '" + mpath.string() + "': cannot open (not an export folder?)");
   json j;
   try {
-    j = json::parse(f);
+    j = parse_json_strict(std::string(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()),
+                          "file '" + mpath.string() + "'");
   } catch (const json::exception& e) {
     throw InputError("file '" + mpath.string() + "': " + e.what());
   }

@@ -459,6 +459,115 @@ void check_mat5_array_header(const std::string& path, std::uintmax_t pos, const 
   sub("name", type);
 }
 
+// The variable's name from an inflated array header (flags, dims, name sub-elements), or
+// "at byte <pos>" when the header is too short or malformed to hold one.
+std::string mat5_variable_label(std::uintmax_t pos, const unsigned char* p, std::size_t avail,
+                                const std::function<std::uint32_t(const unsigned char*)>& u32) {
+  const std::string fallback = "the variable at byte " + std::to_string(pos);
+  std::size_t off = 0;
+  for (int k = 0; k < 3; ++k) {
+    if (off + 8 > avail) return fallback;
+    const std::uint32_t w0 = u32(p + off), w1 = u32(p + off + 4);
+    std::size_t len = 0, data = off + 8, next = 0;
+    if (w0 >> 16) {  // small data element: data in the tag's second word
+      len = w0 >> 16;
+      data = off + 4;
+      next = off + 8;
+    } else {
+      len = w1;
+      next = off + 8 + (std::size_t(w1) + 7) / 8 * 8;
+    }
+    if (k == 2) {
+      if (len == 0 || len > 255 || data + len > avail) return fallback;
+      std::string name(reinterpret_cast<const char*>(p + data), len);
+      for (char c : name)
+        if (static_cast<unsigned char>(c) < 32 || static_cast<unsigned char>(c) > 126) return fallback;
+      return "variable '" + name + "' (at byte " + std::to_string(pos) + ")";
+    }
+    off = next;
+  }
+  return fallback;
+}
+
+// A compressed (miCOMPRESSED) element is inflated in full before libmatio sees it: libmatio
+// ignores zlib errors, so a few corrupted payload bytes loaded silently as different data
+// (the scene mean changed and `qdo simulate` exited 0). Every byte of the element must
+// inflate, the stream must end (Z_STREAM_END, which includes zlib's adler32 check of the
+// decoded bytes) exactly at the element's end, and the decoded size must match the inner
+// element's tag. The header is checked as for uncompressed variables. Memory stays bounded:
+// the stream is decoded in chunks and only the first bytes (the header) are kept.
+void check_mat5_compressed(const std::string& path, std::ifstream& in, std::uintmax_t pos, std::uint32_t nbytes,
+                           const std::function<std::uint32_t(const unsigned char*)>& u32) {
+  constexpr std::size_t kHeader = 256;  // enough for flags, 32 dims and a name tag
+  constexpr std::size_t kChunk = std::size_t{1} << 16;
+  std::vector<unsigned char> zin(kChunk), zout(kChunk), head;
+  head.reserve(8 + kHeader);
+  z_stream zs{};
+  if (inflateInit(&zs) != Z_OK) fail(path, "", "zlib initialisation failed");
+  struct End {
+    z_stream* z;
+    ~End() { inflateEnd(z); }
+  } end{&zs};
+  const std::string at = "the compressed variable at byte " + std::to_string(pos);
+  auto label = [&] {
+    return head.size() >= 8 ? mat5_variable_label(pos, head.data() + 8, head.size() - 8, u32) : at;
+  };
+  std::uintmax_t left = nbytes, decoded = 0;
+  const std::uintmax_t cap = std::uintmax_t(nbytes) * kMaxExpansion + kSlackBytes;
+  int rc = Z_OK;
+  bool declared_checked = false;
+  while (rc != Z_STREAM_END) {
+    if (zs.avail_in == 0) {
+      if (left == 0) break;
+      const std::size_t want = static_cast<std::size_t>(std::min<std::uintmax_t>(left, kChunk));
+      in.read(reinterpret_cast<char*>(zin.data()), static_cast<std::streamsize>(want));
+      if (static_cast<std::size_t>(in.gcount()) != want)
+        fail(path, label(), "truncated MATLAB v5 file: " + at + " ends before its " + std::to_string(nbytes) +
+                                " compressed bytes");
+      left -= want;
+      zs.next_in = zin.data();
+      zs.avail_in = static_cast<uInt>(want);
+    }
+    zs.next_out = zout.data();
+    zs.avail_out = static_cast<uInt>(zout.size());
+    rc = inflate(&zs, Z_NO_FLUSH);
+    const std::size_t got = zout.size() - zs.avail_out;
+    if (head.size() < 8 + kHeader)
+      head.insert(head.end(), zout.begin(), zout.begin() + static_cast<std::ptrdiff_t>(std::min(got, 8 + kHeader - head.size())));
+    decoded += got;
+    if (!declared_checked && head.size() >= 8) {
+      declared_checked = true;
+      const std::uint32_t declared = u32(head.data() + 4);
+      if (u32(head.data()) == 14 && declared > cap)
+        fail(path, label(), "corrupt MATLAB v5 file: " + at + " declares " + std::to_string(declared) +
+                                " bytes, more than " + std::to_string(nbytes) + " compressed bytes can hold");
+    }
+    if (rc == Z_NEED_DICT || rc == Z_DATA_ERROR || rc == Z_MEM_ERROR || rc == Z_STREAM_ERROR)
+      fail(path, label(), "corrupt MATLAB v5 file: " + at + " does not decompress (zlib: " +
+                              (zs.msg ? zs.msg : "error " + std::to_string(rc)) + "; " + std::to_string(decoded) +
+                              " bytes decoded); the payload is damaged");
+    if (rc == Z_BUF_ERROR && zs.avail_in != 0)
+      fail(path, label(), "corrupt MATLAB v5 file: " + at + " does not decompress (zlib made no progress)");
+    if (decoded > cap)
+      fail(path, label(), "corrupt MATLAB v5 file: " + at + " decompresses to more than " + std::to_string(cap) +
+                              " bytes, more than " + std::to_string(nbytes) + " compressed bytes can hold");
+  }
+  if (rc != Z_STREAM_END)
+    fail(path, label(), "corrupt MATLAB v5 file: " + at + " ends inside its zlib stream (" + std::to_string(decoded) +
+                            " bytes decoded, no end-of-stream/checksum); the payload is damaged or truncated");
+  if (zs.avail_in != 0 || left != 0)
+    fail(path, label(), "corrupt MATLAB v5 file: " + at + " has " + std::to_string(zs.avail_in + left) +
+                            " bytes after its zlib stream inside its " + std::to_string(nbytes) + "-byte element");
+  if (head.size() < 8) fail(path, label(), "corrupt MATLAB v5 file: " + at + " decompresses to less than a tag");
+  const std::uint32_t inner_type = u32(head.data()), inner_bytes = u32(head.data() + 4);
+  if (inner_type == 14 && inner_bytes > 0) {
+    if (decoded < std::uintmax_t(inner_bytes) + 8)
+      fail(path, label(), "corrupt MATLAB v5 file: " + at + " decompresses to " + std::to_string(decoded) +
+                              " bytes but its matrix tag declares " + std::to_string(inner_bytes) + " + 8");
+    check_mat5_array_header(path, pos, head.data() + 8, head.size() - 8, inner_bytes, u32);
+  }
+}
+
 void check_mat5_extent(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::error_code ec;
@@ -487,27 +596,7 @@ void check_mat5_extent(const std::string& path) {
       in.read(reinterpret_cast<char*>(h.data()), static_cast<std::streamsize>(h.size()));
       check_mat5_array_header(path, pos, h.data(), static_cast<std::size_t>(in.gcount()), nbytes, u32);
     } else if (type == 15 && nbytes > 0) {  // miCOMPRESSED: a zlib stream holding one miMATRIX element
-      std::vector<unsigned char> z(std::min<std::size_t>(nbytes, 1 << 16)), h(8 + kHeader);
-      in.read(reinterpret_cast<char*>(z.data()), static_cast<std::streamsize>(z.size()));
-      z_stream zs{};
-      if (inflateInit(&zs) != Z_OK) fail(path, "", "zlib initialisation failed");
-      zs.next_in = z.data();
-      zs.avail_in = static_cast<uInt>(in.gcount());
-      zs.next_out = h.data();
-      zs.avail_out = static_cast<uInt>(h.size());
-      const int rc = inflate(&zs, Z_SYNC_FLUSH);
-      const std::size_t got = h.size() - zs.avail_out;
-      inflateEnd(&zs);
-      if ((rc != Z_OK && rc != Z_STREAM_END && rc != Z_BUF_ERROR) || got < 8)
-        fail(path, "", "corrupt MATLAB v5 file: the compressed variable at byte " + std::to_string(pos) + " does not inflate");
-      const std::uint32_t inner_type = u32(h.data()), inner_bytes = u32(h.data() + 4);
-      if (inner_type == 14 && inner_bytes > 0) {
-        if (inner_bytes > std::uintmax_t(nbytes) * kMaxExpansion + kSlackBytes)
-          fail(path, "", "corrupt MATLAB v5 file: the compressed variable at byte " + std::to_string(pos) + " declares " +
-                             std::to_string(inner_bytes) + " bytes, more than " + std::to_string(nbytes) +
-                             " compressed bytes can hold");
-        check_mat5_array_header(path, pos, h.data() + 8, got - 8, inner_bytes, u32);
-      }
+      check_mat5_compressed(path, in, pos, nbytes, u32);
     }
     pos += 8 + padded;
   }

@@ -2,11 +2,49 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <utility>
 
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 
 namespace qdo {
+
+namespace {
+
+// The datasets a checkpoint holds, in the order the checksum covers them.
+const char* const kCheckpointSets[] = {"/w", "/offsets", "/adam_w_m", "/adam_w_v", "/adam_a_m", "/adam_a_v", "/counters"};
+
+// FNV-1a (64 bit) over each dataset's name, value count and float64 bit patterns (little-endian),
+// as "fnv1a64:<16 hex digits>". HDF5 stores float64 exactly, so an intact file reproduces it.
+std::string checkpoint_checksum(const std::vector<std::pair<std::string, const std::vector<double>*>>& sets) {
+  std::uint64_t h = 1469598103934665603ull;
+  auto byte = [&h](unsigned char b) {
+    h ^= b;
+    h *= 1099511628211ull;
+  };
+  auto u64 = [&byte](std::uint64_t v) {
+    for (int i = 0; i < 8; ++i) byte(static_cast<unsigned char>(v >> (8 * i)));
+  };
+  for (const auto& [name, data] : sets) {
+    for (char c : name) byte(static_cast<unsigned char>(c));
+    byte(0);
+    u64(data->size());
+    for (double v : *data) {
+      std::uint64_t bits = 0;
+      std::memcpy(&bits, &v, sizeof bits);
+      u64(bits);
+    }
+  }
+  char hex[17];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(h));
+  return std::string("fnv1a64:") + hex;
+}
+
+}  // namespace
 
 void save_checkpoint(const std::string& path, const DesignState& s) {
   auto vec = [](const std::string& name, const std::vector<double>& v) {
@@ -15,12 +53,30 @@ void save_checkpoint(const std::string& path, const DesignState& s) {
   std::vector<H5Dataset> ds = {vec("/w", s.w), vec("/offsets", s.offsets), vec("/adam_w_m", s.adam_w.m),
                                vec("/adam_w_v", s.adam_w.v), vec("/adam_a_m", s.adam_a.m), vec("/adam_a_v", s.adam_a.v)};
   ds.push_back({"/counters", {3}, {double(s.step), double(s.adam_w.t), double(s.adam_a.t)}, {}, {{"names", "step, adam_w.t, adam_a.t"}}});
-  h5_write(path, ds, {{"format", "qdo checkpoint 1"}});
+  std::vector<std::pair<std::string, const std::vector<double>*>> sets;
+  for (const H5Dataset& d : ds) sets.emplace_back(d.name, &d.data);
+  ds.back().str_attrs["checksum"] = checkpoint_checksum(sets);
+  h5_write(path, ds, {{"format", "qdo checkpoint 2"}});
 }
 
 DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std::size_t expected_levels, bool mask_depths) {
+  // Every dataset is read first, then the checksum (on /counters, written since format 2) is
+  // checked before any value is trusted: a flipped byte in a dataset would otherwise resume a
+  // different optimisation silently. Checkpoints without the attribute (older qdo) are read as before.
+  std::map<std::string, H5Dataset> sets;
+  for (const char* name : kCheckpointSets) sets[name] = h5_read(path, name, 1u << 28);
+  const auto& cattrs = sets["/counters"].str_attrs;
+  const auto stored = cattrs.find("checksum");
+  if (stored != cattrs.end()) {
+    std::vector<std::pair<std::string, const std::vector<double>*>> covered;
+    for (const char* name : kCheckpointSets) covered.emplace_back(name, &sets[name].data);
+    const std::string actual = checkpoint_checksum(covered);
+    if (stored->second != actual)
+      throw InputError("file '" + path + "': checksum mismatch (stored " + stored->second + ", the datasets hash to " + actual +
+                       "): the checkpoint is corrupt; resume from a copy or start the run anew");
+  }
   auto read = [&](const std::string& name, std::size_t expected, bool allow_empty) {
-    const H5Dataset d = h5_read(path, name, 1u << 28);
+    const H5Dataset& d = sets.at(name);
     const std::size_t n = d.data.size();
     if (!(n == expected || (allow_empty && n == 0)))
       throw InputError("file '" + path + "': dataset '" + name + "' has " + to_str(n) + " values, expected " + to_str(expected) +

@@ -6,8 +6,11 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
+#include <iterator>
 #include <sstream>
 #include <unistd.h>
 
@@ -232,17 +235,58 @@ cl::Program& Runtime::program(const std::string& label, const std::string& sourc
   const auto t0 = std::chrono::steady_clock::now();
   cl::Program prog;
   bool from_disk = false;
-  if (!path.empty() && std::filesystem::exists(path)) {
-    std::ifstream in(path, std::ios::binary);
-    std::vector<unsigned char> bin((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    try {
-      cl::Program::Binaries bins{bin};
-      prog = cl::Program(context_, {device_}, bins);
-      prog.build({device_}, options.c_str());
-      from_disk = true;
-    } catch (const cl::Error&) {
-      from_disk = false;  // stale or foreign binary: rebuild from source below
+  // The disk cache is untrusted: another process, a full disk or a crash may have left a
+  // truncated or corrupt entry, and handing that to clCreateProgramWithBinary crashed PoCL
+  // (SIGSEGV / assertion) in every later run. An entry is the 8-byte magic "QDOKBIN1", the
+  // binary's size and FNV-1a hash (uint64 each, little-endian), then the binary. Anything that
+  // does not match, or any failure to build from it, means: rebuild from source with a one-line
+  // note on stderr and rewrite the entry (temp file + rename). Never fatal.
+  static constexpr char kMagic[8] = {'Q', 'D', 'O', 'K', 'B', 'I', 'N', '1'};
+  constexpr std::size_t kHead = 24;
+  auto le64 = [](const unsigned char* b) {
+    std::uint64_t v = 0;
+    for (int i = 7; i >= 0; --i) v = (v << 8) | b[i];
+    return v;
+  };
+  auto hash_bytes = [](const unsigned char* b, std::size_t n) {
+    std::uint64_t x = 1469598103934665603ull;
+    for (std::size_t i = 0; i < n; ++i) {
+      x ^= b[i];
+      x *= 1099511628211ull;
     }
+    return x;
+  };
+  std::error_code ec;
+  if (!path.empty() && std::filesystem::exists(path, ec)) {
+    std::string problem;
+    std::vector<unsigned char> file;
+    {
+      std::ifstream in(path, std::ios::binary);
+      file.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+      if (!in.eof() && in.fail()) problem = "unreadable";
+    }
+    if (problem.empty()) {
+      if (file.size() < kHead || std::memcmp(file.data(), kMagic, sizeof kMagic) != 0)
+        problem = "not a qdo cache entry (" + std::to_string(file.size()) + " bytes, no header)";
+      else if (le64(file.data() + 8) != file.size() - kHead)
+        problem = "truncated or padded (header says " + std::to_string(le64(file.data() + 8)) + " bytes, holds " +
+                  std::to_string(file.size() - kHead) + ")";
+      else if (le64(file.data() + 16) != hash_bytes(file.data() + kHead, file.size() - kHead))
+        problem = "corrupt (hash mismatch)";
+    }
+    if (problem.empty()) {
+      try {
+        cl::Program::Binaries bins{std::vector<unsigned char>(file.begin() + kHead, file.end())};
+        prog = cl::Program(context_, {device_}, bins);
+        prog.build({device_}, options.c_str());
+        from_disk = true;
+      } catch (const cl::Error& e) {
+        problem = std::string("not loadable on this device (") + e.what() + " " + cl_error_name(e.err()) + ")";
+      }
+    }
+    if (!from_disk)
+      std::cerr << "qdo: note: kernel cache entry " << path.string() << " for " << label << " is " << problem
+                << "; rebuilding from source and rewriting it\n";
   }
   if (!from_disk) {
     prog = cl::Program(context_, source);
@@ -262,11 +306,20 @@ cl::Program& Runtime::program(const std::string& label, const std::string& sourc
           std::filesystem::create_directories(dir);
           const auto tmp = path.string() + ".tmp-" + std::to_string(::getpid());
           {
+            unsigned char head[kHead];
+            std::memcpy(head, kMagic, sizeof kMagic);
+            const std::uint64_t fields[2] = {bins[0].size(), hash_bytes(bins[0].data(), bins[0].size())};
+            for (int f = 0; f < 2; ++f)
+              for (int i = 0; i < 8; ++i) head[8 + 8 * f + i] = static_cast<unsigned char>(fields[f] >> (8 * i));
             std::ofstream out(tmp, std::ios::binary);
+            out.write(reinterpret_cast<const char*>(head), sizeof head);
             out.write(reinterpret_cast<const char*>(bins[0].data()), static_cast<std::streamsize>(bins[0].size()));
+            out.close();
             if (!out) throw std::runtime_error("write failed");
           }
-          std::filesystem::rename(tmp, path);
+          std::error_code rename_ec;
+          std::filesystem::rename(tmp, path, rename_ec);
+          if (rename_ec) std::filesystem::remove(tmp, rename_ec);
         }
       } catch (const std::exception&) {
         // The disk cache is an optimisation only; an unwritable cache directory is not an error.

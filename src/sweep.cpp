@@ -7,12 +7,14 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <sstream>
 
 #include "qdo/datasets.hpp"
 #include "qdo/encoders.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/error.hpp"
+#include "json_strict.hpp"
 #include "qdo/io.hpp"
 #include "qdo/run.hpp"
 #include "qdo/simulator.hpp"
@@ -244,7 +246,8 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     e.precision = base.precision;
     if (fs::exists(dir / "metrics.json")) {  // finished earlier: read it back
       std::ifstream f(dir / "metrics.json");
-      const nlohmann::json j = nlohmann::json::parse(f);
+      const nlohmann::json j = parse_json_strict(std::string(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()),
+                                                 "file '" + (dir / "metrics.json").string() + "'");
       c.mean.psnr = j["mean"]["psnr_db"];
       c.mean.psnr_hyper = j["mean"]["psnr_h_db"];
       c.mean.ssim = j["mean"]["ssim"];
@@ -298,7 +301,8 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
       const fs::path f = out / "cells" / name / "metrics.json";
       if (!fs::exists(f)) return false;
       std::ifstream in(f);
-      const nlohmann::json j = nlohmann::json::parse(in);
+      const nlohmann::json j = parse_json_strict(std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()),
+                                                 "file '" + f.string() + "'");
       c.mean.psnr = j["mean"]["psnr_db"];
       c.mean.ssim = j["mean"]["ssim"];
       c.mean.rmse = j["mean"]["rmse"];

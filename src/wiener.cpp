@@ -572,8 +572,8 @@ double ergas(const RealStack& estimate, const RealStack& truth) {
 double sam(const RealStack& estimate, const RealStack& truth) {
   check_pair(estimate, truth);
   const std::size_t n = truth.plane_size();
+  if (n == 0) return 0.0;
   double acc = 0;
-  std::size_t used = 0;
   for (std::size_t p = 0; p < n; ++p) {
     double dot = 0, ne = 0, nt = 0;
     for (std::size_t b = 0; b < truth.planes; ++b) {
@@ -582,12 +582,15 @@ double sam(const RealStack& estimate, const RealStack& truth) {
       ne += e * e;
       nt += t * t;
     }
-    if (ne == 0 || nt == 0) continue;
+    // Zero spectra (see the header): both zero agree (0); one zero is orthogonal to anything (π/2).
+    if (ne == 0 || nt == 0) {
+      acc += (ne == 0 && nt == 0) ? 0.0 : M_PI / 2;
+      continue;
+    }
     const double cosine = std::clamp(dot / std::sqrt(ne * nt), -1.0, 1.0);
     acc += std::acos(cosine);
-    ++used;
   }
-  return used == 0 ? 0.0 : acc / double(used);
+  return acc / double(n);
 }
 
 double ssim(const RealStack& estimate, const RealStack& truth) {

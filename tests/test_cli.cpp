@@ -41,6 +41,27 @@ void write_height_file(const std::string& path, std::size_t rows, std::size_t co
 }  // namespace
 
 TEST_SUITE("cli") {
+  TEST_CASE("qdo simulate --scene takes a CAVE PNG band folder, as --data does") {
+    const auto dir = temp_dir("cli_pngscene");
+    const std::string scene = (dir / "scene_ms").string(), out = (dir / "out").string();
+    std::filesystem::create_directories(scene);
+    for (int b = 1; b <= 31; ++b) {
+      std::vector<unsigned char> px(16 * 16);
+      for (std::size_t i = 0; i < px.size(); ++i) px[i] = static_cast<unsigned char>((i * 7 + static_cast<std::size_t>(b) * 5) % 256);
+      write_png(scene + "/scene_ms_" + (b < 10 ? "0" : "") + std::to_string(b) + ".png", 16, 16, 1, px);
+    }
+    const Run r = qdo_run("simulate --preset small --design flat --scene " + scene + " --out " + out);
+    CAPTURE(r.out);
+    CHECK(r.code == 0);
+    CHECK(r.out.find("scene 31 x 16 x 16") != std::string::npos);
+    CHECK(std::filesystem::exists(out + "/sensor.h5"));
+    // --key belongs to .mat / .h5 scenes only.
+    const Run k = qdo_run("simulate --preset small --design flat --scene " + scene + " --key x --out " + out);
+    CHECK(k.code != 0);
+    CHECK(k.out.find("--key") != std::string::npos);
+    std::filesystem::remove_all(dir);
+  }
+
   TEST_CASE("qdo psf writes a normalised PSF stack and figures") {
     const auto dir = temp_dir("cli_psf");
     const Run r = qdo_run("psf --preset small --design lens:550 --levels 8 --out " + dir.string());

@@ -226,6 +226,48 @@ TEST_SUITE("config") {
     CHECK_THROWS_WITH_AS(zero_bands.validate(), doctest::Contains("bands"), qdo::InputError);
   }
 
+  TEST_CASE("a key given twice in one JSON object is refused, naming the key and the file") {
+    // nlohmann::json keeps the last of two equal keys silently: {"n": 256, "n": 4096} read as 4096.
+    CHECK_THROWS_WITH_AS(from_json(R"({"n": 256, "bands": 4, "n": 4096})"), doctest::Contains("test.json: duplicate key 'n'"),
+                         qdo::InputError);
+    CHECK_THROWS_WITH_AS(from_json(R"({"read_noise_sigma": 0.01, "read_noise_sigma": 0.01})"),
+                         doctest::Contains("duplicate key 'read_noise_sigma'"), qdo::InputError);
+    CHECK_THROWS_WITH_AS(from_json(R"({"preset": "small", "preset": "paper"})"), doctest::Contains("duplicate key 'preset'"),
+                         qdo::InputError);
+    // Equal keys in different objects, and keys differing only in case, are not duplicates.
+    CHECK(from_json(R"({"preset": "small", "bands": 4})").bands == 4);
+    CHECK_THROWS_WITH_AS(from_json(R"({"N": 256})"), doctest::Contains("unknown key 'N'"), qdo::InputError);
+    const std::string path = "/tmp/qdo_test_dup_" + std::to_string(std::rand()) + ".json";
+    {
+      std::ofstream out(path);
+      out << "{\n  \"preset\": \"small\",\n  \"bands\": 4,\n  \"bands\": 31\n}\n";
+    }
+    CHECK_THROWS_WITH_AS(qdo::config_from_json_file(path), doctest::Contains((path + ": duplicate key 'bands'").c_str()), qdo::InputError);
+    std::remove(path.c_str());
+  }
+
+  TEST_CASE("values beyond the float32 range are refused at validation, naming key, value and range") {
+    // Finite doubles that overflow float32 (1e300 read noise wrote an all-Inf sensor.h5 in f32).
+    for (const char* text : {R"({"read_noise_sigma": 1e300})", R"({"full_well_photons": 1e39})",
+                             R"({"scene_distance_m": 1e39})", R"({"base_plate_m": 1e300})"}) {
+      CAPTURE(text);
+      CHECK_THROWS_WITH_AS(from_json(text), doctest::Contains("float32 range"), qdo::InputError);
+    }
+    CHECK_THROWS_WITH_AS(from_json(R"({"read_noise_sigma": 1e300})"), doctest::Contains("'read_noise_sigma' = 1e+300"),
+                         qdo::InputError);
+    CHECK_THROWS_WITH_AS(from_json(R"({"read_noise_sigma": 1e300})"), doctest::Contains("3.402823466e+38"), qdo::InputError);
+    // Underflow to a float32 denormal or zero.
+    CHECK_THROWS_WITH_AS(from_json(R"({"read_noise_sigma": 1e-300})"), doctest::Contains("'read_noise_sigma'"), qdo::InputError);
+    CHECK_THROWS_WITH_AS(from_json(R"({"base_plate_m": 1e-40})"), doctest::Contains("'base_plate_m'"), qdo::InputError);
+    // validate() itself, not only the JSON reader.
+    SystemConfig c = qdo::preset_config("small");
+    c.full_well_photons = 5e38;
+    CHECK_THROWS_WITH_AS(c.validate(), doctest::Contains("'full_well_photons'"), qdo::InputError);
+    // Inside the range: accepted.
+    CHECK(from_json(R"({"read_noise_sigma": 0, "full_well_photons": 1e30, "scene_distance_m": 1e30})").full_well_photons == 1e30);
+    CHECK(from_json(R"({"scene_distance_m": "inf"})").scene_at_infinity);
+  }
+
   TEST_CASE("config files") {
     const std::string missing = "/nonexistent_dir_qdo/config.json";
     CHECK_THROWS_WITH_AS(qdo::config_from_json_file(missing), doctest::Contains(missing.c_str()), qdo::InputError);

@@ -101,6 +101,21 @@ void write_png16(const std::string& path, std::size_t w, std::size_t h, const st
   REQUIRE(ok);
 }
 
+// A PNG through libpng's simplified write API in any format (pixels row-major, interleaved).
+template <typename T>
+void write_png_format(const std::string& path, std::size_t w, std::size_t h, png_uint_32 format, const std::vector<T>& px) {
+  png_image img;
+  std::memset(&img, 0, sizeof img);
+  img.version = PNG_IMAGE_VERSION;
+  img.width = static_cast<png_uint_32>(w);
+  img.height = static_cast<png_uint_32>(h);
+  img.format = format;
+  REQUIRE(px.size() == PNG_IMAGE_SIZE(img) / sizeof(T));
+  const int ok = png_image_write_to_file(&img, path.c_str(), 0, px.data(), 0, nullptr);
+  png_image_free(&img);
+  REQUIRE(ok);
+}
+
 // Test value of band b, pixel (y, x), below 4096 and distinct per position.
 std::uint16_t tv(std::size_t b, std::size_t y, std::size_t x) { return static_cast<std::uint16_t>((b * 131 + y * 17 + x * 3 + 1) % 4096); }
 
@@ -148,6 +163,18 @@ bool same(const RealStack& a, const RealStack& b) {
 }  // namespace
 
 TEST_SUITE("datasets") {
+  TEST_CASE("an all-zero or constant training scene is refused, naming the file") {
+    CHECK_THROWS_WITH_AS(check_training_scene(RealStack(3, 8, 8, 0.0), "zeros.h5"),
+                         doctest::Contains("file 'zeros.h5': an all-zero scene"), InputError);
+    CHECK_THROWS_WITH_AS(check_training_scene(RealStack(3, 8, 8, 0.5), "gray.h5"),
+                         doctest::Contains("file 'gray.h5': a constant scene"), InputError);
+    CHECK_THROWS_WITH_AS(check_training_scene(RealStack(3, 8, 8, 0.5), "gray.h5"), doctest::Contains("0.5"), InputError);
+    CHECK_THROWS_AS(check_training_scene(RealStack(), "empty.h5"), InputError);
+    RealStack one_pixel(3, 8, 8, 0.0);
+    one_pixel(2, 7, 7) = 1e-3;  // any variation is information
+    CHECK_NOTHROW(check_training_scene(one_pixel, "x.h5"));
+  }
+
   TEST_CASE("HDF5 /cube files read back exactly (format h5 and auto)") {
     TempDir tmp("h5");
     const RealStack cube = random_stack(4, 5, 7, 1);
@@ -294,6 +321,61 @@ TEST_SUITE("datasets") {
     }
   }
 
+  TEST_CASE("PNG band folders: 8-bit grey, and 8/16-bit RGB(A) bands with R = G = B read as grey") {
+    // The real CAVE database has one scene whose band images are RGB(A) with equal channels.
+    TempDir tmp("grey_rgb");
+    const std::size_t h = 3, w = 4, bands = 4;
+    const std::string ref = tmp / "ref", mixed = tmp / "mixed";
+    write_png_folder(ref, bands, h, w);
+    fs::create_directories(mixed);
+    for (std::size_t b = 0; b < bands; ++b) {
+      const std::string name = mixed + "/scene_ms_0" + std::to_string(b + 1) + ".png";
+      std::vector<std::uint16_t> g16(h * w);
+      for (std::size_t i = 0; i < h * w; ++i) g16[i] = static_cast<std::uint16_t>(tv(b, i / w, i % w) * 16);
+      if (b == 0) {  // 16-bit RGB
+        std::vector<std::uint16_t> px;
+        for (std::uint16_t v : g16) px.insert(px.end(), {v, v, v});
+        write_png_format(name, w, h, PNG_FORMAT_LINEAR_RGB, px);
+      } else if (b == 1) {  // 16-bit RGBA, opaque
+        std::vector<std::uint16_t> px;
+        for (std::uint16_t v : g16) px.insert(px.end(), {v, v, v, 65535});
+        write_png_format(name, w, h, PNG_FORMAT_LINEAR_RGB_ALPHA, px);
+      } else if (b == 2) {  // 8-bit RGBA, opaque
+        std::vector<std::uint8_t> px;
+        for (std::size_t i = 0; i < h * w; ++i) {
+          const auto v = static_cast<std::uint8_t>(i * 20 + 3);
+          px.insert(px.end(), {v, v, v, 255});
+        }
+        write_png_format(name, w, h, PNG_FORMAT_RGBA, px);
+      } else {  // 8-bit grey
+        std::vector<std::uint8_t> px(h * w);
+        for (std::size_t i = 0; i < h * w; ++i) px[i] = static_cast<std::uint8_t>(i * 20 + 7);
+        write_png_format(name, w, h, PNG_FORMAT_GRAY, px);
+      }
+    }
+    const RealStack r = load_scene(ref, "auto", bands), m = load_scene(mixed, "auto", bands);
+    REQUIRE(m.planes == bands);
+    REQUIRE(m.rows == h);
+    REQUIRE(m.cols == w);
+    for (std::size_t i = 0; i < h * w; ++i) {
+      CAPTURE(i);
+      CHECK(m.plane(0)[i] == r.plane(0)[i]);  // 16-bit RGB: the grey value, exactly
+      CHECK(m.plane(1)[i] == r.plane(1)[i]);  // 16-bit RGBA
+      CHECK(m.plane(2)[i] == static_cast<double>(i * 20 + 3) / 255.0);
+      CHECK(m.plane(3)[i] == static_cast<double>(i * 20 + 7) / 255.0);
+    }
+    CHECK(probe_scene(mixed, "auto", bands) == SceneShape{bands, h, w});
+    // A transparent pixel in an RGBA band: refused naming the file and the pixel.
+    const std::string bad = tmp / "transparent";
+    write_png_folder(bad, bands, h, w);
+    std::vector<std::uint8_t> px;
+    for (std::size_t i = 0; i < h * w; ++i) px.insert(px.end(), {50, 50, 50, static_cast<std::uint8_t>(i == 5 ? 128 : 255)});
+    write_png_format(bad + "/scene_ms_02.png", w, h, PNG_FORMAT_RGBA, px);
+    const std::string msg = input_error([&] { load_scene(bad, "auto", bands); });
+    CHECK(msg.find(bad + "/scene_ms_02.png") != std::string::npos);
+    CHECK(msg.find("transparent pixel (row 1, column 1)") != std::string::npos);
+  }
+
   TEST_CASE("corrupt, truncated and mis-shaped inputs are InputErrors naming the file") {
     TempDir tmp("bad");
     // A PNG folder with 30 bands.
@@ -308,10 +390,13 @@ TEST_SUITE("datasets") {
     const std::string drgb = tmp / "rgb";
     write_png_folder(drgb, 31, 4, 4);
     const std::string rgb = drgb + "/scene_ms_05.png";
-    write_png(rgb, 4, 4, 3, std::vector<unsigned char>(48, 100));
+    std::vector<unsigned char> coloured(48, 100);
+    coloured[3 * 6 + 1] = 101;  // pixel (1, 2): G differs from R and B (grey RGB is accepted)
+    write_png(rgb, 4, 4, 3, coloured);
     m = input_error([&] { load_scene(drgb, "auto", 31); });
     CHECK(m.find(rgb) != std::string::npos);
     CHECK(m.find("colour") != std::string::npos);
+    CHECK(m.find("row 1, column 2") != std::string::npos);
 
     // A truncated PNG.
     const std::string dtr = tmp / "trunc";

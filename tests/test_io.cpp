@@ -97,11 +97,11 @@ struct MatVarFreer {
 // Writes MATLAB variables (name, dims, class, column-major data) with matio, as v5 or v7.3.
 template <typename T>
 void mat_write(mat_t* mat, const std::string& name, std::vector<std::size_t> dims, matio_classes cls, matio_types type,
-               std::vector<T> data) {
+               std::vector<T> data, matio_compression compression = MAT_COMPRESSION_NONE) {
   std::unique_ptr<matvar_t, MatVarFreer> v(
       Mat_VarCreate(name.c_str(), cls, type, static_cast<int>(dims.size()), dims.data(), data.data(), MAT_F_DONT_COPY_DATA));
   REQUIRE(v);
-  REQUIRE(Mat_VarWrite(mat, v.get(), MAT_COMPRESSION_NONE) == 0);
+  REQUIRE(Mat_VarWrite(mat, v.get(), compression) == 0);
 }
 
 const std::string kShared = QDO_SHARED_DIR;
@@ -437,6 +437,53 @@ TEST_SUITE("io") {
     const std::string msg = input_error_of([&] { read_cube(one); });
     CHECK(contains(msg, "one.mat"));
     CHECK(contains(msg, "1 non-finite"));
+  }
+
+  TEST_CASE("read_cube refuses a compressed .mat variable with corrupted payload bytes") {
+    // libmatio ignores zlib errors: a compressed v5 variable with a few damaged bytes used to
+    // load silently as different data. Every byte must decode, with zlib's end of stream and
+    // adler32 check; the error names the file and the variable.
+    TmpDir tmp;
+    const std::size_t H = 6, W = 5, B = 4;
+    std::vector<double> cube(H * W * B);
+    for (std::size_t i = 0; i < cube.size(); ++i) cube[i] = 0.25 + 0.5 * std::sin(0.37 * static_cast<double>(i));
+    const std::string path = tmp / "zlib.mat";
+    {
+      std::unique_ptr<mat_t, MatCloser> mat(Mat_CreateVer(path.c_str(), nullptr, MAT_FT_MAT5));
+      REQUIRE(mat);
+      mat_write(mat.get(), "scene", {H, W, B}, MAT_C_DOUBLE, MAT_T_DOUBLE, cube, MAT_COMPRESSION_ZLIB);
+    }
+    CubeReadOptions o;
+    o.key = "scene";
+    const RealStack good = read_cube(path, o);
+    REQUIRE(good.planes == B);
+    CHECK(good(1, 2, 3) == cube[2 + H * 3 + H * W * 1]);
+
+    const std::string full = slurp(path);
+    REQUIRE(full.size() > 128 + 8 + 64);
+    REQUIRE(static_cast<unsigned char>(full[128]) == 15);  // one miCOMPRESSED element
+    const std::size_t payload = 136, end = full.size();
+    const std::string bad = tmp / "bad.mat";
+    // Bytes in the middle of the deflate data, near its end and in the adler32 trailer.
+    for (const std::size_t at : {payload + (end - payload) / 2, payload + (end - payload) * 3 / 4, end - 6, end - 2}) {
+      CAPTURE(at);
+      std::string b = full;
+      b[at] = static_cast<char>(b[at] ^ 0x5a);
+      write_text_atomic(bad, b);
+      const std::string msg = input_error_of([&] { read_cube(bad, o); });
+      CHECK(contains(msg, bad));
+      CHECK(contains(msg, "variable 'scene'"));
+      CHECK(contains(msg, "corrupt"));
+      CHECK(contains(input_error_of([&] { read_cube(bad); }), bad));  // the variable scan checks it too
+    }
+    // Damage at the start of the stream (zlib header, array header): refused, naming the file.
+    for (const std::size_t at : {payload, payload + 1, payload + 5}) {
+      CAPTURE(at);
+      std::string b = full;
+      b[at] = static_cast<char>(b[at] ^ 0x5a);
+      write_text_atomic(bad, b);
+      CHECK(contains(input_error_of([&] { read_cube(bad, o); }), bad));
+    }
   }
 
   TEST_CASE("CSV tables from data/") {

@@ -1,6 +1,10 @@
 // `qdo design` run folders and `qdo eval`: resume equals an uninterrupted run, L fabricated
 // heights, no half-written outputs after a failure, corrupt checkpoints named, eval outputs.
+#include <hdf5.h>
+
+#include <cstring>
 #include <fstream>
+#include <iterator>
 #include <set>
 
 #include <nlohmann/json.hpp>
@@ -53,6 +57,24 @@ TEST_SUITE("runs") {
     CHECK_THROWS_AS(design_run_options_from_json(j.dump(), "bad"), InputError);
   }
 
+  TEST_CASE("a run's config.json with a key given twice is refused, naming the key path and the file") {
+    DesignRunOptions o;
+    o.cfg = preset_config("small");
+    const std::string text = design_run_options_to_json(o);
+    // Repeat "levels" inside "design" and "n" inside "system" (text edits: nlohmann keeps one).
+    const std::size_t at = text.find("\"levels\"");
+    REQUIRE(at != std::string::npos);
+    const std::string twice = text.substr(0, at) + "\"levels\": 2, " + text.substr(at);
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(twice, "run/config.json"),
+                         doctest::Contains("file 'run/config.json': duplicate key 'design.levels'"), InputError);
+    const std::size_t n_at = text.find("\"n\"");
+    REQUIRE(n_at != std::string::npos);
+    const std::string n_twice = text.substr(0, n_at) + "\"n\": 64, " + text.substr(n_at);
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(n_twice, "run/config.json"), doctest::Contains("duplicate key 'system.n'"),
+                         InputError);
+    CHECK(design_run_options_from_json(text, "run/config.json").cfg.n == o.cfg.n);
+  }
+
   TEST_CASE("a resumed run equals an uninterrupted one; the design holds L heights") {
     const auto dir = temp_dir("runs");
     const std::string a = (dir / "a").string(), b = (dir / "b").string();
@@ -100,6 +122,89 @@ TEST_SUITE("runs") {
     const auto ck = std::filesystem::path(run) / "checkpoint.h5";
     std::filesystem::resize_file(ck, 300);
     CHECK_THROWS_WITH_AS(run_design(runtime(), tiny_run(run, DesignMode::QDO), true), doctest::Contains("checkpoint.h5"), InputError);
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("a checkpoint whose datasets changed after writing is refused by its checksum") {
+    const auto dir = temp_dir("runs_checksum");
+    const std::string ck = (dir / "ck.h5").string();
+    DesignState st;
+    st.w.assign(16, 0.25);
+    st.offsets = {0, 0.1, -0.1, 0};
+    st.adam_w.m.assign(16, 1e-3);
+    st.adam_w.v.assign(16, 1e-6);
+    st.step = st.adam_w.t = 12;
+    save_checkpoint(ck, st);
+    const DesignState back = load_checkpoint(ck, 16, 4);
+    CHECK(back.w == st.w);
+    CHECK(back.step == 12);
+    // One raw byte of one weight flipped on disk (0.25 -> 0.25 * (1 + 2^-44)): still a valid
+    // weight, so only the checksum can tell.
+    std::string bytes;
+    {
+      std::ifstream in(ck, std::ios::binary);
+      bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    }
+    char pattern[8];
+    const double quarter = 0.25;
+    std::memcpy(pattern, &quarter, 8);
+    const std::size_t at = bytes.find(std::string(pattern, 8));
+    REQUIRE(at != std::string::npos);
+    bytes[at + 1] = static_cast<char>(bytes[at + 1] ^ 0x01);
+    const std::string bad = (dir / "bad.h5").string();
+    std::ofstream(bad, std::ios::binary) << bytes;
+    CHECK_THROWS_WITH_AS(load_checkpoint(bad, 16, 4), doctest::Contains("bad.h5': checksum mismatch"), InputError);
+    // A value overwritten through HDF5 (a valid file whose data changed).
+    std::filesystem::copy_file(ck, bad, std::filesystem::copy_options::overwrite_existing);
+    {
+      const hid_t f = H5Fopen(bad.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+      REQUIRE(f >= 0);
+      const hid_t d = H5Dopen2(f, "/counters", H5P_DEFAULT);
+      const double counters[3] = {9, 12, 0};
+      REQUIRE(H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, counters) >= 0);
+      H5Dclose(d);
+      H5Fclose(f);
+    }
+    CHECK_THROWS_WITH_AS(load_checkpoint(bad, 16, 4), doctest::Contains("checksum mismatch"), InputError);
+
+    // In a run folder: resume refuses the corrupt checkpoint, naming it.
+    const std::string run = (dir / "run").string();
+    DesignRunOptions r = tiny_run(run, DesignMode::QDO);
+    r.max_steps = 2;
+    run_design(runtime(), r, false);
+    const auto rck = (std::filesystem::path(run) / "checkpoint.h5").string();
+    {
+      const hid_t f = H5Fopen(rck.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+      REQUIRE(f >= 0);
+      const hid_t d = H5Dopen2(f, "/w", H5P_DEFAULT);
+      const hid_t sp = H5Dget_space(d);
+      std::vector<double> w(static_cast<std::size_t>(H5Sget_simple_extent_npoints(sp)));
+      H5Sclose(sp);
+      REQUIRE(H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, w.data()) >= 0);
+      w[0] = w[0] > 0 ? w[0] - 1e-3 : w[0] + 1e-3;
+      REQUIRE(H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, w.data()) >= 0);
+      H5Dclose(d);
+      H5Fclose(f);
+    }
+    CHECK_THROWS_WITH_AS(run_design(runtime(), tiny_run(run, DesignMode::QDO), true), doctest::Contains("checkpoint.h5': checksum mismatch"),
+                         InputError);
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("a design run refuses an all-zero training scene, naming it, before writing anything") {
+    const auto dir = temp_dir("runs_zero_scene");
+    DesignRunOptions o = tiny_run((dir / "run").string(), DesignMode::QDO);
+    const std::size_t s = o.cfg.sensor_size_px();
+    std::vector<std::string> paths;
+    for (int k = 0; k < 3; ++k) {
+      paths.push_back((dir / ("zero" + std::to_string(k) + ".h5")).string());
+      write_cube(paths.back(), RealStack(o.cfg.bands, 2 * s, 2 * s, 0.0), o.cfg.wavelengths_nm());
+    }
+    o.data = paths;
+    o.data_format = "h5";
+    CHECK_THROWS_WITH_AS(run_design(runtime(), o, false), doctest::Contains("an all-zero scene"), InputError);
+    CHECK_THROWS_WITH_AS(run_design(runtime(), o, false), doctest::Contains("zero"), InputError);
+    CHECK_FALSE(std::filesystem::exists(dir / "run" / "design.h5"));
     std::filesystem::remove_all(dir);
   }
 

@@ -1,4 +1,8 @@
 #include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <string>
 
 #include "common.hpp"
 #include "qdo/error.hpp"
@@ -37,6 +41,62 @@ TEST_SUITE("runtime") {
       CHECK(b.programs_loaded_from_disk() == 1);
       b.kernel("psf.cl", "band_sums", Precision::F32, "-DQDO_UNUSED_OPTION=1");  // options are part of the key
       CHECK(b.programs_built() == 1);
+    }
+    unsetenv("QDO_CACHE_DIR");
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("a truncated or corrupt kernel cache entry is rebuilt from source with a note, never fatal") {
+    const auto dir = temp_dir("kcache_bad");
+    setenv("QDO_CACHE_DIR", dir.c_str(), 1);
+    {
+      Runtime a;
+      a.kernel("psf.cl", "band_sums", Precision::F32);
+      CHECK(a.programs_built() == 1);
+    }
+    std::filesystem::path entry;
+    for (const auto& e : std::filesystem::directory_iterator(dir))
+      if (e.path().extension() == ".bin") entry = e.path();
+    REQUIRE(!entry.empty());
+    const auto full = std::filesystem::file_size(entry);
+    auto slurp = [&] {
+      std::ifstream in(entry, std::ios::binary);
+      std::ostringstream os;
+      os << in.rdbuf();
+      return os.str();
+    };
+    const std::string good = slurp();
+    auto spit = [&](const std::string& bytes) { std::ofstream(entry, std::ios::binary | std::ios::trunc) << bytes; };
+    // Each damage: a fresh runtime rebuilds from source, says so in one line on stderr, and
+    // rewrites the entry, which the next runtime loads again.
+    const std::vector<std::string> damaged = {
+        good.substr(0, full / 2), good.substr(0, 10), std::string(),
+        [&] { std::string b = good; b[b.size() / 2] = static_cast<char>(b[b.size() / 2] ^ 0x40); return b; }(),
+        [&] { std::string b = good; for (std::size_t i = 24; i < b.size(); i += 7) b[i] = 'x'; return b; }(),
+        good.substr(24)};  // a bare binary without the header (as older qdo wrote)
+    for (std::size_t k = 0; k < damaged.size(); ++k) {
+      CAPTURE(k);
+      spit(damaged[k]);
+      std::ostringstream err;
+      std::streambuf* old = std::cerr.rdbuf(err.rdbuf());
+      int built = -1;
+      try {
+        Runtime b;
+        b.kernel("psf.cl", "band_sums", Precision::F32);
+        built = b.programs_built();
+      } catch (...) {
+        std::cerr.rdbuf(old);
+        throw;
+      }
+      std::cerr.rdbuf(old);
+      CHECK(built == 1);
+      CHECK(err.str().find("kernel cache entry " + entry.string()) != std::string::npos);
+      CHECK(err.str().find("rebuilding from source") != std::string::npos);
+      CHECK(slurp().size() > 24);  // rewritten (PoCL binaries need not be byte-identical across builds)
+      Runtime c;
+      c.kernel("psf.cl", "band_sums", Precision::F32);
+      CHECK(c.programs_loaded_from_disk() == 1);
+      CHECK(c.programs_built() == 0);
     }
     unsetenv("QDO_CACHE_DIR");
     std::filesystem::remove_all(dir);

@@ -570,4 +570,22 @@ TEST_SUITE("wiener") {
     CHECK(metrics::sam(est, truth) < 0.05);
     CHECK_THROWS_AS(metrics::mse(RealStack(2, 3, 3), RealStack(3, 3, 3)), InputError);
   }
+
+  TEST_CASE("SAM on zero spectra: pi/2 against a non-zero spectrum, 0 between two zeros; every pixel counts") {
+    // Zero pixels used to be skipped, so an all-zero reconstruction scored a perfect 0.
+    RealStack truth(3, 2, 2, 0.5), zero(3, 2, 2, 0.0);
+    truth(1, 0, 1) = 0.9;
+    CHECK(metrics::sam(zero, truth) == doctest::Approx(M_PI / 2).epsilon(1e-12));
+    CHECK(metrics::sam(truth, zero) == doctest::Approx(M_PI / 2).epsilon(1e-12));
+    CHECK(metrics::sam(zero, zero) == 0.0);
+    CHECK(metrics::sam(truth, truth) == doctest::Approx(0.0).epsilon(1e-12));
+    // One of four pixels zeroed in the estimate: (π/2) / 4 on top of three exact pixels.
+    RealStack holed = truth;
+    for (std::size_t b = 0; b < 3; ++b) holed(b, 1, 1) = 0;
+    CHECK(metrics::sam(holed, truth) == doctest::Approx(M_PI / 8).epsilon(1e-12));
+    // Zero in both at the same pixel: agreement, the mean still over all four pixels.
+    RealStack both = truth;
+    for (std::size_t b = 0; b < 3; ++b) both(b, 1, 1) = 0;
+    CHECK(metrics::sam(both, holed) == doctest::Approx(0.0).epsilon(1e-12));
+  }
 }

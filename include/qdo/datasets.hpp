@@ -47,8 +47,10 @@ namespace qdo {
 // .mat band axis: MATLAB's last axis when its length is expected_bands, else the first
 // (read_cube's "auto" layout). PNG decoding uses libpng's simplified API: a 16-bit file is
 // taken as linear (no gamma change when the file has no gAMA chunk or gAMA 1.0, which is
-// how CAVE's files are written); colour (RGB/RGBA/palette with colour) or gray+alpha files
-// are rejected naming the file.
+// how CAVE's files are written). Colour (RGB/RGBA/palette) and gray+alpha files are decoded
+// to RGBA (8-bit or 16-bit, as the file) and accepted when every pixel is grey (R = G = B)
+// and opaque (alpha at full scale), as in the one CAVE scene stored that way; otherwise an
+// InputError names the file and the first coloured or transparent pixel.
 
 // The resolved format of `path` (never "auto"); InputError naming the file when unknown.
 std::string detect_scene_format(const std::string& path);
@@ -71,6 +73,12 @@ bool operator==(const SceneShape& a, const SceneShape& b);
 // The shape load_scene would return, from the file headers where possible (MATLAB variable
 // info, HDF5 dataspace, PNG headers) and by reading the scene otherwise.
 SceneShape probe_scene(const std::string& path, const std::string& format = "auto", std::size_t expected_bands = 31);
+
+// Training data must carry information: InputError naming `path` when every value of the
+// cube is the same (all zero, or constant). Such a scene gives the spectral prior nothing
+// (an all-zero one makes every reconstruction score perfectly) and is refused when a design
+// run loads its training scenes.
+void check_training_scene(const RealStack& cube, const std::string& path);
 
 // =========================================================================================
 // Scene index and split

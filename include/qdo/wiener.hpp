@@ -178,8 +178,11 @@ double psnr_per_band(const RealStack& estimate, const RealStack& truth);
 double rmse(const RealStack& estimate, const RealStack& truth);
 // ERGAS with ratio 1: 100·sqrt(mean_b mse_b / μ_b²), μ_b = mean of truth band b (must be ≠ 0).
 double ergas(const RealStack& estimate, const RealStack& truth);
-// SAM in radians: mean over pixels of acos(⟨x̂, x⟩ / (‖x̂‖‖x‖)) (cosine clamped to [−1, 1]);
-// pixels where either spectrum is all zero are skipped (0 if every pixel is skipped).
+// SAM in radians: mean over every pixel of acos(⟨x̂, x⟩ / (‖x̂‖‖x‖)) (cosine clamped to [−1, 1]).
+// Zero spectra, where the angle is undefined: between a zero and a non-zero spectrum it is
+// π/2 (a zero vector is orthogonal to every vector, and the reconstruction carries no spectral
+// information), between two zero spectra 0 (they agree). Every pixel counts: an all-zero
+// reconstruction of a non-zero scene scores π/2, not a perfect 0 (pixels used to be skipped).
 double sam(const RealStack& estimate, const RealStack& truth);
 // SSIM as tf.image.ssim (the release): per band, Gaussian window 11 x 11 with σ = 1.5
 // (normalised to sum 1), "valid" positions only (H, W >= 11), K1 = 0.01, K2 = 0.03, data

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <sstream>
 
+#include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
@@ -53,6 +54,11 @@ Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, con
 RealStack scene_from_args(const SystemConfig& cfg, const Args& a) {
   const std::string s = a.get("scene", "builtin");
   if (s == "builtin") return builtin_chart_scene(cfg);
+  std::error_code ec;
+  if (std::filesystem::is_directory(s, ec)) {  // a CAVE folder of PNG bands, as --data takes
+    if (a.has("key")) reject("--key", a.get("key"), "omitted for a PNG band folder (--scene " + s + ")");
+    return read_png_band_folder(s, cfg.bands);
+  }
   CubeReadOptions o;
   o.key = a.get("key");
   o.expected_bands = cfg.bands;

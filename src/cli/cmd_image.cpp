@@ -57,7 +57,7 @@ int cmd_image(int argc, char** argv) {
 }
 
 const Registrar reg("image", cmd_image,
-                    "qdo image --design lens:NM|flat|DESIGN.h5 [--scene builtin|CUBE.mat|CUBE.h5] [--key K] "
+                    "qdo image --design lens:NM|flat|DESIGN.h5 [--scene builtin|CUBE.mat|CUBE.h5|PNG_FOLDER] [--key K] "
                     "[--tolerance 3e-7] [--exact] [--tiles off|on|auto] [--tile-px 64] [--preset P|--config C] "
                     "[--levels L [--placement P]] [--precision f32|f64] [--device D] --out DIR");
 

@@ -37,7 +37,7 @@ usage:
   qdo psf      [--preset P | --config FILE] --design lens:NM|flat|FILE.h5 [--levels L --placement inclusive|wrapped]
                [--precision f32|f64] [--device SEL] --out DIR
   qdo quantize [--preset P | --config FILE] --design FILE.h5|lens:NM --levels L [--placement ...] --out FILE.h5
-  qdo simulate [--preset P | --config FILE] --design ... [--levels L ...] --scene builtin|CUBE.(h5|mat) [--key K]
+  qdo simulate [--preset P | --config FILE] --design ... [--levels L ...] --scene builtin|CUBE.(h5|mat)|PNG_FOLDER [--key K]
                [--precision ...] [--device ...] --out DIR
   qdo demo     [--preset small|paper] [--levels L] [--device SEL] [--out DIR]
   qdo design   [--preset P | --config FILE] --mode full|do|qdo|ste|qdo+a|qdo+m --levels L [--placement ...]
