@@ -51,7 +51,9 @@ run_suite() {
   local entry case_name
   entry="$(grep -E '\*\*\*(Failed|Timeout|Exception)|Subprocess aborted|\(Failed\)|\(Timeout\)' "$log" | head -n1 |
            sed -E 's/.*Test +#[0-9]+: ([^ ]+).*/\1/')"
-  case_name="$(grep -m1 -E '^TEST CASE: ' "$log" | sed -E 's/^TEST CASE: +//' || true)"
+  # The doctest case of the first error: the last "TEST CASE:" header before the first ERROR line
+  # (passing cases print headers too, for their MESSAGEs).
+  case_name="$(awk '/^TEST CASE: /{c=$0; sub(/^TEST CASE: +/, "", c)} /(ERROR|FATAL ERROR): /{print c; exit}' "$log")"
   echo "${entry:-?}|${case_name}"
   return 1
 }
