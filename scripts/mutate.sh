@@ -31,12 +31,18 @@ done
 ((${#patches[@]})) || { echo "mutate: no patch in tests/mutations matches: $*" >&2; exit 2; }
 
 bash scripts/install-deps.sh > /dev/null
-# The scratch copy: tracked and untracked-but-not-ignored files, with their timestamps, so an
-# unchanged file is not rebuilt. Built from scratch each run (files deleted in the tree go).
-mkdir -p "$scratch" "$logs"
-rm -rf "$src"
-mkdir -p "$src"
-git ls-files -co --exclude-standard -z | tar --null -T - -cf - | tar -xf - -C "$src"
+# The scratch copy: tracked and untracked-but-not-ignored files. A file is copied (with a new
+# timestamp) only when its content differs from the copy's, so the incremental build recompiles
+# exactly what changed since the last run (copying timestamps instead would leave objects newer
+# than an older-dated but changed source stale); files gone from the tree go from the copy.
+mkdir -p "$scratch" "$logs" "$src"
+git ls-files -co --exclude-standard > "$scratch/files.txt"
+while IFS= read -r f; do
+  [[ -f "$f" ]] || continue
+  if ! cmp -s "$f" "$src/$f"; then mkdir -p "$src/$(dirname "$f")" && cp "$f" "$src/$f"; fi
+done < "$scratch/files.txt"
+(cd "$src" && find . -type f -printf '%P\n') | sort > "$scratch/copy.txt"
+sort "$scratch/files.txt" | comm -13 - "$scratch/copy.txt" | while IFS= read -r f; do rm -f "$src/$f"; done
 ln -sfn "$repo/../shared" "$scratch/shared"  # the tests find ../shared next to the source copy
 
 build() {
