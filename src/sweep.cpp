@@ -273,10 +273,10 @@ void write_cell_metrics(const fs::path& dir, const GridCell& c) {
 // A run folder of an earlier sweep is reused (finished) or resumed only when it was made with
 // the same options (its config.json) and the same training scenes (bytes, runs/NAME/sweep_inputs);
 // otherwise the sweep stops naming the differences (it deletes nothing). `ignore`: fields that do
-// not change what the sweep uses from the run. Returns the hash that determines the run.
-std::string check_run_inputs(const DesignRunOptions& o, const std::string& sweep_out, const std::set<std::string>& ignore) {
+// not change what the sweep uses from the run. `inputs`: the hash of o.data's bytes.
+void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, const std::string& sweep_out,
+                      const std::set<std::string>& ignore) {
   const fs::path dir(o.out);
-  const std::string inputs = hash_paths(o.data);
   const std::string what = "a sweep folder whose run '" + dir.filename().string() + "' was made with this call's options";
   const fs::path cfg = dir / "config.json";
   if (fs::exists(cfg)) {
@@ -299,13 +299,12 @@ std::string check_run_inputs(const DesignRunOptions& o, const std::string& sweep
       reject("out", sweep_out, what + " (its training scenes changed since: " + stamp.string() + " holds " + held +
                                    ", the scenes now hash to " + inputs + "; choose another --out, or move that run folder away)");
   }
-  return inputs;
 }
 
-void ensure_run(Runtime& rt, const DesignRunOptions& o, bool quiet, const std::string& sweep_out,
+void ensure_run(Runtime& rt, const DesignRunOptions& o, const std::string& inputs, bool quiet, const std::string& sweep_out,
                 const std::set<std::string>& ignore = {"design.checkpoint_every"}) {
   const fs::path dir(o.out);
-  const std::string inputs = check_run_inputs(o, sweep_out, ignore);
+  check_run_inputs(o, inputs, sweep_out, ignore);
   if (!fs::exists(dir / "sweep_inputs")) {  // runs of sweeps before this check: their options matched
     fs::create_directories(dir);
     write_text_atomic((dir / "sweep_inputs").string(), inputs + "\n");
@@ -352,7 +351,8 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   const DesignRunOptions do_run = run_opts(DesignMode::DO, g.levels.front(), "do");
   // The DO run's levels and placement only shape its design.h5, which no cell reads (cells
   // quantize design_full.h5 themselves).
-  ensure_run(rt, do_run, g.quiet, g.out, {"design.checkpoint_every", "design.levels", "design.placement"});
+  const std::string train_inputs = hash_paths(base.data);  // once: every run trains on base.data
+  ensure_run(rt, do_run, train_inputs, g.quiet, g.out, {"design.checkpoint_every", "design.levels", "design.placement"});
   // What determines every cell: the test scenes (bytes), and per run, its outputs (bytes).
   const std::string test_inputs = test.empty() ? "synthetic" : hash_paths(test);
   auto run_outputs = [](const std::string& run) {
@@ -379,12 +379,20 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     const fs::path f = dir / "metrics.json", stamp = dir / "inputs";
     std::string held = fs::exists(stamp) ? read_text(stamp) : std::string();
     while (!held.empty() && (held.back() == '\n' || held.back() == ' ')) held.pop_back();
-    nlohmann::json j;
     bool ok = held == inputs && fs::exists(f);
     if (ok) {
-      try {
-        j = nlohmann::json::parse(read_text(f));
-        ok = j.is_object() && j.contains("mean") && j.contains("deviation_nm");
+      try {  // a torn, foreign or mistyped file is evaluated again, never half-read
+        const nlohmann::json j = nlohmann::json::parse(read_text(f));
+        const nlohmann::json& m = j.at("mean");
+        GridCell r = c;
+        r.mean.psnr = m.at("psnr_db").get<double>();
+        r.mean.psnr_hyper = m.value("psnr_h_db", 0.0);
+        r.mean.ssim = m.at("ssim").get<double>();
+        r.mean.rmse = m.at("rmse").get<double>();
+        r.mean.ergas = m.at("ergas").get<double>();
+        r.mean.sam_rad = m.at("sam_rad").get<double>();
+        r.deviation_nm = j.at("deviation_nm").get<double>();
+        c = r;
       } catch (const nlohmann::json::exception&) {
         ok = false;
       }
@@ -392,16 +400,8 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     if (!ok) {
       std::error_code ec;
       fs::remove(stamp, ec);  // the sweep's own stamp
-      return false;
     }
-    c.mean.psnr = j["mean"]["psnr_db"];
-    c.mean.psnr_hyper = j["mean"].value("psnr_h_db", 0.0);
-    c.mean.ssim = j["mean"]["ssim"];
-    c.mean.rmse = j["mean"]["rmse"];
-    c.mean.ergas = j["mean"]["ergas"];
-    c.mean.sam_rad = j["mean"]["sam_rad"];
-    c.deviation_nm = j["deviation_nm"];
-    return true;
+    return ok;
   };
   std::vector<GridCell> cells;
   auto eval_cell = [&](const std::string& name, const std::string& mode, int levels, EvalOptions e) {
@@ -452,7 +452,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
         e.decoder = m == "do" ? "mismatch" : "matched";
       } else {
         const DesignRunOptions r = run_opts(design_mode_from_string(m), L, m + "_L" + std::to_string(L));
-        ensure_run(rt, r, g.quiet, g.out);
+        ensure_run(rt, r, train_inputs, g.quiet, g.out);
         e.run = r.out;
       }
       eval_cell(name, m, L, e);
