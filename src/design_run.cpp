@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <random>
 #include <sstream>
 #include <unistd.h>
@@ -249,6 +250,10 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   const fs::path dir(given.out);
   const fs::path cfg_path = dir / "config.json", ckpt_path = dir / "checkpoint.h5", log_path = dir / "log.csv";
   DesignRunOptions o = given;
+  // The folder is ours while this call runs (RunLock): taken first when the folder exists, so
+  // its config and checkpoint are read and judged under the lock; else right after creating it.
+  std::unique_ptr<RunLock> lock;
+  if (!given.out.empty() && fs::is_directory(dir)) lock = std::make_unique<RunLock>(given.out);
   if (resume) {
     if (!fs::exists(cfg_path) || !fs::exists(ckpt_path))
       reject("out", given.out, "a run folder with config.json and checkpoint.h5 to resume (start without --resume)");
@@ -265,6 +270,11 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   o.validate();
   const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing
   fs::create_directories(dir);
+  if (!lock) {
+    lock = std::make_unique<RunLock>(given.out);
+    if (!resume && fs::exists(ckpt_path))  // another writer made it meanwhile and has finished
+      reject("out", given.out, "a folder without a checkpoint (this one holds one: continue it with --resume)");
+  }
   if (!resume) write_text_atomic(cfg_path.string(), design_run_options_to_json(o) + "\n");
   if (o.objective != "psf-target") save_prior((dir / "prior.h5").string(), pb.prior);
 

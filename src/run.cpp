@@ -1,12 +1,18 @@
 #include "qdo/run.hpp"
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <map>
 #include <utility>
+
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
 
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -45,6 +51,37 @@ std::string checkpoint_checksum(const std::vector<std::pair<std::string, const s
 }
 
 }  // namespace
+RunLock::RunLock(const std::string& dir, const std::string& what) : path_((std::filesystem::path(dir) / ".lock").string()) {
+  fd_ = ::open(path_.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd_ < 0)
+    reject(what, dir, "a run folder this process can write (cannot open '" + path_ + "': " + std::strerror(errno) + ")");
+  if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+    const int err = errno;
+    std::string holder;
+    char buf[64] = {};
+    const ssize_t n = ::pread(fd_, buf, sizeof buf - 1, 0);
+    if (n > 0) holder = std::string(buf, std::size_t(n));
+    while (!holder.empty() && (holder.back() == '\n' || holder.back() == ' ')) holder.pop_back();
+    ::close(fd_);
+    fd_ = -1;
+    if (err == EWOULDBLOCK)
+      reject(what, dir,
+             "a run folder no other process is writing (it is locked by pid " + (holder.empty() ? std::string("unknown") : holder) +
+                 " through '" + path_ + "'; wait for it to finish, or stop it, or choose another folder)");
+    reject(what, dir, "a run folder that can be locked (flock on '" + path_ + "': " + std::strerror(err) + ")");
+  }
+  const std::string pid = std::to_string(::getpid()) + "\n";
+  if (::ftruncate(fd_, 0) != 0 || ::pwrite(fd_, pid.data(), pid.size(), 0) != ssize_t(pid.size())) {
+    const int err = errno;
+    ::close(fd_);
+    fd_ = -1;
+    reject(what, dir, "a run folder this process can write (writing '" + path_ + "': " + std::strerror(err) + ")");
+  }
+}
+
+RunLock::~RunLock() {
+  if (fd_ >= 0) ::close(fd_);  // releases the flock
+}
 
 void save_checkpoint(const std::string& path, const DesignState& s) {
   auto vec = [](const std::string& name, const std::vector<double>& v) {

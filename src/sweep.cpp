@@ -6,8 +6,10 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <cstdint>
 #include <fstream>
 #include <iterator>
+#include <set>
 #include <sstream>
 
 #include "qdo/datasets.hpp"
@@ -162,6 +164,85 @@ namespace {
 
 bool run_finished(const fs::path& run) { return fs::exists(run / "DONE"); }
 
+// FNV-1a, 64 bit: a content hash (not a cryptographic one) for provenance checks.
+struct Fnv {
+  std::uint64_t h = 1469598103934665603ull;
+  void add(const char* p, std::size_t n) {
+    for (std::size_t i = 0; i < n; ++i) {
+      h ^= static_cast<unsigned char>(p[i]);
+      h *= 1099511628211ull;
+    }
+  }
+  void add(const std::string& s) {
+    add(s.data(), s.size());
+    add("\0", 1);  // separator, so ("ab", "c") and ("a", "bc") differ
+  }
+  std::string hex() const {
+    char b[32];
+    std::snprintf(b, sizeof b, "fnv1a64:%016llx", static_cast<unsigned long long>(h));
+    return b;
+  }
+};
+
+// The bytes of a file, or of every regular file under a folder (sorted by path, each with its
+// relative path and size); "missing" for a path that does not exist.
+void hash_path(Fnv& f, const fs::path& p) {
+  f.add(p.string());
+  auto file = [&](const fs::path& q) {
+    std::ifstream in(q, std::ios::binary);
+    if (!in) throw InputError("file '" + q.string() + "': cannot be read (to hash a sweep cell's inputs)");
+    f.add(std::to_string(fs::file_size(q)));
+    std::vector<char> buf(1 << 20);
+    while (in) {
+      in.read(buf.data(), std::streamsize(buf.size()));
+      f.add(buf.data(), std::size_t(in.gcount()));
+    }
+  };
+  if (!fs::exists(p)) {
+    f.add("missing");
+  } else if (fs::is_directory(p)) {
+    std::vector<fs::path> files;
+    for (const auto& e : fs::recursive_directory_iterator(p))
+      if (e.is_regular_file()) files.push_back(e.path());
+    std::sort(files.begin(), files.end());
+    for (const auto& q : files) {
+      f.add(fs::relative(q, p).string());
+      file(q);
+    }
+  } else {
+    file(p);
+  }
+}
+
+std::string hash_paths(const std::vector<std::string>& paths) {
+  Fnv f;
+  f.add(std::to_string(paths.size()));
+  for (const auto& p : paths) hash_path(f, p);
+  return f.hex();
+}
+
+std::string read_text(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  return ss.str();
+}
+
+// Every field that differs between two JSON objects, as "a.b: stored X, given Y".
+void json_diffs(const nlohmann::json& stored, const nlohmann::json& given, const std::string& prefix,
+                const std::set<std::string>& ignore, std::vector<std::string>& out) {
+  for (auto it = given.begin(); it != given.end(); ++it) {
+    const std::string key = prefix + it.key();
+    if (ignore.count(key)) continue;
+    if (!stored.contains(it.key())) out.push_back(key + ": stored (absent), given " + it.value().dump());
+    else if (stored.at(it.key()).is_object() && it.value().is_object()) json_diffs(stored.at(it.key()), it.value(), key + ".", ignore, out);
+    else if (stored.at(it.key()) != it.value()) out.push_back(key + ": stored " + stored.at(it.key()).dump() + ", given " + it.value().dump());
+  }
+  for (auto it = stored.begin(); it != stored.end(); ++it)
+    if (!given.contains(it.key()) && !ignore.count(prefix + it.key()))
+      out.push_back(prefix + it.key() + ": stored " + it.value().dump() + ", given (absent)");
+}
+
 // Test cubes as S x S patches, as evaluate_run cuts them.
 std::vector<RealStack> test_patches(const SystemConfig& cfg, const std::vector<std::string>& test, std::size_t synthetic,
                                     std::uint64_t seed) {
@@ -184,13 +265,52 @@ void write_cell_metrics(const fs::path& dir, const GridCell& c) {
   j["mode"] = c.mode;
   j["levels"] = c.levels;
   j["deviation_nm"] = c.deviation_nm;
+  j["inputs"] = c.inputs;
   j["mean"] = {{"psnr_db", c.mean.psnr}, {"psnr_h_db", c.mean.psnr_hyper}, {"ssim", c.mean.ssim},
                {"rmse", c.mean.rmse},    {"ergas", c.mean.ergas},          {"sam_rad", c.mean.sam_rad}};
   write_text_atomic((dir / "metrics.json").string(), j.dump(2) + "\n");
+  write_text_atomic((dir / "inputs").string(), c.inputs + "\n");
 }
 
-void ensure_run(Runtime& rt, const DesignRunOptions& o, bool quiet) {
+// A run folder of an earlier sweep is reused (finished) or resumed only when it was made with
+// the same options (its config.json) and the same training scenes (bytes, runs/NAME/sweep_inputs);
+// otherwise the sweep stops naming the differences (it deletes nothing). `ignore`: fields that do
+// not change what the sweep uses from the run. `inputs`: the hash of o.data's bytes.
+void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, const std::string& sweep_out,
+                      const std::set<std::string>& ignore) {
   const fs::path dir(o.out);
+  const std::string what = "a sweep folder whose run '" + dir.filename().string() + "' was made with this call's options";
+  const fs::path cfg = dir / "config.json";
+  if (fs::exists(cfg)) {
+    const DesignRunOptions stored = design_run_options_from_json(read_text(cfg), cfg.string());
+    std::vector<std::string> diffs;
+    json_diffs(nlohmann::json::parse(design_run_options_to_json(stored)), nlohmann::json::parse(design_run_options_to_json(o)), "",
+               ignore, diffs);
+    if (!diffs.empty()) {
+      std::string list;
+      for (const auto& d : diffs) list += (list.empty() ? "" : "; ") + d;
+      reject("out", sweep_out, what + " (" + cfg.string() + " differs: " + list +
+                                   "; choose another --out, or move that run folder and the cells/ folder away to redo them)");
+    }
+  }
+  const fs::path stamp = dir / "sweep_inputs";
+  if (fs::exists(stamp)) {
+    std::string held = read_text(stamp);
+    while (!held.empty() && (held.back() == '\n' || held.back() == ' ')) held.pop_back();
+    if (held != inputs)
+      reject("out", sweep_out, what + " (its training scenes changed since: " + stamp.string() + " holds " + held +
+                                   ", the scenes now hash to " + inputs + "; choose another --out, or move that run folder away)");
+  }
+}
+
+void ensure_run(Runtime& rt, const DesignRunOptions& o, const std::string& inputs, bool quiet, const std::string& sweep_out,
+                const std::set<std::string>& ignore = {"design.checkpoint_every"}) {
+  const fs::path dir(o.out);
+  check_run_inputs(o, inputs, sweep_out, ignore);
+  if (!fs::exists(dir / "sweep_inputs")) {  // runs of sweeps before this check: their options matched
+    fs::create_directories(dir);
+    write_text_atomic((dir / "sweep_inputs").string(), inputs + "\n");
+  }
   if (run_finished(dir)) return;
   DesignRunOptions r = o;
   r.quiet = quiet;
@@ -231,7 +351,60 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   };
   // DO is trained once in full precision; its levels only matter for design.h5.
   const DesignRunOptions do_run = run_opts(DesignMode::DO, g.levels.front(), "do");
-  ensure_run(rt, do_run, g.quiet);
+  // The DO run's levels and placement only shape its design.h5, which no cell reads (cells
+  // quantize design_full.h5 themselves).
+  const std::string train_inputs = hash_paths(base.data);  // once: every run trains on base.data
+  ensure_run(rt, do_run, train_inputs, g.quiet, g.out, {"design.checkpoint_every", "design.levels", "design.placement"});
+  // What determines every cell: the test scenes (bytes), and per run, its outputs (bytes).
+  const std::string test_inputs = test.empty() ? "synthetic" : hash_paths(test);
+  auto run_outputs = [](const std::string& run) {
+    std::vector<std::string> files;
+    for (const char* f : {"config.json", "design.h5", "design_full.h5", "prior.h5"}) files.push_back((fs::path(run) / f).string());
+    return hash_paths(files);
+  };
+  auto cell_inputs = [&](const nlohmann::json& cell) {
+    nlohmann::json j = cell;
+    j["test"] = test_inputs;
+    j["test_files"] = test;
+    j["eval_synthetic_scenes"] = g.eval_synthetic_scenes;
+    j["precision"] = to_string(base.precision);
+    j["seed"] = base.design.seed;
+    j["system"] = nlohmann::json::parse(config_to_json_text(base.cfg));
+    Fnv f;
+    f.add(j.dump());
+    return f.hex();
+  };
+  // A cell's metrics.json is reused only when the cell's `inputs` file (written after it) holds
+  // the same hash; else the stale stamp is dropped before the cell is evaluated again, so a
+  // stamp never vouches for metrics of other inputs.
+  auto read_cached = [&](const fs::path& dir, const std::string& inputs, GridCell& c) {
+    const fs::path f = dir / "metrics.json", stamp = dir / "inputs";
+    std::string held = fs::exists(stamp) ? read_text(stamp) : std::string();
+    while (!held.empty() && (held.back() == '\n' || held.back() == ' ')) held.pop_back();
+    bool ok = held == inputs && fs::exists(f);
+    if (ok) {
+      try {  // a torn, foreign or mistyped file is evaluated again, never half-read
+        const nlohmann::json j = parse_json_strict(read_text(f), "file '" + f.string() + "'");
+        const nlohmann::json& m = j.at("mean");
+        GridCell r = c;
+        r.mean.psnr = m.at("psnr_db").get<double>();
+        r.mean.psnr_hyper = m.value("psnr_h_db", 0.0);
+        r.mean.ssim = m.at("ssim").get<double>();
+        r.mean.rmse = m.at("rmse").get<double>();
+        r.mean.ergas = m.at("ergas").get<double>();
+        r.mean.sam_rad = m.at("sam_rad").get<double>();
+        r.deviation_nm = j.at("deviation_nm").get<double>();
+        c = r;
+      } catch (const nlohmann::json::exception&) {
+        ok = false;
+      }
+    }
+    if (!ok) {
+      std::error_code ec;
+      fs::remove(stamp, ec);  // the sweep's own stamp
+    }
+    return ok;
+  };
   std::vector<GridCell> cells;
   auto eval_cell = [&](const std::string& name, const std::string& mode, int levels, EvalOptions e) {
     GridCell c;
@@ -244,21 +417,20 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     e.out = dir.string();
     e.renders = 1;
     e.precision = base.precision;
-    if (fs::exists(dir / "metrics.json")) {  // finished earlier: read it back
-      std::ifstream f(dir / "metrics.json");
-      const nlohmann::json j = parse_json_strict(std::string(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()),
-                                                 "file '" + (dir / "metrics.json").string() + "'");
-      c.mean.psnr = j["mean"]["psnr_db"];
-      c.mean.psnr_hyper = j["mean"]["psnr_h_db"];
-      c.mean.ssim = j["mean"]["ssim"];
-      c.mean.rmse = j["mean"]["rmse"];
-      c.mean.ergas = j["mean"]["ergas"];
-      c.mean.sam_rad = j["mean"]["sam_rad"];
-      c.deviation_nm = j["deviation_nm"];
-    } else {
+    c.inputs = cell_inputs({{"cell", name},
+                            {"mode", mode},
+                            {"levels", levels},
+                            {"eval_levels", e.levels},
+                            {"placement", to_string(e.placement)},
+                            {"decoder", e.decoder},
+                            {"full_precision", e.full_precision},
+                            {"renders", e.renders},
+                            {"run", run_outputs(e.run)}});
+    if (!read_cached(dir, c.inputs, c)) {  // not finished earlier, or with other inputs
       const EvalResult r = evaluate_run(rt, e);
       c.mean = r.mean;
       c.deviation_nm = r.deviation_nm;
+      write_text_atomic((dir / "inputs").string(), c.inputs + "\n");
     }
     if (!g.quiet) std::fprintf(stderr, "[sweep] %-16s PSNR %.2f dB\n", name.c_str(), c.mean.psnr);
     cells.push_back(c);
@@ -282,7 +454,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
         e.decoder = m == "do" ? "mismatch" : "matched";
       } else {
         const DesignRunOptions r = run_opts(design_mode_from_string(m), L, m + "_L" + std::to_string(L));
-        ensure_run(rt, r, g.quiet);
+        ensure_run(rt, r, train_inputs, g.quiet, g.out);
         e.run = r.out;
       }
       eval_cell(name, m, L, e);
@@ -297,19 +469,16 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     const Eigen::MatrixXd srf = sensor_response(base.cfg);
     const double sigma = base.decoder_noise_sigma;
     std::vector<RealStack> cubes;
+    const std::string prior_inputs = run_outputs(do_run.out);
     auto cached = [&](const std::string& name, GridCell& c) {
-      const fs::path f = out / "cells" / name / "metrics.json";
-      if (!fs::exists(f)) return false;
-      std::ifstream in(f);
-      const nlohmann::json j = parse_json_strict(std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()),
-                                                 "file '" + f.string() + "'");
-      c.mean.psnr = j["mean"]["psnr_db"];
-      c.mean.ssim = j["mean"]["ssim"];
-      c.mean.rmse = j["mean"]["rmse"];
-      c.mean.ergas = j["mean"]["ergas"];
-      c.mean.sam_rad = j["mean"]["sam_rad"];
-      c.deviation_nm = j["deviation_nm"];
-      return true;
+      c.inputs = cell_inputs({{"cell", name},
+                              {"mode", c.mode},
+                              {"levels", c.levels},
+                              {"fresnel_design_nm", g.fresnel_design_nm},
+                              {"cassi_shift_px", g.cassi_shift_px},
+                              {"noise_sigma", sigma},
+                              {"prior_run", prior_inputs}});
+      return read_cached(out / "cells" / name, c.inputs, c);
     };
     auto finish = [&](GridCell& c, const EncoderEval& ev) {
       c.mean.psnr = ev.psnr_db;
@@ -355,22 +524,22 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   // Tables.
   std::ostringstream t1, t1csv, t2, t2csv;
   t1 << "| levels | mode | PSNR [dB] | SSIM | RMSE | ERGAS |\n|---|---|---|---|---|---|\n";
-  t1csv << "levels,mode,psnr_db,ssim,rmse,ergas,psnr_h_db,sam_rad\n";
+  t1csv << "levels,mode,psnr_db,ssim,rmse,ergas,psnr_h_db,sam_rad,inputs\n";
   t2 << "| levels | mode | deviation [nm] |\n|---|---|---|\n";
-  t2csv << "levels,mode,deviation_nm\n";
+  t2csv << "levels,mode,deviation_nm,inputs\n";
   char buf[256];
   for (const auto& c : cells) {
     const std::string lv = c.levels == 0 ? "full" : c.levels < 0 ? "n/a" : std::to_string(c.levels);
     std::snprintf(buf, sizeof buf, "| %s | %s | %.2f | %.4f | %.4f | %.2f |\n", lv.c_str(), c.mode.c_str(), c.mean.psnr, c.mean.ssim,
                   c.mean.rmse, c.mean.ergas);
     t1 << buf;
-    std::snprintf(buf, sizeof buf, "%s,%s,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g\n", lv.c_str(), c.mode.c_str(), c.mean.psnr, c.mean.ssim,
-                  c.mean.rmse, c.mean.ergas, c.mean.psnr_hyper, c.mean.sam_rad);
+    std::snprintf(buf, sizeof buf, "%s,%s,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%s\n", lv.c_str(), c.mode.c_str(), c.mean.psnr, c.mean.ssim,
+                  c.mean.rmse, c.mean.ergas, c.mean.psnr_hyper, c.mean.sam_rad, c.inputs.c_str());
     t1csv << buf;
     if (c.levels > 0 && c.mode != "fresnel") {
       std::snprintf(buf, sizeof buf, "| %d | %s | %.3f |\n", c.levels, c.mode.c_str(), c.deviation_nm);
       t2 << buf;
-      std::snprintf(buf, sizeof buf, "%d,%s,%.6g\n", c.levels, c.mode.c_str(), c.deviation_nm);
+      std::snprintf(buf, sizeof buf, "%d,%s,%.6g,%s\n", c.levels, c.mode.c_str(), c.deviation_nm, c.inputs.c_str());
       t2csv << buf;
     }
   }

@@ -15,6 +15,12 @@
 #include <set>
 #include <sstream>
 
+#include <csignal>
+#include <fcntl.h>
+#include <sys/file.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include "common.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/doe.hpp"
@@ -624,6 +630,118 @@ TEST_SUITE("commands") {
     fs::remove_all(dir);
   }
 
+  TEST_CASE("qdo design refuses a run folder another process writes, naming its pid; a holder killed by kill -9 blocks nothing") {
+    const auto dir = temp_dir("cmd_lock");
+    const std::string run = (dir / "run").string();
+    const std::string design = "design " + cfg_arg() +
+                               " --mode qdo --levels 4 --epochs 5 --steps-per-epoch 2 --t0 1 --t1 4 --synthetic-scenes 3 --seed 3";
+    REQUIRE(qdo_run(design + " --max-steps 1 --out " + run).code == 0);
+    const std::string me = "pid " + std::to_string(::getpid());
+    {
+      // This process holds the folder (the API qdo design uses): a fresh design and a resume
+      // into it are both refused, exit 2, with the holder's pid.
+      const RunLock held(run);
+      const Run resumed = qdo_run(design + " --resume --max-steps 2 --out " + run);
+      CAPTURE(resumed.out);
+      CHECK(resumed.code == 2);
+      CHECK(resumed.out.find(me) != std::string::npos);
+      CHECK(resumed.out.find("'out'") != std::string::npos);
+      fs::create_directories(dir / "empty");
+      const RunLock held2((dir / "empty").string());
+      const Run fresh = qdo_run(design + " --max-steps 1 --out " + (dir / "empty").string());
+      CAPTURE(fresh.out);
+      CHECK(fresh.code == 2);
+      CHECK(fresh.out.find(me) != std::string::npos);
+      CHECK_FALSE(fs::exists(dir / "empty" / "config.json"));
+    }
+    // A holder killed with kill -9 while holding the lock (a child process that takes the same
+    // flock and waits): the kernel releases it, the stale .lock file with its pid remains, and
+    // --resume goes on.
+    int ready[2];
+    REQUIRE(::pipe(ready) == 0);
+    const std::string lock_path = run + "/.lock";
+    const pid_t child = ::fork();
+    REQUIRE(child >= 0);
+    if (child == 0) {  // only async-signal-safe calls after fork
+      const int fd = ::open(lock_path.c_str(), O_RDWR | O_CREAT, 0644);
+      if (fd < 0 || ::flock(fd, LOCK_EX | LOCK_NB) != 0) ::_exit(1);
+      char c = 'x';
+      if (::write(ready[1], &c, 1) != 1) ::_exit(1);
+      for (;;) ::pause();
+    }
+    ::close(ready[1]);
+    char c = 0;
+    REQUIRE(::read(ready[0], &c, 1) == 1);
+    ::close(ready[0]);
+    const Run blocked = qdo_run(design + " --resume --max-steps 2 --out " + run);
+    CHECK(blocked.code == 2);
+    ::kill(child, SIGKILL);
+    int st = 0;
+    ::waitpid(child, &st, 0);
+    const Run resumed = qdo_run(design + " --resume --max-steps 2 --out " + run);
+    CAPTURE(resumed.out);
+    CHECK(resumed.code == 0);
+    CHECK(csv_rows(fs::path(run) / "log.csv") == 2);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("qdo design --resume refuses options that differ from the run's config.json, naming each") {
+    const auto dir = temp_dir("cmd_resume_opts");
+    const std::string run = (dir / "run").string();
+    const std::string design = "design " + cfg_arg() +
+                               " --mode qdo --levels 4 --epochs 5 --steps-per-epoch 2 --t0 1 --t1 4 --synthetic-scenes 3 --seed 3";
+    REQUIRE(qdo_run(design + " --lr 0.01 --max-steps 1 --out " + run).code == 0);
+    const std::string before = slurp(fs::path(run) / "checkpoint.h5");
+    const Run lr = qdo_run(design + " --lr 0.02 --resume --max-steps 2 --out " + run);
+    CAPTURE(lr.out);
+    CHECK(lr.code == 2);
+    CHECK(lr.out.find("--lr: stored 0.01, given 0.02") != std::string::npos);
+    // Several at once, each named; nothing in the folder changed.
+    const Run many = qdo_run("design " + cfg_arg() + " --mode do --levels 8 --epochs 9 --resume --out " + run);
+    CAPTURE(many.out);
+    CHECK(many.code == 2);
+    CHECK(many.out.find("--mode: stored \"qdo\", given \"do\"") != std::string::npos);
+    CHECK(many.out.find("--levels: stored 4, given 8") != std::string::npos);
+    CHECK(many.out.find("--epochs: stored 5, given 9") != std::string::npos);
+    // Another system (--preset small instead of the tiny --config): the differing fields are named.
+    const Run sys = qdo_run("design --preset small --resume --out " + run);
+    CAPTURE(sys.out);
+    CHECK(sys.code == 2);
+    CHECK(sys.out.find("--preset: system.") != std::string::npos);
+    CHECK(slurp(fs::path(run) / "checkpoint.h5") == before);
+    CHECK(csv_rows(fs::path(run) / "log.csv") == 1);
+    // The same options (and --max-steps, which may change) go on; so does a bare --resume.
+    const Run same = qdo_run(design + " --lr 0.01 --resume --max-steps 2 --out " + run);
+    CAPTURE(same.out);
+    CHECK(same.code == 0);
+    CHECK(csv_rows(fs::path(run) / "log.csv") == 2);
+    const Run bare = qdo_run("design --resume --max-steps 3 --out " + run);
+    CAPTURE(bare.out);
+    CHECK(bare.code == 0);
+    CHECK(csv_rows(fs::path(run) / "log.csv") == 3);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("qdo demo deletes nothing it did not make: a user's files in DIR/do or DIR/qdoa are refused, exit 2") {
+    const auto dir = temp_dir("cmd_demo_owned");
+    fs::create_directories(dir / "do");
+    std::ofstream(dir / "do" / "notes.txt") << "mine";
+    const Run r = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --data " + (dir / "no_cave").string() +
+                          " --out " + dir.string());
+    CAPTURE(r.out);
+    CHECK(r.code == 2);
+    CHECK(r.out.find((dir / "do").string()) != std::string::npos);
+    CHECK(slurp(dir / "do" / "notes.txt") == "mine");
+    CHECK_FALSE(fs::exists(dir / "qdoa"));  // checked before any work
+    // A file where demo's run folder would go is refused too.
+    fs::remove_all(dir / "do");
+    std::ofstream(dir / "qdoa") << "also mine";
+    const Run f = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --out " + dir.string());
+    CHECK(f.code == 2);
+    CHECK(slurp(dir / "qdoa") == "also mine");
+    fs::remove_all(dir);
+  }
+
   TEST_CASE("qdo demo at the smallest size it accepts writes its runs, evaluations and summary") {
     const auto dir = temp_dir("cmd_demo");
     // demo has no --config: the small preset (N = 256, 31 bands) is its smallest system; 2 epochs of
@@ -661,6 +779,14 @@ TEST_SUITE("commands") {
     CHECK(md.find("CAVE") == std::string::npos);
     CHECK(fs::file_size(dir / "chart_scene.png") > 100);
     CHECK(fs::file_size(dir / "chart_sensor_qdoa.png") > 100);
+    // A rerun over its own output replaces its run files and keeps anything else put there.
+    std::ofstream(dir / "do" / "notes.txt") << "mine";
+    const Run again = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --data " + (dir / "no_cave").string() +
+                              " --out " + dir.string());
+    CAPTURE(again.out);
+    CHECK(again.code == 0);
+    CHECK(slurp(dir / "do" / "notes.txt") == "mine");
+    CHECK(csv_rows(dir / "do" / "log.csv") == 2);
     // --epochs below 2 is refused (input error) before any device work.
     const Run one = qdo_run("demo --epochs 1 --out " + (dir / "x").string());
     CHECK(one.code == 2);

@@ -7,6 +7,8 @@
 #include <iterator>
 #include <set>
 
+#include <unistd.h>
+
 #include <nlohmann/json.hpp>
 
 #include "common.hpp"
@@ -206,6 +208,35 @@ TEST_SUITE("runs") {
     CHECK_THROWS_WITH_AS(run_design(runtime(), o, false), doctest::Contains("zero"), InputError);
     CHECK_FALSE(std::filesystem::exists(dir / "run" / "design.h5"));
     std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("a run folder has one writer: a second is refused naming the holder's pid; a released lock blocks nothing") {
+    namespace fs = std::filesystem;
+    const auto dir = temp_dir("runs_lock");
+    const fs::path run = dir / "run";
+    fs::create_directories(run);
+    const std::string pid = "pid " + std::to_string(::getpid());
+    {
+      const RunLock held(run.string());
+      CHECK(fs::exists(run / ".lock"));
+      // Another lock on the same folder (another open file description: as another process would).
+      CHECK_THROWS_WITH_AS(RunLock(run.string()), doctest::Contains(pid.c_str()), InputError);
+      // A design into the locked folder, fresh or resumed, is refused before writing anything.
+      DesignRunOptions o = tiny_run(run.string(), DesignMode::QDO);
+      o.max_steps = 1;
+      CHECK_THROWS_WITH_AS(run_design(runtime(), o, false), doctest::Contains(pid.c_str()), InputError);
+      CHECK_FALSE(fs::exists(run / "config.json"));
+      CHECK_FALSE(fs::exists(run / "checkpoint.h5"));
+    }
+    // Released (the kernel does the same when the holder dies, even by kill -9): the stale
+    // .lock file with the old pid in it blocks neither a run nor its resume.
+    DesignRunOptions o = tiny_run(run.string(), DesignMode::QDO);
+    o.max_steps = 1;
+    CHECK(run_design(runtime(), o, false).steps_done == 1);
+    CHECK(fs::exists(run / ".lock"));
+    o.max_steps = 2;
+    CHECK(run_design(runtime(), o, true).steps_done == 2);
+    fs::remove_all(dir);
   }
 
   TEST_CASE("eval: metrics and figures; do and do-refit differ exactly in the decoder") {

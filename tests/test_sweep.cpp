@@ -4,6 +4,7 @@
 
 #include "common.hpp"
 #include "qdo/error.hpp"
+#include "qdo/io.hpp"
 #include "qdo/run.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/sweep.hpp"
@@ -153,5 +154,58 @@ TEST_SUITE("sweep") {
     CHECK(text.find("| n/a | cassi |") != std::string::npos);
     CHECK(text.find("| 4 | fresnel |") != std::string::npos);
     std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("experiment grid: finished runs and cells are reused only for the same options and input bytes") {
+    namespace fs = std::filesystem;
+    const auto dir = temp_dir("grid_inputs");
+    GridOptions g;
+    g.base = tiny_base();
+    g.levels = {2};
+    g.modes = {"do", "qdo"};
+    g.eval_synthetic_scenes = 2;
+    g.out = (dir / "sweep").string();
+    // Test scenes from a file (sensor-sized cubes).
+    const std::size_t s = g.base.cfg.sensor_size_px();
+    const std::string test = (dir / "test.h5").string();
+    write_cube(test, random_cube(g.base.cfg.bands, s, s, 1), g.base.cfg.wavelengths_nm());
+    g.test_data = {test};
+    const auto first = run_grid(runtime(), g);
+    REQUIRE(first.size() == 3);
+    for (const auto& c : first) CHECK(c.inputs.rfind("fnv1a64:", 0) == 0);
+    const CsvTable t1 = read_csv((fs::path(g.out) / "table1.csv").string());
+    CHECK(t1.raw.back()[0] == first[0].inputs);  // the hash is in the table
+    const auto stamp = fs::last_write_time(fs::path(g.out) / "cells" / "qdo_L2" / "metrics.json");
+    // Other epochs or another learning rate: the finished runs do not match; refused, each difference named.
+    GridOptions e = g;
+    e.base.epochs = 4;
+    CHECK_THROWS_WITH_AS(run_grid(runtime(), e), doctest::Contains("design.epochs: stored 3, given 4"), InputError);
+    GridOptions lr = g;
+    lr.base.design.lr_optics = 0.02;
+    CHECK_THROWS_WITH_AS(run_grid(runtime(), lr), doctest::Contains("design.lr_optics: stored 0.01, given 0.02"), InputError);
+    CHECK(fs::last_write_time(fs::path(g.out) / "cells" / "qdo_L2" / "metrics.json") == stamp);
+    // The same test file path with other bytes (same size): every cell is evaluated again.
+    write_cube(test, random_cube(g.base.cfg.bands, s, s, 2), g.base.cfg.wavelengths_nm());
+    const auto second = run_grid(runtime(), g);
+    REQUIRE(second.size() == first.size());
+    for (std::size_t i = 0; i < first.size(); ++i) {
+      CHECK(second[i].inputs != first[i].inputs);
+      CHECK(second[i].mean.psnr != first[i].mean.psnr);
+    }
+    // The same inputs again: reused as they are.
+    const auto third = run_grid(runtime(), g);
+    CHECK(third.back().inputs == second.back().inputs);
+    CHECK(third.back().mean.psnr == doctest::Approx(second.back().mean.psnr).epsilon(1e-6));
+    // Training scenes changed under the same path: the runs are refused.
+    const std::string train = (dir / "train.h5").string();
+    GridOptions t = g;
+    t.out = (dir / "sweep_t").string();
+    t.modes = {"do"};
+    write_cube(train, random_cube(g.base.cfg.bands, s, s, 3), g.base.cfg.wavelengths_nm());
+    t.base.data = {train};
+    run_grid(runtime(), t);
+    write_cube(train, random_cube(g.base.cfg.bands, s, s, 4), g.base.cfg.wavelengths_nm());
+    CHECK_THROWS_WITH_AS(run_grid(runtime(), t), doctest::Contains("training scenes changed"), InputError);
+    fs::remove_all(dir);
   }
 }

@@ -41,7 +41,8 @@ struct DesignRunResult {
   std::vector<double> levels_m;        // the fabricated design's level heights
 };
 // Runs (or, with resume, continues from RUN/checkpoint.h5 with RUN/config.json's options, of
-// which only max_steps and quiet are taken from `o`) and writes the run folder (run.hpp).
+// which only max_steps and quiet are taken from `o`) and writes the run folder (run.hpp). The
+// folder is locked (RunLock) while this runs: a second writer gets an InputError naming the pid.
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& o, bool resume);
 
 // The run's scene prior (RUN/prior.h5: /cov bins x B x B with attributes rows, cols).

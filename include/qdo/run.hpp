@@ -5,6 +5,7 @@
 //   RUN/log.csv          one row per step: step, loss, loss_aq, alpha, lr, step_s, level heights
 //   RUN/design.h5        the fabrication-ready height map (only the L level heights) + /levels_m
 //   RUN/psf.h5, RUN/*.png
+//   RUN/.lock            held (flock) by the process writing the folder; holds its pid
 #pragma once
 #include <string>
 #include <vector>
@@ -12,6 +13,26 @@
 #include "qdo/design.hpp"
 
 namespace qdo {
+
+// Ownership of a run folder: an exclusive, non-blocking flock(2) on DIR/.lock, held for the
+// object's lifetime, with the holder's pid written in the file. A second writer (another
+// process, or another RunLock on the same folder in this process) gets an InputError naming
+// the folder and the holder's pid. The kernel drops the lock when the holder dies (even by
+// kill -9), so a stale .lock file never blocks a --resume. The file itself is left in place
+// (unlinking a lock file races with a writer that has just opened it).
+// `what` names the argument in the error (e.g. "out").
+class RunLock {
+ public:
+  explicit RunLock(const std::string& dir, const std::string& what = "out");
+  ~RunLock();
+  RunLock(const RunLock&) = delete;
+  RunLock& operator=(const RunLock&) = delete;
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+  int fd_ = -1;
+};
 
 void save_checkpoint(const std::string& path, const DesignState& s);
 // Throws InputError naming the file and dataset when missing, corrupt or mis-shaped

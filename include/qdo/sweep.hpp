@@ -68,11 +68,19 @@ struct GridCell {
   int levels = 0;                      // 0: full precision; -1: not applicable (cassi)
   EvalRow mean;
   double deviation_nm = 0;
+  // "fnv1a64:<16 hex digits>": a hash of everything that determines the cell: its evaluation
+  // options, the training run's options and output files (bytes), the test scenes' bytes.
+  std::string inputs;
 };
 // Runs every cell (training runs resume from their checkpoints and are skipped when finished;
 // evaluated cells are skipped when their metrics exist), evaluates on the test split, and writes
 // table1.md/.csv (PSNR, SSIM, RMSE, ERGAS per cell), table2.md/.csv (deviation in nm) and
 // psnr_vs_levels.png. DO is trained once at full precision and quantized per level.
+// Reuse is checked, not assumed: a training run folder (runs/NAME) whose config.json differs
+// from the options of this call (other epochs, lr, system, ...) is an InputError naming each
+// difference, and so is one whose training scenes' bytes changed (runs/NAME/sweep_inputs holds
+// their hash); a cell is reused only when metrics.json holds the same `inputs` hash, else it is
+// evaluated again. table1.csv and table2.csv carry each cell's `inputs` hash.
 std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g);
 
 }  // namespace qdo

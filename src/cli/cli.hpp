@@ -48,6 +48,10 @@ std::string out_dir(const Args& a, const std::string& def = "");  // creates it
 double seconds_since(std::chrono::steady_clock::time_point t0);
 // The options of `qdo design` (also used by gradcheck and sweep); --mode and --out as given.
 DesignRunOptions design_options(const Args& a);
+// With --resume: every option given explicitly that differs from RUN/config.json is an
+// InputError listing "--option: stored X, given Y" (--max-steps, --device, --out,
+// --check-gradients may differ).
+void check_resume_options(const Args& a, const DesignRunOptions& given);
 
 // Command registry: a file registers its commands with a static Registrar, e.g.
 //   static const qdo::cli::Registrar reg("export", cmd_export, "qdo export RUN|DESIGN.h5 ...");

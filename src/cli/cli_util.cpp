@@ -1,8 +1,11 @@
 #include "cli.hpp"
 
+#include <nlohmann/json.hpp>
+
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <sstream>
 
 #include "qdo/datasets.hpp"
@@ -185,6 +188,57 @@ DesignRunOptions design_options(const Args& a) {
   o.precision = precision_from_string(a.get("precision", "f32"));
   o.out = a.get("out");
   return o;
+}
+
+// --resume continues a run with the options in RUN/config.json. An option given explicitly on the
+// command line that differs from the stored one is refused (it would be dropped silently),
+// naming each one: "--lr: stored 0.01, given 0.02". Not compared (allowed to differ): --max-steps
+// (where this session stops), --device, --out, --resume, --check-gradients.
+void check_resume_options(const Args& a, const DesignRunOptions& given) {
+  const fs::path cfg = fs::path(given.out) / "config.json";
+  if (given.out.empty() || !fs::exists(cfg)) return;  // run_design names the missing file
+  std::ifstream f(cfg);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  // Both sides through the same reader and writer, so defaults of old run folders (psf_path)
+  // and number formatting compare equal.
+  const DesignRunOptions stored = design_run_options_from_json(ss.str(), cfg.string());
+  const nlohmann::json s = nlohmann::json::parse(design_run_options_to_json(stored));
+  const nlohmann::json g = nlohmann::json::parse(design_run_options_to_json(given));
+  static const std::vector<std::pair<std::string, std::string>> fields = {
+      {"mode", "mode"}, {"levels", "levels"}, {"placement", "placement"}, {"parameterization", "parameterization"},
+      {"psf-path", "psf_path"}, {"objective", "objective"}, {"target", "target"}, {"data", "data"},
+      {"epochs", "epochs"}, {"steps-per-epoch", "steps_per_epoch"}, {"t0", "t0_epochs"}, {"t1", "t1_epochs"},
+      {"lr", "lr_optics"}, {"lr-offsets", "lr_offsets"}, {"decay", "lr_decay_per_epoch"}, {"beta", "beta_aq"},
+      {"height-noise-nm", "height_noise_m"}, {"noise-sigma", "decoder_noise_sigma"}, {"init", "init"}, {"seed", "seed"},
+      {"checkpoint-every", "checkpoint_every"}, {"precision", "precision"}, {"synthetic-scenes", "synthetic_scenes"},
+      {"batch", "batch"}};
+  std::vector<std::string> diffs;
+  for (const auto& [opt, key] : fields) {
+    if (!a.has(opt)) continue;
+    const nlohmann::json& sv = s.at("design").at(key);
+    const nlohmann::json& gv = g.at("design").at(key);
+    if (sv != gv) diffs.push_back("--" + opt + ": stored " + sv.dump() + ", given " + gv.dump());
+  }
+  for (const char* opt : {"preset", "config"}) {
+    if (!a.has(opt)) continue;
+    const nlohmann::json& ss_ = s.at("system");
+    const nlohmann::json& gs = g.at("system");
+    for (auto it = gs.begin(); it != gs.end(); ++it)
+      if (!ss_.contains(it.key()) || ss_.at(it.key()) != it.value())
+        diffs.push_back("--" + std::string(opt) + ": system." + it.key() + " stored " +
+                        (ss_.contains(it.key()) ? ss_.at(it.key()).dump() : std::string("(absent)")) + ", given " +
+                        it.value().dump());
+    for (auto it = ss_.begin(); it != ss_.end(); ++it)
+      if (!gs.contains(it.key()))
+        diffs.push_back("--" + std::string(opt) + ": system." + it.key() + " stored " + it.value().dump() + ", given (absent)");
+  }
+  if (diffs.empty()) return;
+  std::string list;
+  for (const auto& d : diffs) list += (list.empty() ? "" : "; ") + d;
+  reject("--resume", given.out,
+         "options that match the run's config.json (a resumed run continues with its stored options; these differ: " + list +
+             "; omit them, or start a new run in another --out)");
 }
 
 }  // namespace qdo::cli

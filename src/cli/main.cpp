@@ -18,6 +18,7 @@
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
+#include "qdo/run.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/scenes.hpp"
 #include "qdo/simulator.hpp"
@@ -184,6 +185,7 @@ int cmd_design(int argc, char** argv) {
   DesignRunOptions o = design_options(a);
   const bool resume = a.has("resume");
   if (!resume) o.validate();
+  else check_resume_options(a, o);
   Runtime rt(a.get("device"));
   if (a.has("check-gradients")) {
     std::printf("gradient check on this run's configuration (reduced to N <= 64):\n");
@@ -247,6 +249,11 @@ int cmd_gradcheck(int argc, char** argv) {
 }
 
 
+// The marker demo writes into its run folders, and the files of a run folder it replaces on a rerun.
+const char* const kDemoMarker = ".qdo-demo";
+const char* const kDemoRunFiles[] = {"config.json", "checkpoint.h5", "log.csv",    "prior.h5",   "design.h5",
+                                     "design_full.h5", "psf.h5",      "psf.png", "design.png", "loss.png"};
+
 // The main job: a QDO+A design at L levels on synthetic scenes (small preset), compared with
 // conventional deep optics (DO: full-precision training, quantized afterwards) on held-out
 // synthetic scenes and, when present, the real CAVE scenes; plus the forward-model figures.
@@ -264,22 +271,44 @@ int cmd_demo(int argc, char** argv) {
   o.objective = "wiener";
   std::string real = a.get("data", "../shared/data/hsi/cave");
   if (!fs::exists(real)) real.clear();
+  struct Job {
+    DesignMode mode;
+    std::string name;
+  };
+  const std::vector<Job> jobs = {Job{DesignMode::QDOA, "qdoa"}, Job{DesignMode::DO, "do"}};
+  // demo replaces only what it made: DIR/qdoa and DIR/do must be absent, empty, or run folders
+  // an earlier demo wrote (its marker file inside). Both are checked before any work.
+  for (const Job& j : jobs) {
+    const fs::path run = fs::path(dir) / j.name;
+    if (!fs::exists(run)) continue;
+    if (!fs::is_directory(run))
+      reject("--out", dir, "a folder where '" + run.string() + "' is absent or a run folder qdo demo made (it is a file; move it, or choose another --out)");
+    if (!fs::is_empty(run) && !fs::exists(run / kDemoMarker))
+      reject("--out", dir, "a folder where '" + run.string() +
+                               "' is absent, empty or a run folder qdo demo made (it holds files qdo demo did not write, and demo "
+                               "would replace them; move them, or choose another --out)");
+  }
   Runtime rt(a.get("device"));
   std::printf("qdo demo: preset %s (N = %zu, %zu bands, z = %.4g m), %d levels, %zu steps per design, device %s\n",
               o.cfg.preset.c_str(), o.cfg.n, o.cfg.bands, o.cfg.sensor_distance_m, o.design.quantizer.levels,
               o.epochs * o.design.steps_per_epoch, rt.info().name.c_str());
   const auto t0 = std::chrono::steady_clock::now();
-  struct Job {
-    DesignMode mode;
-    std::string name;
-  };
-  for (const Job& j : {Job{DesignMode::QDOA, "qdoa"}, Job{DesignMode::DO, "do"}}) {
+  for (const Job& j : jobs) {
     DesignRunOptions r = o;
     r.design.mode = j.mode;
     r.out = dir + "/" + j.name;
     std::printf("[%s] designing (%s) into %s\n", j.name.c_str(), to_string(j.mode).c_str(), r.out.c_str());
-    std::error_code ec;
-    fs::remove_all(r.out, ec);
+    fs::create_directories(r.out);
+    {
+      // Under the folder's lock (a concurrent writer is refused): drop the previous demo run's
+      // files (a fresh run refuses a folder with a checkpoint), keep anything else, mark it ours.
+      const RunLock lock(r.out);
+      for (const char* f : kDemoRunFiles) {
+        std::error_code ec;
+        fs::remove(fs::path(r.out) / f, ec);
+      }
+      write_text_atomic((fs::path(r.out) / kDemoMarker).string(), "a run folder written by qdo demo; qdo demo may replace its run files\n");
+    }
     run_design(rt, r, false);
   }
   struct Cell {
