@@ -5,6 +5,9 @@
 #include <cmath>
 #include <complex>
 #include <cstdlib>
+#include <fstream>
+#include <sstream>
+#include <sys/wait.h>
 #include <filesystem>
 #include <memory>
 #include <random>
@@ -90,6 +93,26 @@ inline std::filesystem::path temp_dir(const std::string& tag) {
 
 inline const char* shared_dir() { return QDO_SHARED_DIR; }
 inline bool have_shared() { return std::filesystem::exists(std::string(QDO_SHARED_DIR) + "/data/hsi/cave"); }
+
+// The qdo tool run as a user would: `env_prefix qdo args` in a shell, stdout and stderr captured.
+struct Run {
+  int code = -1;  // exit status, -1 if the process did not exit normally
+  std::string out;
+};
+inline Run qdo_run(const std::string& args, const std::string& env_prefix = "") {
+  const auto dir = temp_dir("qdo_run");
+  const std::string log = (dir / "log.txt").string();
+  const std::string cmd = env_prefix + " " + std::string(QDO_QDO_BINARY) + " " + args + " > " + log + " 2>&1";
+  const int status = std::system(cmd.c_str());
+  Run r;
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream f(log);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  r.out = ss.str();
+  std::filesystem::remove_all(dir);
+  return r;
+}
 
 // --- Missing prerequisites (../shared data, KLayout, a float64 device) ----------------------
 // A test that cannot run (all or part of itself) for a missing prerequisite says so through

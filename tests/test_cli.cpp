@@ -12,27 +12,6 @@ using namespace qdo::test;
 
 namespace {
 
-struct Run {
-  int code = -1;
-  std::string out;
-};
-
-// Runs `env_prefix qdo args` in a shell, capturing stdout+stderr.
-Run qdo_run(const std::string& args, const std::string& env_prefix = "") {
-  const auto dir = temp_dir("cli_out");
-  const std::string log = (dir / "log.txt").string();
-  const std::string cmd = env_prefix + " " + std::string(QDO_QDO_BINARY) + " " + args + " > " + log + " 2>&1";
-  const int status = std::system(cmd.c_str());
-  Run r;
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream f(log);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  r.out = ss.str();
-  std::filesystem::remove_all(dir);
-  return r;
-}
-
 void write_height_file(const std::string& path, std::size_t rows, std::size_t cols, double value, double pitch) {
   H5Dataset d{"/height_m", {rows, cols}, std::vector<double>(rows * cols, value), {{"pitch_m", pitch}}, {}};
   h5_write(path, {d});

@@ -36,27 +36,6 @@ using nlohmann::json;
 
 namespace {
 
-struct Run {
-  int code = -1;
-  std::string out;
-};
-
-// Runs `env_prefix qdo args` in a shell, capturing stdout+stderr.
-Run qdo_run(const std::string& args, const std::string& env_prefix = "") {
-  const auto dir = temp_dir("cmd_out");
-  const std::string log = (dir / "log.txt").string();
-  const std::string cmd = env_prefix + " " + std::string(QDO_QDO_BINARY) + " " + args + " > " + log + " 2>&1";
-  const int status = std::system(cmd.c_str());
-  Run r;
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream f(log);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  r.out = ss.str();
-  fs::remove_all(dir);
-  return r;
-}
-
 std::string slurp(const fs::path& p) {
   std::ifstream f(p, std::ios::binary);
   std::stringstream ss;
