@@ -7,4 +7,6 @@ bash scripts/build.sh
 # Compiled kernels are cached per device/driver/options/source; keep the test cache apart.
 export QDO_CACHE_DIR="${QDO_CACHE_DIR:-$PWD/build/kernel-cache}"
 cd build
-ctest -L default --output-on-failure -j1 "$@"
+# Two entries at a time: a cold run is mostly PoCL compiling kernels and FFT plans, one compiler
+# thread per process, so two processes halve it on 2 cores (README "Test time").
+ctest -L default --output-on-failure -j2 "$@"
