@@ -15,6 +15,7 @@
 #include <unistd.h>
 
 #include "qdo/error.hpp"
+#include "qdo/hash.hpp"
 #include "qdo/io.hpp"
 
 namespace qdo {
@@ -27,27 +28,17 @@ const char* const kCheckpointSets[] = {"/w", "/offsets", "/adam_w_m", "/adam_w_v
 // FNV-1a (64 bit) over each dataset's name, value count and float64 bit patterns (little-endian),
 // as "fnv1a64:<16 hex digits>". HDF5 stores float64 exactly, so an intact file reproduces it.
 std::string checkpoint_checksum(const std::vector<std::pair<std::string, const std::vector<double>*>>& sets) {
-  std::uint64_t h = 1469598103934665603ull;
-  auto byte = [&h](unsigned char b) {
-    h ^= b;
-    h *= 1099511628211ull;
-  };
-  auto u64 = [&byte](std::uint64_t v) {
-    for (int i = 0; i < 8; ++i) byte(static_cast<unsigned char>(v >> (8 * i)));
-  };
+  Fnv1a64 f;
   for (const auto& [name, data] : sets) {
-    for (char c : name) byte(static_cast<unsigned char>(c));
-    byte(0);
-    u64(data->size());
+    f.add(name);  // name and a '\0'
+    f.add_u64(data->size());
     for (double v : *data) {
       std::uint64_t bits = 0;
       std::memcpy(&bits, &v, sizeof bits);
-      u64(bits);
+      f.add_u64(bits);
     }
   }
-  char hex[17];
-  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(h));
-  return std::string("fnv1a64:") + hex;
+  return f.hex();
 }
 
 }  // namespace

@@ -16,6 +16,7 @@
 
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
+#include "qdo/hash.hpp"
 #include "qdo/fft.hpp"
 
 namespace qdo {
@@ -26,13 +27,7 @@ std::string lower(std::string s) {
   return s;
 }
 
-std::uint64_t fnv1a(const std::string& s, std::uint64_t h = 1469598103934665603ull) {
-  for (unsigned char c : s) {
-    h ^= c;
-    h *= 1099511628211ull;
-  }
-  return h;
-}
+std::uint64_t fnv1a(const std::string& s, std::uint64_t h = Fnv1a64{}.h) { return Fnv1a64{h}.add(s.data(), s.size()).h; }
 
 std::string device_type_name(cl_device_type t) {
   if (t & CL_DEVICE_TYPE_GPU) return "GPU";
@@ -248,14 +243,7 @@ cl::Program& Runtime::program(const std::string& label, const std::string& sourc
     for (int i = 7; i >= 0; --i) v = (v << 8) | b[i];
     return v;
   };
-  auto hash_bytes = [](const unsigned char* b, std::size_t n) {
-    std::uint64_t x = 1469598103934665603ull;
-    for (std::size_t i = 0; i < n; ++i) {
-      x ^= b[i];
-      x *= 1099511628211ull;
-    }
-    return x;
-  };
+  auto hash_bytes = [](const unsigned char* b, std::size_t n) { return Fnv1a64{}.add(b, n).h; };
   std::error_code ec;
   if (!path.empty() && std::filesystem::exists(path, ec)) {
     std::string problem;

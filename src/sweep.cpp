@@ -17,6 +17,7 @@
 #include "qdo/optics.hpp"
 #include "qdo/error.hpp"
 #include "json_strict.hpp"
+#include "qdo/hash.hpp"
 #include "qdo/io.hpp"
 #include "qdo/run.hpp"
 #include "qdo/simulator.hpp"
@@ -164,25 +165,7 @@ namespace {
 
 bool run_finished(const fs::path& run) { return fs::exists(run / "DONE"); }
 
-// FNV-1a, 64 bit: a content hash (not a cryptographic one) for provenance checks.
-struct Fnv {
-  std::uint64_t h = 1469598103934665603ull;
-  void add(const char* p, std::size_t n) {
-    for (std::size_t i = 0; i < n; ++i) {
-      h ^= static_cast<unsigned char>(p[i]);
-      h *= 1099511628211ull;
-    }
-  }
-  void add(const std::string& s) {
-    add(s.data(), s.size());
-    add("\0", 1);  // separator, so ("ab", "c") and ("a", "bc") differ
-  }
-  std::string hex() const {
-    char b[32];
-    std::snprintf(b, sizeof b, "fnv1a64:%016llx", static_cast<unsigned long long>(h));
-    return b;
-  }
-};
+using Fnv = Fnv1a64;  // content hash for provenance checks (qdo/hash.hpp)
 
 // The bytes of a file, or of every regular file under a folder (sorted by path, each with its
 // relative path and size); "missing" for a path that does not exist.
