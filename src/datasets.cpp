@@ -450,11 +450,18 @@ RealStack read_png_band_folder(const std::string& dir, std::size_t expected_band
   return cube;
 }
 
-RealStack load_scene(const std::string& path, const std::string& format, std::size_t expected_bands) {
+RealStack load_scene(const std::string& path, const std::string& format, std::size_t expected_bands,
+                     const std::vector<double>& wavelengths_nm, bool resample_bands) {
   const std::string fmt = resolve_format(path, format);
-  if (fmt == "cave-png") return read_png_band_folder(path, expected_bands);
+  if (fmt == "cave-png") {
+    RealStack png = read_png_band_folder(path, expected_bands);
+    conform_radiance(png, "folder '" + path + "'");
+    return png;
+  }
   CubeReadOptions opt;
   opt.expected_bands = expected_bands;
+  opt.wavelengths_nm = wavelengths_nm;
+  opt.resample_bands = resample_bands;
   opt.key = format_key(fmt);
   RealStack cube;
   if (fmt == "icvl") {
@@ -475,6 +482,7 @@ RealStack load_scene(const std::string& path, const std::string& format, std::si
   } else {  // "h5"
     cube = read_cube(path, opt);
   }
+  conform_radiance(cube, "file '" + path + "'");
   return cube;
 }
 
@@ -487,7 +495,13 @@ void check_training_scene(const RealStack& cube, const std::string& path) {
                    "): training scenes must vary (remove it from the training data)");
 }
 
-SceneShape probe_scene(const std::string& path, const std::string& format, std::size_t expected_bands) {
+SceneShape probe_scene(const std::string& path, const std::string& format, std::size_t expected_bands,
+                       const std::vector<double>& wavelengths_nm) {
+  auto is_axis_name = [](const std::string& n) {
+    for (const char* a : kBandAxisNames)
+      if (n == a) return true;
+    return false;
+  };
   const std::string fmt = resolve_format(path, format);
   if (fmt == "cave-png") return png_folder_shape(path, expected_bands);
   std::error_code ec;
@@ -496,6 +510,8 @@ SceneShape probe_scene(const std::string& path, const std::string& format, std::
   if (is_mat_file(path)) {
     const std::vector<MatVarInfo> vars = mat_variables(path);
     std::string key = format_key(fmt);
+    bool has_axis = false;  // a band axis to check: read the scene below
+    for (const auto& v : vars) has_axis = has_axis || (!wavelengths_nm.empty() && is_axis_name(v.name));
     if (key.empty()) {
       std::size_t found = 0;
       for (const auto& v : vars)
@@ -506,16 +522,23 @@ SceneShape probe_scene(const std::string& path, const std::string& format, std::
       if (found != 1) key.clear();
     }
     for (const auto& v : vars)
-      if (!key.empty() && v.name == key && v.numeric && plausible_size(path, product(v.dims), 1) &&
+      if (!has_axis && !key.empty() && v.name == key && v.numeric && plausible_size(path, product(v.dims), 1) &&
           orient(v.dims, true, expected_bands, s))
         return s;
   } else {
     std::vector<std::size_t> d;
     const std::string key = fmt == "h5" ? "/cube" : "/" + format_key(fmt);
-    if (h5_dims(path, key, d) && plausible_size(path, product(d), 1) && orient(d, false, expected_bands, s)) return s;
+    bool has_axis = false;
+    for (const char* a : kBandAxisNames)
+      if (!wavelengths_nm.empty() && (h5_dims(path, std::string("/") + a, d) ||
+                                      h5_dims(path, key.substr(0, key.find_last_of('/') + 1) + a, d)))
+        has_axis = true;
+    if (!has_axis && h5_dims(path, key, d) && plausible_size(path, product(d), 1) && orient(d, false, expected_bands, s))
+      return s;
   }
-  // Anything unusual: read the scene, which either gives the shape or names the problem.
-  const RealStack cube = load_scene(path, fmt, expected_bands);
+  // Anything unusual, or a band axis to check: read the scene, which either gives the shape or
+  // names the problem.
+  const RealStack cube = load_scene(path, fmt, expected_bands, wavelengths_nm);
   return {cube.planes, cube.rows, cube.cols};
 }
 
@@ -523,8 +546,9 @@ SceneShape probe_scene(const std::string& path, const std::string& format, std::
 // Scene index and split
 // =========================================================================================
 
-SceneIndex::SceneIndex(const std::vector<std::string>& paths, const std::string& format, std::size_t expected_bands)
-    : bands_(expected_bands) {
+SceneIndex::SceneIndex(const std::vector<std::string>& paths, const std::string& format, std::size_t expected_bands,
+                       const std::vector<double>& wavelengths_nm)
+    : bands_(expected_bands), wavelengths_nm_(wavelengths_nm) {
   check_format(format);
   if (paths.empty()) reject("paths", "[]", "at least one scene file or folder");
   const bool want_png = format == "auto" || format == "cave" || format == "cave-png";
@@ -566,7 +590,7 @@ SceneIndex::SceneIndex(const std::vector<std::string>& paths, const std::string&
     SceneEntry e;
     e.path = f;
     e.format = resolve_format(f, format);
-    e.shape = probe_scene(f, e.format, expected_bands);
+    e.shape = probe_scene(f, e.format, expected_bands, wavelengths_nm);
     entries_.push_back(std::move(e));
   }
 }
@@ -594,7 +618,7 @@ RealStack SceneIndex::load(std::size_t i) const {
   if (i >= entries_.size()) reject("scene", i, "an index below " + std::to_string(entries_.size()));
   const SceneEntry& e = entries_[i];
   RealStack cube = e.format == "synthetic" ? synthetic_scene(*synthetic_cfg_, e.shape.rows, e.synthetic_seed)
-                                           : load_scene(e.path, e.format, bands_);
+                                           : load_scene(e.path, e.format, bands_, wavelengths_nm_);
   const SceneShape got{cube.planes, cube.rows, cube.cols};
   if (!(got == e.shape))
     fail(e.path, "read as " + shape_str(got) + " but indexed as " + shape_str(e.shape) + " (changed since indexed?)");

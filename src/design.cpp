@@ -89,20 +89,28 @@ void Adam::step(std::vector<double>& params, const std::vector<double>& grad, do
   }
 }
 
+void DesignOptions::validate() const {
+  Quantizer q = quantizer;
+  q.offsets.clear();
+  q.validate();
+  if (steps_per_epoch < 1) reject("steps_per_epoch", steps_per_epoch, ">= 1");
+  if (!(t0_epochs >= 0) || !std::isfinite(t0_epochs)) reject("t0_epochs", t0_epochs, "finite and >= 0");
+  if (!(t1_epochs > t0_epochs) || !std::isfinite(t1_epochs))
+    reject("t1_epochs", t1_epochs, "finite and > t0_epochs = " + to_str(t0_epochs));
+  for (const auto& [name, v] : {std::pair<const char*, double>{"lr_optics", lr_optics}, {"lr_offsets", lr_offsets},
+                                {"beta_aq", beta_aq}, {"height_noise_m", height_noise_m}})
+    if (!(v >= 0) || !std::isfinite(v)) reject(name, v, "finite and >= 0");
+  if (!(lr_decay_per_epoch > 0 && lr_decay_per_epoch <= 1))
+    reject("lr_decay_per_epoch", lr_decay_per_epoch, "a factor per epoch in (0, 1] (1: no decay)");
+  if (mode == DesignMode::QDOM) mask_count(quantizer.levels);
+  if (psf_path == PsfPath::Radial && parameterization != Parameterization::Radial)
+    reject("psf_path", "radial", "auto or 2d unless the parameterization is radial (the radial engine needs ring heights)");
+  radial.validate();
+}
+
 Designer::Designer(Simulator& sim, const DesignOptions& opt) : sim_(sim), opt_(opt), h_max_(sim.config().h_max_m()) {
   opt_.quantizer.offsets.clear();
-  opt_.quantizer.validate();
-  if (opt_.steps_per_epoch < 1) reject("steps_per_epoch", opt_.steps_per_epoch, ">= 1");
-  if (!(opt_.t1_epochs > opt_.t0_epochs) || opt_.t0_epochs < 0)
-    reject("t1_epochs", opt_.t1_epochs, "> t0_epochs = " + to_str(opt_.t0_epochs) + " >= 0");
-  for (const auto& [name, v] : {std::pair<const char*, double>{"lr_optics", opt_.lr_optics}, {"lr_offsets", opt_.lr_offsets},
-                                {"lr_decay_per_epoch", opt_.lr_decay_per_epoch}, {"beta_aq", opt_.beta_aq},
-                                {"height_noise_m", opt_.height_noise_m}})
-    if (!(v >= 0) || !std::isfinite(v)) reject(name, v, "finite and >= 0");
-  if (opt_.mode == DesignMode::QDOM) mask_count(opt_.quantizer.levels);
-  if (opt_.psf_path == PsfPath::Radial && opt_.parameterization != Parameterization::Radial)
-    reject("psf_path", "radial", "auto or 2d unless the parameterization is radial (the radial engine needs ring heights)");
-  opt_.radial.validate();
+  opt_.validate();
 }
 
 bool Designer::uses_radial() const {

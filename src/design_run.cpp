@@ -44,7 +44,7 @@ std::vector<RealStack> training_scenes(const DesignRunOptions& o) {
     for (std::size_t i = 0; i < idx.size(); ++i) out.push_back(idx.load(i));
     return out;
   }
-  const SceneIndex idx(o.data, o.data_format, o.cfg.bands);
+  const SceneIndex idx(o.data, o.data_format, o.cfg.bands, o.cfg.wavelengths_nm());
   const SceneSplit split = idx.split(o.design.seed, 0.8, 0.1);
   const auto& use = split.train.empty() ? split.test : split.train;
   for (std::size_t i : use) {
@@ -154,7 +154,7 @@ wiener::SpectralPrior load_prior(const std::string& path) {
 
 void DesignRunOptions::validate() const {
   cfg.validate();
-  design.quantizer.validate();
+  design.validate();
   if (design.mode == DesignMode::QDOM) mask_count(design.quantizer.levels);  // a power of two
   if (objective != "wiener" && objective != "wiener-mse" && objective != "wiener-mae" && objective != "psf-target")
     reject("objective", objective, "one of wiener, wiener-mse, wiener-mae, psf-target");
@@ -324,6 +324,11 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   while (s.step < stop) {
     const auto t0 = std::chrono::steady_clock::now();
     const StepReport rep = d.step(s, make_objective(o, pb, s.step));
+    if (!std::isfinite(rep.loss) || !std::isfinite(rep.loss_aq))
+      throw NumericalError("design step " + std::to_string(rep.step) + ": the loss is " + to_str(rep.loss) +
+                           " (L_aq " + to_str(rep.loss_aq) + "); stopped before writing it: " + ckpt_path.string() +
+                           " still holds step " + std::to_string(s.step - 1 >= 0 ? s.step - 1 : 0) +
+                           " or earlier (lower --lr, or check the data)");
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     last_loss = rep.loss;
     losses.push_back(rep.loss);

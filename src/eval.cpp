@@ -91,14 +91,14 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
     const SceneIndex idx = SceneIndex::synthetic(cfg, e.synthetic_scenes, s, o.design.seed + 1000003);
     for (std::size_t i = 0; i < idx.size(); ++i) patches.push_back({"synthetic_" + std::to_string(i), idx.load(i)});
   } else {
-    const SceneIndex idx(e.data, e.data_format, cfg.bands);
+    const SceneIndex idx(e.data, e.data_format, cfg.bands, cfg.wavelengths_nm());
     for (std::size_t i = 0; i < idx.size(); ++i) {
       const RealStack cube = idx.load(i);
       if (cube.rows < s || cube.cols < s) reject("data", idx[i].path, "scenes of at least S x S = " + to_str(s) + " pixels");
       for (auto& p : extract_patches(cube, s, s)) patches.push_back({fs::path(idx[i].path).stem().string(), std::move(p)});
     }
   }
-  fs::create_directories(e.out);
+  make_output_dir(e.out, "out");
 
   Simulator sim(rt, cfg, e.precision);
   sim.set_heights(h_eval);

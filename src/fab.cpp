@@ -18,6 +18,7 @@
 #include "qdo/datasets.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
+#include "qdo/io.hpp"
 #include "json_strict.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/simulator.hpp"
@@ -475,7 +476,7 @@ Reconstruction reconstruct(const MaskPlan& plan, const std::vector<std::vector<s
 
 Reconstruction reconstruct_export(const std::string& dir) {
   const fs::path mpath = fs::path(dir) / "manifest.json";
-  std::ifstream f(mpath);
+  std::ifstream f(readable_output(mpath.string()));  // its temporary name while the command's outputs are staged
   if (!f) throw InputError("file '" + mpath.string() + "': cannot open (not an export folder?)");
   json j;
   try {
@@ -513,7 +514,9 @@ Reconstruction reconstruct_export(const std::string& dir) {
     throw InputError("file '" + mpath.string() + "': a level names a mask layer that is not in \"masks\"");
   }
   if (pitch <= 0 || p.n == 0) throw InputError("file '" + mpath.string() + "': grid n and pitch_nm must be positive");
-  const gds::Library lib = gds::read((fs::path(dir) / gds_name).string());
+  if (gds_name.empty() || gds_name.find('/') != std::string::npos || gds_name == "." || gds_name == "..")
+    throw InputError("file '" + mpath.string() + "': gds.file = '" + gds_name + "' must name a file in the export folder");
+  const gds::Library lib = gds::read(readable_output((fs::path(dir) / gds_name).string()));
   if (std::fabs(lib.db_in_metres - 1e-9) > 1e-15)
     throw InputError("GDSII '" + gds_name + "': database unit " + to_str(lib.db_in_metres) + " m, expected 1e-9 (1 nm)");
   std::vector<std::vector<gds::Polygon>> polys(p.depth_m.size());
@@ -617,7 +620,7 @@ ExportResult export_design(const Design& d, const SystemConfig& cfg, const Expor
     for (int sy : {-1, 1}) lib.boundaries.push_back({kMarkLayer, 0, cross_polygon(sx * mc, sy * mc, arm, hw)});
   lib.boundaries.push_back({kApertureLayer, 0, disk_polygon(cfg.aperture_radius() * 1e9, o.aperture_vertices)});
 
-  fs::create_directories(o.out);
+  make_output_dir(o.out, "out");
   const fs::path dir(o.out);
   gds::write((dir / "masks.gds").string(), lib);
   res.files.push_back("masks.gds");
@@ -733,7 +736,7 @@ ExportResult export_design(const Design& d, const SystemConfig& cfg, const Expor
   write_text_atomic((dir / "manifest.json").string(), j.dump(2) + "\n");
 
   // Previews from the read-back polygons.
-  const gds::Library back = gds::read((dir / "masks.gds").string());
+  const gds::Library back = gds::read(readable_output((dir / "masks.gds").string()));
   for (const Mask& mk : plan.masks) {
     std::vector<gds::Polygon> polys;
     for (const auto& b : back.boundaries)
@@ -934,7 +937,7 @@ class Evaluator {
       const SceneIndex idx = SceneIndex::synthetic(cfg, t.synthetic_scenes, s_, o.design.seed + 1000003);
       for (std::size_t i = 0; i < idx.size(); ++i) patches_.push_back({"synthetic_" + std::to_string(i), idx.load(i)});
     } else {
-      const SceneIndex idx(t.data, t.data_format, cfg.bands);
+      const SceneIndex idx(t.data, t.data_format, cfg.bands, cfg.wavelengths_nm());
       for (std::size_t i = 0; i < idx.size(); ++i) {
         const RealStack cube = idx.load(i);
         if (cube.rows < s_ || cube.cols < s_) reject("data", idx[i].path, "scenes of at least S x S = " + to_str(s_) + " pixels");
@@ -1276,7 +1279,7 @@ ToleranceResult tolerance_analysis(Runtime& rt, const ToleranceOptions& t) {
 
   // Files.
   const fs::path dir(t.out);
-  fs::create_directories(dir);
+  make_output_dir(t.out, "out");
   auto list = [](const std::vector<double>& v, double scale) {
     std::ostringstream s;
     s.precision(6);

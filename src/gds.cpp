@@ -11,6 +11,7 @@
 #include <unistd.h>
 
 #include "qdo/error.hpp"
+#include "qdo/io.hpp"
 
 namespace qdo::gds {
 namespace {
@@ -179,11 +180,12 @@ void write(const std::string& path, const Library& lib) {
       throw InputError("file '" + path + "': write failed");
     }
   }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) {
+  try {
+    commit_output(tmp, path);
+  } catch (...) {
+    std::error_code ec;
     std::filesystem::remove(tmp, ec);
-    throw InputError("file '" + path + "': cannot rename the temporary file into place");
+    throw;
   }
 }
 

@@ -619,4 +619,25 @@ std::vector<RealStack> skipped_images_reference(const std::vector<RealStack>& cu
   return out;
 }
 
+SensorClip clip_to_full_scale(RealStack& rgb, const std::string& what) {
+  SensorClip c;
+  c.total = rgb.data.size();
+  std::size_t bad = 0;
+  for (double& v : rgb.data) {
+    if (!std::isfinite(v)) {
+      ++bad;
+      continue;
+    }
+    c.max_before = std::max(c.max_before, v);
+    if (v > 1.0) {
+      v = 1.0;
+      ++c.clipped;
+    }
+  }
+  if (bad)
+    throw NumericalError(what + ": " + std::to_string(bad) + " of " + std::to_string(c.total) +
+                         " sensor values are NaN or Inf (nothing was written)");
+  return c;
+}
+
 }  // namespace qdo

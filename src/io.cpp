@@ -19,6 +19,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <iostream>
 #include <limits>
 #include <memory>
 #include <sstream>
@@ -94,8 +95,7 @@ class AtomicFile {
   }
   const std::string& tmp() const { return tmp_; }
   void commit() {
-    if (std::rename(tmp_.c_str(), path_.c_str()) != 0)
-      fail(path_, "", std::string("cannot rename temp file into place: ") + std::strerror(errno));
+    commit_output(tmp_, path_);
     committed_ = true;
   }
 
@@ -408,6 +408,12 @@ void mat_convert(const void* src, std::size_t n, std::vector<double>& out) {
 }
 
 // A raw array as read from a file: dims in reading order, data in that file's memory order.
+// A 1 x n, n x 1 or n-element shape holding n elements.
+bool is_vector_shape(const std::vector<std::size_t>& dims, std::size_t n) {
+  if (dims.empty() || dims.size() > 2 || n == 0) return false;
+  return dims.size() == 1 || dims[0] == 1 || dims[1] == 1;
+}
+
 struct RawArray {
   std::string key;
   std::vector<std::size_t> dims;
@@ -643,9 +649,30 @@ void check_mat_file(const std::string& path) {
   if (version == 0x0100) check_mat5_extent(path);
 }
 
+// A matio variable's data (n elements, column-major) as doubles.
+void mat_data_to_double(const std::string& path, const std::string& what, const matvar_t& v, std::size_t n,
+                        std::vector<double>& out) {
+  switch (v.class_type) {
+    case MAT_C_DOUBLE: mat_convert<double>(v.data, n, out); break;
+    case MAT_C_SINGLE: mat_convert<float>(v.data, n, out); break;
+    case MAT_C_INT8: mat_convert<std::int8_t>(v.data, n, out); break;
+    case MAT_C_UINT8: mat_convert<std::uint8_t>(v.data, n, out); break;
+    case MAT_C_INT16: mat_convert<std::int16_t>(v.data, n, out); break;
+    case MAT_C_UINT16: mat_convert<std::uint16_t>(v.data, n, out); break;
+    case MAT_C_INT32: mat_convert<std::int32_t>(v.data, n, out); break;
+    case MAT_C_UINT32: mat_convert<std::uint32_t>(v.data, n, out); break;
+    case MAT_C_INT64: mat_convert<std::int64_t>(v.data, n, out); break;
+    case MAT_C_UINT64: mat_convert<std::uint64_t>(v.data, n, out); break;
+    default: fail(path, what, "unsupported class");
+  }
+}
+
 // Reads a numeric variable from a MATLAB v5/v7.3 file; dims are MATLAB's [d0 d1 d2],
 // data column-major (element (i,j,k) at i + d0*j + d0*d1*k).
-RawArray read_mat_raw(const std::string& path, const std::string& key) {
+// With band_axis non-null, also reads the first of kBandAxisNames the file holds as a
+// numeric vector (1 x n or n x 1, at most 65536 elements) into it; its key stays empty when
+// there is none.
+RawArray read_mat_raw(const std::string& path, const std::string& key, RawArray* band_axis = nullptr) {
   static const int log_once = Mat_LogInitFunc("qdo", matio_log);
   (void)log_once;
   h5_quiet();  // matio reads v7.3 through HDF5
@@ -710,20 +737,29 @@ RawArray read_mat_raw(const std::string& path, const std::string& key) {
   if (var->rank != static_cast<int>(raw.dims.size()) || !std::equal(raw.dims.begin(), raw.dims.end(), var->dims) ||
       var->data_size <= 0 || var->nbytes < n * static_cast<std::size_t>(var->data_size))
     fail(path, what, "data size does not match its shape " + shape_str(raw.dims) + " (truncated or corrupt file?)");
-  switch (var->class_type) {
-    case MAT_C_DOUBLE: mat_convert<double>(var->data, n, raw.data); break;
-    case MAT_C_SINGLE: mat_convert<float>(var->data, n, raw.data); break;
-    case MAT_C_INT8: mat_convert<std::int8_t>(var->data, n, raw.data); break;
-    case MAT_C_UINT8: mat_convert<std::uint8_t>(var->data, n, raw.data); break;
-    case MAT_C_INT16: mat_convert<std::int16_t>(var->data, n, raw.data); break;
-    case MAT_C_UINT16: mat_convert<std::uint16_t>(var->data, n, raw.data); break;
-    case MAT_C_INT32: mat_convert<std::int32_t>(var->data, n, raw.data); break;
-    case MAT_C_UINT32: mat_convert<std::uint32_t>(var->data, n, raw.data); break;
-    case MAT_C_INT64: mat_convert<std::int64_t>(var->data, n, raw.data); break;
-    case MAT_C_UINT64: mat_convert<std::uint64_t>(var->data, n, raw.data); break;
-    default: fail(path, what, "unsupported class");
-  }
+  mat_data_to_double(path, what, *var, n, raw.data);
   raw.kind = mat_num_kind(*var);
+  if (band_axis) {
+    for (const char* name : kBandAxisNames) {
+      const std::string awhat = std::string("variable '") + name + "'";
+      MatVar info(Mat_VarReadInfo(mat.get(), name));
+      if (!info) continue;
+      band_axis->key = name;
+      band_axis->dims = mat_dims(*info);
+      std::size_t na = 0;
+      if (!mat_numeric(*info) || !element_count(band_axis->dims, 65536, na) || !is_vector_shape(band_axis->dims, na))
+        fail(path, awhat, "a band axis must be a real numeric vector of at most 65536 wavelengths in nm (found " +
+                              shape_str(band_axis->dims) + " " + mat_class_name(info->class_type) + ")");
+      const bool raw_axis = Mat_GetVersion(mat.get()) == MAT_FT_MAT5 && info->compression == MAT_COMPRESSION_NONE;
+      check_declared_bytes(path, awhat, band_axis->dims, na, 1, !raw_axis);
+      if (Mat_GetVersion(mat.get()) == MAT_FT_MAT73) check_mat73_dataset(path, awhat, name, na);
+      MatVar av(Mat_VarRead(mat.get(), name));
+      if (!av || !av->data || av->data_size <= 0 || av->nbytes < na * static_cast<std::size_t>(av->data_size))
+        fail(path, awhat, "cannot read data (truncated or corrupt file?)" + matio_detail());
+      mat_data_to_double(path, awhat, *av, na, band_axis->data);
+      break;
+    }
+  }
   return raw;
 }
 
@@ -775,6 +811,14 @@ void require_finite(const std::string& path, const std::string& what, const std:
   if (bad) fail(path, what, std::to_string(bad) + " non-finite values");
 }
 
+// An output about to be written: NaN or Inf is a NumericalError (nothing is written).
+void require_finite_output(const std::string& path, const std::string& what, const std::vector<double>& v) {
+  const std::size_t bad = count_nonfinite(v);
+  if (bad)
+    throw NumericalError("file '" + path + "': " + what + ": " + std::to_string(bad) + " of " + std::to_string(v.size()) +
+                         " values are NaN or Inf; not written");
+}
+
 // One tile of a montage: plane p of stack cropped to (y0, x0, h, w), box-averaged by factor f.
 // Returns a (ceil(h/f) x ceil(w/f)) row-major image.
 std::vector<double> tile_of(const RealStack& s, std::size_t p, std::size_t y0, std::size_t x0, std::size_t h,
@@ -799,6 +843,20 @@ std::vector<double> tile_of(const RealStack& s, std::size_t p, std::size_t y0, s
 
 void h5_write(const std::string& path, const std::vector<H5Dataset>& datasets,
               const std::map<std::string, std::string>& root_str_attrs) {
+  for (const H5Dataset& d : datasets) {
+    if (const std::size_t bad = count_nonfinite(d.data))
+      throw NumericalError("file '" + path + "': dataset '" + d.name + "': " + std::to_string(bad) + " of " +
+                           std::to_string(d.data.size()) + " values are NaN or Inf; not written");
+    for (const auto& kv : d.num_attrs)
+      if (!std::isfinite(kv.second))
+        throw NumericalError("file '" + path + "': dataset '" + d.name + "': attribute '" + kv.first + "' = " +
+                             to_str(kv.second) + " is not finite; not written");
+  }
+  h5_write_unchecked(path, datasets, root_str_attrs);
+}
+
+void h5_write_unchecked(const std::string& path, const std::vector<H5Dataset>& datasets,
+                        const std::map<std::string, std::string>& root_str_attrs) {
   h5_quiet();
   AtomicFile out(path);
   {
@@ -880,9 +938,9 @@ void write_cube(const std::string& path, const RealStack& cube, const std::vecto
                   H5Dataset{"/wavelengths_nm", {wavelengths_nm.size()}, wavelengths_nm, {}, {{"units", "nm"}}}});
 }
 
-void write_rgb(const std::string& path, const RealStack& rgb) {
+void write_rgb(const std::string& path, const RealStack& rgb, const std::map<std::string, double>& attrs) {
   if (rgb.planes != 3) reject("rgb planes", rgb.planes, "exactly 3 (R, G, B)");
-  h5_write(path, {H5Dataset{"/rgb", {rgb.planes, rgb.rows, rgb.cols}, rgb.data, {}, {}}});
+  h5_write(path, {H5Dataset{"/rgb", {rgb.planes, rgb.rows, rgb.cols}, rgb.data, attrs, {}}});
 }
 
 // Output: (bands, H, W) row-major, divided by the scale. See io.hpp for the layout rules.
@@ -892,14 +950,31 @@ RealStack read_cube(const std::string& path, const CubeReadOptions& opt) {
   if (!(opt.scale >= 0) || !std::isfinite(opt.scale)) reject("scale", opt.scale, "0 (auto) or a finite value > 0");
   require_file(path);
   const bool is_mat = looks_like_mat(path);
-  RawArray raw;
+  if (!opt.wavelengths_nm.empty() && opt.expected_bands != 0 && opt.expected_bands != opt.wavelengths_nm.size())
+    reject("expected_bands", opt.expected_bands,
+           "0 or the number of wavelengths_nm (" + std::to_string(opt.wavelengths_nm.size()) + ")");
+  RawArray raw, axis;
   if (is_mat) {
-    raw = read_mat_raw(path, opt.key);
+    raw = read_mat_raw(path, opt.key, &axis);
   } else {
     H5Dataset d = h5_read_impl(path, opt.key.empty() ? "/cube" : opt.key, std::size_t(1) << 31, &raw.kind);
     raw.key = d.name;
     raw.dims = d.shape;
     raw.data = std::move(d.data);
+    // The band axis: beside the cube in its group, else at the root.
+    const std::string group = raw.key.substr(0, raw.key.find_last_of('/') + 1);
+    for (const std::string& prefix : {group, std::string("/")}) {
+      for (const char* name : kBandAxisNames) {
+        if (!axis.key.empty() || !h5_has(path, prefix + name)) continue;
+        H5Dataset a = h5_read_impl(path, prefix + name, 65536, nullptr);
+        if (!is_vector_shape(a.shape, a.data.size()))
+          fail(path, "dataset '" + a.name + "'",
+               "a band axis must be a numeric vector of wavelengths in nm (found shape " + shape_str(a.shape) + ")");
+        axis.key = a.name;
+        axis.dims = a.shape;
+        axis.data = std::move(a.data);
+      }
+    }
   }
   const std::string what = std::string(is_mat ? "variable '" : "dataset '") + raw.key + "'";
   if (raw.dims.size() != 3)
@@ -907,9 +982,11 @@ RealStack read_cube(const std::string& path, const CubeReadOptions& opt) {
   const std::vector<std::size_t>& d = raw.dims;
   if (d[0] == 0 || d[1] == 0 || d[2] == 0) fail(path, what, "shape " + shape_str(d) + " is empty");
 
-  // Band axis: 0 ("bhw") or 2 ("hwb").
+  // Band axis: 0 ("bhw") or 2 ("hwb"). Compared with a configured grid, a file with its own
+  // band axis has that many bands (conform_band_axis compares the grids below).
   std::size_t band_axis = 0;
-  const std::size_t nb = opt.expected_bands;
+  const bool use_axis = !axis.key.empty() && !opt.wavelengths_nm.empty();
+  const std::size_t nb = use_axis ? axis.data.size() : (opt.expected_bands ? opt.expected_bands : opt.wavelengths_nm.size());
   if (opt.layout == "auto") {
     if (nb > 0) {
       const std::size_t first = is_mat ? 2 : 0, second = is_mat ? 0 : 2;
@@ -949,7 +1026,124 @@ RealStack read_cube(const std::string& path, const CubeReadOptions& opt) {
         if (band_axis == 0) out(i, j, k) = v;
         else out(k, i, j) = v;
       }
+  if (axis.key.empty() || opt.wavelengths_nm.empty()) return out;
+  const std::string awhat = std::string(is_mat ? "variable '" : "dataset '") + axis.key + "'";
+  return conform_band_axis(out, axis.data, opt.wavelengths_nm, opt.resample_bands, "file '" + path + "': " + awhat);
+}
+
+namespace {
+
+// "31 bands, 400 ... 700 nm (step 10)" or the list when it is short or irregular.
+std::string grid_str(const std::vector<double>& nm) {
+  std::ostringstream o;
+  o << nm.size() << (nm.size() == 1 ? " band" : " bands");
+  if (nm.empty()) return o.str();
+  o << ", " << nm.front();
+  if (nm.size() > 1) {
+    const double step = (nm.back() - nm.front()) / double(nm.size() - 1);
+    bool regular = true;
+    for (std::size_t k = 1; k < nm.size(); ++k)
+      if (std::fabs(nm[k] - nm[k - 1] - step) > 1e-6 * std::fabs(step) + 1e-9) regular = false;
+    if (regular) {
+      o << " ... " << nm.back() << " nm (step " << step << ")";
+    } else if (nm.size() <= 8) {
+      for (std::size_t k = 1; k < nm.size(); ++k) o << ", " << nm[k];
+      o << " nm";
+    } else {
+      o << ", " << nm[1] << ", ... " << nm.back() << " nm (irregular)";
+    }
+  } else {
+    o << " nm";
+  }
+  return o.str();
+}
+
+}  // namespace
+
+RealStack conform_band_axis(const RealStack& cube, const std::vector<double>& file_nm,
+                            const std::vector<double>& grid_nm, bool resample, const std::string& origin) {
+  auto refuse = [&](const std::string& problem) { throw InputError(origin + ": " + problem); };
+  if (file_nm.size() != cube.planes)
+    refuse("the band axis has " + std::to_string(file_nm.size()) + " wavelengths but the cube has " +
+           std::to_string(cube.planes) + " bands");
+  for (std::size_t k = 0; k < file_nm.size(); ++k)
+    if (!std::isfinite(file_nm[k]) || file_nm[k] < kBandAxisMinNm || file_nm[k] > kBandAxisMaxNm)
+      refuse("band axis value " + std::to_string(k) + " = " + std::to_string(file_nm[k]) + " is not a wavelength in nm (allowed: " +
+             std::to_string(int(kBandAxisMinNm)) + " to " + std::to_string(int(kBandAxisMaxNm)) + " nm; µm or metres are not converted)");
+  const bool ascending = file_nm.size() < 2 || file_nm[1] > file_nm[0];
+  for (std::size_t k = 1; k < file_nm.size(); ++k)
+    if (ascending ? !(file_nm[k] > file_nm[k - 1]) : !(file_nm[k] < file_nm[k - 1]))
+      refuse("the band axis (" + grid_str(file_nm) + ") is not strictly monotonic at index " + std::to_string(k));
+  if (grid_nm.empty()) return cube;
+  bool same = file_nm.size() == grid_nm.size();
+  for (std::size_t k = 0; same && k < grid_nm.size(); ++k) same = std::fabs(file_nm[k] - grid_nm[k]) <= kBandAxisToleranceNm;
+  if (same) return cube;
+  const std::string both = "the file's bands are " + grid_str(file_nm) + (ascending ? "" : " (descending)") +
+                           ", the configuration's " + grid_str(grid_nm);
+  if (!resample)
+    refuse(both + "; they differ by more than " + std::to_string(kBandAxisToleranceNm).substr(0, 3) +
+           " nm. Configure the same bands, or resample the cube onto the configured ones (--resample-bands)");
+  // Linear interpolation along wavelength, per pixel, onto the configured grid, which must
+  // lie inside the file's range (no extrapolation).
+  std::vector<std::size_t> order(file_nm.size());
+  for (std::size_t k = 0; k < order.size(); ++k) order[k] = ascending ? k : order.size() - 1 - k;
+  std::vector<double> x(order.size());
+  for (std::size_t k = 0; k < order.size(); ++k) x[k] = file_nm[order[k]];
+  const double lo = x.front() - kBandAxisToleranceNm, hi = x.back() + kBandAxisToleranceNm;
+  for (double g : grid_nm)
+    if (g < lo || g > hi)
+      refuse(both + "; " + std::to_string(g) + " nm lies outside the file's range, and bands are not extrapolated");
+  RealStack out(grid_nm.size(), cube.rows, cube.cols);
+  const std::size_t px = cube.rows * cube.cols;
+  for (std::size_t b = 0; b < grid_nm.size(); ++b) {
+    const double g = std::min(std::max(grid_nm[b], x.front()), x.back());
+    std::size_t j = std::size_t(std::upper_bound(x.begin(), x.end(), g) - x.begin());
+    j = std::min(std::max<std::size_t>(j, 1), x.size() - 1);
+    const std::size_t k0 = x.size() == 1 ? 0 : j - 1, k1 = x.size() == 1 ? 0 : j;
+    const double t = x.size() == 1 ? 0.0 : (g - x[k0]) / (x[k1] - x[k0]);
+    const double* p0 = cube.plane(order[k0]);
+    const double* p1 = cube.plane(order[k1]);
+    double* q = out.plane(b);
+    for (std::size_t i = 0; i < px; ++i) q[i] = (1 - t) * p0[i] + t * p1[i];
+  }
+  std::cerr << "qdo: note: " << origin << ": resampled from " << grid_str(file_nm) << (ascending ? "" : " (descending)")
+            << " onto the configured " << grid_str(grid_nm) << " by linear interpolation\n";
   return out;
+}
+
+RadianceReport conform_radiance(RealStack& cube, const std::string& origin) {
+  RadianceReport r;
+  double mn = 0, mx = 0;
+  for (std::size_t i = 0; i < cube.data.size(); ++i) {
+    const double v = cube.data[i];
+    if (!std::isfinite(v)) throw InputError(origin + ": value " + std::to_string(i) + " is not finite");
+    if (i == 0 || v < mn) mn = v;
+    if (i == 0 || v > mx) mx = v;
+    if (v < 0) ++r.negative;
+  }
+  r.min = mn;
+  r.max = mx;
+  if (mn < -kRadianceNegativeTolerance) {
+    std::ostringstream o;
+    o << origin << ": " << r.negative << " negative radiance values, down to " << mn
+      << " (full scale 1); values below " << -kRadianceNegativeTolerance
+      << " are refused (wrong data type, offset or scale?). Allowed: 0 to 1 after the format's scale";
+    throw InputError(o.str());
+  }
+  if (r.negative) {
+    for (double& v : cube.data) v = std::max(v, 0.0);
+    std::cerr << "qdo: note: " << origin << ": " << r.negative << " slightly negative values (down to " << mn
+              << ", noise of a dark-frame subtraction) clipped to 0\n";
+  }
+  if (mx > 1.0 + kRadianceOverTolerance) {
+    r.divided_by = mx;
+    for (double& v : cube.data) v /= mx;
+    std::cerr << "qdo: note: " << origin << ": values up to " << mx
+              << " times full scale (HDR or unscaled data) divided by that maximum, so the brightest value is 1\n";
+  } else if (mx > 1.0) {
+    for (double& v : cube.data) v = std::min(v, 1.0);
+  }
+  return r;
 }
 
 // =========================================================================================
@@ -1083,7 +1277,7 @@ void write_montage_png(const std::string& path, const RealStack& stack, const st
   if (!wavelengths_nm.empty() && wavelengths_nm.size() != P)
     reject("wavelengths_nm", wavelengths_nm.size(), "empty or one per plane (" + std::to_string(P) + ")");
   if (!(gamma > 0) || !std::isfinite(gamma)) reject("gamma", gamma, "a finite value > 0");
-  require_finite(path, "montage data", stack.data);
+  require_finite_output(path, "montage data", stack.data);
   const std::size_t h = crop ? std::min(crop, stack.rows) : stack.rows;
   const std::size_t w = crop ? std::min(crop, stack.cols) : stack.cols;
   const std::size_t y0 = (stack.rows - h) / 2, x0 = (stack.cols - w) / 2;
@@ -1116,7 +1310,7 @@ void write_rgb_png(const std::string& path, const RealStack& rgb3) {
   if (rgb3.planes != 3 || rgb3.rows == 0 || rgb3.cols == 0 || rgb3.data.size() != 3 * rgb3.rows * rgb3.cols)
     reject("rgb stack", std::to_string(rgb3.planes) + " x " + std::to_string(rgb3.rows) + " x " + std::to_string(rgb3.cols),
            "a non-empty 3 x H x W stack");
-  require_finite(path, "rgb data", rgb3.data);
+  require_finite_output(path, "rgb data", rgb3.data);
   std::vector<double> sorted = rgb3.data;
   const std::size_t k = std::min(sorted.size() - 1, static_cast<std::size_t>(0.999 * static_cast<double>(sorted.size())));
   std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(k), sorted.end());
@@ -1134,7 +1328,7 @@ void write_rgb_png(const std::string& path, const RealStack& rgb3) {
 void write_map_png(const std::string& path, const Map2D& m) {
   if (m.rows == 0 || m.cols == 0 || m.data.size() != m.rows * m.cols)
     reject("map", std::to_string(m.rows) + " x " + std::to_string(m.cols), "a non-empty map whose data matches its shape");
-  require_finite(path, "map data", m.data);
+  require_finite_output(path, "map data", m.data);
   static const Rgb viridis[] = {{68, 1, 84},    {71, 45, 123},  {59, 82, 139},  {44, 114, 142}, {33, 145, 140},
                                 {40, 174, 128}, {94, 201, 98},  {173, 220, 48}, {253, 231, 37}};
   const std::size_t na = sizeof(viridis) / sizeof(viridis[0]);
@@ -1159,6 +1353,82 @@ namespace detail {
 // For src/datasets.cpp, which lists .mat variables through libmatio too (declared there).
 void check_mat_file(const std::string& path) { qdo::check_mat_file(path); }
 }  // namespace detail
+
+// =========================================================================================
+// Output staging
+// =========================================================================================
+
+namespace {
+OutputStage* g_stage = nullptr;  // the active stage (CLI: one per command)
+}  // namespace
+
+OutputStage::OutputStage(bool defer_files) : defer_files_(defer_files) {
+  if (g_stage) throw Error("OutputStage: a stage is already active (one per command)");
+  g_stage = this;
+}
+
+OutputStage::~OutputStage() {
+  g_stage = nullptr;
+  if (committed_) return;
+  std::error_code ec;
+  for (const auto& f : files_) fs::remove(f.first, ec);
+  // Folders this command created, deepest first, removed only while empty: never anything
+  // else's (a non-empty folder is kept, e.g. a run folder holding a resumable checkpoint).
+  for (auto it = dirs_.rbegin(); it != dirs_.rend(); ++it) fs::remove(*it, ec);
+}
+
+void OutputStage::commit() {
+  if (committed_) return;
+  for (const auto& f : files_) {
+    std::error_code ec;
+    fs::rename(f.first, f.second, ec);
+    if (ec) fail(f.second, "", "cannot rename the temporary file '" + f.first + "' into place: " + ec.message());
+  }
+  files_.clear();
+  committed_ = true;
+}
+
+void commit_output(const std::string& tmp, const std::string& path) {
+  if (g_stage && g_stage->defer_files_) {
+    for (auto& f : g_stage->files_)
+      if (f.second == path) {  // written again: the newer temporary file replaces the older
+        if (f.first != tmp) {
+          std::error_code ec;
+          fs::remove(f.first, ec);
+        }
+        f.first = tmp;
+        return;
+      }
+    g_stage->files_.emplace_back(tmp, path);
+    return;
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0)
+    fail(path, "", std::string("cannot rename temp file into place: ") + std::strerror(errno));
+}
+
+std::string readable_output(const std::string& path) {
+  if (g_stage)
+    for (const auto& f : g_stage->files_)
+      if (f.second == path) return f.first;
+  return path;
+}
+
+void make_output_dir(const std::string& dir, const std::string& argument) {
+  if (dir.empty()) reject(argument, "\"\"", "a folder name");
+  std::error_code ec;
+  if (fs::is_directory(dir, ec)) return;
+  // The ancestors that do not exist yet, outermost first: the stage removes them on failure.
+  std::vector<fs::path> missing;
+  for (fs::path p = fs::path(dir).lexically_normal(); !p.empty() && !fs::exists(p, ec); p = p.parent_path()) {
+    missing.push_back(p);
+    if (p == p.parent_path()) break;
+  }
+  fs::create_directories(dir, ec);
+  if (ec || !fs::is_directory(dir))
+    reject(argument, dir, "a folder that can be created (" + (ec ? ec.message() : std::string("exists as a file")) + ")");
+  if (g_stage)
+    for (auto it = missing.rbegin(); it != missing.rend(); ++it) g_stage->dirs_.push_back(it->string());
+}
 
 void write_text_atomic(const std::string& path, const std::string& text) {
   AtomicFile out(path);

@@ -236,7 +236,7 @@ std::vector<RealStack> test_patches(const SystemConfig& cfg, const std::vector<s
     for (std::size_t i = 0; i < idx.size(); ++i) out.push_back(idx.load(i));
     return out;
   }
-  const SceneIndex idx(test, "auto", cfg.bands);
+  const SceneIndex idx(test, "auto", cfg.bands, cfg.wavelengths_nm());
   for (std::size_t i = 0; i < idx.size(); ++i)
     for (auto& p : extract_patches(idx.load(i), s, s)) out.push_back(std::move(p));
   return out;
@@ -318,7 +318,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   // Test scenes.
   std::vector<std::string> test = g.test_data;
   if (test.empty() && !base.data.empty()) {
-    const SceneIndex idx(base.data, base.data_format, base.cfg.bands);
+    const SceneIndex idx(base.data, base.data_format, base.cfg.bands, base.cfg.wavelengths_nm());
     for (std::size_t i : idx.split(base.design.seed, 0.8, 0.1).test) test.push_back(idx[i].path);
     if (test.empty()) reject("data", base.data.size(), "enough scenes for a test split (or pass test scenes explicitly)");
   }

@@ -14,7 +14,7 @@ namespace {
 
 void write_height_file(const std::string& path, std::size_t rows, std::size_t cols, double value, double pitch) {
   H5Dataset d{"/height_m", {rows, cols}, std::vector<double>(rows * cols, value), {{"pitch_m", pitch}}, {}};
-  h5_write(path, {d});
+  h5_write_unchecked(path, {d});  // NaN heights on purpose
 }
 
 }  // namespace
@@ -121,7 +121,9 @@ TEST_SUITE("cli") {
     expect("psf --preset nope --design flat --out " + out, "preset");
     // A cube whose bands don't match the configuration.
     const std::string cube30 = (dir / "cube30.h5").string();
-    write_cube(cube30, RealStack(30, 8, 8, 0.5), std::vector<double>(30, 500.0));
+    std::vector<double> wl30(30);
+    for (std::size_t k = 0; k < wl30.size(); ++k) wl30[k] = 400.0 + 10.0 * double(k);
+    write_cube(cube30, RealStack(30, 8, 8, 0.5), wl30);
     expect("simulate --preset small --design flat --scene " + cube30 + " --out " + out, "31");
     // An SRF on another band grid.
     const std::string cam = (dir / "cam.csv").string(), cfgcam = (dir / "cam.json").string();

@@ -554,7 +554,7 @@ TEST_SUITE("commands") {
     fs::remove_all(dir);
   }
 
-  TEST_CASE("documented exit codes: 0 ok, 2 bad input, 3 accuracy refusal, 4 device error, 1 other") {
+  TEST_CASE("documented exit codes: 0 ok, 2 bad input (an uncreatable --out too), 3 accuracy refusal, 4 device error") {
     const auto dir = temp_dir("cmd_codes");
     const std::string out = (dir / "out").string();
     // 0: help.
@@ -599,12 +599,13 @@ TEST_SUITE("commands") {
     CAPTURE(nodev.out);
     CHECK(nodev.code == 4);
     CHECK(nodev.out.find("device error") != std::string::npos);
-    // 1: any other failure, e.g. an output folder that cannot be created (a regular file in its path:
-    // the filesystem error is not classified as an input error).
+    // 2 as well: an output folder that cannot be created (a regular file in its path) names --out.
     std::ofstream(dir / "a_file") << "x";
     const Run other = qdo_run("psf " + cfg_arg() + " --design flat --out " + (dir / "a_file" / "sub").string());
-    CHECK(other.code == 1);
-    CHECK(other.out.find("cannot create directories") != std::string::npos);
+    CAPTURE(other.out);
+    CHECK(other.code == 2);
+    CHECK(other.out.find("argument '--out'") != std::string::npos);
+    CHECK(other.out.find("a folder that can be created") != std::string::npos);
     // 5 (gradient check failed): see the gradcheck case.
     fs::remove_all(dir);
   }

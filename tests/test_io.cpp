@@ -230,7 +230,9 @@ TEST_SUITE("io") {
 
     std::vector<double> h(4, 0.0);
     h[2] = std::numeric_limits<double>::quiet_NaN();
-    h5_write(path, {H5Dataset{"/height_m", {2, 2}, h, {{"pitch_m", 1e-6}}, {}}});
+    CHECK_THROWS_AS(h5_write(path, {H5Dataset{"/height_m", {2, 2}, h, {{"pitch_m", 1e-6}}, {}}}), NumericalError);
+    CHECK_FALSE(std::filesystem::exists(path + ".tmp-" + std::to_string(::getpid())));
+    h5_write_unchecked(path, {H5Dataset{"/height_m", {2, 2}, h, {{"pitch_m", 1e-6}}, {}}});
     msg = input_error_of([&] { read_design(path); });
     CHECK(contains(msg, "non-finite"));
     CHECK(contains(msg, "height_m"));
@@ -241,7 +243,7 @@ TEST_SUITE("io") {
     CHECK(contains(msg, "missing"));
 
     for (double bad : {-1e-6, 0.0, std::numeric_limits<double>::quiet_NaN()}) {
-      h5_write(path, {H5Dataset{"/height_m", {2, 2}, std::vector<double>(4, 0.0), {{"pitch_m", bad}}, {}}});
+      h5_write_unchecked(path, {H5Dataset{"/height_m", {2, 2}, std::vector<double>(4, 0.0), {{"pitch_m", bad}}, {}}});
       msg = input_error_of([&] { read_design(path); });
       CHECK(contains(msg, "pitch_m"));
       CHECK(contains(msg, "invalid"));
@@ -584,7 +586,8 @@ TEST_SUITE("io") {
     CHECK(png_header(mp).signature_ok);
     Map2D bad(2, 2);
     bad.data[1] = std::numeric_limits<double>::quiet_NaN();
-    CHECK_THROWS_AS(write_map_png(mp, bad), InputError);
+    CHECK_THROWS_AS(write_map_png(mp, bad), NumericalError);  // an output that is not finite: nothing written,
+    CHECK(png_header(mp).signature_ok);                         // the earlier file of that name kept as it was
     CHECK(tmp.entries() == 4);  // gray, montage, rgb, map: no temp files
   }
 }

@@ -933,7 +933,7 @@ TEST_SUITE("stress") {
           }) > 40);
     CHECK(mutate_and_read(bad, slurp(ck), [&] { load_checkpoint(bad, 16, 4); }) > 40);
     // Wrong types and shapes.
-    auto write = [&](const std::vector<H5Dataset>& sets) { h5_write(bad, sets); };
+    auto write = [&](const std::vector<H5Dataset>& sets) { h5_write_unchecked(bad, sets); };
     write({H5Dataset{"/height_m", {4, 5}, std::vector<double>(20, 0.0), {{"pitch_m", 4e-6}}, {}}});
     CHECK(has(input_error([&] { read_design(bad); }), "not a square"));
     write({H5Dataset{"/height_m", {2, 2, 2}, std::vector<double>(8, 0.0), {{"pitch_m", 4e-6}}, {}}});
@@ -971,7 +971,7 @@ TEST_SUITE("stress") {
         if (name == n) def = v;
         sets.push_back(H5Dataset{n, {def.size()}, def, {}, {}});
       }
-      h5_write(bad, sets);
+      h5_write_unchecked(bad, sets);
       return input_error([&] { load_checkpoint(bad, 16, 4); });
     };
     CHECK(ckpt("", {}).empty());  // the defaults load
@@ -1028,7 +1028,7 @@ TEST_SUITE("stress") {
     // contiguous dataset never written holds no data. Both refused before reading.
     const fs::path corpus = fs::path(__FILE__).parent_path().parent_path() / "fuzz" / "corpus";
     const std::string compact = (corpus / "cube_h5" / "crash-compact-no-data.h5").string();
-    for (const auto& read : std::vector<std::function<void()>>{[&] { read_cube(compact, {"/rad", "auto", 0, 0}); },
+    for (const auto& read : std::vector<std::function<void()>>{[&] { read_cube(compact, {"/rad", "auto", 0, 0, {}, false}); },
                                                                [&] { load_scene(compact, "auto", 0); }}) {
       const std::string e = input_error(read);
       CAPTURE(e);
@@ -1131,9 +1131,9 @@ TEST_SUITE("stress") {
     // Wrong classes: char, complex, logical is fine (0/1), 2-D.
     write_mat(bad, MAT_FT_MAT5, "cube", {4, 5, 3}, MAT_C_CHAR, MAT_T_UINT8, std::vector<std::uint8_t>(60, 'a'));
     CHECK(has(input_error([&] { read_cube(bad, {}); }), bad));
-    CHECK(has(input_error([&] { read_cube(bad, {"cube", "auto", 0, 0}); }), "not a real numeric"));
+    CHECK(has(input_error([&] { read_cube(bad, {"cube", "auto", 0, 0, {}, false}); }), "not a real numeric"));
     write_mat(bad, MAT_FT_MAT5, "cube", {4, 15}, MAT_C_DOUBLE, MAT_T_DOUBLE, std::vector<double>(60, 0.5));
-    CHECK(has(input_error([&] { read_cube(bad, {"cube", "auto", 0, 0}); }), "not a 3-D cube"));
+    CHECK(has(input_error([&] { read_cube(bad, {"cube", "auto", 0, 0, {}, false}); }), "not a 3-D cube"));
     {
       std::unique_ptr<mat_t, MatCloser> m(Mat_CreateVer(bad.c_str(), nullptr, MAT_FT_MAT5));
       std::vector<double> re(60, 1.0), im(60, 2.0);
@@ -1142,8 +1142,8 @@ TEST_SUITE("stress") {
       std::unique_ptr<matvar_t, MatVarFreer> v(Mat_VarCreate("cube", MAT_C_DOUBLE, MAT_T_DOUBLE, 3, dims, &z, MAT_F_COMPLEX | MAT_F_DONT_COPY_DATA));
       REQUIRE(Mat_VarWrite(m.get(), v.get(), MAT_COMPRESSION_NONE) == 0);
     }
-    CHECK(has(input_error([&] { read_cube(bad, {"cube", "auto", 0, 0}); }), "complex"));
-    CHECK(has(input_error([&] { read_cube(v5, {"nope", "auto", 0, 0}); }), "'nope'"));
+    CHECK(has(input_error([&] { read_cube(bad, {"cube", "auto", 0, 0, {}, false}); }), "complex"));
+    CHECK(has(input_error([&] { read_cube(v5, {"nope", "auto", 0, 0, {}, false}); }), "'nope'"));
     // Regression (fuzz_mat, fuzz/corpus/mat/crash-v4-fallback-timeout.mat): a file without the
     // v5 / v7.3 header made libmatio fall back to its v4 reader, which allocated what the first
     // bytes declared (12 s, half a gigabyte). Only v5 and v7.3 are accepted now.
@@ -1156,7 +1156,7 @@ TEST_SUITE("stress") {
     wrong_version[124] = 0x03;
     spit(bad, wrong_version);
     CHECK(has(input_error([&] { read_cube(bad, {}); }), "v5 or v7.3"));
-    CHECK(has(input_error([&] { read_cube(v5, {"", "auto", 0, 7}); }), "no band axis of length 7"));
+    CHECK(has(input_error([&] { read_cube(v5, {"", "auto", 0, 7, {}, false}); }), "no band axis of length 7"));
     fs::remove_all(dir);
   }
 

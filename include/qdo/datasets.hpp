@@ -56,8 +56,14 @@ namespace qdo {
 std::string detect_scene_format(const std::string& path);
 
 // One scene as bands x H x W. expected_bands = 0 skips the band check (for PNG folders it
-// then accepts any number of files); otherwise a mismatch is an InputError.
-RealStack load_scene(const std::string& path, const std::string& format = "auto", std::size_t expected_bands = 31);
+// then accepts any number of files); otherwise a mismatch is an InputError. With
+// wavelengths_nm (the configured band centres; size expected_bands), a band axis stored in
+// the file must match it (read_cube, conform_band_axis: refused naming both grids, or
+// interpolated with resample_bands). Every scene then passes conform_radiance (io.hpp):
+// strongly negative values are refused, slightly negative ones set to 0, a maximum above 1
+// divides the cube by it; each with a note.
+RealStack load_scene(const std::string& path, const std::string& format = "auto", std::size_t expected_bands = 31,
+                     const std::vector<double>& wavelengths_nm = {}, bool resample_bands = false);
 
 // The PNG band files of a folder, sorted by band number (the last run of digits in each
 // file stem); InputError for a file without a number or a repeated number.
@@ -72,7 +78,10 @@ bool operator==(const SceneShape& a, const SceneShape& b);
 
 // The shape load_scene would return, from the file headers where possible (MATLAB variable
 // info, HDF5 dataspace, PNG headers) and by reading the scene otherwise.
-SceneShape probe_scene(const std::string& path, const std::string& format = "auto", std::size_t expected_bands = 31);
+// With wavelengths_nm, a file that stores a band axis is read whole, so a grid that
+// differs is refused here, when the index is built, rather than when the scene is first used.
+SceneShape probe_scene(const std::string& path, const std::string& format = "auto", std::size_t expected_bands = 31,
+                       const std::vector<double>& wavelengths_nm = {});
 
 // Training data must carry information: InputError naming `path` when every value of the
 // cube is the same (all zero, or constant). Such a scene gives the spectral prior nothing
@@ -104,8 +113,10 @@ class SceneIndex {
   // Entries are sorted by path (so splits do not depend on directory order) and each
   // scene's shape is probed once here. `format` applies to every entry ("auto" detects per
   // file). InputError when a path is missing, no scene is found, or a scene is unreadable.
+  // wavelengths_nm: the configured band centres (size expected_bands), checked against a band
+  // axis stored in a scene file (load_scene); empty: not checked.
   explicit SceneIndex(const std::vector<std::string>& paths, const std::string& format = "auto",
-                      std::size_t expected_bands = 31);
+                      std::size_t expected_bands = 31, const std::vector<double>& wavelengths_nm = {});
 
   // `count` synthetic scenes (synthetic_scene below) of size_px x size_px on cfg's band
   // grid; scene k uses a seed derived from (seed, k). Nothing is generated until load().
@@ -127,6 +138,7 @@ class SceneIndex {
  private:
   std::vector<SceneEntry> entries_;
   std::size_t bands_ = 31;
+  std::vector<double> wavelengths_nm_;  // configured band centres; empty: the file axis is not checked
   std::shared_ptr<const SystemConfig> synthetic_cfg_;  // for "synthetic" entries
 };
 

@@ -64,6 +64,10 @@ struct DesignOptions {
   std::uint64_t seed = 0;
   PsfPath psf_path = PsfPath::Auto;    // PSF engine of gradient() (see PsfPath)
   RadialOptions radial;                // sampling of the radial engine (qdo/radial.hpp)
+  // InputError naming the field, the value and what is allowed: levels and placement, steps
+  // >= 1, 0 <= t0 < t1, learning rates, beta and height noise finite and >= 0, decay in (0, 1],
+  // qdo+m levels a power of two, the radial PSF path only for radial designs.
+  void validate() const;
 };
 
 // Optimisation state: everything a checkpoint needs to resume bit-identically.

@@ -25,6 +25,13 @@ class AccuracyError : public Error {
   using Error::Error;
 };
 
+// A result that is not finite (NaN or Inf) where it was about to be written or used: refused
+// as an inaccurate computation is (CLI exit code 3), naming the output and the count.
+class NumericalError : public AccuracyError {
+ public:
+  using AccuracyError::AccuracyError;
+};
+
 // OpenCL runtime failure (build failure, out of memory, missing fp64, no platform).
 class DeviceError : public Error {
  public:

@@ -170,4 +170,16 @@ std::vector<RealStack> skipped_images_reference(const std::vector<RealStack>& cu
                                                 const Eigen::MatrixXd& srf, const SkipReport& report,
                                                 ConvolutionMode mode = ConvolutionMode::Linear);
 
+// The sensor's full scale: a pixel value above 1 (after noise) reads as 1, as a real ADC
+// saturates. rgb: 3 x H x W (any planes x H x W), modified in place. Returns the fraction of
+// values that were clipped (> 1) and the largest value before clipping; values below 0 (read
+// noise on a dark pixel, as after black-level subtraction) are kept. NumericalError naming
+// `what` if any value is NaN or Inf.
+struct SensorClip {
+  std::size_t clipped = 0, total = 0;
+  double max_before = 0;
+  double fraction() const { return total ? double(clipped) / double(total) : 0.0; }
+};
+SensorClip clip_to_full_scale(RealStack& rgb, const std::string& what);
+
 }  // namespace qdo

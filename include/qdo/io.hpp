@@ -8,6 +8,7 @@
 #pragma once
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "qdo/types.hpp"
@@ -24,9 +25,14 @@ struct H5Dataset {
   std::map<std::string, std::string> str_attrs;  // string attributes (e.g. "units")
 };
 
-// Writes all datasets into one new file atomically (temp file + rename).
+// Writes all datasets into one new file atomically (temp file + rename). Every value and
+// numeric attribute must be finite: NaN or Inf is a NumericalError naming the file and the
+// dataset, raised before the file is created.
 void h5_write(const std::string& path, const std::vector<H5Dataset>& datasets,
               const std::map<std::string, std::string>& root_str_attrs = {});
+// The same without the finiteness check: for tests and fuzz seeds that build hostile files.
+void h5_write_unchecked(const std::string& path, const std::vector<H5Dataset>& datasets,
+                        const std::map<std::string, std::string>& root_str_attrs = {});
 
 // Reads one dataset (any numeric type, converted to double). Throws InputError naming the
 // file and dataset if missing, non-numeric, or larger than max_elements.
@@ -47,7 +53,8 @@ Design read_design(const std::string& path);   // checks square, finite, pitch_m
 void write_psf(const std::string& path, const RealStack& psf, const std::vector<double>& wavelengths_nm,
                double pitch_m, const std::map<std::string, double>& extra_num_attrs = {});
 void write_cube(const std::string& path, const RealStack& cube, const std::vector<double>& wavelengths_nm);
-void write_rgb(const std::string& path, const RealStack& rgb);
+// rgb: 3 x H x W as /rgb, with numeric attributes (e.g. clipped_fraction).
+void write_rgb(const std::string& path, const RealStack& rgb, const std::map<std::string, double>& attrs = {});
 
 // A hyperspectral cube from HDF5 (/cube, or a named dataset), MATLAB .mat v5 or v7.3
 // (libmatio). `key` picks the variable ("" = the only numeric 3-D variable, or /cube).
@@ -57,13 +64,56 @@ void write_rgb(const std::string& path, const RealStack& rgb);
 // 4095 for ICVL-like data whose max <= 4095 and key "rad", 1 for floats).
 // expected_bands = 0 skips the band check; otherwise a mismatch is an InputError naming
 // the file, the key, the shape found and the bands expected.
+//
+// Band axis: a file may store its band centres in nm beside the cube (HDF5: `wavelengths_nm`,
+// `wavelengths` or `bands` in the cube's group or at the root; .mat: a variable of one of
+// those names). When it does and `wavelengths_nm` (the configured grid) is given, the file's
+// axis decides the band count and must match the grid (conform_band_axis); files without
+// an axis (CAVE's) are taken to be on the configured grid. expected_bands, when both are
+// given, must equal wavelengths_nm.size().
 struct CubeReadOptions {
   std::string key;
   std::string layout = "auto";
   double scale = 0;                    // 0 = auto
   std::size_t expected_bands = 0;
+  std::vector<double> wavelengths_nm;  // configured band centres, nm; empty: the axis is not compared
+  bool resample_bands = false;         // interpolate a cube on another grid instead of refusing it
 };
 RealStack read_cube(const std::string& path, const CubeReadOptions& opt = {});
+
+// Names under which a cube file may store its band centres in nm, tried in this order
+// (qdo's own files write /wavelengths_nm; ICVL's files carry `bands`).
+inline constexpr const char* kBandAxisNames[] = {"wavelengths_nm", "wavelengths", "bands"};
+// Tolerance and range of a stored band axis (nm).
+constexpr double kBandAxisToleranceNm = 0.5;
+constexpr double kBandAxisMinNm = 100, kBandAxisMaxNm = 20000;
+
+// cube: bands x H x W (C order) with file_nm[b] the centre of band b (strictly ascending or
+// descending; finite, 100 ... 20000 nm). Returns the cube unchanged when grid_nm is empty or
+// when the two grids agree within kBandAxisToleranceNm at every band. Otherwise: an
+// InputError naming both grids (`origin` first), or with resample, the cube linearly
+// interpolated along wavelength onto grid_nm (output grid.size() x H x W), which must lie in
+// the file's range (no extrapolation), with a one-line note on stderr.
+RealStack conform_band_axis(const RealStack& cube, const std::vector<double>& file_nm,
+                            const std::vector<double>& grid_nm, bool resample, const std::string& origin);
+
+// The radiance rule every scene passes after its format's scale (REFERENCE: radiance relative
+// to full scale, in [0, 1]):
+//  - a non-finite value, or a value below -kRadianceNegativeTolerance, is an InputError
+//    naming `origin`, the count and the minimum;
+//  - values in [-kRadianceNegativeTolerance, 0) (noise of a dark-frame subtraction) are set to
+//    0, with a note;
+//  - a maximum above 1 + kRadianceOverTolerance (HDR or unscaled data) divides the whole cube
+//    by that maximum, with a note; a maximum in (1, 1 + tolerance] is clipped to 1.
+// cube: any shape, modified in place.
+constexpr double kRadianceNegativeTolerance = 0.01;
+constexpr double kRadianceOverTolerance = 1e-6;
+struct RadianceReport {
+  std::size_t negative = 0;  // values that were below 0 (set to 0)
+  double min = 0, max = 0;   // before the rule
+  double divided_by = 0;     // > 0: the cube was divided by this maximum
+};
+RadianceReport conform_radiance(RealStack& cube, const std::string& origin);
 
 // ---------- CSV spectral tables ----------
 // '#' lines are comments; the first non-comment line is the header; numeric rows follow.
@@ -95,5 +145,40 @@ void write_map_png(const std::string& path, const Map2D& m);
 
 // Atomic text write (temp + rename).
 void write_text_atomic(const std::string& path, const std::string& text);
+
+// ---------- Output staging: a failed command leaves no output set ----------
+// Every qdo writer writes "<path>.tmp-<pid>" and then calls commit_output. While an
+// OutputStage with defer_files is alive, commit_output only records the file: all are renamed
+// into place together by commit(), and a stage destroyed without commit (an exception, a
+// non-zero exit) removes them, so a failed command leaves none of its outputs and never half
+// of a set (an older file of the same name stays as it was). Without defer_files (long,
+// resumable commands: design, sweep, demo) files are renamed at once. Either way, the folders
+// make_output_dir created for the command are removed on failure while they are empty.
+// One stage at a time; the CLI opens one per command.
+class OutputStage {
+ public:
+  explicit OutputStage(bool defer_files);
+  ~OutputStage();
+  OutputStage(const OutputStage&) = delete;
+  OutputStage& operator=(const OutputStage&) = delete;
+  void commit();  // renames every staged file into place; the created folders stay
+
+ private:
+  friend void commit_output(const std::string& tmp, const std::string& path);
+  friend std::string readable_output(const std::string& path);
+  friend void make_output_dir(const std::string& dir, const std::string& argument);
+  bool defer_files_;
+  bool committed_ = false;
+  std::vector<std::pair<std::string, std::string>> files_;  // (temporary name, final name)
+  std::vector<std::string> dirs_;                           // created, outermost first
+};
+// Moves a finished temporary file onto path, or records it in the active deferring stage.
+void commit_output(const std::string& tmp, const std::string& path);
+// The name under which an output written in this command can be read back now: its
+// temporary name while staged, else path.
+std::string readable_output(const std::string& path);
+// create_directories(dir), recorded in the active stage; an InputError naming `argument`
+// (e.g. "--out") when it cannot be created.
+void make_output_dir(const std::string& dir, const std::string& argument = "--out");
 
 }  // namespace qdo

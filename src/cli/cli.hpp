@@ -11,6 +11,7 @@
 #include "qdo/config.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/doe.hpp"
+#include "qdo/imaging.hpp"
 #include "qdo/types.hpp"
 
 namespace qdo::cli {
@@ -30,8 +31,10 @@ Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, con
                 const std::set<std::string>& flags = {});
 // The configuration from --config or --preset (default small), the camera response checked too.
 SystemConfig load_config(const Args& a);
-// --scene builtin (the configuration's chart scene, the default) or a cube file (.mat / .h5,
-// read_cube with --key), checked to have cfg.bands bands: bands x H x W.
+// --scene builtin (the configuration's chart scene, the default), a cube file (.mat / .h5,
+// read_cube with --key) or a folder of PNG bands, checked to have cfg.bands bands: bands x H x W.
+// A band axis stored in the file must match cfg's (refused naming both grids; interpolated
+// with --resample-bands); the radiance rule (conform_radiance) applies.
 RealStack scene_from_args(const SystemConfig& cfg, const Args& a);
 int parse_int(const std::string& name, const std::string& v, int lo, int hi);
 double parse_double(const std::string& name, const std::string& v);
@@ -44,7 +47,9 @@ struct QuantSpec {
 };
 QuantSpec load_quantizer(const Args& a);
 Map2D design_heights(const SystemConfig& cfg, const Args& a, QuantSpec* qs_out = nullptr);
-std::string out_dir(const Args& a, const std::string& def = "");  // creates it
+std::string out_dir(const Args& a, const std::string& def = "");  // creates it (make_output_dir)
+// "sensor: 0.12 % of values clipped at full scale (max 1.3 before clipping)" or "... none clipped".
+std::string clip_summary(const SensorClip& c);
 double seconds_since(std::chrono::steady_clock::time_point t0);
 // The options of `qdo design` (also used by gradcheck and sweep); --mode and --out as given.
 DesignRunOptions design_options(const Args& a);

@@ -60,12 +60,18 @@ RealStack scene_from_args(const SystemConfig& cfg, const Args& a) {
   std::error_code ec;
   if (std::filesystem::is_directory(s, ec)) {  // a CAVE folder of PNG bands, as --data takes
     if (a.has("key")) reject("--key", a.get("key"), "omitted for a PNG band folder (--scene " + s + ")");
-    return read_png_band_folder(s, cfg.bands);
+    RealStack png = read_png_band_folder(s, cfg.bands);
+    conform_radiance(png, "folder '" + s + "'");
+    return png;
   }
   CubeReadOptions o;
   o.key = a.get("key");
   o.expected_bands = cfg.bands;
-  return read_cube(s, o);
+  o.wavelengths_nm = cfg.wavelengths_nm();
+  o.resample_bands = a.has("resample-bands");
+  RealStack cube = read_cube(s, o);
+  conform_radiance(cube, "file '" + s + "'");
+  return cube;
 }
 
 SystemConfig load_config(const Args& a) {
@@ -130,8 +136,18 @@ Map2D design_heights(const SystemConfig& cfg, const Args& a, QuantSpec* qs_out) 
 std::string out_dir(const Args& a, const std::string& def) {
   const std::string d = a.get("out", def);
   if (d.empty()) reject("--out", "(missing)", "an output folder");
-  fs::create_directories(d);
+  make_output_dir(d, "--out");
   return d;
+}
+
+std::string clip_summary(const SensorClip& c) {
+  char buf[160];
+  if (c.clipped == 0)
+    std::snprintf(buf, sizeof buf, "sensor: no value clipped at full scale (max %.4g)", c.max_before);
+  else
+    std::snprintf(buf, sizeof buf, "sensor: %.4g %% of values (%zu of %zu) clipped at full scale 1 (max %.4g before clipping)",
+                  100.0 * c.fraction(), c.clipped, c.total, c.max_before);
+  return buf;
 }
 
 double seconds_since(std::chrono::steady_clock::time_point t0) {

@@ -18,8 +18,8 @@ namespace {
 int cmd_image(int argc, char** argv) {
   const Args a = parse_args(argc, argv,
                             {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device",
-                             "tolerance", "tiles", "tile-px", "out"},
-                            "image", {"exact"});
+                             "tolerance", "tiles", "tile-px", "out", "resample-bands"},
+                            "image", {"exact", "resample-bands"});
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision", "f32"));
   SkipOptions opt = SkipOptions::split(parse_double("--tolerance", a.get("tolerance", "3e-7")),
@@ -37,22 +37,20 @@ int cmd_image(int argc, char** argv) {
   sim.compute_psf();
   SceneImager im(sim);
   const auto t0 = std::chrono::steady_clock::now();
-  const RealStack rgb = im.images({scene}, opt).front();
+  RealStack rgb = im.images({scene}, opt).front();
   const double secs = seconds_since(t0);
   const SkipReport& r = im.last_report();
+  const SensorClip clip = clip_to_full_scale(rgb, "sensor image");
   write_rgb_png(dir + "/sensor.png", rgb);
-  {
-    std::ofstream f(dir + "/skip.json");
-    if (!f) reject("--out", dir, "a writable folder");
-    f << r.to_json() << "\n";
-  }
+  write_text_atomic(dir + "/skip.json", r.to_json() + "\n");
   std::printf("scene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (%s)\n"
               "skipped: %zu/%zu bands, PSF crop radius %zu of %zu px, %zu/%zu tiles; FFT grid %zu x %zu\n"
               "error bound %.3g (bands %.3g, crop %.3g, tiles %.3g; tolerance %.3g) in units of full scale\n"
+              "%s\n"
               "wrote %s/sensor.png, skip.json\n",
               scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(), r.bands_skipped.size(),
               r.bands, r.crop_radius_px, r.sensor_psf_px / 2, r.tiles_skipped, r.tiles_total, r.grid_rows, r.grid_cols,
-              r.total_bound, r.band_bound, r.crop_bound, r.tile_bound, r.tolerance, dir.c_str());
+              r.total_bound, r.band_bound, r.crop_bound, r.tile_bound, r.tolerance, clip_summary(clip).c_str(), dir.c_str());
   return 0;
 }
 

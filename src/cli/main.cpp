@@ -16,6 +16,7 @@
 #include "qdo/design_run.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
+#include "qdo/imaging.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
@@ -39,7 +40,7 @@ usage:
                [--precision f32|f64] [--device SEL] --out DIR
   qdo quantize [--preset P | --config FILE] --design FILE.h5|lens:NM --levels L [--placement ...] --out FILE.h5
   qdo simulate [--preset P | --config FILE] --design ... [--levels L ...] --scene builtin|CUBE.(h5|mat)|PNG_FOLDER [--key K]
-               [--precision ...] [--device ...] --out DIR
+               [--resample-bands] [--precision ...] [--device ...] --out DIR
   qdo demo     [--preset small|paper] [--levels L] [--device SEL] [--out DIR]
   qdo design   [--preset P | --config FILE] --mode full|do|qdo|ste|qdo+a|qdo+m --levels L [--placement ...]
                [--parameterization radial|quad|2d] [--psf-path auto|2d|radial] [--objective wiener|wiener-mse|wiener-mae|psf-target]
@@ -49,6 +50,10 @@ usage:
                [--checkpoint-every 10] [--max-steps N] [--resume] [--check-gradients] [--precision ...] --out RUN
   qdo eval     RUN [--data PATH[,PATH...]] [--levels L] [--decoder matched|mismatch] [--pixels y:x,...] --out DIR
   qdo gradcheck [--preset small] [--mode M] [--objective ...] [--levels 4] [--seed S]
+
+Exit codes: 0 ok, 1 internal error, 2 bad input (argument or file, named), 3 refused as
+inaccurate or not finite, 4 OpenCL/device error, 5 gradient check failed, 6 file system
+error, 7 out of host memory. A failed command leaves none of its outputs.
 
 Device selection: --device, else $QDO_DEVICE, else the first GPU, else the first CPU
 (gpu | cpu | P:D as 'qdo devices' prints | a substring of the device name).
@@ -129,7 +134,7 @@ int cmd_quantize(int argc, char** argv) {
   d.height_m = hq;
   d.pitch_m = cfg.pitch_m;
   d.levels_m = qs.q.level_heights_m(cfg.h_max_m());
-  if (fs::path(out).has_parent_path()) fs::create_directories(fs::path(out).parent_path());
+  if (fs::path(out).has_parent_path()) make_output_dir(fs::path(out).parent_path().string(), "--out");
   write_design(out, d, {{"source", a.get("design")}, {"mode", "DO (post-hoc uniform quantization)"},
                         {"levels", std::to_string(qs.q.levels)}, {"placement", to_string(qs.q.placement)}});
   std::printf("quantized to %d levels (%s): mean |H_q - H_f| = %.3f nm; levels (nm):", qs.q.levels,
@@ -141,8 +146,9 @@ int cmd_quantize(int argc, char** argv) {
 
 int cmd_simulate(int argc, char** argv) {
   const Args a = parse_args(argc, argv,
-                            {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "out"},
-                            "simulate");
+                            {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "out",
+                             "resample-bands"},
+                            "simulate", {"resample-bands"});
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision", "f32"));
   const Map2D h = design_heights(cfg, a);
@@ -153,15 +159,16 @@ int cmd_simulate(int argc, char** argv) {
   sim.set_heights(h);
   const auto t0 = std::chrono::steady_clock::now();
   sim.compute_psf();
-  const RealStack rgb = sim.sensor_image(scene);
+  RealStack rgb = sim.sensor_image(scene);
   const double secs = seconds_since(t0);
-  write_rgb(dir + "/sensor.h5", rgb);
+  const SensorClip clip = clip_to_full_scale(rgb, "sensor image");
+  write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
   write_rgb_png(dir + "/sensor.png", rgb);
   write_rgb_png(dir + "/scene.png", ref::sensor_integrate(scene, sim.srf()));  // the same camera without the DOE blur
   write_psf_outputs(sim, h, dir, a.get("design"));
-  std::printf("device: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s)\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png\n",
+  std::printf("device: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s)\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png\n",
               rt.info().name.c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
-              sim.sampling().summary().c_str(), dir.c_str());
+              sim.sampling().summary().c_str(), clip_summary(clip).c_str(), dir.c_str());
   return 0;
 }
 
@@ -362,6 +369,23 @@ int cmd_demo(int argc, char** argv) {
 
 }  // namespace
 
+int dispatch(const std::string& cmd, int argc, char** argv) {
+  if (cmd == "devices") return cmd_devices();
+  if (cmd == "config") return cmd_config(argc, argv);
+  if (cmd == "psf") return cmd_psf(argc, argv);
+  if (cmd == "quantize") return cmd_quantize(argc, argv);
+  if (cmd == "simulate") return cmd_simulate(argc, argv);
+  if (cmd == "demo") return cmd_demo(argc, argv);
+  if (cmd == "design") return cmd_design(argc, argv);
+  if (cmd == "gradcheck") return cmd_gradcheck(argc, argv);
+  if (cmd == "eval") return cmd_eval(argc, argv);
+  const auto it = registry().find(cmd);
+  if (it != registry().end()) return it->second.run(argc, argv);
+  std::fprintf(stderr, "qdo: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
+  for (const auto& [name, info] : registry()) std::fprintf(stderr, "  %s\n", info.usage.c_str());
+  return 2;
+}
+
 int main(int argc, char** argv) {
   if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h" || std::string(argv[1]) == "help") {
     std::fputs(kUsage, argc < 2 ? stderr : stdout);
@@ -369,21 +393,14 @@ int main(int argc, char** argv) {
     return argc < 2 ? 2 : 0;
   }
   const std::string cmd = argv[1];
+  // Long, resumable commands write their files as they go; the others stage every output and
+  // rename them into place together only when the command succeeds (OutputStage, io.hpp).
+  const bool defer_files = cmd != "design" && cmd != "sweep" && cmd != "sweep-psf" && cmd != "demo";
   try {
-    if (cmd == "devices") return cmd_devices();
-    if (cmd == "config") return cmd_config(argc, argv);
-    if (cmd == "psf") return cmd_psf(argc, argv);
-    if (cmd == "quantize") return cmd_quantize(argc, argv);
-    if (cmd == "simulate") return cmd_simulate(argc, argv);
-    if (cmd == "demo") return cmd_demo(argc, argv);
-    if (cmd == "design") return cmd_design(argc, argv);
-    if (cmd == "gradcheck") return cmd_gradcheck(argc, argv);
-    if (cmd == "eval") return cmd_eval(argc, argv);
-    const auto it = registry().find(cmd);
-    if (it != registry().end()) return it->second.run(argc, argv);
-    std::fprintf(stderr, "qdo: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
-    for (const auto& [name, info] : registry()) std::fprintf(stderr, "  %s\n", info.usage.c_str());
-    return 2;
+    OutputStage stage(defer_files);
+    const int rc = dispatch(cmd, argc, argv);
+    if (rc == 0) stage.commit();
+    return rc;
   } catch (const InputError& e) {
     std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
     return 2;
@@ -396,8 +413,14 @@ int main(int argc, char** argv) {
   } catch (const cl::Error& e) {
     std::fprintf(stderr, "qdo %s: OpenCL error in %s: %s\n", cmd.c_str(), e.what(), cl_error_name(e.err()).c_str());
     return 4;
+  } catch (const std::filesystem::filesystem_error& e) {
+    std::fprintf(stderr, "qdo %s: file system error: %s\n", cmd.c_str(), e.what());
+    return 6;
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "qdo %s: out of host memory (reduce the problem size: --preset, n, bands, batch)\n", cmd.c_str());
+    return 7;
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
+    std::fprintf(stderr, "qdo %s: internal error (please report): %s\n", cmd.c_str(), e.what());
     return 1;
   }
 }
