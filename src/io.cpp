@@ -1379,6 +1379,14 @@ OutputStage::~OutputStage() {
 
 void OutputStage::commit() {
   if (committed_) return;
+  // What can be known to fail is checked before the first rename, so that a set is renamed
+  // whole or not at all: a final name taken by a folder, a temporary file that vanished.
+  for (const auto& f : files_) {
+    std::error_code ec;
+    if (fs::is_directory(f.second, ec)) fail(f.second, "", "is a folder; the command's outputs were not written");
+    if (!fs::is_regular_file(f.first, ec))
+      fail(f.second, "", "its temporary file '" + f.first + "' disappeared; the command's outputs were not written");
+  }
   for (const auto& f : files_) {
     std::error_code ec;
     fs::rename(f.first, f.second, ec);

@@ -554,6 +554,108 @@ TEST_SUITE("commands") {
     fs::remove_all(dir);
   }
 
+  TEST_CASE("cubes mean what they say: band axis checked or resampled, radiance rule, sensor clipped at full scale") {
+    const auto dir = temp_dir("cmd_cubes");
+    const SystemConfig c = tiny();  // 3 bands: 450, 500, 550 nm
+    const RealStack scene = random_cube(c.bands, 16, 16, 5);
+    // A band axis 10 nm off the configuration's: refused before any work, naming both grids.
+    write_cube((dir / "shifted.h5").string(), scene, {460, 510, 560});
+    const fs::path out = dir / "out";
+    Run r = qdo_run("simulate " + cfg_arg() + " --design flat --scene " + (dir / "shifted.h5").string() + " --out " + out.string());
+    CAPTURE(r.out);
+    CHECK(r.code == 2);
+    CHECK(r.out.find("460 ... 560 nm") != std::string::npos);
+    CHECK(r.out.find("450 ... 550 nm") != std::string::npos);
+    CHECK_FALSE(fs::exists(out));
+    // A reversed axis with --resample-bands: the cube is reordered, with a note, and images as
+    // the correctly ordered cube does.
+    RealStack reversed(c.bands, 16, 16);
+    for (std::size_t b = 0; b < c.bands; ++b)
+      std::copy(scene.plane(c.bands - 1 - b), scene.plane(c.bands - 1 - b) + 256, reversed.plane(b));
+    write_cube((dir / "reversed.h5").string(), reversed, {550, 500, 450});
+    write_cube((dir / "ordered.h5").string(), scene, c.wavelengths_nm());
+    r = qdo_run("simulate " + cfg_arg() + " --design flat --scene " + (dir / "reversed.h5").string() + " --out " +
+                (dir / "rev").string() + " --resample-bands");
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    CHECK(r.out.find("resampled") != std::string::npos);
+    REQUIRE(qdo_run("simulate " + cfg_arg() + " --design flat --scene " + (dir / "ordered.h5").string() + " --out " +
+                    (dir / "ord").string()).code == 0);
+    CHECK(h5_read((dir / "rev" / "sensor.h5").string(), "/rgb").data == h5_read((dir / "ord" / "sensor.h5").string(), "/rgb").data);
+
+    // Radiance: strongly negative refused (exit 2, naming the file); an HDR cube (values up to
+    // 543) divided by its maximum, with a note, so the image stays within full scale.
+    RealStack neg = scene;
+    neg.data[17] = -0.5;
+    write_cube((dir / "neg.h5").string(), neg, c.wavelengths_nm());
+    r = qdo_run("simulate " + cfg_arg() + " --design flat --scene " + (dir / "neg.h5").string() + " --out " + (dir / "n").string());
+    CHECK(r.code == 2);
+    CHECK(r.out.find("neg.h5") != std::string::npos);
+    CHECK(r.out.find("negative") != std::string::npos);
+    CHECK_FALSE(fs::exists(dir / "n"));
+    RealStack hdr = scene;
+    for (double& v : hdr.data) v *= 543.0;
+    write_cube((dir / "hdr.h5").string(), hdr, c.wavelengths_nm());
+    r = qdo_run("simulate " + cfg_arg() + " --design flat --scene " + (dir / "hdr.h5").string() + " --out " + (dir / "h").string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    CHECK(r.out.find("divided by that maximum") != std::string::npos);
+    const H5Dataset hdr_rgb = h5_read((dir / "h" / "sensor.h5").string(), "/rgb");
+    CHECK(*std::max_element(hdr_rgb.data.begin(), hdr_rgb.data.end()) <= 1.0);
+
+    // The sensor saturates: with read noise sigma 0.5 many values exceed full scale; they read as
+    // 1, and the fraction is printed and stored with the image.
+    SystemConfig noisy = c;
+    noisy.read_noise_sigma = 0.5;
+    std::ofstream(dir / "noisy.json") << config_to_json_text(noisy) << "\n";
+    r = qdo_run("simulate --config " + (dir / "noisy.json").string() + " --design flat --scene " + (dir / "ordered.h5").string() +
+                " --out " + (dir / "noisy").string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    const H5Dataset rgb = h5_read((dir / "noisy" / "sensor.h5").string(), "/rgb");
+    const auto at_full = std::count(rgb.data.begin(), rgb.data.end(), 1.0);
+    CHECK(*std::max_element(rgb.data.begin(), rgb.data.end()) == 1.0);
+    CHECK(at_full > 0);
+    CHECK(rgb.num_attrs.at("clipped_fraction") == doctest::Approx(double(at_full) / double(rgb.data.size())));
+    CHECK(rgb.num_attrs.at("max_before_clip") > 1.0);
+    CHECK(r.out.find("clipped at full scale") != std::string::npos);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("a failed command leaves no output set, no folder it created and no temporary files") {
+    const auto dir = temp_dir("cmd_nopartial");
+    // An unknown device: exit 2 or 4, and the --out folder (and its parent) it would have made are gone.
+    const fs::path nested = dir / "new" / "out";
+    Run r = qdo_run("simulate " + cfg_arg() + " --design flat --device no-such-device-xyz --out " + nested.string());
+    CAPTURE(r.out);
+    CHECK((r.code == 2 || r.code == 4));
+    CHECK_FALSE(fs::exists(dir / "new"));
+    // A failure after some outputs were computed: psf.png is taken by a folder, so the set cannot be
+    // written whole; none of it is (sensor.h5, sensor.png, scene.png, psf.h5 would come first), no
+    // *.tmp-* file stays, and the folder the user made is kept with only what was there.
+    const fs::path out = dir / "out";
+    fs::create_directories(out / "psf.png");
+    std::ofstream(out / "mine.txt") << "keep";
+    r = qdo_run("simulate " + cfg_arg() + " --design flat --out " + out.string());
+    CAPTURE(r.out);
+    CHECK(r.code == 2);
+    CHECK(r.out.find("psf.png") != std::string::npos);
+    std::set<std::string> left;
+    for (const auto& e : fs::directory_iterator(out)) left.insert(e.path().filename().string());
+    CHECK(left == std::set<std::string>{"mine.txt", "psf.png"});
+    // qdo design: a bad option is refused before anything is read, computed or made.
+    for (const std::string bad : {"--lr -1", "--decay -0.5", "--decay 1.5", "--beta -1", "--t0 50 --t1 40", "--height-noise-nm -3"}) {
+      CAPTURE(bad);
+      const fs::path run = dir / "run";
+      r = qdo_run("design " + cfg_arg() + " --mode qdo+a --levels 4 --epochs 60 --synthetic-scenes 3 " + bad + " --out " + run.string());
+      CAPTURE(r.out);
+      CHECK(r.code == 2);
+      CHECK(r.out.find("argument '") != std::string::npos);
+      CHECK_FALSE(fs::exists(run));
+    }
+    fs::remove_all(dir);
+  }
+
   TEST_CASE("documented exit codes: 0 ok, 2 bad input (an uncreatable --out too), 3 accuracy refusal, 4 device error") {
     const auto dir = temp_dir("cmd_codes");
     const std::string out = (dir / "out").string();

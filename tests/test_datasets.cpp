@@ -220,6 +220,42 @@ TEST_SUITE("datasets") {
     CHECK(load_scene(pd, "auto", 31)(3, 2, 1) == doctest::Approx(tv(3, 2, 1) / 4095.0));
   }
 
+  TEST_CASE("a scene's stored band axis is checked when the index is built; every scene passes the radiance rule") {
+    TempDir tmp("axis");
+    const std::size_t H = 6, W = 5, B = 31;
+    std::vector<double> grid(B);
+    for (std::size_t b = 0; b < B; ++b) grid[b] = 400.0 + 10.0 * double(b);
+    // ICVL-like .mat v7.3 with `bands`: on the grid it loads; shifted by 5 nm it is refused when the
+    // index is built (not when the scene is first drawn), naming the file and both grids.
+    MatVarSpec rad{"rad", {H, W, B}, {}, std::vector<std::uint16_t>(H * W * B, 1000)};
+    rad.u16[3] = 4000;
+    std::vector<double> shifted(grid);
+    for (double& v : shifted) v += 5.0;
+    fs::create_directories(tmp / "good");
+    fs::create_directories(tmp / "bad");
+    write_mat(tmp / "good/a.mat", MAT_FT_MAT73, {rad, MatVarSpec{"bands", {1, B}, grid, {}}});
+    write_mat(tmp / "bad/b.mat", MAT_FT_MAT73, {rad, MatVarSpec{"bands", {1, B}, shifted, {}}});
+    const SceneIndex good(std::vector<std::string>{tmp / "good"}, "auto", B, grid);
+    CHECK(good.load(0).data.size() == B * H * W);
+    const std::string msg = input_error([&] { SceneIndex(std::vector<std::string>{tmp / "bad"}, "auto", B, grid); });
+    CHECK(msg.find("b.mat") != std::string::npos);
+    CHECK(msg.find("405 ... 705 nm") != std::string::npos);
+    CHECK(msg.find("400 ... 700 nm") != std::string::npos);
+    // Without a configured grid (the library's default) the axis is not compared.
+    CHECK(SceneIndex(std::vector<std::string>{tmp / "bad"}, "auto", B).size() == 1);
+    // An HDF5 cube of HDR values is divided by its maximum; strongly negative values are refused.
+    RealStack hdr(B, H, W, 2.0);
+    hdr(4, 1, 1) = 8.0;
+    write_cube(tmp / "hdr.h5", hdr, grid);
+    const RealStack c = load_scene(tmp / "hdr.h5", "auto", B, grid);
+    CHECK(c(4, 1, 1) == 1.0);
+    CHECK(c(0, 0, 0) == 0.25);
+    RealStack neg(B, H, W, 0.5);
+    neg(0, 2, 2) = -0.3;
+    write_cube(tmp / "neg.h5", neg, grid);
+    CHECK(input_error([&] { load_scene(tmp / "neg.h5", "auto", B, grid); }).find("negative") != std::string::npos);
+  }
+
   TEST_CASE("Harvard (ref, scaled by its max) and KAIST (HSI) .mat v5 files") {
     TempDir tmp("v5");
     const std::size_t H = 4, W = 3, B = 31;

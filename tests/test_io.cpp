@@ -202,6 +202,118 @@ TEST_SUITE("io") {
     CHECK_THROWS_AS(write_rgb(tmp / "bad.h5", RealStack(2, 2, 2)), InputError);
   }
 
+  TEST_CASE("a cube's stored band axis is read and checked against the configured bands") {
+    TmpDir tmp;
+    const std::vector<double> grid = {400, 450, 500, 550};  // the configured bands
+    RealStack cube(4, 2, 3);
+    for (std::size_t b = 0; b < 4; ++b)
+      for (std::size_t i = 0; i < 6; ++i) cube.plane(b)[i] = 0.1 * double(b) + 0.01 * double(i);
+    CubeReadOptions o;
+    o.wavelengths_nm = grid;
+    // The same grid (within 0.5 nm): read as is.
+    write_cube(tmp / "same.h5", cube, {400.2, 450, 500, 549.7});
+    CHECK(read_cube(tmp / "same.h5", o).data == cube.data);
+    // Shifted by 5 nm: refused, naming the file, the dataset and both grids.
+    write_cube(tmp / "shifted.h5", cube, {405, 455, 505, 555});
+    std::string msg = input_error_of([&] { read_cube(tmp / "shifted.h5", o); });
+    CHECK(contains(msg, tmp / "shifted.h5"));
+    CHECK(contains(msg, "'/wavelengths_nm'"));
+    CHECK(contains(msg, "4 bands, 405 ... 555 nm (step 50)"));
+    CHECK(contains(msg, "4 bands, 400 ... 550 nm (step 50)"));
+    CHECK(contains(msg, "--resample-bands"));
+    // Reversed (700 -> 400 order): refused, said to be descending.
+    write_cube(tmp / "reversed.h5", cube, {550, 500, 450, 400});
+    msg = input_error_of([&] { read_cube(tmp / "reversed.h5", o); });
+    CHECK(contains(msg, "descending"));
+    // Another band count: the file's axis decides the band axis; refused naming both grids.
+    RealStack five(5, 2, 3, 0.25);
+    write_cube(tmp / "five.h5", five, {400, 437.5, 475, 512.5, 550});
+    msg = input_error_of([&] { read_cube(tmp / "five.h5", o); });
+    CHECK(contains(msg, "5 bands"));
+    CHECK(contains(msg, "4 bands"));
+    // An axis that is not a wavelength in nm (µm here), not monotonic, or of the wrong length.
+    write_cube(tmp / "um.h5", cube, {0.40, 0.45, 0.50, 0.55});
+    CHECK(contains(input_error_of([&] { read_cube(tmp / "um.h5", o); }), "not a wavelength in nm"));
+    write_cube(tmp / "flat.h5", cube, {500, 500, 500, 500});
+    CHECK(contains(input_error_of([&] { read_cube(tmp / "flat.h5", o); }), "not strictly monotonic"));
+    h5_write(tmp / "short.h5", {H5Dataset{"/cube", {4, 2, 3}, cube.data, {}, {}},
+                                H5Dataset{"/bands", {3}, {400, 450, 500}, {}, {}}});
+    CHECK(contains(input_error_of([&] { read_cube(tmp / "short.h5", o); }), "'/bands'"));
+
+    // With resample: linear interpolation along wavelength, descending axes included; the grid
+    // must lie inside the file's range.
+    o.resample_bands = true;
+    const RealStack rev = read_cube(tmp / "reversed.h5", o);  // plane 0 was labelled 550 nm
+    REQUIRE(rev.planes == 4);
+    for (std::size_t b = 0; b < 4; ++b)
+      for (std::size_t i = 0; i < 6; ++i) CHECK(rev.plane(b)[i] == doctest::Approx(cube.plane(3 - b)[i]).epsilon(1e-15));
+    const RealStack r = read_cube(tmp / "five.h5", o);
+    REQUIRE(r.planes == 4);
+    for (double v : r.data) CHECK(v == doctest::Approx(0.25).epsilon(1e-12));
+    RealStack ramp(3, 1, 1);
+    ramp.data = {0.0, 0.5, 1.0};
+    const RealStack rr = conform_band_axis(ramp, {400, 500, 600}, {450, 550}, true, "ramp");
+    CHECK(rr.data[0] == doctest::Approx(0.25));
+    CHECK(rr.data[1] == doctest::Approx(0.75));
+    msg = input_error_of([&] { read_cube(tmp / "shifted.h5", o); });  // 400 nm lies below 405 - 0.5
+    CHECK(contains(msg, "outside the file's range"));
+    // Without a configured grid the axis is only checked for sanity, never compared.
+    CHECK(read_cube(tmp / "shifted.h5").data == cube.data);
+
+    // A MATLAB file's band axis variable is read as well.
+    const std::string m = tmp / "axis.mat";
+    {
+      std::unique_ptr<mat_t, MatCloser> mat(Mat_CreateVer(m.c_str(), nullptr, MAT_FT_MAT5));
+      REQUIRE(mat);
+      std::vector<double> hwb(2 * 3 * 4, 0.5);
+      mat_write(mat.get(), "cube", {2, 3, 4}, MAT_C_DOUBLE, MAT_T_DOUBLE, hwb);
+      mat_write(mat.get(), "wavelengths_nm", {1, 4}, MAT_C_DOUBLE, MAT_T_DOUBLE, std::vector<double>{410, 460, 510, 560});
+    }
+    o.resample_bands = false;
+    msg = input_error_of([&] { read_cube(m, o); });
+    CHECK(contains(msg, "variable 'wavelengths_nm'"));
+    CHECK(contains(msg, "410 ... 560 nm"));
+  }
+
+  TEST_CASE("the radiance rule: strongly negative refused, slightly negative set to 0, HDR divided by its maximum") {
+    RealStack ok(2, 2, 2, 0.5);
+    RadianceReport r = conform_radiance(ok, "ok");
+    CHECK(r.negative == 0);
+    CHECK(r.divided_by == 0);
+    CHECK(ok.data == std::vector<double>(8, 0.5));
+
+    RealStack slight(1, 2, 2, 0.3);
+    slight.data[1] = -0.004;  // dark-frame noise
+    r = conform_radiance(slight, "slight");
+    CHECK(r.negative == 1);
+    CHECK(r.min == -0.004);
+    CHECK(slight.data[1] == 0.0);
+    CHECK(slight.data[0] == 0.3);
+
+    RealStack neg(1, 2, 2, 0.3);
+    neg.data[3] = -0.2;
+    const std::string msg = input_error_of([&] { conform_radiance(neg, "file 'neg.h5'"); });
+    CHECK(contains(msg, "file 'neg.h5'"));
+    CHECK(contains(msg, "-0.2"));
+    CHECK(contains(msg, "1 negative"));
+
+    RealStack hdr(1, 1, 4);
+    hdr.data = {0.0, 1.0, 271.5, 543.0};
+    r = conform_radiance(hdr, "hdr");
+    CHECK(r.divided_by == 543.0);
+    CHECK(hdr.data == std::vector<double>{0.0, 1.0 / 543.0, 0.5, 1.0});
+
+    RealStack rounding(1, 1, 2);
+    rounding.data = {1.0 + 1e-9, 0.5};  // float rounding above 1: clipped, not rescaled
+    r = conform_radiance(rounding, "rounding");
+    CHECK(r.divided_by == 0);
+    CHECK(rounding.data == std::vector<double>{1.0, 0.5});
+
+    RealStack inf(1, 1, 2);
+    inf.data = {0.5, std::numeric_limits<double>::infinity()};
+    CHECK(contains(input_error_of([&] { conform_radiance(inf, "inf"); }), "not finite"));
+  }
+
   TEST_CASE("h5_read errors name the file and the dataset") {
     TmpDir tmp;
     const std::string path = tmp / "x.h5";
