@@ -463,14 +463,23 @@ std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& given, 
   if (o.design.mode == DesignMode::QDOM)  // mask depths: uniform, moved by +-10 % so levels are not uniform
     for (std::size_t j = 0; j < st.offsets.size(); ++j)
       st.offsets[j] = uniform_mask_depths(o.design.quantizer)[j] * (j % 2 ? 0.9 : 1.1);
-  const auto gd = d.gradient(st, obj);
+  auto gd = d.gradient(st, obj);
+  // Fault injection, for testing that a wrong gradient is caught and reported (exit code 5):
+  // QDO_GRADCHECK_FAULT=1 scales the analytic weight gradient by 1.5 before the comparison.
+  if (const char* f = std::getenv("QDO_GRADCHECK_FAULT"); f && std::string(f) == "1")
+    for (double& gw : gd.g_w) gw *= 1.5;
+  // Central-difference step on the normalised parameters: 1e-5 (7.7 pm of height, ~5e-5 rad) in
+  // float64; in float32 the loss carries ~1e-7 relative rounding, which a 1e-5 step turns into
+  // errors of several percent (the check failed falsely on float32-only devices), so the step
+  // is 2e-3 there (truncation error ~h^2, still below the float32 tolerance).
+  const double h_fd = p == Precision::F64 ? 1e-5 : 2e-3;
   worst = 0;
   for (int k = 0; k < 5; ++k) {
     const std::size_t idx = rng() % st.w.size();
     DesignState a = st, b = st;
-    a.w[idx] += 1e-5;  // 7.7 pm of height: a phase change of ~5e-5 rad
-    b.w[idx] -= 1e-5;
-    const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / 2e-5;
+    a.w[idx] += h_fd;
+    b.w[idx] -= h_fd;
+    const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / (2 * h_fd);
     worst = std::max(worst, rel(fd, gd.g_w[idx], rms(gd.g_w)));
   }
   const double tol_e2e = p == Precision::F64 ? 1e-4 : 5e-2;
@@ -483,9 +492,9 @@ std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& given, 
     worst = 0;
     for (std::size_t l = 1; l < st.offsets.size(); ++l) {
       DesignState a = st, b = st;
-      a.offsets[l] += 1e-5;
-      b.offsets[l] -= 1e-5;
-      const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / 2e-5;
+      a.offsets[l] += h_fd;
+      b.offsets[l] -= h_fd;
+      const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / (2 * h_fd);
       worst = std::max(worst, rel(fd, gd.g_offsets[l], rms(gd.g_offsets)));
     }
     rows.push_back({"level offsets a (qdo+a)", worst, tol_e2e});
@@ -494,9 +503,9 @@ std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& given, 
     worst = 0;
     for (std::size_t j = 0; j < st.offsets.size(); ++j) {
       DesignState a = st, b = st;
-      a.offsets[j] += 1e-5;
-      b.offsets[j] -= 1e-5;
-      const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / 2e-5;
+      a.offsets[j] += h_fd;
+      b.offsets[j] -= h_fd;
+      const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / (2 * h_fd);
       worst = std::max(worst, rel(fd, gd.g_offsets[j], rms(gd.g_offsets)));
     }
     rows.push_back({"mask depths delta (qdo+m)", worst, tol_e2e});

@@ -319,16 +319,23 @@ TEST_SUITE("commands") {
     for (const char* row : {"PSF chain: OpenCL", "PSF chain: CPU adjoint vs central differences", "weights w (qdo+a, wiener",
                             "level offsets a (qdo+a)", "objective wiener vs PSF"})
       CHECK_MESSAGE(r.out.find(row) != std::string::npos, row);
-    // Exit code 5: on a device without float64 (QDO_DISABLE_FP64=1) the check runs in float32 with
-    // its looser tolerances. Whatever it finds, the exit code must agree with the table: 5 exactly
-    // when a row says FAIL. At the time of writing the float32 end-to-end weights row fails here
-    // (central differences with a 1e-5 step drown in float32 round-off: a false failure, reported),
-    // so this is what exercises exit code 5; no option forces a failure on a float64 device, the
-    // tolerances being fixed in qdo::gradcheck.
+    // On a device without float64 (QDO_DISABLE_FP64=1) the check runs in float32 with its looser
+    // tolerances and a larger difference step; it passes (it failed falsely with a 1e-5 step,
+    // which drowned in float32 round-off).
     const Run f32 = qdo_run("gradcheck " + cfg_arg() + " --mode qdo+a --levels 4 --seed 1", "QDO_DISABLE_FP64=1");
     CAPTURE(f32.out);
     CHECK(f32.out.find("OpenCL f32 adjoint") != std::string::npos);
-    CHECK(f32.code == (f32.out.find("FAIL") != std::string::npos ? 5 : 0));
+    CHECK(f32.code == 0);
+    CHECK(f32.out.find("FAIL") == std::string::npos);
+    // Exit code 5: a wrong gradient (fault injection scales the weight gradient by 1.5) fails its
+    // row, and only that row.
+    const Run bad = qdo_run("gradcheck " + cfg_arg() + " --mode qdo+a --levels 4 --seed 1", "QDO_GRADCHECK_FAULT=1");
+    CAPTURE(bad.out);
+    CHECK(bad.code == 5);
+    const std::size_t row = bad.out.find("weights w (qdo+a");
+    REQUIRE(row != std::string::npos);
+    CHECK(bad.out.substr(row, bad.out.find('\n', row) - row).find("FAIL") != std::string::npos);
+    CHECK(bad.out.find("FAIL") == bad.out.rfind("FAIL"));
     CHECK(qdo_run("gradcheck " + cfg_arg() + " --mode nonsense").code == 2);
   }
 

@@ -251,6 +251,7 @@ int cmd_gradcheck(int argc, char** argv) {
   b.opt["out"] = "(unused)";
   b.opt["epochs"] = "10";
   DesignRunOptions o = design_options(b);
+  o.validate();  // every option checked before the device is opened
   Runtime rt(a.get("device"));
   return print_gradcheck(gradcheck(rt, o, o.design.seed));
 }
