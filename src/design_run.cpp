@@ -83,13 +83,25 @@ PsfObjective make_objective(const DesignRunOptions& o, const Problem& pb, long s
   };
 }
 
+namespace {
+// NM of "lens:NM": a finite wavelength in nm, 100 ... 20000; InputError naming `arg` otherwise.
+double lens_nm(const std::string& arg, const std::string& spec) {
+  const std::string num = spec.substr(5);
+  char* end = nullptr;
+  const double nm = std::strtod(num.c_str(), &end);
+  if (num.empty() || *end || !std::isfinite(nm) || nm < 100 || nm > 20000)
+    reject(arg, spec, "lens:NM with NM a wavelength in nm (100 ... 20000), e.g. lens:550");
+  return nm;
+}
+}  // namespace
+
 Problem make_problem(Runtime& rt, const DesignRunOptions& o) {
   Problem pb;
   pb.srf = sensor_response(o.cfg);
   if (o.objective == "psf-target") {
     Simulator sim(rt, o.cfg, o.precision);
     Map2D h;
-    if (o.target.rfind("lens:", 0) == 0) h = lens_design(o.cfg, std::stod(o.target.substr(5)));
+    if (o.target.rfind("lens:", 0) == 0) h = lens_design(o.cfg, lens_nm("target", o.target));
     else h = read_design(o.target).height_m;
     sim.set_heights(h);
     sim.compute_psf();
@@ -113,7 +125,7 @@ std::vector<double> initial_params(const DesignRunOptions& o) {
     for (double& v : p) v = u(rng);
     return p;
   }
-  const Map2D lens = lens_design(c, std::stod(o.init.substr(5)));
+  const Map2D lens = lens_design(c, lens_nm("init", o.init));
   const std::size_t h = c.n / 2;
   for (std::size_t k = 0; k < count; ++k) {
     if (kind == Parameterization::Full2D) p[k] = lens.data[k];
@@ -161,6 +173,8 @@ void DesignRunOptions::validate() const {
   if (objective == "psf-target" && target.rfind("lens:", 0) != 0 && !fs::exists(target))
     reject("target", target, "lens:NM or an existing design .h5 file");
   if (init != "random" && init != "flat" && init.rfind("lens:", 0) != 0) reject("init", init, "random, flat or lens:NM");
+  if (init.rfind("lens:", 0) == 0) lens_nm("init", init);
+  if (objective == "psf-target" && target.rfind("lens:", 0) == 0) lens_nm("target", target);
   if (epochs < 1) reject("epochs", epochs, ">= 1");
   if (batch < 1) reject("batch", batch, ">= 1");
   if (synthetic_scenes < 1) reject("synthetic_scenes", synthetic_scenes, ">= 1");

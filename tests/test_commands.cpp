@@ -651,7 +651,8 @@ TEST_SUITE("commands") {
     for (const auto& e : fs::directory_iterator(out)) left.insert(e.path().filename().string());
     CHECK(left == std::set<std::string>{"mine.txt", "psf.png"});
     // qdo design: a bad option is refused before anything is read, computed or made.
-    for (const std::string bad : {"--lr -1", "--decay -0.5", "--decay 1.5", "--beta -1", "--t0 50 --t1 40", "--height-noise-nm -3"}) {
+    for (const std::string bad : {"--lr -1", "--decay -0.5", "--decay 1.5", "--beta -1", "--t0 50 --t1 40", "--height-noise-nm -3",
+                                  "--init lens:abc", "--objective psf-target --target lens:1e999"}) {
       CAPTURE(bad);
       const fs::path run = dir / "run";
       r = qdo_run("design " + cfg_arg() + " --mode qdo+a --levels 4 --epochs 60 --synthetic-scenes 3 " + bad + " --out " + run.string());
