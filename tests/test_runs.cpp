@@ -82,6 +82,40 @@ TEST_SUITE("runs") {
     CHECK(design_run_options_from_json(text, "run/config.json").cfg.n == o.cfg.n);
   }
 
+  TEST_CASE("a run's config.json with a value the option parsers refuse, or a non-integer count, is refused naming the file") {
+    // Found while writing the run_folder fuzz target: a stored mode, placement or precision the
+    // parsers refuse was reported as "argument 'mode' = ..." without the file, a stored value
+    // out of range (epochs 0) likewise, and a count stored as 1e300 was converted to int
+    // (undefined behaviour).
+    DesignRunOptions o;
+    o.cfg = preset_config("small");
+    const std::string text = design_run_options_to_json(o);
+    auto edit = [&](const std::string& from, const std::string& to) {
+      std::string t = text;
+      const std::size_t at = t.find(from);
+      REQUIRE(at != std::string::npos);
+      return t.replace(at, from.size(), to);
+    };
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(edit("\"mode\": \"qdo+a\"", "\"mode\": \"bogus\""), "run/config.json"),
+                         doctest::Contains("file 'run/config.json': argument 'mode' = bogus"), InputError);
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(edit("\"precision\": \"f32\"", "\"precision\": \"f16\""), "run/config.json"),
+                         doctest::Contains("file 'run/config.json': argument 'precision'"), InputError);
+    for (const char* bad : {"1e300", "-3", "2.5", "\"4\""}) {
+      CAPTURE(bad);
+      CHECK_THROWS_WITH_AS(design_run_options_from_json(edit("\"levels\": 4", std::string("\"levels\": ") + bad), "run/config.json"),
+                           doctest::Contains("file 'run/config.json'"), InputError);
+    }
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(edit("\"epochs\": 50", "\"epochs\": -1"), "run/config.json"),
+                         doctest::Contains("key 'design.epochs' = -1"), InputError);
+    // Through the resume loader: a stored value out of range names the file, not an argument.
+    const auto dir = temp_dir("runs_cfg_values");
+    std::ofstream(dir / "config.json") << edit("\"epochs\": 50", "\"epochs\": 0");
+    std::ofstream(dir / "checkpoint.h5") << "x";
+    const std::string want = "file '" + (dir / "config.json").string() + "': argument 'epochs' = 0";
+    CHECK_THROWS_WITH_AS(load_resume_state(dir.string()), doctest::Contains(want.c_str()), InputError);
+    std::filesystem::remove_all(dir);
+  }
+
   TEST_CASE("a resumed run equals an uninterrupted one; the design holds L heights") {
     const auto dir = temp_dir("runs");
     const std::string a = (dir / "a").string(), b = (dir / "b").string();
