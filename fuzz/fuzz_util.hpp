@@ -17,6 +17,7 @@
 #include <fstream>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "qdo/error.hpp"
 
@@ -67,6 +68,20 @@ inline Scratch& scratch() {
 inline void expect_names(const InputError& e, const std::string& name) {
   const std::string msg = e.what();
   if (msg.find(name) == std::string::npos) fail("InputError does not name '" + name + "': " + msg);
+}
+
+// One input holding several files: the parts between occurrences of kFileSeparator (a line of
+// its own). Targets that read a folder write part k to their k-th file name; a file without a
+// part is absent. Binary parts (HDF5) may hold anything but the separator.
+inline const std::string kFileSeparator = "\n==qdo-fuzz-next-file==\n";
+inline std::vector<std::string> split_files(const std::uint8_t* data, std::size_t size) {
+  const std::string in(reinterpret_cast<const char*>(data), size);
+  std::vector<std::string> parts;
+  std::size_t from = 0;
+  for (std::size_t at; (at = in.find(kFileSeparator, from)) != std::string::npos; from = at + kFileSeparator.size())
+    parts.push_back(in.substr(from, at - from));
+  parts.push_back(in.substr(from));
+  return parts;
 }
 
 }  // namespace qdo::fuzz

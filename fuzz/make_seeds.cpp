@@ -1,7 +1,9 @@
 // qdo_fuzz_seeds: writes the seed inputs of every fuzz target into CORPUS_DIR/<target>/seed-*
 // (valid files of each format, plus a few typical broken ones). Regenerate with
 //   cmake --build build --target qdo_fuzz_seeds && build/qdo_fuzz_seeds fuzz/corpus
-// Regression inputs (crash-*) are kept as they are.
+// Regression inputs (crash-*) are kept as they are, and so is fuzz/corpus/run_folder/
+// real-qdo-design-n16: the config.json, checkpoint.h5 and log.csv of a real `qdo design` run
+// (N = 16, 3 bands, qdo+a, L = 4, --max-steps 3), joined by fuzz::kFileSeparator.
 #include <matio.h>
 #include <png.h>
 
@@ -16,10 +18,15 @@
 
 #include "qdo/config.hpp"
 #include "qdo/design.hpp"
+#include "qdo/design_run.hpp"
+#include "qdo/doe.hpp"
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
+#include "qdo/kernel_cache.hpp"
 #include "qdo/run.hpp"
+
+#include "fuzz_util.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;
@@ -140,6 +147,108 @@ int main(int argc, char** argv) {
     text(v / "seed-small.csv", "# a comment\nwavelength_nm,R,G,B\n400,0.1,0.2,0.3\n500,0.5,0.6,0.1\n700,0.9,0.1,0.0\n");
     text(v / "seed-ragged.csv", "wavelength_nm,R,G,B\n400,1,2\n");
     text(v / "seed-names.csv", "name,400,410\nleaf,0.1,x\n");
+    // ---- kernel cache entries
+    const fs::path kc = dir("kernel_cache");
+    std::string bin = "\x7f" "ELF";
+    for (int i = 0; i < 200; ++i) bin += static_cast<char>((i * 37) & 0xff);  // a pretend program binary
+    const auto entry = encode_kernel_cache_entry(reinterpret_cast<const unsigned char*>(bin.data()), bin.size());
+    const std::string good(entry.begin(), entry.end());
+    text(kc / "seed-valid.bin", good);
+    text(kc / "seed-empty-binary.bin", [] {
+      const auto e = encode_kernel_cache_entry(nullptr, 0);
+      return std::string(e.begin(), e.end());
+    }());
+    text(kc / "seed-truncated.bin", good.substr(0, good.size() / 2));
+    text(kc / "seed-header-only.bin", good.substr(0, kKernelCacheHeaderBytes));
+    text(kc / "seed-short.bin", good.substr(0, 10));
+    text(kc / "seed-wrong-magic.bin", "QDOKBIN2" + good.substr(8));
+    std::string flipped = good;
+    flipped[flipped.size() - 3] ^= 0x10;
+    text(kc / "seed-wrong-hash.bin", flipped);
+    text(kc / "seed-padded.bin", good + '\0');
+    text(kc / "seed-bare-binary.bin", bin);  // as qdo wrote entries before the header
+    // ---- run folders (config.json, checkpoint.h5, log.csv joined by fuzz::kFileSeparator), as
+    // `qdo design` writes them for a 16 x 16 qdo+a run at 4 levels, stopped at step 3 of 6.
+    const fs::path rf = dir("run_folder");
+    const fs::path tmp = rf / "tmp-checkpoint.h5";
+    DesignRunOptions ro;
+    ro.cfg = preset_config("small");
+    ro.cfg.n = 16;
+    ro.cfg.padding_px = 4;
+    ro.cfg.bands = 3;
+    ro.cfg.wavelength_start_nm = 450;
+    ro.cfg.wavelength_step_nm = 50;
+    ro.cfg.sensor_distance_m = 0.0125 * 16 / 256;
+    ro.cfg.srf_interpolate = true;
+    ro.cfg.validate();
+    ro.design.mode = DesignMode::QDOA;
+    ro.design.quantizer.levels = 4;
+    ro.design.steps_per_epoch = 2;
+    ro.design.t0_epochs = 1;
+    ro.design.t1_epochs = 2;
+    ro.objective = "psf-target";
+    ro.target = "lens:500";
+    ro.epochs = 3;
+    ro.checkpoint_every = 3;
+    const std::string cfg_json = design_run_options_to_json(ro) + "\n";
+    auto checkpoint = [&](std::size_t nw, std::size_t nl, long step) {
+      DesignState st;
+      st.w = ramp(nw, 0.5);
+      st.offsets = std::vector<double>(nl, 0.0);
+      for (std::size_t l = 1; l < nl; ++l) st.offsets[l] = 0.01 * double(l);
+      st.adam_w.m = ramp(nw, 1e-3);
+      st.adam_w.v = ramp(nw, 1e-6);
+      st.adam_w.t = step;
+      st.adam_a.m = std::vector<double>(nl, 1e-4);
+      st.adam_a.v = std::vector<double>(nl, 1e-8);
+      st.adam_a.t = step;
+      st.step = step;
+      save_checkpoint(tmp.string(), st);
+      std::ifstream in(tmp, std::ios::binary);
+      std::string b((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      fs::remove(tmp);
+      return b;
+    };
+    const std::size_t nw = parameter_count(ro.design.parameterization, ro.cfg.n);
+    const std::string ckpt = checkpoint(nw, 4, 3);
+    const std::string log =
+        "step,loss,loss_aq,alpha,lr,step_s,level_heights_nm\n"
+        "1,0.8123,0,0,0.01,0.02,0;300;600;900\n2,0.7011,0,0,0.01,0.02,0;301;601;899\n"
+        "3,0.6502,0,0.5,0.01,0.02,0;302;602;898\n4,0.6,0,1,0.01,0.02,0;303;603;897\n";  // row 4: after the kill
+    const std::string& S = fuzz::kFileSeparator;
+    auto folder = [&](const std::string& name, const std::vector<std::string>& files) {
+      std::string joined;
+      for (std::size_t i = 0; i < files.size(); ++i) joined += (i ? S : "") + files[i];
+      text(rf / name, joined);
+    };
+    folder("seed-resumable", {cfg_json, ckpt, log});
+    folder("seed-no-log", {cfg_json, ckpt});
+    folder("seed-no-checkpoint", {cfg_json});
+    folder("seed-empty-log", {cfg_json, ckpt, ""});
+    folder("seed-log-garbage", {cfg_json, ckpt, "step,loss\ngarbage\n"});
+    folder("seed-log-no-header", {cfg_json, ckpt, "1,0.5\n"});
+    folder("seed-ckpt-truncated", {cfg_json, ckpt.substr(0, ckpt.size() / 2), log});
+    folder("seed-ckpt-wrong-size", {cfg_json, checkpoint(nw + 1, 4, 3), log});
+    std::string ckpt_flip = ckpt;
+    ckpt_flip[ckpt_flip.size() - 100] ^= 0x01;
+    folder("seed-ckpt-flipped", {cfg_json, ckpt_flip, log});
+    auto edit = [&](const std::string& from, const std::string& to) {
+      std::string edited = cfg_json;
+      const auto at = edited.find(from);
+      if (at == std::string::npos) throw Error("seed: '" + from + "' not in config.json");
+      return edited.replace(at, from.size(), to);
+    };
+    folder("seed-config-bad-mode", {edit("\"qdo+a\"", "\"bogus\""), ckpt, log});
+    folder("seed-config-float-levels", {edit("\"levels\": 4", "\"levels\": 1e300"), ckpt, log});
+    folder("seed-config-negative-epochs", {edit("\"epochs\": 3", "\"epochs\": -3"), ckpt, log});
+    folder("seed-config-zero-epochs", {edit("\"epochs\": 3", "\"epochs\": 0"), ckpt, log});
+    folder("seed-config-missing-data", {edit("\"data\": []", "\"data\": [\"/nonexistent/scenes\"]"), ckpt, log});
+    folder("seed-config-truncated", {cfg_json.substr(0, cfg_json.size() / 2), ckpt, log});
+    {  // qdo+m: the checkpoint holds k = log2(L) mask depths
+      DesignRunOptions qm = ro;
+      qm.design.mode = DesignMode::QDOM;
+      folder("seed-qdom", {design_run_options_to_json(qm) + "\n", checkpoint(nw, 2, 3), log});
+    }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "qdo_fuzz_seeds: %s\n", e.what());
     return 1;

@@ -22,6 +22,8 @@ extern "C" int qdo_fuzz_mat(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_checkpoint(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_png(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_csv(const std::uint8_t*, std::size_t);
+extern "C" int qdo_fuzz_kernel_cache(const std::uint8_t*, std::size_t);
+extern "C" int qdo_fuzz_run_folder(const std::uint8_t*, std::size_t);
 
 namespace {
 
@@ -32,7 +34,8 @@ struct Target {
 const Target kTargets[] = {{"config", qdo_fuzz_config},         {"design_h5", qdo_fuzz_design_h5},
                            {"cube_h5", qdo_fuzz_cube_h5},       {"mat", qdo_fuzz_mat},
                            {"checkpoint", qdo_fuzz_checkpoint}, {"png", qdo_fuzz_png},
-                           {"csv", qdo_fuzz_csv}};
+                           {"csv", qdo_fuzz_csv},               {"kernel_cache", qdo_fuzz_kernel_cache},
+                           {"run_folder", qdo_fuzz_run_folder}};
 
 }  // namespace
 
@@ -81,7 +84,7 @@ int main(int argc, char** argv) {
         ++bad;
       }
     }
-    std::printf("%-11s %3zu inputs, %d failed\n", t.name, files.size(), bad);
+    std::printf("%-12s %3zu inputs, %d failed\n", t.name, files.size(), bad);
     failures += bad;
   }
   return failures == 0 ? 0 : 1;

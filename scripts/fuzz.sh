@@ -4,7 +4,8 @@
 #   scripts/fuzz.sh [SECONDS] [TARGET ...]     # default: 60 s for each of all targets
 #
 # Targets (fuzz/fuzz_<name>.cpp): config (JSON), design_h5, cube_h5, checkpoint (HDF5), mat
-# (.mat v5 / v7.3), png (PNG band folders), csv (CSV tables and the camera response).
+# (.mat v5 / v7.3), png (PNG band folders), csv (CSV tables and the camera response),
+# kernel_cache (one kernel-cache entry), run_folder (what `qdo design --resume` reads).
 # Builds them into build-fuzz/ with clang and -fsanitize=fuzzer,address,undefined, then runs
 # each from its seed corpus fuzz/corpus/<name>/. New interesting inputs go to
 # build-fuzz/corpus/<name>/ (the repository's corpus stays small); crashes, leaks, timeouts and
@@ -15,7 +16,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 SECONDS_EACH="${1:-60}"
 shift || true
-ALL=(config design_h5 cube_h5 mat checkpoint png csv)
+ALL=(config design_h5 cube_h5 mat checkpoint png csv kernel_cache run_folder)
 TARGETS=("$@")
 [ ${#TARGETS[@]} -eq 0 ] && TARGETS=("${ALL[@]}")
 

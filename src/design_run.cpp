@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
 #include <random>
 #include <sstream>
@@ -221,6 +222,27 @@ std::string design_run_options_to_json(const DesignRunOptions& o) {
   return j.dump(2);
 }
 
+namespace {
+
+// An integer field of a run's config.json as T: an integer in T's range, else an InputError
+// naming the key (a float such as 1e300 converted to int was undefined behaviour).
+template <typename T>
+T integer_field(const json& d, const char* key) {
+  const json& v = d.at(key);
+  bool ok = v.is_number_integer();
+  if (ok && v.is_number_unsigned()) ok = v.get<std::uint64_t>() <= std::uint64_t(std::numeric_limits<T>::max());
+  else if (ok) {
+    const std::int64_t i = v.get<std::int64_t>();
+    ok = i >= 0 && std::uint64_t(i) <= std::uint64_t(std::numeric_limits<T>::max());
+  }
+  if (!ok)
+    throw InputError(std::string("key 'design.") + key + "' = " + v.dump() + ": an integer in [0, " +
+                     std::to_string(std::numeric_limits<T>::max()) + "]");
+  return static_cast<T>(v.get<std::uint64_t>());
+}
+
+}  // namespace
+
 DesignRunOptions design_run_options_from_json(const std::string& text, const std::string& origin) {
   DesignRunOptions o;
   try {
@@ -231,9 +253,9 @@ DesignRunOptions design_run_options_from_json(const std::string& text, const std
     o.design.parameterization = parameterization_from_string(d.at("parameterization").get<std::string>());
     // Run folders written before the radial path existed ran the 2-D path: resume them on it.
     o.design.psf_path = psf_path_from_string(d.value("psf_path", std::string("2d")));
-    o.design.quantizer.levels = d.at("levels").get<int>();
+    o.design.quantizer.levels = integer_field<int>(d, "levels");
     o.design.quantizer.placement = placement_from_string(d.at("placement").get<std::string>());
-    o.design.steps_per_epoch = d.at("steps_per_epoch").get<std::size_t>();
+    o.design.steps_per_epoch = integer_field<std::size_t>(d, "steps_per_epoch");
     o.design.t0_epochs = d.at("t0_epochs").get<double>();
     o.design.t1_epochs = d.at("t1_epochs").get<double>();
     o.design.lr_optics = d.at("lr_optics").get<double>();
@@ -241,23 +263,86 @@ DesignRunOptions design_run_options_from_json(const std::string& text, const std
     o.design.lr_decay_per_epoch = d.at("lr_decay_per_epoch").get<double>();
     o.design.beta_aq = d.at("beta_aq").get<double>();
     o.design.height_noise_m = d.at("height_noise_m").get<double>();
-    o.design.seed = d.at("seed").get<std::uint64_t>();
+    o.design.seed = integer_field<std::uint64_t>(d, "seed");
     o.objective = d.at("objective").get<std::string>();
     o.target = d.at("target").get<std::string>();
     o.data = d.at("data").get<std::vector<std::string>>();
     o.data_format = d.at("data_format").get<std::string>();
-    o.synthetic_scenes = d.at("synthetic_scenes").get<std::size_t>();
-    o.batch = d.at("batch").get<std::size_t>();
-    o.epochs = d.at("epochs").get<std::size_t>();
+    o.synthetic_scenes = integer_field<std::size_t>(d, "synthetic_scenes");
+    o.batch = integer_field<std::size_t>(d, "batch");
+    o.epochs = integer_field<std::size_t>(d, "epochs");
     o.decoder_noise_sigma = d.at("decoder_noise_sigma").get<double>();
-    o.prior_bins = d.at("prior_bins").get<std::size_t>();
+    o.prior_bins = integer_field<std::size_t>(d, "prior_bins");
     o.init = d.at("init").get<std::string>();
-    o.checkpoint_every = d.at("checkpoint_every").get<std::size_t>();
+    o.checkpoint_every = integer_field<std::size_t>(d, "checkpoint_every");
     o.precision = precision_from_string(d.at("precision").get<std::string>());
   } catch (const json::exception& e) {
     throw InputError("file '" + origin + "': " + e.what());
+  } catch (const InputError& e) {  // a value the option parsers refuse ("argument 'mode' = ..."): name the file
+    if (std::string(e.what()).find(origin) != std::string::npos) throw;
+    throw InputError("file '" + origin + "': " + e.what());
   }
   return o;
+}
+
+DesignRunOptions read_run_options(const std::string& config_path) {
+  std::ifstream f(config_path, std::ios::binary);
+  if (!f) throw InputError("file '" + config_path + "': cannot be read");
+  std::stringstream ss;
+  ss << f.rdbuf();
+  DesignRunOptions o = design_run_options_from_json(ss.str(), config_path);
+  try {
+    o.out = "(the run folder)";  // validate() wants one; the caller sets it
+    o.validate();
+  } catch (const InputError& e) {  // e.g. "argument 'epochs' = 0": a stored value, not an argument
+    throw InputError("file '" + config_path + "': " + e.what());
+  }
+  return o;
+}
+
+void read_resume_log(const std::string& log_path, long before_step, std::vector<std::string>& rows,
+                     std::vector<double>& losses) {
+  std::ifstream f(log_path);
+  if (!f) throw InputError("file '" + log_path + "': cannot be read");
+  std::string line;
+  std::getline(f, line);  // header
+  for (std::size_t lineno = 2; std::getline(f, line); ++lineno) {
+    // step,loss,...: both numbers must parse, or the log is not ours.
+    const char* p = line.c_str();
+    char* end = nullptr;
+    const long st = std::strtol(p, &end, 10);
+    double loss = 0;
+    bool ok = end != p && *end == ',';
+    if (ok) {
+      const char* q = end + 1;
+      loss = std::strtod(q, &end);
+      ok = end != q;
+    }
+    if (!ok)
+      throw InputError("file '" + log_path + "': line " + std::to_string(lineno) + " is not a log row (step,loss,...): '" +
+                       line.substr(0, 60) + "'");
+    if (st < before_step) {  // rows at or after the checkpoint's step are redone
+      rows.push_back(line);
+      losses.push_back(loss);
+    }
+  }
+}
+
+ResumeState load_resume_state(const std::string& dir) {
+  const fs::path d(dir);
+  const fs::path cfg_path = d / "config.json", ckpt_path = d / "checkpoint.h5", log_path = d / "log.csv";
+  if (!fs::exists(cfg_path) || !fs::exists(ckpt_path))
+    reject("out", dir, "a run folder with config.json and checkpoint.h5 to resume (start without --resume)");
+  ResumeState r;
+  r.options = read_run_options(cfg_path.string());
+  r.options.out = dir;
+  const DesignOptions& o = r.options.design;
+  const std::size_t levels =
+      o.mode == DesignMode::QDOM ? std::size_t(mask_count(o.quantizer.levels)) : std::size_t(o.quantizer.levels);
+  r.state = load_checkpoint(ckpt_path.string(), parameter_count(o.parameterization, r.options.cfg.n), levels,
+                            o.mode == DesignMode::QDOM);
+  if (fs::exists(log_path)) read_resume_log(log_path.string(), r.state.step, r.log_rows, r.losses);
+  return r;
 }
 
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resume) {
@@ -268,13 +353,10 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   // its config and checkpoint are read and judged under the lock; else right after creating it.
   std::unique_ptr<RunLock> lock;
   if (!given.out.empty() && fs::is_directory(dir)) lock = std::make_unique<RunLock>(given.out);
+  ResumeState resumed;  // read and checked before any work (no device needed)
   if (resume) {
-    if (!fs::exists(cfg_path) || !fs::exists(ckpt_path))
-      reject("out", given.out, "a run folder with config.json and checkpoint.h5 to resume (start without --resume)");
-    std::ifstream f(cfg_path);
-    std::stringstream ss;
-    ss << f.rdbuf();
-    o = design_run_options_from_json(ss.str(), cfg_path.string());
+    resumed = load_resume_state(given.out);
+    o = resumed.options;
     o.out = given.out;
     o.max_steps = given.max_steps;
     o.quiet = given.quiet;
@@ -295,36 +377,13 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   Simulator sim(rt, o.cfg, o.precision);
   Designer d(sim, o.design);
   const std::size_t levels = static_cast<std::size_t>(o.design.quantizer.levels);
-  DesignState s = resume ? load_checkpoint(ckpt_path.string(), parameter_count(o.design.parameterization, o.cfg.n),
-                                           d.level_parameter_count(), o.design.mode == DesignMode::QDOM)
-                         : d.initial_state(initial_params(o));
-  std::vector<std::string> rows;
-  std::vector<double> losses;
-  if (resume && fs::exists(log_path)) {
-    std::ifstream f(log_path);
-    std::string line;
-    std::getline(f, line);  // header
-    for (std::size_t lineno = 2; std::getline(f, line); ++lineno) {
-      // step,loss,...: both numbers must parse, or the log is not ours.
-      const char* p = line.c_str();
-      char* end = nullptr;
-      const long st = std::strtol(p, &end, 10);
-      double loss = 0;
-      bool ok = end != p && *end == ',';
-      if (ok) {
-        const char* q = end + 1;
-        loss = std::strtod(q, &end);
-        ok = end != q;
-      }
-      if (!ok)
-        throw InputError("file '" + log_path.string() + "': line " + std::to_string(lineno) +
-                         " is not a log row (step,loss,...): '" + line.substr(0, 60) + "'");
-      if (st < s.step) {  // rows at or after the checkpoint's step are redone
-        rows.push_back(line);
-        losses.push_back(loss);
-      }
-    }
-  }
+  if (resume && resumed.state.w.size() != parameter_count(o.design.parameterization, o.cfg.n))
+    throw Error("internal: resume state sized for another parameterization");
+  if (resume && resumed.state.offsets.size() != d.level_parameter_count())
+    throw Error("internal: resume state sized for another level count");
+  DesignState s = resume ? std::move(resumed.state) : d.initial_state(initial_params(o));
+  std::vector<std::string> rows = std::move(resumed.log_rows);
+  std::vector<double> losses = std::move(resumed.losses);
   const long total = long(o.epochs * o.design.steps_per_epoch);
   const long stop = o.max_steps >= 0 ? std::min(total, o.max_steps) : total;
   auto write_log = [&]() {

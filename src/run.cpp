@@ -5,12 +5,14 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <map>
 #include <utility>
 
 #include <fcntl.h>
+#include <signal.h>
 #include <sys/file.h>
 #include <unistd.h>
 
@@ -48,11 +50,24 @@ RunLock::RunLock(const std::string& dir, const std::string& what) : path_((std::
     reject(what, dir, "a run folder this process can write (cannot open '" + path_ + "': " + std::strerror(errno) + ")");
   if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
     const int err = errno;
+    // The holder writes its pid right after taking the lock, so a second writer that looks in
+    // that instant finds the file empty (a fresh folder) or holding an earlier holder's pid (a
+    // dead one: the lock is free when its holder is gone). Both were seen by the stress suite
+    // ("locked by pid unknown" with two sweeps started at once). Look again, for up to 0.2 s,
+    // until the first line names a live process.
     std::string holder;
-    char buf[64] = {};
-    const ssize_t n = ::pread(fd_, buf, sizeof buf - 1, 0);
-    if (n > 0) holder = std::string(buf, std::size_t(n));
-    while (!holder.empty() && (holder.back() == '\n' || holder.back() == ' ')) holder.pop_back();
+    for (int tries = 0; tries < 100; ++tries) {
+      char buf[64] = {};
+      const ssize_t n = ::pread(fd_, buf, sizeof buf - 1, 0);
+      holder = n > 0 ? std::string(buf, std::size_t(n)) : std::string();
+      holder = holder.substr(0, holder.find('\n'));
+      while (!holder.empty() && holder.back() == ' ') holder.pop_back();
+      char* end = nullptr;
+      const long pid = holder.empty() ? 0 : std::strtol(holder.c_str(), &end, 10);
+      const bool live = pid > 0 && end && *end == '\0' && (::kill(pid_t(pid), 0) == 0 || errno == EPERM);
+      if (live || err != EWOULDBLOCK) break;
+      ::usleep(2000);
+    }
     ::close(fd_);
     fd_ = -1;
     if (err == EWOULDBLOCK)
@@ -61,8 +76,10 @@ RunLock::RunLock(const std::string& dir, const std::string& what) : path_((std::
                  " through '" + path_ + "'; wait for it to finish, or stop it, or choose another folder)");
     reject(what, dir, "a run folder that can be locked (flock on '" + path_ + "': " + std::strerror(err) + ")");
   }
+  // The pid over what an earlier holder left, then cut to its length: the file never reads
+  // empty in between (a reader takes the first line).
   const std::string pid = std::to_string(::getpid()) + "\n";
-  if (::ftruncate(fd_, 0) != 0 || ::pwrite(fd_, pid.data(), pid.size(), 0) != ssize_t(pid.size())) {
+  if (::pwrite(fd_, pid.data(), pid.size(), 0) != ssize_t(pid.size()) || ::ftruncate(fd_, off_t(pid.size())) != 0) {
     const int err = errno;
     ::close(fd_);
     fd_ = -1;

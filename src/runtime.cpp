@@ -18,6 +18,7 @@
 #include "qdo/error.hpp"
 #include "qdo/hash.hpp"
 #include "qdo/fft.hpp"
+#include "qdo/kernel_cache.hpp"
 
 namespace qdo {
 namespace {
@@ -236,14 +237,6 @@ cl::Program& Runtime::program(const std::string& label, const std::string& sourc
   // binary's size and FNV-1a hash (uint64 each, little-endian), then the binary. Anything that
   // does not match, or any failure to build from it, means: rebuild from source with a one-line
   // note on stderr and rewrite the entry (temp file + rename). Never fatal.
-  static constexpr char kMagic[8] = {'Q', 'D', 'O', 'K', 'B', 'I', 'N', '1'};
-  constexpr std::size_t kHead = 24;
-  auto le64 = [](const unsigned char* b) {
-    std::uint64_t v = 0;
-    for (int i = 7; i >= 0; --i) v = (v << 8) | b[i];
-    return v;
-  };
-  auto hash_bytes = [](const unsigned char* b, std::size_t n) { return Fnv1a64{}.add(b, n).h; };
   std::error_code ec;
   if (!path.empty() && std::filesystem::exists(path, ec)) {
     std::string problem;
@@ -253,18 +246,14 @@ cl::Program& Runtime::program(const std::string& label, const std::string& sourc
       file.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
       if (!in.eof() && in.fail()) problem = "unreadable";
     }
+    KernelCacheEntry entry;
     if (problem.empty()) {
-      if (file.size() < kHead || std::memcmp(file.data(), kMagic, sizeof kMagic) != 0)
-        problem = "not a qdo cache entry (" + std::to_string(file.size()) + " bytes, no header)";
-      else if (le64(file.data() + 8) != file.size() - kHead)
-        problem = "truncated or padded (header says " + std::to_string(le64(file.data() + 8)) + " bytes, holds " +
-                  std::to_string(file.size() - kHead) + ")";
-      else if (le64(file.data() + 16) != hash_bytes(file.data() + kHead, file.size() - kHead))
-        problem = "corrupt (hash mismatch)";
+      entry = decode_kernel_cache_entry(file.data(), file.size());  // the format: kernel_cache.hpp
+      problem = entry.problem;
     }
     if (problem.empty()) {
       try {
-        cl::Program::Binaries bins{std::vector<unsigned char>(file.begin() + kHead, file.end())};
+        cl::Program::Binaries bins{std::move(entry.binary)};
         prog = cl::Program(context_, {device_}, bins);
         prog.build({device_}, options.c_str());
         from_disk = true;
@@ -294,14 +283,9 @@ cl::Program& Runtime::program(const std::string& label, const std::string& sourc
           std::filesystem::create_directories(dir);
           const auto tmp = path.string() + ".tmp-" + std::to_string(::getpid());
           {
-            unsigned char head[kHead];
-            std::memcpy(head, kMagic, sizeof kMagic);
-            const std::uint64_t fields[2] = {bins[0].size(), hash_bytes(bins[0].data(), bins[0].size())};
-            for (int f = 0; f < 2; ++f)
-              for (int i = 0; i < 8; ++i) head[8 + 8 * f + i] = static_cast<unsigned char>(fields[f] >> (8 * i));
+            const std::vector<unsigned char> entry = encode_kernel_cache_entry(bins[0].data(), bins[0].size());
             std::ofstream out(tmp, std::ios::binary);
-            out.write(reinterpret_cast<const char*>(head), sizeof head);
-            out.write(reinterpret_cast<const char*>(bins[0].data()), static_cast<std::streamsize>(bins[0].size()));
+            out.write(reinterpret_cast<const char*>(entry.data()), static_cast<std::streamsize>(entry.size()));
             out.close();
             if (!out) throw std::runtime_error("write failed");
           }

@@ -2,11 +2,16 @@
 // heights, no half-written outputs after a failure, corrupt checkpoints named, eval outputs.
 #include <hdf5.h>
 
+#include <chrono>
 #include <cstring>
 #include <fstream>
 #include <iterator>
 #include <set>
+#include <thread>
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <nlohmann/json.hpp>
@@ -75,6 +80,40 @@ TEST_SUITE("runs") {
     CHECK_THROWS_WITH_AS(design_run_options_from_json(n_twice, "run/config.json"), doctest::Contains("duplicate key 'system.n'"),
                          InputError);
     CHECK(design_run_options_from_json(text, "run/config.json").cfg.n == o.cfg.n);
+  }
+
+  TEST_CASE("a run's config.json with a value the option parsers refuse, or a non-integer count, is refused naming the file") {
+    // Found while writing the run_folder fuzz target: a stored mode, placement or precision the
+    // parsers refuse was reported as "argument 'mode' = ..." without the file, a stored value
+    // out of range (epochs 0) likewise, and a count stored as 1e300 was converted to int
+    // (undefined behaviour).
+    DesignRunOptions o;
+    o.cfg = preset_config("small");
+    const std::string text = design_run_options_to_json(o);
+    auto edit = [&](const std::string& from, const std::string& to) {
+      std::string t = text;
+      const std::size_t at = t.find(from);
+      REQUIRE(at != std::string::npos);
+      return t.replace(at, from.size(), to);
+    };
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(edit("\"mode\": \"qdo+a\"", "\"mode\": \"bogus\""), "run/config.json"),
+                         doctest::Contains("file 'run/config.json': argument 'mode' = bogus"), InputError);
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(edit("\"precision\": \"f32\"", "\"precision\": \"f16\""), "run/config.json"),
+                         doctest::Contains("file 'run/config.json': argument 'precision'"), InputError);
+    for (const char* bad : {"1e300", "-3", "2.5", "\"4\""}) {
+      CAPTURE(bad);
+      CHECK_THROWS_WITH_AS(design_run_options_from_json(edit("\"levels\": 4", std::string("\"levels\": ") + bad), "run/config.json"),
+                           doctest::Contains("file 'run/config.json'"), InputError);
+    }
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(edit("\"epochs\": 50", "\"epochs\": -1"), "run/config.json"),
+                         doctest::Contains("key 'design.epochs' = -1"), InputError);
+    // Through the resume loader: a stored value out of range names the file, not an argument.
+    const auto dir = temp_dir("runs_cfg_values");
+    std::ofstream(dir / "config.json") << edit("\"epochs\": 50", "\"epochs\": 0");
+    std::ofstream(dir / "checkpoint.h5") << "x";
+    const std::string want = "file '" + (dir / "config.json").string() + "': argument 'epochs' = 0";
+    CHECK_THROWS_WITH_AS(load_resume_state(dir.string()), doctest::Contains(want.c_str()), InputError);
+    std::filesystem::remove_all(dir);
   }
 
   TEST_CASE("a resumed run equals an uninterrupted one; the design holds L heights") {
@@ -236,6 +275,49 @@ TEST_SUITE("runs") {
     CHECK(fs::exists(run / ".lock"));
     o.max_steps = 2;
     CHECK(run_design(runtime(), o, true).steps_done == 2);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("a second writer names the holder's pid even when it looks before the holder has written it") {
+    // Regression (stress "two `qdo sweep` at once ..."): the loser of two writers started at
+    // once read the .lock file before the winner had written its pid: "locked by pid unknown",
+    // or, over a stale file, the pid of an earlier, dead holder. Simulated here: the lock is
+    // held through another open file description, the file empty or holding a dead pid, and
+    // the holder's pid is written 30 ms later.
+    namespace fs = std::filesystem;
+    const auto dir = temp_dir("runs_lock_race");
+    const std::string lock = (dir / ".lock").string();
+    const pid_t dead = [] {  // a pid that no longer exists: a child that has exited and been reaped
+      const pid_t c = ::fork();
+      if (c == 0) ::_exit(0);
+      ::waitpid(c, nullptr, 0);
+      return c;
+    }();
+    const std::string me = std::to_string(::getpid()) + "\n";
+    for (const std::string& before : {std::string(), std::to_string(dead) + "\n"}) {
+      CAPTURE(before);
+      {
+        std::ofstream(lock, std::ios::trunc) << before;
+      }
+      const int fd = ::open(lock.c_str(), O_RDWR);
+      REQUIRE(fd >= 0);
+      REQUIRE(::flock(fd, LOCK_EX | LOCK_NB) == 0);
+      std::thread holder([&] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(30));
+        CHECK(::pwrite(fd, me.data(), me.size(), 0) == ssize_t(me.size()));
+        CHECK(::ftruncate(fd, off_t(me.size())) == 0);
+      });
+      std::string err;
+      try {
+        RunLock second(dir.string());
+      } catch (const InputError& e) {
+        err = e.what();
+      }
+      holder.join();
+      ::close(fd);
+      CHECK(err.find("locked by pid " + std::to_string(::getpid()) + " ") != std::string::npos);
+      CHECK(err.find("unknown") == std::string::npos);
+    }
     fs::remove_all(dir);
   }
 

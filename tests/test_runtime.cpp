@@ -7,6 +7,7 @@
 #include "common.hpp"
 #include "qdo/error.hpp"
 #include "qdo/fft.hpp"
+#include "qdo/kernel_cache.hpp"
 #include "qdo/runtime.hpp"
 
 using namespace qdo;
@@ -100,6 +101,43 @@ TEST_SUITE("runtime") {
     }
     unsetenv("QDO_CACHE_DIR");
     std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("kernel cache entries: encode/decode round trip; each damage is named, without a device") {
+    std::string bin = "pretend program binary";
+    bin += std::string(3, '\0') + "\x7f";  // any bytes, zeros included
+    const auto* b = reinterpret_cast<const unsigned char*>(bin.data());
+    const std::vector<unsigned char> e = encode_kernel_cache_entry(b, bin.size());
+    REQUIRE(e.size() == kKernelCacheHeaderBytes + bin.size());
+    CHECK(std::string(e.begin(), e.begin() + 8) == "QDOKBIN1");
+    CHECK(e[8] == bin.size());  // size, little-endian
+    const KernelCacheEntry ok = decode_kernel_cache_entry(e.data(), e.size());
+    CHECK(ok.problem.empty());
+    CHECK(std::string(ok.binary.begin(), ok.binary.end()) == bin);
+    // An empty binary is a valid (if useless) entry; the runtime then fails to build from it.
+    const auto empty = encode_kernel_cache_entry(nullptr, 0);
+    CHECK(decode_kernel_cache_entry(empty.data(), empty.size()).problem.empty());
+    auto problem = [](std::vector<unsigned char> v) {
+      const KernelCacheEntry r = decode_kernel_cache_entry(v.data(), v.size());
+      CHECK(r.binary.empty());
+      return r.problem;
+    };
+    CHECK(problem({}) == "not a qdo cache entry (0 bytes, no header)");
+    CHECK(problem(std::vector<unsigned char>(e.begin(), e.begin() + 23)) == "not a qdo cache entry (23 bytes, no header)");
+    auto magic = e;
+    magic[7] = '2';
+    CHECK(problem(magic) == "not a qdo cache entry (" + std::to_string(e.size()) + " bytes, no header)");
+    CHECK(problem(std::vector<unsigned char>(e.begin(), e.end() - 1)) ==
+          "truncated or padded (header says " + std::to_string(bin.size()) + " bytes, holds " + std::to_string(bin.size() - 1) + ")");
+    auto padded = e;
+    padded.push_back(0);
+    CHECK(problem(padded).rfind("truncated or padded", 0) == 0);
+    auto flipped = e;
+    flipped.back() ^= 1;
+    CHECK(problem(flipped) == "corrupt (hash mismatch)");
+    auto hash = e;
+    hash[16] ^= 1;
+    CHECK(problem(hash) == "corrupt (hash mismatch)");
   }
 
   TEST_CASE("a kernel build failure reports the device and the full build log") {

@@ -35,6 +35,27 @@ struct DesignRunOptions {
 std::string design_run_options_to_json(const DesignRunOptions& o);
 DesignRunOptions design_run_options_from_json(const std::string& text, const std::string& origin);
 
+// What `qdo design --resume` reads from a run folder, all of it checked before any work and
+// without a device (run_design uses these; the fuzz target run_folder calls load_resume_state).
+// Every refusal is an InputError naming the file (or, for a missing file, the folder).
+//
+// RUN/config.json: the stored options, parsed and validated; a stored value out of range is
+// named as "file 'RUN/config.json': argument 'epochs' = 0: >= 1". out is left as a placeholder.
+DesignRunOptions read_run_options(const std::string& config_path);
+// RUN/log.csv after its header: every row must start "step,loss,"; the rows with step <
+// before_step (and their losses) are appended, the others are redone by the resume.
+void read_resume_log(const std::string& log_path, long before_step, std::vector<std::string>& rows,
+                     std::vector<double>& losses);
+struct ResumeState {
+  DesignRunOptions options;       // from config.json, out = the folder
+  DesignState state;              // checkpoint.h5, checked against the sizes the options imply
+  std::vector<std::string> log_rows;  // log.csv rows before state.step (none without a log)
+  std::vector<double> losses;
+};
+// config.json and checkpoint.h5 must exist (else "argument 'out' = DIR: a run folder with ...");
+// log.csv is optional.
+ResumeState load_resume_state(const std::string& dir);
+
 struct DesignRunResult {
   long steps_done = 0;
   double final_loss = 0;
