@@ -331,7 +331,8 @@ void read_resume_log(const std::string& log_path, long before_step, std::vector<
 ResumeState load_resume_state(const std::string& dir) {
   const fs::path d(dir);
   const fs::path cfg_path = d / "config.json", ckpt_path = d / "checkpoint.h5", log_path = d / "log.csv";
-  if (!fs::exists(cfg_path) || !fs::exists(ckpt_path))
+  const fs::path prev_path = checkpoint_prev_path(ckpt_path.string());
+  if (!fs::exists(cfg_path) || (!fs::exists(ckpt_path) && !fs::exists(prev_path)))
     reject("out", dir, "a run folder with config.json and checkpoint.h5 to resume (start without --resume)");
   ResumeState r;
   r.options = read_run_options(cfg_path.string());
@@ -339,8 +340,29 @@ ResumeState load_resume_state(const std::string& dir) {
   const DesignOptions& o = r.options.design;
   const std::size_t levels =
       o.mode == DesignMode::QDOM ? std::size_t(mask_count(o.quantizer.levels)) : std::size_t(o.quantizer.levels);
-  r.state = load_checkpoint(ckpt_path.string(), parameter_count(o.parameterization, r.options.cfg.n), levels,
-                            o.mode == DesignMode::QDOM);
+  auto load = [&](const fs::path& p) {
+    return load_checkpoint(p.string(), parameter_count(o.parameterization, r.options.cfg.n), levels, o.mode == DesignMode::QDOM);
+  };
+  r.checkpoint = ckpt_path.string();
+  try {
+    if (!fs::exists(ckpt_path)) {
+      r.refused = "missing (a kill between keeping the previous checkpoint and writing the new one)";
+    } else {
+      r.state = load(ckpt_path);
+    }
+  } catch (const InputError& e) {
+    if (!fs::exists(prev_path)) throw;
+    r.refused = e.what();
+  }
+  if (!r.refused.empty()) {  // the previous good checkpoint, or the error about checkpoint.h5
+    try {
+      r.state = load(prev_path);
+    } catch (const InputError&) {
+      if (fs::exists(ckpt_path)) load(ckpt_path);  // rethrows the error about checkpoint.h5
+      throw;
+    }
+    r.checkpoint = prev_path.string();
+  }
   if (fs::exists(log_path)) read_resume_log(log_path.string(), r.state.step, r.log_rows, r.losses);
   return r;
 }
@@ -360,12 +382,21 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     o.out = given.out;
     o.max_steps = given.max_steps;
     o.quiet = given.quiet;
-  } else if (fs::exists(ckpt_path)) {
+    if (!resumed.refused.empty()) {
+      // Resume from the previous checkpoint; the refused one is set aside (kept for inspection,
+      // never deleted), so the next save does not rotate it into checkpoint.prev.h5.
+      const fs::path aside = dir / "checkpoint.refused.h5";
+      std::fprintf(stderr, "qdo: note: %s: %s; resuming from the previous checkpoint %s (step %ld)%s\n",
+                   ckpt_path.string().c_str(), resumed.refused.c_str(), resumed.checkpoint.c_str(), resumed.state.step,
+                   fs::exists(ckpt_path) ? ", the refused one kept as checkpoint.refused.h5" : "");
+      if (fs::exists(ckpt_path)) fs::rename(ckpt_path, aside);
+    }
+  } else if (fs::exists(ckpt_path) || fs::exists(checkpoint_prev_path(ckpt_path.string()))) {
     reject("out", given.out, "a folder without a checkpoint (this one holds one: continue it with --resume)");
   }
   o.validate();
   const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing
-  fs::create_directories(dir);
+  make_output_dir(dir.string(), "out");
   if (!lock) {
     lock = std::make_unique<RunLock>(given.out);
     if (!resume && fs::exists(ckpt_path))  // another writer made it meanwhile and has finished

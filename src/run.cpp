@@ -101,7 +101,17 @@ void save_checkpoint(const std::string& path, const DesignState& s) {
   std::vector<std::pair<std::string, const std::vector<double>*>> sets;
   for (const H5Dataset& d : ds) sets.emplace_back(d.name, &d.data);
   ds.back().str_attrs["checksum"] = checkpoint_checksum(sets);
+  std::error_code ec;
+  if (std::filesystem::is_regular_file(path, ec)) {
+    std::filesystem::rename(path, checkpoint_prev_path(path), ec);
+    if (ec) throw InputError("file '" + path + "': cannot keep it as the previous checkpoint: " + ec.message());
+  }
   h5_write(path, ds, {{"format", "qdo checkpoint 2"}});
+}
+
+std::string checkpoint_prev_path(const std::string& path) {
+  const std::filesystem::path p(path);
+  return (p.parent_path() / (p.stem().string() + ".prev" + p.extension().string())).string();
 }
 
 DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std::size_t expected_levels, bool mask_depths) {

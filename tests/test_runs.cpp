@@ -232,6 +232,58 @@ TEST_SUITE("runs") {
     std::filesystem::remove_all(dir);
   }
 
+  TEST_CASE("the previous good checkpoint is kept: a damaged or missing checkpoint resumes from it") {
+    const auto dir = temp_dir("runs_prev");
+    namespace fs = std::filesystem;
+    const std::string a = (dir / "a").string(), b = (dir / "b").string();
+    run_design(runtime(), tiny_run(a, DesignMode::QDOA), false);  // uninterrupted: 10 steps
+    DesignRunOptions first = tiny_run(b, DesignMode::QDOA);
+    first.max_steps = 4;  // checkpoints at steps 3 and 4: checkpoint.h5 (4) and checkpoint.prev.h5 (3)
+    run_design(runtime(), first, false);
+    const fs::path ck = fs::path(b) / "checkpoint.h5", prev = fs::path(b) / "checkpoint.prev.h5";
+    REQUIRE(fs::exists(prev));
+    CHECK(checkpoint_prev_path(ck.string()) == prev.string());
+    CHECK(load_checkpoint(ck.string(), 16, 4).step == 4);
+    CHECK(load_checkpoint(prev.string(), 16, 4).step == 3);
+    // Damage checkpoint.h5 (one weight changed through HDF5: only the checksum can tell).
+    {
+      const hid_t f = H5Fopen(ck.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+      REQUIRE(f >= 0);
+      const hid_t d = H5Dopen2(f, "/w", H5P_DEFAULT);
+      std::vector<double> w(16);
+      REQUIRE(H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, w.data()) >= 0);
+      w[3] *= 0.5;
+      REQUIRE(H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, w.data()) >= 0);
+      H5Dclose(d);
+      H5Fclose(f);
+    }
+    const ResumeState rs = load_resume_state(b);  // reads only
+    CHECK(rs.state.step == 3);
+    CHECK(rs.checkpoint == prev.string());
+    CHECK(rs.refused.find("checksum mismatch") != std::string::npos);
+    CHECK(rs.log_rows.size() == 3);  // the row of step 4 is redone
+    CHECK(fs::exists(ck));
+    // Resuming goes on from step 3, sets the damaged file aside, and ends where the uninterrupted run ends.
+    CHECK(run_design(runtime(), tiny_run(b, DesignMode::QDOA), true).steps_done == 10);
+    CHECK(fs::exists(fs::path(b) / "checkpoint.refused.h5"));
+    const DesignState sa = load_checkpoint(a + "/checkpoint.h5", 16, 4), sb = load_checkpoint(ck.string(), 16, 4);
+    CHECK(sa.w == sb.w);
+    CHECK(sa.offsets == sb.offsets);
+    CHECK(sa.adam_w.v == sb.adam_w.v);
+    // A kill between keeping the previous checkpoint and writing the new one: no checkpoint.h5.
+    fs::remove(ck);
+    CHECK(load_resume_state(b).state.step == load_checkpoint(prev.string(), 16, 4).step);
+    // Neither loads: the error names checkpoint.h5 (or the folder when it is missing).
+    fs::resize_file(prev, 200);
+    CHECK_THROWS_AS(load_resume_state(b), InputError);
+    fs::copy_file(fs::path(b) / "checkpoint.refused.h5", ck);
+    CHECK_THROWS_WITH_AS(load_resume_state(b), doctest::Contains("checkpoint.h5': checksum mismatch"), InputError);
+    // A fresh run refuses a folder that holds only a previous checkpoint.
+    fs::remove(ck);
+    CHECK_THROWS_WITH_AS(run_design(runtime(), tiny_run(b, DesignMode::QDOA), false), doctest::Contains("--resume"), InputError);
+    fs::remove_all(dir);
+  }
+
   TEST_CASE("a design run refuses an all-zero training scene, naming it, before writing anything") {
     const auto dir = temp_dir("runs_zero_scene");
     DesignRunOptions o = tiny_run((dir / "run").string(), DesignMode::QDO);

@@ -51,9 +51,15 @@ struct ResumeState {
   DesignState state;              // checkpoint.h5, checked against the sizes the options imply
   std::vector<std::string> log_rows;  // log.csv rows before state.step (none without a log)
   std::vector<double> losses;
+  std::string checkpoint;         // the file `state` came from: checkpoint.h5 or checkpoint.prev.h5
+  std::string refused;            // when it is the previous one: why checkpoint.h5 was refused ("" if absent)
 };
-// config.json and checkpoint.h5 must exist (else "argument 'out' = DIR: a run folder with ...");
-// log.csv is optional.
+// config.json and a checkpoint must exist (else "argument 'out' = DIR: a run folder with ...");
+// log.csv is optional. save_checkpoint keeps the checkpoint it replaces as checkpoint.prev.h5:
+// when checkpoint.h5 is missing or refused (checksum, shape, values) and the previous one loads,
+// the state comes from that one (rows of log.csv at or after its step are redone), and
+// `refused` says why; if neither loads, the error about checkpoint.h5 is raised. No file is
+// changed here.
 ResumeState load_resume_state(const std::string& dir);
 
 struct DesignRunResult {

@@ -259,7 +259,7 @@ int cmd_gradcheck(int argc, char** argv) {
 
 // The marker demo writes into its run folders, and the files of a run folder it replaces on a rerun.
 const char* const kDemoMarker = ".qdo-demo";
-const char* const kDemoRunFiles[] = {"config.json", "checkpoint.h5", "log.csv",    "prior.h5",   "design.h5",
+const char* const kDemoRunFiles[] = {"config.json", "checkpoint.h5", "checkpoint.prev.h5", "checkpoint.refused.h5", "log.csv",    "prior.h5",   "design.h5",
                                      "design_full.h5", "psf.h5",      "psf.png", "design.png", "loss.png"};
 
 // The main job: a QDO+A design at L levels on synthetic scenes (small preset), compared with
