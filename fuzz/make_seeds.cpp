@@ -113,6 +113,12 @@ int main(int argc, char** argv) {
     RealStack cube(3, 4, 5);
     cube.data = ramp(60, 1.0);
     write_cube((ch / "seed-cube.h5").string(), cube, {450, 500, 550});
+    write_cube((ch / "seed-cube-shifted-axis.h5").string(), cube, {455, 505, 555});
+    write_cube((ch / "seed-cube-reversed-axis.h5").string(), cube, {550, 500, 450});
+    write_cube((ch / "seed-cube-um-axis.h5").string(), cube, {0.45, 0.5, 0.55});
+    RealStack hdr = cube;
+    for (double& v : hdr.data) v = 40.0 * v - 0.2;  // HDR with slightly negative values
+    write_cube((ch / "seed-cube-hdr.h5").string(), hdr, {450, 500, 550});
     h5_write((ch / "seed-rad.h5").string(), {H5Dataset{"/rad", {3, 4, 5}, ramp(60, 4095), {}, {}}});
     // ---- MATLAB
     const fs::path m = dir("mat");

@@ -26,6 +26,33 @@ inline int scene_target(const std::string& name, const std::uint8_t* data, std::
   } catch (const InputError& e) {
     expect_names(e, path);
   }
+  // Against a configured grid: a stored band axis is compared (or resampled onto it); an
+  // accepted cube then has exactly the configured bands.
+  const std::vector<double> grid = {450, 500, 550};
+  for (const bool resample : {false, true}) {
+    try {
+      CubeReadOptions opt;
+      opt.wavelengths_nm = grid;
+      opt.resample_bands = resample;
+      const RealStack c = read_cube(path, opt);
+      check_cube(c, "read_cube (grid)");
+      if (c.planes != grid.size()) fail("read_cube with a grid returned another band count");
+    } catch (const InputError& e) {
+      expect_names(e, path);
+    }
+  }
+  // The dataset layer with the grid: probe and load agree, and a loaded scene obeys the
+  // radiance rule (every value in [0, 1]).
+  try {
+    const SceneShape s = probe_scene(path, "auto", grid.size(), grid);
+    const RealStack c = load_scene(path, "auto", grid.size(), grid);
+    check_cube(c, "load_scene (grid)");
+    if (!(s == SceneShape{c.planes, c.rows, c.cols})) fail("probe_scene and load_scene disagree on the shape (grid)");
+    for (double v : c.data)
+      if (v < 0 || v > 1) fail("load_scene returned a value outside [0, 1]");
+  } catch (const InputError& e) {
+    expect_names(e, path);
+  }
   // The dataset layer: probe (headers only where possible) and load must agree.
   bool probed = false;
   SceneShape shape;

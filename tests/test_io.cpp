@@ -257,7 +257,7 @@ TEST_SUITE("io") {
     CHECK(rr.data[1] == doctest::Approx(0.75));
     msg = input_error_of([&] { read_cube(tmp / "shifted.h5", o); });  // 400 nm lies below 405 - 0.5
     CHECK(contains(msg, "outside the file's range"));
-    // Without a configured grid the axis is only checked for sanity, never compared.
+    // Without a configured grid (the library default) the axis is not compared.
     CHECK(read_cube(tmp / "shifted.h5").data == cube.data);
 
     // A MATLAB file's band axis variable is read as well.
