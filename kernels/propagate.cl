@@ -20,41 +20,6 @@ __kernel void tf_table(__global real2* spec, __global const real2* table, const 
   spec[gid] = cmul(spec[gid], table[gid]);
 }
 
-// Sampling check: per work-group partial sums of |spec|², total and beyond the per-band
-// frequency limit (index |k| > klim[b] on either axis, klim in bins).
-// partial: bands x groups_per_band x 2 (total, beyond). One band per group row.
-__kernel void spectrum_energy(__global const real2* spec, __global const int* klim, __global real* partial,
-                              const int m, const int groups_per_band, __local real* scratch) {
-  const int b = get_group_id(1);
-  const int g = get_group_id(0);
-  const int lid = get_local_id(0);
-  const int ls = get_local_size(0);
-  const size_t mm = (size_t)m * m;
-  real tot = R(0.0), beyond = R(0.0);
-  for (size_t e = (size_t)g * ls + lid; e < mm; e += (size_t)groups_per_band * ls) {
-    const int ky = (int)(e / m), kx = (int)(e - (size_t)ky * m);
-    const int fy = ky < (m + 1) / 2 ? ky : ky - m, fx = kx < (m + 1) / 2 ? kx : kx - m;
-    const real2 v = spec[(size_t)b * mm + e];
-    const real p = v.x * v.x + v.y * v.y;
-    tot += p;
-    if (abs(fy) > klim[b] || abs(fx) > klim[b]) beyond += p;
-  }
-  scratch[2 * lid] = tot;
-  scratch[2 * lid + 1] = beyond;
-  barrier(CLK_LOCAL_MEM_FENCE);
-  for (int s = ls / 2; s > 0; s >>= 1) {
-    if (lid < s) {
-      scratch[2 * lid] += scratch[2 * (lid + s)];
-      scratch[2 * lid + 1] += scratch[2 * (lid + s) + 1];
-    }
-    barrier(CLK_LOCAL_MEM_FENCE);
-  }
-  if (lid == 0) {
-    partial[((size_t)b * groups_per_band + g) * 2] = scratch[0];
-    partial[((size_t)b * groups_per_band + g) * 2 + 1] = scratch[1];
-  }
-}
-
 // Fused transfer function + sampling check (the forward PSF pass): multiplies spec by the
 // transfer function in place and accumulates, per work-group, three energies:
 //   [0] Σ|spec|² before the TF (total), [1] the part beyond the per-band frequency limit

@@ -1,19 +1,5 @@
 // Intensity, per-band sums, normalisation and area resampling of the PSF stack.
 
-// psf[b][i][j] = |field[b][offset + i][offset + j]|²: field bands x M x M complex,
-// psf bands x N x N real (row-major).
-__kernel void intensity_crop(__global const real2* field, __global real* psf, const int n, const int m,
-                             const int offset, const int bands) {
-  const size_t gid = get_global_id(0);
-  const size_t nn = (size_t)n * n;
-  if (gid >= nn * bands) return;
-  const int b = (int)(gid / nn);
-  const int rem = (int)(gid - (size_t)b * nn);
-  const int i = rem / n, j = rem - i * n;
-  const real2 v = field[(size_t)b * m * m + (size_t)(offset + i) * m + (offset + j)];
-  psf[gid] = v.x * v.x + v.y * v.y;
-}
-
 // Per-band partial sums. NDRange (groups_per_band * local, bands), local (local, 1).
 // x: bands x len real (band_sums) or complex (band_energy: sums |x|²).
 // partial: bands x groups_per_band.

@@ -2,7 +2,7 @@
 // buffer kept on the device between stages. One Simulator per (configuration, precision).
 //
 //   heights (N x N) --doe_field--> field (bands x M x M) --FFT, TF, IFFT--> field
-//     --intensity_crop, normalise--> psf (bands x N x N) --resample_area, normalise--> psf_sensor
+//     --intensity_crop_sums, normalise--> psf (bands x N x N) --resample_area, normalise--> psf_sensor
 //     (bands x S x S) --FFT--> OTF (bands x PY x PX, cached until the heights change)
 //   cube (bands x H x W) --FFT, x OTF, IFFT, crop--> blurred (bands x H x W)
 //     --sensor_integrate (+ noise)--> rgb (3 x H x W)

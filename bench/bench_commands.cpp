@@ -1,0 +1,105 @@
+// Whole-command timings (issue 11: `qdo simulate` at least as fast as `qdo image`): one scene and
+// design through `qdo simulate` (f32 and f64) and, as the baseline measured in the same run,
+// `qdo image --exact` (SceneImager without skipping). Each command runs once first (kernel caches
+// warm), then --repeats times; median, min and max wall time of the whole process are reported:
+// PSF, imaging and writing every output included. Error column: the largest |f32 - f64| of
+// simulate's sensor.h5 (units of full scale; f64 is the reference). `qdo image` writes no HDF5
+// image, so its row has none.
+//
+//   bench_commands [--qdo build/qdo] [--scene FILE] [--preset small] [--repeats 5] [--out FILE.md]
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "qdo/io.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Stats {
+  double median = 0, min = 0, max = 0;
+};
+
+Stats stats(std::vector<double> t) {
+  std::sort(t.begin(), t.end());
+  const std::size_t n = t.size();
+  return {n % 2 ? t[n / 2] : 0.5 * (t[n / 2 - 1] + t[n / 2]), t.front(), t.back()};
+}
+
+double run_once(const std::string& cmd) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const int status = std::system((cmd + " > /dev/null 2>&1").c_str());
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+    std::fprintf(stderr, "bench_commands: failed: %s\n", cmd.c_str());
+    std::exit(1);
+  }
+  return s;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string qdo = "build/qdo", scene = "../shared/data/hsi/cave/balloons_256.mat", preset = "small", out;
+  int repeats = 5;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string k = argv[i], v = argv[i + 1];
+    if (k == "--qdo") qdo = v;
+    else if (k == "--scene") scene = v;
+    else if (k == "--preset") preset = v;
+    else if (k == "--repeats") repeats = std::max(1, std::atoi(v.c_str()));
+    else if (k == "--out") out = v;
+    else {
+      std::fprintf(stderr, "bench_commands: unknown option %s\n", k.c_str());
+      return 2;
+    }
+  }
+  const fs::path work = fs::temp_directory_path() / ("qdo_bench_commands_" + std::to_string(::getpid()));
+  fs::create_directories(work);
+  const std::string common = " --preset " + preset + " --design lens:550 --scene " + scene;
+  struct Row {
+    std::string label, args, dir;
+  };
+  const std::vector<Row> rows = {
+      {"`qdo image --exact` f32 (baseline)", "image" + common + " --exact --precision f32", "image_f32"},
+      {"`qdo simulate` f32", "simulate" + common + " --precision f32", "simulate_f32"},
+      {"`qdo simulate` f64", "simulate" + common + " --precision f64", "simulate_f64"},
+  };
+  std::vector<Stats> st;
+  for (const Row& r : rows) {
+    const std::string cmd = qdo + " " + r.args + " --out " + (work / r.dir).string();
+    run_once(cmd);  // warm-up: kernel and FFT-plan caches
+    std::vector<double> t;
+    for (int k = 0; k < repeats; ++k) t.push_back(run_once(cmd));
+    st.push_back(stats(t));
+    std::fprintf(stderr, "%s: median %.3f s\n", r.label.c_str(), st.back().median);
+  }
+  const auto a = qdo::h5_read((work / "simulate_f32" / "sensor.h5").string(), "/rgb");
+  const auto b = qdo::h5_read((work / "simulate_f64" / "sensor.h5").string(), "/rgb");
+  double err = 0;
+  for (std::size_t i = 0; i < a.data.size(); ++i) err = std::max(err, std::fabs(a.data[i] - b.data[i]));
+  std::string md = "| command (whole process, preset " + preset + ", " + fs::path(scene).filename().string() +
+                   ") | median s | min s | max s | runs | max abs err vs f64 |\n|---|---:|---:|---:|---:|---:|\n";
+  char line[512];
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const std::string e = i == 0 ? "-" : i == 1 ? std::to_string(err) : "0 (reference)";
+    std::snprintf(line, sizeof line, "| %s | %.3f | %.3f | %.3f | %d | %s |\n", rows[i].label.c_str(), st[i].median, st[i].min,
+                  st[i].max, repeats, e.c_str());
+    md += line;
+  }
+  std::fputs(md.c_str(), stdout);
+  if (!out.empty()) std::ofstream(out) << md;
+  std::error_code ec;
+  fs::remove_all(work, ec);
+  return 0;
+}
