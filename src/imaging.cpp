@@ -148,10 +148,6 @@ void SceneImager::set_psf(const RealStack& psf_sensor) {
 const cl::Buffer& SceneImager::psf_buffer() const { return sim_ ? sim_->psf_sensor_buffer() : own_psf_; }
 std::uint64_t SceneImager::current_generation() const { return sim_ ? sim_->psf_generation() : own_generation_; }
 
-void SceneImager::enqueue_1d(cl::Kernel& k, std::size_t n) {
-  rt_.queue().enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(Runtime::global_for(n)), cl::NDRange(Runtime::kLocalSize));
-}
-
 cl::Buffer& SceneImager::grow(cl::Buffer& b, std::size_t& cap, std::size_t bytes, cl_mem_flags flags) {
   bytes = std::max<std::size_t>(bytes, 8);
   if (!b() || cap < bytes) {
@@ -172,7 +168,7 @@ void SceneImager::ensure_rings() {
   k_rings_.setArg(1, rings_buf_);
   k_rings_.setArg(2, int(s_));
   k_rings_.setArg(3, int(bands));
-  enqueue_1d(k_rings_, bands * nr);
+  rt_.enqueue_1d(k_rings_, bands * nr);
   rings_.assign(bands * nr, 0.0);
   if (prec_ == Precision::F64) {
     rt_.queue().enqueueReadBuffer(rings_buf_, CL_TRUE, 0, bands * nr * 8, rings_.data());
@@ -208,7 +204,7 @@ void SceneImager::ensure_otf(std::size_t r, std::size_t gy, std::size_t gx, cons
   k_place_psf_.setArg(5, int(gx));
   k_place_psf_.setArg(6, int(r));
   k_place_psf_.setArg(7, int(kept.size()));
-  enqueue_1d(k_place_psf_, pairs * g);
+  rt_.enqueue_1d(k_place_psf_, pairs * g);
   rt_.fft(gy, gx, pairs, prec_).forward(otf_);
   otf_gen_ = gen;
   otf_r_ = r;
@@ -500,7 +496,7 @@ std::vector<RealStack> SceneImager::images(const std::vector<RealStack>& cubes, 
         k_place_.setArg(10, int(base));
         k_place_.setArg(11, int(count));
         k_place_.setArg(12, int(chunk));
-        enqueue_1d(k_place_, chunk * pairs * g);
+        rt_.enqueue_1d(k_place_, chunk * pairs * g);
         fwd.forward(spec_);
         k_combine_.setArg(0, spec_);
         k_combine_.setArg(1, otf_);
@@ -510,7 +506,7 @@ std::vector<RealStack> SceneImager::images(const std::vector<RealStack>& cubes, 
         k_combine_.setArg(5, int(L.gx));
         k_combine_.setArg(6, int(nk));
         k_combine_.setArg(7, int(chunk));
-        enqueue_1d(k_combine_, chunk * g);
+        rt_.enqueue_1d(k_combine_, chunk * g);
         inv.inverse(rgbspec_);
         k_gather_.setArg(0, rgbspec_);
         k_gather_.setArg(1, slot_of_);
@@ -528,7 +524,7 @@ std::vector<RealStack> SceneImager::images(const std::vector<RealStack>& cubes, 
         k_gather_.setArg(13, int(base));
         k_gather_.setArg(14, int(count));
         k_gather_.setArg(15, int(scenes));
-        enqueue_1d(k_gather_, scenes * hw);
+        rt_.enqueue_1d(k_gather_, scenes * hw);
         report_.forward_ffts += chunk * pairs;
         report_.inverse_ffts += chunk * 2;
       }
@@ -552,7 +548,7 @@ std::vector<RealStack> SceneImager::images(const std::vector<RealStack>& cubes, 
     k_noise_.setArg(7, cl_uint(cfg_.noise_seed & 0xffffffffull));
     k_noise_.setArg(8, cl_uint(cfg_.noise_seed >> 32));
     k_noise_.setArg(9, int(scenes));
-    enqueue_1d(k_noise_, scenes * 3 * hw);
+    rt_.enqueue_1d(k_noise_, scenes * 3 * hw);
     result = &noisy_;
   }
   // The single read-back of the call.

@@ -558,9 +558,7 @@ RadialEngine::~RadialEngine() = default;
 
 namespace {
 
-void run_1d(cl::CommandQueue& q, cl::Kernel& k, std::size_t n) {
-  q.enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(Runtime::global_for(n)), cl::NDRange(Runtime::kLocalSize));
-}
+void run_1d(cl::CommandQueue& q, cl::Kernel& k, std::size_t n) { Runtime::enqueue_1d(q, k, n); }
 
 template <typename... A>
 void set_args(cl::Kernel& k, const A&... a) {

@@ -149,10 +149,6 @@ std::vector<cdouble> Simulator::download_complex(const cl::Buffer& b, std::size_
   return out;
 }
 
-void Simulator::enqueue_1d(cl::Kernel& k, std::size_t n) {
-  rt_.queue().enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(Runtime::global_for(n)), cl::NDRange(Runtime::kLocalSize));
-}
-
 // Transfer function over z_m: Fresnel as the separable bands x M table t[b][k] =
 // exp(-iπ λ_b z f_k²); angular spectrum as the full bands x M x M table (zero beyond the
 // band limit). Both computed in double on the host, then converted to the device precision.
@@ -232,7 +228,7 @@ void Simulator::set_design(Parameterization kind, const std::vector<double>& par
   k_expand_.setArg(3, int(kind == Parameterization::Full2D ? 0 : kind == Parameterization::Radial ? 1 : 2));
   if (prec_ == Precision::F64) k_expand_.setArg(4, hmax);
   else k_expand_.setArg(4, float(hmax));
-  enqueue_1d(k_expand_, n * n);
+  rt_.enqueue_1d(k_expand_, n * n);
   if (q) {
     std::vector<double> table;
     for (int l = 0; l < q->levels; ++l) table.push_back(q->level_value(l));
@@ -249,7 +245,7 @@ void Simulator::set_design(Parameterization kind, const std::vector<double>& par
       k_quantize_.setArg(2, float(hmax));
       k_quantize_.setArg(6, float(alpha));
     }
-    enqueue_1d(k_quantize_, n * n);
+    rt_.enqueue_1d(k_quantize_, n * n);
   }
   rt_.queue().finish();  // pbuf and obuf are released when this function returns
   heights_set_ = true;
@@ -332,7 +328,7 @@ void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampl
     k_finalize3_.setArg(1, energy3_);
     k_finalize3_.setArg(2, int(kGroupsPerBand));
     k_finalize3_.setArg(3, int(bands));
-    enqueue_1d(k_finalize3_, bands);
+    rt_.enqueue_1d(k_finalize3_, bands);
     sampling_z_m_ = z_m;
     sampling_fresh_ = false;
   } else {
@@ -345,7 +341,7 @@ void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampl
                                        cl::NDRange(Runtime::kLocalSize, 1, 1));
     } else {
       k_tf_.setArg(2, int(bands * m * m));
-      enqueue_1d(k_tf_, bands * m * m);
+      rt_.enqueue_1d(k_tf_, bands * m * m);
     }
   }
   fft.inverse(field);
@@ -389,7 +385,7 @@ void Simulator::band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len,
   k_finalize_.setArg(1, sums);
   k_finalize_.setArg(2, int(kGroupsPerBand));
   k_finalize_.setArg(3, int(bands));
-  enqueue_1d(k_finalize_, bands);
+  rt_.enqueue_1d(k_finalize_, bands);
 }
 
 // Per-band sums of x (bands x len) into `sums`, then x /= sums (on the device).
@@ -399,7 +395,7 @@ void Simulator::normalize_bands(cl::Buffer& x, std::size_t len, cl::Buffer& sums
   k_scale_.setArg(1, sums);
   k_scale_.setArg(2, int(len));
   k_scale_.setArg(3, int(nb_));
-  enqueue_1d(k_scale_, nb_ * len);
+  rt_.enqueue_1d(k_scale_, nb_ * len);
 }
 
 // Area resampling bands x n_in x n_in -> bands x n_out x n_out with the given weight table
@@ -414,7 +410,7 @@ void Simulator::resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer
   k_resample_.setArg(5, int(n_out));
   k_resample_.setArg(6, int(taps));
   k_resample_.setArg(7, int(nb_));
-  enqueue_1d(k_resample_, nb_ * n_out * n_out);
+  rt_.enqueue_1d(k_resample_, nb_ * n_out * n_out);
 }
 
 void Simulator::compute_psf() {
@@ -438,7 +434,7 @@ void Simulator::compute_psf() {
   k_finalize_.setArg(1, sums_crop_);
   k_finalize_.setArg(2, int(kGroupsPerBand));
   k_finalize_.setArg(3, int(bands));
-  enqueue_1d(k_finalize_, bands);
+  rt_.enqueue_1d(k_finalize_, bands);
   native_normalized_ = false;
   resample(psf_, psf_s_, wstart_, wts_, n, s_, weights_.taps);
   normalize_bands(psf_s_, s_ * s_, sums_sensor_);
@@ -457,7 +453,7 @@ void Simulator::ensure_native_normalized() {
   k_scale_.setArg(1, sums_crop_);
   k_scale_.setArg(2, int(cfg_.n * cfg_.n));
   k_scale_.setArg(3, int(nb_));
-  enqueue_1d(k_scale_, nb_ * cfg_.n * cfg_.n);
+  rt_.enqueue_1d(k_scale_, nb_ * cfg_.n * cfg_.n);
   native_normalized_ = true;
 }
 
@@ -503,13 +499,13 @@ void Simulator::normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t le
   k_finalize_.setArg(1, dots_);
   k_finalize_.setArg(2, int(kGroupsPerBand));
   k_finalize_.setArg(3, int(bands));
-  enqueue_1d(k_finalize_, bands);
+  rt_.enqueue_1d(k_finalize_, bands);
   k_norm_vjp_.setArg(0, g);
   k_norm_vjp_.setArg(1, dots_);
   k_norm_vjp_.setArg(2, sums);
   k_norm_vjp_.setArg(3, int(len));
   k_norm_vjp_.setArg(4, int(bands));
-  enqueue_1d(k_norm_vjp_, bands * len);
+  rt_.enqueue_1d(k_norm_vjp_, bands * len);
 }
 
 Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
@@ -529,7 +525,7 @@ Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
   set_phase_args(k_phase_vjp_);
   k_phase_vjp_.setArg(3, gfield_);
   k_phase_vjp_.setArg(4, dh_);
-  enqueue_1d(k_phase_vjp_, n * n);
+  rt_.enqueue_1d(k_phase_vjp_, n * n);
   Map2D out(n, n);
   out.data = download_real(dh_, n * n);
   return out;
@@ -590,7 +586,7 @@ RealStack Simulator::sensor_images_vjp(const std::vector<RealStack>& g_rgb) {
   k_sensor_vjp_.setArg(3, int(hw));
   k_sensor_vjp_.setArg(4, int(bands));
   k_sensor_vjp_.setArg(5, int(scenes));
-  enqueue_1d(k_sensor_vjp_, scenes * bands * hw);
+  rt_.enqueue_1d(k_sensor_vjp_, scenes * bands * hw);
   // Correlate with the scenes: IFFT(FFT(pad g) * conj(FFT(pad x))), then the wrap transpose.
   FftPlan& fft = rt_.fft(py_, px_, scenes * bands, prec_);
   cl::Buffer gbuf(rt_.context(), CL_MEM_READ_WRITE, scenes * bands * pp * 2 * rsz_);
@@ -602,13 +598,13 @@ RealStack Simulator::sensor_images_vjp(const std::vector<RealStack>& g_rgb) {
     k_place_scene_.setArg(4, int(py_));
     k_place_scene_.setArg(5, int(px_));
     k_place_scene_.setArg(6, int(scenes * bands));
-    enqueue_1d(k_place_scene_, scenes * bands * pp);
+    rt_.enqueue_1d(k_place_scene_, scenes * bands * pp);
     fft.forward(*dst);
   }
   k_cmul_conj_.setArg(0, gbuf);
   k_cmul_conj_.setArg(1, sbuf_);
   k_cmul_conj_.setArg(2, int(scenes * bands * pp));
-  enqueue_1d(k_cmul_conj_, scenes * bands * pp);
+  rt_.enqueue_1d(k_cmul_conj_, scenes * bands * pp);
   fft.inverse(gbuf);
   cl::Buffer gpsf(rt_.context(), CL_MEM_READ_WRITE, bands * s_ * s_ * rsz_);
   k_gather_psf_.setArg(0, gbuf);
@@ -618,7 +614,7 @@ RealStack Simulator::sensor_images_vjp(const std::vector<RealStack>& g_rgb) {
   k_gather_psf_.setArg(4, int(px_));
   k_gather_psf_.setArg(5, int(bands));
   k_gather_psf_.setArg(6, int(scenes));
-  enqueue_1d(k_gather_psf_, bands * s_ * s_);
+  rt_.enqueue_1d(k_gather_psf_, bands * s_ * s_);
   RealStack out(bands, s_, s_);
   out.data = download_real(gpsf, out.size());
   return out;
@@ -702,7 +698,7 @@ void Simulator::run_convolution(const std::vector<RealStack>& cubes) {
     k_place_psf_.setArg(3, int(py_));
     k_place_psf_.setArg(4, int(px_));
     k_place_psf_.setArg(5, int(bands));
-    enqueue_1d(k_place_psf_, bands * pp);
+    rt_.enqueue_1d(k_place_psf_, bands * pp);
     rt_.fft(py_, px_, bands, prec_).forward(otf_);
     otf_valid_ = true;
   }
@@ -723,13 +719,13 @@ void Simulator::run_convolution(const std::vector<RealStack>& cubes) {
   k_place_scene_.setArg(4, int(py_));
   k_place_scene_.setArg(5, int(px_));
   k_place_scene_.setArg(6, int(scenes * bands));
-  enqueue_1d(k_place_scene_, scenes * bands * pp);
+  rt_.enqueue_1d(k_place_scene_, scenes * bands * pp);
   fft.forward(sbuf_);
   k_cmul_.setArg(0, sbuf_);
   k_cmul_.setArg(1, otf_);
   k_cmul_.setArg(2, int(scenes * bands * pp));
   k_cmul_.setArg(3, int(bands * pp));
-  enqueue_1d(k_cmul_, scenes * bands * pp);
+  rt_.enqueue_1d(k_cmul_, scenes * bands * pp);
   fft.inverse(sbuf_);
   k_crop_real_.setArg(0, sbuf_);
   k_crop_real_.setArg(1, blurred_);
@@ -738,7 +734,7 @@ void Simulator::run_convolution(const std::vector<RealStack>& cubes) {
   k_crop_real_.setArg(4, int(py_));
   k_crop_real_.setArg(5, int(px_));
   k_crop_real_.setArg(6, int(scenes * bands));
-  enqueue_1d(k_crop_real_, scenes * per);
+  rt_.enqueue_1d(k_crop_real_, scenes * per);
 }
 
 std::vector<RealStack> Simulator::convolve_batch(const std::vector<RealStack>& cubes) {
@@ -770,7 +766,7 @@ void Simulator::run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw
   k_sensor_.setArg(7, cl_uint(cfg_.noise_seed & 0xffffffffull));
   k_sensor_.setArg(8, cl_uint(cfg_.noise_seed >> 32));
   k_sensor_.setArg(9, int(scenes));
-  enqueue_1d(k_sensor_, scenes * 3 * hw);
+  rt_.enqueue_1d(k_sensor_, scenes * 3 * hw);
 }
 
 std::vector<RealStack> Simulator::sensor_images(const std::vector<RealStack>& cubes) {

@@ -129,7 +129,6 @@ class SceneImager {
   void ensure_rings();
   void ensure_otf(std::size_t r, std::size_t gy, std::size_t gx, const std::vector<std::size_t>& kept);
   cl::Buffer& grow(cl::Buffer& b, std::size_t& cap, std::size_t bytes, cl_mem_flags flags = CL_MEM_READ_WRITE);
-  void enqueue_1d(cl::Kernel& k, std::size_t n);
   const cl::Buffer& psf_buffer() const;
   std::uint64_t current_generation() const;
 

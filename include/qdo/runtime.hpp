@@ -105,6 +105,12 @@ class Runtime {
   static constexpr std::size_t kLocalSize = 128;  // fixed work-group size of every 1-D kernel
   // Global size: n rounded up to a multiple of kLocalSize.
   static std::size_t global_for(std::size_t n) { return (n + kLocalSize - 1) / kLocalSize * kLocalSize; }
+  // Enqueues k over n work items (1-D NDRange global_for(n), work-group kLocalSize) on queue q:
+  // the one launch shape of every element-wise kernel (each checks gid < n itself).
+  static void enqueue_1d(cl::CommandQueue& q, cl::Kernel& k, std::size_t n) {
+    q.enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(global_for(n)), cl::NDRange(kLocalSize));
+  }
+  void enqueue_1d(cl::Kernel& k, std::size_t n) { enqueue_1d(queue(), k, n); }
 
  private:
   cl::Program& program(const std::string& label, const std::string& source, const std::string& options);

@@ -111,7 +111,6 @@ class Simulator {
   std::vector<double> download_real(const cl::Buffer& b, std::size_t count) const;
   cl::Buffer& write_scratch(cl::Buffer& buf, const std::vector<double>& host);
   std::vector<cdouble> download_complex(const cl::Buffer& b, std::size_t count) const;
-  void enqueue_1d(cl::Kernel& k, std::size_t n);
   void run_doe_field();
   void run_propagation(cl::Buffer& field, double z_m, bool record_sampling);
   void band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len, cl::Buffer& sums);
