@@ -300,6 +300,18 @@ DesignRunOptions read_run_options(const std::string& config_path) {
   return o;
 }
 
+DesignRunOptions read_run_config(const std::string& run, const std::string& argument, const std::string& allowed) {
+  const fs::path p = fs::path(run) / "config.json";
+  if (!fs::is_regular_file(p)) reject(argument, run, allowed);
+  std::ifstream f(p, std::ios::binary);
+  if (!f) throw InputError("file '" + p.string() + "': cannot be read");
+  std::stringstream ss;
+  ss << f.rdbuf();
+  DesignRunOptions o = design_run_options_from_json(ss.str(), p.string());
+  o.out = run;
+  return o;
+}
+
 void read_resume_log(const std::string& log_path, long before_step, std::vector<std::string>& rows,
                      std::vector<double>& losses) {
   std::ifstream f(log_path);

@@ -62,12 +62,7 @@ RealStack side_by_side(const RealStack& a, const RealStack& b) {
 
 EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   const fs::path run(e.run);
-  const fs::path cfg_path = run / "config.json";
-  if (!fs::exists(cfg_path)) reject("run", e.run, "a run folder written by qdo design (config.json missing)");
-  std::ifstream f(cfg_path);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  const DesignRunOptions o = design_run_options_from_json(ss.str(), cfg_path.string());
+  const DesignRunOptions o = read_run_config(e.run);
   if (e.decoder != "matched" && e.decoder != "mismatch") reject("decoder", e.decoder, "matched or mismatch");
   if (e.out.empty()) reject("out", "(missing)", "an output folder");
   const SystemConfig& cfg = o.cfg;

@@ -1137,17 +1137,13 @@ void write_strip_chart(const std::string& path, const ToleranceResult& r) {
 
 ToleranceResult tolerance_analysis(Runtime& rt, const ToleranceOptions& t) {
   const fs::path run(t.run);
-  const fs::path cfg_path = run / "config.json";
-  if (!fs::exists(cfg_path)) reject("run", t.run, "a run folder written by qdo design (config.json missing)");
+  if (!fs::is_regular_file(run / "config.json")) reject("run", t.run, "a run folder written by qdo design (config.json missing)");
   for (const auto& [name, v] : {std::pair<const char*, double>{"etch_depth_error", t.etch_depth_error_m}, {"overlay", t.overlay_m},
                                 {"edge_blur", t.edge_blur_m}, {"height_noise", t.height_noise_m}})
     if (!(v >= 0) || !std::isfinite(v)) reject(name, v, "finite and >= 0");
   if (t.trials < 1 || t.trials > 100000) reject("trials", t.trials, "in [1, 100000]");
   if (t.oversample < 1 || t.oversample > 16) reject("oversample", t.oversample, "in [1, 16]");
-  std::ifstream f(cfg_path);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  const DesignRunOptions o = design_run_options_from_json(ss.str(), cfg_path.string());
+  const DesignRunOptions o = read_run_config(t.run);
   const Design fab = read_design((run / "design.h5").string());
   if (fab.height_m.rows != o.cfg.n) reject("run", t.run, "design.h5 on the configuration's N x N grid");
   Constraints c;

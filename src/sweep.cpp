@@ -265,7 +265,7 @@ void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, cons
   const std::string what = "a sweep folder whose run '" + dir.filename().string() + "' was made with this call's options";
   const fs::path cfg = dir / "config.json";
   if (fs::exists(cfg)) {
-    const DesignRunOptions stored = design_run_options_from_json(read_text(cfg), cfg.string());
+    const DesignRunOptions stored = read_run_config(dir.string());
     std::vector<std::string> diffs;
     json_diffs(nlohmann::json::parse(design_run_options_to_json(stored)), nlohmann::json::parse(design_run_options_to_json(o)), "",
                ignore, diffs);

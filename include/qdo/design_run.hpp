@@ -42,6 +42,13 @@ DesignRunOptions design_run_options_from_json(const std::string& text, const std
 // RUN/config.json: the stored options, parsed and validated; a stored value out of range is
 // named as "file 'RUN/config.json': argument 'epochs' = 0: >= 1". out is left as a placeholder.
 DesignRunOptions read_run_options(const std::string& config_path);
+// The one reader of a finished run's RUN/config.json for the commands that consume it (eval,
+// tolerance, export, sweep-psf --adaptive-from, sweep's reuse check, --resume's comparison):
+// parsed strictly (design_run_options_from_json) but not validated against this machine, whose
+// copy of the training data may have moved. A missing file is an InputError
+// "argument '<argument>' = RUN: <allowed>". out is set to RUN.
+DesignRunOptions read_run_config(const std::string& run, const std::string& argument = "run",
+                                 const std::string& allowed = "a run folder written by qdo design (config.json missing)");
 // RUN/log.csv after its header: every row must start "step,loss,"; the rows with step <
 // before_step (and their losses) are appended, the others are redone by the resume.
 void read_resume_log(const std::string& log_path, long before_step, std::vector<std::string>& rows,

@@ -213,12 +213,9 @@ DesignRunOptions design_options(const Args& a) {
 void check_resume_options(const Args& a, const DesignRunOptions& given) {
   const fs::path cfg = fs::path(given.out) / "config.json";
   if (given.out.empty() || !fs::exists(cfg)) return;  // run_design names the missing file
-  std::ifstream f(cfg);
-  std::stringstream ss;
-  ss << f.rdbuf();
   // Both sides through the same reader and writer, so defaults of old run folders (psf_path)
   // and number formatting compare equal.
-  const DesignRunOptions stored = design_run_options_from_json(ss.str(), cfg.string());
+  const DesignRunOptions stored = read_run_config(given.out, "out");
   const nlohmann::json s = nlohmann::json::parse(design_run_options_to_json(stored));
   const nlohmann::json g = nlohmann::json::parse(design_run_options_to_json(given));
   static const std::vector<std::pair<std::string, std::string>> fields = {

@@ -26,12 +26,7 @@ std::vector<char*> without_positional(int argc, char** argv, const std::string& 
 }
 
 DesignRunOptions read_run(const std::string& run) {
-  const fs::path p = fs::path(run) / "config.json";
-  if (!fs::exists(p)) reject("RUN", run, "a run folder written by qdo design (config.json missing) or a design .h5 file");
-  std::ifstream f(p);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return design_run_options_from_json(ss.str(), p.string());
+  return read_run_config(run, "RUN", "a run folder written by qdo design (config.json missing) or a design .h5 file");
 }
 
 int cmd_export(int argc, char** argv) {

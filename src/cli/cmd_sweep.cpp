@@ -16,14 +16,6 @@ using namespace qdo::cli;
 
 namespace {
 
-DesignRunOptions read_run_options(const std::string& run) {
-  const fs::path p = fs::path(run) / "config.json";
-  if (!fs::exists(p)) reject("run", run, "a run folder written by qdo design (config.json missing)");
-  std::ifstream f(p);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return design_run_options_from_json(ss.str(), p.string());
-}
 
 int cmd_sweep_psf(int argc, char** argv) {
   const Args a = parse_args(argc, argv, {"design", "levels", "placement", "adaptive-from", "preset", "config", "precision",
@@ -34,7 +26,7 @@ int cmd_sweep_psf(int argc, char** argv) {
   if (design.empty()) reject("--design", "(missing)", "a design .h5 file or a run folder");
   if (fs::is_directory(design)) {
     if (a.has("preset") || a.has("config")) reject("--preset", "(given)", "omitted with a run folder (its config.json is used)");
-    o.cfg = read_run_options(design).cfg;
+    o.cfg = read_run_config(design).cfg;
     o.design_full_m = read_design((fs::path(design) / "design_full.h5").string()).height_m;
   } else {
     o.cfg = load_config(a);
@@ -50,7 +42,7 @@ int cmd_sweep_psf(int argc, char** argv) {
   }
   if (a.has("adaptive-from")) {
     const std::string run = a.get("adaptive-from");
-    const DesignRunOptions ro = read_run_options(run);
+    const DesignRunOptions ro = read_run_config(run);
     if (ro.design.mode != DesignMode::QDOA) reject("--adaptive-from", run, "a qdo+a run (it is " + to_string(ro.design.mode) + ")");
     const std::size_t L = std::size_t(ro.design.quantizer.levels);
     const DesignState st = load_checkpoint((fs::path(run) / "checkpoint.h5").string(),
