@@ -15,6 +15,7 @@
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
 #include "qdo/scenes.hpp"
+#include "qdo/testset.hpp"
 #include "qdo/cpu_reference.hpp"
 
 namespace fs = std::filesystem;
@@ -81,18 +82,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   const double sigma = e.noise_sigma >= 0 ? e.noise_sigma : o.decoder_noise_sigma;
 
   // Test scenes as S x S patches (non-overlapping), tagged with their scene name.
-  std::vector<std::pair<std::string, RealStack>> patches;
-  if (e.data.empty()) {
-    const SceneIndex idx = SceneIndex::synthetic(cfg, e.synthetic_scenes, s, o.design.seed + 1000003);
-    for (std::size_t i = 0; i < idx.size(); ++i) patches.push_back({"synthetic_" + std::to_string(i), idx.load(i)});
-  } else {
-    const SceneIndex idx(e.data, e.data_format, cfg.bands, cfg.wavelengths_nm());
-    for (std::size_t i = 0; i < idx.size(); ++i) {
-      const RealStack cube = idx.load(i);
-      if (cube.rows < s || cube.cols < s) reject("data", idx[i].path, "scenes of at least S x S = " + to_str(s) + " pixels");
-      for (auto& p : extract_patches(cube, s, s)) patches.push_back({fs::path(idx[i].path).stem().string(), std::move(p)});
-    }
-  }
+  const std::vector<testset::Patch> patches =
+      testset::patches(cfg, s, e.data, e.data_format, e.synthetic_scenes, o.design.seed);
   make_output_dir(e.out, "out");
 
   Simulator sim(rt, cfg, e.precision);
@@ -112,29 +103,17 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   EvalResult res;
   res.deviation_nm = quantization_deviation_m(h_eval, full.height_m) * 1e9;
   std::vector<H5Dataset> recon;
-  std::map<std::string, std::vector<EvalRow>> per_scene;
-  std::vector<std::string> order;
+  std::vector<std::pair<std::string, testset::Scores>> per_patch;
   const auto wl = cfg.wavelengths_nm();
   for (std::size_t k = 0; k < patches.size(); ++k) {
-    const RealStack& x = patches[k].second;
-    RealStack y = wiener::simulate_measurement(x, otf_eval, srf);
-    ref::add_noise(y, sigma, 0, o.design.seed + 77, k);
-    RealStack xh = dec.decode(y);
-    for (double& v : xh.data) v = std::clamp(v, 0.0, 1.0);  // the decoder's output range, as the release's sigmoid
-    EvalRow r;
-    r.scene = patches[k].first;
-    r.psnr = metrics::psnr(xh, x);
-    r.psnr_hyper = metrics::psnr_hyper(xh, x);
-    r.ssim = metrics::ssim(xh, x);
-    r.rmse = metrics::rmse(xh, x);
-    r.ergas = metrics::ergas(xh, x);
-    r.sam_rad = metrics::sam(xh, x);
-    if (!per_scene.count(r.scene)) order.push_back(r.scene);
-    per_scene[r.scene].push_back(r);
+    const RealStack& x = patches[k].cube;
+    const RealStack xh = testset::reconstruct(x, otf_eval, srf, dec, sigma, o.design.seed, k);
+    per_patch.push_back({patches[k].scene, testset::score(xh, x)});
+    const std::string& scene = patches[k].scene;
     if (k < e.renders) {
       const std::string tag = std::to_string(k);
-      recon.push_back({"/truth_" + tag, {x.planes, x.rows, x.cols}, x.data, {}, {{"scene", r.scene}}});
-      recon.push_back({"/recon_" + tag, {xh.planes, xh.rows, xh.cols}, xh.data, {}, {{"scene", r.scene}}});
+      recon.push_back({"/truth_" + tag, {x.planes, x.rows, x.cols}, x.data, {}, {{"scene", scene}}});
+      recon.push_back({"/recon_" + tag, {xh.planes, xh.rows, xh.cols}, xh.data, {}, {{"scene", scene}}});
       write_rgb_png((fs::path(e.out) / ("render_" + tag + ".png")).string(), side_by_side(render_srgb(x, wl), render_srgb(xh, wl)));
       std::vector<std::pair<std::size_t, std::size_t>> px = e.pixels;
       if (px.empty()) px.push_back({s / 2, s / 2});
@@ -157,32 +136,26 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   std::ostringstream csv;
   csv << "scene,patches,psnr_db,psnr_h_db,ssim,rmse,ergas,sam_rad\n";
   csv.precision(6);
-  for (const auto& name : order) {
-    const auto& v = per_scene[name];
-    EvalRow m;
-    m.scene = name;
-    for (const auto& r : v) {
-      m.psnr += r.psnr / double(v.size());
-      m.psnr_hyper += r.psnr_hyper / double(v.size());
-      m.ssim += r.ssim / double(v.size());
-      m.rmse += r.rmse / double(v.size());
-      m.ergas += r.ergas / double(v.size());
-      m.sam_rad += r.sam_rad / double(v.size());
-    }
-    res.rows.push_back(m);
-    csv << name << "," << v.size() << "," << m.psnr << "," << m.psnr_hyper << "," << m.ssim << "," << m.rmse << "," << m.ergas
+  auto row_of = [](const std::string& scene, const testset::Scores& m) {
+    EvalRow r;
+    r.scene = scene;
+    r.psnr = m.psnr;
+    r.psnr_hyper = m.psnr_hyper;
+    r.ssim = m.ssim;
+    r.rmse = m.rmse;
+    r.ergas = m.ergas;
+    r.sam_rad = m.sam_rad;
+    return r;
+  };
+  std::vector<testset::Scores> scene_means;
+  for (const auto& [name, m] : testset::per_scene_means(per_patch)) {
+    const auto count = std::count_if(per_patch.begin(), per_patch.end(), [&](const auto& p) { return p.first == name; });
+    res.rows.push_back(row_of(name, m));
+    scene_means.push_back(m);
+    csv << name << "," << count << "," << m.psnr << "," << m.psnr_hyper << "," << m.ssim << "," << m.rmse << "," << m.ergas
         << "," << m.sam_rad << "\n";
   }
-  res.mean.scene = "mean";
-  for (const auto& r : res.rows) {
-    const double n = double(res.rows.size());
-    res.mean.psnr += r.psnr / n;
-    res.mean.psnr_hyper += r.psnr_hyper / n;
-    res.mean.ssim += r.ssim / n;
-    res.mean.rmse += r.rmse / n;
-    res.mean.ergas += r.ergas / n;
-    res.mean.sam_rad += r.sam_rad / n;
-  }
+  res.mean = row_of("mean", testset::mean_of(scene_means));
   write_text_atomic((fs::path(e.out) / "metrics.csv").string(), csv.str());
   nlohmann::json j;
   j["run"] = e.run;

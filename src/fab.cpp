@@ -22,6 +22,7 @@
 #include "json_strict.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/simulator.hpp"
+#include "qdo/testset.hpp"
 #include "qdo/wiener.hpp"
 
 namespace fs = std::filesystem;
@@ -933,17 +934,7 @@ class Evaluator {
     if (prior_.rows != s_ || prior_.cols != s_) reject("prior", run + "/prior.h5", "a prior on the S x S sensor grid");
     sigma_ = t.noise_sigma >= 0 ? t.noise_sigma : o.decoder_noise_sigma;
     srf_ = sensor_response(cfg);
-    if (t.data.empty()) {
-      const SceneIndex idx = SceneIndex::synthetic(cfg, t.synthetic_scenes, s_, o.design.seed + 1000003);
-      for (std::size_t i = 0; i < idx.size(); ++i) patches_.push_back({"synthetic_" + std::to_string(i), idx.load(i)});
-    } else {
-      const SceneIndex idx(t.data, t.data_format, cfg.bands, cfg.wavelengths_nm());
-      for (std::size_t i = 0; i < idx.size(); ++i) {
-        const RealStack cube = idx.load(i);
-        if (cube.rows < s_ || cube.cols < s_) reject("data", idx[i].path, "scenes of at least S x S = " + to_str(s_) + " pixels");
-        for (auto& p : extract_patches(cube, s_, s_)) patches_.push_back({fs::path(idx[i].path).stem().string(), std::move(p)});
-      }
-    }
+    patches_ = testset::patches(cfg, s_, t.data, t.data_format, t.synthetic_scenes, o.design.seed);
   }
   RealStack psf(const Map2D& h) {
     sim_.set_heights(h);
@@ -955,49 +946,14 @@ class Evaluator {
   }
   Metrics metrics(const RealStack& psf_actual, const WienerDecoder& dec) const {
     const ComplexStack otf = wiener::psf_to_otf(psf_actual, s_, s_);
-    std::map<std::string, std::vector<Metrics>> per_scene;
-    std::vector<std::string> order;
+    std::vector<std::pair<std::string, testset::Scores>> per_patch;
     for (std::size_t k = 0; k < patches_.size(); ++k) {
-      const RealStack& x = patches_[k].second;
-      RealStack y = wiener::simulate_measurement(x, otf, srf_);
-      ref::add_noise(y, sigma_, 0, o_.design.seed + 77, k);
-      RealStack xh = dec.decode(y);
-      for (double& v : xh.data) v = std::clamp(v, 0.0, 1.0);
-      Metrics r;
-      r.psnr = metrics::psnr(xh, x);
-      r.psnr_hyper = metrics::psnr_hyper(xh, x);
-      r.ssim = metrics::ssim(xh, x);
-      r.rmse = metrics::rmse(xh, x);
-      r.ergas = metrics::ergas(xh, x);
-      r.sam_rad = metrics::sam(xh, x);
-      if (!per_scene.count(patches_[k].first)) order.push_back(patches_[k].first);
-      per_scene[patches_[k].first].push_back(r);
+      const RealStack& x = patches_[k].cube;
+      per_patch.push_back({patches_[k].scene, testset::score(testset::reconstruct(x, otf, srf_, dec, sigma_, o_.design.seed, k), x)});
     }
-    std::vector<Metrics> rows;
-    for (const auto& name : order) {
-      const auto& v = per_scene[name];
-      Metrics m;
-      for (const auto& r : v) {
-        m.psnr += r.psnr / double(v.size());
-        m.psnr_hyper += r.psnr_hyper / double(v.size());
-        m.ssim += r.ssim / double(v.size());
-        m.rmse += r.rmse / double(v.size());
-        m.ergas += r.ergas / double(v.size());
-        m.sam_rad += r.sam_rad / double(v.size());
-      }
-      rows.push_back(m);
-    }
-    Metrics mean;
-    for (const auto& r : rows) {
-      const double nr = double(rows.size());
-      mean.psnr += r.psnr / nr;
-      mean.psnr_hyper += r.psnr_hyper / nr;
-      mean.ssim += r.ssim / nr;
-      mean.rmse += r.rmse / nr;
-      mean.ergas += r.ergas / nr;
-      mean.sam_rad += r.sam_rad / nr;
-    }
-    return mean;
+    std::vector<testset::Scores> rows;
+    for (const auto& scene : testset::per_scene_means(per_patch)) rows.push_back(scene.second);
+    return testset::mean_of(rows);
   }
   std::size_t patches() const { return patches_.size(); }
   double sigma() const { return sigma_; }
@@ -1009,7 +965,7 @@ class Evaluator {
   wiener::SpectralPrior prior_;
   double sigma_ = 0;
   Eigen::MatrixXd srf_;
-  std::vector<std::pair<std::string, RealStack>> patches_;
+  std::vector<testset::Patch> patches_;
 };
 
 const char* kMetricNames[6] = {"psnr_db", "psnr_h_db", "ssim", "rmse", "ergas", "sam_rad"};

@@ -39,6 +39,7 @@
 #include "qdo/gds.hpp"
 #include "qdo/io.hpp"
 #include "qdo/runtime.hpp"
+#include "qdo/testset.hpp"
 #include "qdo/types.hpp"
 
 namespace qdo::fab {
@@ -173,9 +174,7 @@ struct ToleranceOptions {
   bool quiet = true;
 };
 
-struct Metrics {
-  double psnr = 0, psnr_hyper = 0, ssim = 0, rmse = 0, ergas = 0, sam_rad = 0;
-};
+using Metrics = testset::Scores;  // the six metrics of the shared test-set evaluation
 struct Trial {
   std::string scenario;              // all | etch depth | overlay | edge blur | height noise
   std::size_t index = 0;

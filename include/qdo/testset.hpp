@@ -1,0 +1,49 @@
+// The test-set evaluation shared by `qdo eval` (src/eval.cpp) and `qdo tolerance` (src/fab.cpp):
+// the test patches, one patch through the camera and the Wiener decoder, the six metrics, and
+// their averages (per scene over its patches, then over scenes, in that order, so both
+// commands give bit-identical numbers for the same design).
+#pragma once
+#include <Eigen/Dense>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/types.hpp"
+#include "qdo/wiener.hpp"
+
+namespace qdo::testset {
+
+// One S x S test patch (bands x S x S) and the scene it was cut from (file stem, or synthetic_<i>).
+struct Patch {
+  std::string scene;
+  RealStack cube;
+};
+
+// The run's test patches: the scenes under `data` (format `data_format`, on cfg's band grid)
+// cut into non-overlapping s x s patches; with no data, `synthetic_scenes` held-out synthetic
+// scenes of s x s drawn with seed run_seed + 1000003. InputError naming `data` for a scene
+// smaller than s x s.
+std::vector<Patch> patches(const SystemConfig& cfg, std::size_t s, const std::vector<std::string>& data,
+                           const std::string& data_format, std::size_t synthetic_scenes, std::uint64_t run_seed);
+
+// Patch k (x: bands x S x S) measured through `otf` (bands x S x S, circular convolution) and the
+// sensor response srf (3 x bands), Gaussian noise sigma drawn from (run_seed + 77, k), decoded
+// by `dec` and clamped to [0, 1] (the decoder's output range, as the release's sigmoid).
+RealStack reconstruct(const RealStack& x, const ComplexStack& otf, const Eigen::MatrixXd& srf, const WienerDecoder& dec,
+                      double sigma, std::uint64_t run_seed, std::size_t k);
+
+struct Scores {
+  double psnr = 0, psnr_hyper = 0, ssim = 0, rmse = 0, ergas = 0, sam_rad = 0;
+};
+// The six metrics of a reconstruction xh against the truth x (metrics:: conventions).
+Scores score(const RealStack& xh, const RealStack& x);
+
+// Per-scene means (scenes in order of first appearance; each the mean over its patches, summed
+// in patch order) of per-patch scores tagged with their scene.
+std::vector<std::pair<std::string, Scores>> per_scene_means(const std::vector<std::pair<std::string, Scores>>& per_patch);
+// The mean over rows, summed in row order.
+Scores mean_of(const std::vector<Scores>& rows);
+
+}  // namespace qdo::testset
