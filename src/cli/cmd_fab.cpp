@@ -15,15 +15,8 @@ namespace fs = std::filesystem;
 using namespace qdo;
 using namespace qdo::cli;
 
+namespace qdo::cli {
 namespace {
-
-// argv with the positional argv[2] (RUN or DESIGN.h5) removed, for parse_args.
-std::vector<char*> without_positional(int argc, char** argv, const std::string& usage) {
-  if (argc < 3 || std::string(argv[2]).rfind("--", 0) == 0) reject("RUN", "(missing)", usage);
-  std::vector<char*> rest(argv, argv + argc);
-  rest.erase(rest.begin() + 2);
-  return rest;
-}
 
 DesignRunOptions read_run(const std::string& run) {
   const fs::path p = fs::path(run) / "config.json";
@@ -34,14 +27,10 @@ DesignRunOptions read_run(const std::string& run) {
   return design_run_options_from_json(ss.str(), p.string());
 }
 
-int cmd_export(int argc, char** argv) {
-  const std::string usage = "qdo export RUN|DESIGN.h5 --scheme binary|nested|greyscale --out DIR";
-  std::vector<char*> rest = without_positional(argc, argv, usage);
-  const Args a = parse_args(argc - 1, rest.data(),
-                            {"scheme", "out", "preset", "config", "min-feature-um", "max-levels", "max-height-nm", "dose-curve",
-                             "tolerance-nm"},
-                            "export");
-  const std::string src = argv[2];
+}  // namespace
+
+int cmd_export(const Args& a) {
+  const std::string src = a.positional;
   fab::ExportOptions o;
   o.scheme = fab::scheme_from_string(a.get("scheme", "binary"));
   o.out = a.get("out");
@@ -84,17 +73,9 @@ int cmd_export(int argc, char** argv) {
   return 0;
 }
 
-int cmd_tolerance(int argc, char** argv) {
-  const std::string usage =
-      "qdo tolerance RUN [--etch-depth-error-nm 20] [--overlay-um 0.5] [--edge-blur-um 0] [--height-noise-nm 0] [--trials 16] "
-      "[--seed 0] --out DIR";
-  std::vector<char*> rest = without_positional(argc, argv, usage);
-  const Args a = parse_args(argc - 1, rest.data(),
-                            {"etch-depth-error-nm", "overlay-um", "edge-blur-um", "height-noise-nm", "trials", "seed", "out", "scheme",
-                             "oversample", "data", "synthetic-scenes", "noise-sigma", "precision", "device"},
-                            "tolerance", {"no-per-source", "save-psfs"});
+int cmd_tolerance(const Args& a) {
   fab::ToleranceOptions t;
-  t.run = argv[2];
+  t.run = a.positional;
   t.etch_depth_error_m = parse_double("--etch-depth-error-nm", a.get("etch-depth-error-nm", "20")) * 1e-9;
   t.overlay_m = parse_double("--overlay-um", a.get("overlay-um", "0.5")) * 1e-6;
   t.edge_blur_m = parse_double("--edge-blur-um", a.get("edge-blur-um", "0")) * 1e-6;
@@ -132,12 +113,4 @@ int cmd_tolerance(int argc, char** argv) {
   return 0;
 }
 
-const Registrar reg_export("export", cmd_export,
-                           "qdo export RUN|DESIGN.h5 --scheme binary|nested|greyscale --out DIR [--preset P | --config FILE]\n"
-                           "             [--min-feature-um 1] [--max-levels L] [--max-height-nm H] [--dose-curve CSV] [--tolerance-nm 0.001]");
-const Registrar reg_tolerance("tolerance", cmd_tolerance,
-                              "qdo tolerance RUN [--etch-depth-error-nm 20] [--overlay-um 0.5] [--edge-blur-um 0] [--height-noise-nm 0]\n"
-                              "             [--trials 16] [--seed 0] [--scheme auto|binary|nested|greyscale] [--oversample 4]\n"
-                              "             [--data PATH,...] [--no-per-source] [--save-psfs] [--precision f32|f64] [--device SEL] --out DIR");
-
-}  // namespace
+}  // namespace qdo::cli

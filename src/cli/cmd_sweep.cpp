@@ -14,6 +14,7 @@ namespace fs = std::filesystem;
 using namespace qdo;
 using namespace qdo::cli;
 
+namespace qdo::cli {
 namespace {
 
 DesignRunOptions read_run_options(const std::string& run) {
@@ -25,10 +26,9 @@ DesignRunOptions read_run_options(const std::string& run) {
   return design_run_options_from_json(ss.str(), p.string());
 }
 
-int cmd_sweep_psf(int argc, char** argv) {
-  const Args a = parse_args(argc, argv, {"design", "levels", "placement", "adaptive-from", "preset", "config", "precision",
-                                         "device", "designs-per-pass", "out"},
-                            "sweep-psf");
+}  // namespace
+
+int cmd_sweep_psf(const Args& a) {
   PsfSweepOptions o;
   const std::string design = a.get("design");
   if (design.empty()) reject("--design", "(missing)", "a design .h5 file or a run folder");
@@ -82,28 +82,14 @@ int cmd_sweep_psf(int argc, char** argv) {
   return 0;
 }
 
-int cmd_sweep(int argc, char** argv) {
-  // --grid levels=2,4,8 --grid mode=do,qdo,qdo+a (repeatable), plus every option of qdo design.
-  std::vector<std::string> grids;
-  std::vector<char*> rest;
-  for (int i = 0; i < argc; ++i) {
-    if (std::string(argv[i]) == "--grid" && i + 1 < argc) {
-      grids.push_back(argv[++i]);
-      continue;
-    }
-    rest.push_back(argv[i]);
-  }
-  const Args a = parse_args(int(rest.size()), rest.data(),
-                            {"preset", "config", "placement", "parameterization", "objective", "data", "test-data", "epochs",
-                             "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm", "noise-sigma",
-                             "init", "seed", "synthetic-scenes", "eval-scenes", "batch", "precision", "device", "out", "psf-path"},
-                            "sweep");
+int cmd_sweep(const Args& a) {
   GridOptions g;
   Args b = a;
   b.opt["out"] = "(per run)";
   b.opt["mode"] = "do";
   g.base = design_options(b);  // qdo design's options; levels and mode are set per cell
-  for (const auto& spec : grids) {
+  const auto grids = a.multi.find("grid");
+  for (const auto& spec : grids == a.multi.end() ? std::vector<std::string>{} : grids->second) {
     const auto eq = spec.find('=');
     if (eq == std::string::npos) reject("--grid", spec, "AXIS=V1,V2,... with AXIS levels or mode");
     const std::string axis = spec.substr(0, eq);
@@ -136,10 +122,4 @@ int cmd_sweep(int argc, char** argv) {
   return 0;
 }
 
-const Registrar reg_sweep_psf("sweep-psf", cmd_sweep_psf,
-                              "qdo sweep-psf --design FILE.h5|RUN [--levels 2,4,8,16,32] [--placement ...] [--adaptive-from RUN] --out DIR");
-const Registrar reg_sweep("sweep", cmd_sweep,
-                          "qdo sweep --grid levels=2,4,8 --grid mode=do,do-refit,qdo,qdo+a [--grid encoder=doe,fresnel,cassi] [--preset P] [--data PATH,...] "
-                          "[--test-data PATH,...] [qdo design options] --out DIR");
-
-}  // namespace
+}  // namespace qdo::cli
