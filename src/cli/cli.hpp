@@ -97,6 +97,9 @@ std::string out_dir(const Args& a, const std::string& def = "");  // creates it 
 std::string clip_summary(const SensorClip& c);
 double seconds_since(std::chrono::steady_clock::time_point t0);
 // The options of `qdo design` (also used by gradcheck and sweep); --mode and --out as given.
+// The defaults written in the shared helpers (here, load_config, load_quantizer, scene_from_args)
+// apply only to options a command's table entry does not declare (e.g. --levels in qdo sweep);
+// otherwise the table's default is what a.get() returns.
 DesignRunOptions design_options(const Args& a);
 // With --resume: every option given explicitly that differs from RUN/config.json is an
 // InputError listing "--option: stored X, given Y" (--max-steps, --device, --out,

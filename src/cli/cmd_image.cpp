@@ -17,10 +17,10 @@ namespace qdo::cli {
 
 int cmd_image(const Args& a) {
   const SystemConfig cfg = load_config(a);
-  const Precision p = precision_from_string(a.get("precision", "f32"));
-  SkipOptions opt = SkipOptions::split(parse_double("--tolerance", a.get("tolerance", "3e-7")),
-                                       tile_mode_from_string(a.get("tiles", "off")),
-                                       std::size_t(parse_int("--tile-px", a.get("tile-px", "64"), 8, 4096)));
+  const Precision p = precision_from_string(a.get("precision"));
+  SkipOptions opt = SkipOptions::split(parse_double("--tolerance", a.get("tolerance")),
+                                       tile_mode_from_string(a.get("tiles")),
+                                       std::size_t(parse_int("--tile-px", a.get("tile-px"), 8, 4096)));
   opt.exact = a.has("exact");
   opt.validate();
   if (!a.has("design")) reject("--design", "(missing)", "lens:NM, flat, or a design .h5 file");

@@ -40,8 +40,8 @@ int cmd_sweep_psf(const Args& a) {
     o.cfg = load_config(a);
     o.design_full_m = load_design(o.cfg, design);
   }
-  const Placement pl = placement_from_string(a.get("placement", "inclusive"));
-  for (const auto& l : split_list(a.get("levels", "2,4,8,16,32"))) {
+  const Placement pl = placement_from_string(a.get("placement"));
+  for (const auto& l : split_list(a.get("levels"))) {
     PsfSweepVariant v;
     v.quantizer.levels = parse_int("--levels", l, 2, 65536);
     v.quantizer.placement = pl;
@@ -61,8 +61,8 @@ int cmd_sweep_psf(const Args& a) {
     v.label = "L" + std::to_string(L) + "-adaptive";
     o.variants.push_back(v);
   }
-  o.precision = precision_from_string(a.get("precision", "f32"));
-  o.max_designs_per_pass = std::size_t(parse_int("--designs-per-pass", a.get("designs-per-pass", "0"), 0, 1000));
+  o.precision = precision_from_string(a.get("precision"));
+  o.max_designs_per_pass = std::size_t(parse_int("--designs-per-pass", a.get("designs-per-pass"), 0, 1000));
   o.out = out_dir(a);
   Runtime rt(a.get("device"));
   const auto t0 = std::chrono::steady_clock::now();
@@ -105,8 +105,8 @@ int cmd_sweep(const Args& a) {
       reject("--grid", axis, "levels, mode or encoder");
     }
   }
-  g.test_data = split_list(a.get("test-data", ""));
-  g.eval_synthetic_scenes = std::size_t(parse_int("--eval-scenes", a.get("eval-scenes", "4"), 1, 10000));
+  g.test_data = split_list(a.get("test-data"));
+  g.eval_synthetic_scenes = std::size_t(parse_int("--eval-scenes", a.get("eval-scenes"), 1, 10000));
   g.out = out_dir(a);
   g.quiet = false;
   Runtime rt(a.get("device"));

@@ -74,7 +74,7 @@ int cmd_config(const Args& a) {
 
 int cmd_psf(const Args& a) {
   const SystemConfig cfg = load_config(a);
-  const Precision p = precision_from_string(a.get("precision", "f32"));
+  const Precision p = precision_from_string(a.get("precision"));
   const Map2D h = design_heights(cfg, a);
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
@@ -118,7 +118,7 @@ int cmd_quantize(const Args& a) {
 
 int cmd_simulate(const Args& a) {
   const SystemConfig cfg = load_config(a);
-  const Precision p = precision_from_string(a.get("precision", "f32"));
+  const Precision p = precision_from_string(a.get("precision"));
   const Map2D h = design_heights(cfg, a);
   const RealStack scene = scene_from_args(cfg, a);
   const std::string dir = out_dir(a);
@@ -174,20 +174,20 @@ int cmd_design(const Args& a) {
 int cmd_eval(const Args& a) {
   EvalOptions e;
   e.run = a.positional;
-  e.data = split_list(a.get("data", ""));
+  e.data = split_list(a.get("data"));
   e.levels = a.has("levels") ? parse_int("--levels", a.get("levels"), 2, 65536) : 0;
-  e.placement = placement_from_string(a.get("placement", "inclusive"));
-  e.decoder = a.get("decoder", "matched");
+  e.placement = placement_from_string(a.get("placement"));
+  e.decoder = a.get("decoder");
   e.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma")) : -1;
-  e.renders = std::size_t(parse_int("--renders", a.get("renders", "4"), 0, 1000));
-  e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "6"), 1, 100000));
-  for (const auto& p : split_list(a.get("pixels", ""))) {
+  e.renders = std::size_t(parse_int("--renders", a.get("renders"), 0, 1000));
+  e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));
+  for (const auto& p : split_list(a.get("pixels"))) {
     const auto c = p.find(':');
     if (c == std::string::npos) reject("--pixels", p, "y:x pairs separated by commas");
     e.pixels.push_back({std::size_t(parse_int("--pixels", p.substr(0, c), 0, 1 << 20)),
                         std::size_t(parse_int("--pixels", p.substr(c + 1), 0, 1 << 20))});
   }
-  e.precision = precision_from_string(a.get("precision", "f32"));
+  e.precision = precision_from_string(a.get("precision"));
   e.out = a.get("out");
   Runtime rt(a.get("device"));
   const EvalResult r = evaluate_run(rt, e);
@@ -224,15 +224,15 @@ const char* const kDemoRunFiles[] = {"config.json", "checkpoint.h5", "checkpoint
 int cmd_demo(const Args& a) {
   const std::string dir = out_dir(a, "out/demo");
   DesignRunOptions o;
-  o.cfg = preset_config(a.get("preset", "small"));
-  o.design.quantizer.levels = parse_int("--levels", a.get("levels", "4"), 2, 65536);
-  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", "15"), 2, 100000));
-  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch", "8"), 1, 100000));
+  o.cfg = preset_config(a.get("preset"));
+  o.design.quantizer.levels = parse_int("--levels", a.get("levels"), 2, 65536);
+  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs"), 2, 100000));
+  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch"), 1, 100000));
   o.design.t0_epochs = 0.1 * double(o.epochs);
   o.design.t1_epochs = 0.8 * double(o.epochs);
-  o.precision = precision_from_string(a.get("precision", "f32"));
+  o.precision = precision_from_string(a.get("precision"));
   o.objective = "wiener";
-  std::string real = a.get("data", "../shared/data/hsi/cave");
+  std::string real = a.get("data");
   if (!fs::exists(real)) real.clear();
   struct Job {
     DesignMode mode;
