@@ -14,6 +14,7 @@ pkgs=(
   nlohmann-json3-dev     # configuration files
   libpng-dev             # figures
   doctest-dev            # tests
+  libcli11-dev           # the command line (header-only CLI11)
   klayout                # tests: an independent GDSII reader for the mask round trip (issue 7)
 )
 missing=()

@@ -1,6 +1,7 @@
 // The qdo command line, run as a user would, and its input checks.
 #include <cstdlib>
 #include <fstream>
+#include <map>
 #include <set>
 #include <sstream>
 
@@ -88,6 +89,90 @@ TEST_SUITE("cli") {
     const H5Dataset rgb = h5_read((dir / "sensor.h5").string(), "/rgb");
     CHECK(rgb.shape == std::vector<std::size_t>{3, 128, 128});
     CHECK(std::filesystem::exists(dir / "sensor.png"));
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("qdo --help, qdo <command> --help and qdo --version; an unknown option of any command is exit 2") {
+    // Every command with every option it takes (the command table in src/cli/commands.cpp must
+    // declare each of them, and its help must show each).
+    const std::map<std::string, std::vector<std::string>> commands = {
+        {"devices", {}},
+        {"config", {"preset", "config"}},
+        {"psf", {"preset", "config", "design", "levels", "placement", "precision", "device", "out"}},
+        {"quantize", {"preset", "config", "design", "levels", "placement", "out"}},
+        {"simulate", {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "out", "resample-bands"}},
+        {"demo", {"preset", "levels", "device", "out", "precision", "epochs", "steps-per-epoch", "data"}},
+        {"design", {"preset", "config", "mode", "levels", "placement", "parameterization", "objective", "target", "data", "epochs",
+                    "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm", "noise-sigma", "init", "seed",
+                    "checkpoint-every", "max-steps", "resume", "check-gradients", "precision", "device", "out", "synthetic-scenes",
+                    "batch", "psf-path"}},
+        {"eval", {"data", "levels", "placement", "decoder", "noise-sigma", "pixels", "renders", "synthetic-scenes", "precision",
+                  "device", "out"}},
+        {"gradcheck", {"preset", "config", "mode", "levels", "placement", "parameterization", "objective", "target", "seed", "device",
+                       "psf-path"}},
+        {"image", {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "tolerance", "tiles",
+                   "tile-px", "out", "resample-bands", "exact"}},
+        {"export", {"scheme", "out", "preset", "config", "min-feature-um", "max-levels", "max-height-nm", "dose-curve", "tolerance-nm"}},
+        {"tolerance", {"etch-depth-error-nm", "overlay-um", "edge-blur-um", "height-noise-nm", "trials", "seed", "out", "scheme",
+                       "oversample", "data", "synthetic-scenes", "noise-sigma", "precision", "device", "no-per-source", "save-psfs"}},
+        {"sweep", {"grid", "preset", "config", "placement", "parameterization", "objective", "data", "test-data", "epochs",
+                   "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm", "noise-sigma", "init", "seed",
+                   "synthetic-scenes", "eval-scenes", "batch", "precision", "device", "out", "psf-path"}},
+        {"sweep-psf", {"design", "levels", "placement", "adaptive-from", "preset", "config", "precision", "device", "designs-per-pass",
+                       "out"}},
+    };
+    const Run top = qdo_run("--help");
+    CAPTURE(top.out);
+    CHECK(top.code == 0);
+    for (const auto& [cmd, opts] : commands) {
+      CAPTURE(cmd);
+      CHECK(top.out.find("\n  " + cmd + " ") != std::string::npos);  // one line per command
+      for (const char* h : {" --help", " -h"}) {
+        const Run r = qdo_run(cmd + h);
+        CAPTURE(r.out);
+        CHECK(r.code == 0);
+        CHECK(r.out.find("qdo " + cmd) != std::string::npos);
+        for (const auto& o : opts) {
+          CAPTURE(o);
+          CHECK(r.out.find("--" + o + " ") != std::string::npos);
+        }
+      }
+      const Run bad = qdo_run(cmd + " --bogus 3");
+      CAPTURE(bad.out);
+      CHECK(bad.code == 2);
+      CHECK(bad.out.find("qdo " + cmd + ": error: ") != std::string::npos);
+      CHECK(bad.out.find("--bogus") != std::string::npos);
+    }
+    // Defaults are shown; --name=value and a missing value.
+    const Run dh = qdo_run("design --help");
+    CHECK(dh.out.find("default: qdo+a") != std::string::npos);
+    CHECK(dh.out.find("full, do, qdo, ste, qdo+a or qdo+m") != std::string::npos);
+    const Run cfg = qdo_run("config --preset=small");
+    CHECK(cfg.code == 0);
+    CHECK(cfg.out.find("\"n\"") != std::string::npos);
+    const Run miss = qdo_run("config --preset");
+    CAPTURE(miss.out);
+    CHECK(miss.code == 2);
+    CHECK(miss.out.find("argument '--preset' = (missing)") != std::string::npos);
+    const Run stray = qdo_run("config small");
+    CHECK(stray.code == 2);
+    CHECK(stray.out.find("small") != std::string::npos);
+    // qdo --version: version, git revision, OpenCL devices, FFT backends; no device needed.
+    const Run v = qdo_run("--version");
+    CAPTURE(v.out);
+    CHECK(v.code == 0);
+    CHECK(v.out.find("qdo 0.1.0") != std::string::npos);
+    CHECK(v.out.find("git revision ") != std::string::npos);
+    CHECK(v.out.find("clFFT") != std::string::npos);
+    CHECK(v.out.find("VkFFT") != std::string::npos);
+    CHECK(v.out.find("FFTW") != std::string::npos);
+    const auto dir = temp_dir("cli_version");
+    std::filesystem::create_directories(dir / "no_vendors");
+    const Run nv = qdo_run("--version", "OCL_ICD_VENDORS=" + (dir / "no_vendors").string());
+    CAPTURE(nv.out);
+    CHECK(nv.code == 0);
+    CHECK(nv.out.find("no OpenCL platform") != std::string::npos);
+    CHECK(nv.out.find("clFFT") != std::string::npos);
     std::filesystem::remove_all(dir);
   }
 

@@ -16,19 +16,64 @@
 
 namespace qdo::cli {
 
+// The parsed command line of one command. `opt` holds exactly the options given on the command
+// line (flags as "yes"), so has() means "given explicitly" (check_resume_options relies on it);
+// get() falls back to the command table's default, then to `def`.
 struct Args {
-  std::map<std::string, std::string> opt;
+  std::map<std::string, std::string> opt;                 // given explicitly
+  std::map<std::string, std::string> defaults;            // the command table's defaults
+  std::map<std::string, std::vector<std::string>> multi;  // repeatable options, every value in order
+  std::string positional;                                 // RUN, RUN|DESIGN.h5 (commands that take one)
   std::string get(const std::string& k, const std::string& def = "") const {
     auto it = opt.find(k);
-    return it == opt.end() ? def : it->second;
+    if (it != opt.end()) return it->second;
+    auto d = defaults.find(k);
+    return d != defaults.end() && !d->second.empty() ? d->second : def;
   }
   bool has(const std::string& k) const { return opt.count(k) > 0; }
 };
 
-// Options take a value (--name VALUE or --name=VALUE), except those in `flags` (--name alone).
-// argv[1] is the command; parsing starts at argv[2]. Unknown options are an InputError.
-Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, const std::string& cmd,
-                const std::set<std::string>& flags = {});
+// --- The command table (src/cli/commands.cpp) ---------------------------------------------
+// Every command declares each option once: name (without --), a one-line description with
+// units and allowed values, the default ("" = none, or computed by the command as described),
+// and whether it is a flag (--name alone) or repeatable (--name V1 --name V2).
+struct OptionSpec {
+  std::string name, help, def;
+  bool flag = false;
+  bool repeat = false;
+};
+struct CommandSpec {
+  std::string name, summary;
+  std::string positional, positional_help;  // e.g. "RUN": a required positional argument
+  std::vector<OptionSpec> options;
+  std::function<int(const Args&)> run;
+  bool writes_as_it_goes = false;  // long, resumable commands; the others stage their outputs (OutputStage)
+};
+const std::vector<CommandSpec>& command_table();
+const CommandSpec* find_command(const std::string& name);
+// Parses argv[2..] (argv[1] is the command) against the command's table entry with CLI11.
+// Returns false when --help / -h was given (the command's help printed to stdout). An unknown
+// option, a missing value or a stray argument is an InputError naming it and what is allowed.
+bool parse_command_line(const CommandSpec& c, int argc, char** argv, Args& out);
+// The command's help text (usage, options with descriptions and defaults).
+std::string command_help(const CommandSpec& c);
+
+// The command bodies (src/cli/*.cpp); options are parsed before any of them runs.
+int cmd_devices(const Args& a);
+int cmd_config(const Args& a);
+int cmd_psf(const Args& a);
+int cmd_quantize(const Args& a);
+int cmd_simulate(const Args& a);
+int cmd_demo(const Args& a);
+int cmd_design(const Args& a);
+int cmd_gradcheck(const Args& a);
+int cmd_eval(const Args& a);
+int cmd_image(const Args& a);
+int cmd_export(const Args& a);
+int cmd_tolerance(const Args& a);
+int cmd_sweep(const Args& a);
+int cmd_sweep_psf(const Args& a);
+
 // The configuration from --config or --preset (default small), the camera response checked too.
 SystemConfig load_config(const Args& a);
 // --scene builtin (the configuration's chart scene, the default), a cube file (.mat / .h5,
@@ -52,22 +97,13 @@ std::string out_dir(const Args& a, const std::string& def = "");  // creates it 
 std::string clip_summary(const SensorClip& c);
 double seconds_since(std::chrono::steady_clock::time_point t0);
 // The options of `qdo design` (also used by gradcheck and sweep); --mode and --out as given.
+// The defaults written in the shared helpers (here, load_config, load_quantizer, scene_from_args)
+// apply only to options a command's table entry does not declare (e.g. --levels in qdo sweep);
+// otherwise the table's default is what a.get() returns.
 DesignRunOptions design_options(const Args& a);
 // With --resume: every option given explicitly that differs from RUN/config.json is an
 // InputError listing "--option: stored X, given Y" (--max-steps, --device, --out,
 // --check-gradients may differ).
 void check_resume_options(const Args& a, const DesignRunOptions& given);
-
-// Command registry: a file registers its commands with a static Registrar, e.g.
-//   static const qdo::cli::Registrar reg("export", cmd_export, "qdo export RUN|DESIGN.h5 ...");
-using Command = std::function<int(int argc, char** argv)>;
-struct CommandInfo {
-  Command run;
-  std::string usage;
-};
-std::map<std::string, CommandInfo>& registry();
-struct Registrar {
-  Registrar(const std::string& name, Command run, const std::string& usage) { registry()[name] = {std::move(run), usage}; }
-};
 
 }  // namespace qdo::cli

@@ -18,40 +18,6 @@ namespace fs = std::filesystem;
 
 namespace qdo::cli {
 
-std::map<std::string, CommandInfo>& registry() {
-  static std::map<std::string, CommandInfo> r;
-  return r;
-}
-
-// Options take a value (--name VALUE or --name=VALUE), except those in `flags` (--name alone).
-Args parse_args(int argc, char** argv, const std::set<std::string>& allowed, const std::string& cmd,
-                const std::set<std::string>& flags) {
-  Args a;
-  for (int i = 2; i < argc; ++i) {
-    std::string s = argv[i];
-    if (s.rfind("--", 0) != 0) reject("argument " + std::to_string(i - 1), s, "options of the form --name VALUE");
-    s = s.substr(2);
-    std::string val;
-    const auto eq = s.find('=');
-    if (eq != std::string::npos) {
-      val = s.substr(eq + 1);
-      s = s.substr(0, eq);
-    } else if (flags.count(s)) {
-      val = "yes";
-    } else {
-      if (i + 1 >= argc) reject("--" + s, "(missing)", "a value after the option");
-      val = argv[++i];
-    }
-    if (!allowed.count(s)) {
-      std::string list;
-      for (const auto& k : allowed) list += " --" + k;
-      reject("--" + s, val, "an option of 'qdo " + cmd + "':" + list);
-    }
-    a.opt[s] = val;
-  }
-  return a;
-}
-
 // The configuration from --config or --preset, with the camera response checked too, so every
 // configuration error surfaces before any device work or output.
 RealStack scene_from_args(const SystemConfig& cfg, const Args& a) {

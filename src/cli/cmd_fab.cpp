@@ -15,36 +15,25 @@ namespace fs = std::filesystem;
 using namespace qdo;
 using namespace qdo::cli;
 
+namespace qdo::cli {
 namespace {
-
-// argv with the positional argv[2] (RUN or DESIGN.h5) removed, for parse_args.
-std::vector<char*> without_positional(int argc, char** argv, const std::string& usage) {
-  if (argc < 3 || std::string(argv[2]).rfind("--", 0) == 0) reject("RUN", "(missing)", usage);
-  std::vector<char*> rest(argv, argv + argc);
-  rest.erase(rest.begin() + 2);
-  return rest;
-}
 
 DesignRunOptions read_run(const std::string& run) {
   return read_run_config(run, "RUN", "a run folder written by qdo design (config.json missing) or a design .h5 file");
 }
 
-int cmd_export(int argc, char** argv) {
-  const std::string usage = "qdo export RUN|DESIGN.h5 --scheme binary|nested|greyscale --out DIR";
-  std::vector<char*> rest = without_positional(argc, argv, usage);
-  const Args a = parse_args(argc - 1, rest.data(),
-                            {"scheme", "out", "preset", "config", "min-feature-um", "max-levels", "max-height-nm", "dose-curve",
-                             "tolerance-nm"},
-                            "export");
-  const std::string src = argv[2];
+}  // namespace
+
+int cmd_export(const Args& a) {
+  const std::string src = a.positional;
   fab::ExportOptions o;
-  o.scheme = fab::scheme_from_string(a.get("scheme", "binary"));
+  o.scheme = fab::scheme_from_string(a.get("scheme"));
   o.out = a.get("out");
   if (o.out.empty()) reject("--out", "(missing)", "an output folder");
-  o.constraints.min_feature_um = parse_double("--min-feature-um", a.get("min-feature-um", "1"));
-  o.constraints.max_levels = parse_int("--max-levels", a.get("max-levels", "0"), 0, 65536);
-  o.constraints.max_height_nm = parse_double("--max-height-nm", a.get("max-height-nm", "0"));
-  o.constraints.level_tolerance_nm = parse_double("--tolerance-nm", a.get("tolerance-nm", "0.001"));
+  o.constraints.min_feature_um = parse_double("--min-feature-um", a.get("min-feature-um"));
+  o.constraints.max_levels = parse_int("--max-levels", a.get("max-levels"), 0, 65536);
+  o.constraints.max_height_nm = parse_double("--max-height-nm", a.get("max-height-nm"));
+  o.constraints.level_tolerance_nm = parse_double("--tolerance-nm", a.get("tolerance-nm"));
   o.dose_curve_csv = a.get("dose-curve");
   SystemConfig cfg;
   Design d;
@@ -79,32 +68,24 @@ int cmd_export(int argc, char** argv) {
   return 0;
 }
 
-int cmd_tolerance(int argc, char** argv) {
-  const std::string usage =
-      "qdo tolerance RUN [--etch-depth-error-nm 20] [--overlay-um 0.5] [--edge-blur-um 0] [--height-noise-nm 0] [--trials 16] "
-      "[--seed 0] --out DIR";
-  std::vector<char*> rest = without_positional(argc, argv, usage);
-  const Args a = parse_args(argc - 1, rest.data(),
-                            {"etch-depth-error-nm", "overlay-um", "edge-blur-um", "height-noise-nm", "trials", "seed", "out", "scheme",
-                             "oversample", "data", "synthetic-scenes", "noise-sigma", "precision", "device"},
-                            "tolerance", {"no-per-source", "save-psfs"});
+int cmd_tolerance(const Args& a) {
   fab::ToleranceOptions t;
-  t.run = argv[2];
-  t.etch_depth_error_m = parse_double("--etch-depth-error-nm", a.get("etch-depth-error-nm", "20")) * 1e-9;
-  t.overlay_m = parse_double("--overlay-um", a.get("overlay-um", "0.5")) * 1e-6;
-  t.edge_blur_m = parse_double("--edge-blur-um", a.get("edge-blur-um", "0")) * 1e-6;
-  t.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", "0")) * 1e-9;
-  t.trials = std::size_t(parse_int("--trials", a.get("trials", "16"), 1, 100000));
-  t.seed = std::uint64_t(parse_int("--seed", a.get("seed", "0"), 0, 2147483647));
-  t.scheme = a.get("scheme", "auto");
+  t.run = a.positional;
+  t.etch_depth_error_m = parse_double("--etch-depth-error-nm", a.get("etch-depth-error-nm")) * 1e-9;
+  t.overlay_m = parse_double("--overlay-um", a.get("overlay-um")) * 1e-6;
+  t.edge_blur_m = parse_double("--edge-blur-um", a.get("edge-blur-um")) * 1e-6;
+  t.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm")) * 1e-9;
+  t.trials = std::size_t(parse_int("--trials", a.get("trials"), 1, 100000));
+  t.seed = std::uint64_t(parse_int("--seed", a.get("seed"), 0, 2147483647));
+  t.scheme = a.get("scheme");
   if (t.scheme != "auto") fab::scheme_from_string(t.scheme);
-  t.oversample = std::size_t(parse_int("--oversample", a.get("oversample", "4"), 1, 16));
+  t.oversample = std::size_t(parse_int("--oversample", a.get("oversample"), 1, 16));
   t.per_source = !a.has("no-per-source");
   t.save_psfs = a.has("save-psfs");
-  t.data = split_list(a.get("data", ""));
-  t.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "6"), 1, 100000));
+  t.data = split_list(a.get("data"));
+  t.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));
   t.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma")) : -1;
-  t.precision = precision_from_string(a.get("precision", "f32"));
+  t.precision = precision_from_string(a.get("precision"));
   t.out = a.get("out");
   if (t.out.empty()) reject("--out", "(missing)", "an output folder");
   t.quiet = false;
@@ -127,12 +108,4 @@ int cmd_tolerance(int argc, char** argv) {
   return 0;
 }
 
-const Registrar reg_export("export", cmd_export,
-                           "qdo export RUN|DESIGN.h5 --scheme binary|nested|greyscale --out DIR [--preset P | --config FILE]\n"
-                           "             [--min-feature-um 1] [--max-levels L] [--max-height-nm H] [--dose-curve CSV] [--tolerance-nm 0.001]");
-const Registrar reg_tolerance("tolerance", cmd_tolerance,
-                              "qdo tolerance RUN [--etch-depth-error-nm 20] [--overlay-um 0.5] [--edge-blur-um 0] [--height-noise-nm 0]\n"
-                              "             [--trials 16] [--seed 0] [--scheme auto|binary|nested|greyscale] [--oversample 4]\n"
-                              "             [--data PATH,...] [--no-per-source] [--save-psfs] [--precision f32|f64] [--device SEL] --out DIR");
-
-}  // namespace
+}  // namespace qdo::cli

@@ -13,18 +13,14 @@
 using namespace qdo;
 using namespace qdo::cli;
 
-namespace {
+namespace qdo::cli {
 
-int cmd_image(int argc, char** argv) {
-  const Args a = parse_args(argc, argv,
-                            {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device",
-                             "tolerance", "tiles", "tile-px", "out", "resample-bands"},
-                            "image", {"exact", "resample-bands"});
+int cmd_image(const Args& a) {
   const SystemConfig cfg = load_config(a);
-  const Precision p = precision_from_string(a.get("precision", "f32"));
-  SkipOptions opt = SkipOptions::split(parse_double("--tolerance", a.get("tolerance", "3e-7")),
-                                       tile_mode_from_string(a.get("tiles", "off")),
-                                       std::size_t(parse_int("--tile-px", a.get("tile-px", "64"), 8, 4096)));
+  const Precision p = precision_from_string(a.get("precision"));
+  SkipOptions opt = SkipOptions::split(parse_double("--tolerance", a.get("tolerance")),
+                                       tile_mode_from_string(a.get("tiles")),
+                                       std::size_t(parse_int("--tile-px", a.get("tile-px"), 8, 4096)));
   opt.exact = a.has("exact");
   opt.validate();
   if (!a.has("design")) reject("--design", "(missing)", "lens:NM, flat, or a design .h5 file");
@@ -54,9 +50,4 @@ int cmd_image(int argc, char** argv) {
   return 0;
 }
 
-const Registrar reg("image", cmd_image,
-                    "qdo image --design lens:NM|flat|DESIGN.h5 [--scene builtin|CUBE.mat|CUBE.h5|PNG_FOLDER] [--key K] "
-                    "[--tolerance 3e-7] [--exact] [--tiles off|on|auto] [--tile-px 64] [--preset P|--config C] "
-                    "[--levels L [--placement P]] [--precision f32|f64] [--device D] --out DIR");
-
-}  // namespace
+}  // namespace qdo::cli

@@ -14,13 +14,13 @@ namespace fs = std::filesystem;
 using namespace qdo;
 using namespace qdo::cli;
 
+namespace qdo::cli {
 namespace {
 
 
-int cmd_sweep_psf(int argc, char** argv) {
-  const Args a = parse_args(argc, argv, {"design", "levels", "placement", "adaptive-from", "preset", "config", "precision",
-                                         "device", "designs-per-pass", "out"},
-                            "sweep-psf");
+}  // namespace
+
+int cmd_sweep_psf(const Args& a) {
   PsfSweepOptions o;
   const std::string design = a.get("design");
   if (design.empty()) reject("--design", "(missing)", "a design .h5 file or a run folder");
@@ -32,8 +32,8 @@ int cmd_sweep_psf(int argc, char** argv) {
     o.cfg = load_config(a);
     o.design_full_m = load_design(o.cfg, design);
   }
-  const Placement pl = placement_from_string(a.get("placement", "inclusive"));
-  for (const auto& l : split_list(a.get("levels", "2,4,8,16,32"))) {
+  const Placement pl = placement_from_string(a.get("placement"));
+  for (const auto& l : split_list(a.get("levels"))) {
     PsfSweepVariant v;
     v.quantizer.levels = parse_int("--levels", l, 2, 65536);
     v.quantizer.placement = pl;
@@ -53,8 +53,8 @@ int cmd_sweep_psf(int argc, char** argv) {
     v.label = "L" + std::to_string(L) + "-adaptive";
     o.variants.push_back(v);
   }
-  o.precision = precision_from_string(a.get("precision", "f32"));
-  o.max_designs_per_pass = std::size_t(parse_int("--designs-per-pass", a.get("designs-per-pass", "0"), 0, 1000));
+  o.precision = precision_from_string(a.get("precision"));
+  o.max_designs_per_pass = std::size_t(parse_int("--designs-per-pass", a.get("designs-per-pass"), 0, 1000));
   o.out = out_dir(a);
   Runtime rt(a.get("device"));
   const auto t0 = std::chrono::steady_clock::now();
@@ -74,28 +74,14 @@ int cmd_sweep_psf(int argc, char** argv) {
   return 0;
 }
 
-int cmd_sweep(int argc, char** argv) {
-  // --grid levels=2,4,8 --grid mode=do,qdo,qdo+a (repeatable), plus every option of qdo design.
-  std::vector<std::string> grids;
-  std::vector<char*> rest;
-  for (int i = 0; i < argc; ++i) {
-    if (std::string(argv[i]) == "--grid" && i + 1 < argc) {
-      grids.push_back(argv[++i]);
-      continue;
-    }
-    rest.push_back(argv[i]);
-  }
-  const Args a = parse_args(int(rest.size()), rest.data(),
-                            {"preset", "config", "placement", "parameterization", "objective", "data", "test-data", "epochs",
-                             "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm", "noise-sigma",
-                             "init", "seed", "synthetic-scenes", "eval-scenes", "batch", "precision", "device", "out", "psf-path"},
-                            "sweep");
+int cmd_sweep(const Args& a) {
   GridOptions g;
   Args b = a;
   b.opt["out"] = "(per run)";
   b.opt["mode"] = "do";
   g.base = design_options(b);  // qdo design's options; levels and mode are set per cell
-  for (const auto& spec : grids) {
+  const auto grids = a.multi.find("grid");
+  for (const auto& spec : grids == a.multi.end() ? std::vector<std::string>{} : grids->second) {
     const auto eq = spec.find('=');
     if (eq == std::string::npos) reject("--grid", spec, "AXIS=V1,V2,... with AXIS levels or mode");
     const std::string axis = spec.substr(0, eq);
@@ -111,8 +97,8 @@ int cmd_sweep(int argc, char** argv) {
       reject("--grid", axis, "levels, mode or encoder");
     }
   }
-  g.test_data = split_list(a.get("test-data", ""));
-  g.eval_synthetic_scenes = std::size_t(parse_int("--eval-scenes", a.get("eval-scenes", "4"), 1, 10000));
+  g.test_data = split_list(a.get("test-data"));
+  g.eval_synthetic_scenes = std::size_t(parse_int("--eval-scenes", a.get("eval-scenes"), 1, 10000));
   g.out = out_dir(a);
   g.quiet = false;
   Runtime rt(a.get("device"));
@@ -128,10 +114,4 @@ int cmd_sweep(int argc, char** argv) {
   return 0;
 }
 
-const Registrar reg_sweep_psf("sweep-psf", cmd_sweep_psf,
-                              "qdo sweep-psf --design FILE.h5|RUN [--levels 2,4,8,16,32] [--placement ...] [--adaptive-from RUN] --out DIR");
-const Registrar reg_sweep("sweep", cmd_sweep,
-                          "qdo sweep --grid levels=2,4,8 --grid mode=do,do-refit,qdo,qdo+a [--grid encoder=doe,fresnel,cassi] [--preset P] [--data PATH,...] "
-                          "[--test-data PATH,...] [qdo design options] --out DIR");
-
-}  // namespace
+}  // namespace qdo::cli

@@ -1,4 +1,4 @@
-// qdo command line: devices, config, psf, quantize, simulate, demo.
+// qdo command bodies: devices, config, psf, quantize, simulate, demo, design, eval, gradcheck (main() and the command table: commands.cpp).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -29,35 +29,8 @@ namespace fs = std::filesystem;
 using namespace qdo;
 using namespace qdo::cli;
 
+namespace qdo::cli {
 namespace {
-
-const char* kUsage = R"(qdo: quantization-aware deep optics simulator (OpenCL)
-
-usage:
-  qdo devices
-  qdo config   [--preset paper|small] [--config FILE.json]
-  qdo psf      [--preset P | --config FILE] --design lens:NM|flat|FILE.h5 [--levels L --placement inclusive|wrapped]
-               [--precision f32|f64] [--device SEL] --out DIR
-  qdo quantize [--preset P | --config FILE] --design FILE.h5|lens:NM --levels L [--placement ...] --out FILE.h5
-  qdo simulate [--preset P | --config FILE] --design ... [--levels L ...] --scene builtin|CUBE.(h5|mat)|PNG_FOLDER [--key K]
-               [--resample-bands] [--precision ...] [--device ...] --out DIR
-  qdo demo     [--preset small|paper] [--levels L] [--device SEL] [--out DIR]
-  qdo design   [--preset P | --config FILE] --mode full|do|qdo|ste|qdo+a|qdo+m --levels L [--placement ...]
-               [--parameterization radial|quad|2d] [--psf-path auto|2d|radial] [--objective wiener|wiener-mse|wiener-mae|psf-target]
-               [--target lens:NM|FILE.h5] [--data PATH[,PATH...]] [--epochs 50] [--steps-per-epoch 10]
-               [--t0 5] [--t1 40] [--lr 0.01] [--lr-offsets 0.01] [--decay 0.8] [--beta 0.01]
-               [--height-noise-nm 0] [--noise-sigma 0.001] [--init random|flat|lens:NM] [--seed S]
-               [--checkpoint-every 10] [--max-steps N] [--resume] [--check-gradients] [--precision ...] --out RUN
-  qdo eval     RUN [--data PATH[,PATH...]] [--levels L] [--decoder matched|mismatch] [--pixels y:x,...] --out DIR
-  qdo gradcheck [--preset small] [--mode M] [--objective ...] [--levels 4] [--seed S]
-
-Exit codes: 0 ok, 1 internal error, 2 bad input (argument or file, named), 3 refused as
-inaccurate or not finite, 4 OpenCL/device error, 5 gradient check failed, 6 file system
-error, 7 out of host memory. A failed command leaves none of its outputs.
-
-Device selection: --device, else $QDO_DEVICE, else the first GPU, else the first CPU
-(gpu | cpu | P:D as 'qdo devices' prints | a substring of the device name).
-)";
 
 // Runs the PSF chain and writes DIR/psf.h5 + DIR/psf.png + DIR/design.png; returns the simulator.
 void write_psf_outputs(Simulator& sim, const Map2D& h, const std::string& dir, const std::string& tag) {
@@ -81,7 +54,9 @@ void write_psf_outputs(Simulator& sim, const Map2D& h, const std::string& dir, c
   write_map_png(dir + "/design.png", h);
 }
 
-int cmd_devices() {
+}  // namespace
+
+int cmd_devices(const Args&) {
   const auto devs = list_devices();
   for (const auto& d : devs)
     std::printf("%zu:%zu  %s / %s  [%s]  driver %s  %s  fp64 %s  %u CUs  %.1f GiB\n", d.platform_index, d.device_index,
@@ -92,16 +67,14 @@ int cmd_devices() {
   return 0;
 }
 
-int cmd_config(int argc, char** argv) {
-  const Args a = parse_args(argc, argv, {"preset", "config"}, "config");
+int cmd_config(const Args& a) {
   std::cout << config_to_json_text(load_config(a)) << "\n";
   return 0;
 }
 
-int cmd_psf(int argc, char** argv) {
-  const Args a = parse_args(argc, argv, {"preset", "config", "design", "levels", "placement", "precision", "device", "out"}, "psf");
+int cmd_psf(const Args& a) {
   const SystemConfig cfg = load_config(a);
-  const Precision p = precision_from_string(a.get("precision", "f32"));
+  const Precision p = precision_from_string(a.get("precision"));
   const Map2D h = design_heights(cfg, a);
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
@@ -121,8 +94,7 @@ int cmd_psf(int argc, char** argv) {
   return 0;
 }
 
-int cmd_quantize(int argc, char** argv) {
-  const Args a = parse_args(argc, argv, {"preset", "config", "design", "levels", "placement", "out"}, "quantize");
+int cmd_quantize(const Args& a) {
   const SystemConfig cfg = load_config(a);
   if (!a.has("levels")) reject("--levels", "(missing)", "the number of levels L >= 2");
   const std::string out = a.get("out");
@@ -144,13 +116,9 @@ int cmd_quantize(int argc, char** argv) {
   return 0;
 }
 
-int cmd_simulate(int argc, char** argv) {
-  const Args a = parse_args(argc, argv,
-                            {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "out",
-                             "resample-bands"},
-                            "simulate", {"resample-bands"});
+int cmd_simulate(const Args& a) {
   const SystemConfig cfg = load_config(a);
-  const Precision p = precision_from_string(a.get("precision", "f32"));
+  const Precision p = precision_from_string(a.get("precision"));
   const Map2D h = design_heights(cfg, a);
   const RealStack scene = scene_from_args(cfg, a);
   const std::string dir = out_dir(a);
@@ -177,6 +145,7 @@ int cmd_simulate(int argc, char** argv) {
   return 0;
 }
 
+namespace {
 int print_gradcheck(const std::vector<GradcheckRow>& rows) {
   bool ok = true;
   std::printf("%-78s %12s %10s  %s\n", "parameter group", "max rel err", "tolerance", "");
@@ -187,13 +156,9 @@ int print_gradcheck(const std::vector<GradcheckRow>& rows) {
   return ok ? 0 : 5;
 }
 
-int cmd_design(int argc, char** argv) {
-  const Args a = parse_args(argc, argv,
-                            {"preset", "config", "mode", "levels", "placement", "parameterization", "objective", "target", "data",
-                             "epochs", "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm",
-                             "noise-sigma", "init", "seed", "checkpoint-every", "max-steps", "resume", "check-gradients",
-                             "precision", "device", "out", "synthetic-scenes", "batch", "psf-path"},
-                            "design", {"resume", "check-gradients"});
+}  // namespace
+
+int cmd_design(const Args& a) {
   DesignRunOptions o = design_options(a);
   const bool resume = a.has("resume");
   if (!resume) o.validate();
@@ -211,29 +176,23 @@ int cmd_design(int argc, char** argv) {
   return 0;
 }
 
-int cmd_eval(int argc, char** argv) {
-  if (argc < 3 || std::string(argv[2]).rfind("--", 0) == 0) reject("RUN", "(missing)", "qdo eval RUN [options] --out DIR");
-  std::vector<char*> rest(argv, argv + argc);
-  rest.erase(rest.begin() + 2);  // the run folder is positional
-  const Args a = parse_args(argc - 1, rest.data(), {"data", "levels", "placement", "decoder", "noise-sigma", "pixels", "renders",
-                                                    "synthetic-scenes", "precision", "device", "out"},
-                            "eval");
+int cmd_eval(const Args& a) {
   EvalOptions e;
-  e.run = argv[2];
-  e.data = split_list(a.get("data", ""));
+  e.run = a.positional;
+  e.data = split_list(a.get("data"));
   e.levels = a.has("levels") ? parse_int("--levels", a.get("levels"), 2, 65536) : 0;
-  e.placement = placement_from_string(a.get("placement", "inclusive"));
-  e.decoder = a.get("decoder", "matched");
+  e.placement = placement_from_string(a.get("placement"));
+  e.decoder = a.get("decoder");
   e.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma")) : -1;
-  e.renders = std::size_t(parse_int("--renders", a.get("renders", "4"), 0, 1000));
-  e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "6"), 1, 100000));
-  for (const auto& p : split_list(a.get("pixels", ""))) {
+  e.renders = std::size_t(parse_int("--renders", a.get("renders"), 0, 1000));
+  e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));
+  for (const auto& p : split_list(a.get("pixels"))) {
     const auto c = p.find(':');
     if (c == std::string::npos) reject("--pixels", p, "y:x pairs separated by commas");
     e.pixels.push_back({std::size_t(parse_int("--pixels", p.substr(0, c), 0, 1 << 20)),
                         std::size_t(parse_int("--pixels", p.substr(c + 1), 0, 1 << 20))});
   }
-  e.precision = precision_from_string(a.get("precision", "f32"));
+  e.precision = precision_from_string(a.get("precision"));
   e.out = a.get("out");
   Runtime rt(a.get("device"));
   const EvalResult r = evaluate_run(rt, e);
@@ -248,10 +207,7 @@ int cmd_eval(int argc, char** argv) {
   return 0;
 }
 
-int cmd_gradcheck(int argc, char** argv) {
-  const Args a = parse_args(argc, argv, {"preset", "config", "mode", "levels", "placement", "parameterization", "objective",
-                                         "target", "seed", "device", "psf-path"},
-                            "gradcheck");
+int cmd_gradcheck(const Args& a) {
   Args b = a;
   b.opt["out"] = "(unused)";
   b.opt["epochs"] = "10";
@@ -270,19 +226,18 @@ const char* const kDemoRunFiles[] = {"config.json", "checkpoint.h5", "checkpoint
 // The main job: a QDO+A design at L levels on synthetic scenes (small preset), compared with
 // conventional deep optics (DO: full-precision training, quantized afterwards) on held-out
 // synthetic scenes and, when present, the real CAVE scenes; plus the forward-model figures.
-int cmd_demo(int argc, char** argv) {
-  const Args a = parse_args(argc, argv, {"preset", "levels", "device", "out", "precision", "epochs", "steps-per-epoch", "data"}, "demo");
+int cmd_demo(const Args& a) {
   const std::string dir = out_dir(a, "out/demo");
   DesignRunOptions o;
-  o.cfg = preset_config(a.get("preset", "small"));
-  o.design.quantizer.levels = parse_int("--levels", a.get("levels", "4"), 2, 65536);
-  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", "15"), 2, 100000));
-  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch", "8"), 1, 100000));
+  o.cfg = preset_config(a.get("preset"));
+  o.design.quantizer.levels = parse_int("--levels", a.get("levels"), 2, 65536);
+  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs"), 2, 100000));
+  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch"), 1, 100000));
   o.design.t0_epochs = 0.1 * double(o.epochs);
   o.design.t1_epochs = 0.8 * double(o.epochs);
-  o.precision = precision_from_string(a.get("precision", "f32"));
+  o.precision = precision_from_string(a.get("precision"));
   o.objective = "wiener";
-  std::string real = a.get("data", "../shared/data/hsi/cave");
+  std::string real = a.get("data");
   if (!fs::exists(real)) real.clear();
   struct Job {
     DesignMode mode;
@@ -373,60 +328,4 @@ int cmd_demo(int argc, char** argv) {
   return 0;
 }
 
-}  // namespace
-
-int dispatch(const std::string& cmd, int argc, char** argv) {
-  if (cmd == "devices") return cmd_devices();
-  if (cmd == "config") return cmd_config(argc, argv);
-  if (cmd == "psf") return cmd_psf(argc, argv);
-  if (cmd == "quantize") return cmd_quantize(argc, argv);
-  if (cmd == "simulate") return cmd_simulate(argc, argv);
-  if (cmd == "demo") return cmd_demo(argc, argv);
-  if (cmd == "design") return cmd_design(argc, argv);
-  if (cmd == "gradcheck") return cmd_gradcheck(argc, argv);
-  if (cmd == "eval") return cmd_eval(argc, argv);
-  const auto it = registry().find(cmd);
-  if (it != registry().end()) return it->second.run(argc, argv);
-  std::fprintf(stderr, "qdo: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
-  for (const auto& [name, info] : registry()) std::fprintf(stderr, "  %s\n", info.usage.c_str());
-  return 2;
-}
-
-int main(int argc, char** argv) {
-  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h" || std::string(argv[1]) == "help") {
-    std::fputs(kUsage, argc < 2 ? stderr : stdout);
-    for (const auto& [name, info] : registry()) std::fprintf(argc < 2 ? stderr : stdout, "  %s\n", info.usage.c_str());
-    return argc < 2 ? 2 : 0;
-  }
-  const std::string cmd = argv[1];
-  // Long, resumable commands write their files as they go; the others stage every output and
-  // rename them into place together only when the command succeeds (OutputStage, io.hpp).
-  const bool defer_files = cmd != "design" && cmd != "sweep" && cmd != "sweep-psf" && cmd != "demo";
-  try {
-    OutputStage stage(defer_files);
-    const int rc = dispatch(cmd, argc, argv);
-    if (rc == 0) stage.commit();
-    return rc;
-  } catch (const InputError& e) {
-    std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
-    return 2;
-  } catch (const AccuracyError& e) {
-    std::fprintf(stderr, "qdo %s: refused: %s\n", cmd.c_str(), e.what());
-    return 3;
-  } catch (const DeviceError& e) {
-    std::fprintf(stderr, "qdo %s: device error: %s\n", cmd.c_str(), e.what());
-    return 4;
-  } catch (const cl::Error& e) {
-    std::fprintf(stderr, "qdo %s: OpenCL error in %s: %s\n", cmd.c_str(), e.what(), cl_error_name(e.err()).c_str());
-    return 4;
-  } catch (const std::filesystem::filesystem_error& e) {
-    std::fprintf(stderr, "qdo %s: file system error: %s\n", cmd.c_str(), e.what());
-    return 6;
-  } catch (const std::bad_alloc&) {
-    std::fprintf(stderr, "qdo %s: out of host memory (reduce the problem size: --preset, n, bands, batch)\n", cmd.c_str());
-    return 7;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "qdo %s: internal error (please report): %s\n", cmd.c_str(), e.what());
-    return 1;
-  }
-}
+}  // namespace qdo::cli

@@ -1,0 +1,397 @@
+// The command table of qdo: every command with its one-line summary, its positional argument
+// (if any) and each of its options declared once (name, description with units and allowed
+// values, default, flag or not). CLI11 parses a command line against its entry into an Args;
+// `qdo --help`, `qdo <command> --help` and `qdo --version` are generated from here.
+#include <CLI/CLI.hpp>
+#include <fftw3.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <sstream>
+
+#include "cli.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/fft.hpp"
+#include <clFFT.h>
+
+#ifndef QDO_VERSION
+#define QDO_VERSION "unknown"
+#endif
+#ifndef QDO_GIT_REVISION
+#define QDO_GIT_REVISION "unknown"
+#endif
+
+using namespace qdo;
+using namespace qdo::cli;
+
+namespace qdo::cli {
+namespace {
+
+OptionSpec opt(const std::string& name, const std::string& help, const std::string& def = "") { return {name, help, def, false, false}; }
+OptionSpec flag(const std::string& name, const std::string& help) { return {name, help, "", true, false}; }
+
+// Options several commands share, declared here once.
+OptionSpec preset() { return opt("preset", "system preset: paper or small (omit with --config)", "small"); }
+OptionSpec config() { return opt("config", "system configuration JSON file (instead of --preset)"); }
+OptionSpec device() {
+  return opt("device", "OpenCL device: gpu, cpu, P:D as 'qdo devices' prints, or a substring of the device name "
+                       "(default: $QDO_DEVICE, else the first GPU, else the first CPU)");
+}
+OptionSpec precision() { return opt("precision", "floating-point precision on the device: f32 or f64", "f32"); }
+OptionSpec placement() { return opt("placement", "quantization level placement: inclusive or wrapped", "inclusive"); }
+OptionSpec design_spec() { return opt("design", "design: lens:NM (a diffractive lens for NM nanometres), flat, or a design .h5 file"); }
+OptionSpec levels_post() { return opt("levels", "quantize the design to L height levels, an integer in [2, 65536] (default: not quantized)"); }
+OptionSpec out_dir_opt() { return opt("out", "output folder (created)"); }
+OptionSpec scene() {
+  return opt("scene", "scene: builtin (the configuration's chart), a cube file (.mat or .h5), or a folder of PNG bands", "builtin");
+}
+OptionSpec key() { return opt("key", "variable / dataset name of the cube in a .mat or .h5 --scene file (default: found automatically)"); }
+OptionSpec resample_bands() { return flag("resample-bands", "interpolate a --scene cube whose band axis differs from the configuration's"); }
+OptionSpec data(const std::string& what) { return opt("data", what + ": CAVE folders, cube files or folders of them, comma-separated"); }
+OptionSpec synthetic_scenes(const std::string& def) { return opt("synthetic-scenes", "number of synthetic scenes, an integer in [1, 100000]", def); }
+OptionSpec noise_sigma(const std::string& help, const std::string& def) { return opt("noise-sigma", help, def); }
+OptionSpec seed() { return opt("seed", "random seed, an integer in [0, 2147483647]", "0"); }
+OptionSpec psf_path() {
+  return opt("psf-path", "PSF engine of the optimisation: auto (radial for radial designs), 2d or radial (radial designs only)", "auto");
+}
+OptionSpec mode() { return opt("mode", "design mode: full, do, qdo, ste, qdo+a or qdo+m", "qdo+a"); }
+OptionSpec parameterization() { return opt("parameterization", "height map parameterization: radial, quad or 2d", "radial"); }
+OptionSpec objective() { return opt("objective", "design objective: wiener, wiener-mse, wiener-mae or psf-target", "wiener"); }
+OptionSpec target() { return opt("target", "PSF target for --objective psf-target: lens:NM or a design .h5 file", "lens:550"); }
+OptionSpec height_noise() { return opt("height-noise-nm", "fabrication height noise during training, std in nm (>= 0)", "0"); }
+
+// The options of the optimisation (qdo design; qdo sweep takes them too).
+std::vector<OptionSpec> training_options() {
+  return {opt("epochs", "number of epochs, an integer in [1, 1000000]", "50"),
+          opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 1000000]", "10"),
+          opt("t0", "epoch where the quantization temperature schedule starts (default: min(5, 0.1 x epochs))"),
+          opt("t1", "epoch where the quantization temperature schedule ends (> --t0; default: 0.8 x epochs)"),
+          opt("lr", "learning rate of the optics parameters (>= 0)", "0.01"),
+          opt("lr-offsets", "learning rate of the adaptive level offsets (qdo+a, >= 0)", "0.01"),
+          opt("decay", "learning-rate decay factor per epoch, in (0, 1]", "0.8"),
+          opt("beta", "weight of the adaptive-quantization regulariser (qdo+a, >= 0)", "0.01"),
+          height_noise(),
+          noise_sigma("sensor noise std of the decoder's training data, in units of full scale (>= 0)", "0.001"),
+          opt("init", "initial design: random, flat or lens:NM", "random"),
+          seed(),
+          synthetic_scenes("12"),
+          opt("batch", "scenes per optimiser step, an integer in [1, 100000]", "4"),
+          psf_path()};
+}
+
+std::vector<OptionSpec> concat(std::vector<OptionSpec> a, const std::vector<OptionSpec>& b) {
+  a.insert(a.end(), b.begin(), b.end());
+  return a;
+}
+
+std::vector<CommandSpec> make_table() {
+  std::vector<CommandSpec> t;
+  t.push_back({"devices", "list the OpenCL platforms and devices and the default choice", "", "", {}, cmd_devices});
+  t.push_back({"config", "print the system configuration as JSON", "", "", {preset(), config()}, cmd_config});
+  t.push_back({"psf", "compute a design's PSF stack: DIR/psf.h5, psf.png, design.png", "", "",
+               {preset(), config(), design_spec(), levels_post(), placement(), precision(), device(), out_dir_opt()}, cmd_psf});
+  t.push_back({"quantize", "quantize a design to L levels (post-hoc, uniform) into a design .h5 file", "", "",
+               {preset(), config(), design_spec(), opt("levels", "number of height levels L, an integer in [2, 65536] (required)"),
+                placement(), opt("out", "output design .h5 file")},
+               cmd_quantize});
+  t.push_back({"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*", "", "",
+               {preset(), config(), design_spec(), levels_post(), placement(), scene(), key(), resample_bands(), precision(), device(),
+                out_dir_opt()},
+               cmd_simulate});
+  t.push_back({"demo", "QDO+A against conventional deep optics (DO) at L levels, designed and evaluated end to end", "", "",
+               {opt("preset", "system preset: paper or small", "small"), opt("levels", "height levels L, an integer in [2, 65536]", "4"),
+                opt("epochs", "epochs per design, an integer in [2, 100000]", "15"),
+                opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 100000]", "8"),
+                opt("data", "real test scenes (CAVE folder); skipped when absent", "../shared/data/hsi/cave"), precision(), device(),
+                opt("out", "output folder (created; its qdoa/ and do/ run folders are replaced)", "out/demo")},
+               cmd_demo, true});
+  t.push_back({"design", "optimise a design end to end into a run folder (resumable)", "", "",
+               concat({preset(), config(), mode(), opt("levels", "height levels L, an integer in [2, 65536]", "4"), placement(),
+                       parameterization(), objective(), target(), data("training scenes (default: synthetic scenes)")},
+                      concat(training_options(),
+                             {opt("checkpoint-every", "steps between checkpoints, an integer in [1, 100000000]", "10"),
+                              opt("max-steps", "stop after N steps in this session, resumable, an integer >= 0 (default: no limit)"),
+                              flag("resume", "continue the run in --out with its stored options"),
+                              flag("check-gradients", "run the gradient check on this configuration first"), precision(), device(),
+                              opt("out", "run folder (config.json checkpoint.h5 log.csv design.h5 psf.h5 *.png)")})),
+               cmd_design, true});
+  t.push_back({"gradcheck", "check the analytic gradients against finite differences (exit 5 on failure)", "", "",
+               {preset(), config(), mode(), opt("levels", "height levels L, an integer in [2, 65536]", "4"), placement(),
+                parameterization(), objective(), target(), seed(), device(), psf_path()},
+               cmd_gradcheck});
+  t.push_back({"eval", "evaluate a run's design: metrics, reconstructions and figures", "RUN", "run folder written by qdo design",
+               {data("test scenes (default: synthetic scenes)"),
+                opt("levels", "re-quantize the full-precision design to L levels, an integer in [2, 65536] (default: the run's)"),
+                placement(), opt("decoder", "decoder: matched (refit to the evaluated design) or mismatch (fit to the full-precision design)", "matched"),
+                noise_sigma("sensor noise std, in units of full scale (>= 0; default: the run's)", ""),
+                opt("pixels", "pixels whose spectra are plotted: y:x pairs, comma-separated"),
+                opt("renders", "number of reconstructions rendered as PNG, an integer in [0, 1000]", "4"), synthetic_scenes("6"),
+                precision(), device(), out_dir_opt()},
+               cmd_eval});
+  t.push_back({"image", "the RGB sensor image of one scene with the skipping rules of SceneImager and a skip report", "", "",
+               {preset(), config(), design_spec(), levels_post(), placement(), scene(), key(), resample_bands(), precision(), device(),
+                opt("tolerance", "error bound of the skipped work, in units of full scale (>= 0)", "3e-7"),
+                flag("exact", "skip nothing"), opt("tiles", "tiled convolution: off, on or auto", "off"),
+                opt("tile-px", "tile size in sensor pixels, an integer in [8, 4096]", "64"), out_dir_opt()},
+               cmd_image});
+  t.push_back({"export", "lithography mask set of a design (GDSII and figures)", "RUN|DESIGN.h5",
+               "run folder written by qdo design, or a design .h5 file",
+               {opt("scheme", "mask scheme: binary, nested or greyscale", "binary"), out_dir_opt(),
+                opt("preset", "system preset for a DESIGN.h5: paper or small (omit with a run folder)", "small"),
+                opt("config", "system configuration JSON file for a DESIGN.h5 (omit with a run folder)"),
+                opt("min-feature-um", "minimum feature size in um (> 0)", "1"),
+                opt("max-levels", "maximum number of height levels, an integer in [0, 65536] (0: no limit)", "0"),
+                opt("max-height-nm", "maximum etch depth in nm (0: no limit)", "0"),
+                opt("dose-curve", "greyscale dose curve CSV file (default: linear)"),
+                opt("tolerance-nm", "tolerance when matching heights to levels, in nm", "0.001")},
+               cmd_export});
+  t.push_back({"tolerance", "Monte Carlo over fabrication errors of a run's design", "RUN", "run folder written by qdo design",
+               {opt("etch-depth-error-nm", "etch depth error std in nm", "20"), opt("overlay-um", "mask overlay error std in um", "0.5"),
+                opt("edge-blur-um", "edge blur in um", "0"), opt("height-noise-nm", "height noise std in nm", "0"),
+                opt("trials", "trials per scenario, an integer in [1, 100000]", "16"), seed(),
+                opt("scheme", "mask scheme: auto, binary, nested or greyscale", "auto"),
+                opt("oversample", "mask oversampling, an integer in [1, 16]", "4"), data("test scenes (default: synthetic scenes)"),
+                synthetic_scenes("6"), noise_sigma("sensor noise std, in units of full scale (>= 0; default: the run's)", ""),
+                flag("no-per-source", "skip the scenarios of one error source at a time"),
+                flag("save-psfs", "write every trial's PSF stack to psfs.h5"), precision(), device(), out_dir_opt()},
+               cmd_tolerance});
+  t.push_back({"sweep", "a grid of designs (levels x modes x encoders), each designed and evaluated, with summary tables", "", "",
+               concat({{"grid", "a grid axis AXIS=V1,V2,...: levels=2,4,8; mode=do,do-refit,qdo,qdo+a; encoder=doe,fresnel,cassi (repeatable)",
+                        "", false, true},
+                       preset(), config(), placement(), parameterization(), objective(),
+                       data("training scenes (default: synthetic scenes)"),
+                       opt("test-data", "test scenes: CAVE folders, cube files or folders of them, comma-separated (default: synthetic)"),
+                       opt("eval-scenes", "synthetic test scenes, an integer in [1, 10000]", "4")},
+                      concat(training_options(), {precision(), device(), out_dir_opt()})),
+               cmd_sweep, true});
+  t.push_back({"sweep-psf", "PSF quality against the number of levels for one design", "", "",
+               {opt("design", "a design .h5 file or a run folder"),
+                opt("levels", "level counts, comma-separated integers in [2, 65536]", "2,4,8,16,32"), placement(),
+                opt("adaptive-from", "also the adaptive levels of this qdo+a run folder"), preset(), config(), precision(), device(),
+                opt("designs-per-pass", "designs per device pass, an integer in [0, 1000] (0: automatic)", "0"), out_dir_opt()},
+               cmd_sweep_psf, true});
+  return t;
+}
+
+std::string option_list(const CommandSpec& c) {
+  std::string list;
+  for (const auto& o : c.options) list += " --" + o.name;
+  return list.empty() ? " none besides --help" : list;
+}
+
+const OptionSpec* find_option(const CommandSpec& c, const std::string& name) {
+  for (const auto& o : c.options)
+    if (o.name == name) return &o;
+  return nullptr;
+}
+
+// The CLI11 app of one command, bound to `values` (one slot per option).
+struct Parser {
+  CLI::App app;
+  std::map<std::string, std::vector<std::string>> values;
+  std::string positional;
+  explicit Parser(const CommandSpec& c) : app(c.summary, "qdo " + c.name) {
+    app.set_help_flag("-h,--help", "print this command's options and exit");
+    app.allow_extras(true);  // unknown options and stray arguments are reported below, naming them
+    app.footer("Exit codes: 0 ok, 1 internal error, 2 bad input, 3 refused as inaccurate, 4 device error, "
+               "5 gradient check failed, 6 file system error, 7 out of host memory.");
+    if (!c.positional.empty()) app.add_option(c.positional, positional, c.positional_help)->type_name("");
+    for (const auto& o : c.options) {
+      std::string help = o.help;
+      if (!o.def.empty()) help += " (default: " + o.def + ")";
+      if (o.flag) {
+        app.add_flag("--" + o.name, help);
+      } else {
+        std::vector<std::string>& v = values[o.name];
+        CLI::Option* x = app.add_option("--" + o.name, v, help)->type_name("VALUE")->expected(1);
+        x->multi_option_policy(o.repeat ? CLI::MultiOptionPolicy::TakeAll : CLI::MultiOptionPolicy::TakeLast);
+        x->allow_extra_args(false);
+      }
+    }
+  }
+};
+
+}  // namespace
+
+const std::vector<CommandSpec>& command_table() {
+  static const std::vector<CommandSpec> t = make_table();
+  return t;
+}
+
+const CommandSpec* find_command(const std::string& name) {
+  for (const auto& c : command_table())
+    if (c.name == name) return &c;
+  return nullptr;
+}
+
+std::string command_help(const CommandSpec& c) {
+  Parser p(c);
+  return p.app.help();
+}
+
+bool parse_command_line(const CommandSpec& c, int argc, char** argv, Args& out) {
+  // A value option with nothing after it (or another option after it) names the option here,
+  // before CLI11 sees it.
+  for (int i = 2; i < argc; ++i) {
+    const std::string s = argv[i];
+    if (s == "--") break;
+    if (s == "-h" || s == "--help") break;
+    if (s.rfind("--", 0) != 0 || s.find('=') != std::string::npos) continue;
+    const OptionSpec* o = find_option(c, s.substr(2));
+    if (!o || o->flag) continue;
+    if (i + 1 >= argc) reject(s, "(missing)", "a value after the option: " + o->help);
+    const std::string next = argv[i + 1];
+    if (next.rfind("--", 0) == 0 && next.size() > 2) reject(s, "(missing)", "a value after the option (got the option " + next + "): " + o->help);
+    ++i;
+  }
+  Parser p(c);
+  try {
+    p.app.parse(argc - 1, argv + 1);  // argv[1], the command, stands in for the program name
+  } catch (const CLI::CallForHelp&) {
+    std::fputs(p.app.help().c_str(), stdout);
+    return false;
+  } catch (const CLI::ParseError& e) {
+    throw InputError("the command line of 'qdo " + c.name + "': " + e.what() + " (options:" + option_list(c) + ")");
+  }
+  const std::vector<std::string> extra = p.app.remaining();
+  if (!extra.empty()) {
+    const std::string& s = extra.front();
+    if (s.rfind("-", 0) == 0 && s.size() > 1) {
+      std::string name = s, val;
+      const auto eq = s.find('=');
+      if (eq != std::string::npos) {
+        name = s.substr(0, eq);
+        val = s.substr(eq + 1);
+      } else if (extra.size() > 1 && extra[1].rfind("-", 0) != 0) {
+        val = extra[1];
+      } else {
+        val = "(no value)";
+      }
+      reject(name, val, "an option of 'qdo " + c.name + "':" + option_list(c) + " (qdo " + c.name + " --help describes them)");
+    }
+    std::string where = "argument";
+    for (int i = 2; i < argc; ++i)
+      if (s == argv[i]) {
+        where = "argument " + std::to_string(i - 1);
+        break;
+      }
+    reject(where, s,
+           c.positional.empty() ? "options of the form --name VALUE (qdo " + c.name + " takes no positional argument)"
+                                : "one " + c.positional + " and options of the form --name VALUE");
+  }
+  Args a;
+  for (const auto& o : c.options) {
+    if (!o.def.empty()) a.defaults[o.name] = o.def;
+    const CLI::Option* x = p.app.get_option("--" + o.name);
+    if (x->count() == 0) continue;
+    if (o.flag) {
+      a.opt[o.name] = "yes";
+    } else if (o.repeat) {
+      a.multi[o.name] = p.values[o.name];
+      a.opt[o.name] = p.values[o.name].back();
+    } else {
+      a.opt[o.name] = p.values[o.name].empty() ? std::string() : p.values[o.name].back();
+    }
+  }
+  if (!c.positional.empty()) {
+    if (p.positional.empty())
+      reject(c.positional, "(missing)", "qdo " + c.name + " " + c.positional + " [options]: the " + c.positional_help);
+    a.positional = p.positional;
+  }
+  out = std::move(a);
+  return true;
+}
+
+}  // namespace qdo::cli
+
+namespace {
+
+std::string top_help() {
+  std::ostringstream s;
+  s << "qdo: quantization-aware deep optics simulator (OpenCL)\n\n"
+       "usage:\n  qdo <command> [options]      run a command\n  qdo <command> --help         its options, with defaults\n"
+       "  qdo --help | --version\n\ncommands:\n";
+  for (const auto& c : command_table()) {
+    std::string name = c.name + (c.positional.empty() ? "" : " " + c.positional);
+    name.resize(std::max<std::size_t>(name.size(), 24), ' ');
+    s << "  " << name << " " << c.summary << "\n";
+  }
+  s << "\nExit codes: 0 ok, 1 internal error, 2 bad input (argument or file, named), 3 refused as\n"
+       "inaccurate or not finite, 4 OpenCL/device error, 5 gradient check failed, 6 file system\n"
+       "error, 7 out of host memory. A failed command leaves none of its outputs.\n\n"
+       "Device selection: --device, else $QDO_DEVICE, else the first GPU, else the first CPU\n"
+       "(gpu | cpu | P:D as 'qdo devices' prints | a substring of the device name).\n";
+  return s.str();
+}
+
+// Version, git revision, OpenCL platforms and devices (none is fine), FFT backends.
+int print_version() {
+  std::printf("qdo %s (git revision %s)\n", QDO_VERSION, QDO_GIT_REVISION);
+  try {
+    const auto devs = list_devices();
+    std::printf("OpenCL devices: %zu\n", devs.size());
+    for (const auto& d : devs)
+      std::printf("  %zu:%zu  %s / %s  [%s]  %s  driver %s\n", d.platform_index, d.device_index, d.platform.c_str(), d.name.c_str(),
+                  d.type.c_str(), d.version.c_str(), d.driver_version.c_str());
+  } catch (const std::exception& e) {
+    std::printf("OpenCL devices: none (%s)\n", e.what());
+  }
+  cl_uint ma = 0, mi = 0, pa = 0;
+  clfftGetVersion(&ma, &mi, &pa);
+  std::printf("FFT backends: clFFT %u.%u.%u and VkFFT %s (OpenCL device; QDO_FFT=clfft|vkfft); FFTW (%s, host reference)\n", ma, mi, pa,
+              vkfft_version().c_str(), fftw_version);
+  std::printf("command line: CLI11 %s\n", CLI11_VERSION);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const std::string first = argc < 2 ? "" : argv[1];
+  if (argc < 2 || first == "--help" || first == "-h" || first == "help") {
+    std::fputs(top_help().c_str(), argc < 2 ? stderr : stdout);
+    return argc < 2 ? 2 : 0;
+  }
+  if (first == "--version" || first == "-V") return print_version();
+  const CommandSpec* c = find_command(first);
+  if (!c) {
+    std::fprintf(stderr, "qdo: unknown command '%s'\n\n%s", first.c_str(), top_help().c_str());
+    return 2;
+  }
+  const std::string& cmd = c->name;
+  try {
+    Args a;
+    if (!parse_command_line(*c, argc, argv, a)) return 0;  // --help
+    // Long, resumable commands write their files as they go; the others stage every output and
+    // rename them into place together only when the command succeeds (OutputStage, io.hpp).
+    OutputStage stage(!c->writes_as_it_goes);
+    const int rc = c->run(a);
+    if (rc == 0) stage.commit();
+    return rc;
+  } catch (const InputError& e) {
+    std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
+    return 2;
+  } catch (const AccuracyError& e) {
+    std::fprintf(stderr, "qdo %s: refused: %s\n", cmd.c_str(), e.what());
+    return 3;
+  } catch (const DeviceError& e) {
+    std::fprintf(stderr, "qdo %s: device error: %s\n", cmd.c_str(), e.what());
+    return 4;
+  } catch (const cl::Error& e) {
+    std::fprintf(stderr, "qdo %s: OpenCL error in %s: %s\n", cmd.c_str(), e.what(), cl_error_name(e.err()).c_str());
+    return 4;
+  } catch (const std::filesystem::filesystem_error& e) {
+    std::fprintf(stderr, "qdo %s: file system error: %s\n", cmd.c_str(), e.what());
+    return 6;
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "qdo %s: out of host memory (reduce the problem size: --preset, n, bands, batch)\n", cmd.c_str());
+    return 7;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "qdo %s: internal error (please report): %s\n", cmd.c_str(), e.what());
+    return 1;
+  }
+}
