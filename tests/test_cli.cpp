@@ -134,7 +134,11 @@ TEST_SUITE("cli") {
         CHECK(r.out.find("qdo " + cmd) != std::string::npos);
         for (const auto& o : opts) {
           CAPTURE(o);
-          CHECK(r.out.find("--" + o + " ") != std::string::npos);
+          const std::size_t at = r.out.find("--" + o + " ");
+          REQUIRE(at != std::string::npos);
+          // Every option, flags included, has a description on its line.
+          const std::string line = r.out.substr(at, r.out.find('\n', at) - at);
+          CHECK(line.find_first_not_of(' ', line.find(' ')) != std::string::npos);
         }
       }
       const Run bad = qdo_run(cmd + " --bogus 3");

@@ -204,7 +204,7 @@ struct Parser {
       std::string help = o.help;
       if (!o.def.empty()) help += " (default: " + o.def + ")";
       if (o.flag) {
-        app.add_flag("--" + o.name, help);
+        app.add_flag("--" + o.name)->description(help);  // (name, std::string) would bind the string as the target
       } else {
         std::vector<std::string>& v = values[o.name];
         CLI::Option* x = app.add_option("--" + o.name, v, help)->type_name("VALUE")->expected(1);
