@@ -164,11 +164,7 @@ void SceneImager::ensure_rings() {
   if (rings_valid_ && rings_gen_ == gen) return;
   const std::size_t bands = cfg_.bands, nr = s_ / 2 + 1;
   grow(rings_buf_, rings_cap_, bands * nr * rsz_);
-  k_rings_.setArg(0, psf_buffer());
-  k_rings_.setArg(1, rings_buf_);
-  k_rings_.setArg(2, int(s_));
-  k_rings_.setArg(3, int(bands));
-  rt_.enqueue_1d(k_rings_, bands * nr);
+  rt_.launch_1d(k_rings_, bands * nr, prec_, psf_buffer(), rings_buf_, int(s_), int(bands));
   rings_.assign(bands * nr, 0.0);
   if (prec_ == Precision::F64) {
     rt_.queue().enqueueReadBuffer(rings_buf_, CL_TRUE, 0, bands * nr * 8, rings_.data());
@@ -196,15 +192,8 @@ void SceneImager::ensure_otf(std::size_t r, std::size_t gy, std::size_t gx, cons
   grow(band_of_, band_of_cap_, band_of.size() * sizeof(int), CL_MEM_READ_ONLY);
   rt_.queue().enqueueWriteBuffer(band_of_, CL_TRUE, 0, band_of.size() * sizeof(int), band_of.data());
   grow(otf_, otf_cap_, pairs * g * 2 * rsz_);
-  k_place_psf_.setArg(0, psf_buffer());
-  k_place_psf_.setArg(1, band_of_);
-  k_place_psf_.setArg(2, otf_);
-  k_place_psf_.setArg(3, int(s_));
-  k_place_psf_.setArg(4, int(gy));
-  k_place_psf_.setArg(5, int(gx));
-  k_place_psf_.setArg(6, int(r));
-  k_place_psf_.setArg(7, int(kept.size()));
-  rt_.enqueue_1d(k_place_psf_, pairs * g);
+  rt_.launch_1d(k_place_psf_, pairs * g, prec_, psf_buffer(), band_of_, otf_, int(s_), int(gy), int(gx), int(r),
+                int(kept.size()));
   rt_.fft(gy, gx, pairs, prec_).forward(otf_);
   otf_gen_ = gen;
   otf_r_ = r;
@@ -483,48 +472,14 @@ std::vector<RealStack> SceneImager::images(const std::vector<RealStack>& cubes, 
       const std::size_t a = circular ? 0 : extent_neg(L.r, s_), b = circular ? 0 : extent_pos(L.r, s_);
       for (std::size_t base = 0; base < nslots; base += chunk) {
         const std::size_t count = std::min(chunk, nslots - base);
-        k_place_.setArg(0, cube_);
-        k_place_.setArg(1, tiles_);
-        k_place_.setArg(2, spec_);
-        k_place_.setArg(3, int(h));
-        k_place_.setArg(4, int(w));
-        k_place_.setArg(5, int(nk));
-        k_place_.setArg(6, int(L.gy));
-        k_place_.setArg(7, int(L.gx));
-        k_place_.setArg(8, int(L.th));
-        k_place_.setArg(9, int(L.tw));
-        k_place_.setArg(10, int(base));
-        k_place_.setArg(11, int(count));
-        k_place_.setArg(12, int(chunk));
-        rt_.enqueue_1d(k_place_, chunk * pairs * g);
+        rt_.launch_1d(k_place_, chunk * pairs * g, prec_, cube_, tiles_, spec_, int(h), int(w), int(nk), int(L.gy),
+                      int(L.gx), int(L.th), int(L.tw), int(base), int(count), int(chunk));
         fwd.forward(spec_);
-        k_combine_.setArg(0, spec_);
-        k_combine_.setArg(1, otf_);
-        k_combine_.setArg(2, wts_);
-        k_combine_.setArg(3, rgbspec_);
-        k_combine_.setArg(4, int(L.gy));
-        k_combine_.setArg(5, int(L.gx));
-        k_combine_.setArg(6, int(nk));
-        k_combine_.setArg(7, int(chunk));
-        rt_.enqueue_1d(k_combine_, chunk * g);
+        rt_.launch_1d(k_combine_, chunk * g, prec_, spec_, otf_, wts_, rgbspec_, int(L.gy), int(L.gx), int(nk),
+                      int(chunk));
         inv.inverse(rgbspec_);
-        k_gather_.setArg(0, rgbspec_);
-        k_gather_.setArg(1, slot_of_);
-        k_gather_.setArg(2, rgb_);
-        k_gather_.setArg(3, int(h));
-        k_gather_.setArg(4, int(w));
-        k_gather_.setArg(5, int(L.gy));
-        k_gather_.setArg(6, int(L.gx));
-        k_gather_.setArg(7, int(L.th));
-        k_gather_.setArg(8, int(L.tw));
-        k_gather_.setArg(9, int(L.nty));
-        k_gather_.setArg(10, int(L.ntx));
-        k_gather_.setArg(11, int(a));
-        k_gather_.setArg(12, int(b));
-        k_gather_.setArg(13, int(base));
-        k_gather_.setArg(14, int(count));
-        k_gather_.setArg(15, int(scenes));
-        rt_.enqueue_1d(k_gather_, scenes * hw);
+        rt_.launch_1d(k_gather_, scenes * hw, prec_, rgbspec_, slot_of_, rgb_, int(h), int(w), int(L.gy), int(L.gx),
+                      int(L.th), int(L.tw), int(L.nty), int(L.ntx), int(a), int(b), int(base), int(count), int(scenes));
         report_.forward_ffts += chunk * pairs;
         report_.inverse_ffts += chunk * 2;
       }
@@ -533,22 +488,9 @@ std::vector<RealStack> SceneImager::images(const std::vector<RealStack>& cubes, 
   cl::Buffer* result = &rgb_;
   if (cfg_.read_noise_sigma > 0 || cfg_.full_well_photons > 0) {
     grow(noisy_, noisy_cap_, scenes * 3 * hw * rsz_);
-    k_noise_.setArg(0, rgb_);
-    k_noise_.setArg(1, eye_);
-    k_noise_.setArg(2, noisy_);
-    k_noise_.setArg(3, int(hw));
-    k_noise_.setArg(4, 3);
-    if (prec_ == Precision::F64) {
-      k_noise_.setArg(5, cfg_.read_noise_sigma);
-      k_noise_.setArg(6, cfg_.full_well_photons);
-    } else {
-      k_noise_.setArg(5, float(cfg_.read_noise_sigma));
-      k_noise_.setArg(6, float(cfg_.full_well_photons));
-    }
-    k_noise_.setArg(7, cl_uint(cfg_.noise_seed & 0xffffffffull));
-    k_noise_.setArg(8, cl_uint(cfg_.noise_seed >> 32));
-    k_noise_.setArg(9, int(scenes));
-    rt_.enqueue_1d(k_noise_, scenes * 3 * hw);
+    rt_.launch_1d(k_noise_, scenes * 3 * hw, prec_, rgb_, eye_, noisy_, int(hw), 3, Real{cfg_.read_noise_sigma},
+                  Real{cfg_.full_well_photons}, cl_uint(cfg_.noise_seed & 0xffffffffull),
+                  cl_uint(cfg_.noise_seed >> 32), int(scenes));
     result = &noisy_;
   }
   // The single read-back of the call.

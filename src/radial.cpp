@@ -558,25 +558,17 @@ RadialEngine::~RadialEngine() = default;
 
 namespace {
 
-void run_1d(cl::CommandQueue& q, cl::Kernel& k, std::size_t n) { Runtime::enqueue_1d(q, k, n); }
-
-template <typename... A>
-void set_args(cl::Kernel& k, const A&... a) {
-  cl_uint i = 0;
-  (k.setArg(i++, a), ...);
-}
-
 // y (bands x rows complex) = M x (bands x cols complex), M given column-major (mt[c * rows + r]).
-void matmul(cl::CommandQueue& q, cl::Kernel& k, const cl::Buffer& mt, const cl::Buffer& x, cl::Buffer& y, std::size_t rows,
-            std::size_t cols, std::size_t bands) {
-  set_args(k, mt, x, y, int(rows), int(cols), int(bands));
+void matmul(cl::CommandQueue& q, cl::Kernel& k, Precision p, const cl::Buffer& mt, const cl::Buffer& x, cl::Buffer& y,
+            std::size_t rows, std::size_t cols, std::size_t bands) {
+  set_args(k, p, mt, x, y, int(rows), int(cols), int(bands));
   const std::size_t chunks = (bands + kBandChunk - 1) / kBandChunk;
   q.enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(Runtime::global_for(rows), chunks), cl::NDRange(Runtime::kLocalSize, 1));
 }
 
-void band_dot(cl::CommandQueue& q, cl::Kernel& k, const cl::Buffer& x, const cl::Buffer& y, int y_band_stride, cl::Buffer& out,
-              std::size_t len, std::size_t bands) {
-  set_args(k, x, y, y_band_stride, int(len), out, cl::Local(Runtime::kLocalSize * sizeof(double)));
+void band_dot(cl::CommandQueue& q, cl::Kernel& k, Precision p, const cl::Buffer& x, const cl::Buffer& y,
+              int y_band_stride, cl::Buffer& out, std::size_t len, std::size_t bands) {
+  set_args(k, p, x, y, y_band_stride, int(len), out, cl::Local(Runtime::kLocalSize * sizeof(double)));
   q.enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(Runtime::kLocalSize, bands), cl::NDRange(Runtime::kLocalSize, 1));
 }
 
@@ -611,19 +603,16 @@ void RadialEngine::compute_psf(const std::vector<double>& ring_heights_m) {
   cl::CommandQueue& q = rt_.queue();
   const std::size_t bands = t.bands;
   upload_into(q, d.heights, ring_heights_m, prec_);
-  set_args(d.k_field, d.source, d.kdn, d.heights, d.c, int(t.rings), int(bands));
-  run_1d(q, d.k_field, bands * t.rings);
-  matmul(q, d.k_matmul, d.qt, d.c, d.g, t.k, t.rings, bands);  // Q: Q^T row-major is Q column-major
-  set_args(d.k_cmul, d.g, d.tf, d.gp, int(bands * t.k), 0);
-  run_1d(q, d.k_cmul, bands * t.k);
-  matmul(q, d.k_matmul, d.bt, d.gp, d.u2, t.j, t.k, bands);
-  set_args(d.k_intensity, d.u2, d.inten, int(bands * t.j));
-  run_1d(q, d.k_intensity, bands * t.j);
-  set_args(d.k_render, d.a_start, d.a_col, d.a_val, d.inten, d.v, int(t.unique), int(t.j), int(bands));
-  run_1d(q, d.k_render, bands * t.unique);
-  band_dot(q, d.k_band_dot, d.v, d.mult, 0, d.sums, t.unique, bands);
-  set_args(d.k_expand, d.v, d.sums, d.class_of, d.psf_s, int(t.s), int(t.unique), int(bands));
-  run_1d(q, d.k_expand, bands * t.s * t.s);
+  rt_.launch_1d(d.k_field, bands * t.rings, prec_, d.source, d.kdn, d.heights, d.c, int(t.rings), int(bands));
+  matmul(q, d.k_matmul, prec_, d.qt, d.c, d.g, t.k, t.rings, bands);  // Q: Q^T row-major is Q column-major
+  rt_.launch_1d(d.k_cmul, bands * t.k, prec_, d.g, d.tf, d.gp, int(bands * t.k), 0);
+  matmul(q, d.k_matmul, prec_, d.bt, d.gp, d.u2, t.j, t.k, bands);
+  rt_.launch_1d(d.k_intensity, bands * t.j, prec_, d.u2, d.inten, int(bands * t.j));
+  rt_.launch_1d(d.k_render, bands * t.unique, prec_, d.a_start, d.a_col, d.a_val, d.inten, d.v, int(t.unique), int(t.j),
+                int(bands));
+  band_dot(q, d.k_band_dot, prec_, d.v, d.mult, 0, d.sums, t.unique, bands);
+  rt_.launch_1d(d.k_expand, bands * t.s * t.s, prec_, d.v, d.sums, d.class_of, d.psf_s, int(t.s), int(t.unique),
+                int(bands));
   q.finish();
   valid_ = true;
   t_fwd_ = std::chrono::duration<double>(clock_type::now() - t0).count();
@@ -655,21 +644,17 @@ std::vector<double> RadialEngine::psf_sensor_vjp(const RealStack& g_psf_sensor) 
   cl::CommandQueue& q = rt_.queue();
   const std::size_t bands = t.bands;
   upload_into(q, d.g_s, g_psf_sensor.data, prec_);
-  set_args(d.k_fold, d.g_s, d.class_start, d.class_members, d.pair_y, d.pair_x, d.g_u, int(t.s), int(t.unique), int(bands));
-  run_1d(q, d.k_fold, bands * t.unique);
-  band_dot(q, d.k_band_dot, d.g_u, d.v, int(t.unique), d.dots, t.unique, bands);
-  set_args(d.k_norm_vjp, d.g_u, d.mult, d.dots, d.sums, d.g_v, int(t.unique), int(bands));
-  run_1d(q, d.k_norm_vjp, bands * t.unique);
-  set_args(d.k_render, d.at_start, d.at_col, d.at_val, d.g_v, d.g_i, int(t.j), int(t.unique), int(bands));
-  run_1d(q, d.k_render, bands * t.j);
-  set_args(d.k_intensity_vjp, d.g_i, d.u2, d.g_u2, int(bands * t.j));
-  run_1d(q, d.k_intensity_vjp, bands * t.j);
-  matmul(q, d.k_matmul, d.b, d.g_u2, d.g_g, t.k, t.j, bands);  // B^T: B row-major is B^T column-major
-  set_args(d.k_cmul, d.g_g, d.tf, d.g_g, int(bands * t.k), 1);
-  run_1d(q, d.k_cmul, bands * t.k);
-  matmul(q, d.k_matmul, d.q, d.g_g, d.g_c, t.rings, t.k, bands);  // Q^T: Q row-major is Q^T column-major
-  set_args(d.k_phase_ring, d.g_c, d.c, d.kdn, d.g_h, int(t.rings), int(bands));
-  run_1d(q, d.k_phase_ring, t.rings);
+  rt_.launch_1d(d.k_fold, bands * t.unique, prec_, d.g_s, d.class_start, d.class_members, d.pair_y, d.pair_x, d.g_u,
+                int(t.s), int(t.unique), int(bands));
+  band_dot(q, d.k_band_dot, prec_, d.g_u, d.v, int(t.unique), d.dots, t.unique, bands);
+  rt_.launch_1d(d.k_norm_vjp, bands * t.unique, prec_, d.g_u, d.mult, d.dots, d.sums, d.g_v, int(t.unique), int(bands));
+  rt_.launch_1d(d.k_render, bands * t.j, prec_, d.at_start, d.at_col, d.at_val, d.g_v, d.g_i, int(t.j), int(t.unique),
+                int(bands));
+  rt_.launch_1d(d.k_intensity_vjp, bands * t.j, prec_, d.g_i, d.u2, d.g_u2, int(bands * t.j));
+  matmul(q, d.k_matmul, prec_, d.b, d.g_u2, d.g_g, t.k, t.j, bands);  // B^T: B row-major is B^T column-major
+  rt_.launch_1d(d.k_cmul, bands * t.k, prec_, d.g_g, d.tf, d.g_g, int(bands * t.k), 1);
+  matmul(q, d.k_matmul, prec_, d.q, d.g_g, d.g_c, t.rings, t.k, bands);  // Q^T: Q row-major is Q^T column-major
+  rt_.launch_1d(d.k_phase_ring, t.rings, prec_, d.g_c, d.c, d.kdn, d.g_h, int(t.rings), int(bands));
   std::vector<double> gh = download(q, d.g_h, t.rings, prec_);
   t_adj_ = std::chrono::duration<double>(clock_type::now() - t0).count();
   return gh;

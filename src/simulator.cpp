@@ -222,30 +222,14 @@ void Simulator::set_design(Parameterization kind, const std::vector<double>& par
   }
   const double hmax = cfg_.h_max_m();
   const cl::Buffer pbuf = upload_real(params);
-  k_expand_.setArg(0, pbuf);
-  k_expand_.setArg(1, heights_);
-  k_expand_.setArg(2, int(n));
-  k_expand_.setArg(3, int(kind == Parameterization::Full2D ? 0 : kind == Parameterization::Radial ? 1 : 2));
-  if (prec_ == Precision::F64) k_expand_.setArg(4, hmax);
-  else k_expand_.setArg(4, float(hmax));
-  rt_.enqueue_1d(k_expand_, n * n);
+  const int kind_code = kind == Parameterization::Full2D ? 0 : kind == Parameterization::Radial ? 1 : 2;
+  rt_.launch_1d(k_expand_, n * n, prec_, pbuf, heights_, int(n), kind_code, Real{hmax});
   if (q) {
     std::vector<double> table;
     for (int l = 0; l < q->levels; ++l) table.push_back(q->level_value(l));
     const cl::Buffer obuf = upload_real(table);
-    k_quantize_.setArg(0, heights_);
-    k_quantize_.setArg(1, int(n * n));
-    k_quantize_.setArg(3, int(q->levels));
-    k_quantize_.setArg(4, int(q->placement == Placement::Inclusive ? 0 : 1));
-    k_quantize_.setArg(5, obuf);
-    if (prec_ == Precision::F64) {
-      k_quantize_.setArg(2, hmax);
-      k_quantize_.setArg(6, alpha);
-    } else {
-      k_quantize_.setArg(2, float(hmax));
-      k_quantize_.setArg(6, float(alpha));
-    }
-    rt_.enqueue_1d(k_quantize_, n * n);
+    rt_.launch_1d(k_quantize_, n * n, prec_, heights_, int(n * n), Real{hmax}, int(q->levels),
+                  int(q->placement == Placement::Inclusive ? 0 : 1), obuf, Real{alpha});
   }
   rt_.queue().finish();  // pbuf and obuf are released when this function returns
   heights_set_ = true;
@@ -258,49 +242,24 @@ Map2D Simulator::heights() const {
   return h;
 }
 
-// Arguments shared by doe_field and phase_vjp: (height, k, dn, <buffer>, <buffer>) then
-// n, m, offset, bands, pitch, distance (<= 0: plane wave), aperture radius².
-void Simulator::set_phase_args(cl::Kernel& k) {
+template <typename A3, typename A4>
+void Simulator::set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& k_tab, const cl::Buffer& dn_tab,
+                               const A3& a3, const A4& a4) {
   const double r_px = cfg_.aperture_radius() / cfg_.pitch_m;
   const double r_ap2_px = r_px * r_px * (1 + 1e-12);  // as ref::doe_field
   const double d = cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m;
-  k.setArg(0, heights_);
-  k.setArg(1, k_);
-  k.setArg(2, dn_);
-  k.setArg(5, int(cfg_.n));
-  k.setArg(6, int(geom_.m));
-  k.setArg(7, int(geom_.offset));
-  k.setArg(8, int(nb_));
-  if (prec_ == Precision::F64) {
-    k.setArg(9, cfg_.pitch_m);
-    k.setArg(10, d);
-    k.setArg(11, r_ap2_px);
-  } else {
-    k.setArg(9, float(cfg_.pitch_m));
-    k.setArg(10, float(d));
-    k.setArg(11, float(r_ap2_px));
-  }
+  set_args(k, p, heights_, k_tab, dn_tab, a3, a4, int(cfg_.n), int(geom_.m), int(geom_.offset), int(nb_),
+           Real{cfg_.pitch_m}, Real{d}, Real{r_ap2_px});
 }
 
 void Simulator::run_doe_field() {
   if (!heights_set_) throw Error("Simulator: set_heights() must be called before computing fields or PSFs");
-  if (phase_fp64_) {  // doe_field_p64: the same arguments with the tables and scalars in double
-    const double r_px = cfg_.aperture_radius() / cfg_.pitch_m;
-    k_field_.setArg(0, heights_);
-    k_field_.setArg(1, k64_);
-    k_field_.setArg(2, dn64_);
-    k_field_.setArg(5, int(cfg_.n));
-    k_field_.setArg(6, int(geom_.m));
-    k_field_.setArg(7, int(geom_.offset));
-    k_field_.setArg(8, int(nb_));
-    k_field_.setArg(9, cfg_.pitch_m);
-    k_field_.setArg(10, cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m);
-    k_field_.setArg(11, r_px * r_px * (1 + 1e-12));
-  } else {
-    set_phase_args(k_field_);
-  }
-  k_field_.setArg(3, field_);
-  k_field_.setArg(4, int(cfg_.bands));  // planes per design: plane b uses height map b / bands
+  // Argument 4: planes per design (plane b uses height map b / bands). doe_field_p64 takes the
+  // tables and scalars in double.
+  if (phase_fp64_)
+    set_phase_args(k_field_, Precision::F64, k64_, dn64_, field_, int(cfg_.bands));
+  else
+    set_phase_args(k_field_, prec_, k_, dn_, field_, int(cfg_.bands));
   const std::size_t m = geom_.m;  // 3-D NDRange (columns, rows, planes), work-group (kLocalSize, 1, 1)
   rt_.queue().enqueueNDRangeKernel(k_field_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, nb_),
                                    cl::NDRange(Runtime::kLocalSize, 1, 1));
@@ -315,33 +274,20 @@ void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampl
   if (record_sampling) {
     // One pass: TF multiplication plus the sampling-check and energy reductions; the sums
     // stay on the device (energy3_) until sampling() asks for them.
-    k_tf_energy_.setArg(0, field);
-    k_tf_energy_.setArg(1, tf);
-    k_tf_energy_.setArg(2, klim_);
-    k_tf_energy_.setArg(3, partial_);
-    k_tf_energy_.setArg(4, int(m));
-    k_tf_energy_.setArg(5, int(kGroupsPerBand));
-    k_tf_energy_.setArg(6, cl::Local(3 * Runtime::kLocalSize * rsz_));
+    set_args(k_tf_energy_, prec_, field, tf, klim_, partial_, int(m), int(kGroupsPerBand),
+             cl::Local(3 * Runtime::kLocalSize * rsz_));
     rt_.queue().enqueueNDRangeKernel(k_tf_energy_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
                                      cl::NDRange(Runtime::kLocalSize, 1));
-    k_finalize3_.setArg(0, partial_);
-    k_finalize3_.setArg(1, energy3_);
-    k_finalize3_.setArg(2, int(kGroupsPerBand));
-    k_finalize3_.setArg(3, int(bands));
-    rt_.enqueue_1d(k_finalize3_, bands);
+    rt_.launch_1d(k_finalize3_, bands, prec_, partial_, energy3_, int(kGroupsPerBand), int(bands));
     sampling_z_m_ = z_m;
     sampling_fresh_ = false;
   } else {
-    k_tf_.setArg(0, field);
-    k_tf_.setArg(1, tf);
     if (cfg_.propagator == Propagator::Fresnel) {
-      k_tf_.setArg(2, int(m));
-      k_tf_.setArg(3, int(bands));
+      set_args(k_tf_, prec_, field, tf, int(m), int(bands));
       rt_.queue().enqueueNDRangeKernel(k_tf_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, bands),
                                        cl::NDRange(Runtime::kLocalSize, 1, 1));
     } else {
-      k_tf_.setArg(2, int(bands * m * m));
-      rt_.enqueue_1d(k_tf_, bands * m * m);
+      rt_.launch_1d(k_tf_, bands * m * m, prec_, field, tf, int(bands * m * m));
     }
   }
   fft.inverse(field);
@@ -374,43 +320,23 @@ const SamplingReport& Simulator::sampling() const {
 
 void Simulator::band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len, cl::Buffer& sums) {
   const std::size_t bands = nb_;
-  k.setArg(0, x);
-  k.setArg(1, int(len));
-  k.setArg(2, partial_);
-  k.setArg(3, int(kGroupsPerBand));
-  k.setArg(4, cl::Local(Runtime::kLocalSize * rsz_));
+  set_args(k, prec_, x, int(len), partial_, int(kGroupsPerBand), cl::Local(Runtime::kLocalSize * rsz_));
   rt_.queue().enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
                                    cl::NDRange(Runtime::kLocalSize, 1));
-  k_finalize_.setArg(0, partial_);
-  k_finalize_.setArg(1, sums);
-  k_finalize_.setArg(2, int(kGroupsPerBand));
-  k_finalize_.setArg(3, int(bands));
-  rt_.enqueue_1d(k_finalize_, bands);
+  rt_.launch_1d(k_finalize_, bands, prec_, partial_, sums, int(kGroupsPerBand), int(bands));
 }
 
 // Per-band sums of x (bands x len) into `sums`, then x /= sums (on the device).
 void Simulator::normalize_bands(cl::Buffer& x, std::size_t len, cl::Buffer& sums) {
   band_reduce(k_sums_, x, len, sums);
-  k_scale_.setArg(0, x);
-  k_scale_.setArg(1, sums);
-  k_scale_.setArg(2, int(len));
-  k_scale_.setArg(3, int(nb_));
-  rt_.enqueue_1d(k_scale_, nb_ * len);
+  rt_.launch_1d(k_scale_, nb_ * len, prec_, x, sums, int(len), int(nb_));
 }
 
 // Area resampling bands x n_in x n_in -> bands x n_out x n_out with the given weight table
 // (AreaWeights, or its transpose for the adjoint).
 void Simulator::resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer& start, const cl::Buffer& w, std::size_t n_in,
                          std::size_t n_out, std::size_t taps) {
-  k_resample_.setArg(0, in);
-  k_resample_.setArg(1, out);
-  k_resample_.setArg(2, start);
-  k_resample_.setArg(3, w);
-  k_resample_.setArg(4, int(n_in));
-  k_resample_.setArg(5, int(n_out));
-  k_resample_.setArg(6, int(taps));
-  k_resample_.setArg(7, int(nb_));
-  rt_.enqueue_1d(k_resample_, nb_ * n_out * n_out);
+  rt_.launch_1d(k_resample_, nb_ * n_out * n_out, prec_, in, out, start, w, int(n_in), int(n_out), int(taps), int(nb_));
 }
 
 void Simulator::compute_psf() {
@@ -420,21 +346,11 @@ void Simulator::compute_psf() {
   // Intensity of the N x N crop and its per-band sums in one pass. The native stack stays
   // unnormalised (normalising it before the linear area resampling would not change the
   // normalised sensor stack); psf_native() and the adjoints normalise it when they need it.
-  k_crop_sums_.setArg(0, field_);
-  k_crop_sums_.setArg(1, psf_);
-  k_crop_sums_.setArg(2, int(n));
-  k_crop_sums_.setArg(3, int(m));
-  k_crop_sums_.setArg(4, int(geom_.offset));
-  k_crop_sums_.setArg(5, partial_);
-  k_crop_sums_.setArg(6, int(kGroupsPerBand));
-  k_crop_sums_.setArg(7, cl::Local(Runtime::kLocalSize * rsz_));
+  set_args(k_crop_sums_, prec_, field_, psf_, int(n), int(m), int(geom_.offset), partial_, int(kGroupsPerBand),
+           cl::Local(Runtime::kLocalSize * rsz_));
   rt_.queue().enqueueNDRangeKernel(k_crop_sums_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
                                    cl::NDRange(Runtime::kLocalSize, 1));
-  k_finalize_.setArg(0, partial_);
-  k_finalize_.setArg(1, sums_crop_);
-  k_finalize_.setArg(2, int(kGroupsPerBand));
-  k_finalize_.setArg(3, int(bands));
-  rt_.enqueue_1d(k_finalize_, bands);
+  rt_.launch_1d(k_finalize_, bands, prec_, partial_, sums_crop_, int(kGroupsPerBand), int(bands));
   native_normalized_ = false;
   resample(psf_, psf_s_, wstart_, wts_, n, s_, weights_.taps);
   normalize_bands(psf_s_, s_ * s_, sums_sensor_);
@@ -449,11 +365,7 @@ void Simulator::compute_psf() {
 
 void Simulator::ensure_native_normalized() {
   if (native_normalized_) return;
-  k_scale_.setArg(0, psf_);
-  k_scale_.setArg(1, sums_crop_);
-  k_scale_.setArg(2, int(cfg_.n * cfg_.n));
-  k_scale_.setArg(3, int(nb_));
-  rt_.enqueue_1d(k_scale_, nb_ * cfg_.n * cfg_.n);
+  rt_.launch_1d(k_scale_, nb_ * cfg_.n * cfg_.n, prec_, psf_, sums_crop_, int(cfg_.n * cfg_.n), int(nb_));
   native_normalized_ = true;
 }
 
@@ -487,44 +399,22 @@ void Simulator::require_single_design(const char* what) const {
 
 void Simulator::normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len, const cl::Buffer& sums) {
   const std::size_t bands = cfg_.bands;
-  k_dot_.setArg(0, g);
-  k_dot_.setArg(1, y);
-  k_dot_.setArg(2, int(len));
-  k_dot_.setArg(3, partial_);
-  k_dot_.setArg(4, int(kGroupsPerBand));
-  k_dot_.setArg(5, cl::Local(Runtime::kLocalSize * rsz_));
+  set_args(k_dot_, prec_, g, y, int(len), partial_, int(kGroupsPerBand), cl::Local(Runtime::kLocalSize * rsz_));
   rt_.queue().enqueueNDRangeKernel(k_dot_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
                                    cl::NDRange(Runtime::kLocalSize, 1));
-  k_finalize_.setArg(0, partial_);
-  k_finalize_.setArg(1, dots_);
-  k_finalize_.setArg(2, int(kGroupsPerBand));
-  k_finalize_.setArg(3, int(bands));
-  rt_.enqueue_1d(k_finalize_, bands);
-  k_norm_vjp_.setArg(0, g);
-  k_norm_vjp_.setArg(1, dots_);
-  k_norm_vjp_.setArg(2, sums);
-  k_norm_vjp_.setArg(3, int(len));
-  k_norm_vjp_.setArg(4, int(bands));
-  rt_.enqueue_1d(k_norm_vjp_, bands * len);
+  rt_.launch_1d(k_finalize_, bands, prec_, partial_, dots_, int(kGroupsPerBand), int(bands));
+  rt_.launch_1d(k_norm_vjp_, bands * len, prec_, g, dots_, sums, int(len), int(bands));
 }
 
 Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
   const std::size_t n = cfg_.n, m = geom_.m, bands = cfg_.bands;
   if (!gfield_()) gfield_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * m * m * 2 * rsz_);
   if (!dh_()) dh_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, n * n * rsz_);
-  k_int_vjp_.setArg(0, g_native);
-  k_int_vjp_.setArg(1, field_);
-  k_int_vjp_.setArg(2, gfield_);
-  k_int_vjp_.setArg(3, int(n));
-  k_int_vjp_.setArg(4, int(m));
-  k_int_vjp_.setArg(5, int(geom_.offset));
-  k_int_vjp_.setArg(6, int(bands));
+  set_args(k_int_vjp_, prec_, g_native, field_, gfield_, int(n), int(m), int(geom_.offset), int(bands));
   rt_.queue().enqueueNDRangeKernel(k_int_vjp_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, bands),
                                    cl::NDRange(Runtime::kLocalSize, 1, 1));
   run_propagation(gfield_, -cfg_.sensor_distance_m, false);  // adjoint of +z propagation
-  set_phase_args(k_phase_vjp_);
-  k_phase_vjp_.setArg(3, gfield_);
-  k_phase_vjp_.setArg(4, dh_);
+  set_phase_args(k_phase_vjp_, prec_, k_, dn_, gfield_, dh_);
   rt_.enqueue_1d(k_phase_vjp_, n * n);
   Map2D out(n, n);
   out.data = download_real(dh_, n * n);
@@ -580,41 +470,20 @@ RealStack Simulator::sensor_images_vjp(const std::vector<RealStack>& g_rgb) {
   }
   const cl::Buffer grgb = upload_real(host);
   cl::Buffer gcube(rt_.context(), CL_MEM_READ_WRITE, scenes * bands * hw * rsz_);
-  k_sensor_vjp_.setArg(0, grgb);
-  k_sensor_vjp_.setArg(1, srf_buf_);
-  k_sensor_vjp_.setArg(2, gcube);
-  k_sensor_vjp_.setArg(3, int(hw));
-  k_sensor_vjp_.setArg(4, int(bands));
-  k_sensor_vjp_.setArg(5, int(scenes));
-  rt_.enqueue_1d(k_sensor_vjp_, scenes * bands * hw);
+  rt_.launch_1d(k_sensor_vjp_, scenes * bands * hw, prec_, grgb, srf_buf_, gcube, int(hw), int(bands), int(scenes));
   // Correlate with the scenes: IFFT(FFT(pad g) * conj(FFT(pad x))), then the wrap transpose.
   FftPlan& fft = rt_.fft(py_, px_, scenes * bands, prec_);
   cl::Buffer gbuf(rt_.context(), CL_MEM_READ_WRITE, scenes * bands * pp * 2 * rsz_);
   for (auto [src, dst] : {std::pair<const cl::Buffer*, cl::Buffer*>{&gcube, &gbuf}, {&cube_, &sbuf_}}) {
-    k_place_scene_.setArg(0, *src);
-    k_place_scene_.setArg(1, *dst);
-    k_place_scene_.setArg(2, int(ch_));
-    k_place_scene_.setArg(3, int(cw_));
-    k_place_scene_.setArg(4, int(py_));
-    k_place_scene_.setArg(5, int(px_));
-    k_place_scene_.setArg(6, int(scenes * bands));
-    rt_.enqueue_1d(k_place_scene_, scenes * bands * pp);
+    rt_.launch_1d(k_place_scene_, scenes * bands * pp, prec_, *src, *dst, int(ch_), int(cw_), int(py_), int(px_),
+                  int(scenes * bands));
     fft.forward(*dst);
   }
-  k_cmul_conj_.setArg(0, gbuf);
-  k_cmul_conj_.setArg(1, sbuf_);
-  k_cmul_conj_.setArg(2, int(scenes * bands * pp));
-  rt_.enqueue_1d(k_cmul_conj_, scenes * bands * pp);
+  rt_.launch_1d(k_cmul_conj_, scenes * bands * pp, prec_, gbuf, sbuf_, int(scenes * bands * pp));
   fft.inverse(gbuf);
   cl::Buffer gpsf(rt_.context(), CL_MEM_READ_WRITE, bands * s_ * s_ * rsz_);
-  k_gather_psf_.setArg(0, gbuf);
-  k_gather_psf_.setArg(1, gpsf);
-  k_gather_psf_.setArg(2, int(s_));
-  k_gather_psf_.setArg(3, int(py_));
-  k_gather_psf_.setArg(4, int(px_));
-  k_gather_psf_.setArg(5, int(bands));
-  k_gather_psf_.setArg(6, int(scenes));
-  rt_.enqueue_1d(k_gather_psf_, bands * s_ * s_);
+  rt_.launch_1d(k_gather_psf_, bands * s_ * s_, prec_, gbuf, gpsf, int(s_), int(py_), int(px_), int(bands),
+                int(scenes));
   RealStack out(bands, s_, s_);
   out.data = download_real(gpsf, out.size());
   return out;
@@ -692,13 +561,7 @@ void Simulator::run_convolution(const std::vector<RealStack>& cubes) {
   ensure_conv(cubes[0].rows, cubes[0].cols, scenes);
   const std::size_t bands = cfg_.bands, pp = py_ * px_, per = bands * ch_ * cw_;
   if (!otf_valid_) {
-    k_place_psf_.setArg(0, psf_s_);
-    k_place_psf_.setArg(1, otf_);
-    k_place_psf_.setArg(2, int(s_));
-    k_place_psf_.setArg(3, int(py_));
-    k_place_psf_.setArg(4, int(px_));
-    k_place_psf_.setArg(5, int(bands));
-    rt_.enqueue_1d(k_place_psf_, bands * pp);
+    rt_.launch_1d(k_place_psf_, bands * pp, prec_, psf_s_, otf_, int(s_), int(py_), int(px_), int(bands));
     rt_.fft(py_, px_, bands, prec_).forward(otf_);
     otf_valid_ = true;
   }
@@ -712,29 +575,13 @@ void Simulator::run_convolution(const std::vector<RealStack>& cubes) {
   }
   // All scenes x bands planes in one batched transform; the OTF stack repeats per scene.
   FftPlan& fft = rt_.fft(py_, px_, scenes * bands, prec_);
-  k_place_scene_.setArg(0, cube_);
-  k_place_scene_.setArg(1, sbuf_);
-  k_place_scene_.setArg(2, int(ch_));
-  k_place_scene_.setArg(3, int(cw_));
-  k_place_scene_.setArg(4, int(py_));
-  k_place_scene_.setArg(5, int(px_));
-  k_place_scene_.setArg(6, int(scenes * bands));
-  rt_.enqueue_1d(k_place_scene_, scenes * bands * pp);
+  rt_.launch_1d(k_place_scene_, scenes * bands * pp, prec_, cube_, sbuf_, int(ch_), int(cw_), int(py_), int(px_),
+                int(scenes * bands));
   fft.forward(sbuf_);
-  k_cmul_.setArg(0, sbuf_);
-  k_cmul_.setArg(1, otf_);
-  k_cmul_.setArg(2, int(scenes * bands * pp));
-  k_cmul_.setArg(3, int(bands * pp));
-  rt_.enqueue_1d(k_cmul_, scenes * bands * pp);
+  rt_.launch_1d(k_cmul_, scenes * bands * pp, prec_, sbuf_, otf_, int(scenes * bands * pp), int(bands * pp));
   fft.inverse(sbuf_);
-  k_crop_real_.setArg(0, sbuf_);
-  k_crop_real_.setArg(1, blurred_);
-  k_crop_real_.setArg(2, int(ch_));
-  k_crop_real_.setArg(3, int(cw_));
-  k_crop_real_.setArg(4, int(py_));
-  k_crop_real_.setArg(5, int(px_));
-  k_crop_real_.setArg(6, int(scenes * bands));
-  rt_.enqueue_1d(k_crop_real_, scenes * per);
+  rt_.launch_1d(k_crop_real_, scenes * per, prec_, sbuf_, blurred_, int(ch_), int(cw_), int(py_), int(px_),
+                int(scenes * bands));
 }
 
 std::vector<RealStack> Simulator::convolve_batch(const std::vector<RealStack>& cubes) {
@@ -751,22 +598,9 @@ std::vector<RealStack> Simulator::convolve_batch(const std::vector<RealStack>& c
 RealStack Simulator::convolve(const RealStack& cube) { return convolve_batch({cube}).front(); }
 
 void Simulator::run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw, std::size_t scenes) {
-  k_sensor_.setArg(0, in);
-  k_sensor_.setArg(1, srf_buf_);
-  k_sensor_.setArg(2, out);
-  k_sensor_.setArg(3, int(hw));
-  k_sensor_.setArg(4, int(cfg_.bands));
-  if (prec_ == Precision::F64) {
-    k_sensor_.setArg(5, cfg_.read_noise_sigma);
-    k_sensor_.setArg(6, cfg_.full_well_photons);
-  } else {
-    k_sensor_.setArg(5, float(cfg_.read_noise_sigma));
-    k_sensor_.setArg(6, float(cfg_.full_well_photons));
-  }
-  k_sensor_.setArg(7, cl_uint(cfg_.noise_seed & 0xffffffffull));
-  k_sensor_.setArg(8, cl_uint(cfg_.noise_seed >> 32));
-  k_sensor_.setArg(9, int(scenes));
-  rt_.enqueue_1d(k_sensor_, scenes * 3 * hw);
+  rt_.launch_1d(k_sensor_, scenes * 3 * hw, prec_, in, srf_buf_, out, int(hw), int(cfg_.bands),
+                Real{cfg_.read_noise_sigma}, Real{cfg_.full_well_photons}, cl_uint(cfg_.noise_seed & 0xffffffffull),
+                cl_uint(cfg_.noise_seed >> 32), int(scenes));
 }
 
 std::vector<RealStack> Simulator::sensor_images(const std::vector<RealStack>& cubes) {

@@ -1,8 +1,12 @@
+#include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
 #include <sstream>
 #include <string>
+#include <type_traits>
+#include <vector>
 
 #include "common.hpp"
 #include "qdo/error.hpp"
@@ -138,6 +142,56 @@ TEST_SUITE("runtime") {
     auto hash = e;
     hash[16] ^= 1;
     CHECK(problem(hash) == "corrupt (hash mismatch)");
+  }
+
+  TEST_CASE("Real maps to the device precision's real type") {
+    static_assert(std::is_same<device_real_t<Precision::F32>, float>::value, "F32 real is float");
+    static_assert(std::is_same<device_real_t<Precision::F64>, double>::value, "F64 real is double");
+    CHECK(sizeof(device_real_t<Precision::F32>) == real_size(Precision::F32));
+    CHECK(sizeof(device_real_t<Precision::F64>) == real_size(Precision::F64));
+  }
+
+  TEST_CASE("launch_1d sets the arguments in order, Real in the launch precision, over n items") {
+    // expand_params(params, heights, n, kind, h_max): heights = clamp(params, 0, h_max) for kind 0;
+    // n * n = 169 items, not a multiple of the work-group size. h_max = 0.1 is not a float, so
+    // the clamped values tell which precision h_max arrived in.
+    Runtime& rt = runtime();
+    const int n = 13;
+    const double h_max = 0.1;
+    std::vector<double> x(std::size_t(n * n));
+    for (std::size_t i = 0; i < x.size(); ++i) x[i] = 0.25 * std::sin(0.7 * double(i));
+    for (Precision p : device_precisions(rt)) {
+      CAPTURE(to_string(p));
+      cl::Kernel k = rt.kernel("doe.cl", "expand_params", p);
+      std::vector<char> bytes(x.size() * real_size(p));
+      for (std::size_t i = 0; i < x.size(); ++i) {
+        if (p == Precision::F64)
+          reinterpret_cast<double*>(bytes.data())[i] = x[i];
+        else
+          reinterpret_cast<float*>(bytes.data())[i] = float(x[i]);
+      }
+      cl::Buffer in(rt.context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, bytes.size(), bytes.data());
+      cl::Buffer out(rt.context(), CL_MEM_READ_WRITE, bytes.size());
+      for (int pass = 0; pass < 2; ++pass) {  // the member and the static (explicit queue) form
+        std::vector<char> zeros(bytes.size(), 0);
+        rt.queue().enqueueWriteBuffer(out, CL_TRUE, 0, zeros.size(), zeros.data());
+        if (pass == 0)
+          rt.launch_1d(k, x.size(), p, in, out, n, 0, Real{h_max});
+        else
+          Runtime::launch_1d(rt.queue(), k, x.size(), p, in, out, n, 0, Real{h_max});
+        std::vector<char> got(bytes.size());
+        rt.queue().enqueueReadBuffer(out, CL_TRUE, 0, got.size(), got.data());
+        int bad = 0;
+        for (std::size_t i = 0; i < x.size(); ++i) {
+          const double v = p == Precision::F64 ? reinterpret_cast<const double*>(got.data())[i]
+                                               : double(reinterpret_cast<const float*>(got.data())[i]);
+          const double want = p == Precision::F64 ? std::min(std::max(x[i], 0.0), h_max)
+                                                  : double(std::min(std::max(float(x[i]), 0.0f), float(h_max)));
+          if (v != want) ++bad;
+        }
+        CHECK(bad == 0);
+      }
+    }
   }
 
   TEST_CASE("a kernel build failure reports the device and the full build log") {

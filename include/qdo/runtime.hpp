@@ -15,6 +15,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 namespace qdo {
@@ -23,6 +24,41 @@ enum class Precision { F32, F64 };
 Precision precision_from_string(const std::string& s);
 std::string to_string(Precision p);
 inline std::size_t real_size(Precision p) { return p == Precision::F64 ? 8 : 4; }
+
+// The host type of the kernels' `real` at precision P: float (F32) or double (F64).
+template <Precision P>
+using device_real_t = std::conditional_t<P == Precision::F64, double, float>;
+
+// A real scalar kernel argument: set_args passes it as device_real_t of the launch precision,
+// i.e. as the `real` the kernel was compiled with. (A kernel parameter declared `double`
+// whatever the precision, e.g. doe_field_p64's, is set with Precision::F64.)
+struct Real {
+  double value;
+};
+
+namespace detail {
+inline void set_arg(cl::Kernel& k, cl_uint i, Precision p, const Real& r) {
+  if (p == Precision::F64)
+    k.setArg(i, static_cast<device_real_t<Precision::F64>>(r.value));
+  else
+    k.setArg(i, static_cast<device_real_t<Precision::F32>>(r.value));
+}
+template <typename T>
+void set_arg(cl::Kernel& k, cl_uint i, Precision, const T& v) {
+  static_assert(!std::is_floating_point<T>::value, "pass real scalars as Real{x}: converted to the device precision");
+  k.setArg(i, v);
+}
+}  // namespace detail
+
+// Sets k's arguments 0, 1, 2, ... to args in order: cl::Buffer, cl::Local and integer types
+// (int, cl_uint, ...) as given, Real as float or double per p. The argument types must be
+// exactly those the kernel declares (int vs cl_uint matters); a bare float or double is refused
+// at compile time.
+template <typename... A>
+void set_args(cl::Kernel& k, Precision p, const A&... args) {
+  cl_uint i = 0;
+  (detail::set_arg(k, i++, p, args), ...);
+}
 
 // The library behind FftPlan: clFFT (src/fft_clfft.cpp) or VkFFT's OpenCL backend
 // (src/fft_vkfft.cpp). Both give the same transform (see fft.hpp).
@@ -111,6 +147,17 @@ class Runtime {
     q.enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(global_for(n)), cl::NDRange(kLocalSize));
   }
   void enqueue_1d(cl::Kernel& k, std::size_t n) { enqueue_1d(queue(), k, n); }
+  // set_args(k, p, args...) then enqueue_1d(k, n) on this Runtime's queue (a static form takes
+  // the queue), e.g. launch_1d(k, n, prec, in, out, int(n), Real{scale}).
+  template <typename... A>
+  static void launch_1d(cl::CommandQueue& q, cl::Kernel& k, std::size_t n, Precision p, const A&... args) {
+    set_args(k, p, args...);
+    enqueue_1d(q, k, n);
+  }
+  template <typename... A>
+  void launch_1d(cl::Kernel& k, std::size_t n, Precision p, const A&... args) {
+    launch_1d(queue(), k, n, p, args...);
+  }
 
  private:
   cl::Program& program(const std::string& label, const std::string& source, const std::string& options);

@@ -117,7 +117,12 @@ class Simulator {
   void ensure_conv(std::size_t h, std::size_t w, std::size_t scenes);
   void run_convolution(const std::vector<RealStack>& cubes);
   void run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw, std::size_t scenes);
-  void set_phase_args(cl::Kernel& k);
+  // Sets the arguments doe_field, doe_field_p64 and phase_vjp share: (height, k_tab, dn_tab,
+  // a3, a4, n, m, offset, bands, pitch, distance (<= 0: plane wave), aperture radius^2), the
+  // scalars in precision p.
+  template <typename A3, typename A4>
+  void set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& k_tab, const cl::Buffer& dn_tab, const A3& a3,
+                      const A4& a4);
   void require_single_design(const char* what) const;
   void normalize_bands(cl::Buffer& x, std::size_t len, cl::Buffer& sums);
   void resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer& start, const cl::Buffer& w, std::size_t n_in,
