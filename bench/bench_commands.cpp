@@ -1,12 +1,15 @@
 // Whole-command timings (issue 11: `qdo simulate` at least as fast as `qdo image`): one scene and
 // design through `qdo simulate` (f32 and f64) and, as the baseline measured in the same run,
-// `qdo image --exact` (SceneImager without skipping). Each command runs once first (kernel caches
-// warm), then --repeats times; median, min and max wall time of the whole process are reported:
-// PSF, imaging and writing every output included. Error column: the largest |f32 - f64| of
-// simulate's sensor.h5 (units of full scale; f64 is the reference). `qdo image` writes no HDF5
-// image, so its row has none.
+// `qdo image` (SceneImager with its default skipping tolerance 3e-7, as users run it). With
+// --qdo-before PATH, the same `qdo simulate` f32 through another build (e.g. the previous
+// release) is timed too. Each command runs once first (kernel caches warm), then --repeats
+// times; median, min and max wall time of the whole process are reported: PSF, imaging and
+// writing every output included. Error column: the largest |f32 - f64| of simulate's sensor.h5
+// (units of full scale; f64 is the reference). `qdo image` writes no HDF5 image, so its row has
+// none.
 //
-//   bench_commands [--qdo build/qdo] [--scene FILE] [--preset small] [--repeats 5] [--out FILE.md]
+//   bench_commands [--qdo build/qdo] [--qdo-before PATH] [--scene FILE] [--preset small] [--repeats 5]
+//                  [--out FILE.md]
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -50,11 +53,12 @@ double run_once(const std::string& cmd) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string qdo = "build/qdo", scene = "../shared/data/hsi/cave/balloons_256.mat", preset = "small", out;
+  std::string qdo = "build/qdo", before, scene = "../shared/data/hsi/cave/balloons_256.mat", preset = "small", out;
   int repeats = 5;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--qdo") qdo = v;
+    else if (k == "--qdo-before") before = v;
     else if (k == "--scene") scene = v;
     else if (k == "--preset") preset = v;
     else if (k == "--repeats") repeats = std::max(1, std::atoi(v.c_str()));
@@ -68,16 +72,17 @@ int main(int argc, char** argv) {
   fs::create_directories(work);
   const std::string common = " --preset " + preset + " --design lens:550 --scene " + scene;
   struct Row {
-    std::string label, args, dir;
+    std::string label, binary, args, dir;
   };
-  const std::vector<Row> rows = {
-      {"`qdo image --exact` f32 (baseline)", "image" + common + " --exact --precision f32", "image_f32"},
-      {"`qdo simulate` f32", "simulate" + common + " --precision f32", "simulate_f32"},
-      {"`qdo simulate` f64", "simulate" + common + " --precision f64", "simulate_f64"},
+  std::vector<Row> rows = {
+      {"`qdo image` f32, default tolerance (baseline)", qdo, "image" + common + " --precision f32", "image_f32"},
+      {"`qdo simulate` f32", qdo, "simulate" + common + " --precision f32", "simulate_f32"},
+      {"`qdo simulate` f64", qdo, "simulate" + common + " --precision f64", "simulate_f64"},
   };
+  if (!before.empty()) rows.push_back({"`qdo simulate` f32, " + before, before, "simulate" + common + " --precision f32", "before_f32"});
   std::vector<Stats> st;
   for (const Row& r : rows) {
-    const std::string cmd = qdo + " " + r.args + " --out " + (work / r.dir).string();
+    const std::string cmd = r.binary + " " + r.args + " --out " + (work / r.dir).string();
     run_once(cmd);  // warm-up: kernel and FFT-plan caches
     std::vector<double> t;
     for (int k = 0; k < repeats; ++k) t.push_back(run_once(cmd));
@@ -91,8 +96,10 @@ int main(int argc, char** argv) {
   std::string md = "| command (whole process, preset " + preset + ", " + fs::path(scene).filename().string() +
                    ") | median s | min s | max s | runs | max abs err vs f64 |\n|---|---:|---:|---:|---:|---:|\n";
   char line[512];
+  char errtext[32];
+  std::snprintf(errtext, sizeof errtext, "%.2e", err);
   for (std::size_t i = 0; i < rows.size(); ++i) {
-    const std::string e = i == 0 ? "-" : i == 1 ? std::to_string(err) : "0 (reference)";
+    const std::string e = rows[i].dir == "simulate_f32" ? errtext : rows[i].dir == "simulate_f64" ? "0 (reference)" : "-";
     std::snprintf(line, sizeof line, "| %s | %.3f | %.3f | %.3f | %d | %s |\n", rows[i].label.c_str(), st[i].median, st[i].min,
                   st[i].max, repeats, e.c_str());
     md += line;

@@ -135,13 +135,15 @@ int cmd_simulate(const Args& a) {
   RealStack rgb = camera.images({scene}, exact).front();
   const double secs = seconds_since(t0);
   const SensorClip clip = clip_to_full_scale(rgb, "sensor image");
+  const auto t1 = std::chrono::steady_clock::now();
   write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
   write_rgb_png(dir + "/sensor.png", rgb);
   write_rgb_png(dir + "/scene.png", ref::sensor_integrate(scene, sim.srf()));  // the same camera without the DOE blur
   write_psf_outputs(sim, h, dir, a.get("design"));
-  std::printf("device: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s)\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png\n",
+  std::printf("device: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s); "
+              "outputs written in %.3f s\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png\n",
               rt.info().name.c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
-              sim.sampling().summary().c_str(), clip_summary(clip).c_str(), dir.c_str());
+              seconds_since(t1), sim.sampling().summary().c_str(), clip_summary(clip).c_str(), dir.c_str());
   return 0;
 }
 
