@@ -1,7 +1,7 @@
-// The test-set evaluation shared by `qdo eval` (src/eval.cpp) and `qdo tolerance` (src/fab.cpp):
-// the test patches, one patch through the camera and the Wiener decoder, the six metrics, and
-// their averages (per scene over its patches, then over scenes, in that order, so both
-// commands give bit-identical numbers for the same design).
+// The test-set evaluation shared by `qdo eval` (src/eval.cpp) and `qdo tolerance`
+// (src/fab_tolerance.cpp): the test patches, one patch through the camera and the Wiener decoder,
+// the six metrics, and their averages (per scene over its patches, then over scenes, in that
+// order, so both commands give bit-identical numbers for the same design).
 #pragma once
 #include <Eigen/Dense>
 
