@@ -1,4 +1,4 @@
-// Tests of the file I/O layer (src/io.cpp): HDF5 contract files, .mat cubes, CSV, PNG.
+// Tests of the file I/O layer (src/io_*.cpp): HDF5 contract files, .mat cubes, CSV, PNG.
 #include <doctest/doctest.h>
 #include <hdf5.h>
 #include <matio.h>
