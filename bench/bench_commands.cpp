@@ -1,6 +1,6 @@
 // Whole-command timings (issue 11: `qdo simulate` at least as fast as `qdo image`): one scene and
 // design through `qdo simulate` (f32 and f64) and, as the baseline measured in the same run,
-// `qdo image` (SceneImager with its default skipping tolerance 3e-7, as users run it). With
+// `qdo image` (Camera with its default skipping tolerance 3e-7, as users run it). With
 // --qdo-before PATH, the same `qdo simulate` f32 through another build (e.g. the previous
 // release) is timed too. Each command runs once first (kernel caches warm), then --repeats
 // times; median, min and max wall time of the whole process are reported: PSF, imaging and

@@ -41,7 +41,7 @@
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
 #include "qdo/fft.hpp"
-#include "qdo/imaging.hpp"
+#include "qdo/camera.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/radial.hpp"
 #include "qdo/runtime.hpp"
@@ -309,7 +309,7 @@ void section_image(const Options& o, const Reference& ref) {
     r.note = "err = max abs vs f64 unskipped";
     add(r);
     // The skipping imager on the same PSF: exact reorganisation, the defaults, looser budgets.
-    SceneImager imager(sim);
+    Camera imager(sim);
     const std::vector<std::pair<std::string, SkipOptions>> variants{
         {"exact (no rule)", [] { SkipOptions x; x.exact = true; return x; }()},
         {"default tolerances (3e-7 total)", SkipOptions{}},
@@ -318,7 +318,7 @@ void section_image(const Options& o, const Reference& ref) {
     for (const auto& [label, opt] : variants) {
       Row ri;
       ri.workload = "image";
-      ri.config = "SceneImager " + label + ", " + to_string(p);
+      ri.config = "Camera " + label + ", " + to_string(p);
       ri.t = timed(o.repeats, [&] { got = imager.images(scenes, opt); });
       flat.clear();
       for (const auto& g : got) flat.insert(flat.end(), g.data.begin(), g.data.end());

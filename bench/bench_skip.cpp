@@ -1,4 +1,4 @@
-// bench_skip: sensor images with skipping rules (SceneImager, include/qdo/imaging.hpp) against the
+// bench_skip: sensor images with skipping rules (Camera, include/qdo/camera.hpp) against the
 // unskipped Simulator::sensor_images, on the CAVE scenes with the paper physics.
 //
 // For each design (lens_design at 550 nm; with --radial also a random radial design) it
@@ -36,7 +36,7 @@
 #include "qdo/datasets.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
-#include "qdo/imaging.hpp"
+#include "qdo/camera.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/types.hpp"
@@ -244,13 +244,13 @@ int main(int argc, char** argv) try {
         {"crop only (1e-3)", only(0, 1e-3, 0, TileMode::Off)},
         {"crop only (1e-2)", only(0, 1e-2, 0, TileMode::Off)},
     };
-    SceneImager im32(sim32);
+    Camera im32(sim32);
     for (const auto& v : variants) {
       std::vector<RealStack> out;
       const double tt = median_seconds(o.warmup, o.repeats, [&] { out = im32.images(scenes, v.opt); });
       row(v.name, "f32", tt, t_un32, error(out, truth), &im32.last_report());
     }
-    SceneImager im64(sim64);
+    Camera im64(sim64);
     for (const auto& v : {variants[0], variants[4], variants[8]}) {
       std::vector<RealStack> out;
       const double tt = median_seconds(0, 1, [&] { out = im64.images(scenes, v.opt); });

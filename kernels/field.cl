@@ -63,3 +63,30 @@ __kernel void doe_field_p64(__global const real* height_m, __global const double
   out[gid] = v;
 }
 #endif
+
+// --- Adjoints (vector-Jacobian products; gradient convention of include/qdo/adjoint.hpp:
+// complex gradients g = dL/dRe + i dL/dIm) ---
+
+// VJP of the DOE phase: dH[i][j] = sum_b k_b dn_b Re(conj(gU1) i U1), U1 recomputed exactly as
+// doe_field does. gu: bands x M x M; dh: N x N.
+__kernel void phase_vjp(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
+                        __global const real2* gu, __global real* dh, const int n, const int m, const int offset,
+                        const int bands, const real pitch_m, const real distance_m, const real r_ap2_px) {
+  const size_t gid = get_global_id(0);
+  if (gid >= (size_t)n * n) return;
+  const int i = (int)(gid / n), j = (int)(gid - (size_t)i * n);
+  const int di = i - n / 2, dj = j - n / 2;
+  const real y = (real)di * pitch_m, x = (real)dj * pitch_m;
+  const real r2 = x * x + y * y;
+  real acc = R(0.0);
+  if ((real)(di * di + dj * dj) <= r_ap2_px) {  // integer pixel radius²: exact in float too
+    const real src = distance_m > R(0.0) ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : R(0.0);
+    const real h = height_m[gid];
+    for (int b = 0; b < bands; ++b) {
+      const real2 u = cexpi(k_per_m[b] * (src + dn[b] * h));
+      const real2 g = gu[(size_t)b * m * m + (size_t)(offset + i) * m + (offset + j)];
+      acc += k_per_m[b] * dn[b] * (g.y * u.x - g.x * u.y);
+    }
+  }
+  dh[gid] = acc;
+}

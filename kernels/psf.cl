@@ -95,3 +95,47 @@ __kernel void intensity_crop_sums(__global const real2* field, __global real* ps
   }
   if (lid == 0) partial[(size_t)b * groups_per_band + g] = scratch[0];
 }
+
+// --- Adjoints (vector-Jacobian products; gradient convention of include/qdo/adjoint.hpp:
+// complex gradients g = dL/dRe + i dL/dIm) ---
+
+// Per-band partial dot products <a_b, b_b>. NDRange (groups_per_band * local, bands).
+// a, b: bands x len real; partial: bands x groups_per_band.
+__kernel void band_dot(__global const real* a, __global const real* b, const int len, __global real* partial,
+                       const int groups_per_band, __local real* scratch) {
+  const int band = get_group_id(1), g = get_group_id(0), lid = get_local_id(0), ls = get_local_size(0);
+  real acc = R(0.0);
+  for (size_t e = (size_t)g * ls + lid; e < (size_t)len; e += (size_t)groups_per_band * ls)
+    acc += a[(size_t)band * len + e] * b[(size_t)band * len + e];
+  scratch[lid] = acc;
+  barrier(CLK_LOCAL_MEM_FENCE);
+  for (int s = ls / 2; s > 0; s >>= 1) {
+    if (lid < s) scratch[lid] += scratch[lid + s];
+    barrier(CLK_LOCAL_MEM_FENCE);
+  }
+  if (lid == 0) partial[(size_t)band * groups_per_band + g] = scratch[0];
+}
+
+// VJP of y = x / sum(x) per band: g_x = (g_y - <g_y, y>) / sum(x). g: bands x len, in place.
+__kernel void normalize_vjp(__global real* g, __global const real* dots, __global const real* sums, const int len,
+                            const int bands) {
+  const size_t gid = get_global_id(0);
+  if (gid >= (size_t)len * bands) return;
+  const int b = (int)(gid / len);
+  const real s = sums[b];
+  g[gid] = s > R(0.0) ? (g[gid] - dots[b]) / s : R(0.0);
+}
+
+// VJP of P = |U2|² on the central N x N: gU (bands x M x M complex, written in full) =
+// 2 g_P U2 inside the crop, 0 outside. g_p: bands x N x N; u2: bands x M x M.
+__kernel void intensity_vjp(__global const real* g_p, __global const real2* u2, __global real2* gu, const int n,
+                            const int m, const int offset, const int bands) {
+  // 3-D NDRange (columns rounded up to the work-group size, rows, bands): no integer division.
+  const int x = (int)get_global_id(0), y = (int)get_global_id(1), b = (int)get_global_id(2);
+  if (x >= m || y >= m || b >= bands) return;
+  const size_t gid = ((size_t)b * m + y) * m + x;
+  const int i = y - offset, j = x - offset;
+  real2 v = (real2)(R(0.0), R(0.0));
+  if (i >= 0 && i < n && j >= 0 && j < n) v = R(2.0) * g_p[((size_t)b * n + i) * n + j] * u2[gid];
+  gu[gid] = v;
+}

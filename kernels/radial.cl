@@ -2,7 +2,7 @@
 // U distinct sensor values, S x S sensor, `bands` planes. Complex values are real2, arrays row-major
 // with the band index outermost. 1-D kernels use the fixed work-group size and check their index.
 
-#define RADIAL_BC 8  // bands per work-item in radial_matmul (kBandChunk in src/radial.cpp)
+#define RADIAL_BC 8  // bands per work-item in radial_matmul (kBandChunk in src/physics/radial.cpp)
 #ifndef RADIAL_TILE
 #define RADIAL_TILE 128  // columns per local-memory tile: the work-group size (-D from the host)
 #endif

@@ -1,7 +1,7 @@
 // References that do not share the host code they check (issue 16, item 1).
 //
 // The CPU reference and the OpenCL path both call delta_n_per_band, wavenumber_per_band,
-// AreaWeights::make and sensor_response (src/optics.cpp), so a bug there is invisible to the
+// AreaWeights::make and sensor_response (src/physics/optics.cpp), so a bug there is invisible to the
 // kernel-vs-reference tests. Every expected value here is computed in this file from first
 // principles or from data typed in / read here with its own parser:
 //   * n - 1 from the Sellmeier / Cauchy formulas with the published coefficients typed below;
@@ -9,7 +9,7 @@
 //   * the camera response from ../shared/data/spectral (a copy the simulator never reads),
 //     parsed here, normalised here, interpolated here;
 //   * the sensor area-resampling weights as overlap lengths of pixel intervals.
-// The values are then pushed through the real paths (Simulator kernels, SceneImager, CPU
+// The values are then pushed through the real paths (Simulator kernels, Camera, CPU
 // reference) and compared.
 #include <cmath>
 #include <fstream>
@@ -18,7 +18,7 @@
 #include "common.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/doe.hpp"
-#include "qdo/imaging.hpp"
+#include "qdo/camera.hpp"
 #include "qdo/materials.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/simulator.hpp"
@@ -28,7 +28,7 @@ using namespace qdo::test;
 
 namespace {
 
-// ---- Dispersion, written out independently of src/materials.cpp --------------------------
+// ---- Dispersion, written out independently of src/physics/materials.cpp --------------------------
 // Sellmeier n² = 1 + Σ B_i λ² / (λ² - C_i), λ in µm, C_i in µm². Coefficients as published:
 //  OHARA S-K1300: wang-lizhi/QuantizationAwareDeepOptics constants.py
 //    (refractive_index_glass_ohara_sk1300), as listed in shared/data/spectral/sellmeier_coefficients.csv;
@@ -279,7 +279,7 @@ TEST_SUITE("references") {
       }
 
     // Through the optics: a cube uniform in one band, any unit-sum PSF. Circular convolution
-    // (Simulator) keeps a uniform plane exactly; linear convolution (SceneImager, exact mode)
+    // (Simulator) keeps a uniform plane exactly; linear convolution (Camera, exact mode)
     // keeps it at pixels whose PSF footprint (offsets up to S/2) lies inside the scene. float32
     // FFT convolution of values <= 1 over a <= 64 x 64 grid: error ~ eps log2(P) ~ 1e-6; 1e-5
     // is the bound (a band swap moves some channel by >= 1e-4).
@@ -298,7 +298,7 @@ TEST_SUITE("references") {
       cubes.push_back(cube);
     }
     const auto circ = simc.sensor_images(cubes);
-    SceneImager imager(sim);
+    Camera imager(sim);
     SkipOptions exact;
     exact.exact = true;
     const auto lin = imager.images(cubes, exact);

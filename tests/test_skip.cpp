@@ -1,4 +1,4 @@
-// SceneImager (include/qdo/imaging.hpp): sensor images with skipping rules and error bounds.
+// Camera (include/qdo/camera.hpp): sensor images with skipping rules and error bounds.
 #include <cmath>
 #include <fstream>
 #include <random>
@@ -9,7 +9,7 @@
 #include "qdo/cpu_reference.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
-#include "qdo/imaging.hpp"
+#include "qdo/camera.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/simulator.hpp"
 
@@ -87,22 +87,24 @@ void check_bound_parts(const SkipReport& r) {
 
 TEST_SUITE("skip") {
 
-TEST_CASE("exact mode equals Simulator::sensor_images in float32 and float64") {
+TEST_CASE("exact mode equals the CPU reference (convolution, sensor integration) in float32 and float64") {
   const SystemConfig cfg = skip_config();
   const Map2D lens = lens_design(cfg, 550);
   const std::vector<RealStack> cubes{random_cube(31, kSceneRows, kSceneCols, 1), textured_cube(31, kSceneRows, kSceneCols, 2)};
   for (Precision p : {Precision::F64, Precision::F32}) {
     CAPTURE(to_string(p));
     Rig rig(cfg, p, lens);
-    SceneImager im(*rig.sim);
+    Camera im(*rig.sim);
     SkipOptions o;
     o.exact = true;
     const auto got = im.images(cubes, o);
-    const auto want = rig.sim->sensor_images(cubes);
+    const RealStack psf = rig.sim->psf_sensor();
+    std::vector<RealStack> want;
+    for (const auto& c : cubes) want.push_back(ref::sensor_integrate(ref::convolve(c, psf, ConvolutionMode::Linear), rig.sim->srf()));
     const std::size_t s = rig.sim->sensor_size();
     const double tol = fft_tol(p, double(fast_fft_size(kSceneRows + s - 1) * fast_fft_size(kSceneCols + s - 1)));
     const double err = max_abs_diff(got, want);
-    MESSAGE("exact vs sensor_images, " << to_string(p) << ": max |diff| = " << err << " (tol " << tol << ")");
+    MESSAGE("exact vs CPU reference, " << to_string(p) << ": max |diff| = " << err << " (tol " << tol << ")");
     CHECK(err <= tol);
     const SkipReport& r = im.last_report();
     CHECK(r.bands_skipped.empty());
@@ -115,7 +117,7 @@ TEST_CASE("exact mode equals Simulator::sensor_images in float32 and float64") {
   }
 }
 
-TEST_CASE("exact mode reproduces the simulator's noise and circular convolution") {
+TEST_CASE("exact mode reproduces the reference noise and circular convolution") {
   SystemConfig cfg = skip_config();
   cfg.read_noise_sigma = 0.01;
   cfg.noise_seed = 77;
@@ -123,22 +125,32 @@ TEST_CASE("exact mode reproduces the simulator's noise and circular convolution"
   const std::vector<RealStack> cubes{random_cube(31, kSceneRows, kSceneCols, 3), random_cube(31, kSceneRows, kSceneCols, 4)};
   SkipOptions o;
   o.exact = true;
+  auto reference = [](const SystemConfig& c, const RealStack& psf, const Eigen::MatrixXd& srf,
+                      const std::vector<RealStack>& batch) {
+    std::vector<RealStack> out;
+    for (std::size_t k = 0; k < batch.size(); ++k) {
+      out.push_back(ref::sensor_integrate(ref::convolve(batch[k], psf, c.convolution), srf));
+      ref::add_noise(out.back(), c.read_noise_sigma, c.full_well_photons, c.noise_seed, k);
+    }
+    return out;
+  };
   {
     Rig rig(cfg, Precision::F64, h);
-    SceneImager im(*rig.sim);
-    const double err = max_abs_diff(im.images(cubes, o), rig.sim->sensor_images(cubes));
+    Camera im(*rig.sim);
+    const double err = max_abs_diff(im.images(cubes, o), reference(cfg, rig.sim->psf_sensor(), rig.sim->srf(), cubes));
     CHECK(err <= 1e-12);
   }
   cfg.read_noise_sigma = 0;
   cfg.convolution = ConvolutionMode::Circular;
   const std::vector<RealStack> sq{random_cube(31, kSceneRows, kSceneCols, 6)};
   Rig rig(cfg, Precision::F64, h);
-  SceneImager im(*rig.sim);
-  CHECK(max_abs_diff(im.images(sq, o), rig.sim->sensor_images(sq)) <= 1e-12);
+  Camera im(*rig.sim);
+  const auto want = reference(cfg, rig.sim->psf_sensor(), rig.sim->srf(), sq);
+  CHECK(max_abs_diff(im.images(sq, o), want) <= 1e-12);
   // In circular mode the grid is the scene: cropping cannot save work, so no rule crops.
   (void)im.images(sq, SkipOptions::split(1e-2));
   CHECK_FALSE(im.last_report().cropped);
-  CHECK(max_abs_diff(im.images(sq, SkipOptions::split(0)), rig.sim->sensor_images(sq)) <= 1e-12);
+  CHECK(max_abs_diff(im.images(sq, SkipOptions::split(0)), want) <= 1e-12);
 }
 
 TEST_CASE("crop rule: matches the CPU reference of the cropped computation and stays within its bound") {
@@ -155,7 +167,7 @@ TEST_CASE("crop rule: matches the CPU reference of the cropped computation and s
   for (Precision p : {Precision::F64, Precision::F32}) {
     CAPTURE(to_string(p));
     Rig rig(cfg, p, lens);
-    SceneImager im(*rig.sim);
+    Camera im(*rig.sim);
     const auto got = im.images(cubes, o);
     const SkipReport& r = im.last_report();
     REQUIRE(r.cropped);
@@ -204,7 +216,7 @@ TEST_CASE("band rule: zero-response and dark bands are skipped within the bound"
   for (Precision p : {Precision::F64, Precision::F32}) {
     CAPTURE(to_string(p));
     Rig rig(cfg, p, h);
-    SceneImager im(*rig.sim);
+    Camera im(*rig.sim);
     const auto got = im.images(cubes, o);
     const SkipReport& r = im.last_report();
     for (std::size_t b = 0; b < 4; ++b)
@@ -222,7 +234,7 @@ TEST_CASE("band rule: zero-response and dark bands are skipped within the bound"
   }
   // With a zero budget only bands contributing exactly nothing go.
   Rig rig(cfg, Precision::F64, h);
-  SceneImager im(*rig.sim);
+  Camera im(*rig.sim);
   (void)im.images(cubes, SkipOptions::split(0));
   CHECK(im.last_report().bands_skipped.size() == 4);
   CHECK(im.last_report().total_bound == 0.0);
@@ -253,7 +265,7 @@ TEST_CASE("tile rule: empty tiles skipped by overlap-add within the bound") {
   for (Precision p : {Precision::F64, Precision::F32}) {
     CAPTURE(to_string(p));
     Rig rig(cfg, p, lens);
-    SceneImager im(*rig.sim);
+    Camera im(*rig.sim);
     const auto got = im.images(cubes, o);
     const SkipReport& r = im.last_report();
     REQUIRE(r.tiled);
@@ -275,7 +287,7 @@ TEST_CASE("tile rule: empty tiles skipped by overlap-add within the bound") {
   }
   // Tiling with nothing skipped is still the exact linear convolution (overlap-add check).
   Rig rig(cfg, Precision::F64, lens);
-  SceneImager im(*rig.sim);
+  Camera im(*rig.sim);
   SkipOptions on;
   on.band_tolerance = on.crop_tolerance = on.tile_tolerance = 0;
   on.tiles = TileMode::On;
@@ -295,7 +307,7 @@ TEST_CASE("all rules together: total bound within the total tolerance") {
   Rig r64(cfg, Precision::F64, lens);
   const auto unskipped = r64.sim->sensor_images(cubes);
   const SkipOptions o = SkipOptions::split(3e-2, TileMode::On, 16);
-  SceneImager im(*r64.sim);
+  Camera im(*r64.sim);
   const auto got = im.images(cubes, o);
   const SkipReport& r = im.last_report();
   CHECK(r.total_bound <= o.total_tolerance());
@@ -367,7 +379,7 @@ TEST_CASE("alignment: off-centre point PSFs shift the scene exactly as the unski
       }
   for (Precision p : {Precision::F64, Precision::F32}) {
     CAPTURE(to_string(p));
-    SceneImager im(runtime(), cfg, p);
+    Camera im(runtime(), cfg, p);
     im.set_psf(psf);
     const double tol = 64 * eps(p);
     SkipOptions exact;
@@ -398,7 +410,7 @@ TEST_CASE("alignment: off-centre point PSFs shift the scene exactly as the unski
 TEST_CASE("reuse: OTFs built once per PSF generation and shared across calls and batches") {
   const SystemConfig cfg = skip_config();
   Rig rig(cfg, Precision::F32, lens_design(cfg, 550));
-  SceneImager im(*rig.sim);
+  Camera im(*rig.sim);
   const std::vector<RealStack> one{random_cube(31, kSceneRows, kSceneCols, 61)}, two{random_cube(31, kSceneRows, kSceneCols, 62), random_cube(31, kSceneRows, kSceneCols, 61)};
   const SkipOptions o = SkipOptions::split(1e-4);
   const auto a = im.images(one, o);
@@ -421,12 +433,12 @@ TEST_CASE("bad options and inputs are rejected before any work") {
   const std::vector<RealStack> cubes{random_cube(31, kSceneRows, kSceneCols, 71)};
   {
     Simulator sim(runtime(), cfg, Precision::F32);
-    SceneImager im(sim);
+    Camera im(sim);
     CHECK_THROWS_AS((void)im.images(cubes), Error);  // compute_psf() has not run
     CHECK_THROWS_WITH_AS(im.set_psf(RealStack(31, 64, 64)), doctest::Contains("set_psf"), InputError);
   }
   Rig rig(cfg, Precision::F32, lens_design(cfg, 550));
-  SceneImager im(*rig.sim);
+  Camera im(*rig.sim);
   auto bad = [&](SkipOptions o, const char* name) {
     CHECK_THROWS_WITH_AS((void)im.images(cubes, o), doctest::Contains(name), InputError);
   };
@@ -452,12 +464,12 @@ TEST_CASE("bad options and inputs are rejected before any work") {
   RealStack nan_cube = cubes[0];
   nan_cube(3, 2, 1) = std::nan("");
   CHECK_THROWS_WITH_AS((void)im.images({nan_cube}), doctest::Contains("finite"), InputError);
-  SceneImager standalone(runtime(), cfg, Precision::F32);
+  Camera standalone(runtime(), cfg, Precision::F32);
   CHECK_THROWS_WITH_AS(standalone.set_psf(RealStack(31, 63, 63)), doctest::Contains("psf_sensor"), InputError);
   CHECK_THROWS_AS((void)standalone.images(cubes), Error);  // no PSF yet
   SystemConfig circ = cfg;
   circ.convolution = ConvolutionMode::Circular;
-  SceneImager ci(runtime(), circ, Precision::F32);
+  Camera ci(runtime(), circ, Precision::F32);
   ci.set_psf(RealStack(31, 64, 64, 1.0 / 4096));
   SkipOptions t;
   t.tiles = TileMode::On;

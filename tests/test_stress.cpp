@@ -1057,7 +1057,7 @@ TEST_SUITE("stress") {
     CHECK(has(ckpt("/w", std::vector<double>(16, 1.5)), "outside [-1, 1]"));
     CHECK(has(ckpt("/counters", {-1, 0, 0}), "/counters"));
     CHECK(has(ckpt("/counters", {2.5, 0, 0}), "/counters"));
-    // Regression (src/run.cpp): counters beyond the range of a long (undefined behaviour in the
+    // Regression (src/design/run.cpp): counters beyond the range of a long (undefined behaviour in the
     // conversion), negative second moments (NaN weights after resume) and offsets beyond their
     // clip limits are rejected naming the dataset.
     CHECK(has(ckpt("/counters", {1e300, 0, 0}), "/counters"));

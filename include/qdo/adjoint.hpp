@@ -23,6 +23,11 @@ namespace qdo::ref {
 // bands x S x S (correlation of the output gradient with the scene, then the transpose of the
 // wrap/fold). Linear in the PSF, so <convolve(cube, psf), g> = <psf, convolve_vjp_psf(cube, g)>.
 RealStack convolve_vjp_psf(const RealStack& cube, const RealStack& g_out, std::size_t psf_size, ConvolutionMode mode);
+// VJP of ref::convolve with respect to the scene: psf bands x S x S (axis at S/2), g_out
+// bands x H x W -> bands x H x W, the correlation g_x[b](q) = sum over PSF offsets t of
+// g_out[b](q + t) psf[b](S/2 + t) (q + t outside the scene contributes nothing in linear mode,
+// wraps modulo H x W in circular mode). Direct sums, O(B H W S^2): for tests.
+RealStack convolve_vjp_scene(const RealStack& psf, const RealStack& g_out, ConvolutionMode mode);
 // VJP of ref::sensor_integrate: g_rgb 3 x H x W -> bands x H x W (srf^T g).
 RealStack sensor_integrate_vjp(const RealStack& g_rgb, const Eigen::MatrixXd& srf);
 

@@ -1,6 +1,6 @@
 // The FFT interface: batched, in-place, complex-interleaved 2-D transforms on device buffers.
-// Two backends behind one interface (FftBackend in runtime.hpp): clFFT (src/fft_clfft.cpp) and
-// VkFFT's OpenCL backend (src/fft_vkfft.cpp). Plans are baked once and cached by the Runtime
+// Two backends behind one interface (FftBackend in runtime.hpp): clFFT (src/runtime/fft_clfft.cpp) and
+// VkFFT's OpenCL backend (src/runtime/fft_vkfft.cpp). Plans are baked once and cached by the Runtime
 // (Runtime::fft); the backend is chosen per Runtime (constructor argument or QDO_FFT).
 #pragma once
 #include <CL/opencl.hpp>

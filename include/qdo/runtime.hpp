@@ -60,8 +60,8 @@ void set_args(cl::Kernel& k, Precision p, const A&... args) {
   (detail::set_arg(k, i++, p, args), ...);
 }
 
-// The library behind FftPlan: clFFT (src/fft_clfft.cpp) or VkFFT's OpenCL backend
-// (src/fft_vkfft.cpp). Both give the same transform (see fft.hpp).
+// The library behind FftPlan: clFFT (src/runtime/fft_clfft.cpp) or VkFFT's OpenCL backend
+// (src/runtime/fft_vkfft.cpp). Both give the same transform (see fft.hpp).
 enum class FftBackend { ClFFT, VkFFT };
 // "clfft" or "vkfft" (case-insensitive); anything else is rejected naming `argument`.
 FftBackend fft_backend_from_string(const std::string& s, const std::string& argument = "fft backend");
@@ -158,6 +158,11 @@ class Runtime {
   void launch_1d(cl::Kernel& k, std::size_t n, Precision p, const A&... args) {
     launch_1d(queue(), k, n, p, args...);
   }
+
+  // Host doubles <-> a device buffer of reals in precision p (converted to float for F32);
+  // blocking. n reals starting at element `offset` of the buffer.
+  void write_reals(const cl::Buffer& b, const double* src, std::size_t n, Precision p, std::size_t offset = 0);
+  void read_reals(const cl::Buffer& b, double* dst, std::size_t n, Precision p, std::size_t offset = 0);
 
  private:
   cl::Program& program(const std::string& label, const std::string& source, const std::string& options);

@@ -4,14 +4,16 @@
 //   heights (N x N) --doe_field--> field (bands x M x M) --FFT, TF, IFFT--> field
 //     --intensity_crop_sums, normalise--> psf (bands x N x N) --resample_area, normalise--> psf_sensor
 //     (bands x S x S) --FFT--> OTF (bands x PY x PX, cached until the heights change)
-//   cube (bands x H x W) --FFT, x OTF, IFFT, crop--> blurred (bands x H x W)
-//     --sensor_integrate (+ noise)--> rgb (3 x H x W)
+//   cube (bands x H x W) --Camera (camera.hpp): per-band convolution, sensor integration, noise-->
+//     rgb (3 x H x W); the Simulator's convolution and sensor-image calls delegate to one Camera
+//     that follows this simulator's PSF (psf_sensor_buffer(), psf_generation()).
 #pragma once
 #include <CL/opencl.hpp>
 
 #include <Eigen/Dense>
 
 #include <cstdint>
+#include <memory>
 
 #include "qdo/config.hpp"
 #include "qdo/doe.hpp"
@@ -20,6 +22,8 @@
 #include "qdo/types.hpp"
 
 namespace qdo {
+
+class Camera;
 
 class Simulator {
  public:
@@ -32,6 +36,9 @@ class Simulator {
   // double before rounding the field to float ("float32 with float64 phase"; the adjoint's
   // phase recomputation stays float32). Ignored for Precision::F64.
   Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs = 1, bool phase_fp64 = false);
+  ~Simulator();
+  Simulator(const Simulator&) = delete;
+  Simulator& operator=(const Simulator&) = delete;
   bool phase_fp64() const { return phase_fp64_; }
   std::size_t designs() const { return designs_; }
 
@@ -64,7 +71,7 @@ class Simulator {
   const SamplingReport& sampling() const;
   // The device buffer behind psf_sensor(): (designs x bands) x S x S reals of precision(),
   // row-major, valid after compute_psf() until the heights change. For stages that consume
-  // the PSF on the device (src/imaging.cpp) without a host round trip.
+  // the PSF on the device (src/physics/camera.cpp) without a host round trip.
   const cl::Buffer& psf_sensor_buffer() const { return psf_s_; }
   // Incremented by every compute_psf(): consumers that cache something derived from the PSF
   // (OTFs, crops) compare it to know when to rebuild.
@@ -114,8 +121,9 @@ class Simulator {
   void run_doe_field();
   void run_propagation(cl::Buffer& field, double z_m, bool record_sampling);
   void band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len, cl::Buffer& sums);
-  void ensure_conv(std::size_t h, std::size_t w, std::size_t scenes);
-  void run_convolution(const std::vector<RealStack>& cubes);
+  // The camera of convolve*/sensor_images*/sensor_images_vjp (made on first use; `what` names
+  // the caller in errors: one design, compute_psf() first).
+  Camera& camera(const char* what);
   void run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw, std::size_t scenes);
   // Sets the arguments doe_field, doe_field_p64 and phase_vjp share: (height, k_tab, dn_tab,
   // a3, a4, n, m, offset, bands, pitch, distance (<= 0: plane wave), aperture radius^2), the
@@ -144,7 +152,7 @@ class Simulator {
   std::vector<double> wavelengths_nm_;
   Eigen::MatrixXd srf_;
   AreaWeights weights_;
-  bool heights_set_ = false, psf_valid_ = false, otf_valid_ = false;
+  bool heights_set_ = false, psf_valid_ = false;
   bool field_valid_ = false;  // field_ holds the propagated field of the current heights (adjoints need it)
   mutable SamplingReport sampling_;
   mutable bool sampling_fresh_ = true;
@@ -156,13 +164,10 @@ class Simulator {
   cl::Buffer heights_, k_, dn_, field_, psf_, psf_s_, partial_, tf_, klim_, wstart_, wts_, srf_buf_;
   cl::Buffer energy3_;                              // per band: spectrum total, beyond limit, after TF (bands x 3)
   cl::Buffer sums_crop_, sums_sensor_;              // per-band sums (bands reals each)
-  // Convolution buffers, sized for the last scene shape.
-  std::size_t ch_ = 0, cw_ = 0, cn_ = 0, py_ = 0, px_ = 0;
-  cl::Buffer otf_, sbuf_, cube_, blurred_, rgb_;
+  std::unique_ptr<Camera> camera_;
 
   cl::Kernel k_field_, k_tf_, k_tf_energy_, k_finalize3_, k_crop_sums_, k_sums_, k_finalize_, k_scale_, k_resample_,
-      k_place_scene_, k_place_psf_, k_cmul_, k_crop_real_, k_sensor_, k_expand_, k_quantize_,
-      k_dot_, k_norm_vjp_, k_int_vjp_, k_phase_vjp_, k_sensor_vjp_, k_cmul_conj_, k_gather_psf_;
+      k_sensor_, k_expand_, k_quantize_, k_dot_, k_norm_vjp_, k_int_vjp_, k_phase_vjp_;
   // Adjoint state: transposed resampling weights, the back-propagation TF, gradient buffers.
   AreaWeights weights_t_;
   cl::Buffer wstart_t_, wts_t_, tf_back_, gfield_, dots_, dh_;

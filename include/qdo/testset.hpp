@@ -1,5 +1,5 @@
-// The test-set evaluation shared by `qdo eval` (src/eval.cpp) and `qdo tolerance`
-// (src/fab_tolerance.cpp): the test patches, one patch through the camera and the Wiener decoder,
+// The test-set evaluation shared by `qdo eval` (src/decode/eval.cpp) and `qdo tolerance`
+// (src/fab/fab_tolerance.cpp): the test patches, one patch through the camera and the Wiener decoder,
 // the six metrics, and their averages (per scene over its patches, then over scenes, in that
 // order, so both commands give bit-identical numbers for the same design).
 #pragma once

@@ -2,6 +2,7 @@
 #pragma once
 #include <complex>
 #include <cstddef>
+#include <string>
 #include <vector>
 
 namespace qdo {
@@ -29,6 +30,15 @@ struct Stack {
   T* plane(std::size_t p) { return data.data() + p * rows * cols; }
   const T* plane(std::size_t p) const { return data.data() + p * rows * cols; }
 };
+
+// "P x R x C", for messages naming a shape.
+inline std::string shape(std::size_t p, std::size_t r, std::size_t c) {
+  return std::to_string(p) + " x " + std::to_string(r) + " x " + std::to_string(c);
+}
+template <typename T>
+std::string shape(const Stack<T>& s) {
+  return shape(s.planes, s.rows, s.cols);
+}
 
 using RealStack = Stack<double>;      // e.g. cube (bands x H x W), PSF (bands x N x N)
 using ComplexStack = Stack<cdouble>;  // fields (bands x M x M)

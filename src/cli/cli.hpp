@@ -11,7 +11,7 @@
 #include "qdo/config.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/doe.hpp"
-#include "qdo/imaging.hpp"
+#include "qdo/camera.hpp"
 #include "qdo/types.hpp"
 
 namespace qdo::cli {

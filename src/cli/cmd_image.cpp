@@ -1,11 +1,11 @@
 // qdo image: the RGB sensor image of one scene through a design, with the skipping rules of
-// SceneImager (include/qdo/imaging.hpp) and a JSON report of what was skipped and the bound.
+// Camera (include/qdo/camera.hpp) and a JSON report of what was skipped and the bound.
 #include <cstdio>
 #include <fstream>
 
 #include "cli.hpp"
 #include "qdo/error.hpp"
-#include "qdo/imaging.hpp"
+#include "qdo/camera.hpp"
 #include "qdo/io.hpp"
 #include "qdo/scenes.hpp"
 #include "qdo/simulator.hpp"
@@ -31,7 +31,7 @@ int cmd_image(const Args& a) {
   Simulator sim(rt, cfg, p);
   sim.set_heights(h);
   sim.compute_psf();
-  SceneImager im(sim);
+  Camera im(sim);
   const auto t0 = std::chrono::steady_clock::now();
   RealStack rgb = im.images({scene}, opt).front();
   const double secs = seconds_since(t0);

@@ -132,7 +132,7 @@ std::vector<CommandSpec> make_table() {
                 opt("renders", "number of reconstructions rendered as PNG, an integer in [0, 1000]", "4"), synthetic_scenes("6"),
                 precision(), device(), out_dir_opt()},
                cmd_eval});
-  t.push_back({"image", "the RGB sensor image of one scene with the skipping rules of SceneImager and a skip report", "", "",
+  t.push_back({"image", "the RGB sensor image of one scene with the skipping rules of Camera and a skip report", "", "",
                {preset(), config(), design_spec(), levels_post(), placement(), scene(), key(), resample_bands(), precision(), device(),
                 opt("tolerance", "error bound of the skipped work, in units of full scale (>= 0)", "3e-7"),
                 flag("exact", "skip nothing"), opt("tiles", "tiled convolution: off, on or auto", "off"),

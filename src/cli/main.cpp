@@ -16,7 +16,7 @@
 #include "qdo/design_run.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
-#include "qdo/imaging.hpp"
+#include "qdo/camera.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
@@ -127,11 +127,11 @@ int cmd_simulate(const Args& a) {
   sim.set_heights(h);
   const auto t0 = std::chrono::steady_clock::now();
   sim.compute_psf();
-  // The camera through SceneImager's exact reorganisation (no skipping): the same image as
+  // The camera through Camera's exact reorganisation (no skipping): the same image as
   // Simulator::sensor_image to the rounding of the precision, with fewer, smaller transforms.
   SkipOptions exact;
   exact.exact = true;
-  SceneImager camera(sim);
+  Camera camera(sim);
   RealStack rgb = camera.images({scene}, exact).front();
   const double secs = seconds_since(t0);
   const SensorClip clip = clip_to_full_scale(rgb, "sensor image");

@@ -1,0 +1,390 @@
+#include "qdo/config.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <limits>
+#include <nlohmann/json.hpp>
+#include <utility>
+
+#include "qdo/error.hpp"
+#include "data/json_strict.hpp"
+#include "qdo/materials.hpp"
+
+namespace qdo {
+
+using nlohmann::json;
+
+// ---------------------------------------------------------------------------------------
+// Derived quantities
+// ---------------------------------------------------------------------------------------
+
+std::vector<double> SystemConfig::wavelengths_nm() const {
+  std::vector<double> out(bands);
+  for (std::size_t k = 0; k < bands; ++k) out[k] = wavelength_start_nm + static_cast<double>(k) * wavelength_step_nm;
+  return out;
+}
+
+double SystemConfig::aperture_radius() const {
+  return aperture_radius_m > 0 ? aperture_radius_m : (static_cast<double>(n) / 2.0 - 1.0) * pitch_m;
+}
+
+double SystemConfig::h_max_m() const {
+  const double n_base = material_by_name(material).index(base_wavelength_nm, "base_wavelength_nm");
+  return base_wavelength_nm * 1e-9 / (n_base - 1.0);
+}
+
+std::size_t SystemConfig::sensor_size_px() const {
+  return static_cast<std::size_t>(std::llround(static_cast<double>(n) * pitch_m / sensor_pitch_m));
+}
+
+// ---------------------------------------------------------------------------------------
+// Validation
+// ---------------------------------------------------------------------------------------
+
+namespace {
+
+// Rejects NaN and infinities as well as values outside [lo, hi].
+void check_finite_range(const char* key, double v, double lo, double hi, const std::string& allowed) {
+  if (!std::isfinite(v) || v < lo || v > hi) reject(key, v, allowed);
+}
+
+// Kernels may run in float32 (--precision f32, or a device without fp64), and sensor images
+// are float32 either way: a value that is a finite double but overflows float32 (1e300 read
+// noise wrote an all-Inf sensor.h5) or underflows to 0 / a denormal is refused here, naming the
+// key, the value and the representable range.
+void check_float32(const char* key, double v) {
+  constexpr double lo = std::numeric_limits<float>::min(), hi = std::numeric_limits<float>::max();
+  const double a = std::fabs(v);
+  if (!std::isfinite(v) || a > hi || (a != 0 && a < lo))
+    reject(key, v,
+           "0 or a magnitude from " + to_str(lo) + " to " + to_str(hi) +
+               " (the float32 range: kernels run in float32 with --precision f32)");
+}
+
+}  // namespace
+
+void SystemConfig::validate() const {
+  constexpr double inf = std::numeric_limits<double>::infinity();
+  if (n < 16 || n > 16384 || n % 2 != 0) reject("n", n, "an even integer from 16 to 16384");
+  check_finite_range("pitch_m", pitch_m, 1e-7, 1e-4, "a pitch from 1e-7 (0.1 um) to 1e-4 (100 um) metres");
+  if (bands < 1 || bands > 1001) reject("bands", bands, "an integer from 1 to 1001");
+  check_finite_range("wavelength_start_nm", wavelength_start_nm, 0, inf, "a finite positive wavelength in nm");
+  if (bands > 1) check_finite_range("wavelength_step_nm", wavelength_step_nm, std::numeric_limits<double>::min(), inf,
+                                    "a finite step > 0 nm when bands > 1");
+  else check_finite_range("wavelength_step_nm", wavelength_step_nm, -inf, inf, "a finite number");
+  const Material& mat = material_by_name(material);  // rejects unknown names under the key "material"
+  const std::vector<double> wl = wavelengths_nm();
+  for (std::size_t k = 0; k < wl.size(); ++k) {
+    const std::string arg = k == 0 ? std::string("wavelength_start_nm")
+                                   : "wavelength_start_nm + " + std::to_string(k) + " * wavelength_step_nm (bands = " +
+                                         std::to_string(bands) + ")";
+    mat.index(wl[k], arg);
+  }
+  mat.index(base_wavelength_nm, "base_wavelength_nm");
+  if (std::isnan(scene_distance_m)) reject("scene_distance_m", scene_distance_m, "a finite distance > 0 m or \"inf\"");
+  if (!scene_at_infinity)
+    check_finite_range("scene_distance_m", scene_distance_m, std::numeric_limits<double>::min(), inf,
+                       "a finite distance > 0 m, or \"inf\" for a source at infinity");
+  check_finite_range("sensor_distance_m", sensor_distance_m, std::numeric_limits<double>::min(), 10.0,
+                     "a distance > 0 and <= 10 m");
+  const double half_width_m = static_cast<double>(n) / 2.0 * pitch_m;
+  check_finite_range("aperture_radius_m", aperture_radius_m, 0.0, half_width_m,
+                     "0 (default (n/2 - 1) * pitch_m) or a radius up to n/2 * pitch_m = " + to_str(half_width_m) + " m");
+  check_finite_range("base_plate_m", base_plate_m, 0.0, inf, "a finite thickness >= 0 m");
+  if (propagator != Propagator::Fresnel && propagator != Propagator::AngularSpectrum)
+    reject("propagator", static_cast<int>(propagator), "\"fresnel\" or \"asm\"");
+  if (padding_px > 4 * n) reject("padding_px", padding_px, "at most 4 * n = " + std::to_string(4 * n) + " pixels per side");
+  const double field_m = static_cast<double>(n) * pitch_m;
+  check_finite_range("sensor_pitch_m", sensor_pitch_m, pitch_m * 0.999, field_m,
+                     "from pitch_m = " + to_str(pitch_m) + " to n * pitch_m = " + to_str(field_m) +
+                         " m (the PSF is area-integrated onto sensor pixels, never interpolated finer)");
+  if (scene_size_px < 1 || scene_size_px > 16384) reject("scene_size_px", scene_size_px, "an integer from 1 to 16384");
+  if (camera.empty()) reject("camera", "\"\"", "a built-in camera name or a CSV path, not empty");
+  if (convolution != ConvolutionMode::Linear && convolution != ConvolutionMode::Circular)
+    reject("convolution", static_cast<int>(convolution), "\"linear\" or \"circular\"");
+  check_finite_range("read_noise_sigma", read_noise_sigma, 0.0, inf, "a finite sigma >= 0 (units of full scale)");
+  check_finite_range("full_well_photons", full_well_photons, 0.0, inf, "a finite count >= 0 (0 disables shot noise)");
+  // Last, so that the range checks above name their own limits first.
+  for (const auto& [key, value] : {std::pair<const char*, double>{"pitch_m", pitch_m},
+                                   {"wavelength_start_nm", wavelength_start_nm},
+                                   {"wavelength_step_nm", wavelength_step_nm},
+                                   {"sensor_distance_m", sensor_distance_m},
+                                   {"aperture_radius_m", aperture_radius_m},
+                                   {"base_wavelength_nm", base_wavelength_nm},
+                                   {"base_plate_m", base_plate_m},
+                                   {"sensor_pitch_m", sensor_pitch_m},
+                                   {"read_noise_sigma", read_noise_sigma},
+                                   {"full_well_photons", full_well_photons}})
+    check_float32(key, value);
+  if (!scene_at_infinity && std::isfinite(scene_distance_m)) check_float32("scene_distance_m", scene_distance_m);
+}
+
+// ---------------------------------------------------------------------------------------
+// Presets
+// ---------------------------------------------------------------------------------------
+
+std::vector<std::string> preset_names() { return {"paper", "small"}; }
+
+SystemConfig preset_config(const std::string& name) {
+  SystemConfig c;  // header defaults are the paper's values (REFERENCE §1)
+  c.preset = "paper";
+  c.n = 1024;
+  c.pitch_m = 4e-6;
+  c.wavelength_start_nm = 400;
+  c.wavelength_step_nm = 10;
+  c.bands = 31;
+  c.scene_distance_m = 1.0;
+  c.scene_at_infinity = false;
+  c.sensor_distance_m = 0.05;
+  c.aperture_radius_m = 0;
+  c.material = "OHARA_SK1300";
+  c.base_wavelength_nm = 700;
+  c.base_plate_m = 2e-3;
+  c.propagator = Propagator::Fresnel;
+  c.padding_px = 256;  // N/4 per side
+  c.strict_sampling = false;
+  c.sensor_pitch_m = 8e-6;
+  c.scene_size_px = 512;
+  c.camera = "FLIR_GS3-U3-41S4C";
+  c.srf_interpolate = false;
+  c.convolution = ConvolutionMode::Linear;
+  c.read_noise_sigma = 0.001;  // training noise sigma
+  c.full_well_photons = 0;     // no shot noise
+  c.noise_seed = 0;
+  if (name == "paper") return c;
+  if (name == "small") {
+    // Paper physics at N = 256: z scales with N (0.05 m * 256/1024), so the numerical
+    // aperture (N/2 * pitch) / z and the transfer-function sampling ratio
+    // lambda * z / (M * pitch^2), M = N + 2 * padding, both equal the paper's.
+    c.preset = "small";
+    c.n = 256;
+    c.sensor_distance_m = 0.0125;
+    c.padding_px = 64;
+    c.scene_size_px = 128;  // sensor 256 * 4 um / 8 um = 128 px
+    return c;
+  }
+  reject("preset", name, "one of paper, small");
+}
+
+// ---------------------------------------------------------------------------------------
+// JSON
+// ---------------------------------------------------------------------------------------
+
+namespace {
+
+constexpr std::size_t kMaxJsonBytes = std::size_t{1} << 20;
+
+// A JSON value as quoted in an error message: scalars as written (strings shortened), arrays
+// and objects by type and size only. Never dumps a structured value: a value nested 100,000
+// deep (well under the 1 MiB cap) would overflow the stack in the recursive serializer.
+std::string quote(const json& v) {
+  constexpr std::size_t kMax = 60;
+  if (v.is_array()) return "an array of " + std::to_string(v.size()) + " elements";
+  if (v.is_object()) return "an object with " + std::to_string(v.size()) + " keys";
+  std::string s = v.dump(-1, ' ', false, json::error_handler_t::replace);
+  if (s.size() > kMax) s = s.substr(0, kMax) + "...\" (" + std::to_string(s.size()) + " characters)";
+  return s;
+}
+
+double get_number(const std::string& key, const json& v) {
+  if (!v.is_number()) reject(key, quote(v), "expected a number");
+  return v.get<double>();
+}
+
+unsigned long long get_uint(const std::string& key, const json& v) {
+  if (v.is_number_unsigned()) return v.get<unsigned long long>();
+  if (v.is_number_float()) {
+    const double d = v.get<double>();
+    if (d >= 0 && d <= 9007199254740992.0 && d == std::floor(d)) return static_cast<unsigned long long>(d);
+  }
+  reject(key, quote(v), "expected a non-negative integer");
+}
+
+std::size_t get_size(const std::string& key, const json& v) {
+  const unsigned long long u = get_uint(key, v);
+  if (u > std::numeric_limits<std::size_t>::max()) reject(key, quote(v), "expected a non-negative integer");
+  return static_cast<std::size_t>(u);
+}
+
+bool get_bool(const std::string& key, const json& v) {
+  if (!v.is_boolean()) reject(key, quote(v), "expected true or false");
+  return v.get<bool>();
+}
+
+std::string get_string(const std::string& key, const json& v) {
+  if (!v.is_string()) reject(key, quote(v), "expected a string");
+  return v.get<std::string>();
+}
+
+using Setter = std::function<void(SystemConfig&, const std::string&, const json&)>;
+
+// Every JSON key (= SystemConfig field name, in declaration order) and how it is read.
+const std::vector<std::pair<std::string, Setter>>& setters() {
+  static const std::vector<std::pair<std::string, Setter>> t = {
+      {"n", [](SystemConfig& c, const std::string& k, const json& v) { c.n = get_size(k, v); }},
+      {"pitch_m", [](SystemConfig& c, const std::string& k, const json& v) { c.pitch_m = get_number(k, v); }},
+      {"wavelength_start_nm",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.wavelength_start_nm = get_number(k, v); }},
+      {"wavelength_step_nm",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.wavelength_step_nm = get_number(k, v); }},
+      {"bands", [](SystemConfig& c, const std::string& k, const json& v) { c.bands = get_size(k, v); }},
+      {"scene_distance_m",
+       [](SystemConfig& c, const std::string& k, const json& v) {
+         if (v.is_string()) {
+           if (v.get<std::string>() != "inf") reject(k, quote(v), "expected a number of metres or the string \"inf\"");
+           c.scene_at_infinity = true;
+           c.scene_distance_m = std::numeric_limits<double>::infinity();
+         } else {
+           if (!v.is_number()) reject(k, quote(v), "expected a number of metres or the string \"inf\"");
+           c.scene_at_infinity = false;
+           c.scene_distance_m = v.get<double>();
+         }
+       }},
+      {"sensor_distance_m",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.sensor_distance_m = get_number(k, v); }},
+      {"aperture_radius_m",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.aperture_radius_m = get_number(k, v); }},
+      {"material",
+       [](SystemConfig& c, const std::string& k, const json& v) {
+         c.material = material_by_name(get_string(k, v)).name;  // canonical name; aliases accepted
+       }},
+      {"base_wavelength_nm",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.base_wavelength_nm = get_number(k, v); }},
+      {"base_plate_m", [](SystemConfig& c, const std::string& k, const json& v) { c.base_plate_m = get_number(k, v); }},
+      {"propagator",
+       [](SystemConfig& c, const std::string& k, const json& v) {
+         const std::string s = get_string(k, v);
+         if (s == "fresnel") c.propagator = Propagator::Fresnel;
+         else if (s == "asm") c.propagator = Propagator::AngularSpectrum;
+         else reject(k, quote(v), "\"fresnel\" or \"asm\"");
+       }},
+      {"padding_px", [](SystemConfig& c, const std::string& k, const json& v) { c.padding_px = get_size(k, v); }},
+      {"strict_sampling",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.strict_sampling = get_bool(k, v); }},
+      {"sensor_pitch_m",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.sensor_pitch_m = get_number(k, v); }},
+      {"scene_size_px", [](SystemConfig& c, const std::string& k, const json& v) { c.scene_size_px = get_size(k, v); }},
+      {"camera", [](SystemConfig& c, const std::string& k, const json& v) { c.camera = get_string(k, v); }},
+      {"srf_interpolate",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.srf_interpolate = get_bool(k, v); }},
+      {"convolution",
+       [](SystemConfig& c, const std::string& k, const json& v) {
+         const std::string s = get_string(k, v);
+         if (s == "linear") c.convolution = ConvolutionMode::Linear;
+         else if (s == "circular") c.convolution = ConvolutionMode::Circular;
+         else reject(k, quote(v), "\"linear\" or \"circular\"");
+       }},
+      {"read_noise_sigma",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.read_noise_sigma = get_number(k, v); }},
+      {"full_well_photons",
+       [](SystemConfig& c, const std::string& k, const json& v) { c.full_well_photons = get_number(k, v); }},
+      {"noise_seed", [](SystemConfig& c, const std::string& k, const json& v) { c.noise_seed = get_uint(k, v); }},
+  };
+  return t;
+}
+
+std::size_t edit_distance(const std::string& a, const std::string& b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diag = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diag + (a[i - 1] == b[j - 1] ? 0u : 1u)});
+      diag = up;
+    }
+  }
+  return row[b.size()];
+}
+
+[[noreturn]] void reject_unknown_key(const std::string& key) {
+  if (key.size() > 60) throw InputError("unknown key '" + key.substr(0, 60) + "...' (" + std::to_string(key.size()) + " characters)");
+  std::string allowed = "preset";
+  std::string best;
+  std::size_t best_d = std::max<std::size_t>(3, key.size() / 3) + 1;
+  for (const auto& s : setters()) {
+    allowed += ", " + s.first;
+    const std::size_t d = edit_distance(key, s.first);
+    if (d < best_d) best_d = d, best = s.first;
+  }
+  throw InputError("unknown key '" + key + "'" + (best.empty() ? "" : " (did you mean '" + best + "'?)") +
+                   "; allowed keys: " + allowed);
+}
+
+}  // namespace
+
+SystemConfig config_from_json_text(const std::string& text, const std::string& origin) {
+  try {
+    if (text.size() > kMaxJsonBytes)
+      reject("configuration size", std::to_string(text.size()) + " bytes", "at most 1 MiB of JSON");
+    json j;
+    try {
+      j = parse_json_strict(text, "");
+    } catch (const json::exception& e) {  // parse_error, and out_of_range for numbers like 1e999
+      throw InputError(std::string("invalid JSON: ") + e.what());
+    }
+    if (!j.is_object()) reject("top level", j.type_name(), "expected a JSON object {\"key\": value, ...}");
+    SystemConfig c = preset_config(j.contains("preset") ? get_string("preset", j.at("preset")) : std::string("paper"));
+    for (const auto& item : j.items()) {
+      if (item.key() == "preset") continue;
+      const auto& table = setters();
+      const auto it = std::find_if(table.begin(), table.end(), [&](const auto& s) { return s.first == item.key(); });
+      if (it == table.end()) reject_unknown_key(item.key());
+      it->second(c, item.key(), item.value());
+    }
+    c.validate();
+    return c;
+  } catch (const InputError& e) {
+    throw InputError(origin + ": " + e.what());
+  }
+}
+
+SystemConfig config_from_json_file(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) reject("config file", path, "no such regular file");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) reject("config file", path, "cannot be opened for reading");
+  std::string text(kMaxJsonBytes + 1, '\0');
+  in.read(&text[0], static_cast<std::streamsize>(text.size()));
+  if (in.bad()) reject("config file", path, "read error");
+  text.resize(static_cast<std::size_t>(in.gcount()));
+  return config_from_json_text(text, path);
+}
+
+std::string config_to_json_text(const SystemConfig& c) {
+  nlohmann::ordered_json j;
+  const std::vector<std::string> presets = preset_names();
+  // "preset" only names the starting point; every key follows, so it matters only for the
+  // informational SystemConfig::preset field (omitted when not a known preset, e.g. "custom").
+  if (std::find(presets.begin(), presets.end(), c.preset) != presets.end()) j["preset"] = c.preset;
+  j["n"] = c.n;
+  j["pitch_m"] = c.pitch_m;
+  j["wavelength_start_nm"] = c.wavelength_start_nm;
+  j["wavelength_step_nm"] = c.wavelength_step_nm;
+  j["bands"] = c.bands;
+  if (c.scene_at_infinity) j["scene_distance_m"] = "inf";
+  else j["scene_distance_m"] = c.scene_distance_m;
+  j["sensor_distance_m"] = c.sensor_distance_m;
+  j["aperture_radius_m"] = c.aperture_radius_m;
+  j["material"] = c.material;
+  j["base_wavelength_nm"] = c.base_wavelength_nm;
+  j["base_plate_m"] = c.base_plate_m;
+  j["propagator"] = c.propagator == Propagator::AngularSpectrum ? "asm" : "fresnel";
+  j["padding_px"] = c.padding_px;
+  j["strict_sampling"] = c.strict_sampling;
+  j["sensor_pitch_m"] = c.sensor_pitch_m;
+  j["scene_size_px"] = c.scene_size_px;
+  j["camera"] = c.camera;
+  j["srf_interpolate"] = c.srf_interpolate;
+  j["convolution"] = c.convolution == ConvolutionMode::Circular ? "circular" : "linear";
+  j["read_noise_sigma"] = c.read_noise_sigma;
+  j["full_well_photons"] = c.full_well_photons;
+  j["noise_seed"] = c.noise_seed;
+  return j.dump(2) + "\n";
+}
+
+}  // namespace qdo

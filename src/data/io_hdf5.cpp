@@ -1,0 +1,336 @@
+// HDF5 (contract files): reading with its hostile-input checks, writing through AtomicFile,
+// and the contract helpers (design, PSF, cube and RGB files).
+#include <hdf5.h>
+
+#include <cmath>
+#include <limits>
+#include <memory>
+
+#include "data/io_internal.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+
+namespace qdo {
+using namespace io_detail;
+namespace {
+
+std::string h5_abs(const std::string& name) { return (!name.empty() && name[0] == '/') ? name : "/" + name; }
+
+NumKind h5_num_kind(hid_t type) {
+  NumKind k;
+  if (H5Tget_class(type) == H5T_INTEGER) {
+    const double bits = 8.0 * static_cast<double>(H5Tget_size(type));
+    k.integer = true;
+    k.max = H5Tget_sign(type) == H5T_SGN_NONE ? std::pow(2.0, bits) - 1 : std::pow(2.0, bits - 1) - 1;
+  }
+  return k;
+}
+
+// Reads the scalar numeric and string attributes of an object into ds (others are ignored).
+void h5_read_attrs(hid_t obj, const std::string& path, H5Dataset& ds) {
+  std::vector<std::string> names;
+  hsize_t idx = 0;
+  if (H5Aiterate2(obj, H5_INDEX_NAME, H5_ITER_INC, &idx,
+                  [](hid_t, const char* n, const H5A_info_t*, void* out) -> herr_t {
+                    static_cast<std::vector<std::string>*>(out)->emplace_back(n);
+                    return 0;
+                  },
+                  &names) < 0)
+    fail(path, "dataset '" + ds.name + "'", "cannot list attributes" + h5_detail());
+  for (const std::string& an : names) {
+    const std::string what = "attribute '" + an + "' of '" + ds.name + "'";
+    H5Id attr(H5Aopen(obj, an.c_str(), H5P_DEFAULT), H5Aclose);
+    if (!attr.valid()) fail(path, what, "cannot open" + h5_detail());
+    H5Id type(H5Aget_type(attr.get()), H5Tclose);
+    H5Id space(H5Aget_space(attr.get()), H5Sclose);
+    if (!type.valid() || !space.valid()) fail(path, what, "cannot read type" + h5_detail());
+    if (H5Sget_simple_extent_npoints(space.get()) != 1) continue;  // arrays: not part of the contract
+    const H5T_class_t cls = H5Tget_class(type.get());
+    if (cls == H5T_INTEGER || cls == H5T_FLOAT) {
+      double v = 0;
+      if (H5Aread(attr.get(), H5T_NATIVE_DOUBLE, &v) < 0) fail(path, what, "cannot read" + h5_detail());
+      ds.num_attrs[an] = v;
+    } else if (cls == H5T_STRING) {
+      if (H5Tis_variable_str(type.get()) > 0) {
+        H5Id mem(H5Tcopy(H5T_C_S1), H5Tclose);
+        H5Tset_size(mem.get(), H5T_VARIABLE);
+        char* raw = nullptr;
+        if (H5Aread(attr.get(), mem.get(), &raw) < 0) fail(path, what, "cannot read" + h5_detail());
+        const std::unique_ptr<char, herr_t (*)(void*)> owned(raw, H5free_memory);
+        ds.str_attrs[an] = raw ? std::string(raw) : std::string();
+      } else {
+        const std::size_t len = H5Tget_size(type.get());
+        if (len == 0 || len > (std::size_t{1} << 20)) fail(path, what, "string of " + std::to_string(len) + " bytes (at most 1 MiB)");
+        H5Id mem(H5Tcopy(type.get()), H5Tclose);
+        std::string buf(len + 1, '\0');
+        if (H5Aread(attr.get(), mem.get(), buf.data()) < 0) fail(path, what, "cannot read" + h5_detail());
+        ds.str_attrs[an] = std::string(buf.c_str());
+      }
+    }
+  }
+}
+
+void h5_write_str_attr(hid_t obj, const std::string& file, const std::string& name, const std::string& value) {
+  H5Id type(H5Tcopy(H5T_C_S1), H5Tclose);
+  H5Id space(H5Screate(H5S_SCALAR), H5Sclose);
+  if (!type.valid() || !space.valid() || H5Tset_size(type.get(), value.size() + 1) < 0 ||
+      H5Tset_strpad(type.get(), H5T_STR_NULLTERM) < 0)
+    fail(file, "attribute '" + name + "'", "cannot create string type" + h5_detail());
+  H5Id attr(H5Acreate2(obj, name.c_str(), type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
+  if (!attr.valid() || H5Awrite(attr.get(), type.get(), value.c_str()) < 0)
+    fail(file, "attribute '" + name + "'", "cannot write" + h5_detail());
+}
+
+void h5_write_num_attr(hid_t obj, const std::string& file, const std::string& name, double value) {
+  H5Id space(H5Screate(H5S_SCALAR), H5Sclose);
+  H5Id attr(H5Acreate2(obj, name.c_str(), H5T_IEEE_F64LE, space.get(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
+  if (!attr.valid() || H5Awrite(attr.get(), H5T_NATIVE_DOUBLE, &value) < 0)
+    fail(file, "attribute '" + name + "'", "cannot write" + h5_detail());
+}
+
+// One dataset, shape in C order, float64 on disk; validates shape against data size first.
+void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
+  const std::string what = "dataset '" + d.name + "'";
+  if (d.name.size() < 2 || d.name[0] != '/') fail(path, what, "name must be an absolute path like \"/psf\"");
+  std::size_t n = 0;
+  if (!element_count(d.shape, std::numeric_limits<std::size_t>::max(), n) || n != d.data.size())
+    fail(path, what, "shape " + shape_str(d.shape) + " does not match the data size " + std::to_string(d.data.size()));
+  const std::vector<hsize_t> dims(d.shape.begin(), d.shape.end());
+  H5Id space(d.shape.empty() ? H5Screate(H5S_SCALAR)
+                             : H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr),
+             H5Sclose);
+  H5Id lcpl(H5Pcreate(H5P_LINK_CREATE), H5Pclose);
+  if (!space.valid() || !lcpl.valid() || H5Pset_create_intermediate_group(lcpl.get(), 1) < 0)
+    fail(path, what, "cannot create dataspace" + h5_detail());
+  H5Id dset(H5Dcreate2(file, d.name.c_str(), H5T_IEEE_F64LE, space.get(), lcpl.get(), H5P_DEFAULT, H5P_DEFAULT),
+            H5Dclose);
+  if (!dset.valid()) fail(path, what, "cannot create" + h5_detail());
+  if (n > 0 && H5Dwrite(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.data.data()) < 0)
+    fail(path, what, "write failed" + h5_detail());
+  for (const auto& kv : d.num_attrs) h5_write_num_attr(dset.get(), path, kv.first, kv.second);
+  for (const auto& kv : d.str_attrs) h5_write_str_attr(dset.get(), path, kv.first, kv.second);
+}
+
+void require_finite(const std::string& path, const std::string& what, const std::vector<double>& v) {
+  const std::size_t bad = count_nonfinite(v);
+  if (bad) fail(path, what, std::to_string(bad) + " non-finite values");
+}
+
+}  // namespace
+
+namespace io_detail {
+
+void h5_quiet() { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); }
+
+// The most specific message on the HDF5 error stack (then clears it), e.g. "unable to open file".
+std::string h5_detail() {
+  std::string msg;
+  H5Ewalk2(
+      H5E_DEFAULT, H5E_WALK_UPWARD,
+      [](unsigned n, const H5E_error2_t* e, void* out) -> herr_t {
+        if (n == 0 && e && e->desc) *static_cast<std::string*>(out) = e->desc;
+        return 0;
+      },
+      &msg);
+  H5Eclear2(H5E_DEFAULT);
+  return msg.empty() ? "" : " (HDF5: " + msg + ")";
+}
+
+H5Id h5_open_read(const std::string& path) {
+  h5_quiet();
+  require_file(path);
+  H5Id f(H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose);
+  if (!f.valid()) fail(path, "", "not a readable HDF5 file" + h5_detail());
+  return f;
+}
+
+// True when every link along the absolute path exists and the object is a dataset.
+bool h5_is_dataset(hid_t file, const std::string& name) {
+  const std::string abs = h5_abs(name);
+  if (abs == "/") return false;
+  std::size_t pos = 0;
+  while (pos != std::string::npos) {
+    pos = abs.find('/', pos + 1);
+    const std::string prefix = abs.substr(0, pos);
+    if (H5Lexists(file, prefix.c_str(), H5P_DEFAULT) <= 0) {
+      H5Eclear2(H5E_DEFAULT);
+      return false;
+    }
+  }
+  H5Id obj(H5Oopen(file, abs.c_str(), H5P_DEFAULT), H5Oclose);
+  if (!obj.valid()) {
+    H5Eclear2(H5E_DEFAULT);
+    return false;
+  }
+  return H5Iget_type(obj.get()) == H5I_DATASET;
+}
+
+// Checks, before any read, that a numeric dataset's storage can hold its shape: element size
+// 1..16 bytes, declared data within what the file can hold (check_declared_bytes), compact and
+// contiguous data stored in one piece of exactly n x size bytes (a corrupt layout message that
+// stores less, a compact dataset with no data, crashed libhdf5's read with a NULL memcpy: found
+// by fuzz_cube_h5; storage never written holds no data at all), and no virtual layouts.
+void check_h5_storage(const std::string& path, const std::string& what, hid_t dset, hid_t type,
+                      const std::vector<std::size_t>& shape, std::size_t n) {
+  const std::size_t tsize = H5Tget_size(type);
+  if (tsize == 0 || tsize > 16) fail(path, what, "elements of " + std::to_string(tsize) + " bytes (a corrupt datatype)");
+  H5Id dcpl(H5Dget_create_plist(dset), H5Pclose);
+  if (!dcpl.valid()) fail(path, what, "cannot read the storage layout" + h5_detail());
+  const int filters = H5Pget_nfilters(dcpl.get());
+  if (filters < 0) fail(path, what, "cannot read the storage filters" + h5_detail());
+  check_declared_bytes(path, what, shape, n, tsize, filters > 0);
+  const H5D_layout_t layout = H5Pget_layout(dcpl.get());
+  if (n > 0 && (layout == H5D_COMPACT || layout == H5D_CONTIGUOUS)) {
+    const hsize_t stored = H5Dget_storage_size(dset);
+    if (stored != hsize_t(n) * tsize)
+      fail(path, what, "stores " + std::to_string(stored) + " bytes for shape " + shape_str(shape) + " of " +
+                           std::to_string(tsize) + "-byte values (" + std::to_string(n * tsize) +
+                           " bytes expected): truncated, unwritten or corrupt");
+  } else if (n > 0 && layout != H5D_CHUNKED) {
+    fail(path, what, "unsupported storage layout (virtual or unknown); expected compact, contiguous or chunked data");
+  }
+}
+
+// Reads one numeric dataset (converted to float64, C order) plus its attributes.
+H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::size_t max_elements,
+                       NumKind* kind) {
+  H5Id file = h5_open_read(path);
+  H5Dataset ds;
+  ds.name = h5_abs(name);
+  const std::string what = "dataset '" + ds.name + "'";
+  if (!h5_is_dataset(file.get(), ds.name)) fail(path, what, "missing (no such dataset)");
+  H5Id dset(H5Dopen2(file.get(), ds.name.c_str(), H5P_DEFAULT), H5Dclose);
+  if (!dset.valid()) fail(path, what, "cannot open" + h5_detail());
+  H5Id type(H5Dget_type(dset.get()), H5Tclose);
+  H5Id space(H5Dget_space(dset.get()), H5Sclose);
+  if (!type.valid() || !space.valid()) fail(path, what, "cannot read type/shape" + h5_detail());
+  const H5T_class_t cls = H5Tget_class(type.get());
+  if (cls != H5T_INTEGER && cls != H5T_FLOAT) fail(path, what, "not numeric (integer or float) data");
+  const int rank = H5Sget_simple_extent_ndims(space.get());
+  if (rank < 0) fail(path, what, "cannot read shape" + h5_detail());
+  std::vector<hsize_t> dims(static_cast<std::size_t>(rank));
+  H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
+  ds.shape.assign(dims.begin(), dims.end());
+  std::size_t n = 0;
+  if (!element_count(ds.shape, max_elements, n))
+    fail(path, what, "shape " + shape_str(ds.shape) + " exceeds the limit of " + std::to_string(max_elements) +
+                         " elements");
+  check_h5_storage(path, what, dset.get(), type.get(), ds.shape, n);
+  ds.data.resize(n);
+  if (n > 0 && H5Dread(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, ds.data.data()) < 0)
+    fail(path, what, "read failed" + h5_detail());
+  h5_read_attrs(dset.get(), path, ds);
+  if (kind) *kind = h5_num_kind(type.get());
+  return ds;
+}
+
+}  // namespace io_detail
+
+// =========================================================================================
+// HDF5 public API
+// =========================================================================================
+
+void h5_write(const std::string& path, const std::vector<H5Dataset>& datasets,
+              const std::map<std::string, std::string>& root_str_attrs) {
+  for (const H5Dataset& d : datasets) {
+    if (const std::size_t bad = count_nonfinite(d.data))
+      throw NumericalError("file '" + path + "': dataset '" + d.name + "': " + std::to_string(bad) + " of " +
+                           std::to_string(d.data.size()) + " values are NaN or Inf; not written");
+    for (const auto& kv : d.num_attrs)
+      if (!std::isfinite(kv.second))
+        throw NumericalError("file '" + path + "': dataset '" + d.name + "': attribute '" + kv.first + "' = " +
+                             to_str(kv.second) + " is not finite; not written");
+  }
+  h5_write_unchecked(path, datasets, root_str_attrs);
+}
+
+void h5_write_unchecked(const std::string& path, const std::vector<H5Dataset>& datasets,
+                        const std::map<std::string, std::string>& root_str_attrs) {
+  h5_quiet();
+  AtomicFile out(path);
+  {
+    H5Id file(H5Fcreate(out.tmp().c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose);
+    if (!file.valid()) fail(path, "", "cannot create HDF5 file" + h5_detail());
+    {
+      H5Id root(H5Gopen2(file.get(), "/", H5P_DEFAULT), H5Gclose);
+      if (!root.valid()) fail(path, "", "cannot open root group" + h5_detail());
+      for (const auto& kv : root_str_attrs) h5_write_str_attr(root.get(), path, kv.first, kv.second);
+    }
+    for (const H5Dataset& d : datasets) h5_write_dataset(file.get(), path, d);
+    if (!file.close()) fail(path, "", "closing (flushing) the HDF5 file failed" + h5_detail());
+  }
+  out.commit();
+}
+
+H5Dataset h5_read(const std::string& path, const std::string& name, std::size_t max_elements) {
+  return h5_read_impl(path, name, max_elements, nullptr);
+}
+
+bool h5_has(const std::string& path, const std::string& name) {
+  H5Id file = h5_open_read(path);
+  return h5_is_dataset(file.get(), name);
+}
+
+// =========================================================================================
+// Contract helpers
+// =========================================================================================
+
+void write_design(const std::string& path, const Design& d, const std::map<std::string, std::string>& provenance) {
+  if (!(d.pitch_m > 0) || !std::isfinite(d.pitch_m)) reject("pitch_m", d.pitch_m, "a finite pitch > 0 in metres");
+  if (d.height_m.rows != d.height_m.cols || d.height_m.rows == 0)
+    reject("height_m", std::to_string(d.height_m.rows) + " x " + std::to_string(d.height_m.cols),
+           "a non-empty square N x N map");
+  H5Dataset h{"/height_m", {d.height_m.rows, d.height_m.cols}, d.height_m.data, {{"pitch_m", d.pitch_m}},
+              {{"units", "m"}}};
+  std::vector<H5Dataset> sets{h};
+  if (!d.levels_m.empty()) sets.push_back({"/levels_m", {d.levels_m.size()}, d.levels_m, {}, {{"units", "m"}}});
+  h5_write(path, sets, provenance);
+}
+
+Design read_design(const std::string& path) {
+  const H5Dataset h = h5_read(path, "/height_m");
+  const std::string what = "dataset '/height_m'";
+  if (h.shape.size() != 2 || h.shape[0] != h.shape[1] || h.shape[0] == 0)
+    fail(path, what, "shape " + shape_str(h.shape) + " is not a square N x N map");
+  require_finite(path, what, h.data);
+  const auto it = h.num_attrs.find("pitch_m");
+  if (it == h.num_attrs.end()) fail(path, what, "attribute 'pitch_m' is missing");
+  if (!(it->second > 0) || !std::isfinite(it->second))
+    fail(path, what, "attribute 'pitch_m' = " + to_str(it->second) + " is invalid (must be finite and > 0)");
+  Design d;
+  d.height_m = Map2D(h.shape[0], h.shape[1]);
+  d.height_m.data = h.data;
+  d.pitch_m = it->second;
+  if (h5_has(path, "/levels_m")) {
+    const H5Dataset l = h5_read(path, "/levels_m");
+    if (l.shape.size() != 1) fail(path, "dataset '/levels_m'", "shape " + shape_str(l.shape) + " is not 1-D");
+    require_finite(path, "dataset '/levels_m'", l.data);
+    d.levels_m = l.data;
+  }
+  return d;
+}
+
+void write_psf(const std::string& path, const RealStack& psf, const std::vector<double>& wavelengths_nm,
+               double pitch_m, const std::map<std::string, double>& extra_num_attrs) {
+  if (wavelengths_nm.size() != psf.planes)
+    reject("wavelengths_nm", wavelengths_nm.size(), "one wavelength per PSF plane (" + std::to_string(psf.planes) + ")");
+  if (!(pitch_m > 0) || !std::isfinite(pitch_m)) reject("pitch_m", pitch_m, "a finite pitch > 0 in metres");
+  H5Dataset p{"/psf", {psf.planes, psf.rows, psf.cols}, psf.data, extra_num_attrs, {}};
+  p.num_attrs["pitch_m"] = pitch_m;
+  h5_write(path, {p, H5Dataset{"/wavelengths_nm", {wavelengths_nm.size()}, wavelengths_nm, {}, {{"units", "nm"}}}});
+}
+
+void write_cube(const std::string& path, const RealStack& cube, const std::vector<double>& wavelengths_nm) {
+  if (wavelengths_nm.size() != cube.planes)
+    reject("wavelengths_nm", wavelengths_nm.size(), "one wavelength per cube band (" + std::to_string(cube.planes) + ")");
+  h5_write(path, {H5Dataset{"/cube", {cube.planes, cube.rows, cube.cols}, cube.data, {}, {}},
+                  H5Dataset{"/wavelengths_nm", {wavelengths_nm.size()}, wavelengths_nm, {}, {{"units", "nm"}}}});
+}
+
+void write_rgb(const std::string& path, const RealStack& rgb, const std::map<std::string, double>& attrs) {
+  if (rgb.planes != 3) reject("rgb planes", rgb.planes, "exactly 3 (R, G, B)");
+  h5_write(path, {H5Dataset{"/rgb", {rgb.planes, rgb.rows, rgb.cols}, rgb.data, attrs, {}}});
+}
+
+
+}  // namespace qdo

@@ -1,0 +1,492 @@
+// Linear MMSE (Wiener) decoder and its objectives with exact OTF / PSF gradients (the metrics are
+// in src/decode/metrics.cpp).
+// Conventions: see include/qdo/wiener.hpp.
+//
+// Gradient derivation (per frequency, A = srf·diag(OTF), M = A P A^H + σ² I, K = P A^H M⁻¹,
+// T = K A, E = P − T P; for a real L, G_A = ∂L/∂Re A + i ∂L/∂Im A, dL = Re tr(G_A^H dA)):
+//  - expected error L = c tr(E):           G_A = −2c M⁻¹ A P E  (= −2c K^H E)
+//  - any L with dL = Re tr(U dT), U ∈ C^{B×B}:
+//        G_A = K^H U^H (I − T)^H + M⁻¹ A U E
+//    MSE: L = c tr((T − I) Σ (T − I)^H), Σ = Σ_s X_s X_s^H  →  U = 2c Σ (T − I)^H, c = 1/(N·B·n²)
+//    MAE: L = Σ |Re IDFT((T − I) X_s)| / (N·B·n)          →  U = Σ_s X_s F[sign_s]^H / (N·B·n²)
+//  - chain to the OTF: G_OTF_b = Σ_c srf(c, b) G_A(c, b) (srf real).
+// T and E are never formed: with Kh = K^H = M⁻¹ A P (C x B) and AP = A P, T = Kh^H A and
+// E = P − Kh^H AP have rank-C structure, so every product costs O(C·B²) instead of O(B³).
+#include "qdo/wiener.hpp"
+#include "qdo/fftw2.hpp"
+
+#include <fftw3.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "qdo/error.hpp"
+
+namespace qdo {
+namespace wiener {
+namespace {
+
+using Eigen::MatrixXcd;
+using Eigen::MatrixXd;
+using Eigen::VectorXcd;
+
+enum class Scale { None, InverseN };
+
+void fft2(ComplexStack& s, int sign, Scale scale) { fftw2(s, sign == FFTW_FORWARD, scale == Scale::InverseN); }
+
+ComplexStack to_complex(const RealStack& r) {
+  ComplexStack c(r.planes, r.rows, r.cols);
+  for (std::size_t i = 0; i < r.size(); ++i) c.data[i] = r.data[i];
+  return c;
+}
+
+ComplexStack forward_fft(const RealStack& r) {
+  ComplexStack c = to_complex(r);
+  fft2(c, FFTW_FORWARD, Scale::None);
+  return c;
+}
+
+// Real part of the normalised inverse transform.
+RealStack inverse_fft_real(ComplexStack c) {
+  fft2(c, FFTW_BACKWARD, Scale::InverseN);
+  RealStack r(c.planes, c.rows, c.cols);
+  for (std::size_t i = 0; i < c.size(); ++i) r.data[i] = c.data[i].real();
+  return r;
+}
+
+void check_sigma(double noise_sigma) {
+  if (!(noise_sigma >= 0) || !std::isfinite(noise_sigma)) reject("noise_sigma", noise_sigma, ">= 0 and finite");
+}
+
+// Checks otf / srf / prior / sigma against each other.
+void check_model(const ComplexStack& otf, const MatrixXd& srf, const SpectralPrior& prior, double noise_sigma,
+                 const char* otf_name = "otf") {
+  prior.validate();
+  check_sigma(noise_sigma);
+  if (otf.planes == 0 || otf.rows == 0 || otf.cols == 0) reject(otf_name, shape(otf), "a non-empty B x H x W stack");
+  if (otf.planes != prior.bands || otf.rows != prior.rows || otf.cols != prior.cols)
+    reject(otf_name, shape(otf), "the prior's shape " + shape(prior.bands, prior.rows, prior.cols));
+  if (srf.rows() < 1 || static_cast<std::size_t>(srf.cols()) != otf.planes)
+    reject("srf", to_str(srf.rows()) + " x " + to_str(srf.cols()), "C x B with C >= 1 and B = " + to_str(otf.planes));
+  if (!srf.allFinite()) reject("srf", "non-finite entries", "finite values");
+  for (const cdouble& v : otf.data)
+    if (!std::isfinite(v.real()) || !std::isfinite(v.imag())) reject(otf_name, "non-finite entries", "finite values");
+}
+
+void check_scenes(const std::vector<RealStack>& scenes, std::size_t bands, std::size_t rows, std::size_t cols) {
+  if (scenes.empty()) reject("scenes.size()", 0, "at least one scene");
+  for (std::size_t s = 0; s < scenes.size(); ++s)
+    if (scenes[s].planes != bands || scenes[s].rows != rows || scenes[s].cols != cols)
+      reject("scenes[" + to_str(s) + "]", shape(scenes[s]), shape(bands, rows, cols) + " (the OTF's shape)");
+}
+
+// Everything that does not change from frequency to frequency.
+struct Setup {
+  std::size_t bands = 0, channels = 0, rows = 0, cols = 0, n = 0;
+  std::vector<MatrixXcd> p;        // per bin, B x B
+  MatrixXcd srf;                   // C x B
+  double sigma2 = 0;
+  std::vector<std::size_t> bin_of;  // per frequency index ky*cols + kx
+
+  Setup(const MatrixXd& srf_real, const SpectralPrior& prior, double noise_sigma)
+      : bands(prior.bands),
+        channels(static_cast<std::size_t>(srf_real.rows())),
+        rows(prior.rows),
+        cols(prior.cols),
+        n(prior.rows * prior.cols),
+        srf(srf_real.cast<cdouble>()),
+        sigma2(noise_sigma * noise_sigma),
+        bin_of(n) {
+    for (std::size_t k = 0; k < prior.bins; ++k) p.push_back(prior.bin(k).cast<cdouble>());
+    for (std::size_t ky = 0; ky < rows; ++ky)
+      for (std::size_t kx = 0; kx < cols; ++kx) bin_of[ky * cols + kx] = radial_bin(ky, kx, rows, cols, prior.bins);
+  }
+  const MatrixXcd& prior_at(std::size_t f) const { return p[bin_of[f]]; }
+};
+
+// The filter at one frequency: A, AP = A P, M and its LU, Kh = K^H = M⁻¹ A P.
+struct Filter {
+  MatrixXcd a;   // C x B
+  MatrixXcd ap;  // C x B
+  MatrixXcd m;   // C x C, A P A^H + σ² I
+  Eigen::PartialPivLU<MatrixXcd> lu;
+  MatrixXcd kh;  // C x B
+
+  void build(const Setup& s, const ComplexStack& otf, std::size_t f) {
+    const MatrixXcd& p = s.prior_at(f);
+    a.resize(static_cast<Eigen::Index>(s.channels), static_cast<Eigen::Index>(s.bands));
+    for (std::size_t b = 0; b < s.bands; ++b)
+      a.col(static_cast<Eigen::Index>(b)) = s.srf.col(static_cast<Eigen::Index>(b)) * otf.data[b * s.n + f];
+    ap.noalias() = a * p;
+    m.noalias() = ap * a.adjoint();
+    m.diagonal().array() += s.sigma2;
+    lu.compute(m);
+    kh = lu.solve(ap);
+    if (!kh.allFinite())
+      throw Error("Wiener filter: A P A^H + sigma^2 I is singular at DFT index (" + to_str(f / s.cols) + ", " +
+                  to_str(f % s.cols) + "); use noise_sigma > 0 or an OTF without zeros there");
+  }
+  // (T − I) v = Kh^H (A v) − v.
+  VectorXcd residual(const VectorXcd& v) const { return kh.adjoint() * (a * v) - v; }
+};
+
+// tr(X^H Y) = Σ conj(X) ⊙ Y.
+cdouble trace_xh_y(const MatrixXcd& x, const MatrixXcd& y) { return (x.conjugate().cwiseProduct(y)).sum(); }
+
+VectorXcd gather(const ComplexStack& s, std::size_t f) {
+  VectorXcd v(static_cast<Eigen::Index>(s.planes));
+  for (std::size_t b = 0; b < s.planes; ++b) v(static_cast<Eigen::Index>(b)) = s.data[b * s.plane_size() + f];
+  return v;
+}
+void scatter(ComplexStack& s, std::size_t f, const VectorXcd& v) {
+  for (std::size_t b = 0; b < s.planes; ++b) s.data[b * s.plane_size() + f] = v(static_cast<Eigen::Index>(b));
+}
+
+// G_OTF_b(f) = Σ_c srf(c, b) G_A(c, b).
+void chain_to_otf(const Setup& s, const MatrixXcd& grad_a, std::size_t f, ComplexStack& grad_otf) {
+  for (std::size_t b = 0; b < s.bands; ++b) {
+    const auto bi = static_cast<Eigen::Index>(b);
+    cdouble g = 0;
+    for (std::size_t c = 0; c < s.channels; ++c) {
+      const auto ci = static_cast<Eigen::Index>(c);
+      g += s.srf(ci, bi).real() * grad_a(ci, bi);
+    }
+    grad_otf.data[b * s.n + f] = g;
+  }
+}
+
+// G_A for dL = Re tr(U dT): Kh U^H (I − T)^H + M⁻¹ A U E, expanded with T^H = A^H Kh and
+// E = P − Kh^H AP:  R1 − (R1 A^H) Kh + R2 P − (R2 Kh^H) AP,  R1 = Kh U^H, R2 = M⁻¹ A U.
+MatrixXcd grad_a_from_u(const Filter& q, const MatrixXcd& p, const MatrixXcd& u) {
+  const MatrixXcd r1 = q.kh * u.adjoint();
+  const MatrixXcd r2 = q.lu.solve(q.a) * u;
+  MatrixXcd g = r1;
+  g.noalias() -= (r1 * q.a.adjoint()) * q.kh;
+  g.noalias() += r2 * p;
+  g.noalias() -= (r2 * q.kh.adjoint()) * q.ap;
+  return g;
+}
+
+void check_finite_value(double v, const char* what) {
+  if (!std::isfinite(v)) throw Error(std::string(what) + " is not finite: the filter is ill-conditioned (noise_sigma too small?)");
+}
+
+OtfObjective objective_expected(const Setup& s, const ComplexStack& otf) {
+  OtfObjective out;
+  out.grad_otf = ComplexStack(s.bands, s.rows, s.cols);
+  const double c = 1.0 / double(s.n * s.bands);
+  Filter q;
+  double acc = 0;
+  for (std::size_t f = 0; f < s.n; ++f) {
+    q.build(s, otf, f);
+    const MatrixXcd& p = s.prior_at(f);
+    acc += p.trace().real() - trace_xh_y(q.kh, q.ap).real();  // tr E = tr P − tr(Kh^H AP)
+    // G_A = −2c Kh E = −2c (Kh P − (Kh Kh^H) AP)
+    MatrixXcd grad_a = q.kh * p;
+    grad_a.noalias() -= (q.kh * q.kh.adjoint()) * q.ap;
+    grad_a *= -2.0 * c;
+    chain_to_otf(s, grad_a, f, out.grad_otf);
+  }
+  out.value = c * acc;
+  check_finite_value(out.value, "the expected error");
+  return out;
+}
+
+std::vector<ComplexStack> scene_spectra(const std::vector<RealStack>& scenes) {
+  std::vector<ComplexStack> x;
+  x.reserve(scenes.size());
+  for (const RealStack& sc : scenes) x.push_back(forward_fft(sc));
+  return x;
+}
+
+OtfObjective objective_mse(const Setup& s, const ComplexStack& otf, const std::vector<RealStack>& scenes) {
+  const std::vector<ComplexStack> x = scene_spectra(scenes);
+  OtfObjective out;
+  out.grad_otf = ComplexStack(s.bands, s.rows, s.cols);
+  const double c = 1.0 / (double(scenes.size()) * double(s.bands) * double(s.n) * double(s.n));
+  const auto nb = static_cast<Eigen::Index>(s.bands);
+  Filter q;
+  MatrixXcd sigma(nb, nb);
+  double acc = 0;
+  for (std::size_t f = 0; f < s.n; ++f) {
+    q.build(s, otf, f);
+    sigma.setZero();
+    for (const ComplexStack& xs : x) {
+      const VectorXcd v = gather(xs, f);
+      sigma.noalias() += v * v.adjoint();
+    }
+    // Σ (T − I)^H = (Σ A^H) Kh − Σ;  tr((T − I) Σ (T − I)^H) = tr Σ − 2 Re tr(Kh^H A Σ)
+    // + tr((A Σ A^H)(Kh Kh^H)).
+    const MatrixXcd sah = sigma * q.a.adjoint();  // B x C
+    MatrixXcd sd = sah * q.kh;
+    sd -= sigma;
+    const MatrixXcd as = sah.adjoint();  // A Σ (Σ Hermitian)
+    acc += sigma.trace().real() - 2.0 * trace_xh_y(q.kh, as).real() +
+           ((q.a * sah) * (q.kh * q.kh.adjoint())).trace().real();
+    chain_to_otf(s, grad_a_from_u(q, s.prior_at(f), (2.0 * c) * sd), f, out.grad_otf);
+  }
+  out.value = c * acc;
+  check_finite_value(out.value, "the empirical MSE");
+  return out;
+}
+
+OtfObjective objective_mae(const Setup& s, const ComplexStack& otf, const std::vector<RealStack>& scenes) {
+  const std::vector<ComplexStack> x = scene_spectra(scenes);
+  const auto nb = static_cast<Eigen::Index>(s.bands);
+  // Pass 1: error spectra (T − I) X_s, then spatial errors, their signs and the signs' spectra.
+  std::vector<ComplexStack> err(x.size(), ComplexStack(s.bands, s.rows, s.cols));
+  Filter q;
+  for (std::size_t f = 0; f < s.n; ++f) {
+    q.build(s, otf, f);
+    for (std::size_t i = 0; i < x.size(); ++i) scatter(err[i], f, q.residual(gather(x[i], f)));
+  }
+  double acc = 0;
+  for (ComplexStack& e : err) {
+    fft2(e, FFTW_BACKWARD, Scale::InverseN);
+    for (cdouble& v : e.data) {
+      const double r = v.real();
+      acc += std::fabs(r);
+      v = r > 0 ? 1.0 : (r < 0 ? -1.0 : 0.0);
+    }
+    fft2(e, FFTW_FORWARD, Scale::None);  // now F[sign(Re e_s)]
+  }
+  const double denom = double(x.size()) * double(s.bands) * double(s.n);
+  OtfObjective out;
+  out.value = acc / denom;
+  check_finite_value(out.value, "the empirical MAE");
+  // Pass 2: dL = 1/(N·B·n²) Re Σ_s Σ_f F[sign_s]^H dT X_s  →  U = c Σ_s X_s F[sign_s]^H.
+  out.grad_otf = ComplexStack(s.bands, s.rows, s.cols);
+  const double c = 1.0 / (denom * double(s.n));
+  MatrixXcd u(nb, nb);
+  for (std::size_t f = 0; f < s.n; ++f) {
+    q.build(s, otf, f);
+    u.setZero();
+    for (std::size_t i = 0; i < x.size(); ++i) u.noalias() += gather(x[i], f) * gather(err[i], f).adjoint();
+    chain_to_otf(s, grad_a_from_u(q, s.prior_at(f), c * u), f, out.grad_otf);
+  }
+  return out;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+Eigen::MatrixXd SpectralPrior::bin(std::size_t k) const {
+  if (k >= bins) reject("bin", k, "< bins = " + to_str(bins));
+  Eigen::MatrixXd m(static_cast<Eigen::Index>(bands), static_cast<Eigen::Index>(bands));
+  for (std::size_t i = 0; i < bands; ++i)
+    for (std::size_t j = 0; j < bands; ++j)
+      m(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) = cov[(k * bands + i) * bands + j];
+  return m;
+}
+
+void SpectralPrior::validate() const {
+  if (bands == 0) reject("prior.bands", bands, ">= 1");
+  if (bins < 2) reject("prior.bins", bins, ">= 2 (bin 0 is DC alone)");
+  if (rows == 0 || cols == 0) reject("prior grid", to_str(rows) + " x " + to_str(cols), "a non-empty H x W grid");
+  if (cov.size() != bins * bands * bands)
+    reject("prior.cov.size()", cov.size(), "bins * bands * bands = " + to_str(bins * bands * bands));
+  for (double v : cov)
+    if (!std::isfinite(v)) reject("prior.cov", v, "finite entries");
+}
+
+std::size_t radial_bin(std::size_t ky, std::size_t kx, std::size_t rows, std::size_t cols, std::size_t bins) {
+  if (bins < 2) reject("bins", bins, ">= 2 (bin 0 is DC alone)");
+  if (ky >= rows || kx >= cols)
+    reject("(ky, kx)", "(" + to_str(ky) + ", " + to_str(kx) + ")", "inside the " + to_str(rows) + " x " + to_str(cols) + " grid");
+  if (ky == 0 && kx == 0) return 0;
+  const auto signed_freq = [](std::size_t k, std::size_t m) {
+    const double kk = k < (m + 1) / 2 ? double(k) : double(k) - double(m);
+    return kk / double(m);
+  };
+  const double vy = signed_freq(ky, rows), vx = signed_freq(kx, cols);
+  const double rho_rel = std::sqrt(2.0 * (vy * vy + vx * vx));  // ρ / ρ_max, in (0, 1]
+  const auto k = static_cast<std::size_t>(std::floor(rho_rel * double(bins - 1)));
+  return std::min<std::size_t>(1 + k, bins - 1);
+}
+
+SpectralPrior estimate_prior(const std::vector<RealStack>& scenes, std::size_t bins) {
+  if (bins < 2) reject("bins", bins, ">= 2 (bin 0 is DC alone)");
+  if (scenes.empty()) reject("scenes.size()", 0, "at least one scene");
+  const RealStack& s0 = scenes.front();
+  if (s0.size() == 0) reject("scenes[0]", shape(s0), "a non-empty B x H x W cube");
+  check_scenes(scenes, s0.planes, s0.rows, s0.cols);
+  SpectralPrior pr;
+  pr.bands = s0.planes;
+  pr.bins = bins;
+  pr.rows = s0.rows;
+  pr.cols = s0.cols;
+  const std::size_t nb = pr.bands, n = pr.rows * pr.cols;
+  std::vector<MatrixXd> acc(bins, MatrixXd::Zero(static_cast<Eigen::Index>(nb), static_cast<Eigen::Index>(nb)));
+  std::vector<std::size_t> count(bins, 0);
+  std::vector<std::size_t> bin_of(n);
+  for (std::size_t ky = 0; ky < pr.rows; ++ky)
+    for (std::size_t kx = 0; kx < pr.cols; ++kx) bin_of[ky * pr.cols + kx] = radial_bin(ky, kx, pr.rows, pr.cols, bins);
+  for (const RealStack& sc : scenes) {
+    const ComplexStack x = forward_fft(sc);
+    for (std::size_t f = 0; f < n; ++f) {
+      const VectorXcd v = gather(x, f);
+      acc[bin_of[f]].noalias() += (v * v.adjoint()).real();
+      ++count[bin_of[f]];
+    }
+  }
+  pr.cov.assign(bins * nb * nb, 0.0);
+  for (std::size_t k = 0; k < bins; ++k) {
+    if (count[k] == 0) continue;
+    MatrixXd m = acc[k] / (double(count[k]) * double(n));
+    m = 0.5 * (m + m.transpose()).eval();
+    const double ridge = 1e-9 * m.trace() / double(nb);
+    m.diagonal().array() += ridge;
+    for (std::size_t i = 0; i < nb; ++i)
+      for (std::size_t j = 0; j < nb; ++j)
+        pr.cov[(k * nb + i) * nb + j] = m(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
+  }
+  return pr;
+}
+
+// ---------------------------------------------------------------------------------------------
+ComplexStack psf_to_otf(const RealStack& psf, std::size_t rows, std::size_t cols) {
+  if (psf.rows != psf.cols || psf.rows == 0 || psf.planes == 0) reject("psf", shape(psf), "a non-empty B x S x S stack");
+  if (rows == 0 || cols == 0) reject("grid", to_str(rows) + " x " + to_str(cols), "a non-empty H x W grid");
+  const std::size_t s = psf.rows, c = s / 2;
+  ComplexStack k(psf.planes, rows, cols);
+  for (std::size_t b = 0; b < psf.planes; ++b)
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) {
+        const std::size_t ty = (y + rows * s - c) % rows, tx = (x + cols * s - c) % cols;
+        k(b, ty, tx) += psf(b, y, x);
+      }
+  fft2(k, FFTW_FORWARD, Scale::None);
+  return k;
+}
+
+RealStack psf_gradient(const ComplexStack& grad_otf, std::size_t psf_size) {
+  if (grad_otf.size() == 0) reject("grad_otf", shape(grad_otf), "a non-empty B x H x W stack");
+  if (psf_size == 0) reject("psf_size", psf_size, ">= 1");
+  ComplexStack g = grad_otf;
+  fft2(g, FFTW_BACKWARD, Scale::None);  // Σ_f G(f) e^{+i2π f·r}
+  const std::size_t rows = g.rows, cols = g.cols, s = psf_size, c = s / 2;
+  RealStack out(g.planes, s, s);
+  for (std::size_t b = 0; b < g.planes; ++b)
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) {
+        const std::size_t ty = (y + rows * s - c) % rows, tx = (x + cols * s - c) % cols;
+        out(b, y, x) = g(b, ty, tx).real();
+      }
+  return out;
+}
+
+RealStack simulate_measurement(const RealStack& cube, const ComplexStack& otf, const Eigen::MatrixXd& srf) {
+  if (cube.size() == 0) reject("cube", shape(cube), "a non-empty B x H x W cube");
+  if (otf.planes != cube.planes || otf.rows != cube.rows || otf.cols != cube.cols)
+    reject("otf", shape(otf), "the cube's shape " + shape(cube));
+  if (srf.rows() < 1 || static_cast<std::size_t>(srf.cols()) != cube.planes)
+    reject("srf", to_str(srf.rows()) + " x " + to_str(srf.cols()), "C x B with B = " + to_str(cube.planes));
+  const ComplexStack x = forward_fft(cube);
+  const std::size_t n = cube.plane_size(), nc = static_cast<std::size_t>(srf.rows());
+  ComplexStack y(nc, cube.rows, cube.cols);
+  for (std::size_t c = 0; c < nc; ++c)
+    for (std::size_t b = 0; b < cube.planes; ++b) {
+      const double w = srf(static_cast<Eigen::Index>(c), static_cast<Eigen::Index>(b));
+      if (w == 0) continue;
+      const cdouble* xo = x.plane(b);
+      const cdouble* o = otf.plane(b);
+      cdouble* yo = y.plane(c);
+      for (std::size_t f = 0; f < n; ++f) yo[f] += w * o[f] * xo[f];
+    }
+  return inverse_fft_real(std::move(y));
+}
+
+// ---------------------------------------------------------------------------------------------
+RealStack decode(const RealStack& y, const ComplexStack& otf, const Eigen::MatrixXd& srf, const SpectralPrior& prior,
+                 double noise_sigma) {
+  check_model(otf, srf, prior, noise_sigma);
+  if (y.planes != static_cast<std::size_t>(srf.rows()) || y.rows != otf.rows || y.cols != otf.cols)
+    reject("y", shape(y), "C x H x W = " + shape(static_cast<std::size_t>(srf.rows()), otf.rows, otf.cols));
+  const Setup s(srf, prior, noise_sigma);
+  const ComplexStack yf = forward_fft(y);
+  ComplexStack xf(s.bands, s.rows, s.cols);
+  Filter q;
+  for (std::size_t f = 0; f < s.n; ++f) {
+    q.build(s, otf, f);
+    scatter(xf, f, q.kh.adjoint() * gather(yf, f));
+  }
+  return inverse_fft_real(std::move(xf));
+}
+
+RealStack decode_mismatched(const RealStack& scene, const ComplexStack& otf_actual, const ComplexStack& otf_design,
+                            const Eigen::MatrixXd& srf, const SpectralPrior& prior, double noise_sigma) {
+  check_model(otf_actual, srf, prior, noise_sigma, "otf_actual");
+  check_model(otf_design, srf, prior, noise_sigma, "otf_design");
+  return decode(simulate_measurement(scene, otf_actual, srf), otf_design, srf, prior, noise_sigma);
+}
+
+double expected_error_mismatched(const ComplexStack& otf_actual, const ComplexStack& otf_design,
+                                 const Eigen::MatrixXd& srf, const SpectralPrior& prior, double noise_sigma) {
+  check_model(otf_actual, srf, prior, noise_sigma, "otf_actual");
+  check_model(otf_design, srf, prior, noise_sigma, "otf_design");
+  const Setup s(srf, prior, noise_sigma);
+  Filter q;
+  MatrixXcd a_act(static_cast<Eigen::Index>(s.channels), static_cast<Eigen::Index>(s.bands));
+  double acc = 0;
+  for (std::size_t f = 0; f < s.n; ++f) {
+    q.build(s, otf_design, f);
+    const MatrixXcd& p = s.prior_at(f);
+    for (std::size_t b = 0; b < s.bands; ++b)
+      a_act.col(static_cast<Eigen::Index>(b)) = s.srf.col(static_cast<Eigen::Index>(b)) * otf_actual.data[b * s.n + f];
+    // tr((K A − I) P (K A − I)^H) + σ² ‖K‖² with K = Kh^H:
+    // tr P − 2 Re tr(Kh^H A P) + tr((A P A^H)(Kh Kh^H)) + σ² ‖Kh‖².
+    const MatrixXcd ap = a_act * p;
+    acc += p.trace().real() - 2.0 * trace_xh_y(q.kh, ap).real() +
+           ((ap * a_act.adjoint()) * (q.kh * q.kh.adjoint())).trace().real() + s.sigma2 * q.kh.squaredNorm();
+  }
+  const double v = acc / double(s.n * s.bands);
+  check_finite_value(v, "the expected error");
+  return v;
+}
+
+// ---------------------------------------------------------------------------------------------
+OtfObjective objective(Loss loss, const ComplexStack& otf, const Eigen::MatrixXd& srf, const SpectralPrior& prior,
+                       double noise_sigma, const std::vector<RealStack>& scenes) {
+  check_model(otf, srf, prior, noise_sigma);
+  const Setup s(srf, prior, noise_sigma);
+  switch (loss) {
+    case Loss::Expected:
+      return objective_expected(s, otf);
+    case Loss::Mse:
+      check_scenes(scenes, otf.planes, otf.rows, otf.cols);
+      return objective_mse(s, otf, scenes);
+    case Loss::Mae:
+      check_scenes(scenes, otf.planes, otf.rows, otf.cols);
+      return objective_mae(s, otf, scenes);
+  }
+  reject("loss", static_cast<int>(loss), "Expected, Mse or Mae");
+}
+
+PsfObjective objective_psf(Loss loss, const RealStack& psf, const Eigen::MatrixXd& srf, const SpectralPrior& prior,
+                           double noise_sigma, const std::vector<RealStack>& scenes) {
+  prior.validate();
+  if (psf.planes != prior.bands) reject("psf", shape(psf), "B x S x S with B = " + to_str(prior.bands));
+  const OtfObjective o = objective(loss, psf_to_otf(psf, prior.rows, prior.cols), srf, prior, noise_sigma, scenes);
+  PsfObjective out;
+  out.value = o.value;
+  out.grad_psf = psf_gradient(o.grad_otf, psf.rows);
+  return out;
+}
+
+}  // namespace wiener
+
+// ---------------------------------------------------------------------------------------------
+WienerDecoder::WienerDecoder(ComplexStack otf, Eigen::MatrixXd srf, wiener::SpectralPrior prior, double noise_sigma)
+    : otf_(std::move(otf)), srf_(std::move(srf)), prior_(std::move(prior)), noise_sigma_(noise_sigma) {
+  wiener::check_model(otf_, srf_, prior_, noise_sigma_);
+}
+
+RealStack WienerDecoder::decode(const RealStack& y) const { return wiener::decode(y, otf_, srf_, prior_, noise_sigma_); }
+
+}  // namespace qdo

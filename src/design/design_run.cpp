@@ -1,0 +1,649 @@
+#include "qdo/design_run.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <memory>
+#include <random>
+#include <sstream>
+#include <unistd.h>
+
+#include "qdo/adjoint.hpp"
+#include "qdo/datasets.hpp"
+#include "qdo/error.hpp"
+#include "data/json_strict.hpp"
+#include "qdo/io.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/run.hpp"
+#include "qdo/wiener.hpp"
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace qdo {
+namespace {
+
+std::string placement_name(Placement p) { return to_string(p); }
+std::string param_name(Parameterization p) {
+  return p == Parameterization::Full2D ? "2d" : p == Parameterization::Radial ? "radial" : "quad";
+}
+
+// Training scenes as S x S patches at the sensor pitch (S = sensor PSF size, so the Wiener
+// prior, the PSF and the scenes share one grid).
+std::vector<RealStack> training_scenes(const DesignRunOptions& o) {
+  const std::size_t s = o.cfg.sensor_size_px();
+  std::vector<RealStack> out;
+  if (o.data.empty()) {
+    const SceneIndex idx = SceneIndex::synthetic(o.cfg, o.synthetic_scenes, s, o.design.seed);
+    for (std::size_t i = 0; i < idx.size(); ++i) out.push_back(idx.load(i));
+    return out;
+  }
+  const SceneIndex idx(o.data, o.data_format, o.cfg.bands, o.cfg.wavelengths_nm());
+  const SceneSplit split = idx.split(o.design.seed, 0.8, 0.1);
+  const auto& use = split.train.empty() ? split.test : split.train;
+  for (std::size_t i : use) {
+    const RealStack cube = idx.load(i);
+    check_training_scene(cube, idx[i].path);
+    if (cube.rows < s || cube.cols < s)
+      reject("data", idx[i].path, "scenes of at least " + to_str(s) + " x " + to_str(s) + " pixels (the sensor PSF size)");
+    for (auto& p : extract_patches(cube, s, s / 2)) out.push_back(std::move(p));
+  }
+  return out;
+}
+
+struct Problem {
+  Eigen::MatrixXd srf;
+  wiener::SpectralPrior prior;
+  std::vector<RealStack> scenes;
+  RealStack target;
+};
+
+PsfObjective make_objective(const DesignRunOptions& o, const Problem& pb, long step) {
+  if (o.objective == "psf-target") return psf_target_objective(pb.target);
+  const wiener::Loss loss = o.objective == "wiener" ? wiener::Loss::Expected
+                            : o.objective == "wiener-mse" ? wiener::Loss::Mse
+                                                          : wiener::Loss::Mae;
+  std::vector<RealStack> batch;
+  if (loss != wiener::Loss::Expected) {
+    std::mt19937_64 rng(o.design.seed * 1000003ull + std::uint64_t(step));
+    for (std::size_t k = 0; k < o.batch; ++k) batch.push_back(pb.scenes[rng() % pb.scenes.size()]);
+  }
+  const double sigma = o.decoder_noise_sigma;
+  const Problem* p = &pb;
+  return [p, loss, sigma, batch](const RealStack& psf, RealStack& grad) {
+    wiener::PsfObjective r = wiener::objective_psf(loss, psf, p->srf, p->prior, sigma, batch);
+    grad = std::move(r.grad_psf);
+    return r.value;
+  };
+}
+
+namespace {
+// NM of "lens:NM": a finite wavelength in nm, 100 ... 20000; InputError naming `arg` otherwise.
+double lens_nm(const std::string& arg, const std::string& spec) {
+  const std::string num = spec.substr(5);
+  char* end = nullptr;
+  const double nm = std::strtod(num.c_str(), &end);
+  if (num.empty() || *end || !std::isfinite(nm) || nm < 100 || nm > 20000)
+    reject(arg, spec, "lens:NM with NM a wavelength in nm (100 ... 20000), e.g. lens:550");
+  return nm;
+}
+}  // namespace
+
+Problem make_problem(Runtime& rt, const DesignRunOptions& o) {
+  Problem pb;
+  pb.srf = sensor_response(o.cfg);
+  if (o.objective == "psf-target") {
+    Simulator sim(rt, o.cfg, o.precision);
+    Map2D h;
+    if (o.target.rfind("lens:", 0) == 0) h = lens_design(o.cfg, lens_nm("target", o.target));
+    else h = read_design(o.target).height_m;
+    sim.set_heights(h);
+    sim.compute_psf();
+    pb.target = sim.psf_sensor();
+    return pb;
+  }
+  pb.scenes = training_scenes(o);
+  pb.prior = wiener::estimate_prior(pb.scenes, o.prior_bins);
+  return pb;
+}
+
+std::vector<double> initial_params(const DesignRunOptions& o) {
+  const SystemConfig& c = o.cfg;
+  const Parameterization kind = o.design.parameterization;
+  const std::size_t count = parameter_count(kind, c.n);
+  std::vector<double> p(count, 0.0);
+  if (o.init == "flat") return p;
+  if (o.init == "random") {
+    std::mt19937_64 rng(o.design.seed + 17);
+    std::uniform_real_distribution<double> u(0.0, c.h_max_m());
+    for (double& v : p) v = u(rng);
+    return p;
+  }
+  const Map2D lens = lens_design(c, lens_nm("init", o.init));
+  const std::size_t h = c.n / 2;
+  for (std::size_t k = 0; k < count; ++k) {
+    if (kind == Parameterization::Full2D) p[k] = lens.data[k];
+    else if (kind == Parameterization::Radial) p[k] = lens(h, h + k);
+    else p[k] = lens(h + k / h, h + k % h);
+  }
+  return p;
+}
+
+std::string fmt_time(double s) {
+  char b[32];
+  if (s >= 3600) std::snprintf(b, sizeof b, "%dh%02dm", int(s / 3600), int(std::fmod(s, 3600) / 60));
+  else if (s >= 60) std::snprintf(b, sizeof b, "%dm%02ds", int(s / 60), int(std::fmod(s, 60)));
+  else std::snprintf(b, sizeof b, "%.1fs", s);
+  return b;
+}
+
+}  // namespace
+
+void save_prior(const std::string& path, const wiener::SpectralPrior& p) {
+  h5_write(path, {H5Dataset{"/cov", {p.bins, p.bands, p.bands}, p.cov, {{"rows", double(p.rows)}, {"cols", double(p.cols)}},
+                            {{"meaning", "E[X(f) X(f)^H] / (H W) per radial bin (qdo/wiener.hpp)"}}}});
+}
+
+wiener::SpectralPrior load_prior(const std::string& path) {
+  const H5Dataset d = h5_read(path, "/cov");
+  if (d.shape.size() != 3 || d.shape[1] != d.shape[2] || !d.num_attrs.count("rows") || !d.num_attrs.count("cols"))
+    throw InputError("file '" + path + "': dataset '/cov' must be bins x B x B with attributes rows and cols");
+  wiener::SpectralPrior p;
+  p.bins = d.shape[0];
+  p.bands = d.shape[1];
+  p.rows = std::size_t(d.num_attrs.at("rows"));
+  p.cols = std::size_t(d.num_attrs.at("cols"));
+  p.cov = d.data;
+  p.validate();
+  return p;
+}
+
+void DesignRunOptions::validate() const {
+  cfg.validate();
+  design.validate();
+  if (design.mode == DesignMode::QDOM) mask_count(design.quantizer.levels);  // a power of two
+  if (objective != "wiener" && objective != "wiener-mse" && objective != "wiener-mae" && objective != "psf-target")
+    reject("objective", objective, "one of wiener, wiener-mse, wiener-mae, psf-target");
+  if (objective == "psf-target" && target.rfind("lens:", 0) != 0 && !fs::exists(target))
+    reject("target", target, "lens:NM or an existing design .h5 file");
+  if (init != "random" && init != "flat" && init.rfind("lens:", 0) != 0) reject("init", init, "random, flat or lens:NM");
+  if (init.rfind("lens:", 0) == 0) lens_nm("init", init);
+  if (objective == "psf-target" && target.rfind("lens:", 0) == 0) lens_nm("target", target);
+  if (epochs < 1) reject("epochs", epochs, ">= 1");
+  if (batch < 1) reject("batch", batch, ">= 1");
+  if (synthetic_scenes < 1) reject("synthetic_scenes", synthetic_scenes, ">= 1");
+  if (prior_bins < 2) reject("prior_bins", prior_bins, ">= 2");
+  if (checkpoint_every < 1) reject("checkpoint_every", checkpoint_every, ">= 1");
+  if (!(decoder_noise_sigma >= 0) || !std::isfinite(decoder_noise_sigma)) reject("noise_sigma", decoder_noise_sigma, ">= 0");
+  if (out.empty()) reject("out", "(missing)", "a run folder");
+  if (double(design.t1_epochs) > double(epochs)) reject("t1", design.t1_epochs, "<= epochs (" + to_str(epochs) + ")");
+  for (const auto& d : data)
+    if (!fs::exists(d)) reject("data", d, "existing scene files or folders");
+}
+
+std::string design_run_options_to_json(const DesignRunOptions& o) {
+  json j;
+  j["system"] = json::parse(config_to_json_text(o.cfg));
+  json d;
+  d["mode"] = to_string(o.design.mode);
+  d["parameterization"] = param_name(o.design.parameterization);
+  d["psf_path"] = to_string(o.design.psf_path);
+  d["levels"] = o.design.quantizer.levels;
+  d["placement"] = placement_name(o.design.quantizer.placement);
+  d["steps_per_epoch"] = o.design.steps_per_epoch;
+  d["t0_epochs"] = o.design.t0_epochs;
+  d["t1_epochs"] = o.design.t1_epochs;
+  d["lr_optics"] = o.design.lr_optics;
+  d["lr_offsets"] = o.design.lr_offsets;
+  d["lr_decay_per_epoch"] = o.design.lr_decay_per_epoch;
+  d["beta_aq"] = o.design.beta_aq;
+  d["height_noise_m"] = o.design.height_noise_m;
+  d["seed"] = o.design.seed;
+  d["objective"] = o.objective;
+  d["target"] = o.target;
+  d["data"] = o.data;
+  d["data_format"] = o.data_format;
+  d["synthetic_scenes"] = o.synthetic_scenes;
+  d["batch"] = o.batch;
+  d["epochs"] = o.epochs;
+  d["decoder_noise_sigma"] = o.decoder_noise_sigma;
+  d["prior_bins"] = o.prior_bins;
+  d["init"] = o.init;
+  d["checkpoint_every"] = o.checkpoint_every;
+  d["precision"] = to_string(o.precision);
+  j["design"] = d;
+  return j.dump(2);
+}
+
+namespace {
+
+// An integer field of a run's config.json as T: an integer in T's range, else an InputError
+// naming the key (a float such as 1e300 converted to int was undefined behaviour).
+template <typename T>
+T integer_field(const json& d, const char* key) {
+  const json& v = d.at(key);
+  bool ok = v.is_number_integer();
+  if (ok && v.is_number_unsigned()) ok = v.get<std::uint64_t>() <= std::uint64_t(std::numeric_limits<T>::max());
+  else if (ok) {
+    const std::int64_t i = v.get<std::int64_t>();
+    ok = i >= 0 && std::uint64_t(i) <= std::uint64_t(std::numeric_limits<T>::max());
+  }
+  if (!ok)
+    throw InputError(std::string("key 'design.") + key + "' = " + v.dump() + ": an integer in [0, " +
+                     std::to_string(std::numeric_limits<T>::max()) + "]");
+  return static_cast<T>(v.get<std::uint64_t>());
+}
+
+}  // namespace
+
+DesignRunOptions design_run_options_from_json(const std::string& text, const std::string& origin) {
+  DesignRunOptions o;
+  try {
+    const json j = parse_json_strict(text, "file '" + origin + "'");
+    o.cfg = config_from_json_text(j.at("system").dump(), origin + " (system)");
+    const json& d = j.at("design");
+    o.design.mode = design_mode_from_string(d.at("mode").get<std::string>());
+    o.design.parameterization = parameterization_from_string(d.at("parameterization").get<std::string>());
+    // Run folders written before the radial path existed ran the 2-D path: resume them on it.
+    o.design.psf_path = psf_path_from_string(d.value("psf_path", std::string("2d")));
+    o.design.quantizer.levels = integer_field<int>(d, "levels");
+    o.design.quantizer.placement = placement_from_string(d.at("placement").get<std::string>());
+    o.design.steps_per_epoch = integer_field<std::size_t>(d, "steps_per_epoch");
+    o.design.t0_epochs = d.at("t0_epochs").get<double>();
+    o.design.t1_epochs = d.at("t1_epochs").get<double>();
+    o.design.lr_optics = d.at("lr_optics").get<double>();
+    o.design.lr_offsets = d.at("lr_offsets").get<double>();
+    o.design.lr_decay_per_epoch = d.at("lr_decay_per_epoch").get<double>();
+    o.design.beta_aq = d.at("beta_aq").get<double>();
+    o.design.height_noise_m = d.at("height_noise_m").get<double>();
+    o.design.seed = integer_field<std::uint64_t>(d, "seed");
+    o.objective = d.at("objective").get<std::string>();
+    o.target = d.at("target").get<std::string>();
+    o.data = d.at("data").get<std::vector<std::string>>();
+    o.data_format = d.at("data_format").get<std::string>();
+    o.synthetic_scenes = integer_field<std::size_t>(d, "synthetic_scenes");
+    o.batch = integer_field<std::size_t>(d, "batch");
+    o.epochs = integer_field<std::size_t>(d, "epochs");
+    o.decoder_noise_sigma = d.at("decoder_noise_sigma").get<double>();
+    o.prior_bins = integer_field<std::size_t>(d, "prior_bins");
+    o.init = d.at("init").get<std::string>();
+    o.checkpoint_every = integer_field<std::size_t>(d, "checkpoint_every");
+    o.precision = precision_from_string(d.at("precision").get<std::string>());
+  } catch (const json::exception& e) {
+    throw InputError("file '" + origin + "': " + e.what());
+  } catch (const InputError& e) {  // a value the option parsers refuse ("argument 'mode' = ..."): name the file
+    if (std::string(e.what()).find(origin) != std::string::npos) throw;
+    throw InputError("file '" + origin + "': " + e.what());
+  }
+  return o;
+}
+
+DesignRunOptions read_run_options(const std::string& config_path) {
+  std::ifstream f(config_path, std::ios::binary);
+  if (!f) throw InputError("file '" + config_path + "': cannot be read");
+  std::stringstream ss;
+  ss << f.rdbuf();
+  DesignRunOptions o = design_run_options_from_json(ss.str(), config_path);
+  try {
+    o.out = "(the run folder)";  // validate() wants one; the caller sets it
+    o.validate();
+  } catch (const InputError& e) {  // e.g. "argument 'epochs' = 0": a stored value, not an argument
+    throw InputError("file '" + config_path + "': " + e.what());
+  }
+  return o;
+}
+
+DesignRunOptions read_run_config(const std::string& run, const std::string& argument, const std::string& allowed) {
+  const fs::path p = fs::path(run) / "config.json";
+  if (!fs::is_regular_file(p)) reject(argument, run, allowed);
+  std::ifstream f(p, std::ios::binary);
+  if (!f) throw InputError("file '" + p.string() + "': cannot be read");
+  std::stringstream ss;
+  ss << f.rdbuf();
+  DesignRunOptions o = design_run_options_from_json(ss.str(), p.string());
+  o.out = run;
+  return o;
+}
+
+void read_resume_log(const std::string& log_path, long before_step, std::vector<std::string>& rows,
+                     std::vector<double>& losses) {
+  std::ifstream f(log_path);
+  if (!f) throw InputError("file '" + log_path + "': cannot be read");
+  std::string line;
+  std::getline(f, line);  // header
+  for (std::size_t lineno = 2; std::getline(f, line); ++lineno) {
+    // step,loss,...: both numbers must parse, or the log is not ours.
+    const char* p = line.c_str();
+    char* end = nullptr;
+    const long st = std::strtol(p, &end, 10);
+    double loss = 0;
+    bool ok = end != p && *end == ',';
+    if (ok) {
+      const char* q = end + 1;
+      loss = std::strtod(q, &end);
+      ok = end != q;
+    }
+    if (!ok)
+      throw InputError("file '" + log_path + "': line " + std::to_string(lineno) + " is not a log row (step,loss,...): '" +
+                       line.substr(0, 60) + "'");
+    if (st < before_step) {  // rows at or after the checkpoint's step are redone
+      rows.push_back(line);
+      losses.push_back(loss);
+    }
+  }
+}
+
+ResumeState load_resume_state(const std::string& dir) {
+  const fs::path d(dir);
+  const fs::path cfg_path = d / "config.json", ckpt_path = d / "checkpoint.h5", log_path = d / "log.csv";
+  const fs::path prev_path = checkpoint_prev_path(ckpt_path.string());
+  if (!fs::exists(cfg_path) || (!fs::exists(ckpt_path) && !fs::exists(prev_path)))
+    reject("out", dir, "a run folder with config.json and checkpoint.h5 to resume (start without --resume)");
+  ResumeState r;
+  r.options = read_run_options(cfg_path.string());
+  r.options.out = dir;
+  const DesignOptions& o = r.options.design;
+  const std::size_t levels =
+      o.mode == DesignMode::QDOM ? std::size_t(mask_count(o.quantizer.levels)) : std::size_t(o.quantizer.levels);
+  auto load = [&](const fs::path& p) {
+    return load_checkpoint(p.string(), parameter_count(o.parameterization, r.options.cfg.n), levels, o.mode == DesignMode::QDOM);
+  };
+  r.checkpoint = ckpt_path.string();
+  try {
+    if (!fs::exists(ckpt_path)) {
+      r.refused = "missing (a kill between keeping the previous checkpoint and writing the new one)";
+    } else {
+      r.state = load(ckpt_path);
+    }
+  } catch (const InputError& e) {
+    if (!fs::exists(prev_path)) throw;
+    r.refused = e.what();
+  }
+  if (!r.refused.empty()) {  // the previous good checkpoint, or the error about checkpoint.h5
+    try {
+      r.state = load(prev_path);
+    } catch (const InputError&) {
+      if (fs::exists(ckpt_path)) load(ckpt_path);  // rethrows the error about checkpoint.h5
+      throw;
+    }
+    r.checkpoint = prev_path.string();
+  }
+  if (fs::exists(log_path)) read_resume_log(log_path.string(), r.state.step, r.log_rows, r.losses);
+  return r;
+}
+
+DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resume) {
+  const fs::path dir(given.out);
+  const fs::path cfg_path = dir / "config.json", ckpt_path = dir / "checkpoint.h5", log_path = dir / "log.csv";
+  DesignRunOptions o = given;
+  // The folder is ours while this call runs (RunLock): taken first when the folder exists, so
+  // its config and checkpoint are read and judged under the lock; else right after creating it.
+  std::unique_ptr<RunLock> lock;
+  if (!given.out.empty() && fs::is_directory(dir)) lock = std::make_unique<RunLock>(given.out);
+  ResumeState resumed;  // read and checked before any work (no device needed)
+  if (resume) {
+    resumed = load_resume_state(given.out);
+    o = resumed.options;
+    o.out = given.out;
+    o.max_steps = given.max_steps;
+    o.quiet = given.quiet;
+    if (!resumed.refused.empty()) {
+      // Resume from the previous checkpoint; the refused one is set aside (kept for inspection,
+      // never deleted), so the next save does not rotate it into checkpoint.prev.h5.
+      const fs::path aside = dir / "checkpoint.refused.h5";
+      std::fprintf(stderr, "qdo: note: %s: %s; resuming from the previous checkpoint %s (step %ld)%s\n",
+                   ckpt_path.string().c_str(), resumed.refused.c_str(), resumed.checkpoint.c_str(), resumed.state.step,
+                   fs::exists(ckpt_path) ? ", the refused one kept as checkpoint.refused.h5" : "");
+      if (fs::exists(ckpt_path)) fs::rename(ckpt_path, aside);
+    }
+  } else if (fs::exists(ckpt_path) || fs::exists(checkpoint_prev_path(ckpt_path.string()))) {
+    reject("out", given.out, "a folder without a checkpoint (this one holds one: continue it with --resume)");
+  }
+  o.validate();
+  const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing
+  make_output_dir(dir.string(), "out");
+  if (!lock) {
+    lock = std::make_unique<RunLock>(given.out);
+    if (!resume && fs::exists(ckpt_path))  // another writer made it meanwhile and has finished
+      reject("out", given.out, "a folder without a checkpoint (this one holds one: continue it with --resume)");
+  }
+  if (!resume) write_text_atomic(cfg_path.string(), design_run_options_to_json(o) + "\n");
+  if (o.objective != "psf-target") save_prior((dir / "prior.h5").string(), pb.prior);
+
+  Simulator sim(rt, o.cfg, o.precision);
+  Designer d(sim, o.design);
+  const std::size_t levels = static_cast<std::size_t>(o.design.quantizer.levels);
+  if (resume && resumed.state.w.size() != parameter_count(o.design.parameterization, o.cfg.n))
+    throw Error("internal: resume state sized for another parameterization");
+  if (resume && resumed.state.offsets.size() != d.level_parameter_count())
+    throw Error("internal: resume state sized for another level count");
+  DesignState s = resume ? std::move(resumed.state) : d.initial_state(initial_params(o));
+  std::vector<std::string> rows = std::move(resumed.log_rows);
+  std::vector<double> losses = std::move(resumed.losses);
+  const long total = long(o.epochs * o.design.steps_per_epoch);
+  const long stop = o.max_steps >= 0 ? std::min(total, o.max_steps) : total;
+  auto write_log = [&]() {
+    std::string text = "step,loss,loss_aq,alpha,lr,step_s,level_heights_nm\n";
+    for (const auto& r : rows) text += r + "\n";
+    write_text_atomic(log_path.string(), text);
+  };
+  const auto t_start = std::chrono::steady_clock::now();
+  const long first = s.step;
+  double last_loss = losses.empty() ? NAN : losses.back();
+  while (s.step < stop) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const StepReport rep = d.step(s, make_objective(o, pb, s.step));
+    if (!std::isfinite(rep.loss) || !std::isfinite(rep.loss_aq))
+      throw NumericalError("design step " + std::to_string(rep.step) + ": the loss is " + to_str(rep.loss) +
+                           " (L_aq " + to_str(rep.loss_aq) + "); stopped before writing it: " + ckpt_path.string() +
+                           " still holds step " + std::to_string(s.step - 1 >= 0 ? s.step - 1 : 0) +
+                           " or earlier (lower --lr, or check the data)");
+    const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    last_loss = rep.loss;
+    losses.push_back(rep.loss);
+    std::ostringstream row;
+    row.precision(10);
+    row << rep.step << "," << rep.loss << "," << rep.loss_aq << "," << rep.alpha << "," << rep.lr << "," << dt << ",";
+    const auto lv = d.quantizer(s).level_heights_m(o.cfg.h_max_m());
+    for (std::size_t l = 0; l < lv.size(); ++l) row << (l ? ";" : "") << lv[l] * 1e9;
+    rows.push_back(row.str());
+    const bool tty = ::isatty(2) != 0;
+    const long every = std::max<long>(1, (stop - first) / 20);
+    if (!o.quiet && (tty || (s.step - first) % every == 0 || s.step == stop)) {
+      const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+      const double eta = el / double(s.step - first) * double(stop - s.step);
+      std::fprintf(stderr, "%s[design %s] step %ld/%ld  loss %.5g  alpha %.3f  lr %.4g  %.2f s/step  ETA %s   %s", tty ? "\r" : "",
+                   to_string(o.design.mode).c_str(), s.step, total, rep.loss, rep.alpha, rep.lr, dt, fmt_time(eta).c_str(),
+                   tty ? "" : "\n");
+      std::fflush(stderr);
+    }
+    if (s.step % long(o.checkpoint_every) == 0 || s.step == stop) {
+      write_log();  // the log first: a kill between the two leaves rows the resume redoes, never a gap
+      save_checkpoint(ckpt_path.string(), s);
+    }
+  }
+  if (!o.quiet && ::isatty(2)) std::fprintf(stderr, "\n");
+  if (first == s.step) write_log();
+
+  // Outputs of the design as it would be fabricated.
+  Design out;
+  out.height_m = d.fabricated_heights(s);
+  out.pitch_m = o.cfg.pitch_m;
+  if (o.design.mode != DesignMode::Full) out.levels_m = d.quantizer(s).level_heights_m(o.cfg.h_max_m());
+  std::map<std::string, std::string> provenance = {{"mode", to_string(o.design.mode)}, {"levels", std::to_string(levels)},
+                                                   {"objective", o.objective}, {"steps", std::to_string(s.step)},
+                                                   {"run", dir.string()}};
+  if (o.design.mode == DesignMode::QDOM) {  // the k binary-mask etch depths (level l = sum over the bits of l)
+    std::ostringstream md;
+    md.precision(12);
+    for (std::size_t j = 0; j < s.offsets.size(); ++j) md << (j ? "," : "") << s.offsets[j] * o.cfg.h_max_m() * 1e9;
+    provenance["mask_depths_nm"] = md.str();
+  }
+  write_design((dir / "design.h5").string(), out, provenance);
+  Design full;
+  full.height_m = expand_parameters(o.design.parameterization, d.params_m(s), o.cfg.n, o.cfg.h_max_m());
+  full.pitch_m = o.cfg.pitch_m;
+  write_design((dir / "design_full.h5").string(), full, {{"mode", to_string(o.design.mode)}, {"note", "full-precision H_f"}});
+  sim.set_heights(out.height_m);
+  sim.compute_psf();
+  const RealStack psf = sim.psf_sensor();
+  write_psf((dir / "psf.h5").string(), psf, o.cfg.wavelengths_nm(), o.cfg.sensor_pitch_m);
+  write_montage_png((dir / "psf.png").string(), psf, o.cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf.rows, 96));
+  write_map_png((dir / "design.png").string(), out.height_m);
+  if (!losses.empty()) write_line_plot_png((dir / "loss.png").string(), {losses});
+  DesignRunResult r;
+  r.steps_done = s.step;
+  r.final_loss = last_loss;
+  r.levels_m = out.levels_m;
+  return r;
+}
+
+std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& given, std::uint64_t seed) {
+  DesignRunOptions o = given;
+  SystemConfig& c = o.cfg;
+  if (c.n > 64) {  // same physics at a smaller N: z scales with N (constant NA and sampling ratio)
+    const double f = 64.0 / double(c.n);
+    c.sensor_distance_m *= f;
+    c.padding_px = std::size_t(double(c.padding_px) * f);
+    c.n = 64;
+  }
+  c.bands = std::min<std::size_t>(c.bands, 4);
+  c.srf_interpolate = true;
+  o.synthetic_scenes = 4;
+  o.design.seed = seed;
+  o.design.steps_per_epoch = 2;
+  o.design.t0_epochs = 1;
+  o.design.t1_epochs = 5;
+  c.validate();
+  const Precision p = rt.has_fp64() ? Precision::F64 : Precision::F32;
+  o.precision = p;
+  std::vector<GradcheckRow> rows;
+  std::mt19937_64 rng(seed);
+  // Error relative to the analytic value, floored at 1 % of the gradient's RMS so entries that
+  // are nearly zero do not turn round-off into large relative errors.
+  auto rms = [](const std::vector<double>& v) {
+    double s2 = 0;
+    for (double x : v) s2 += x * x;
+    return std::sqrt(s2 / double(std::max<std::size_t>(v.size(), 1)));
+  };
+  auto rel = [](double fd, double an, double scale) { return std::fabs(fd - an) / std::max({std::fabs(an), 1e-2 * scale, 1e-300}); };
+
+  // 1. The PSF chain: OpenCL adjoint vs CPU reference adjoint, on random heights.
+  Simulator sim(rt, c, p);
+  Map2D h(c.n, c.n);
+  std::uniform_real_distribution<double> uh(0.2 * c.h_max_m(), 0.8 * c.h_max_m());
+  for (double& v : h.data) v = uh(rng);
+  sim.set_heights(h);
+  sim.compute_psf();
+  RealStack g(c.bands, sim.sensor_size(), sim.sensor_size());
+  std::normal_distribution<double> nd;
+  for (double& v : g.data) v = nd(rng);
+  const Map2D gk = sim.psf_sensor_vjp(g), gr = ref::psf_sensor_vjp(c, h, g);
+  double num = 0, den = 0;
+  for (std::size_t i = 0; i < gk.data.size(); ++i) {
+    num += (gk.data[i] - gr.data[i]) * (gk.data[i] - gr.data[i]);
+    den += gr.data[i] * gr.data[i];
+  }
+  rows.push_back({"PSF chain: OpenCL " + to_string(p) + " adjoint vs CPU adjoint (rel. L2)", std::sqrt(num / den),
+                  p == Precision::F64 ? 1e-9 : 3e-4});
+  // 2. CPU adjoint vs central differences on sampled heights.
+  auto loss_h = [&](const Map2D& hh) {
+    const RealStack s = ref::psf_sensor_stack(c, hh);
+    double l = 0;
+    for (std::size_t i = 0; i < s.size(); ++i) l += s.data[i] * g.data[i];
+    return l;
+  };
+  double worst = 0;
+  for (int k = 0; k < 6; ++k) {
+    const std::size_t i = c.n / 2 - 8 + rng() % 16, j = c.n / 2 - 8 + rng() % 16;
+    Map2D a = h, b = h;
+    a(i, j) += 1e-11;
+    b(i, j) -= 1e-11;
+    worst = std::max(worst, rel((loss_h(a) - loss_h(b)) / 2e-11, gr(i, j), rms(gr.data)));
+  }
+  rows.push_back({"PSF chain: CPU adjoint vs central differences (6 heights)", worst, 1e-5});
+  // 3-4. End to end through the mode's quantizer and the parameterization, and the offsets.
+  const Problem pb = make_problem(rt, o);
+  const PsfObjective obj = make_objective(o, pb, 0);
+  Designer d(sim, o.design);
+  DesignState st = d.initial_state(initial_params(o));
+  st.step = 6;  // mid-schedule
+  for (std::size_t l = 1; l < st.offsets.size(); ++l) st.offsets[l] = 0.1 * double(l % 3) - 0.1;
+  if (o.design.mode == DesignMode::QDOM)  // mask depths: uniform, moved by +-10 % so levels are not uniform
+    for (std::size_t j = 0; j < st.offsets.size(); ++j)
+      st.offsets[j] = uniform_mask_depths(o.design.quantizer)[j] * (j % 2 ? 0.9 : 1.1);
+  auto gd = d.gradient(st, obj);
+  // Fault injection, for testing that a wrong gradient is caught and reported (exit code 5):
+  // QDO_GRADCHECK_FAULT=1 scales the analytic weight gradient by 1.5 before the comparison.
+  if (const char* f = std::getenv("QDO_GRADCHECK_FAULT"); f && std::string(f) == "1")
+    for (double& gw : gd.g_w) gw *= 1.5;
+  // Central-difference step on the normalised parameters: 1e-5 (7.7 pm of height, ~5e-5 rad) in
+  // float64; in float32 the loss carries ~1e-7 relative rounding, which a 1e-5 step turns into
+  // errors of several percent (the check failed falsely on float32-only devices), so the step
+  // is 2e-3 there (truncation error ~h^2, still below the float32 tolerance).
+  const double h_fd = p == Precision::F64 ? 1e-5 : 2e-3;
+  worst = 0;
+  for (int k = 0; k < 5; ++k) {
+    const std::size_t idx = rng() % st.w.size();
+    DesignState a = st, b = st;
+    a.w[idx] += h_fd;
+    b.w[idx] -= h_fd;
+    const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / (2 * h_fd);
+    worst = std::max(worst, rel(fd, gd.g_w[idx], rms(gd.g_w)));
+  }
+  const double tol_e2e = p == Precision::F64 ? 1e-4 : 5e-2;
+  if (o.design.mode == DesignMode::STE) {
+    rows.push_back({"weights w (ste): not a derivative (straight-through); checked in the test suite instead", 0, tol_e2e});
+  } else {
+    rows.push_back({"weights w (" + to_string(o.design.mode) + ", " + o.objective + ", end to end, 5 samples)", worst, tol_e2e});
+  }
+  if (o.design.mode == DesignMode::QDOA) {
+    worst = 0;
+    for (std::size_t l = 1; l < st.offsets.size(); ++l) {
+      DesignState a = st, b = st;
+      a.offsets[l] += h_fd;
+      b.offsets[l] -= h_fd;
+      const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / (2 * h_fd);
+      worst = std::max(worst, rel(fd, gd.g_offsets[l], rms(gd.g_offsets)));
+    }
+    rows.push_back({"level offsets a (qdo+a)", worst, tol_e2e});
+  }
+  if (o.design.mode == DesignMode::QDOM) {
+    worst = 0;
+    for (std::size_t j = 0; j < st.offsets.size(); ++j) {
+      DesignState a = st, b = st;
+      a.offsets[j] += h_fd;
+      b.offsets[j] -= h_fd;
+      const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / (2 * h_fd);
+      worst = std::max(worst, rel(fd, gd.g_offsets[j], rms(gd.g_offsets)));
+    }
+    rows.push_back({"mask depths delta (qdo+m)", worst, tol_e2e});
+  }
+  // 5. The objective with respect to the PSF (CPU, double), at the 6 entries with the largest
+  // gradient (most PSF entries barely matter, and their differences are round-off).
+  RealStack psf = sim.psf_sensor(), gp;
+  obj(psf, gp);
+  worst = 0;
+  std::vector<std::size_t> order(psf.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::partial_sort(order.begin(), order.begin() + 6, order.end(),
+                    [&](std::size_t x, std::size_t y) { return std::fabs(gp.data[x]) > std::fabs(gp.data[y]); });
+  for (int k = 0; k < 6; ++k) {
+    const std::size_t i = order[std::size_t(k)];
+    RealStack a = psf, b = psf, tmp;
+    a.data[i] += 1e-7;
+    b.data[i] -= 1e-7;
+    worst = std::max(worst, rel((obj(a, tmp) - obj(b, tmp)) / 2e-7, gp.data[i], rms(gp.data)));
+  }
+  rows.push_back({"objective " + o.objective + " vs PSF (6 largest-gradient entries)", worst, 1e-5});
+  return rows;
+}
+
+}  // namespace qdo

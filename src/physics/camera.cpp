@@ -1,0 +1,677 @@
+#include "qdo/camera.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "qdo/cpu_reference.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fft.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/simulator.hpp"
+
+namespace qdo {
+
+namespace {
+
+constexpr std::size_t kMaxChunkBytes = std::size_t(256) << 20;  // pair spectra of one chunk of windows
+constexpr double kTileGain = 0.75;  // Auto tiles when the tiled cost model is below this fraction
+
+// Negative / positive extent of the PSF offsets kept at crop radius r (offsets -S/2 .. S-1-S/2).
+std::size_t extent_neg(std::size_t r, std::size_t s) { return std::min(r, s / 2); }
+std::size_t extent_pos(std::size_t r, std::size_t s) { return std::min(r, s - 1 - s / 2); }
+
+// Grid length for one axis: a window of `len` pixels whose output is read over [0, len) only
+// (whole scene) or over its full linear support (tile), with PSF extents a, b.
+std::size_t grid_length(std::size_t len, std::size_t a, std::size_t b, bool full_support) {
+  const std::size_t need = full_support ? len + a + b : std::max(len + std::max(a, b), a + b + 1);
+  return fast_fft_size(need);
+}
+
+// Relative cost of the transforms and per-frequency kernels of `windows` windows on a gy x gx
+// grid with `pairs` pair spectra each (forward pairs + 2 inverse transforms, plus place/combine).
+double cost_model(std::size_t windows, std::size_t gy, std::size_t gx, std::size_t pairs) {
+  const double g = double(gy) * double(gx);
+  return double(windows) * g * (std::log2(std::max(g, 2.0)) * double(pairs + 2) + 4.0 * double(pairs));
+}
+
+}  // namespace
+
+TileMode tile_mode_from_string(const std::string& s) {
+  if (s == "off") return TileMode::Off;
+  if (s == "on") return TileMode::On;
+  if (s == "auto") return TileMode::Auto;
+  reject("tiles", s, "one of off, on, auto");
+}
+
+std::string to_string(TileMode m) { return m == TileMode::Off ? "off" : m == TileMode::On ? "on" : "auto"; }
+
+SkipOptions SkipOptions::split(double total, TileMode tiles, std::size_t tile_px) {
+  if (!std::isfinite(total) || total < 0) reject("tolerance", total, "a finite tolerance >= 0 (units of full scale)");
+  SkipOptions o;
+  o.band_tolerance = o.crop_tolerance = o.tile_tolerance = total / 3.0;
+  o.tiles = tiles;
+  o.tile_px = tile_px;
+  return o;
+}
+
+void SkipOptions::validate() const {
+  const std::pair<const char*, double> tols[] = {
+      {"band_tolerance", band_tolerance}, {"crop_tolerance", crop_tolerance}, {"tile_tolerance", tile_tolerance}};
+  for (const auto& [name, v] : tols)
+    if (!std::isfinite(v) || v < 0) reject(name, v, "a finite tolerance >= 0 (units of full scale)");
+  if (tile_px < 8 || tile_px > 4096) reject("tile_px", tile_px, "a tile edge of 8 .. 4096 sensor pixels");
+}
+
+std::string SkipReport::to_json() const {
+  nlohmann::json j;
+  j["scenes"] = scenes;
+  j["height"] = height;
+  j["width"] = width;
+  j["bands"] = bands;
+  j["bands_kept"] = bands_kept;
+  j["bands_skipped"] = bands_skipped;
+  j["sensor_psf_px"] = sensor_psf_px;
+  j["crop_radius_px"] = crop_radius_px;
+  j["cropped"] = cropped;
+  j["min_kept_energy"] = min_kept_energy;
+  j["grid"] = {grid_rows, grid_cols};
+  j["tiled"] = tiled;
+  j["tile_px"] = tile_px;
+  j["tiles_per_scene"] = {tiles_y, tiles_x};
+  j["tiles_total"] = tiles_total;
+  j["tiles_skipped"] = tiles_skipped;
+  j["forward_ffts"] = forward_ffts;
+  j["inverse_ffts"] = inverse_ffts;
+  j["bound"] = {{"bands", band_bound}, {"crop", crop_bound}, {"tiles", tile_bound}, {"total", total_bound}};
+  j["tolerance"] = tolerance;
+  j["psf_generation"] = psf_generation;
+  j["otf_reused"] = otf_reused;
+  return j.dump(2);
+}
+
+Camera::Camera(Simulator& sim)
+    : rt_(sim.runtime()), sim_(&sim), cfg_(sim.config()), prec_(sim.precision()), s_(sim.sensor_size()),
+      rsz_(real_size(sim.precision())), srf_(sim.srf()) {
+  if (sim.designs() != 1) reject("simulator designs", sim.designs(), "a simulator of one design");
+  init();
+}
+
+Camera::Camera(Runtime& rt, const SystemConfig& cfg, Precision p)
+    : rt_(rt), cfg_(cfg), prec_(p), rsz_(real_size(p)) {
+  cfg_.validate();
+  rt_.require(p);
+  s_ = cfg_.sensor_size_px();
+  srf_ = sensor_response(cfg_);
+  init();
+}
+
+void Camera::init() {
+  k_rings_ = rt_.kernel("camera.cl", "ring_energy", prec_);
+  k_place_psf_ = rt_.kernel("camera.cl", "place_psf_pairs", prec_);
+  k_place_ = rt_.kernel("camera.cl", "place_windows", prec_);
+  k_combine_ = rt_.kernel("camera.cl", "combine_channels", prec_);
+  k_gather_ = rt_.kernel("camera.cl", "gather_windows", prec_);
+  k_noise_ = rt_.kernel("sensor.cl", "sensor_integrate", prec_);
+  k_multiply_ = rt_.kernel("camera.cl", "multiply_pairs", prec_);
+  k_gather_pairs_ = rt_.kernel("camera.cl", "gather_pairs", prec_);
+  k_vjp_spectra_ = rt_.kernel("camera.cl", "camera_vjp_spectra", prec_);
+  k_gather_psf_ = rt_.kernel("camera.cl", "gather_psf_pairs", prec_);
+  // Identity response for sensor.cl's noise stage applied to finished RGB images: the sum
+  // 0 + 1*v + 0*u + 0*w reproduces v exactly, so only the noise is added.
+  std::vector<double> eye{1, 0, 0, 0, 1, 0, 0, 0, 1};
+  const cl_mem_flags flags = CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR;
+  if (prec_ == Precision::F64) {
+    eye_ = cl::Buffer(rt_.context(), flags, eye.size() * sizeof(double), eye.data());
+  } else {
+    std::vector<float> f(eye.begin(), eye.end());
+    eye_ = cl::Buffer(rt_.context(), flags, f.size() * sizeof(float), f.data());
+  }
+}
+
+void Camera::set_psf(const RealStack& psf_sensor) {
+  if (sim_) reject("set_psf", "(imager bound to a Simulator)", "a standalone Camera (the simulator's PSF is followed)");
+  if (psf_sensor.planes != cfg_.bands || psf_sensor.rows != s_ || psf_sensor.cols != s_)
+    reject("psf_sensor", to_str(psf_sensor.planes) + " x " + to_str(psf_sensor.rows) + " x " + to_str(psf_sensor.cols),
+           "bands x S x S = " + to_str(cfg_.bands) + " x " + to_str(s_) + " x " + to_str(s_));
+  for (std::size_t i = 0; i < psf_sensor.size(); ++i)
+    if (!std::isfinite(psf_sensor.data[i])) reject("psf_sensor[" + to_str(i) + "]", psf_sensor.data[i], "finite values");
+  const std::size_t bytes = psf_sensor.size() * rsz_;
+  own_psf_ = cl::Buffer(rt_.context(), CL_MEM_READ_ONLY, bytes);
+  rt_.write_reals(own_psf_, psf_sensor.data.data(), psf_sensor.size(), prec_);
+  ++own_generation_;
+}
+
+const cl::Buffer& Camera::psf_buffer() const { return sim_ ? sim_->psf_sensor_buffer() : own_psf_; }
+std::uint64_t Camera::current_generation() const { return sim_ ? sim_->psf_generation() : own_generation_; }
+
+cl::Buffer& Camera::grow(cl::Buffer& b, std::size_t& cap, std::size_t bytes, cl_mem_flags flags) {
+  bytes = std::max<std::size_t>(bytes, 8);
+  if (!b() || cap < bytes) {
+    b = cl::Buffer(rt_.context(), flags, bytes);
+    cap = bytes;
+  }
+  return b;
+}
+
+// Per-band ring energies of the current PSF (once per generation; the only read-back besides
+// the images).
+void Camera::ensure_rings() {
+  const std::uint64_t gen = current_generation();
+  if (rings_valid_ && rings_gen_ == gen) return;
+  const std::size_t bands = cfg_.bands, nr = s_ / 2 + 1;
+  grow(rings_buf_, rings_cap_, bands * nr * rsz_);
+  rt_.launch_1d(k_rings_, bands * nr, prec_, psf_buffer(), rings_buf_, int(s_), int(bands));
+  rings_.assign(bands * nr, 0.0);
+  rt_.read_reals(rings_buf_, rings_.data(), rings_.size(), prec_);
+  rings_gen_ = gen;
+  rings_valid_ = true;
+  otf_valid_ = false;
+}
+
+// Pair-packed OTFs of the kept bands cropped at radius r on the gy x gx grid.
+void Camera::ensure_otf(std::size_t r, std::size_t gy, std::size_t gx, const std::vector<std::size_t>& kept) {
+  const std::uint64_t gen = current_generation();
+  if (otf_valid_ && otf_gen_ == gen && otf_r_ == r && otf_gy_ == gy && otf_gx_ == gx && otf_kept_ == kept) {
+    report_.otf_reused = true;
+    return;
+  }
+  report_.otf_reused = false;
+  const std::size_t pairs = (kept.size() + 1) / 2, g = gy * gx;
+  std::vector<int> band_of(kept.begin(), kept.end());
+  band_of.resize(std::max<std::size_t>(band_of.size(), 1), 0);
+  grow(band_of_, band_of_cap_, band_of.size() * sizeof(int), CL_MEM_READ_ONLY);
+  rt_.queue().enqueueWriteBuffer(band_of_, CL_TRUE, 0, band_of.size() * sizeof(int), band_of.data());
+  grow(otf_, otf_cap_, pairs * g * 2 * rsz_);
+  rt_.launch_1d(k_place_psf_, pairs * g, prec_, psf_buffer(), band_of_, otf_, int(s_), int(gy), int(gx), int(r),
+                int(kept.size()));
+  rt_.fft(gy, gx, pairs, prec_).forward(otf_);
+  otf_gen_ = gen;
+  otf_r_ = r;
+  otf_gy_ = gy;
+  otf_gx_ = gx;
+  otf_kept_ = kept;
+  otf_valid_ = true;
+  ++otf_builds_;
+}
+
+void Camera::check_batch(const std::vector<RealStack>& cubes) const {
+  if (cubes.empty()) reject("cubes", 0, "at least one scene");
+  const std::size_t bands = cfg_.bands, h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size();
+  if (h < 1 || w < 1) reject("cube", to_str(h) + " x " + to_str(w), "at least 1 x 1 pixels");
+  for (std::size_t k = 0; k < scenes; ++k) {
+    if (cubes[k].planes != bands)
+      reject("cubes[" + to_str(k) + "] bands", cubes[k].planes, "the configuration's band count (" + to_str(bands) + ")");
+    if (cubes[k].rows != h || cubes[k].cols != w)
+      reject("cubes[" + to_str(k) + "]", to_str(cubes[k].rows) + " x " + to_str(cubes[k].cols), "the shape of the first scene in the batch");
+    for (std::size_t i = 0; i < cubes[k].size(); ++i)
+      if (!std::isfinite(cubes[k].data[i])) {
+        const std::size_t b = i / (h * w), y = (i / w) % h, x = i % w;
+        reject("cubes[" + to_str(k) + "](" + to_str(b) + ", " + to_str(y) + ", " + to_str(x) + ")", cubes[k].data[i], "finite values");
+      }
+  }
+  if (cfg_.convolution == ConvolutionMode::Circular && (fast_fft_size(h) != h || fast_fft_size(w) != w))
+    reject("cube", to_str(h) + " x " + to_str(w),
+           "sizes made of the factors 2, 3, 5 and 7 in circular convolution mode (the FFT runs on the scene grid)");
+  if (current_generation() == 0)
+    throw Error(sim_ ? "Camera: the simulator's compute_psf() must run before images()"
+                     : "Camera: set_psf() must be called before images()");
+}
+
+std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const SkipOptions& opt) {
+  // ---- Validation (before any device work) ----
+  opt.validate();
+  check_batch(cubes);
+  vjp_ready_ = false;
+  const std::size_t bands = cfg_.bands, h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size();
+  const bool circular = cfg_.convolution == ConvolutionMode::Circular;
+  if (circular && !opt.exact && opt.tiles == TileMode::On)
+    reject("tiles", "on", "off or auto in circular convolution mode (tiles need linear convolution)");
+
+  // ---- Host pass: per-band maxima over the batch, and per tile when tiling is possible ----
+  const bool may_tile = !opt.exact && !circular && opt.tiles != TileMode::Off;
+  const std::size_t tpx = opt.tile_px, nty = may_tile ? (h + tpx - 1) / tpx : 1, ntx = may_tile ? (w + tpx - 1) / tpx : 1;
+  const std::size_t ntiles = nty * ntx;
+  std::vector<double> bmax(bands, 0.0);
+  std::vector<double> tmax(may_tile ? scenes * bands * ntiles : 0, 0.0);  // scenes x bands x tiles
+  for (std::size_t k = 0; k < scenes; ++k)
+    for (std::size_t b = 0; b < bands; ++b) {
+      const double* p = cubes[k].plane(b);
+      double* tm = may_tile ? tmax.data() + (k * bands + b) * ntiles : nullptr;
+      for (std::size_t y = 0; y < h; ++y)
+        for (std::size_t x = 0; x < w; ++x) {
+          const double v = std::fabs(p[y * w + x]);
+          bmax[b] = std::max(bmax[b], v);
+          if (tm) tm[(y / tpx) * ntx + x / tpx] = std::max(tm[(y / tpx) * ntx + x / tpx], v);
+        }
+    }
+
+  ensure_rings();
+  const std::size_t c = s_ / 2, nr = c + 1;
+  // Suffix sums: dropped_b(r) = sum_{k > r} ring_b(k); kept_b(r) = sum_{k <= r} ring_b(k).
+  std::vector<double> dropped(bands * (nr + 1), 0.0), keptsum(bands * nr, 0.0), total(bands, 0.0);
+  for (std::size_t b = 0; b < bands; ++b) {
+    double acc = 0;
+    for (std::size_t k = nr; k-- > 0;) {
+      dropped[b * (nr + 1) + k] = acc;  // energy beyond ring k
+      acc += rings_[b * nr + k];
+    }
+    total[b] = acc;
+    double run = 0;
+    for (std::size_t k = 0; k < nr; ++k) {
+      run += rings_[b * nr + k];
+      keptsum[b * nr + k] = run;
+    }
+  }
+  auto drop_at = [&](std::size_t b, std::size_t r) { return dropped[b * (nr + 1) + std::min(r, c)]; };
+  auto kept_at = [&](std::size_t b, std::size_t r) { return keptsum[b * nr + std::min(r, c)]; };
+
+  SkipReport rep;
+  rep.scenes = scenes;
+  rep.height = h;
+  rep.width = w;
+  rep.bands = bands;
+  rep.sensor_psf_px = s_;
+  rep.tolerance = opt.total_tolerance();
+  rep.psf_generation = current_generation();
+
+  // ---- Rule 1: bands ----
+  std::vector<double> band_c(3, 0.0);
+  std::vector<bool> skip_band(bands, false);
+  if (!opt.exact) {
+    std::vector<std::size_t> order(bands);
+    std::iota(order.begin(), order.end(), 0);
+    auto score = [&](std::size_t b) {
+      double s = 0;
+      for (int ch = 0; ch < 3; ++ch) s = std::max(s, srf_(ch, Eigen::Index(b)) * bmax[b] * total[b]);
+      return s;
+    };
+    std::stable_sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) { return score(x) < score(y); });
+    for (std::size_t b : order) {
+      double worst = 0;
+      for (int ch = 0; ch < 3; ++ch)
+        worst = std::max(worst, band_c[std::size_t(ch)] + srf_(ch, Eigen::Index(b)) * bmax[b] * total[b]);
+      if (worst > opt.band_tolerance) break;
+      skip_band[b] = true;
+      for (int ch = 0; ch < 3; ++ch) band_c[std::size_t(ch)] += srf_(ch, Eigen::Index(b)) * bmax[b] * total[b];
+    }
+  }
+  std::vector<std::size_t> kept;
+  for (std::size_t b = 0; b < bands; ++b) (skip_band[b] ? rep.bands_skipped : rep.bands_kept).push_back(b);
+  kept = rep.bands_kept;
+  const std::size_t nk = kept.size(), pairs = (nk + 1) / 2;
+
+  // ---- Rule 2: crop radius (smallest within budget, scene peaks taken as max(1, max|x|)) ----
+  auto crop_channels = [&](std::size_t r, bool peaks) {
+    std::vector<double> v(3, 0.0);
+    for (std::size_t b : kept)
+      for (int ch = 0; ch < 3; ++ch)
+        v[std::size_t(ch)] += srf_(ch, Eigen::Index(b)) * (peaks ? std::max(1.0, bmax[b]) : bmax[b]) * drop_at(b, r);
+    return v;
+  };
+  auto maxc = [](const std::vector<double>& v) { return *std::max_element(v.begin(), v.end()); };
+  std::size_t r_min = c;
+  if (!opt.exact && !circular) {
+    std::size_t lo = 0, hi = c;  // dropped energy is non-increasing in r: bisect
+    while (lo < hi) {
+      const std::size_t mid = (lo + hi) / 2;
+      if (maxc(crop_channels(mid, true)) <= opt.crop_tolerance) hi = mid;
+      else lo = mid + 1;
+    }
+    r_min = lo;
+  }
+  // Grid for a window of th x tw pixels and the largest radius >= r_min that grid holds.
+  struct Layout {
+    std::size_t r = 0, gy = 0, gx = 0, th = 0, tw = 0, nty = 1, ntx = 1;
+  };
+  auto layout = [&](bool tiled) {
+    Layout L;
+    L.th = tiled ? std::min(tpx, h) : h;
+    L.tw = tiled ? std::min(tpx, w) : w;
+    L.nty = tiled ? nty : 1;
+    L.ntx = tiled ? ntx : 1;
+    if (circular) {
+      L.r = c;
+      L.gy = h;
+      L.gx = w;
+      return L;
+    }
+    auto gy_of = [&](std::size_t r) { return grid_length(L.th, extent_neg(r, s_), extent_pos(r, s_), tiled); };
+    auto gx_of = [&](std::size_t r) { return grid_length(L.tw, extent_neg(r, s_), extent_pos(r, s_), tiled); };
+    L.r = r_min;
+    L.gy = gy_of(L.r);
+    L.gx = gx_of(L.r);
+    while (L.r < c && gy_of(L.r + 1) <= L.gy && gx_of(L.r + 1) <= L.gx) ++L.r;
+    return L;
+  };
+
+  // ---- Rule 3: tiles (greedy, smallest first, while the bound stays within budget) ----
+  auto choose_tiles = [&](const Layout& L, std::vector<std::uint8_t>& skipped, std::vector<double>& bound_c) {
+    skipped.assign(scenes * ntiles, 0);
+    bound_c.assign(3, 0.0);
+    std::vector<double> mb(bands, 0.0);  // max over skipped tiles, per band
+    std::vector<std::pair<double, std::size_t>> cand;
+    cand.reserve(scenes * ntiles);
+    for (std::size_t k = 0; k < scenes; ++k)
+      for (std::size_t t = 0; t < ntiles; ++t) {
+        double v = 0;
+        for (int ch = 0; ch < 3; ++ch) {
+          double s = 0;
+          for (std::size_t b : kept) s += srf_(ch, Eigen::Index(b)) * kept_at(b, L.r) * tmax[(k * bands + b) * ntiles + t];
+          v = std::max(v, s);
+        }
+        cand.emplace_back(v, k * ntiles + t);
+      }
+    std::stable_sort(cand.begin(), cand.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+    std::size_t count = 0;
+    for (const auto& [v, id] : cand) {
+      if (v > opt.tile_tolerance) break;
+      const std::size_t k = id / ntiles, t = id % ntiles;
+      std::vector<double> trial(3, 0.0);
+      for (int ch = 0; ch < 3; ++ch)
+        for (std::size_t b : kept)
+          trial[std::size_t(ch)] += srf_(ch, Eigen::Index(b)) * kept_at(b, L.r) * std::max(mb[b], tmax[(k * bands + b) * ntiles + t]);
+      if (maxc(trial) > opt.tile_tolerance) continue;
+      for (std::size_t b : kept) mb[b] = std::max(mb[b], tmax[(k * bands + b) * ntiles + t]);
+      bound_c = trial;
+      skipped[id] = 1;
+      ++count;
+    }
+    return count;
+  };
+
+  Layout L = layout(false);
+  std::vector<std::uint8_t> tile_skip(scenes, 0);
+  std::vector<double> tile_c(3, 0.0);
+  bool tiled = false;
+  if (may_tile) {
+    const Layout T = layout(true);
+    std::vector<std::uint8_t> ts;
+    std::vector<double> tc;
+    const std::size_t nskip = choose_tiles(T, ts, tc);
+    const std::size_t windows = scenes * ntiles - nskip;
+    const double cost_tiled = cost_model(windows, T.gy, T.gx, pairs), cost_whole = cost_model(scenes, L.gy, L.gx, pairs);
+    if (opt.tiles == TileMode::On || cost_tiled < kTileGain * cost_whole) {
+      tiled = true;
+      L = T;
+      tile_skip = ts;
+      tile_c = tc;
+    }
+  }
+  const std::vector<double> crop_c = crop_channels(L.r, false);
+
+  rep.crop_radius_px = L.r;
+  rep.cropped = L.r < c;
+  rep.min_kept_energy = 1.0;
+  for (std::size_t b : kept) rep.min_kept_energy = std::min(rep.min_kept_energy, kept_at(b, L.r));
+  rep.grid_rows = L.gy;
+  rep.grid_cols = L.gx;
+  rep.tiled = tiled;
+  rep.tile_px = tiled ? tpx : 0;
+  rep.tiles_y = L.nty;
+  rep.tiles_x = L.ntx;
+  rep.tiles_total = scenes * L.nty * L.ntx;
+  rep.tile_skipped = tile_skip;
+  rep.tiles_skipped = std::size_t(std::count(tile_skip.begin(), tile_skip.end(), std::uint8_t(1)));
+  rep.band_bound = maxc(band_c);
+  rep.crop_bound = maxc(crop_c);
+  rep.tile_bound = maxc(tile_c);
+  rep.total_bound = 0;
+  for (std::size_t ch = 0; ch < 3; ++ch) rep.total_bound = std::max(rep.total_bound, band_c[ch] + crop_c[ch] + tile_c[ch]);
+  report_ = rep;
+
+  // ---- Device work ----
+  const std::size_t hw = h * w, g = L.gy * L.gx;
+  auto& q = rt_.queue();
+  grow(rgb_, rgb_cap_, scenes * 3 * hw * rsz_);
+  q.enqueueFillBuffer(rgb_, cl_uint(0), 0, scenes * 3 * hw * rsz_);
+  if (nk > 0) {
+    ensure_otf(L.r, L.gy, L.gx, kept);
+    // Windows (slots) and the tile -> slot map.
+    std::vector<int> tiles, slot_of(scenes * L.nty * L.ntx, -1);
+    for (std::size_t k = 0; k < scenes; ++k)
+      for (std::size_t ty = 0; ty < L.nty; ++ty)
+        for (std::size_t tx = 0; tx < L.ntx; ++tx) {
+          const std::size_t id = (k * L.nty + ty) * L.ntx + tx;
+          if (tile_skip[id]) continue;
+          slot_of[id] = int(tiles.size() / 3);
+          tiles.insert(tiles.end(), {int(k), int(ty * L.th), int(tx * L.tw)});
+        }
+    const std::size_t nslots = tiles.size() / 3;
+    tiles.resize(std::max<std::size_t>(tiles.size(), 3), 0);
+    grow(tiles_, tiles_cap_, tiles.size() * sizeof(int), CL_MEM_READ_ONLY);
+    q.enqueueWriteBuffer(tiles_, CL_FALSE, 0, tiles.size() * sizeof(int), tiles.data());
+    grow(slot_of_, slot_of_cap_, slot_of.size() * sizeof(int), CL_MEM_READ_ONLY);
+    q.enqueueWriteBuffer(slot_of_, CL_FALSE, 0, slot_of.size() * sizeof(int), slot_of.data());
+    // Response weights of the kept bands, 3 x 2P (zero-padded).
+    std::vector<double> wt(3 * 2 * pairs, 0.0);
+    for (std::size_t ch = 0; ch < 3; ++ch)
+      for (std::size_t i = 0; i < nk; ++i) wt[ch * 2 * pairs + i] = srf_(Eigen::Index(ch), Eigen::Index(kept[i]));
+    // Compacted kept bands of every scene: scenes x K x H x W.
+    std::vector<double> host(scenes * nk * hw);
+    for (std::size_t k = 0; k < scenes; ++k)
+      for (std::size_t i = 0; i < nk; ++i)
+        std::copy(cubes[k].plane(kept[i]), cubes[k].plane(kept[i]) + hw, host.begin() + long((k * nk + i) * hw));
+    grow(wts_, wts_cap_, wt.size() * rsz_, CL_MEM_READ_ONLY);
+    grow(cube_, cube_cap_, host.size() * rsz_, CL_MEM_READ_ONLY);
+    rt_.write_reals(wts_, wt.data(), wt.size(), prec_);
+    rt_.write_reals(cube_, host.data(), host.size(), prec_);
+    if (nslots > 0) {
+      const std::size_t per_slot = pairs * g * 2 * rsz_;
+      const std::size_t chunk = std::max<std::size_t>(1, std::min(nslots, kMaxChunkBytes / per_slot));
+      grow(spec_, spec_cap_, chunk * per_slot);
+      grow(rgbspec_, rgbspec_cap_, chunk * 2 * g * 2 * rsz_);
+      FftPlan& fwd = rt_.fft(L.gy, L.gx, chunk * pairs, prec_);
+      FftPlan& inv = rt_.fft(L.gy, L.gx, chunk * 2, prec_);
+      const std::size_t a = circular ? 0 : extent_neg(L.r, s_), b = circular ? 0 : extent_pos(L.r, s_);
+      for (std::size_t base = 0; base < nslots; base += chunk) {
+        const std::size_t count = std::min(chunk, nslots - base);
+        rt_.launch_1d(k_place_, chunk * pairs * g, prec_, cube_, tiles_, spec_, int(h), int(w), int(nk), int(L.gy),
+                      int(L.gx), int(L.th), int(L.tw), int(base), int(count), int(chunk));
+        fwd.forward(spec_);
+        rt_.launch_1d(k_combine_, chunk * g, prec_, spec_, otf_, wts_, rgbspec_, int(L.gy), int(L.gx), int(nk),
+                      int(chunk));
+        inv.inverse(rgbspec_);
+        rt_.launch_1d(k_gather_, scenes * hw, prec_, rgbspec_, slot_of_, rgb_, int(h), int(w), int(L.gy), int(L.gx),
+                      int(L.th), int(L.tw), int(L.nty), int(L.ntx), int(a), int(b), int(base), int(count), int(scenes));
+        report_.forward_ffts += chunk * pairs;
+        report_.inverse_ffts += chunk * 2;
+      }
+    }
+  }
+  cl::Buffer* result = &rgb_;
+  if (cfg_.read_noise_sigma > 0 || cfg_.full_well_photons > 0) {
+    grow(noisy_, noisy_cap_, scenes * 3 * hw * rsz_);
+    rt_.launch_1d(k_noise_, scenes * 3 * hw, prec_, rgb_, eye_, noisy_, int(hw), 3, Real{cfg_.read_noise_sigma},
+                  Real{cfg_.full_well_photons}, cl_uint(cfg_.noise_seed & 0xffffffffull),
+                  cl_uint(cfg_.noise_seed >> 32), int(scenes));
+    result = &noisy_;
+  }
+  // The single read-back of the call.
+  std::vector<RealStack> out(scenes, RealStack(3, h, w));
+  for (std::size_t k = 0; k < scenes; ++k) rt_.read_reals(*result, out[k].data.data(), 3 * hw, prec_, k * 3 * hw);
+  vjp_ready_ = !tiled;
+  return out;
+}
+
+namespace {
+std::size_t chunk_slots(std::size_t nslots, std::size_t per_slot_bytes) {
+  return std::max<std::size_t>(1, std::min(nslots, kMaxChunkBytes / std::max<std::size_t>(per_slot_bytes, 1)));
+}
+}  // namespace
+
+Camera::Gradient Camera::vjp(const std::vector<RealStack>& g_rgb, bool want_scenes) {
+  const SkipReport& rep = report_;
+  if (rep.tiled) reject("vjp", "after a tiled images() call", "the adjoint of an untiled call (tiles off or exact)");
+  if (!vjp_ready_) reject("vjp", "without a preceding images() call", "images() on this camera first (blur() in between discards its batch)");
+  if (current_generation() != rep.psf_generation)
+    throw Error("Camera::vjp: the PSF changed since the images() call it would differentiate");
+  const std::size_t scenes = rep.scenes, h = rep.height, w = rep.width, hw = h * w, bands = rep.bands;
+  if (g_rgb.size() != scenes) reject("g_rgb.size()", g_rgb.size(), "one gradient per scene of the last images() call (" + to_str(scenes) + ")");
+  for (std::size_t k = 0; k < scenes; ++k) {
+    if (g_rgb[k].planes != 3 || g_rgb[k].rows != h || g_rgb[k].cols != w)
+      reject("g_rgb[" + to_str(k) + "]", shape(g_rgb[k]), "3 x H x W = " + shape(3, h, w));
+    for (std::size_t i = 0; i < g_rgb[k].size(); ++i)
+      if (!std::isfinite(g_rgb[k].data[i])) reject("g_rgb[" + to_str(k) + "][" + to_str(i) + "]", g_rgb[k].data[i], "finite values");
+  }
+  Gradient out;
+  out.psf = RealStack(bands, s_, s_);
+  if (want_scenes) out.scenes.assign(scenes, RealStack(bands, h, w));
+  const std::vector<std::size_t>& kept = rep.bands_kept;
+  const std::size_t nk = kept.size(), pairs = (nk + 1) / 2, gy = rep.grid_rows, gx = rep.grid_cols, g = gy * gx;
+  if (nk == 0) return out;
+  ensure_otf(rep.crop_radius_px, gy, gx, kept);  // reused unless blur() changed it since
+  report_.otf_reused = rep.otf_reused;
+
+  auto& q = rt_.queue();
+  grow(grgb_, grgb_cap_, scenes * 3 * hw * rsz_, CL_MEM_READ_ONLY);
+  for (std::size_t k = 0; k < scenes; ++k) rt_.write_reals(grgb_, g_rgb[k].data.data(), 3 * hw, prec_, k * 3 * hw);
+  const std::size_t chunk = chunk_slots(scenes, pairs * g * 2 * rsz_);
+  grow(spec_, spec_cap_, chunk * pairs * g * 2 * rsz_);
+  grow(rgbspec_, rgbspec_cap_, chunk * 2 * g * 2 * rsz_);
+  if (want_scenes) {
+    grow(gscene_, gscene_cap_, chunk * pairs * g * 2 * rsz_);
+    grow(gout_, gout_cap_, scenes * nk * hw * rsz_);
+  }
+  grow(gpsf_, gpsf_cap_, pairs * g * 2 * rsz_);
+  q.enqueueFillBuffer(gpsf_, cl_uint(0), 0, pairs * g * 2 * rsz_);
+  FftPlan& fwd_pairs = rt_.fft(gy, gx, chunk * pairs, prec_);
+  FftPlan& fwd_rgb = rt_.fft(gy, gx, chunk * 2, prec_);
+  const cl::Buffer& scene_out = want_scenes ? gscene_ : spec_;  // unused when !want_scenes
+  for (std::size_t base = 0; base < scenes; base += chunk) {
+    const std::size_t count = std::min(chunk, scenes - base);
+    // Image gradients as two pair spectra per scene (R + iG, B), then the scene spectra again.
+    rt_.launch_1d(k_place_, chunk * 2 * g, prec_, grgb_, tiles_, rgbspec_, int(h), int(w), 3, int(gy), int(gx), int(h),
+                  int(w), int(base), int(count), int(chunk));
+    fwd_rgb.forward(rgbspec_);
+    rt_.launch_1d(k_place_, chunk * pairs * g, prec_, cube_, tiles_, spec_, int(h), int(w), int(nk), int(gy), int(gx),
+                  int(h), int(w), int(base), int(count), int(chunk));
+    fwd_pairs.forward(spec_);
+    rt_.launch_1d(k_vjp_spectra_, pairs * g, prec_, rgbspec_, spec_, otf_, wts_, scene_out, gpsf_, int(gy), int(gx),
+                  int(nk), int(count), int(want_scenes ? 1 : 0));
+    if (want_scenes) {
+      fwd_pairs.inverse(gscene_);
+      rt_.launch_1d(k_gather_pairs_, count * nk * hw, prec_, gscene_, gout_, int(h), int(w), int(nk), int(gy), int(gx),
+                    int(base), int(count));
+    }
+  }
+  rt_.fft(gy, gx, pairs, prec_).inverse(gpsf_);
+  grow(gpsf_out_, gpsf_out_cap_, bands * s_ * s_ * rsz_);
+  q.enqueueFillBuffer(gpsf_out_, cl_uint(0), 0, bands * s_ * s_ * rsz_);
+  rt_.launch_1d(k_gather_psf_, nk * s_ * s_, prec_, gpsf_, band_of_, gpsf_out_, int(s_), int(gy), int(gx),
+                int(rep.crop_radius_px), int(nk));
+  rt_.read_reals(gpsf_out_, out.psf.data.data(), out.psf.size(), prec_);
+  if (want_scenes)
+    for (std::size_t k = 0; k < scenes; ++k)
+      for (std::size_t i = 0; i < nk; ++i) rt_.read_reals(gout_, out.scenes[k].plane(kept[i]), hw, prec_, (k * nk + i) * hw);
+  return out;
+}
+
+std::vector<RealStack> Camera::blur(const std::vector<RealStack>& cubes) {
+  check_batch(cubes);
+  vjp_ready_ = false;
+  const std::size_t bands = cfg_.bands, h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size(), hw = h * w;
+  const bool circular = cfg_.convolution == ConvolutionMode::Circular;
+  const std::size_t c = s_ / 2;
+  const std::size_t gy = circular ? h : grid_length(h, extent_neg(c, s_), extent_pos(c, s_), false);
+  const std::size_t gx = circular ? w : grid_length(w, extent_neg(c, s_), extent_pos(c, s_), false);
+  const std::size_t g = gy * gx, pairs = (bands + 1) / 2;
+  std::vector<std::size_t> all(bands);
+  std::iota(all.begin(), all.end(), 0);
+  ensure_otf(c, gy, gx, all);
+  std::vector<int> tiles;
+  for (std::size_t k = 0; k < scenes; ++k) tiles.insert(tiles.end(), {int(k), 0, 0});
+  grow(tiles_, tiles_cap_, tiles.size() * sizeof(int), CL_MEM_READ_ONLY);
+  rt_.queue().enqueueWriteBuffer(tiles_, CL_TRUE, 0, tiles.size() * sizeof(int), tiles.data());
+  grow(cube_, cube_cap_, scenes * bands * hw * rsz_, CL_MEM_READ_ONLY);
+  for (std::size_t k = 0; k < scenes; ++k) rt_.write_reals(cube_, cubes[k].data.data(), bands * hw, prec_, k * bands * hw);
+  const std::size_t chunk = chunk_slots(scenes, pairs * g * 2 * rsz_);
+  grow(spec_, spec_cap_, chunk * pairs * g * 2 * rsz_);
+  grow(gscene_, gscene_cap_, chunk * pairs * g * 2 * rsz_);
+  grow(gout_, gout_cap_, scenes * bands * hw * rsz_);
+  FftPlan& plan = rt_.fft(gy, gx, chunk * pairs, prec_);
+  for (std::size_t base = 0; base < scenes; base += chunk) {
+    const std::size_t count = std::min(chunk, scenes - base);
+    rt_.launch_1d(k_place_, chunk * pairs * g, prec_, cube_, tiles_, spec_, int(h), int(w), int(bands), int(gy), int(gx),
+                  int(h), int(w), int(base), int(count), int(chunk));
+    plan.forward(spec_);
+    rt_.launch_1d(k_multiply_, chunk * pairs * g, prec_, spec_, otf_, gscene_, int(gy), int(gx), int(pairs), int(chunk));
+    plan.inverse(gscene_);
+    rt_.launch_1d(k_gather_pairs_, count * bands * hw, prec_, gscene_, gout_, int(h), int(w), int(bands), int(gy),
+                  int(gx), int(base), int(count));
+  }
+  std::vector<RealStack> out(scenes, RealStack(bands, h, w));
+  for (std::size_t k = 0; k < scenes; ++k) rt_.read_reals(gout_, out[k].data.data(), bands * hw, prec_, k * bands * hw);
+  return out;
+}
+
+std::vector<RealStack> skipped_images_reference(const std::vector<RealStack>& cubes, const RealStack& psf_sensor,
+                                                const Eigen::MatrixXd& srf, const SkipReport& report,
+                                                ConvolutionMode mode) {
+  const std::size_t s = psf_sensor.rows, c = s / 2, bands = psf_sensor.planes;
+  if (psf_sensor.cols != s) reject("psf_sensor", to_str(psf_sensor.rows) + " x " + to_str(psf_sensor.cols), "square planes");
+  if (srf.rows() != 3 || std::size_t(srf.cols()) != bands)
+    reject("srf", to_str(srf.rows()) + " x " + to_str(srf.cols()), "3 x bands with bands = " + to_str(bands));
+  if (report.scenes != cubes.size()) reject("cubes.size()", cubes.size(), "the report's scene count (" + to_str(report.scenes) + ")");
+  const std::size_t nk = report.bands_kept.size();
+  // Cropped PSF of the kept bands.
+  RealStack psf(nk, s, s);
+  const long r = long(report.crop_radius_px);
+  for (std::size_t i = 0; i < nk; ++i)
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) {
+        const long ty = long(y) - long(c), tx = long(x) - long(c);
+        if (std::labs(ty) <= r && std::labs(tx) <= r) psf(i, y, x) = psf_sensor(report.bands_kept[i], y, x);
+      }
+  Eigen::MatrixXd wk(3, Eigen::Index(nk));
+  for (std::size_t i = 0; i < nk; ++i) wk.col(Eigen::Index(i)) = srf.col(Eigen::Index(report.bands_kept[i]));
+  std::vector<RealStack> out;
+  for (std::size_t k = 0; k < cubes.size(); ++k) {
+    const RealStack& cube = cubes[k];
+    if (cube.planes != bands || cube.rows != report.height || cube.cols != report.width)
+      reject("cubes[" + to_str(k) + "]", to_str(cube.planes) + " x " + to_str(cube.rows) + " x " + to_str(cube.cols),
+             "the report's bands x H x W");
+    if (nk == 0) {
+      out.emplace_back(3, cube.rows, cube.cols);
+      continue;
+    }
+    RealStack x(nk, cube.rows, cube.cols);
+    for (std::size_t i = 0; i < nk; ++i)
+      for (std::size_t yy = 0; yy < cube.rows; ++yy)
+        for (std::size_t xx = 0; xx < cube.cols; ++xx) {
+          bool skip = false;
+          if (report.tiled) {
+            const std::size_t th = std::min(report.tile_px, cube.rows), tw = std::min(report.tile_px, cube.cols);
+            skip = report.tile_skipped[(k * report.tiles_y + yy / th) * report.tiles_x + xx / tw] != 0;
+          }
+          x(i, yy, xx) = skip ? 0.0 : cube(report.bands_kept[i], yy, xx);
+        }
+    out.push_back(ref::sensor_integrate(ref::convolve(x, psf, mode), wk));
+  }
+  return out;
+}
+
+SensorClip clip_to_full_scale(RealStack& rgb, const std::string& what) {
+  SensorClip c;
+  c.total = rgb.data.size();
+  std::size_t bad = 0;
+  for (double& v : rgb.data) {
+    if (!std::isfinite(v)) {
+      ++bad;
+      continue;
+    }
+    c.max_before = std::max(c.max_before, v);
+    if (v > 1.0) {
+      v = 1.0;
+      ++c.clipped;
+    }
+  }
+  if (bad)
+    throw NumericalError(what + ": " + std::to_string(bad) + " of " + std::to_string(c.total) +
+                         " sensor values are NaN or Inf (nothing was written)");
+  return c;
+}
+
+}  // namespace qdo
