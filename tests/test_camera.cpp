@@ -15,6 +15,8 @@
 #include "qdo/error.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/simulator.hpp"
+#include "qdo/testset.hpp"
+#include "qdo/wiener.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
@@ -282,6 +284,32 @@ TEST_CASE("camera vjp refuses what it cannot differentiate") {
   cam.images(cubes, tiled);
   REQUIRE(cam.last_report().tiled);
   CHECK_THROWS_AS(cam.vjp(g), InputError);
+}
+
+TEST_CASE("the test-set camera of eval and tolerance: device, circular on the patch grid, equal to the host reference") {
+  // S = 15 (7-smooth: the camera runs circular) and S = 11 (not: the linear camera on the
+  // periodic extension); the host reference is the OTF camera wiener::simulate_measurement.
+  for (std::size_t n : {30u, 22u}) {
+    const SystemConfig cfg = tiny_config(n, 3);
+    const std::size_t s = cfg.sensor_size_px();
+    CAPTURE(s);
+    testset::PatchCamera cam(runtime(), cfg);
+    CHECK(cam.periodic_extension() == (fast_fft_size(s) != s));
+    const RealStack psf = random_psf(cfg, 41);
+    std::vector<testset::Patch> patches;
+    for (unsigned k = 0; k < 3; ++k) patches.push_back({"p", random_cube(cfg.bands, s, s, 42 + k)});
+    const auto got = cam.measure(psf, patches);
+    REQUIRE(got.size() == patches.size());
+    const Eigen::MatrixXd srf = sensor_response(cfg);
+    const ComplexStack otf = wiener::psf_to_otf(psf, s, s);
+    const double tol = 64.0 * eps(cam.precision()) * std::log2(double(4 * s * s));
+    for (std::size_t k = 0; k < patches.size(); ++k) {
+      const auto want = wiener::simulate_measurement(patches[k].cube, otf, srf).data;
+      CHECK(max_abs_diff(got[k].data, want) <= tol * max_abs(want));
+    }
+    std::vector<testset::Patch> wrong{{"p", random_cube(cfg.bands, s + 1, s, 50)}};
+    CHECK_THROWS_AS(cam.measure(psf, wrong), InputError);
+  }
 }
 
 }  // TEST_SUITE

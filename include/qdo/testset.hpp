@@ -6,10 +6,13 @@
 #include <Eigen/Dense>
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
+#include "qdo/camera.hpp"
 #include "qdo/config.hpp"
+#include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
 #include "qdo/wiener.hpp"
 
@@ -28,11 +31,31 @@ struct Patch {
 std::vector<Patch> patches(const SystemConfig& cfg, std::size_t s, const std::vector<std::string>& data,
                            const std::string& data_format, std::size_t synthetic_scenes, std::uint64_t run_seed);
 
-// Patch k (x: bands x S x S) measured through `otf` (bands x S x S, circular convolution) and the
-// sensor response srf (3 x bands), Gaussian noise sigma drawn from (run_seed + 77, k), decoded
-// by `dec` and clamped to [0, 1] (the decoder's output range, as the release's sigmoid).
-RealStack reconstruct(const RealStack& x, const ComplexStack& otf, const Eigen::MatrixXd& srf, const WienerDecoder& dec,
-                      double sigma, std::uint64_t run_seed, std::size_t k);
+// The patches' noiseless RGB images (3 x S x S each, in patch order) through a sensor PSF stack
+// (bands x S x S, axis at S/2) with circular convolution on the S x S patch grid, on the device
+// camera (Camera, camera.hpp) in float64 where the device has it, else float32. A 7-smooth S
+// runs the camera in circular mode; any other S runs the linear camera on each patch's periodic
+// extension (2S - 1 pixels a side) and keeps the centre, which is the same circular convolution.
+// The host double-precision reference is wiener::simulate_measurement(x, psf_to_otf(psf, S, S), srf).
+class PatchCamera {
+ public:
+  PatchCamera(Runtime& rt, const SystemConfig& cfg);
+  std::vector<RealStack> measure(const RealStack& psf_sensor, const std::vector<Patch>& patches);
+  Precision precision() const { return prec_; }
+  bool periodic_extension() const { return extend_; }
+
+ private:
+  std::size_t s_ = 0;
+  Precision prec_ = Precision::F32;
+  bool extend_ = false;
+  std::unique_ptr<Camera> camera_;
+};
+
+// Patch k's reconstruction from its noiseless image y (3 x S x S): Gaussian noise sigma drawn
+// from (run_seed + 77, k), decoded by `dec` and clamped to [0, 1] (the decoder's output range,
+// as the release's sigmoid).
+RealStack reconstruct(const RealStack& y_noiseless, const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
+                      std::size_t k);
 
 struct Scores {
   double psnr = 0, psnr_hyper = 0, ssim = 0, rmse = 0, ergas = 0, sam_rad = 0;

@@ -97,7 +97,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
     psf_dec = sim.psf_sensor();
   }
   const Eigen::MatrixXd srf = sensor_response(cfg);
-  const ComplexStack otf_eval = wiener::psf_to_otf(psf_eval, s, s);
+  testset::PatchCamera camera(rt, cfg);
+  const std::vector<RealStack> measured = camera.measure(psf_eval, patches);
   const WienerDecoder dec(wiener::psf_to_otf(psf_dec, s, s), srf, prior, sigma);
 
   EvalResult res;
@@ -107,7 +108,7 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   const auto wl = cfg.wavelengths_nm();
   for (std::size_t k = 0; k < patches.size(); ++k) {
     const RealStack& x = patches[k].cube;
-    const RealStack xh = testset::reconstruct(x, otf_eval, srf, dec, sigma, o.design.seed, k);
+    const RealStack xh = testset::reconstruct(measured[k], dec, sigma, o.design.seed, k);
     per_patch.push_back({patches[k].scene, testset::score(xh, x)});
     const std::string& scene = patches[k].scene;
     if (k < e.renders) {

@@ -7,6 +7,7 @@
 #include "qdo/cpu_reference.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
+#include "qdo/fft.hpp"
 
 namespace fs = std::filesystem;
 
@@ -29,9 +30,60 @@ std::vector<Patch> patches(const SystemConfig& cfg, std::size_t s, const std::ve
   return out;
 }
 
-RealStack reconstruct(const RealStack& x, const ComplexStack& otf, const Eigen::MatrixXd& srf, const WienerDecoder& dec,
-                      double sigma, std::uint64_t run_seed, std::size_t k) {
-  RealStack y = wiener::simulate_measurement(x, otf, srf);
+PatchCamera::PatchCamera(Runtime& rt, const SystemConfig& cfg) : s_(cfg.sensor_size_px()) {
+  prec_ = rt.has_fp64() ? Precision::F64 : Precision::F32;
+  extend_ = fast_fft_size(s_) != s_;
+  SystemConfig c = cfg;
+  c.convolution = extend_ ? ConvolutionMode::Linear : ConvolutionMode::Circular;
+  c.read_noise_sigma = 0;  // the noise is drawn on the host (reconstruct), per patch
+  c.full_well_photons = 0;
+  camera_ = std::make_unique<Camera>(rt, c, prec_);
+}
+
+std::vector<RealStack> PatchCamera::measure(const RealStack& psf_sensor, const std::vector<Patch>& patches) {
+  const std::size_t s = s_, c = s / 2, lead = s - 1 - c, e = extend_ ? 2 * s - 1 : s;
+  for (std::size_t k = 0; k < patches.size(); ++k)
+    if (patches[k].cube.rows != s || patches[k].cube.cols != s)
+      reject("patches[" + to_str(k) + "]", shape(patches[k].cube), "S x S patches with S = " + to_str(s));
+  camera_->set_psf(psf_sensor);
+  SkipOptions exact;
+  exact.exact = true;
+  constexpr std::size_t kBatch = 64;  // patches per device call (bounds the device memory)
+  std::vector<RealStack> out;
+  out.reserve(patches.size());
+  for (std::size_t base = 0; base < patches.size(); base += kBatch) {
+    std::vector<RealStack> batch;
+    for (std::size_t k = base; k < std::min(patches.size(), base + kBatch); ++k) {
+      const RealStack& x = patches[k].cube;
+      if (!extend_) {
+        batch.push_back(x);
+        continue;
+      }
+      // Periodic extension: ext(y, x) = x((y - lead) mod S, (x - lead) mod S).
+      RealStack ext(x.planes, e, e);
+      for (std::size_t b = 0; b < x.planes; ++b)
+        for (std::size_t y = 0; y < e; ++y)
+          for (std::size_t xx = 0; xx < e; ++xx) ext(b, y, xx) = x(b, (y + s - lead) % s, (xx + s - lead) % s);
+      batch.push_back(std::move(ext));
+    }
+    for (RealStack& y : camera_->images(batch, exact)) {
+      if (!extend_) {
+        out.push_back(std::move(y));
+        continue;
+      }
+      RealStack centre(3, s, s);
+      for (std::size_t ch = 0; ch < 3; ++ch)
+        for (std::size_t r = 0; r < s; ++r)
+          for (std::size_t col = 0; col < s; ++col) centre(ch, r, col) = y(ch, r + lead, col + lead);
+      out.push_back(std::move(centre));
+    }
+  }
+  return out;
+}
+
+RealStack reconstruct(const RealStack& y_noiseless, const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
+                      std::size_t k) {
+  RealStack y = y_noiseless;
   ref::add_noise(y, sigma, 0, run_seed + 77, k);
   RealStack xh = dec.decode(y);
   for (double& v : xh.data) v = std::clamp(v, 0.0, 1.0);

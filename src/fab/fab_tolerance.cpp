@@ -152,7 +152,7 @@ namespace {
 class Evaluator {
  public:
   Evaluator(Runtime& rt, const DesignRunOptions& o, const ToleranceOptions& t, const std::string& run)
-      : o_(o), sim_(rt, o.cfg, t.precision) {
+      : o_(o), sim_(rt, o.cfg, t.precision), camera_(rt, o.cfg) {
     const SystemConfig& cfg = o.cfg;
     s_ = cfg.sensor_size_px();
     prior_ = load_prior((fs::path(run) / "prior.h5").string());
@@ -169,12 +169,12 @@ class Evaluator {
   std::unique_ptr<WienerDecoder> decoder(const RealStack& psf) const {
     return std::make_unique<WienerDecoder>(wiener::psf_to_otf(psf, s_, s_), srf_, prior_, sigma_);
   }
-  Metrics metrics(const RealStack& psf_actual, const WienerDecoder& dec) const {
-    const ComplexStack otf = wiener::psf_to_otf(psf_actual, s_, s_);
+  Metrics metrics(const RealStack& psf_actual, const WienerDecoder& dec) {
+    const std::vector<RealStack> measured = camera_.measure(psf_actual, patches_);
     std::vector<std::pair<std::string, testset::Scores>> per_patch;
     for (std::size_t k = 0; k < patches_.size(); ++k) {
       const RealStack& x = patches_[k].cube;
-      per_patch.push_back({patches_[k].scene, testset::score(testset::reconstruct(x, otf, srf_, dec, sigma_, o_.design.seed, k), x)});
+      per_patch.push_back({patches_[k].scene, testset::score(testset::reconstruct(measured[k], dec, sigma_, o_.design.seed, k), x)});
     }
     std::vector<testset::Scores> rows;
     for (const auto& scene : testset::per_scene_means(per_patch)) rows.push_back(scene.second);
@@ -186,6 +186,7 @@ class Evaluator {
  private:
   const DesignRunOptions& o_;
   Simulator sim_;
+  testset::PatchCamera camera_;
   std::size_t s_ = 0;
   wiener::SpectralPrior prior_;
   double sigma_ = 0;
