@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# From design to fab, worked example (README "From design to fab"):
+# From design to fab, worked example (docs/fab.md):
 #   1. a 4-level QDO+M design (levels = subset sums of 2 trainable etch depths) at the small preset;
 #   2. its binary-coded mask set: GDSII (2 mask layers), manifest (JSON + Markdown), PNG previews,
 #      checked by reading the GDSII back; for comparison the nested (3-mask) set of the same design;

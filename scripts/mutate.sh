@@ -12,7 +12,7 @@
 # Environment: QDO_MUTATE_DIR (scratch folder, default build/mutate; kept between runs so the
 # rebuilds are incremental), QDO_MUTATE_TIMEOUT (seconds per CTest entry, default 900).
 # Not part of the default CI run: a full pass rebuilds and retests M times (tens of minutes on
-# 2 cores). See README "Developer notes".
+# 2 cores). See docs/mutations.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 repo="$PWD"

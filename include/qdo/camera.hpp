@@ -31,7 +31,7 @@
 //
 // The total bound is max_c of the per-channel sum of the three rule bounds, <= the sum of the
 // rule tolerances. The bounds cover the skipping only; the arithmetic rounding of the working
-// precision comes on top (float32: ~1e-7 relative per operation; see README "Skipping").
+// precision comes on top (float32: ~1e-7 relative per operation; see docs/fast-paths.md).
 //
 // Reuse: the pair-packed OTFs of the cropped kept bands are computed once per PSF generation (and
 // per crop radius, FFT grid and kept-band set) and reused across calls and across the scenes of a
@@ -66,7 +66,7 @@ struct SkipOptions {
   bool exact = false;
   // Per-rule budgets in units of full scale; 0 still skips what contributes exactly nothing
   // (bands the camera does not see or that are zero, zero tiles). Defaults: the total 3e-7 stays
-  // below the float32 rounding noise of the unskipped path on the CAVE scenes (README "Skipping").
+  // below the float32 rounding noise of the unskipped path on the CAVE scenes (docs/fast-paths.md).
   double band_tolerance = 1e-7;
   double crop_tolerance = 1e-7;
   double tile_tolerance = 1e-7;

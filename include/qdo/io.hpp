@@ -1,4 +1,4 @@
-// Files in and out. The HDF5 layout is a contract (README "File formats"):
+// Files in and out. The HDF5 layout is a contract (docs/formats.md):
 //   designs       /height_m        (N x N, float64, attribute pitch_m)  [+ optional /levels_m]
 //   PSF stacks    /psf             (bands x N x N, float64) + /wavelengths_nm (bands)
 //   cubes         /cube            (bands x H x W, float64 in [0,1]) + /wavelengths_nm
