@@ -8,6 +8,7 @@
 #include <filesystem>
 
 #include "fuzz_util.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/run.hpp"

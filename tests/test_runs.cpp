@@ -17,6 +17,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -143,6 +144,20 @@ TEST_SUITE("runs") {
     CHECK(lines == 11);
     for (const char* f : {"config.json", "prior.h5", "design_full.h5", "psf.h5", "design.png", "psf.png", "loss.png"})
       CHECK(std::filesystem::exists(std::filesystem::path(b) / f));
+    // RunFolder names every file the run wrote (demo's rerun cleanup relies on it) and reads its parts.
+    const std::vector<std::string>& names = RunFolder::file_names();
+    for (const auto& e : std::filesystem::directory_iterator(b)) {
+      const std::string f = e.path().filename().string();
+      CAPTURE(f);
+      CHECK((f == ".lock" || std::find(names.begin(), names.end(), f) != names.end()));
+    }
+    const RunFolder folder(b);
+    CHECK(folder.config().design.quantizer.levels == 4);
+    CHECK(folder.design().height_m.data == db.height_m.data);
+    const std::size_t s = folder.config().cfg.sensor_size_px();
+    CHECK(folder.prior(s).rows == s);
+    CHECK_THROWS_WITH_AS(folder.prior(s + 1), doctest::Contains("prior.h5"), InputError);
+    CHECK_THROWS_WITH_AS(RunFolder((dir / "none").string()).config(), doctest::Contains("config.json missing"), InputError);
     std::filesystem::remove_all(dir);
   }
 

@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "common.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/adjoint.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/datasets.hpp"

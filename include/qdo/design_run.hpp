@@ -35,40 +35,6 @@ struct DesignRunOptions {
 std::string design_run_options_to_json(const DesignRunOptions& o);
 DesignRunOptions design_run_options_from_json(const std::string& text, const std::string& origin);
 
-// What `qdo design --resume` reads from a run folder, all of it checked before any work and
-// without a device (run_design uses these; the fuzz target run_folder calls load_resume_state).
-// Every refusal is an InputError naming the file (or, for a missing file, the folder).
-//
-// RUN/config.json: the stored options, parsed and validated; a stored value out of range is
-// named as "file 'RUN/config.json': argument 'epochs' = 0: >= 1". out is left as a placeholder.
-DesignRunOptions read_run_options(const std::string& config_path);
-// The one reader of a finished run's RUN/config.json for the commands that consume it (eval,
-// tolerance, export, sweep-psf --adaptive-from, sweep's reuse check, --resume's comparison):
-// parsed strictly (design_run_options_from_json) but not validated against this machine, whose
-// copy of the training data may have moved. A missing file is an InputError
-// "argument '<argument>' = RUN: <allowed>". out is set to RUN.
-DesignRunOptions read_run_config(const std::string& run, const std::string& argument = "run",
-                                 const std::string& allowed = "a run folder written by qdo design (config.json missing)");
-// RUN/log.csv after its header: every row must start "step,loss,"; the rows with step <
-// before_step (and their losses) are appended, the others are redone by the resume.
-void read_resume_log(const std::string& log_path, long before_step, std::vector<std::string>& rows,
-                     std::vector<double>& losses);
-struct ResumeState {
-  DesignRunOptions options;       // from config.json, out = the folder
-  DesignState state;              // checkpoint.h5, checked against the sizes the options imply
-  std::vector<std::string> log_rows;  // log.csv rows before state.step (none without a log)
-  std::vector<double> losses;
-  std::string checkpoint;         // the file `state` came from: checkpoint.h5 or checkpoint.prev.h5
-  std::string refused;            // when it is the previous one: why checkpoint.h5 was refused ("" if absent)
-};
-// config.json and a checkpoint must exist (else "argument 'out' = DIR: a run folder with ...");
-// log.csv is optional. save_checkpoint keeps the checkpoint it replaces as checkpoint.prev.h5:
-// when checkpoint.h5 is missing or refused (checksum, shape, values) and the previous one loads,
-// the state comes from that one (rows of log.csv at or after its step are redone), and
-// `refused` says why; if neither loads, the error about checkpoint.h5 is raised. No file is
-// changed here.
-ResumeState load_resume_state(const std::string& dir);
-
 struct DesignRunResult {
   long steps_done = 0;
   double final_loss = 0;
@@ -78,10 +44,6 @@ struct DesignRunResult {
 // which only max_steps and quiet are taken from `o`) and writes the run folder (run.hpp). The
 // folder is locked (RunLock) while this runs: a second writer gets an InputError naming the pid.
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& o, bool resume);
-
-// The run's scene prior (RUN/prior.h5: /cov bins x B x B with attributes rows, cols).
-void save_prior(const std::string& path, const wiener::SpectralPrior& p);
-wiener::SpectralPrior load_prior(const std::string& path);
 
 // `qdo eval`: reconstruct test scenes through a run's design with the Wiener decoder.
 struct EvalOptions {

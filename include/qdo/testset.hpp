@@ -6,6 +6,7 @@
 #include <Eigen/Dense>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -68,5 +69,18 @@ Scores score(const RealStack& xh, const RealStack& x);
 std::vector<std::pair<std::string, Scores>> per_scene_means(const std::vector<std::pair<std::string, Scores>>& per_patch);
 // The mean over rows, summed in row order.
 Scores mean_of(const std::vector<Scores>& rows);
+
+// The one test-set evaluation of eval, tolerance (and so sweep): every patch measured through
+// psf_actual on `camera`, reconstructed by `dec` with noise (reconstruct(), patch k's draw),
+// scored; per-scene means in order of first appearance, and their mean. `each` (optional) sees
+// every patch's reconstruction in patch order (eval writes some of them).
+struct Evaluation {
+  std::vector<std::pair<std::string, Scores>> per_patch;  // (scene, scores), patch order
+  std::vector<std::pair<std::string, Scores>> per_scene;  // per_scene_means(per_patch)
+  Scores mean;                                            // mean_of(per_scene)
+};
+Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,
+                    const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
+                    const std::function<void(std::size_t k, const RealStack& xh)>& each = {});
 
 }  // namespace qdo::testset

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "qdo/run_folder.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -177,7 +178,7 @@ DesignRunOptions design_options(const Args& a) {
 // naming each one: "--lr: stored 0.01, given 0.02". Not compared (allowed to differ): --max-steps
 // (where this session stops), --device, --out, --resume, --check-gradients.
 void check_resume_options(const Args& a, const DesignRunOptions& given) {
-  const fs::path cfg = fs::path(given.out) / "config.json";
+  const fs::path cfg = RunFolder(given.out).config_path();
   if (given.out.empty() || !fs::exists(cfg)) return;  // run_design names the missing file
   // Both sides through the same reader and writer, so defaults of old run folders (psf_path)
   // and number formatting compare equal.

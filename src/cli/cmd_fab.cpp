@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "cli.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
 #include "qdo/fab.hpp"
@@ -41,7 +42,7 @@ int cmd_export(const Args& a) {
     if (a.has("preset") || a.has("config")) reject("--preset", "(given)", "omitted with a run folder (its config.json is used)");
     const DesignRunOptions r = read_run(src);
     cfg = r.cfg;
-    d = read_design((fs::path(src) / "design.h5").string());
+    d = RunFolder(src).design();
     o.provenance = {{"source", src + "/design.h5"}, {"run", src}, {"mode", to_string(r.design.mode)},
                     {"levels", std::to_string(r.design.quantizer.levels)}, {"placement", to_string(r.design.quantizer.placement)},
                     {"objective", r.objective}, {"seed", std::to_string(r.design.seed)}};

@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "cli.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/run.hpp"
@@ -27,7 +28,7 @@ int cmd_sweep_psf(const Args& a) {
   if (fs::is_directory(design)) {
     if (a.has("preset") || a.has("config")) reject("--preset", "(given)", "omitted with a run folder (its config.json is used)");
     o.cfg = read_run_config(design).cfg;
-    o.design_full_m = read_design((fs::path(design) / "design_full.h5").string()).height_m;
+    o.design_full_m = RunFolder(design).design_full().height_m;
   } else {
     o.cfg = load_config(a);
     o.design_full_m = load_design(o.cfg, design);
@@ -45,7 +46,7 @@ int cmd_sweep_psf(const Args& a) {
     const DesignRunOptions ro = read_run_config(run);
     if (ro.design.mode != DesignMode::QDOA) reject("--adaptive-from", run, "a qdo+a run (it is " + to_string(ro.design.mode) + ")");
     const std::size_t L = std::size_t(ro.design.quantizer.levels);
-    const DesignState st = load_checkpoint((fs::path(run) / "checkpoint.h5").string(),
+    const DesignState st = load_checkpoint(RunFolder(run).checkpoint_path(),
                                            parameter_count(ro.design.parameterization, ro.cfg.n), L);
     PsfSweepVariant v;
     v.quantizer = ro.design.quantizer;

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "qdo/run_folder.hpp"
 #include "qdo/config.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/design_run.hpp"
@@ -219,11 +220,8 @@ int cmd_gradcheck(const Args& a) {
   return print_gradcheck(gradcheck(rt, o, o.design.seed));
 }
 
-
-// The marker demo writes into its run folders, and the files of a run folder it replaces on a rerun.
+// The marker demo writes into its run folders (on a rerun it replaces the RunFolder::file_names() there).
 const char* const kDemoMarker = ".qdo-demo";
-const char* const kDemoRunFiles[] = {"config.json", "checkpoint.h5", "checkpoint.prev.h5", "checkpoint.refused.h5", "log.csv",    "prior.h5",   "design.h5",
-                                     "design_full.h5", "psf.h5",      "psf.png", "design.png", "loss.png"};
 
 // The main job: a QDO+A design at L levels on synthetic scenes (small preset), compared with
 // conventional deep optics (DO: full-precision training, quantized afterwards) on held-out
@@ -273,7 +271,7 @@ int cmd_demo(const Args& a) {
       // Under the folder's lock (a concurrent writer is refused): drop the previous demo run's
       // files (a fresh run refuses a folder with a checkpoint), keep anything else, mark it ours.
       const RunLock lock(r.out);
-      for (const char* f : kDemoRunFiles) {
+      for (const std::string& f : RunFolder::file_names()) {
         std::error_code ec;
         fs::remove(fs::path(r.out) / f, ec);
       }

@@ -7,6 +7,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "qdo/run_folder.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/embedded.hpp"
@@ -62,16 +63,15 @@ RealStack side_by_side(const RealStack& a, const RealStack& b) {
 }  // namespace
 
 EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
-  const fs::path run(e.run);
-  const DesignRunOptions o = read_run_config(e.run);
+  const RunFolder folder(e.run);
+  const DesignRunOptions o = folder.config();
   if (e.decoder != "matched" && e.decoder != "mismatch") reject("decoder", e.decoder, "matched or mismatch");
   if (e.out.empty()) reject("out", "(missing)", "an output folder");
   const SystemConfig& cfg = o.cfg;
-  const Design full = read_design((run / "design_full.h5").string());
-  const Design fab = read_design((run / "design.h5").string());
-  const wiener::SpectralPrior prior = load_prior((run / "prior.h5").string());
+  const Design full = folder.design_full();
+  const Design fab = folder.design();
   const std::size_t s = cfg.sensor_size_px();
-  if (prior.rows != s || prior.cols != s) reject("prior", (run / "prior.h5").string(), "a prior on the S x S sensor grid");
+  const wiener::SpectralPrior prior = folder.prior(s);
   Map2D h_eval = e.full_precision ? full.height_m : fab.height_m;
   if (e.levels > 0 && !e.full_precision) {
     Quantizer q;
@@ -98,40 +98,38 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   }
   const Eigen::MatrixXd srf = sensor_response(cfg);
   testset::PatchCamera camera(rt, cfg);
-  const std::vector<RealStack> measured = camera.measure(psf_eval, patches);
   const WienerDecoder dec(wiener::psf_to_otf(psf_dec, s, s), srf, prior, sigma);
 
   EvalResult res;
   res.deviation_nm = quantization_deviation_m(h_eval, full.height_m) * 1e9;
   std::vector<H5Dataset> recon;
-  std::vector<std::pair<std::string, testset::Scores>> per_patch;
   const auto wl = cfg.wavelengths_nm();
-  for (std::size_t k = 0; k < patches.size(); ++k) {
+  std::vector<std::pair<std::size_t, std::size_t>> px = e.pixels;
+  if (px.empty()) px.push_back({s / 2, s / 2});
+  for (const auto& [py, pxx] : px)
+    if (py >= s || pxx >= s) reject("pixels", to_str(py) + ":" + to_str(pxx), "inside the " + to_str(s) + " x " + to_str(s) + " patch");
+  auto keep = [&](std::size_t k, const RealStack& xh) {  // the first `renders` patches: data and figures
+    if (k >= e.renders) return;
     const RealStack& x = patches[k].cube;
-    const RealStack xh = testset::reconstruct(measured[k], dec, sigma, o.design.seed, k);
-    per_patch.push_back({patches[k].scene, testset::score(xh, x)});
     const std::string& scene = patches[k].scene;
-    if (k < e.renders) {
-      const std::string tag = std::to_string(k);
-      recon.push_back({"/truth_" + tag, {x.planes, x.rows, x.cols}, x.data, {}, {{"scene", scene}}});
-      recon.push_back({"/recon_" + tag, {xh.planes, xh.rows, xh.cols}, xh.data, {}, {{"scene", scene}}});
-      write_rgb_png((fs::path(e.out) / ("render_" + tag + ".png")).string(), side_by_side(render_srgb(x, wl), render_srgb(xh, wl)));
-      std::vector<std::pair<std::size_t, std::size_t>> px = e.pixels;
-      if (px.empty()) px.push_back({s / 2, s / 2});
-      std::vector<std::vector<double>> curves;
-      for (const auto& [py, pxx] : px) {
-        if (py >= s || pxx >= s) reject("pixels", to_str(py) + ":" + to_str(pxx), "inside the " + to_str(s) + " x " + to_str(s) + " patch");
-        std::vector<double> t, r2;
-        for (std::size_t b = 0; b < x.planes; ++b) {
-          t.push_back(x(b, py, pxx));
-          r2.push_back(xh(b, py, pxx));
-        }
-        curves.push_back(t);
-        curves.push_back(r2);
+    const std::string tag = std::to_string(k);
+    recon.push_back({"/truth_" + tag, {x.planes, x.rows, x.cols}, x.data, {}, {{"scene", scene}}});
+    recon.push_back({"/recon_" + tag, {xh.planes, xh.rows, xh.cols}, xh.data, {}, {{"scene", scene}}});
+    write_rgb_png((fs::path(e.out) / ("render_" + tag + ".png")).string(), side_by_side(render_srgb(x, wl), render_srgb(xh, wl)));
+    std::vector<std::vector<double>> curves;
+    for (const auto& [py, pxx] : px) {
+      std::vector<double> t, r2;
+      for (std::size_t b = 0; b < x.planes; ++b) {
+        t.push_back(x(b, py, pxx));
+        r2.push_back(xh(b, py, pxx));
       }
-      write_line_plot_png((fs::path(e.out) / ("spectra_" + tag + ".png")).string(), {curves[0], curves[1]});
+      curves.push_back(t);
+      curves.push_back(r2);
     }
-  }
+    write_line_plot_png((fs::path(e.out) / ("spectra_" + tag + ".png")).string(), {curves[0], curves[1]});
+  };
+  const testset::Evaluation ev = testset::evaluate(camera, psf_eval, patches, dec, sigma, o.design.seed, keep);
+  const auto& per_patch = ev.per_patch;
   recon.push_back({"/wavelengths_nm", {wl.size()}, wl, {}, {{"units", "nm"}}});
   h5_write((fs::path(e.out) / "reconstructions.h5").string(), recon, {{"run", e.run}, {"decoder", e.decoder}});
   std::ostringstream csv;
@@ -148,15 +146,13 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
     r.sam_rad = m.sam_rad;
     return r;
   };
-  std::vector<testset::Scores> scene_means;
-  for (const auto& [name, m] : testset::per_scene_means(per_patch)) {
+  for (const auto& [name, m] : ev.per_scene) {
     const auto count = std::count_if(per_patch.begin(), per_patch.end(), [&](const auto& p) { return p.first == name; });
     res.rows.push_back(row_of(name, m));
-    scene_means.push_back(m);
     csv << name << "," << count << "," << m.psnr << "," << m.psnr_hyper << "," << m.ssim << "," << m.rmse << "," << m.ergas
         << "," << m.sam_rad << "\n";
   }
-  res.mean = row_of("mean", testset::mean_of(scene_means));
+  res.mean = row_of("mean", ev.mean);
   write_text_atomic((fs::path(e.out) / "metrics.csv").string(), csv.str());
   nlohmann::json j;
   j["run"] = e.run;

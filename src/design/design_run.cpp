@@ -22,6 +22,7 @@
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/wiener.hpp"
 
 namespace fs = std::filesystem;
@@ -146,25 +147,6 @@ std::string fmt_time(double s) {
 
 }  // namespace
 
-void save_prior(const std::string& path, const wiener::SpectralPrior& p) {
-  h5_write(path, {H5Dataset{"/cov", {p.bins, p.bands, p.bands}, p.cov, {{"rows", double(p.rows)}, {"cols", double(p.cols)}},
-                            {{"meaning", "E[X(f) X(f)^H] / (H W) per radial bin (qdo/wiener.hpp)"}}}});
-}
-
-wiener::SpectralPrior load_prior(const std::string& path) {
-  const H5Dataset d = h5_read(path, "/cov");
-  if (d.shape.size() != 3 || d.shape[1] != d.shape[2] || !d.num_attrs.count("rows") || !d.num_attrs.count("cols"))
-    throw InputError("file '" + path + "': dataset '/cov' must be bins x B x B with attributes rows and cols");
-  wiener::SpectralPrior p;
-  p.bins = d.shape[0];
-  p.bands = d.shape[1];
-  p.rows = std::size_t(d.num_attrs.at("rows"));
-  p.cols = std::size_t(d.num_attrs.at("cols"));
-  p.cov = d.data;
-  p.validate();
-  return p;
-}
-
 void DesignRunOptions::validate() const {
   cfg.validate();
   design.validate();
@@ -285,103 +267,10 @@ DesignRunOptions design_run_options_from_json(const std::string& text, const std
   return o;
 }
 
-DesignRunOptions read_run_options(const std::string& config_path) {
-  std::ifstream f(config_path, std::ios::binary);
-  if (!f) throw InputError("file '" + config_path + "': cannot be read");
-  std::stringstream ss;
-  ss << f.rdbuf();
-  DesignRunOptions o = design_run_options_from_json(ss.str(), config_path);
-  try {
-    o.out = "(the run folder)";  // validate() wants one; the caller sets it
-    o.validate();
-  } catch (const InputError& e) {  // e.g. "argument 'epochs' = 0": a stored value, not an argument
-    throw InputError("file '" + config_path + "': " + e.what());
-  }
-  return o;
-}
-
-DesignRunOptions read_run_config(const std::string& run, const std::string& argument, const std::string& allowed) {
-  const fs::path p = fs::path(run) / "config.json";
-  if (!fs::is_regular_file(p)) reject(argument, run, allowed);
-  std::ifstream f(p, std::ios::binary);
-  if (!f) throw InputError("file '" + p.string() + "': cannot be read");
-  std::stringstream ss;
-  ss << f.rdbuf();
-  DesignRunOptions o = design_run_options_from_json(ss.str(), p.string());
-  o.out = run;
-  return o;
-}
-
-void read_resume_log(const std::string& log_path, long before_step, std::vector<std::string>& rows,
-                     std::vector<double>& losses) {
-  std::ifstream f(log_path);
-  if (!f) throw InputError("file '" + log_path + "': cannot be read");
-  std::string line;
-  std::getline(f, line);  // header
-  for (std::size_t lineno = 2; std::getline(f, line); ++lineno) {
-    // step,loss,...: both numbers must parse, or the log is not ours.
-    const char* p = line.c_str();
-    char* end = nullptr;
-    const long st = std::strtol(p, &end, 10);
-    double loss = 0;
-    bool ok = end != p && *end == ',';
-    if (ok) {
-      const char* q = end + 1;
-      loss = std::strtod(q, &end);
-      ok = end != q;
-    }
-    if (!ok)
-      throw InputError("file '" + log_path + "': line " + std::to_string(lineno) + " is not a log row (step,loss,...): '" +
-                       line.substr(0, 60) + "'");
-    if (st < before_step) {  // rows at or after the checkpoint's step are redone
-      rows.push_back(line);
-      losses.push_back(loss);
-    }
-  }
-}
-
-ResumeState load_resume_state(const std::string& dir) {
-  const fs::path d(dir);
-  const fs::path cfg_path = d / "config.json", ckpt_path = d / "checkpoint.h5", log_path = d / "log.csv";
-  const fs::path prev_path = checkpoint_prev_path(ckpt_path.string());
-  if (!fs::exists(cfg_path) || (!fs::exists(ckpt_path) && !fs::exists(prev_path)))
-    reject("out", dir, "a run folder with config.json and checkpoint.h5 to resume (start without --resume)");
-  ResumeState r;
-  r.options = read_run_options(cfg_path.string());
-  r.options.out = dir;
-  const DesignOptions& o = r.options.design;
-  const std::size_t levels =
-      o.mode == DesignMode::QDOM ? std::size_t(mask_count(o.quantizer.levels)) : std::size_t(o.quantizer.levels);
-  auto load = [&](const fs::path& p) {
-    return load_checkpoint(p.string(), parameter_count(o.parameterization, r.options.cfg.n), levels, o.mode == DesignMode::QDOM);
-  };
-  r.checkpoint = ckpt_path.string();
-  try {
-    if (!fs::exists(ckpt_path)) {
-      r.refused = "missing (a kill between keeping the previous checkpoint and writing the new one)";
-    } else {
-      r.state = load(ckpt_path);
-    }
-  } catch (const InputError& e) {
-    if (!fs::exists(prev_path)) throw;
-    r.refused = e.what();
-  }
-  if (!r.refused.empty()) {  // the previous good checkpoint, or the error about checkpoint.h5
-    try {
-      r.state = load(prev_path);
-    } catch (const InputError&) {
-      if (fs::exists(ckpt_path)) load(ckpt_path);  // rethrows the error about checkpoint.h5
-      throw;
-    }
-    r.checkpoint = prev_path.string();
-  }
-  if (fs::exists(log_path)) read_resume_log(log_path.string(), r.state.step, r.log_rows, r.losses);
-  return r;
-}
-
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resume) {
   const fs::path dir(given.out);
-  const fs::path cfg_path = dir / "config.json", ckpt_path = dir / "checkpoint.h5", log_path = dir / "log.csv";
+  const RunFolder folder(given.out);
+  const fs::path cfg_path = folder.config_path(), ckpt_path = folder.checkpoint_path(), log_path = folder.log_path();
   DesignRunOptions o = given;
   // The folder is ours while this call runs (RunLock): taken first when the folder exists, so
   // its config and checkpoint are read and judged under the lock; else right after creating it.
@@ -415,7 +304,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       reject("out", given.out, "a folder without a checkpoint (this one holds one: continue it with --resume)");
   }
   if (!resume) write_text_atomic(cfg_path.string(), design_run_options_to_json(o) + "\n");
-  if (o.objective != "psf-target") save_prior((dir / "prior.h5").string(), pb.prior);
+  if (o.objective != "psf-target") save_prior(folder.prior_path(), pb.prior);
 
   Simulator sim(rt, o.cfg, o.precision);
   Designer d(sim, o.design);
@@ -486,15 +375,15 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     for (std::size_t j = 0; j < s.offsets.size(); ++j) md << (j ? "," : "") << s.offsets[j] * o.cfg.h_max_m() * 1e9;
     provenance["mask_depths_nm"] = md.str();
   }
-  write_design((dir / "design.h5").string(), out, provenance);
+  write_design(folder.design_path(), out, provenance);
   Design full;
   full.height_m = expand_parameters(o.design.parameterization, d.params_m(s), o.cfg.n, o.cfg.h_max_m());
   full.pitch_m = o.cfg.pitch_m;
-  write_design((dir / "design_full.h5").string(), full, {{"mode", to_string(o.design.mode)}, {"note", "full-precision H_f"}});
+  write_design(folder.design_full_path(), full, {{"mode", to_string(o.design.mode)}, {"note", "full-precision H_f"}});
   sim.set_heights(out.height_m);
   sim.compute_psf();
   const RealStack psf = sim.psf_sensor();
-  write_psf((dir / "psf.h5").string(), psf, o.cfg.wavelengths_nm(), o.cfg.sensor_pitch_m);
+  write_psf(folder.psf_path(), psf, o.cfg.wavelengths_nm(), o.cfg.sensor_pitch_m);
   write_montage_png((dir / "psf.png").string(), psf, o.cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf.rows, 96));
   write_map_png((dir / "design.png").string(), out.height_m);
   if (!losses.empty()) write_line_plot_png((dir / "loss.png").string(), {losses});

@@ -12,6 +12,7 @@
 #include <set>
 #include <sstream>
 
+#include "qdo/run_folder.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/encoders.hpp"
 #include "qdo/optics.hpp"
@@ -263,7 +264,7 @@ void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, cons
                       const std::set<std::string>& ignore) {
   const fs::path dir(o.out);
   const std::string what = "a sweep folder whose run '" + dir.filename().string() + "' was made with this call's options";
-  const fs::path cfg = dir / "config.json";
+  const fs::path cfg = RunFolder(o.out).config_path();
   if (fs::exists(cfg)) {
     const DesignRunOptions stored = read_run_config(dir.string());
     std::vector<std::string> diffs;
@@ -297,7 +298,7 @@ void ensure_run(Runtime& rt, const DesignRunOptions& o, const std::string& input
   if (run_finished(dir)) return;
   DesignRunOptions r = o;
   r.quiet = quiet;
-  const bool resume = fs::exists(dir / "checkpoint.h5");
+  const bool resume = fs::exists(RunFolder(o.out).checkpoint_path());
   if (!quiet) std::fprintf(stderr, "[sweep] %s run %s\n", resume ? "resuming" : "starting", o.out.c_str());
   run_design(rt, r, resume);
   write_text_atomic((dir / "DONE").string(), "finished\n");
@@ -342,7 +343,8 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   const std::string test_inputs = test.empty() ? "synthetic" : hash_paths(test);
   auto run_outputs = [](const std::string& run) {
     std::vector<std::string> files;
-    for (const char* f : {"config.json", "design.h5", "design_full.h5", "prior.h5"}) files.push_back((fs::path(run) / f).string());
+    const RunFolder folder(run);
+    for (const std::string& f : {folder.config_path(), folder.design_path(), folder.design_full_path(), folder.prior_path()}) files.push_back(f);
     return hash_paths(files);
   };
   auto cell_inputs = [&](const nlohmann::json& cell) {
@@ -448,7 +450,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   for (const auto& e : g.encoders)
     if (e != "doe" && e != "fresnel" && e != "cassi") reject("grid encoder", e, "doe, fresnel or cassi");
   if (fresnel || cassi) {
-    const wiener::SpectralPrior prior = load_prior((fs::path(do_run.out) / "prior.h5").string());
+    const wiener::SpectralPrior prior = load_prior(RunFolder(do_run.out).prior_path());
     const Eigen::MatrixXd srf = sensor_response(base.cfg);
     const double sigma = base.decoder_noise_sigma;
     std::vector<RealStack> cubes;

@@ -2,6 +2,7 @@
 // edge blur and height noise (perturbed_heights), and the Monte Carlo tolerance analysis of a
 // design run (tolerance_analysis: metrics as qdo eval, tolerance.csv/json/md and figures).
 // API and conventions: include/qdo/fab.hpp.
+#include "qdo/run_folder.hpp"
 #include "qdo/fab.hpp"
 
 #include <nlohmann/json.hpp>
@@ -155,8 +156,7 @@ class Evaluator {
       : o_(o), sim_(rt, o.cfg, t.precision), camera_(rt, o.cfg) {
     const SystemConfig& cfg = o.cfg;
     s_ = cfg.sensor_size_px();
-    prior_ = load_prior((fs::path(run) / "prior.h5").string());
-    if (prior_.rows != s_ || prior_.cols != s_) reject("prior", run + "/prior.h5", "a prior on the S x S sensor grid");
+    prior_ = RunFolder(run).prior(s_);
     sigma_ = t.noise_sigma >= 0 ? t.noise_sigma : o.decoder_noise_sigma;
     srf_ = sensor_response(cfg);
     patches_ = testset::patches(cfg, s_, t.data, t.data_format, t.synthetic_scenes, o.design.seed);
@@ -170,15 +170,7 @@ class Evaluator {
     return std::make_unique<WienerDecoder>(wiener::psf_to_otf(psf, s_, s_), srf_, prior_, sigma_);
   }
   Metrics metrics(const RealStack& psf_actual, const WienerDecoder& dec) {
-    const std::vector<RealStack> measured = camera_.measure(psf_actual, patches_);
-    std::vector<std::pair<std::string, testset::Scores>> per_patch;
-    for (std::size_t k = 0; k < patches_.size(); ++k) {
-      const RealStack& x = patches_[k].cube;
-      per_patch.push_back({patches_[k].scene, testset::score(testset::reconstruct(measured[k], dec, sigma_, o_.design.seed, k), x)});
-    }
-    std::vector<testset::Scores> rows;
-    for (const auto& scene : testset::per_scene_means(per_patch)) rows.push_back(scene.second);
-    return testset::mean_of(rows);
+    return testset::evaluate(camera_, psf_actual, patches_, dec, sigma_, o_.design.seed).mean;
   }
   std::size_t patches() const { return patches_.size(); }
   double sigma() const { return sigma_; }
@@ -318,15 +310,15 @@ void write_strip_chart(const std::string& path, const ToleranceResult& r) {
 }  // namespace
 
 ToleranceResult tolerance_analysis(Runtime& rt, const ToleranceOptions& t) {
-  const fs::path run(t.run);
-  if (!fs::is_regular_file(run / "config.json")) reject("run", t.run, "a run folder written by qdo design (config.json missing)");
+  const RunFolder folder(t.run);
+  if (!fs::is_regular_file(folder.config_path())) reject("run", t.run, "a run folder written by qdo design (config.json missing)");
   for (const auto& [name, v] : {std::pair<const char*, double>{"etch_depth_error", t.etch_depth_error_m}, {"overlay", t.overlay_m},
                                 {"edge_blur", t.edge_blur_m}, {"height_noise", t.height_noise_m}})
     if (!(v >= 0) || !std::isfinite(v)) reject(name, v, "finite and >= 0");
   if (t.trials < 1 || t.trials > 100000) reject("trials", t.trials, "in [1, 100000]");
   if (t.oversample < 1 || t.oversample > 16) reject("oversample", t.oversample, "in [1, 16]");
-  const DesignRunOptions o = read_run_config(t.run);
-  const Design fab = read_design((run / "design.h5").string());
+  const DesignRunOptions o = folder.config();
+  const Design fab = folder.design();
   if (fab.height_m.rows != o.cfg.n) reject("run", t.run, "design.h5 on the configuration's N x N grid");
   Constraints c;
   c.min_feature_um = 0;                       // analyse whatever the design is,
