@@ -177,4 +177,9 @@ std::vector<double> radial_psf_sensor_vjp(const RadialTables& t, const std::vect
                                           const RealStack& g_psf_sensor);
 
 }  // namespace ref
+// 4-point Lagrange interpolation on a uniform grid of step dr_m (index j at j * dr_m) for an even
+// function (index -1 mirrors to 1): the 4 (index, weight) pairs for radius r_m. Shared by the
+// tables (rendering onto the sensor grid) and the CPU reference.
+void radial_lagrange4(double r_m, double dr_m, int idx[4], double w[4]);
+
 }  // namespace qdo
