@@ -161,8 +161,17 @@ class Runtime {
 
   // Host doubles <-> a device buffer of reals in precision p (converted to float for F32);
   // blocking. n reals starting at element `offset` of the buffer.
-  void write_reals(const cl::Buffer& b, const double* src, std::size_t n, Precision p, std::size_t offset = 0);
-  void read_reals(const cl::Buffer& b, double* dst, std::size_t n, Precision p, std::size_t offset = 0);
+  // The static forms take the queue (for callers holding their own).
+  static void write_reals(cl::CommandQueue& q, const cl::Buffer& b, const double* src, std::size_t n, Precision p,
+                          std::size_t offset = 0);
+  static void read_reals(cl::CommandQueue& q, const cl::Buffer& b, double* dst, std::size_t n, Precision p,
+                         std::size_t offset = 0);
+  void write_reals(const cl::Buffer& b, const double* src, std::size_t n, Precision p, std::size_t offset = 0) {
+    write_reals(queue_, b, src, n, p, offset);
+  }
+  void read_reals(const cl::Buffer& b, double* dst, std::size_t n, Precision p, std::size_t offset = 0) {
+    read_reals(queue_, b, dst, n, p, offset);
+  }
 
  private:
   cl::Program& program(const std::string& label, const std::string& source, const std::string& options);

@@ -191,15 +191,10 @@ void check_h5_storage(const std::string& path, const std::string& what, hid_t ds
   }
 }
 
-// Reads one numeric dataset (converted to float64, C order) plus its attributes.
-H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::size_t max_elements,
-                       NumKind* kind) {
-  H5Id file = h5_open_read(path);
-  H5Dataset ds;
-  ds.name = h5_abs(name);
-  const std::string what = "dataset '" + ds.name + "'";
-  if (!h5_is_dataset(file.get(), ds.name)) fail(path, what, "missing (no such dataset)");
-  H5Id dset(H5Dopen2(file.get(), ds.name.c_str(), H5P_DEFAULT), H5Dclose);
+H5Numeric h5_open_numeric(hid_t file, const std::string& name, const std::string& path, const std::string& what,
+                          const std::string& missing) {
+  if (!h5_is_dataset(file, name)) fail(path, what, missing);
+  H5Id dset(H5Dopen2(file, name.c_str(), H5P_DEFAULT), H5Dclose);
   if (!dset.valid()) fail(path, what, "cannot open" + h5_detail());
   H5Id type(H5Dget_type(dset.get()), H5Tclose);
   H5Id space(H5Dget_space(dset.get()), H5Sclose);
@@ -207,10 +202,23 @@ H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::si
   const H5T_class_t cls = H5Tget_class(type.get());
   if (cls != H5T_INTEGER && cls != H5T_FLOAT) fail(path, what, "not numeric (integer or float) data");
   const int rank = H5Sget_simple_extent_ndims(space.get());
-  if (rank < 0) fail(path, what, "cannot read shape" + h5_detail());
+  if (rank < 0 || rank > 32) fail(path, what, "cannot read shape" + h5_detail());
   std::vector<hsize_t> dims(static_cast<std::size_t>(rank));
   H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
-  ds.shape.assign(dims.begin(), dims.end());
+  return H5Numeric{std::move(dset), std::move(type), std::move(space), std::vector<std::size_t>(dims.begin(), dims.end())};
+}
+
+// Reads one numeric dataset (converted to float64, C order) plus its attributes.
+H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::size_t max_elements,
+                       NumKind* kind) {
+  H5Id file = h5_open_read(path);
+  H5Dataset ds;
+  ds.name = h5_abs(name);
+  const std::string what = "dataset '" + ds.name + "'";
+  H5Numeric h = h5_open_numeric(file.get(), ds.name, path, what, "missing (no such dataset)");
+  H5Id& dset = h.dset;
+  H5Id& type = h.type;
+  ds.shape = h.shape;
   std::size_t n = 0;
   if (!element_count(ds.shape, max_elements, n))
     fail(path, what, "shape " + shape_str(ds.shape) + " exceeds the limit of " + std::to_string(max_elements) +

@@ -105,6 +105,15 @@ void check_h5_storage(const std::string& path, const std::string& what, hid_t ds
                       const std::vector<std::size_t>& shape, std::size_t n);
 H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::size_t max_elements,
                        NumKind* kind);
+// An open numeric (integer or float) dataset `name` of an open file, with its type, dataspace
+// and shape; every failure is fail(path, what, ...): missing (`missing` says how), unreadable,
+// not numeric, or a rank above 32.
+struct H5Numeric {
+  H5Id dset, type, space;
+  std::vector<std::size_t> shape;
+};
+H5Numeric h5_open_numeric(hid_t file, const std::string& name, const std::string& path, const std::string& what,
+                          const std::string& missing);
 
 // ---------------------------------------------------------------------------------------
 // MATLAB .mat (src/data/io_mat.cpp)

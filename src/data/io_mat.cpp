@@ -257,23 +257,12 @@ void check_mat5_extent(const std::string& path) {
 void check_mat73_dataset(const std::string& path, const std::string& what, const std::string& key, std::size_t n) {
   H5Id file = h5_open_read(path);
   const std::string name = "/" + key;
-  if (!h5_is_dataset(file.get(), name)) fail(path, what, "is not an HDF5 dataset in this v7.3 file");
-  H5Id dset(H5Dopen2(file.get(), name.c_str(), H5P_DEFAULT), H5Dclose);
-  if (!dset.valid()) fail(path, what, "cannot open" + h5_detail());
-  H5Id type(H5Dget_type(dset.get()), H5Tclose);
-  H5Id space(H5Dget_space(dset.get()), H5Sclose);
-  if (!type.valid() || !space.valid()) fail(path, what, "cannot read type/shape" + h5_detail());
-  const H5T_class_t cls = H5Tget_class(type.get());
-  if (cls != H5T_INTEGER && cls != H5T_FLOAT) fail(path, what, "not numeric (integer or float) data");
-  const int rank = H5Sget_simple_extent_ndims(space.get());
-  if (rank < 0 || rank > 32) fail(path, what, "cannot read shape" + h5_detail());
-  std::vector<hsize_t> dims(static_cast<std::size_t>(rank));
-  H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
-  const std::vector<std::size_t> shape(dims.begin(), dims.end());
+  const H5Numeric h = h5_open_numeric(file.get(), name, path, what, "is not an HDF5 dataset in this v7.3 file");
+  const std::vector<std::size_t>& shape = h.shape;
   std::size_t count = 0;
   if (!element_count(shape, std::size_t(1) << 31, count) || count != n)
     fail(path, what, "HDF5 shape " + shape_str(shape) + " does not match the variable's " + std::to_string(n) + " elements");
-  check_h5_storage(path, what, dset.get(), type.get(), shape, n);
+  check_h5_storage(path, what, h.dset.get(), h.type.get(), shape, n);
 }
 
 // A matio variable's data (n elements, column-major) as doubles.

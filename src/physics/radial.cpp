@@ -438,23 +438,12 @@ void band_dot(cl::CommandQueue& q, cl::Kernel& k, Precision p, const cl::Buffer&
 
 std::vector<double> download(cl::CommandQueue& q, const cl::Buffer& b, std::size_t count, Precision p) {
   std::vector<double> out(count);
-  if (p == Precision::F64) {
-    q.enqueueReadBuffer(b, CL_TRUE, 0, count * 8, out.data());
-  } else {
-    std::vector<float> f(count);
-    q.enqueueReadBuffer(b, CL_TRUE, 0, count * 4, f.data());
-    std::copy(f.begin(), f.end(), out.begin());
-  }
+  Runtime::read_reals(q, b, out.data(), count, p);
   return out;
 }
 
 void upload_into(cl::CommandQueue& q, cl::Buffer& b, const std::vector<double>& v, Precision p) {
-  if (p == Precision::F64) {
-    q.enqueueWriteBuffer(b, CL_TRUE, 0, v.size() * 8, v.data());
-  } else {
-    std::vector<float> f(v.begin(), v.end());
-    q.enqueueWriteBuffer(b, CL_TRUE, 0, f.size() * 4, f.data());
-  }
+  Runtime::write_reals(q, b, v.data(), v.size(), p);
 }
 
 }  // namespace

@@ -117,25 +117,13 @@ cl::Buffer Simulator::upload_complex(const std::vector<cdouble>& host, cl_mem_fl
 // size of `host`, which is fixed per call site), in the device precision.
 cl::Buffer& Simulator::write_scratch(cl::Buffer& buf, const std::vector<double>& host) {
   if (!buf()) buf = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, host.size() * rsz_);
-  if (prec_ == Precision::F64) {
-    rt_.queue().enqueueWriteBuffer(buf, CL_TRUE, 0, host.size() * 8, host.data());
-  } else {
-    const std::vector<float> f(host.begin(), host.end());
-    rt_.queue().enqueueWriteBuffer(buf, CL_TRUE, 0, f.size() * 4, f.data());
-  }
+  rt_.write_reals(buf, host.data(), host.size(), prec_);
   return buf;
 }
 
 std::vector<double> Simulator::download_real(const cl::Buffer& b, std::size_t count) const {
   std::vector<double> out(count);
-  auto& q = const_cast<Runtime&>(rt_).queue();
-  if (prec_ == Precision::F64) {
-    q.enqueueReadBuffer(b, CL_TRUE, 0, count * 8, out.data());
-  } else {
-    std::vector<float> f(count);
-    q.enqueueReadBuffer(b, CL_TRUE, 0, count * 4, f.data());
-    std::copy(f.begin(), f.end(), out.begin());
-  }
+  rt_.read_reals(b, out.data(), count, prec_);
   return out;
 }
 

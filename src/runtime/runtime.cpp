@@ -380,23 +380,25 @@ double Runtime::fft_bake_seconds() const {
   return s;
 }
 
-void Runtime::write_reals(const cl::Buffer& b, const double* src, std::size_t n, Precision p, std::size_t offset) {
+void Runtime::write_reals(cl::CommandQueue& q, const cl::Buffer& b, const double* src, std::size_t n, Precision p,
+                          std::size_t offset) {
   if (n == 0) return;
   if (p == Precision::F64) {
-    queue_.enqueueWriteBuffer(b, CL_TRUE, offset * 8, n * 8, src);
+    q.enqueueWriteBuffer(b, CL_TRUE, offset * 8, n * 8, src);
   } else {
     const std::vector<float> f(src, src + n);
-    queue_.enqueueWriteBuffer(b, CL_TRUE, offset * 4, n * 4, f.data());
+    q.enqueueWriteBuffer(b, CL_TRUE, offset * 4, n * 4, f.data());
   }
 }
 
-void Runtime::read_reals(const cl::Buffer& b, double* dst, std::size_t n, Precision p, std::size_t offset) {
+void Runtime::read_reals(cl::CommandQueue& q, const cl::Buffer& b, double* dst, std::size_t n, Precision p,
+                         std::size_t offset) {
   if (n == 0) return;
   if (p == Precision::F64) {
-    queue_.enqueueReadBuffer(b, CL_TRUE, offset * 8, n * 8, dst);
+    q.enqueueReadBuffer(b, CL_TRUE, offset * 8, n * 8, dst);
   } else {
     std::vector<float> f(n);
-    queue_.enqueueReadBuffer(b, CL_TRUE, offset * 4, n * 4, f.data());
+    q.enqueueReadBuffer(b, CL_TRUE, offset * 4, n * 4, f.data());
     std::copy(f.begin(), f.end(), dst);
   }
 }
