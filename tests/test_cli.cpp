@@ -89,7 +89,29 @@ TEST_SUITE("cli") {
     const H5Dataset rgb = h5_read((dir / "sensor.h5").string(), "/rgb");
     CHECK(rgb.shape == std::vector<std::size_t>{3, 128, 128});
     CHECK(std::filesystem::exists(dir / "sensor.png"));
+    // Lean by default: psf.h5 holds the sensor PSF stack (float32 storage for an f32 run) and not
+    // the native-grid stack, which --save native adds; an unknown --save value is exit 2.
+    const std::string psf = (dir / "psf.h5").string();
+    CHECK(h5_has(psf, "/psf_sensor"));
+    CHECK_FALSE(h5_has(psf, "/psf"));
+    const auto lean = std::filesystem::file_size(psf);
+    const auto dir2 = temp_dir("cli_sim_native");
+    const Run n = qdo_run("simulate --preset small --design lens:550 --scene builtin --save native --out " + dir2.string());
+    REQUIRE(n.code == 0);
+    const std::string psf2 = (dir2 / "psf.h5").string();
+    REQUIRE(h5_has(psf2, "/psf"));
+    const H5Dataset native = h5_read(psf2, "/psf");
+    CHECK(native.shape == std::vector<std::size_t>{31, 256, 256});
+    // float32 storage: 4 bytes per value of both stacks (plus small datasets and metadata).
+    const auto full = std::filesystem::file_size(psf2);
+    CHECK(full - lean >= 31u * 256 * 256 * 4);
+    CHECK(full - lean < 31u * 256 * 256 * 5);
+    const Run bad = qdo_run("simulate --preset small --design lens:550 --save everything --out " + (dir2 / "x").string());
+    CHECK(bad.code == 2);
+    CHECK(bad.out.find("--save") != std::string::npos);
+    CHECK_FALSE(std::filesystem::exists(dir2 / "x"));
     std::filesystem::remove_all(dir);
+    std::filesystem::remove_all(dir2);
   }
 
   TEST_CASE("qdo --help, qdo <command> --help and qdo --version; an unknown option of any command is exit 2") {
@@ -100,7 +122,7 @@ TEST_SUITE("cli") {
         {"config", {"preset", "config"}},
         {"psf", {"preset", "config", "design", "levels", "placement", "precision", "device", "out"}},
         {"quantize", {"preset", "config", "design", "levels", "placement", "out"}},
-        {"simulate", {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "out", "resample-bands"}},
+        {"simulate", {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "out", "resample-bands", "save"}},
         {"demo", {"preset", "levels", "device", "out", "precision", "epochs", "steps-per-epoch", "data"}},
         {"design", {"preset", "config", "mode", "levels", "placement", "parameterization", "objective", "target", "data", "epochs",
                     "steps-per-epoch", "t0", "t1", "lr", "lr-offsets", "decay", "beta", "height-noise-nm", "noise-sigma", "init", "seed",

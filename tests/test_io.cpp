@@ -314,6 +314,27 @@ TEST_SUITE("io") {
     CHECK(contains(input_error_of([&] { conform_radiance(inf, "inf"); }), "not finite"));
   }
 
+  TEST_CASE("float32 datasets: stored in 4 bytes, read back to float rounding; values beyond float32 refused") {
+    const auto dir = qdo::test::temp_dir("io_f32");
+    const std::string p = (dir / "f.h5").string(), q = (dir / "d.h5").string();
+    std::vector<double> v(4096);
+    for (std::size_t i = 0; i < v.size(); ++i) v[i] = std::sin(0.37 * double(i)) * 1e-3;
+    H5Dataset f{"/x", {64, 64}, v, {}, {}};
+    f.float32 = true;
+    H5Dataset d = f;
+    d.float32 = false;
+    h5_write(p, {f});
+    h5_write(q, {d});
+    const H5Dataset r = h5_read(p, "/x");
+    REQUIRE(r.data.size() == v.size());
+    for (std::size_t i = 0; i < v.size(); ++i) CHECK(r.data[i] == double(float(v[i])));
+    CHECK(std::filesystem::file_size(q) - std::filesystem::file_size(p) == 4 * v.size());
+    f.data[7] = 1e39;
+    CHECK_THROWS_WITH_AS(h5_write((dir / "big.h5").string(), {f}), doctest::Contains("float32"), NumericalError);
+    CHECK_FALSE(std::filesystem::exists(dir / "big.h5"));
+    std::filesystem::remove_all(dir);
+  }
+
   TEST_CASE("h5_read errors name the file and the dataset") {
     TmpDir tmp;
     const std::string path = tmp / "x.h5";

@@ -20,14 +20,18 @@ namespace qdo {
 struct H5Dataset {
   std::string name;                    // absolute path, e.g. "/psf"
   std::vector<std::size_t> shape;
-  std::vector<double> data;            // written as float64
+  std::vector<double> data;            // written as float64, or float32 when float32 is set
   std::map<std::string, double> num_attrs;       // numeric attributes
   std::map<std::string, std::string> str_attrs;  // string attributes (e.g. "units")
+  // Store as IEEE float32 (half the bytes; ~7 significant digits): for large outputs whose
+  // precision is float anyway (PSF stacks of a float32 run). Readers convert back to double.
+  bool float32 = false;
 };
 
 // Writes all datasets into one new file atomically (temp file + rename). Every value and
 // numeric attribute must be finite: NaN or Inf is a NumericalError naming the file and the
-// dataset, raised before the file is created.
+// dataset, raised before the file is created; so is a float32 dataset holding a value beyond
+// float32's range.
 void h5_write(const std::string& path, const std::vector<H5Dataset>& datasets,
               const std::map<std::string, std::string>& root_str_attrs = {});
 // The same without the finiteness check: for tests and fuzz seeds that build hostile files.

@@ -100,6 +100,7 @@ std::vector<CommandSpec> make_table() {
                cmd_quantize});
   t.push_back({"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*", "", "",
                {preset(), config(), design_spec(), levels_post(), placement(), scene(), key(), resample_bands(), precision(), device(),
+                opt("save", "extra outputs, comma-separated: native (the native-grid PSF stack /psf, bands x N x N, in psf.h5)"),
                 out_dir_opt()},
                cmd_simulate});
   t.push_back({"demo", "QDO+A against conventional deep optics (DO) at L levels, designed and evaluated end to end", "", "",

