@@ -220,17 +220,50 @@ std::string get_string(const std::string& key, const json& v) {
 }
 
 using Setter = std::function<void(SystemConfig&, const std::string&, const json&)>;
+using Getter = std::function<nlohmann::ordered_json(const SystemConfig&)>;
 
-// Every JSON key (= SystemConfig field name, in declaration order) and how it is read.
-const std::vector<std::pair<std::string, Setter>>& setters() {
-  static const std::vector<std::pair<std::string, Setter>> t = {
-      {"n", [](SystemConfig& c, const std::string& k, const json& v) { c.n = get_size(k, v); }},
-      {"pitch_m", [](SystemConfig& c, const std::string& k, const json& v) { c.pitch_m = get_number(k, v); }},
-      {"wavelength_start_nm",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.wavelength_start_nm = get_number(k, v); }},
-      {"wavelength_step_nm",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.wavelength_step_nm = get_number(k, v); }},
-      {"bands", [](SystemConfig& c, const std::string& k, const json& v) { c.bands = get_size(k, v); }},
+// One configuration field: its JSON key (= the SystemConfig member's name), how it is read from
+// JSON (checked, InputError naming the key) and how it is written.
+struct Field {
+  std::string key;
+  Setter read;
+  Getter write;
+};
+
+Field number_field(const char* key, double SystemConfig::*m) {
+  return {key, [m](SystemConfig& c, const std::string& k, const json& v) { c.*m = get_number(k, v); },
+          [m](const SystemConfig& c) { return nlohmann::ordered_json(c.*m); }};
+}
+Field size_field(const char* key, std::size_t SystemConfig::*m) {
+  return {key, [m](SystemConfig& c, const std::string& k, const json& v) { c.*m = get_size(k, v); },
+          [m](const SystemConfig& c) { return nlohmann::ordered_json(c.*m); }};
+}
+Field bool_field(const char* key, bool SystemConfig::*m) {
+  return {key, [m](SystemConfig& c, const std::string& k, const json& v) { c.*m = get_bool(k, v); },
+          [m](const SystemConfig& c) { return nlohmann::ordered_json(c.*m); }};
+}
+// An enum stored as one of two strings.
+template <typename E>
+Field choice_field(const char* key, E SystemConfig::*m, const char* a, E ea, const char* b, E eb) {
+  return {key,
+          [=](SystemConfig& c, const std::string& k, const json& v) {
+            const std::string s = get_string(k, v);
+            if (s == a) c.*m = ea;
+            else if (s == b) c.*m = eb;
+            else reject(k, quote(v), std::string("\"") + a + "\" or \"" + b + "\"");
+          },
+          [=](const SystemConfig& c) { return nlohmann::ordered_json(c.*m == ea ? a : b); }};
+}
+
+// The one field list: every JSON key (= SystemConfig field name, in declaration order), how it is
+// read and how it is written (config_from_json_text and config_to_json_text both walk it).
+const std::vector<Field>& fields() {
+  static const std::vector<Field> t = {
+      size_field("n", &SystemConfig::n),
+      number_field("pitch_m", &SystemConfig::pitch_m),
+      number_field("wavelength_start_nm", &SystemConfig::wavelength_start_nm),
+      number_field("wavelength_step_nm", &SystemConfig::wavelength_step_nm),
+      size_field("bands", &SystemConfig::bands),
       {"scene_distance_m",
        [](SystemConfig& c, const std::string& k, const json& v) {
          if (v.is_string()) {
@@ -242,46 +275,31 @@ const std::vector<std::pair<std::string, Setter>>& setters() {
            c.scene_at_infinity = false;
            c.scene_distance_m = v.get<double>();
          }
-       }},
-      {"sensor_distance_m",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.sensor_distance_m = get_number(k, v); }},
-      {"aperture_radius_m",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.aperture_radius_m = get_number(k, v); }},
+       },
+       [](const SystemConfig& c) { return c.scene_at_infinity ? nlohmann::ordered_json("inf") : nlohmann::ordered_json(c.scene_distance_m); }},
+      number_field("sensor_distance_m", &SystemConfig::sensor_distance_m),
+      number_field("aperture_radius_m", &SystemConfig::aperture_radius_m),
       {"material",
        [](SystemConfig& c, const std::string& k, const json& v) {
          c.material = material_by_name(get_string(k, v)).name;  // canonical name; aliases accepted
-       }},
-      {"base_wavelength_nm",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.base_wavelength_nm = get_number(k, v); }},
-      {"base_plate_m", [](SystemConfig& c, const std::string& k, const json& v) { c.base_plate_m = get_number(k, v); }},
-      {"propagator",
-       [](SystemConfig& c, const std::string& k, const json& v) {
-         const std::string s = get_string(k, v);
-         if (s == "fresnel") c.propagator = Propagator::Fresnel;
-         else if (s == "asm") c.propagator = Propagator::AngularSpectrum;
-         else reject(k, quote(v), "\"fresnel\" or \"asm\"");
-       }},
-      {"padding_px", [](SystemConfig& c, const std::string& k, const json& v) { c.padding_px = get_size(k, v); }},
-      {"strict_sampling",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.strict_sampling = get_bool(k, v); }},
-      {"sensor_pitch_m",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.sensor_pitch_m = get_number(k, v); }},
-      {"scene_size_px", [](SystemConfig& c, const std::string& k, const json& v) { c.scene_size_px = get_size(k, v); }},
-      {"camera", [](SystemConfig& c, const std::string& k, const json& v) { c.camera = get_string(k, v); }},
-      {"srf_interpolate",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.srf_interpolate = get_bool(k, v); }},
-      {"convolution",
-       [](SystemConfig& c, const std::string& k, const json& v) {
-         const std::string s = get_string(k, v);
-         if (s == "linear") c.convolution = ConvolutionMode::Linear;
-         else if (s == "circular") c.convolution = ConvolutionMode::Circular;
-         else reject(k, quote(v), "\"linear\" or \"circular\"");
-       }},
-      {"read_noise_sigma",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.read_noise_sigma = get_number(k, v); }},
-      {"full_well_photons",
-       [](SystemConfig& c, const std::string& k, const json& v) { c.full_well_photons = get_number(k, v); }},
-      {"noise_seed", [](SystemConfig& c, const std::string& k, const json& v) { c.noise_seed = get_uint(k, v); }},
+       },
+       [](const SystemConfig& c) { return nlohmann::ordered_json(c.material); }},
+      number_field("base_wavelength_nm", &SystemConfig::base_wavelength_nm),
+      number_field("base_plate_m", &SystemConfig::base_plate_m),
+      choice_field("propagator", &SystemConfig::propagator, "fresnel", Propagator::Fresnel, "asm", Propagator::AngularSpectrum),
+      size_field("padding_px", &SystemConfig::padding_px),
+      bool_field("strict_sampling", &SystemConfig::strict_sampling),
+      number_field("sensor_pitch_m", &SystemConfig::sensor_pitch_m),
+      size_field("scene_size_px", &SystemConfig::scene_size_px),
+      {"camera", [](SystemConfig& c, const std::string& k, const json& v) { c.camera = get_string(k, v); },
+       [](const SystemConfig& c) { return nlohmann::ordered_json(c.camera); }},
+      bool_field("srf_interpolate", &SystemConfig::srf_interpolate),
+      choice_field("convolution", &SystemConfig::convolution, "linear", ConvolutionMode::Linear, "circular",
+                   ConvolutionMode::Circular),
+      number_field("read_noise_sigma", &SystemConfig::read_noise_sigma),
+      number_field("full_well_photons", &SystemConfig::full_well_photons),
+      {"noise_seed", [](SystemConfig& c, const std::string& k, const json& v) { c.noise_seed = get_uint(k, v); },
+       [](const SystemConfig& c) { return nlohmann::ordered_json(c.noise_seed); }},
   };
   return t;
 }
@@ -306,10 +324,10 @@ std::size_t edit_distance(const std::string& a, const std::string& b) {
   std::string allowed = "preset";
   std::string best;
   std::size_t best_d = std::max<std::size_t>(3, key.size() / 3) + 1;
-  for (const auto& s : setters()) {
-    allowed += ", " + s.first;
-    const std::size_t d = edit_distance(key, s.first);
-    if (d < best_d) best_d = d, best = s.first;
+  for (const Field& f : fields()) {
+    allowed += ", " + f.key;
+    const std::size_t d = edit_distance(key, f.key);
+    if (d < best_d) best_d = d, best = f.key;
   }
   throw InputError("unknown key '" + key + "'" + (best.empty() ? "" : " (did you mean '" + best + "'?)") +
                    "; allowed keys: " + allowed);
@@ -331,10 +349,10 @@ SystemConfig config_from_json_text(const std::string& text, const std::string& o
     SystemConfig c = preset_config(j.contains("preset") ? get_string("preset", j.at("preset")) : std::string("paper"));
     for (const auto& item : j.items()) {
       if (item.key() == "preset") continue;
-      const auto& table = setters();
-      const auto it = std::find_if(table.begin(), table.end(), [&](const auto& s) { return s.first == item.key(); });
+      const auto& table = fields();
+      const auto it = std::find_if(table.begin(), table.end(), [&](const Field& f) { return f.key == item.key(); });
       if (it == table.end()) reject_unknown_key(item.key());
-      it->second(c, item.key(), item.value());
+      it->read(c, item.key(), item.value());
     }
     c.validate();
     return c;
@@ -361,29 +379,7 @@ std::string config_to_json_text(const SystemConfig& c) {
   // "preset" only names the starting point; every key follows, so it matters only for the
   // informational SystemConfig::preset field (omitted when not a known preset, e.g. "custom").
   if (std::find(presets.begin(), presets.end(), c.preset) != presets.end()) j["preset"] = c.preset;
-  j["n"] = c.n;
-  j["pitch_m"] = c.pitch_m;
-  j["wavelength_start_nm"] = c.wavelength_start_nm;
-  j["wavelength_step_nm"] = c.wavelength_step_nm;
-  j["bands"] = c.bands;
-  if (c.scene_at_infinity) j["scene_distance_m"] = "inf";
-  else j["scene_distance_m"] = c.scene_distance_m;
-  j["sensor_distance_m"] = c.sensor_distance_m;
-  j["aperture_radius_m"] = c.aperture_radius_m;
-  j["material"] = c.material;
-  j["base_wavelength_nm"] = c.base_wavelength_nm;
-  j["base_plate_m"] = c.base_plate_m;
-  j["propagator"] = c.propagator == Propagator::AngularSpectrum ? "asm" : "fresnel";
-  j["padding_px"] = c.padding_px;
-  j["strict_sampling"] = c.strict_sampling;
-  j["sensor_pitch_m"] = c.sensor_pitch_m;
-  j["scene_size_px"] = c.scene_size_px;
-  j["camera"] = c.camera;
-  j["srf_interpolate"] = c.srf_interpolate;
-  j["convolution"] = c.convolution == ConvolutionMode::Circular ? "circular" : "linear";
-  j["read_noise_sigma"] = c.read_noise_sigma;
-  j["full_well_photons"] = c.full_well_photons;
-  j["noise_seed"] = c.noise_seed;
+  for (const Field& f : fields()) j[f.key] = f.write(c);
   return j.dump(2) + "\n";
 }
 

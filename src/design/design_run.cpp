@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <random>
@@ -170,40 +171,6 @@ void DesignRunOptions::validate() const {
     if (!fs::exists(d)) reject("data", d, "existing scene files or folders");
 }
 
-std::string design_run_options_to_json(const DesignRunOptions& o) {
-  json j;
-  j["system"] = json::parse(config_to_json_text(o.cfg));
-  json d;
-  d["mode"] = to_string(o.design.mode);
-  d["parameterization"] = param_name(o.design.parameterization);
-  d["psf_path"] = to_string(o.design.psf_path);
-  d["levels"] = o.design.quantizer.levels;
-  d["placement"] = placement_name(o.design.quantizer.placement);
-  d["steps_per_epoch"] = o.design.steps_per_epoch;
-  d["t0_epochs"] = o.design.t0_epochs;
-  d["t1_epochs"] = o.design.t1_epochs;
-  d["lr_optics"] = o.design.lr_optics;
-  d["lr_offsets"] = o.design.lr_offsets;
-  d["lr_decay_per_epoch"] = o.design.lr_decay_per_epoch;
-  d["beta_aq"] = o.design.beta_aq;
-  d["height_noise_m"] = o.design.height_noise_m;
-  d["seed"] = o.design.seed;
-  d["objective"] = o.objective;
-  d["target"] = o.target;
-  d["data"] = o.data;
-  d["data_format"] = o.data_format;
-  d["synthetic_scenes"] = o.synthetic_scenes;
-  d["batch"] = o.batch;
-  d["epochs"] = o.epochs;
-  d["decoder_noise_sigma"] = o.decoder_noise_sigma;
-  d["prior_bins"] = o.prior_bins;
-  d["init"] = o.init;
-  d["checkpoint_every"] = o.checkpoint_every;
-  d["precision"] = to_string(o.precision);
-  j["design"] = d;
-  return j.dump(2);
-}
-
 namespace {
 
 // An integer field of a run's config.json as T: an integer in T's range, else an InputError
@@ -223,7 +190,86 @@ T integer_field(const json& d, const char* key) {
   return static_cast<T>(v.get<std::uint64_t>());
 }
 
+// One field of config.json's "design" object: its key, how it is read (strictly) and written.
+// `acc` is a generic accessor returning the member (for const and non-const options alike).
+struct RunField {
+  const char* key;
+  std::function<void(DesignRunOptions&, const json&)> read;
+  std::function<void(const DesignRunOptions&, json&)> write;
+};
+template <typename Acc>
+RunField real_field(const char* key, Acc acc) {
+  return {key, [=](DesignRunOptions& o, const json& d) { acc(o) = d.at(key).get<double>(); },
+          [=](const DesignRunOptions& o, json& d) { d[key] = acc(o); }};
+}
+template <typename T, typename Acc>
+RunField integer_field_of(const char* key, Acc acc) {
+  return {key, [=](DesignRunOptions& o, const json& d) { acc(o) = integer_field<T>(d, key); },
+          [=](const DesignRunOptions& o, json& d) { d[key] = acc(o); }};
+}
+template <typename Acc>
+RunField text_field(const char* key, Acc acc) {
+  return {key, [=](DesignRunOptions& o, const json& d) { acc(o) = d.at(key).get<std::string>(); },
+          [=](const DesignRunOptions& o, json& d) { d[key] = acc(o); }};
+}
+// An enum written by its name (to_name) and read back through its parser (from_name).
+template <typename Acc, typename From, typename To>
+RunField named_field(const char* key, Acc acc, From from_name, To to_name) {
+  return {key, [=](DesignRunOptions& o, const json& d) { acc(o) = from_name(d.at(key).get<std::string>()); },
+          [=](const DesignRunOptions& o, json& d) { d[key] = to_name(acc(o)); }};
+}
+
+// The one field list of the "design" object (to_json and from_json both walk it, in this order).
+const std::vector<RunField>& run_fields() {
+  static const std::vector<RunField> t = {
+      named_field("mode", [](auto& o) -> auto& { return o.design.mode; }, design_mode_from_string,
+                  [](DesignMode m) { return to_string(m); }),
+      named_field("parameterization", [](auto& o) -> auto& { return o.design.parameterization; },
+                  parameterization_from_string, param_name),
+      // Run folders written before the radial path existed ran the 2-D path: resume them on it.
+      {"psf_path",
+       [](DesignRunOptions& o, const json& d) { o.design.psf_path = psf_path_from_string(d.value("psf_path", std::string("2d"))); },
+       [](const DesignRunOptions& o, json& d) { d["psf_path"] = to_string(o.design.psf_path); }},
+      integer_field_of<int>("levels", [](auto& o) -> auto& { return o.design.quantizer.levels; }),
+      named_field("placement", [](auto& o) -> auto& { return o.design.quantizer.placement; }, placement_from_string,
+                  placement_name),
+      integer_field_of<std::size_t>("steps_per_epoch", [](auto& o) -> auto& { return o.design.steps_per_epoch; }),
+      real_field("t0_epochs", [](auto& o) -> auto& { return o.design.t0_epochs; }),
+      real_field("t1_epochs", [](auto& o) -> auto& { return o.design.t1_epochs; }),
+      real_field("lr_optics", [](auto& o) -> auto& { return o.design.lr_optics; }),
+      real_field("lr_offsets", [](auto& o) -> auto& { return o.design.lr_offsets; }),
+      real_field("lr_decay_per_epoch", [](auto& o) -> auto& { return o.design.lr_decay_per_epoch; }),
+      real_field("beta_aq", [](auto& o) -> auto& { return o.design.beta_aq; }),
+      real_field("height_noise_m", [](auto& o) -> auto& { return o.design.height_noise_m; }),
+      integer_field_of<std::uint64_t>("seed", [](auto& o) -> auto& { return o.design.seed; }),
+      text_field("objective", [](auto& o) -> auto& { return o.objective; }),
+      text_field("target", [](auto& o) -> auto& { return o.target; }),
+      {"data", [](DesignRunOptions& o, const json& d) { o.data = d.at("data").get<std::vector<std::string>>(); },
+       [](const DesignRunOptions& o, json& d) { d["data"] = o.data; }},
+      text_field("data_format", [](auto& o) -> auto& { return o.data_format; }),
+      integer_field_of<std::size_t>("synthetic_scenes", [](auto& o) -> auto& { return o.synthetic_scenes; }),
+      integer_field_of<std::size_t>("batch", [](auto& o) -> auto& { return o.batch; }),
+      integer_field_of<std::size_t>("epochs", [](auto& o) -> auto& { return o.epochs; }),
+      real_field("decoder_noise_sigma", [](auto& o) -> auto& { return o.decoder_noise_sigma; }),
+      integer_field_of<std::size_t>("prior_bins", [](auto& o) -> auto& { return o.prior_bins; }),
+      text_field("init", [](auto& o) -> auto& { return o.init; }),
+      integer_field_of<std::size_t>("checkpoint_every", [](auto& o) -> auto& { return o.checkpoint_every; }),
+      named_field("precision", [](auto& o) -> auto& { return o.precision; }, precision_from_string,
+                  [](Precision p) { return to_string(p); }),
+  };
+  return t;
+}
+
 }  // namespace
+
+std::string design_run_options_to_json(const DesignRunOptions& o) {
+  json j;
+  j["system"] = json::parse(config_to_json_text(o.cfg));
+  json d;
+  for (const RunField& f : run_fields()) f.write(o, d);
+  j["design"] = d;
+  return j.dump(2);
+}
 
 DesignRunOptions design_run_options_from_json(const std::string& text, const std::string& origin) {
   DesignRunOptions o;
@@ -231,33 +277,7 @@ DesignRunOptions design_run_options_from_json(const std::string& text, const std
     const json j = parse_json_strict(text, "file '" + origin + "'");
     o.cfg = config_from_json_text(j.at("system").dump(), origin + " (system)");
     const json& d = j.at("design");
-    o.design.mode = design_mode_from_string(d.at("mode").get<std::string>());
-    o.design.parameterization = parameterization_from_string(d.at("parameterization").get<std::string>());
-    // Run folders written before the radial path existed ran the 2-D path: resume them on it.
-    o.design.psf_path = psf_path_from_string(d.value("psf_path", std::string("2d")));
-    o.design.quantizer.levels = integer_field<int>(d, "levels");
-    o.design.quantizer.placement = placement_from_string(d.at("placement").get<std::string>());
-    o.design.steps_per_epoch = integer_field<std::size_t>(d, "steps_per_epoch");
-    o.design.t0_epochs = d.at("t0_epochs").get<double>();
-    o.design.t1_epochs = d.at("t1_epochs").get<double>();
-    o.design.lr_optics = d.at("lr_optics").get<double>();
-    o.design.lr_offsets = d.at("lr_offsets").get<double>();
-    o.design.lr_decay_per_epoch = d.at("lr_decay_per_epoch").get<double>();
-    o.design.beta_aq = d.at("beta_aq").get<double>();
-    o.design.height_noise_m = d.at("height_noise_m").get<double>();
-    o.design.seed = integer_field<std::uint64_t>(d, "seed");
-    o.objective = d.at("objective").get<std::string>();
-    o.target = d.at("target").get<std::string>();
-    o.data = d.at("data").get<std::vector<std::string>>();
-    o.data_format = d.at("data_format").get<std::string>();
-    o.synthetic_scenes = integer_field<std::size_t>(d, "synthetic_scenes");
-    o.batch = integer_field<std::size_t>(d, "batch");
-    o.epochs = integer_field<std::size_t>(d, "epochs");
-    o.decoder_noise_sigma = d.at("decoder_noise_sigma").get<double>();
-    o.prior_bins = integer_field<std::size_t>(d, "prior_bins");
-    o.init = d.at("init").get<std::string>();
-    o.checkpoint_every = integer_field<std::size_t>(d, "checkpoint_every");
-    o.precision = precision_from_string(d.at("precision").get<std::string>());
+    for (const RunField& f : run_fields()) f.read(o, d);
   } catch (const json::exception& e) {
     throw InputError("file '" + origin + "': " + e.what());
   } catch (const InputError& e) {  // a value the option parsers refuse ("argument 'mode' = ..."): name the file
