@@ -14,6 +14,7 @@
 #include <limits>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "common.hpp"
@@ -312,6 +313,31 @@ TEST_SUITE("io") {
     RealStack inf(1, 1, 2);
     inf.data = {0.5, std::numeric_limits<double>::infinity()};
     CHECK(contains(input_error_of([&] { conform_radiance(inf, "inf"); }), "not finite"));
+  }
+
+  TEST_CASE("an output stage takes files from several threads at once (figures written beside HDF5 files)") {
+    // Temporary files made first, then committed from 4 threads in a tight loop: the stage's
+    // list is shared, so unguarded appends lose or corrupt entries.
+    const auto dir = qdo::test::temp_dir("io_stage_threads");
+    constexpr int kThreads = 4, kFiles = 2000;
+    auto name = [&](int k, int i) { return (dir / ("f" + std::to_string(k) + "_" + std::to_string(i) + ".txt")).string(); };
+    for (int k = 0; k < kThreads; ++k)
+      for (int i = 0; i < kFiles; ++i) std::ofstream(name(k, i) + ".tmp") << "x\n";
+    {
+      OutputStage stage(true);
+      std::vector<std::thread> threads;
+      for (int k = 0; k < kThreads; ++k)
+        threads.emplace_back([&, k] {
+          for (int i = 0; i < kFiles; ++i) commit_output(name(k, i) + ".tmp", name(k, i));
+        });
+      for (auto& th : threads) th.join();
+      CHECK_FALSE(std::filesystem::exists(name(0, 0)));  // deferred until the stage commits
+      stage.commit();
+    }
+    std::size_t n = 0;
+    for (const auto& e : std::filesystem::directory_iterator(dir)) n += e.path().extension() == ".txt";
+    CHECK(n == std::size_t(kThreads * kFiles));
+    std::filesystem::remove_all(dir);
   }
 
   TEST_CASE("float32 datasets: stored in 4 bytes, read back to float rounding; values beyond float32 refused") {

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
+#include <future>
 #include <iostream>
 #include <map>
 #include <set>
@@ -33,14 +35,14 @@ using namespace qdo::cli;
 namespace qdo::cli {
 namespace {
 
-// Runs the PSF chain and writes DIR/psf.h5 + DIR/psf.png + DIR/design.png; returns the simulator.
-// DIR/psf.h5 (the sensor PSF stack, the native-grid stack when `native`, wavelengths, sampling,
-// heights), psf.png and design.png. The PSF stacks are stored in the run's precision: float32
-// for an f32 run (exactly the device's values, half the bytes), float64 for f64.
-void write_psf_outputs(Simulator& sim, const Map2D& h, const std::string& dir, const std::string& tag, bool native = true) {
+// DIR/psf.h5: the sensor PSF stack psf_s (bands x S x S), the native-grid stack when `native`,
+// wavelengths, sampling, heights. The PSF stacks are stored in the run's precision: float32 for
+// an f32 run (exactly the device's values, half the bytes), float64 for f64. Reads the device
+// (call it on the thread that owns the simulator).
+void write_psf_h5(Simulator& sim, const RealStack& psf_s, const Map2D& h, const std::string& dir, const std::string& tag,
+                  bool native) {
   const SystemConfig& cfg = sim.config();
   const bool f32 = sim.precision() == Precision::F32;
-  const RealStack psf_s = sim.psf_sensor();
   std::vector<H5Dataset> ds;
   if (native) {
     const RealStack psf = sim.psf_native();
@@ -60,8 +62,26 @@ void write_psf_outputs(Simulator& sim, const Map2D& h, const std::string& dir, c
   ds.push_back({"/energy_outside_window", {cfg.bands}, outside, {}, {{"units", "fraction"}}});
   ds.push_back({"/height_m", {h.rows, h.cols}, h.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "m"}}});
   h5_write(dir + "/psf.h5", ds, {{"config", config_to_json_text(cfg)}, {"design", tag}, {"precision", to_string(sim.precision())}});
+}
+
+// DIR/psf.png (montage of the sensor PSF stack) and DIR/design.png (height map). Host only.
+void write_psf_figures(const SystemConfig& cfg, const RealStack& psf_s, const Map2D& h, const std::string& dir) {
   write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
   write_map_png(dir + "/design.png", h);
+}
+
+// Runs `figures` (PNG writers only: libpng is reentrant) on a second thread while `data` (every
+// HDF5 writer, one at a time: the HDF5 library is not built thread-safe, and any device read)
+// runs on this one; after both have stopped, rethrows the first failure (data's first).
+void write_concurrently(const std::function<void()>& data, const std::function<void()>& figures) {
+  auto fig = std::async(std::launch::async, figures);
+  try {
+    data();
+  } catch (...) {
+    fig.wait();
+    throw;
+  }
+  fig.get();
 }
 
 }  // namespace
@@ -95,11 +115,13 @@ int cmd_psf(const Args& a) {
   const auto t1 = std::chrono::steady_clock::now();
   sim.compute_psf();
   rt.queue().finish();
-  const double psf_s = seconds_since(t1);
-  write_psf_outputs(sim, h, dir, a.get("design"));
+  const double psf_seconds = seconds_since(t1);
+  const RealStack psf_s = sim.psf_sensor();
+  write_concurrently([&] { write_psf_h5(sim, psf_s, h, dir, a.get("design"), true); },
+                     [&] { write_psf_figures(cfg, psf_s, h, dir); });
   std::printf("device: %s (%s)\nPSF stack: %zu bands x %zu x %zu (window %zu), %s, %.3f s (setup %.3f s: kernels %.3f s, FFT plans %.3f s)\n%s\nwrote %s/psf.h5, psf.png, design.png\n",
               rt.info().name.c_str(), rt.info().platform.c_str(), cfg.bands, cfg.n, cfg.n, sim.geometry().m,
-              to_string(p).c_str(), psf_s, setup_s, rt.build_seconds(), rt.fft_bake_seconds(), sim.sampling().summary().c_str(),
+              to_string(p).c_str(), psf_seconds, setup_s, rt.build_seconds(), rt.fft_bake_seconds(), sim.sampling().summary().c_str(),
               dir.c_str());
   return 0;
 }
@@ -160,10 +182,19 @@ int cmd_simulate(const Args& a) {
   const double secs = seconds_since(t0);
   const SensorClip clip = clip_to_full_scale(rgb, "sensor image");
   const auto t1 = std::chrono::steady_clock::now();
-  write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
-  write_rgb_png(dir + "/sensor.png", rgb);
-  write_rgb_png(dir + "/scene.png", ref::sensor_integrate(scene, sim.srf()));  // the same camera without the DOE blur
-  write_psf_outputs(sim, h, dir, a.get("design"), save_native(a));
+  const RealStack psf_s = sim.psf_sensor();
+  const RealStack scene_rgb = ref::sensor_integrate(scene, sim.srf());  // the same camera without the DOE blur
+  write_concurrently(  // about equal halves: the HDF5 files and two figures here, two figures there
+      [&] {
+        write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
+        write_psf_h5(sim, psf_s, h, dir, a.get("design"), save_native(a));
+        write_rgb_png(dir + "/sensor.png", rgb);
+        write_map_png(dir + "/design.png", h);
+      },
+      [&] {
+        write_rgb_png(dir + "/scene.png", scene_rgb);
+        write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
+      });
   std::printf("device: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s); "
               "outputs written in %.3f s\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png, design.png\n",
               rt.info().name.c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),

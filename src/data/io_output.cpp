@@ -6,6 +6,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 
 #include "data/io_internal.hpp"
 #include "qdo/error.hpp"
@@ -23,6 +24,9 @@ namespace fs = std::filesystem;
 
 namespace {
 OutputStage* g_stage = nullptr;  // the active stage (CLI: one per command)
+// Guards the active stage's lists: a command may write outputs from two threads (figures beside
+// HDF5 files), and every writer ends in commit_output.
+std::mutex g_stage_mutex;
 }  // namespace
 
 OutputStage::OutputStage(bool defer_files) : defer_files_(defer_files) {
@@ -60,6 +64,7 @@ void OutputStage::commit() {
 }
 
 void commit_output(const std::string& tmp, const std::string& path) {
+  const std::lock_guard<std::mutex> lock(g_stage_mutex);
   if (g_stage && g_stage->defer_files_) {
     for (auto& f : g_stage->files_)
       if (f.second == path) {  // written again: the newer temporary file replaces the older
@@ -78,6 +83,7 @@ void commit_output(const std::string& tmp, const std::string& path) {
 }
 
 std::string readable_output(const std::string& path) {
+  const std::lock_guard<std::mutex> lock(g_stage_mutex);
   if (g_stage)
     for (const auto& f : g_stage->files_)
       if (f.second == path) return f.first;
@@ -97,6 +103,7 @@ void make_output_dir(const std::string& dir, const std::string& argument) {
   fs::create_directories(dir, ec);
   if (ec || !fs::is_directory(dir))
     reject(argument, dir, "a folder that can be created (" + (ec ? ec.message() : std::string("exists as a file")) + ")");
+  const std::lock_guard<std::mutex> lock(g_stage_mutex);
   if (g_stage)
     for (auto it = missing.rbegin(); it != missing.rend(); ++it) g_stage->dirs_.push_back(it->string());
 }
