@@ -26,7 +26,12 @@ using namespace qdo::test;
 namespace {
 
 constexpr double kTolC = 1.0;
-const FftBackend kBackends[] = {FftBackend::ClFFT, FftBackend::VkFFT};
+// Every backend the test device runs: FFTW maps the buffers of CPU devices only.
+std::vector<FftBackend> backends(const Runtime& rt) {
+  std::vector<FftBackend> b{FftBackend::ClFFT, FftBackend::VkFFT};
+  if (rt.info().type == "CPU") b.push_back(FftBackend::FFTW);
+  return b;
+}
 
 double tol(Precision p, std::size_t rows, std::size_t cols) {
   return kTolC * eps(p) * std::log2(double(rows * cols));
@@ -108,7 +113,7 @@ TEST_SUITE("fft") {
   TEST_CASE("both backends match FFTW forward and inverse, f32 and f64, within c·ε·log2(n); round trip") {
     Runtime& rt = runtime();
     unsigned seed = 11;
-    for (FftBackend b : kBackends)
+    for (FftBackend b : backends(rt))
       for (Precision p : precisions(rt))
         for (const Shape& s : kShapes) {
           CAPTURE(to_string(b));
@@ -143,7 +148,7 @@ TEST_SUITE("fft") {
     // unit impulse at (0, 0) is 1/(rows·cols) everywhere (a wrong scale is off by rows·cols).
     Runtime& rt = runtime();
     const Shape s = kShapes[0];
-    for (FftBackend b : kBackends)
+    for (FftBackend b : backends(rt))
       for (Precision p : precisions(rt)) {
         CAPTURE(to_string(b));
         CAPTURE(to_string(p));
@@ -167,34 +172,39 @@ TEST_SUITE("fft") {
       }
   }
 
-  TEST_CASE("the two backends agree with each other") {
+  TEST_CASE("the backends agree with each other") {
     Runtime& rt = runtime();
     unsigned seed = 201;
     for (Precision p : precisions(rt))
-      for (const Shape& s : kShapes) {
-        CAPTURE(to_string(p));
-        CAPTURE(s.rows);
-        const ComplexStack x = random_field(s.batch, s.rows, s.cols, p, ++seed);
-        FftPlan& c = rt.fft(s.rows, s.cols, s.batch, p, FftBackend::ClFFT);
-        FftPlan& v = rt.fft(s.rows, s.cols, s.batch, p, FftBackend::VkFFT);
-        const double t = 2 * tol(p, s.rows, s.cols);  // each within tol of FFTW
-        CHECK(diff(device_fft(rt, v, x, true).data, device_fft(rt, c, x, true).data).rel_l2 <= t);
-        CHECK(diff(device_fft(rt, v, x, false).data, device_fft(rt, c, x, false).data).rel_l2 <= t);
-      }
+      for (const Shape& s : kShapes)
+        for (FftBackend b : backends(rt)) {
+          if (b == FftBackend::ClFFT) continue;
+          CAPTURE(to_string(p));
+          CAPTURE(to_string(b));
+          CAPTURE(s.rows);
+          const ComplexStack x = random_field(s.batch, s.rows, s.cols, p, ++seed);
+          FftPlan& c = rt.fft(s.rows, s.cols, s.batch, p, FftBackend::ClFFT);
+          FftPlan& v = rt.fft(s.rows, s.cols, s.batch, p, b);
+          const double t = 2 * tol(p, s.rows, s.cols);  // each within tol of FFTW in double
+          CHECK(diff(device_fft(rt, v, x, true).data, device_fft(rt, c, x, true).data).rel_l2 <= t);
+          CHECK(diff(device_fft(rt, v, x, false).data, device_fft(rt, c, x, false).data).rel_l2 <= t);
+        }
   }
 
-  TEST_CASE("backend names: clfft and vkfft accepted in any case, anything else rejected") {
+  TEST_CASE("backend names: clfft, vkfft, fftw and auto accepted in any case, anything else rejected; auto picks FFTW on CPUs") {
     CHECK(fft_backend_from_string("clfft") == FftBackend::ClFFT);
     CHECK(fft_backend_from_string("VkFFT") == FftBackend::VkFFT);
-    CHECK(to_string(FftBackend::VkFFT) == "vkfft");
-    CHECK(fft_backend_from_string(to_string(FftBackend::ClFFT)) == FftBackend::ClFFT);
+    CHECK(fft_backend_from_string("FFTW") == FftBackend::FFTW);
+    CHECK(fft_backend_from_string("auto") == FftBackend::Auto);
+    for (FftBackend b : {FftBackend::ClFFT, FftBackend::VkFFT, FftBackend::FFTW, FftBackend::Auto})
+      CHECK(fft_backend_from_string(to_string(b)) == b);
     CHECK_THROWS_WITH_AS(fft_backend_from_string("cufft"), doctest::Contains("'fft backend' = cufft"), InputError);
-    CHECK_THROWS_WITH_AS(fft_backend_from_string(""), doctest::Contains("clfft or vkfft"), InputError);
+    CHECK_THROWS_WITH_AS(fft_backend_from_string(""), doctest::Contains("clfft, vkfft, fftw or auto"), InputError);
 
     const char* old = std::getenv("QDO_FFT");
     const std::string saved = old ? old : "";
-    setenv("QDO_FFT", "fftw", 1);
-    CHECK_THROWS_WITH_AS(Runtime(), doctest::Contains("'QDO_FFT' = fftw"), InputError);
+    setenv("QDO_FFT", "cufft", 1);
+    CHECK_THROWS_WITH_AS(Runtime(), doctest::Contains("'QDO_FFT' = cufft"), InputError);
     setenv("QDO_FFT", "VKFFT", 1);
     {
       Runtime rt;
@@ -205,10 +215,16 @@ TEST_SUITE("fft") {
     }
     setenv("QDO_FFT", "clfft", 1);
     CHECK(Runtime().fft_backend() == FftBackend::ClFFT);
+    unsetenv("QDO_FFT");  // the default: auto
+    {
+      Runtime rt;
+      const FftBackend want = rt.info().type == "CPU" ? FftBackend::FFTW : FftBackend::ClFFT;
+      CHECK(rt.fft_backend() == want);
+      CHECK(Runtime("", FftBackend::Auto).fft_backend() == want);
+      CHECK(rt.fft(64, 64, 3, Precision::F32, FftBackend::Auto).backend() == want);
+    }
     if (old)
       setenv("QDO_FFT", saved.c_str(), 1);
-    else
-      unsetenv("QDO_FFT");
   }
 
   TEST_CASE("the plan cache returns the same plan for the same key and a new one otherwise") {
@@ -229,13 +245,19 @@ TEST_SUITE("fft") {
     CHECK(&rt.fft(64, 64, 3, Precision::F32, FftBackend::VkFFT, {40, 64, 40, 64}) != &v);  // hint
     if (rt.has_fp64()) CHECK(&rt.fft(64, 64, 3, Precision::F64) != &v);  // precision
     CHECK(rt.fft_plan_count() == (rt.has_fp64() ? 5u : 4u));
+    if (rt.info().type == "CPU") {
+      FftPlan& w = rt.fft(64, 64, 3, Precision::F32, FftBackend::FFTW);
+      CHECK(w.backend() == FftBackend::FFTW);
+      CHECK(&w != &a);
+      CHECK(&rt.fft(64, 64, 3, Precision::F32, FftBackend::FFTW) == &w);
+    }
     CHECK(rt.fft_bake_seconds() > 0);
     CHECK(v.bytes() == 3 * 64 * 64 * 2 * 4);
   }
 
   TEST_CASE("bad sizes, hints and buffers are rejected before any work") {
     Runtime& rt = runtime();
-    for (FftBackend b : kBackends) {
+    for (FftBackend b : backends(rt)) {
       CAPTURE(to_string(b));
       const std::size_t before = rt.fft_plan_count();
       CHECK_THROWS_WITH_AS(rt.fft(0, 8, 1, Precision::F32, b), doctest::Contains("'rows' = 0"), InputError);
@@ -265,7 +287,7 @@ TEST_SUITE("fft") {
     };
     const Case cases[] = {{64, 64, 3, {40, 64, 40, 64}}, {384, 384, 2, {128, 256, 128, 256}}, {64, 64, 3, {16, 48, 0, 0}}};
     unsigned seed = 301;
-    for (FftBackend b : kBackends)
+    for (FftBackend b : backends(rt))
       for (Precision p : precisions(rt))
         for (const Case& c : cases) {
           CAPTURE(to_string(b));

@@ -1,6 +1,6 @@
 // The FFT interface: batched, in-place, complex-interleaved 2-D transforms on device buffers.
-// Two backends behind one interface (FftBackend in runtime.hpp): clFFT (src/runtime/fft_clfft.cpp) and
-// VkFFT's OpenCL backend (src/runtime/fft_vkfft.cpp). Plans are baked once and cached by the Runtime
+// Three backends behind one interface (FftBackend in runtime.hpp): clFFT (src/runtime/fft_clfft.cpp),
+// VkFFT's OpenCL backend (src/runtime/fft_vkfft.cpp) and FFTW on CPU devices (src/runtime/fft_fftw.cpp). Plans are baked once and cached by the Runtime
 // (Runtime::fft); the backend is chosen per Runtime (constructor argument or QDO_FFT).
 #pragma once
 #include <CL/opencl.hpp>
@@ -19,6 +19,8 @@ void ensure_fft_library();
 
 // VkFFT's version as VkFFTGetVersion() reports it, e.g. "1.2.26".
 std::string vkfft_version();
+// FFTW's version string, e.g. "fftw-3.3.10-sse2-avx".
+std::string fftw_library_version();
 
 class FftPlan {
  public:
@@ -67,6 +69,8 @@ std::unique_ptr<FftPlan> make_clfft_plan(Runtime& rt, std::size_t rows, std::siz
                                          Precision p, const FftZeroPad& zero_pad);
 std::unique_ptr<FftPlan> make_vkfft_plan(Runtime& rt, std::size_t rows, std::size_t cols, std::size_t batch,
                                          Precision p, const FftZeroPad& zero_pad);
+std::unique_ptr<FftPlan> make_fftw_plan(Runtime& rt, std::size_t rows, std::size_t cols, std::size_t batch,
+                                        Precision p, const FftZeroPad& zero_pad);
 }  // namespace detail
 
 }  // namespace qdo

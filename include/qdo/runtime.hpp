@@ -12,6 +12,7 @@
 #pragma once
 #include <CL/opencl.hpp>
 
+#include <filesystem>
 #include <map>
 #include <memory>
 #include <string>
@@ -60,12 +61,18 @@ void set_args(cl::Kernel& k, Precision p, const A&... args) {
   (detail::set_arg(k, i++, p, args), ...);
 }
 
-// The library behind FftPlan: clFFT (src/runtime/fft_clfft.cpp) or VkFFT's OpenCL backend
-// (src/runtime/fft_vkfft.cpp). Both give the same transform (see fft.hpp).
-enum class FftBackend { ClFFT, VkFFT };
-// "clfft" or "vkfft" (case-insensitive); anything else is rejected naming `argument`.
+// The library behind FftPlan: clFFT (src/runtime/fft_clfft.cpp), VkFFT's OpenCL backend
+// (src/runtime/fft_vkfft.cpp) or, on CPU devices, FFTW on the mapped buffers
+// (src/runtime/fft_fftw.cpp). All give the same transform (see fft.hpp). Auto (the default):
+// FFTW on a CPU device, clFFT on any other; a Runtime resolves it when it picks the device.
+enum class FftBackend { ClFFT, VkFFT, FFTW, Auto };
+// "clfft", "vkfft", "fftw" or "auto" (case-insensitive); anything else is rejected naming `argument`.
 FftBackend fft_backend_from_string(const std::string& s, const std::string& argument = "fft backend");
 std::string to_string(FftBackend b);
+// The folder of the kernel cache (QDO_CACHE_DIR, else $XDG_CACHE_HOME/qdo/kernels, else
+// ~/.cache/qdo/kernels; empty when QDO_KERNEL_CACHE=off or no home is known). FFTW's wisdom is
+// kept there too.
+std::filesystem::path kernel_cache_dir();
 
 // Zero-padding hint of a 2-D transform of rows x cols: the input is zero in every row of
 // [row_begin, row_end) and every column of [col_begin, col_end) (one contiguous block per axis,
@@ -97,7 +104,8 @@ class FftPlan;
 class Runtime {
  public:
   explicit Runtime(const std::string& selector = "");
-  // The same with an explicit FFT backend (QDO_FFT is then not consulted).
+  // The same with an explicit FFT backend (QDO_FFT is then not consulted; Auto resolves as above;
+  // FFTW on a device that is not a CPU is a DeviceError).
   Runtime(const std::string& selector, FftBackend fft_backend);
   ~Runtime();
   Runtime(const Runtime&) = delete;

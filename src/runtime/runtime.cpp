@@ -73,15 +73,15 @@ DeviceInfo describe(const cl::Platform& p, const cl::Device& d, std::size_t pi, 
   return i;
 }
 
-std::filesystem::path cache_dir() {
+}  // namespace
+
+std::filesystem::path kernel_cache_dir() {
   if (const char* off = std::getenv("QDO_KERNEL_CACHE"); off && lower(off) == "off") return {};
   if (const char* d = std::getenv("QDO_CACHE_DIR"); d && *d) return std::filesystem::path(d);
   if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return std::filesystem::path(x) / "qdo" / "kernels";
   if (const char* h = std::getenv("HOME"); h && *h) return std::filesystem::path(h) / ".cache" / "qdo" / "kernels";
   return {};
 }
-
-}  // namespace
 
 std::string cl_error_name(int code) {
   switch (code) {
@@ -134,16 +134,26 @@ FftBackend fft_backend_from_string(const std::string& s, const std::string& argu
   const std::string l = lower(s);
   if (l == "clfft") return FftBackend::ClFFT;
   if (l == "vkfft") return FftBackend::VkFFT;
-  reject(argument, s, "clfft or vkfft");
+  if (l == "fftw") return FftBackend::FFTW;
+  if (l == "auto") return FftBackend::Auto;
+  reject(argument, s, "clfft, vkfft, fftw or auto");
 }
 
-std::string to_string(FftBackend b) { return b == FftBackend::VkFFT ? "vkfft" : "clfft"; }
+std::string to_string(FftBackend b) {
+  switch (b) {
+    case FftBackend::ClFFT: return "clfft";
+    case FftBackend::VkFFT: return "vkfft";
+    case FftBackend::FFTW: return "fftw";
+    case FftBackend::Auto: return "auto";
+  }
+  return "?";
+}
 
 namespace {
-// QDO_FFT, else clFFT; a bad value is rejected before any device work.
+// QDO_FFT, else auto; a bad value is rejected before any device work.
 FftBackend fft_backend_from_env() {
   const char* e = std::getenv("QDO_FFT");
-  return e && *e ? fft_backend_from_string(e, "QDO_FFT") : FftBackend::ClFFT;
+  return e && *e ? fft_backend_from_string(e, "QDO_FFT") : FftBackend::Auto;
 }
 }  // namespace
 
@@ -204,6 +214,10 @@ Runtime::Runtime(const std::string& selector, FftBackend fft_backend) : fft_back
   info_ = pick->info;
   context_ = cl::Context(device_);
   queue_ = cl::CommandQueue(context_, device_);
+  if (fft_backend_ == FftBackend::Auto) fft_backend_ = info_.type == "CPU" ? FftBackend::FFTW : FftBackend::ClFFT;
+  if (fft_backend_ == FftBackend::FFTW && info_.type != "CPU")
+    throw DeviceError("the FFTW backend runs on the mapped buffers of a CPU device; device '" + info_.name + "' is a " +
+                      info_.type + " (use QDO_FFT=clfft, vkfft or auto)");
 }
 
 Runtime::~Runtime() {
@@ -225,7 +239,7 @@ cl::Program& Runtime::program(const std::string& label, const std::string& sourc
                                                info_.driver_version + "|" + info_.version));
   char hex[17];
   std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(h));
-  const auto dir = cache_dir();
+  const auto dir = kernel_cache_dir();
   const auto path = dir.empty() ? std::filesystem::path() : dir / (std::string(hex) + ".bin");
 
   const auto t0 = std::chrono::steady_clock::now();
@@ -330,6 +344,10 @@ FftPlan& Runtime::fft(std::size_t rows, std::size_t cols, std::size_t batch, Pre
   if (rows == 0) reject("rows", rows, "a positive FFT size");
   if (cols == 0) reject("cols", cols, "a positive FFT size");
   if (batch == 0) reject("batch", batch, "a positive number of transforms");
+  if (backend == FftBackend::Auto) backend = info_.type == "CPU" ? FftBackend::FFTW : FftBackend::ClFFT;
+  if (backend == FftBackend::FFTW && info_.type != "CPU")
+    throw DeviceError("the FFTW backend runs on the mapped buffers of a CPU device; device '" + info_.name + "' is a " +
+                      info_.type + " (use clfft or vkfft)");
   if (zero_pad.row_begin > zero_pad.row_end || zero_pad.row_end > rows)
     reject("zero_pad rows", to_str(zero_pad.row_begin) + ".." + to_str(zero_pad.row_end),
            "a range begin <= end <= rows = " + to_str(rows));
@@ -348,8 +366,10 @@ FftPlan& Runtime::fft(std::size_t rows, std::size_t cols, std::size_t batch, Pre
            std::to_string(zp.col_begin) + "-" + std::to_string(zp.col_end);
   auto it = ffts_.find(key);
   if (it == ffts_.end()) {
-    auto plan = backend == FftBackend::VkFFT ? detail::make_vkfft_plan(*this, rows, cols, batch, p, zp)
-                                             : detail::make_clfft_plan(*this, rows, cols, batch, p, zp);
+    std::unique_ptr<FftPlan> plan;
+    if (backend == FftBackend::VkFFT) plan = detail::make_vkfft_plan(*this, rows, cols, batch, p, zp);
+    else if (backend == FftBackend::FFTW) plan = detail::make_fftw_plan(*this, rows, cols, batch, p, zp);
+    else plan = detail::make_clfft_plan(*this, rows, cols, batch, p, zp);
     it = ffts_.emplace(key, std::move(plan)).first;
   }
   return *it->second;
