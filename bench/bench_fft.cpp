@@ -1,5 +1,5 @@
 // bench_fft: the bare batched 2-D FFT of the project's workloads on each FFT backend (clFFT,
-// VkFFT), so the two can be compared on time, plan bake time and accuracy.
+// VkFFT, and FFTW on a CPU device), so the two can be compared on time, plan bake time and accuracy.
 //
 // Workloads (complex interleaved, in place, batch x rows x cols, see fft.hpp):
 //   PSF:  bands x M x M for each M of --psf (the PSF window M = 1.5 N: 384, 768, 1536 for
@@ -20,7 +20,7 @@
 // PoCL's kernel cache (POCL_KERNEL_CACHE, ~/.cache/pocl): on a warm cache they are loads.
 //
 // Usage: bench_fft [--psf 384,768,1536] [--conv 512,768,1024] [--bands 31] [--repeats 5]
-//                  [--warmup 1] [--precision f32,f64] [--backends clfft,vkfft] [--no-zero-pad]
+//                  [--warmup 1] [--precision f32,f64] [--backends clfft,vkfft,fftw] [--no-zero-pad]
 //                  [--no-error] [--out FILE.md]
 // Quick check (< 1 min): bench_fft --psf 384 --conv 512 --bands 4 --repeats 3
 // Device: QDO_DEVICE (see runtime.hpp).
@@ -59,7 +59,7 @@ struct Options {
   std::size_t bands = 31;
   int repeats = 5, warmup = 1;
   std::vector<qdo::Precision> precisions{qdo::Precision::F32, qdo::Precision::F64};
-  std::vector<qdo::FftBackend> backends{qdo::FftBackend::ClFFT, qdo::FftBackend::VkFFT};
+  std::vector<qdo::FftBackend> backends;  // empty: clFFT, VkFFT and, on a CPU device, FFTW
   bool zero_pad = true, error = true;
   std::string out;
 };
@@ -76,7 +76,7 @@ std::vector<std::string> split(const std::string& s, char sep) {
 [[noreturn]] void usage(const std::string& err) {
   if (!err.empty()) std::cerr << "bench_fft: " << err << "\n";
   std::cerr << "usage: bench_fft [--psf 384,768,1536] [--conv 512,768,1024] [--bands B=31] [--repeats R=5]\n"
-               "                 [--warmup W=1] [--precision f32,f64] [--backends clfft,vkfft] [--no-zero-pad]\n"
+               "                 [--warmup W=1] [--precision f32,f64] [--backends clfft,vkfft,fftw] [--no-zero-pad]\n"
                "                 [--no-error] [--out FILE.md]\n"
                "  --psf/--conv take square sizes (an empty list: --psf none); --no-zero-pad drops the VkFFT\n"
                "  plan with the PSF field's zero-padding hint (N = 2M/3); --no-error skips FFTW.\n";
@@ -124,7 +124,7 @@ Options parse(int argc, char** argv) {
       } else if (a == "--backends") {
         o.backends.clear();
         for (const auto& s : split(value(), ',')) o.backends.push_back(qdo::fft_backend_from_string(s, "--backends"));
-        if (o.backends.empty()) usage("--backends needs at least one of clfft, vkfft");
+        if (o.backends.empty()) usage("--backends needs at least one of clfft, vkfft, fftw");
       } else if (a == "--no-zero-pad") {
         o.zero_pad = false;
       } else if (a == "--no-error") {
@@ -334,7 +334,7 @@ std::string table_row(const Row& r) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const Options opt = parse(argc, argv);
+  Options opt = parse(argc, argv);
   const auto t_start = Clock::now();
 
   std::vector<Workload> work;
@@ -355,6 +355,10 @@ int main(int argc, char** argv) {
     return 1;
   }
   const auto& i = rt->info();
+  if (opt.backends.empty()) {
+    opt.backends = {qdo::FftBackend::ClFFT, qdo::FftBackend::VkFFT};
+    if (i.type == "CPU") opt.backends.push_back(qdo::FftBackend::FFTW);
+  }
   cl_uint cmaj = 0, cmin = 0, cpatch = 0;
   clfftGetVersion(&cmaj, &cmin, &cpatch);
   const std::string machine =
@@ -362,7 +366,7 @@ int main(int argc, char** argv) {
       i.platform + " / " + i.name + " (" + i.type + ", driver " + i.driver_version + ", " + i.version + ", " +
       std::to_string(i.compute_units) + " compute units, fp64 " + (i.fp64 ? "yes" : "no") + "); clFFT " +
       std::to_string(cmaj) + "." + std::to_string(cmin) + "." + std::to_string(cpatch) + ", VkFFT " +
-      qdo::vkfft_version();
+      qdo::vkfft_version() + ", " + qdo::fftw_library_version();
   std::cout << "bench_fft: batched 2-D complex FFT, forward + inverse in place\n"
             << machine << "\nrepeats " << opt.repeats << ", warmup " << opt.warmup << "\n\n"
             << std::flush;
@@ -373,7 +377,7 @@ int main(int argc, char** argv) {
     for (qdo::Precision p : opt.precisions) {
       if (p == qdo::Precision::F64 && !rt->has_fp64()) continue;
       for (qdo::FftBackend b : opt.backends) {
-        if (w.zero_pad.any() && b != qdo::FftBackend::VkFFT) continue;  // clFFT ignores the hint
+        if (w.zero_pad.any() && b == qdo::FftBackend::ClFFT) continue;  // clFFT ignores the hint
         rows.push_back(run_one(*rt, w, p, b, opt));
         std::cout << table_row(rows.back()) << std::flush;
       }

@@ -80,10 +80,10 @@ std::filesystem::path wisdom_file(const char* tag) {
   return dir / (std::string("fftw-wisdom-") + tag + ".txt");
 }
 
-// One 1-D pass: `count` transforms of length n (stride `stride`, consecutive transforms `dist`
-// apart) for each of `batch` planes (`plane` apart): in place.
+// One 1-D pass over one plane: `count` transforms of length n (stride `stride`, consecutive
+// transforms `dist` apart), in place.
 struct Pass {
-  std::ptrdiff_t n = 0, stride = 1, count = 0, dist = 0, batch = 1, plane = 0;
+  std::ptrdiff_t n = 0, stride = 1, count = 0, dist = 0;
 };
 
 template <typename R>
@@ -109,8 +109,8 @@ class FftwPlan final : public FftPlan {
     });
     const std::filesystem::path wf = wisdom_file(F::tag());
     if (!wf.empty() && std::filesystem::exists(wf)) F::import_wisdom(wf.string().c_str());
-    // Scratch for FFTW_MEASURE (it overwrites the array): the largest pass's footprint.
-    scratch_ = F::alloc(std::size_t(pl * std::ptrdiff_t(batch)));
+    // Scratch for FFTW_MEASURE (it overwrites the array): one plane.
+    scratch_ = F::alloc(std::size_t(pl));
     if (!scratch_) throw std::bad_alloc();
     F::threads(threads);
     make_all(0);
@@ -152,19 +152,19 @@ class FftwPlan final : public FftPlan {
   // block of rows or columns transformed: forward over the data rows then every column; inverse
   // over every row then the data columns.
   void make_all(unsigned extra) {
-    const std::ptrdiff_t r = std::ptrdiff_t(rows()), c = std::ptrdiff_t(cols()), pl = r * c, nb = std::ptrdiff_t(batch());
+    const std::ptrdiff_t r = std::ptrdiff_t(rows()), c = std::ptrdiff_t(cols());
     auto& rows_p = extra ? rows_u_ : rows_;
     auto& cols_p = extra ? cols_u_ : cols_;
-    for (const Block& b : row_blocks_) rows_p[0].push_back(make(Pass{c, 1, b.len, c, nb, pl}, FFTW_FORWARD, extra));
-    cols_p[0].push_back(make(Pass{r, c, c, 1, nb, pl}, FFTW_FORWARD, extra));
-    rows_p[1].push_back(make(Pass{c, 1, r, c, nb, pl}, FFTW_BACKWARD, extra));
-    for (const Block& b : col_blocks_) cols_p[1].push_back(make(Pass{r, c, b.len, 1, nb, pl}, FFTW_BACKWARD, extra));
+    for (const Block& b : row_blocks_) rows_p[0].push_back(make(Pass{c, 1, b.len, c}, FFTW_FORWARD, extra));
+    cols_p[0].push_back(make(Pass{r, c, c, 1}, FFTW_FORWARD, extra));
+    rows_p[1].push_back(make(Pass{c, 1, r, c}, FFTW_BACKWARD, extra));
+    for (const Block& b : col_blocks_) cols_p[1].push_back(make(Pass{r, c, b.len, 1}, FFTW_BACKWARD, extra));
   }
   typename F::plan make(const Pass& p, int sign, unsigned extra = 0) {
     using D = std::conditional_t<std::is_same<R, float>::value, fftwf_iodim64, fftw_iodim64>;
     const D dim{p.n, p.stride, p.stride};
-    const D h[2] = {{p.batch, p.plane, p.plane}, {p.count, p.dist, p.dist}};
-    typename F::plan plan = F::guru(1, &dim, 2, h, scratch_, sign, FFTW_MEASURE | extra);
+    const D h{p.count, p.dist, p.dist};
+    typename F::plan plan = F::guru(1, &dim, 1, &h, scratch_, sign, FFTW_MEASURE | extra);
     if (!plan) throw DeviceError("FFTW could not plan a " + std::to_string(rows()) + " x " + std::to_string(cols()) + " pass");
     return plan;
   }
@@ -187,20 +187,24 @@ class FftwPlan final : public FftPlan {
     void* ptr = q.enqueueMapBuffer(data, CL_TRUE, CL_MAP_READ | CL_MAP_WRITE, 0, n);
     try {
       C* base = static_cast<C*>(ptr);
-      const bool aligned = F::alignment(reinterpret_cast<const R*>(ptr)) == align_;
-      if (!aligned) ensure_unaligned();
-      auto& rows = aligned ? rows_ : rows_u_;
-      auto& cols = aligned ? cols_ : cols_u_;
-      const std::ptrdiff_t c = std::ptrdiff_t(this->cols());
+      const std::ptrdiff_t c = std::ptrdiff_t(this->cols()), pl = std::ptrdiff_t(this->rows()) * c;
       const int d = fwd ? 0 : 1;
-      if (fwd) {
-        for (std::size_t i = 0; i < row_blocks_.size(); ++i) F::execute(rows[d][i], base + row_blocks_[i].begin * c);
-        F::execute(cols[d][0], base);
-      } else {
-        F::execute(rows[d][0], base);
-        for (std::size_t i = 0; i < col_blocks_.size(); ++i) F::execute(cols[d][i], base + col_blocks_[i].begin);
-        scale(base);
+      for (std::size_t k = 0; k < batch(); ++k) {
+        C* plane = base + std::ptrdiff_t(k) * pl;
+        // New-array execution needs the planning array's SIMD alignment (odd plane sizes shift it).
+        const bool aligned = F::alignment(reinterpret_cast<const R*>(plane)) == align_;
+        if (!aligned) ensure_unaligned();
+        auto& rows = aligned ? rows_ : rows_u_;
+        auto& cols = aligned ? cols_ : cols_u_;
+        if (fwd) {
+          for (std::size_t i = 0; i < row_blocks_.size(); ++i) F::execute(rows[d][i], plane + row_blocks_[i].begin * c);
+          F::execute(cols[d][0], plane);
+        } else {
+          F::execute(rows[d][0], plane);
+          for (std::size_t i = 0; i < col_blocks_.size(); ++i) F::execute(cols[d][i], plane + col_blocks_[i].begin);
+        }
       }
+      if (!fwd) scale(base);
     } catch (...) {
       q.enqueueUnmapMemObject(data, ptr);
       throw;
