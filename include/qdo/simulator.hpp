@@ -17,6 +17,7 @@
 
 #include "qdo/config.hpp"
 #include "qdo/doe.hpp"
+#include "qdo/fft.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
@@ -119,7 +120,15 @@ class Simulator {
   cl::Buffer& write_scratch(cl::Buffer& buf, const std::vector<double>& host);
   std::vector<cdouble> download_complex(const cl::Buffer& b, std::size_t count) const;
   void run_doe_field();
-  void run_propagation(cl::Buffer& field, double z_m, bool record_sampling);
+  // In-place propagation of a bands x M x M field over z_m; hinted: the field is zero outside
+  // [0, N)^2 and only [0, N)^2 of the result is read (field_plan()).
+  void run_propagation(cl::Buffer& field, double z_m, bool record_sampling, bool hinted = true);
+  FftPlan& field_plan(bool hinted = true);
+  // A device field of the stored layout (samples at [0, N)) as the centred window of
+  // PropagationGeometry (samples at [offset, offset + N)): for the debug accessors.
+  ComplexStack centred(const cl::Buffer& field) const;
+  // Where the DOE samples sit in the stored M x M window (see field_plan()).
+  static constexpr std::size_t kFieldOffset = 0;
   void band_reduce(cl::Kernel& k, const cl::Buffer& x, std::size_t len, cl::Buffer& sums);
   // The camera of convolve*/sensor_images*/sensor_images_vjp (made on first use; `what` names
   // the caller in errors: one design, compute_psf() first).

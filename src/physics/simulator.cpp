@@ -90,7 +90,28 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::siz
   energy3_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * 3 * rsz_);
   sums_crop_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
   sums_sensor_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
-  rt_.fft(m, m, bands, p);  // bake the plan now, so its cost is not charged to the first PSF
+  field_plan();  // bake the plan now, so its cost is not charged to the first PSF
+}
+
+// The field's N x N samples are stored at window rows/cols [0, N), i.e. the centred window of
+// PropagationGeometry circularly shifted by -offset. Propagation is a circular convolution, so it
+// commutes with that shift: the propagated field's crop is again [0, N). The zero rows and
+// columns [N, M) then form one block per axis, which the FFT's zero-padding hint prunes (FFTW
+// skips the zero rows forward and the unread columns inverse, VkFFT skips both).
+FftPlan& Simulator::field_plan(bool hinted) {
+  const std::size_t m = geom_.m, n = cfg_.n;
+  if (!hinted || n >= m) return rt_.fft(m, m, nb_, prec_);
+  return rt_.fft(m, m, nb_, prec_, rt_.fft_backend(), FftZeroPad{n, m, n, m});
+}
+
+ComplexStack Simulator::centred(const cl::Buffer& field) const {
+  const std::size_t m = geom_.m, o = geom_.offset;
+  const std::vector<cdouble> dev = download_complex(field, nb_ * m * m);
+  ComplexStack out(nb_, m, m);
+  for (std::size_t b = 0; b < nb_; ++b)
+    for (std::size_t y = 0; y < m; ++y)
+      for (std::size_t x = 0; x < m; ++x) out(b, y, x) = dev[(b * m + (y + m - o) % m) * m + (x + m - o) % m];
+  return out;
 }
 
 template <typename T>
@@ -233,7 +254,7 @@ void Simulator::set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& k_t
   const double r_px = cfg_.aperture_radius() / cfg_.pitch_m;
   const double r_ap2_px = r_px * r_px * (1 + 1e-12);  // as ref::doe_field
   const double d = cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m;
-  set_args(k, p, heights_, k_tab, dn_tab, a3, a4, int(cfg_.n), int(geom_.m), int(geom_.offset), int(nb_),
+  set_args(k, p, heights_, k_tab, dn_tab, a3, a4, int(cfg_.n), int(geom_.m), int(kFieldOffset), int(nb_),
            Real{cfg_.pitch_m}, Real{d}, Real{r_ap2_px});
 }
 
@@ -250,9 +271,9 @@ void Simulator::run_doe_field() {
                                    cl::NDRange(Runtime::kLocalSize, 1, 1));
 }
 
-void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampling) {
+void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampling, bool hinted) {
   const std::size_t m = geom_.m, bands = nb_;
-  FftPlan& fft = rt_.fft(m, m, bands, prec_);
+  FftPlan& fft = field_plan(hinted);
   fft.forward(field);
   if (z_m == -cfg_.sensor_distance_m && !tf_back_()) tf_back_ = make_tf(z_m);
   cl::Buffer tf = z_m == cfg_.sensor_distance_m ? tf_ : z_m == -cfg_.sensor_distance_m ? tf_back_ : make_tf(z_m);
@@ -331,7 +352,7 @@ void Simulator::compute_psf() {
   // Intensity of the N x N crop and its per-band sums in one pass. The native stack stays
   // unnormalised (normalising it before the linear area resampling would not change the
   // normalised sensor stack); psf_native() and the adjoints normalise it when they need it.
-  set_args(k_crop_sums_, prec_, field_, psf_, int(n), int(m), int(geom_.offset), partial_, int(kGroupsPerBand),
+  set_args(k_crop_sums_, prec_, field_, psf_, int(n), int(m), int(kFieldOffset), partial_, int(kGroupsPerBand),
            cl::Local(Runtime::kLocalSize * rsz_));
   rt_.queue().enqueueNDRangeKernel(k_crop_sums_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
                                    cl::NDRange(Runtime::kLocalSize, 1));
@@ -394,7 +415,7 @@ Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
   const std::size_t n = cfg_.n, m = geom_.m, bands = cfg_.bands;
   if (!gfield_()) gfield_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * m * m * 2 * rsz_);
   if (!dh_()) dh_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, n * n * rsz_);
-  set_args(k_int_vjp_, prec_, g_native, field_, gfield_, int(n), int(m), int(geom_.offset), int(bands));
+  set_args(k_int_vjp_, prec_, g_native, field_, gfield_, int(n), int(m), int(kFieldOffset), int(bands));
   rt_.queue().enqueueNDRangeKernel(k_int_vjp_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, bands),
                                    cl::NDRange(Runtime::kLocalSize, 1, 1));
   run_propagation(gfield_, -cfg_.sensor_distance_m, false);  // adjoint of +z propagation
@@ -456,18 +477,14 @@ RealStack Simulator::sensor_images_vjp(const std::vector<RealStack>& g_rgb) {
 ComplexStack Simulator::debug_field_after_doe() {
   field_valid_ = false;  // field_ now holds the field before propagation: the adjoints need it after
   run_doe_field();
-  ComplexStack out(nb_, geom_.m, geom_.m);
-  out.data = download_complex(field_, out.size());
-  return out;
+  return centred(field_);
 }
 
 ComplexStack Simulator::debug_field_after_propagation() {
   run_doe_field();
-  run_propagation(field_, cfg_.sensor_distance_m, true);
+  run_propagation(field_, cfg_.sensor_distance_m, true, false);  // unpruned: the whole window is returned
   field_valid_ = true;  // the same propagated field compute_psf() leaves for the adjoints
-  ComplexStack out(nb_, geom_.m, geom_.m);
-  out.data = download_complex(field_, out.size());
-  return out;
+  return centred(field_);
 }
 
 ComplexStack Simulator::propagate_field(const ComplexStack& field, double z_m) {
@@ -475,7 +492,7 @@ ComplexStack Simulator::propagate_field(const ComplexStack& field, double z_m) {
     reject("field", to_str(field.planes) + " x " + to_str(field.rows) + " x " + to_str(field.cols),
            "bands x M x M = " + to_str(nb_) + " x " + to_str(geom_.m) + " x " + to_str(geom_.m));
   cl::Buffer rw = upload_complex(field.data, CL_MEM_READ_WRITE);
-  run_propagation(rw, z_m, false);
+  run_propagation(rw, z_m, false, false);  // any field (no zero block), in the centred layout
   ComplexStack out(field.planes, field.rows, field.cols);
   out.data = download_complex(rw, out.size());
   return out;
