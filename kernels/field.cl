@@ -1,7 +1,8 @@
 // The field just after the DOE, for all bands in one launch.
 //
 // doe_field: out[b][y][x], shape bands x M x M complex (row-major), written in full: the DOE
-// samples (i, j) of the N x N height map land at (offset + i, offset + j); everything else,
+// samples (i, j) of the N x N height map land at (offset + i, offset + j) (the Simulator passes
+// offset 0: see Simulator::field_plan); everything else,
 // and everything outside the circular aperture, is zero (so the buffer needs no clearing).
 // height_m: N x N real, row-major. k_per_m[b] = 2π/λ_b, dn[b] = n(λ_b) - 1 (bands reals).
 // Phase = k (r²/(sqrt(r² + d²) + d) + dn H): the source term is the exact spherical phase
@@ -11,26 +12,33 @@
 // relative 1e-12, computed in double on the host), so boundary samples agree in every precision.
 // Several designs can share one launch: plane b (of `bands` planes in all) uses height map
 // b / bands_per_design of height_m (designs x N x N).
+// NDRange (columns rounded up to the work-group size, rows, designs): each work item computes its
+// sample's aperture test, source term and height once and writes the sample of every band of its
+// design (the band loop inside: 31 bands share one square root and one height read).
 __kernel void doe_field(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
                         __global real2* out, const int bands_per_design, const int n, const int m, const int offset,
                         const int bands,
                         const real pitch_m, const real distance_m, const real r_ap2_px) {
-  // 3-D NDRange (columns rounded up to the work-group size, rows, planes): no integer division.
-  const int wx = (int)get_global_id(0), wy = (int)get_global_id(1), b = (int)get_global_id(2);
-  if (wx >= m || wy >= m || b >= bands) return;
-  const size_t gid = ((size_t)b * m + wy) * m + wx;
+  const int wx = (int)get_global_id(0), wy = (int)get_global_id(1), d = (int)get_global_id(2);
+  if (wx >= m || wy >= m || d * bands_per_design >= bands) return;
   const int i = wy - offset, j = wx - offset;
-  real2 v = (real2)(R(0.0), R(0.0));
+  bool inside = false;
+  real src = R(0.0), h = R(0.0);
   if (i >= 0 && i < n && j >= 0 && j < n) {
     const int di = i - n / 2, dj = j - n / 2;
     const real y = (real)di * pitch_m, x = (real)dj * pitch_m;
     const real r2 = x * x + y * y;
     if ((real)(di * di + dj * dj) <= r_ap2_px) {  // integer pixel radius²: exact in float too
-      const real src = distance_m > R(0.0) ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : R(0.0);
-      v = cexpi(k_per_m[b] * (src + dn[b] * height_m[(size_t)(b / bands_per_design) * n * n + i * n + j]));
+      inside = true;
+      src = distance_m > R(0.0) ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : R(0.0);
+      h = height_m[(size_t)d * n * n + i * n + j];
     }
   }
-  out[gid] = v;
+  for (int b = d * bands_per_design; b < (d + 1) * bands_per_design; ++b) {
+    real2 v = (real2)(R(0.0), R(0.0));
+    if (inside) v = cexpi(k_per_m[b] * (src + dn[b] * h));
+    out[((size_t)b * m + wy) * m + wx] = v;
+  }
 }
 
 #if QDO_PHASE_FP64 && !QDO_FP64
@@ -42,25 +50,30 @@ __kernel void doe_field(__global const real* height_m, __global const real* k_pe
 __kernel void doe_field_p64(__global const real* height_m, __global const double* k_per_m, __global const double* dn,
                             __global real2* out, const int bands_per_design, const int n, const int m, const int offset,
                             const int bands, const double pitch_m, const double distance_m, const double r_ap2_px) {
-  // 3-D NDRange (columns rounded up to the work-group size, rows, planes): no integer division.
-  const int wx = (int)get_global_id(0), wy = (int)get_global_id(1), b = (int)get_global_id(2);
-  if (wx >= m || wy >= m || b >= bands) return;
-  const size_t gid = ((size_t)b * m + wy) * m + wx;
+  const int wx = (int)get_global_id(0), wy = (int)get_global_id(1), d = (int)get_global_id(2);
+  if (wx >= m || wy >= m || d * bands_per_design >= bands) return;
   const int i = wy - offset, j = wx - offset;
-  real2 v = (real2)(0.0f, 0.0f);
+  bool inside = false;
+  double src = 0.0, h = 0.0;
   if (i >= 0 && i < n && j >= 0 && j < n) {
     const int di = i - n / 2, dj = j - n / 2;
     const double y = (double)di * pitch_m, x = (double)dj * pitch_m;
     const double r2 = x * x + y * y;
     if ((double)(di * di + dj * dj) <= r_ap2_px) {
-      const double src = distance_m > 0.0 ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : 0.0;
-      const double h = (double)height_m[(size_t)(b / bands_per_design) * n * n + i * n + j];
+      inside = true;
+      src = distance_m > 0.0 ? r2 / (sqrt(r2 + distance_m * distance_m) + distance_m) : 0.0;
+      h = (double)height_m[(size_t)d * n * n + i * n + j];
+    }
+  }
+  for (int b = d * bands_per_design; b < (d + 1) * bands_per_design; ++b) {
+    real2 v = (real2)(0.0f, 0.0f);
+    if (inside) {
       double c;
       const double s = sincos(k_per_m[b] * (src + dn[b] * h), &c);
       v = (real2)((float)c, (float)s);
     }
+    out[((size_t)b * m + wy) * m + wx] = v;
   }
-  out[gid] = v;
 }
 #endif
 

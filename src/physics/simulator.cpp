@@ -266,8 +266,8 @@ void Simulator::run_doe_field() {
     set_phase_args(k_field_, Precision::F64, k64_, dn64_, field_, int(cfg_.bands));
   else
     set_phase_args(k_field_, prec_, k_, dn_, field_, int(cfg_.bands));
-  const std::size_t m = geom_.m;  // 3-D NDRange (columns, rows, planes), work-group (kLocalSize, 1, 1)
-  rt_.queue().enqueueNDRangeKernel(k_field_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, nb_),
+  const std::size_t m = geom_.m;  // 3-D NDRange (columns, rows, designs), work-group (kLocalSize, 1, 1)
+  rt_.queue().enqueueNDRangeKernel(k_field_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, designs_),
                                    cl::NDRange(Runtime::kLocalSize, 1, 1));
 }
 
