@@ -4,8 +4,12 @@
 // side, design = lens_design(cfg, 550 nm)) it measures
 //   1. OpenCL Simulator::compute_psf() + queue.finish() per precision (median/min/max of
 //      --repeats runs after --warmup runs); program build/load and FFT plan bake reported apart;
-//   2. the bare clFFT floor: one forward + one inverse batched 2-D FFT of bands x M x M complex
-//      values (the transforms compute_psf needs) on a device buffer, nothing else;
+//   2. the FFT floors, in the same run: (a) the bare FFTW floor, fftwf/fftw on a host array with
+//      every core (FFTW_MEASURE), one forward + one inverse 2-D FFT of bands x M x M complex values,
+//      unpruned: the fastest FFT on the machine for the transforms compute_psf needs; (b) the
+//      transforms compute_psf itself runs (the runtime's backend, with the field's zero-padding
+//      hint) on a device buffer, nothing else. The ratio column is the PSF time over (a);
+//   2b. compute_psf + psf_sensor_vjp (forward and adjoint to dL/dH) and its ratio to compute_psf;
 //   3. the CPU reference ref::psf_stack (double, FFTW_ESTIMATE, single thread);
 //   4. the error of each OpenCL PSF stack (bands x N x N) against the CPU reference.
 // Speed is never asserted; this program only reports.
@@ -13,6 +17,8 @@
 // Usage: bench_psf [--sizes 256,512,1024] [--repeats 5] [--warmup 1] [--precision f32,f64]
 //                  [--no-cpu] [--out FILE.md]
 // Device: QDO_DEVICE (see runtime.hpp); kernel disk cache: QDO_CACHE_DIR.
+#include <fftw3.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -23,6 +29,7 @@
 #include <iostream>
 #include <memory>
 #include <optional>
+#include <random>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -176,6 +183,49 @@ std::string cpu_model() {
   return "unknown CPU";
 }
 
+// The bare FFTW floor: a forward and an inverse 2-D FFT of bands x m x m complex values on a
+// host array (fftwf for f32, fftw for f64), planned with FFTW_MEASURE on every core.
+template <typename Complex, typename Plan, typename MakePlan, typename Exec, typename Destroy>
+Timing fftw_floor_impl(std::size_t m, std::size_t bands, int warmup, int repeats, MakePlan make, Exec exec, Destroy destroy) {
+  std::vector<Complex> a(bands * m * m);
+  for (auto& v : a) v[0] = v[1] = 0;
+  const int n[2] = {int(m), int(m)};
+  Plan f = make(n, int(bands), a.data(), FFTW_FORWARD), b = make(n, int(bands), a.data(), FFTW_BACKWARD);
+  for (auto& v : a) v[0] = v[1] = 1;
+  const Timing t = time_it(warmup, repeats, [&] {
+    exec(f);
+    exec(b);
+  });
+  destroy(f);
+  destroy(b);
+  return t;
+}
+Timing fftw_floor(qdo::Precision p, std::size_t m, std::size_t bands, const Options& opt) {
+  const int threads = int(std::max(1u, std::thread::hardware_concurrency()));
+  if (p == qdo::Precision::F64) {
+    fftw_init_threads();
+    fftw_plan_with_nthreads(threads);
+    const Timing t = fftw_floor_impl<fftw_complex, fftw_plan>(
+        m, bands, opt.warmup, opt.repeats,
+        [](const int* n, int howmany, fftw_complex* d, int sign) {
+          return fftw_plan_many_dft(2, n, howmany, d, nullptr, 1, n[0] * n[1], d, nullptr, 1, n[0] * n[1], sign, FFTW_MEASURE);
+        },
+        [](fftw_plan pl) { fftw_execute(pl); }, [](fftw_plan pl) { fftw_destroy_plan(pl); });
+    fftw_plan_with_nthreads(1);
+    return t;
+  }
+  fftwf_init_threads();
+  fftwf_plan_with_nthreads(threads);
+  const Timing t = fftw_floor_impl<fftwf_complex, fftwf_plan>(
+      m, bands, opt.warmup, opt.repeats,
+      [](const int* n, int howmany, fftwf_complex* d, int sign) {
+        return fftwf_plan_many_dft(2, n, howmany, d, nullptr, 1, n[0] * n[1], d, nullptr, 1, n[0] * n[1], sign, FFTW_MEASURE);
+      },
+      [](fftwf_plan pl) { fftwf_execute(pl); }, [](fftwf_plan pl) { fftwf_destroy_plan(pl); });
+  fftwf_plan_with_nthreads(1);
+  return t;
+}
+
 // One row of the results table.
 struct Row {
   std::size_t n = 0, m = 0;
@@ -321,12 +371,12 @@ int main(int argc, char** argv) {
 
     for (const qdo::Precision p : opt.precisions) {
       const std::string ps = qdo::to_string(p);
-      Row psf_row, fft_row;
+      Row psf_row, fft_row, floor_row;
+      std::vector<Row> extra_rows;
       psf_row.n = fft_row.n = n;
       psf_row.m = fft_row.m = m;
       psf_row.bands = fft_row.bands = bands;
       psf_row.path = "OpenCL " + ps + " compute_psf";
-      fft_row.path = "clFFT floor " + ps + " (fwd + inv)";
       try {
         // A fresh Runtime per configuration: its FFT plans and buffers are freed afterwards,
         // and program build/load is measured per configuration (disk cache after the first).
@@ -358,27 +408,54 @@ int main(int argc, char** argv) {
         }
         std::cerr << "N = " << n << " OpenCL " << ps << ": " << fmt("%.1f ms", psf_row.t->median * 1e3) << "\n";
 
-        // 2. Bare clFFT floor on its own buffer: bands x M x M complex, interleaved (re, im).
+        // 2b. Forward + adjoint: compute_psf, then dL/dH for a fixed gradient on the sensor stack.
+        {
+          qdo::RealStack g(bands, sim.sensor_size(), sim.sensor_size());
+          std::mt19937_64 rng(7);
+          std::uniform_real_distribution<double> u(-1, 1);
+          for (double& v : g.data) v = u(rng);
+          Row adj;
+          adj.n = n;
+          adj.m = m;
+          adj.bands = bands;
+          adj.path = "OpenCL " + ps + " compute_psf + psf_sensor_vjp (forward + adjoint)";
+          adj.t = time_it(opt.warmup, opt.repeats, [&] {
+            sim.compute_psf();
+            (void)sim.psf_sensor_vjp(g);
+          });
+          adj.floor_ratio = fmt("%.2f x fwd", adj.t->median / psf_row.t->median);
+          extra_rows.push_back(adj);
+        }
+        // 2. (b) The transforms compute_psf runs: its own plan (backend and hint), on a device buffer.
+        const std::string backend = qdo::to_string(rt.fft_backend());
+        fft_row.path = backend + " " + ps + " (fwd + inv; compute_psf's plan and zero-padding hint)";
         try {
-          qdo::FftPlan& fft = rt.fft(m, m, bands, p);  // the plan compute_psf baked
+          qdo::FftPlan& fft = rt.fft(m, m, bands, p, rt.fft_backend(), qdo::FftZeroPad{n, m, n, m});
           const std::size_t bytes = bands * m * m * 2 * qdo::real_size(p);
           cl::Buffer buf(rt.context(), CL_MEM_READ_WRITE, bytes);
           if (p == qdo::Precision::F64)
-            rt.queue().enqueueFillBuffer(buf, 1.0, 0, bytes);
+            rt.queue().enqueueFillBuffer(buf, 0.0, 0, bytes);
           else
-            rt.queue().enqueueFillBuffer(buf, 1.0f, 0, bytes);
+            rt.queue().enqueueFillBuffer(buf, 0.0f, 0, bytes);
           rt.queue().finish();
           fft_row.t = time_it(opt.warmup, opt.repeats, [&] {
             fft.forward(buf);
             fft.inverse(buf);
             rt.queue().finish();
           });
-          psf_row.floor_ratio = fmt("%.2f", psf_row.t->median / fft_row.t->median);
-          std::cerr << "N = " << n << " clFFT floor " << ps << ": " << fmt("%.1f ms", fft_row.t->median * 1e3) << "\n";
+          std::cerr << "N = " << n << " " << backend << " " << ps << ": " << fmt("%.1f ms", fft_row.t->median * 1e3) << "\n";
         } catch (const std::exception& e) {
           fft_row.note = std::string("FAILED: ") + e.what();
-          std::cerr << "N = " << n << " clFFT floor " << ps << ": " << fft_row.note << "\n";
         }
+        // 2. (a) The bare FFTW floor on a host array, every core, unpruned.
+        floor_row.n = n;
+        floor_row.m = m;
+        floor_row.bands = bands;
+        floor_row.path = "bare FFTW " + ps + " floor (host array, " + std::to_string(std::thread::hardware_concurrency()) +
+                         " threads, fwd + inv)";
+        floor_row.t = fftw_floor(p, m, bands, opt);
+        psf_row.floor_ratio = fmt("%.2f", psf_row.t->median / floor_row.t->median);
+        std::cerr << "N = " << n << " bare FFTW floor " << ps << ": " << fmt("%.1f ms", floor_row.t->median * 1e3) << "\n";
       } catch (const cl::Error& e) {
         psf_row.note = std::string("FAILED: ") + e.what() + " " + qdo::cl_error_name(e.err());
         std::cerr << "N = " << n << " OpenCL " << ps << ": " << psf_row.note << "\n";
@@ -387,7 +464,9 @@ int main(int argc, char** argv) {
         std::cerr << "N = " << n << " OpenCL " << ps << ": " << psf_row.note << "\n";
       }
       rows.push_back(psf_row);
+      for (const Row& r : extra_rows) rows.push_back(r);
       if (psf_row.t) rows.push_back(fft_row);
+      if (floor_row.t) rows.push_back(floor_row);
     }
   }
 

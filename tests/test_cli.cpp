@@ -44,7 +44,7 @@ TEST_SUITE("cli") {
 
   TEST_CASE("qdo psf writes a normalised PSF stack and figures") {
     const auto dir = temp_dir("cli_psf");
-    const Run r = qdo_run("psf --preset small --design lens:550 --levels 8 --out " + dir.string());
+    const Run r = qdo_run("psf --preset small --design lens:550 --levels 8 --save native --out " + dir.string());
     CAPTURE(r.out);
     REQUIRE(r.code == 0);
     CHECK(r.out.find("sampling:") != std::string::npos);
@@ -120,7 +120,7 @@ TEST_SUITE("cli") {
     const std::map<std::string, std::vector<std::string>> commands = {
         {"devices", {}},
         {"config", {"preset", "config"}},
-        {"psf", {"preset", "config", "design", "levels", "placement", "precision", "device", "out"}},
+        {"psf", {"preset", "config", "design", "levels", "placement", "precision", "device", "out", "save"}},
         {"quantize", {"preset", "config", "design", "levels", "placement", "out"}},
         {"simulate", {"preset", "config", "design", "levels", "placement", "scene", "key", "precision", "device", "out", "resample-bands", "save"}},
         {"demo", {"preset", "levels", "device", "out", "precision", "epochs", "steps-per-epoch", "data"}},

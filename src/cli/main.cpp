@@ -35,6 +35,17 @@ using namespace qdo::cli;
 namespace qdo::cli {
 namespace {
 
+// --save: extra outputs of psf and simulate, comma-separated; today only "native" (the native-grid PSF
+// stack /psf in psf.h5, bands x N x N: the largest output, off by default).
+bool save_native(const Args& a) {
+  bool native = false;
+  for (const auto& s : split_list(a.get("save"))) {
+    if (s == "native") native = true;
+    else reject("--save", s, "a comma-separated list of: native");
+  }
+  return native;
+}
+
 // DIR/psf.h5: the sensor PSF stack psf_s (bands x S x S), the native-grid stack when `native`,
 // wavelengths, sampling, heights. The PSF stacks are stored in the run's precision: float32 for
 // an f32 run (exactly the device's values, half the bytes), float64 for f64. Reads the device
@@ -103,6 +114,7 @@ int cmd_config(const Args& a) {
 }
 
 int cmd_psf(const Args& a) {
+  (void)save_native(a);  // validated before any work
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision"));
   const Map2D h = design_heights(cfg, a);
@@ -117,7 +129,7 @@ int cmd_psf(const Args& a) {
   rt.queue().finish();
   const double psf_seconds = seconds_since(t1);
   const RealStack psf_s = sim.psf_sensor();
-  write_concurrently([&] { write_psf_h5(sim, psf_s, h, dir, a.get("design"), true); },
+  write_concurrently([&] { write_psf_h5(sim, psf_s, h, dir, a.get("design"), save_native(a)); },
                      [&] { write_psf_figures(cfg, psf_s, h, dir); });
   std::printf("device: %s (%s)\nPSF stack: %zu bands x %zu x %zu (window %zu), %s, %.3f s (setup %.3f s: kernels %.3f s, FFT plans %.3f s)\n%s\nwrote %s/psf.h5, psf.png, design.png\n",
               rt.info().name.c_str(), rt.info().platform.c_str(), cfg.bands, cfg.n, cfg.n, sim.geometry().m,
@@ -148,18 +160,6 @@ int cmd_quantize(const Args& a) {
   return 0;
 }
 
-namespace {
-// --save: extra outputs of simulate, comma-separated; today only "native" (the native-grid PSF
-// stack /psf in psf.h5, bands x N x N: the largest output, off by default).
-bool save_native(const Args& a) {
-  bool native = false;
-  for (const auto& s : split_list(a.get("save"))) {
-    if (s == "native") native = true;
-    else reject("--save", s, "a comma-separated list of: native");
-  }
-  return native;
-}
-}  // namespace
 
 int cmd_simulate(const Args& a) {
   (void)save_native(a);  // validated before any work
