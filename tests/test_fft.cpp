@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <fstream>
 #include <limits>
 #include <random>
 #include <string>
@@ -253,6 +254,32 @@ TEST_SUITE("fft") {
     }
     CHECK(rt.fft_bake_seconds() > 0);
     CHECK(v.bytes() == 3 * 64 * 64 * 2 * 4);
+  }
+
+  TEST_CASE("FFTW wisdom beside the kernel cache: written after planning, a damaged file is ignored and rewritten") {
+    if (!skip_unless(runtime().info().type == "CPU", "FFTW backend: the test device is not a CPU")) return;
+    const auto dir = temp_dir("fftw_wisdom");
+    const char* old = std::getenv("QDO_CACHE_DIR");
+    const std::string saved = old ? old : "";
+    setenv("QDO_CACHE_DIR", dir.string().c_str(), 1);
+    const auto wisdom = dir / "fftw-wisdom-f32.txt";
+    {
+      std::ofstream(wisdom) << "(fftw-3.3 garbage ((( not wisdom";
+      Runtime rt("", FftBackend::FFTW);
+      const ComplexStack x = random_field(2, 48, 40, Precision::F32, 7);
+      FftPlan& plan = rt.fft(48, 40, 2, Precision::F32);
+      CHECK(diff(device_fft(rt, plan, x, true).data, fftw_ref(x, true).data).rel_l2 <= tol(Precision::F32, 48, 40));
+    }
+    std::ifstream in(wisdom);
+    std::string head;
+    std::getline(in, head);
+    CHECK(head.rfind("(fftw-3", 0) == 0);
+    CHECK(head.find("garbage") == std::string::npos);  // rewritten by FFTW's exporter
+    if (old)
+      setenv("QDO_CACHE_DIR", saved.c_str(), 1);
+    else
+      unsetenv("QDO_CACHE_DIR");
+    std::filesystem::remove_all(dir);
   }
 
   TEST_CASE("bad sizes, hints and buffers are rejected before any work") {
