@@ -13,4 +13,13 @@ export QDO_DEVICE="${QDO_DEVICE:-cpu}"
 ./build/bench_psf --sizes 256,512,1024 --repeats 3 --out "$out/psf.md"
 ./build/bench_skip --data ../shared/data/hsi/cave --repeats 3 --out "$out/skip.md"
 ./build/bench_commands --qdo ./build/qdo --repeats 11 --out "$out/commands.md"
+# The framework baseline (issue 14): NumPy's PSF stack; Debian's python3-numpy, installed if missing.
+if ! /usr/bin/python3 -c "import numpy" 2> /dev/null; then
+  sudo_cmd=""; [[ $(id -u) -ne 0 ]] && sudo_cmd="sudo"
+  $sudo_cmd env DEBIAN_FRONTEND=noninteractive apt-get install -y -q python3-numpy > /dev/null
+fi
+/usr/bin/python3 bench/psf_numpy.py --repeats 3 | tee "$out/psf_numpy.txt"
+# The whole paper-preset PSF command: wall time and peak memory (GNU time).
+for i in 1 2 3; do /usr/bin/time -f "qdo psf --preset paper: %e s wall, %M KB peak" ./build/qdo psf --preset paper \
+  --design lens:550 --out "$out/psf_paper" > /dev/null; done 2>&1 | tee "$out/psf_command.txt"
 echo "bench: tables in $out/"
