@@ -1,8 +1,8 @@
 // Whole-command timings (issue 11: `qdo simulate` at least as fast as `qdo image`): one scene and
 // design through `qdo simulate` (f32 and f64) and, as the baseline measured in the same run,
 // `qdo image` (Camera with its default skipping tolerance 3e-7, as users run it). With
-// --qdo-before PATH, the same `qdo simulate` f32 through another build (e.g. the previous
-// release) is timed too. Each command runs once first (kernel caches warm), then --repeats
+// --qdo-before PATH, the same `qdo simulate` f32 and `qdo image` f32 through another build (e.g.
+// the one the issue was measured on) are timed too. Each command runs once first (kernel caches warm), then --repeats
 // times; median, min and max wall time of the whole process are reported: PSF, imaging and
 // writing every output included. Error column: the largest |f32 - f64| of simulate's sensor.h5
 // (units of full scale; f64 is the reference). `qdo image` writes no HDF5 image, so its row has
@@ -79,7 +79,10 @@ int main(int argc, char** argv) {
       {"`qdo simulate` f32", qdo, "simulate" + common + " --precision f32", "simulate_f32"},
       {"`qdo simulate` f64", qdo, "simulate" + common + " --precision f64", "simulate_f64"},
   };
-  if (!before.empty()) rows.push_back({"`qdo simulate` f32, " + before, before, "simulate" + common + " --precision f32", "before_f32"});
+  if (!before.empty()) {
+    rows.push_back({"`qdo simulate` f32, " + before, before, "simulate" + common + " --precision f32", "before_f32"});
+    rows.push_back({"`qdo image` f32, default tolerance, " + before, before, "image" + common + " --precision f32", "before_image_f32"});
+  }
   std::vector<Stats> st;
   for (const Row& r : rows) {
     const std::string cmd = r.binary + " " + r.args + " --out " + (work / r.dir).string();
