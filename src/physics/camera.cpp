@@ -469,8 +469,9 @@ Camera::Gradient Camera::vjp(const std::vector<RealStack>& g_rgb, bool want_scen
   const std::vector<std::size_t>& kept = rep.bands_kept;
   const std::size_t nk = kept.size(), pairs = (nk + 1) / 2, gy = rep.grid_rows, gx = rep.grid_cols, g = gy * gx;
   if (nk == 0) return out;
+  const bool reused = rep.otf_reused;
   ensure_otf(rep.crop_radius_px, gy, gx, kept);  // reused unless blur() changed it since
-  report_.otf_reused = rep.otf_reused;
+  report_.otf_reused = reused;                   // the report stays the images() call's
 
   auto& q = rt_.queue();
   grow(grgb_, grgb_cap_, scenes * 3 * hw * rsz_, CL_MEM_READ_ONLY);
