@@ -110,8 +110,8 @@ class FftwPlan final : public FftPlan {
     const std::filesystem::path wf = wisdom_file(F::tag());
     if (!wf.empty() && std::filesystem::exists(wf)) F::import_wisdom(wf.string().c_str());
     // Scratch for FFTW_MEASURE (it overwrites the array): one plane.
-    scratch_ = F::alloc(std::size_t(pl));
-    if (!scratch_) throw std::bad_alloc();
+    own_.scratch = F::alloc(std::size_t(pl));
+    if (!own_.scratch) throw std::bad_alloc();
     F::threads(threads);
     make_all(0);
     F::threads(1);  // the host code's own FFTW plans (CPU references) stay single-threaded
@@ -122,22 +122,9 @@ class FftwPlan final : public FftPlan {
       if (!ec && F::export_wisdom(tmp.c_str())) std::filesystem::rename(tmp, wf, ec);
       std::filesystem::remove(tmp, ec);
     }
-    align_ = F::alignment(reinterpret_cast<const R*>(scratch_));
+    align_ = F::alignment(reinterpret_cast<const R*>(own_.scratch));
     bake_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
-  ~FftwPlan() override {
-    const std::lock_guard<std::mutex> lock(g_planner_mutex);
-    for (auto& v : rows_)
-      for (auto p : v) F::destroy(p);
-    for (auto& v : cols_)
-      for (auto p : v) F::destroy(p);
-    for (auto& v : rows_u_)
-      for (auto p : v) F::destroy(p);
-    for (auto& v : cols_u_)
-      for (auto p : v) F::destroy(p);
-    if (scratch_) F::free(scratch_);
-  }
-
  private:
   struct Block {
     std::ptrdiff_t begin = 0, len = 0;
@@ -153,8 +140,8 @@ class FftwPlan final : public FftPlan {
   // over every row then the data columns.
   void make_all(unsigned extra) {
     const std::ptrdiff_t r = std::ptrdiff_t(rows()), c = std::ptrdiff_t(cols());
-    auto& rows_p = extra ? rows_u_ : rows_;
-    auto& cols_p = extra ? cols_u_ : cols_;
+    auto& rows_p = extra ? own_.rows_u : own_.rows;
+    auto& cols_p = extra ? own_.cols_u : own_.cols;
     for (const Block& b : row_blocks_) rows_p[0].push_back(make(Pass{c, 1, b.len, c}, FFTW_FORWARD, extra));
     cols_p[0].push_back(make(Pass{r, c, c, 1}, FFTW_FORWARD, extra));
     rows_p[1].push_back(make(Pass{c, 1, r, c}, FFTW_BACKWARD, extra));
@@ -164,14 +151,14 @@ class FftwPlan final : public FftPlan {
     using D = std::conditional_t<std::is_same<R, float>::value, fftwf_iodim64, fftw_iodim64>;
     const D dim{p.n, p.stride, p.stride};
     const D h{p.count, p.dist, p.dist};
-    typename F::plan plan = F::guru(1, &dim, 1, &h, scratch_, sign, FFTW_MEASURE | extra);
+    typename F::plan plan = F::guru(1, &dim, 1, &h, own_.scratch, sign, FFTW_MEASURE | extra);
     if (!plan) throw DeviceError("FFTW could not plan a " + std::to_string(rows()) + " x " + std::to_string(cols()) + " pass");
     return plan;
   }
   // Unaligned variants, made on first use if a mapped pointer's SIMD alignment differs from the
   // scratch array's (FFTW's new-array execute requires the same alignment).
   void ensure_unaligned() {
-    if (!rows_u_[0].empty()) return;
+    if (!own_.rows_u[0].empty()) return;
     const std::lock_guard<std::mutex> lock(g_planner_mutex);
     F::threads(threads_of());
     make_all(FFTW_UNALIGNED);
@@ -194,8 +181,8 @@ class FftwPlan final : public FftPlan {
         // New-array execution needs the planning array's SIMD alignment (odd plane sizes shift it).
         const bool aligned = F::alignment(reinterpret_cast<const R*>(plane)) == align_;
         if (!aligned) ensure_unaligned();
-        auto& rows = aligned ? rows_ : rows_u_;
-        auto& cols = aligned ? cols_ : cols_u_;
+        auto& rows = aligned ? own_.rows : own_.rows_u;
+        auto& cols = aligned ? own_.cols : own_.cols_u;
         if (fwd) {
           for (std::size_t i = 0; i < row_blocks_.size(); ++i) F::execute(rows[d][i], plane + row_blocks_[i].begin * c);
           F::execute(cols[d][0], plane);
@@ -237,8 +224,23 @@ class FftwPlan final : public FftPlan {
 
   Runtime& rt_;
   std::vector<Block> row_blocks_, col_blocks_;
-  std::vector<typename F::plan> rows_[2], cols_[2], rows_u_[2], cols_u_[2];
-  C* scratch_ = nullptr;
+  // The FFTW plans and the planning array, freed by Owned's destructor: also when the constructor
+  // throws half-way (a member is destroyed then; ~FftwPlan would not run).
+  struct Owned {
+    std::vector<typename F::plan> rows[2], cols[2], rows_u[2], cols_u[2];
+    C* scratch = nullptr;
+    Owned() = default;
+    Owned(const Owned&) = delete;
+    Owned& operator=(const Owned&) = delete;
+    ~Owned() {
+      const std::lock_guard<std::mutex> lock(g_planner_mutex);
+      for (auto* set : {rows, cols, rows_u, cols_u})
+        for (int d = 0; d < 2; ++d)
+          for (auto p : set[d]) F::destroy(p);
+      if (scratch) F::free(scratch);
+    }
+  };
+  Owned own_;
   int align_ = 0;
 };
 
