@@ -1,13 +1,16 @@
 // bench_step: one optimiser step of the design loop (forward + adjoint) at the `small` and
 // `paper` presets: OpenCL PSF forward alone, PSF forward + adjoint (dL/dH), the Wiener
-// expected-error objective and its PSF gradient (CPU, double), the complete Designer step, and
-// the CPU reference forward + adjoint (ref::psf_sensor_vjp). Median of --repeats runs after one
+// expected-error objective and its PSF gradient on the CPU (double, the reference) and on the
+// device (wiener::DeviceObjective: float32 with float64 accumulation, pure float32, float64; each
+// with its error against the CPU reference), the complete Designer step with either, and the
+// CPU reference PSF forward + adjoint (ref::psf_sensor_vjp). Median of --repeats runs after one
 // warm-up; kernel build and FFT plan bake time reported apart. Speed is never asserted.
 //
 // Usage: bench_step [--presets small,paper] [--repeats 3] [--precision f32] [--cpu-repeats 1]
 //                   [--out FILE.md]
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <sstream>
@@ -19,6 +22,7 @@
 #include "qdo/design.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/wiener.hpp"
+#include "qdo/wiener_device.hpp"
 
 using namespace qdo;
 using Clock = std::chrono::steady_clock;
@@ -69,14 +73,16 @@ int main(int argc, char** argv) {
   }
   Runtime rt;
   std::ostringstream md;
-  md << "| preset | N | stage | median s | min s | max s | runs |\n|---|---:|---|---:|---:|---:|---:|\n";
-  auto row = [&](const std::string& p, std::size_t n, const std::string& stage, const std::vector<double>& t) {
-    char b[256];
-    std::snprintf(b, sizeof b, "| %s | %zu | %s | %.3f | %.3f | %.3f | %zu |\n", p.c_str(), n, stage.c_str(), t[t.size() / 2],
-                  t.front(), t.back(), t.size());
+  md << "| preset | N | stage | median s | min s | max s | runs | error vs CPU double |\n"
+        "|---|---:|---|---:|---:|---:|---:|---|\n";
+  auto row = [&](const std::string& p, std::size_t n, const std::string& stage, const std::vector<double>& t,
+                 const std::string& err = "") {
+    char b[512];
+    std::snprintf(b, sizeof b, "| %s | %zu | %s | %.3f | %.3f | %.3f | %zu | %s |\n", p.c_str(), n, stage.c_str(),
+                  t[t.size() / 2], t.front(), t.back(), t.size(), err.c_str());
     md << b;
-    std::printf("%-6s N=%-5zu %-58s median %8.3f s  (min %.3f, max %.3f, %zu runs)\n", p.c_str(), n, stage.c_str(), t[t.size() / 2],
-                t.front(), t.back(), t.size());
+    std::printf("%-6s N=%-5zu %-58s median %8.3f s  (min %.3f, max %.3f, %zu runs) %s\n", p.c_str(), n, stage.c_str(),
+                t[t.size() / 2], t.front(), t.back(), t.size(), err.c_str());
     std::fflush(stdout);
   };
   std::printf("device: %s (%s, driver %s), precision %s\n", rt.info().name.c_str(), rt.info().platform.c_str(),
@@ -103,7 +109,7 @@ int main(int argc, char** argv) {
     row(pname, cfg.n, "OpenCL PSF forward + adjoint dL/dH (" + to_string(prec) + ")", both);
     std::printf("       forward + adjoint / forward = %.2f\n", both[both.size() / 2] / fwd[fwd.size() / 2]);
     md << "| " << pname << " | " << cfg.n << " | ratio (forward + adjoint) / forward | " << both[both.size() / 2] / fwd[fwd.size() / 2]
-       << " | | | |\n";
+       << " | | | | |\n";
     // The Wiener objective (CPU) on the sensor grid with a prior from synthetic scenes.
     const std::size_t s = cfg.sensor_size_px();
     const SceneIndex idx = SceneIndex::synthetic(cfg, 4, s, 1);
@@ -113,8 +119,37 @@ int main(int argc, char** argv) {
     const Eigen::MatrixXd srf = sensor_response(cfg);
     sim.compute_psf();
     const RealStack psf = sim.psf_sensor();
-    row(pname, cfg.n, "Wiener expected error + PSF gradient (CPU double)",
-        timed(repeats, [&] { wiener::objective_psf(wiener::Loss::Expected, psf, srf, prior, 1e-3); }));
+    const auto cpu_t = timed(repeats, [&] { wiener::objective_psf(wiener::Loss::Expected, psf, srf, prior, 1e-3); });
+    row(pname, cfg.n, "Wiener expected error + PSF gradient (CPU double, reference)", cpu_t);
+    const wiener::PsfObjective ref = wiener::objective_psf(wiener::Loss::Expected, psf, srf, prior, 1e-3);
+    // The same on the device, per precision; error: |value - ref| / |ref|, gradient rel. L2.
+    struct Variant {
+      Precision p;
+      bool acc64;
+      std::string name;
+    };
+    std::vector<Variant> variants{{Precision::F32, true, "f32, f64 accumulation"}, {Precision::F32, false, "f32 only"}};
+    if (rt.has_fp64()) variants.push_back({Precision::F64, true, "f64"});
+    else variants[0].name = "f32 (device has no f64: f32 accumulation)";
+    for (const Variant& v : variants) {
+      const double bw = rt.build_seconds(), fw = rt.fft_bake_seconds();
+      wiener::DeviceObjective dev(rt, v.p, srf, prior, 1e-3, s, v.acc64);
+      std::printf("       device Wiener (%s) setup: kernels %.2f s, FFT plan %.2f s\n", v.name.c_str(), rt.build_seconds() - bw,
+                  rt.fft_bake_seconds() - fw);
+      const auto t = timed(repeats, [&] { dev.expected(psf); });
+      const wiener::PsfObjective r = dev.expected(psf);
+      double num = 0, den = 0;
+      for (std::size_t i = 0; i < r.grad_psf.data.size(); ++i) {
+        const double e = r.grad_psf.data[i] - ref.grad_psf.data[i];
+        num += e * e;
+        den += ref.grad_psf.data[i] * ref.grad_psf.data[i];
+      }
+      char err[128];
+      std::snprintf(err, sizeof err, "value %.1e, gradient %.1e", std::fabs(r.value - ref.value) / std::fabs(ref.value),
+                    std::sqrt(num / den));
+      row(pname, cfg.n, "Wiener expected error + PSF gradient (device, " + v.name + ")", t, err);
+      std::printf("       CPU / device = %.1f\n", cpu_t[cpu_t.size() / 2] / t[t.size() / 2]);
+    }
     // A complete Designer step (qdo+a, radial).
     DesignOptions o;
     o.mode = DesignMode::QDOA;
@@ -127,7 +162,19 @@ int main(int argc, char** argv) {
       gr = std::move(r.grad_psf);
       return r.value;
     };
-    row(pname, cfg.n, "complete qdo+a step (OpenCL PSF + CPU Wiener + Adam)", timed(repeats, [&] { d.step(st, obj); }));
+    const auto step_cpu = timed(repeats, [&] { d.step(st, obj); });
+    row(pname, cfg.n, "complete qdo+a step (OpenCL PSF + CPU Wiener + Adam)", step_cpu);
+    wiener::DeviceObjective dev(rt, prec, srf, prior, 1e-3, s);
+    const PsfObjective obj_dev = [&](const RealStack& ps, RealStack& gr) {
+      auto r = dev.expected(ps);
+      gr = std::move(r.grad_psf);
+      return r.value;
+    };
+    const auto step_dev = timed(repeats, [&] { d.step(st, obj_dev); });
+    row(pname, cfg.n, "complete qdo+a step (OpenCL PSF + device Wiener + Adam)", step_dev);
+    std::printf("       step with device Wiener / step with CPU Wiener = %.3f\n", step_dev[step_dev.size() / 2] / step_cpu[step_cpu.size() / 2]);
+    md << "| " << pname << " | " << cfg.n << " | ratio (device-Wiener step) / (CPU-Wiener step), same run | "
+       << step_dev[step_dev.size() / 2] / step_cpu[step_cpu.size() / 2] << " | | | | |\n";
     if (cpu_repeats > 0)
       row(pname, cfg.n, "CPU reference PSF forward + adjoint (double, FFTW)",
           timed(cpu_repeats, [&] { ref::psf_sensor_vjp(cfg, h, g); }));

@@ -302,7 +302,7 @@ TEST_SUITE("commands") {
     CHECK(r.out.find("parameter group") != std::string::npos);
     CHECK(r.out.find("FAIL") == std::string::npos);
     // Rows: PSF chain (OpenCL vs CPU, CPU vs differences), weights end to end, level offsets (qdo+a),
-    // the objective with respect to the PSF.
+    // the objective with respect to the PSF, the device objective against the CPU one.
     std::size_t ok_rows = 0;
     std::istringstream lines(r.out);
     for (std::string line; std::getline(lines, line);) {
@@ -315,9 +315,9 @@ TEST_SUITE("commands") {
       REQUIRE(words.size() >= 3);
       CHECK(std::stod(words[words.size() - 3]) <= std::stod(words[words.size() - 2]));
     }
-    CHECK(ok_rows == 5);
+    CHECK(ok_rows == 6);
     for (const char* row : {"PSF chain: OpenCL", "PSF chain: CPU adjoint vs central differences", "weights w (qdo+a, wiener",
-                            "level offsets a (qdo+a)", "objective wiener vs PSF"})
+                            "level offsets a (qdo+a)", "objective wiener vs PSF", "objective wiener on the device (f64)"})
       CHECK_MESSAGE(r.out.find(row) != std::string::npos, row);
     // On a device without float64 (QDO_DISABLE_FP64=1) the check runs in float32 with its looser
     // tolerances and a larger difference step; it passes (it failed falsely with a 1e-5 step,
@@ -326,6 +326,9 @@ TEST_SUITE("commands") {
     CAPTURE(f32.out);
     CHECK(f32.out.find("OpenCL f32 adjoint") != std::string::npos);
     CHECK(f32.code == 0);
+    // ... and without float64 the wiener objective runs on the CPU: no device row, a note instead.
+    CHECK(f32.out.find("objective wiener on the device") == std::string::npos);
+    CHECK(f32.out.find("runs on the CPU (double) instead") != std::string::npos);
     CHECK(f32.out.find("FAIL") == std::string::npos);
     // Exit code 5: a wrong gradient (fault injection scales the weight gradient by 1.5) fails its
     // row, and only that row.

@@ -65,6 +65,41 @@ TEST_SUITE("runs") {
     CHECK_THROWS_AS(design_run_options_from_json(j.dump(), "bad"), InputError);
   }
 
+  TEST_CASE("where the wiener objective runs is saved with a run; runs saved before the device objective resume on the CPU") {
+    DesignRunOptions o;
+    o.cfg = preset_config("small");
+    o.out = "x";
+    for (const char* w : {"device", "cpu"}) {
+      o.wiener_on = w;
+      CHECK(design_run_options_from_json(design_run_options_to_json(o), "test").wiener_on == w);
+    }
+    auto j = nlohmann::json::parse(design_run_options_to_json(o));
+    j["design"].erase("wiener_on");
+    CHECK(design_run_options_from_json(j.dump(), "old").wiener_on == "cpu");
+    o.wiener_on = "gpu";
+    CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("wiener_on"), InputError);
+  }
+
+  TEST_CASE("a design run with the wiener objective on the device follows the CPU objective's run") {
+    if (!skip_unless(runtime().has_fp64(), "the device objective needs float64 for its solve")) return;
+    const auto dir = temp_dir("runs_wiener_on");
+    std::vector<double> final_loss;
+    std::vector<std::vector<double>> levels;
+    for (const char* w : {"device", "cpu"}) {
+      DesignRunOptions o = tiny_run((dir / w).string(), DesignMode::QDOA);
+      o.wiener_on = w;
+      const DesignRunResult r = run_design(runtime(), o, false);
+      final_loss.push_back(r.final_loss);
+      levels.push_back(r.levels_m);
+    }
+    // float64 throughout: the two objectives differ by round-off amplified by the solve (the
+    // wiener-device suite bounds it), so ten Adam steps end at the same point to ~1e-9.
+    CHECK(final_loss[0] == doctest::Approx(final_loss[1]).epsilon(1e-9));
+    REQUIRE(levels[0].size() == levels[1].size());
+    for (std::size_t l = 0; l < levels[0].size(); ++l) CHECK(levels[0][l] == doctest::Approx(levels[1][l]).epsilon(1e-9));
+    std::filesystem::remove_all(dir);
+  }
+
   TEST_CASE("a run's config.json with a key given twice is refused, naming the key path and the file") {
     DesignRunOptions o;
     o.cfg = preset_config("small");

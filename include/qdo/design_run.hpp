@@ -23,6 +23,10 @@ struct DesignRunOptions {
   std::size_t epochs = 50;
   double decoder_noise_sigma = 1e-3;   // σ of the Wiener filter (REFERENCE §1 training noise)
   std::size_t prior_bins = 16;
+  // Where the `wiener` objective runs: device (kernels/wiener.cl, the run's precision; float32
+  // with float64 accumulation where the device has it) or cpu (double, the reference). Run
+  // folders written before the device objective existed resume on the CPU.
+  std::string wiener_on = "device";
   std::string init = "random";         // random | flat | lens:NM
   std::size_t checkpoint_every = 10;
   long max_steps = -1;                 // stop after this many steps in total (-1: epochs * steps_per_epoch)

@@ -165,6 +165,8 @@ DesignRunOptions design_options(const Args& a) {
   o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "12"), 1, 100000));
   o.batch = std::size_t(parse_int("--batch", a.get("batch", "4"), 1, 100000));
   o.decoder_noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma", "0.001"));
+  o.wiener_on = a.get("wiener-on", "device");
+  if (o.wiener_on != "device" && o.wiener_on != "cpu") reject("--wiener-on", o.wiener_on, "device or cpu");
   o.init = a.get("init", "random");
   o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));
   o.max_steps = a.has("max-steps") ? parse_int("--max-steps", a.get("max-steps"), 0, 2147483647) : -1;
@@ -192,7 +194,7 @@ void check_resume_options(const Args& a, const DesignRunOptions& given) {
       {"lr", "lr_optics"}, {"lr-offsets", "lr_offsets"}, {"decay", "lr_decay_per_epoch"}, {"beta", "beta_aq"},
       {"height-noise-nm", "height_noise_m"}, {"noise-sigma", "decoder_noise_sigma"}, {"init", "init"}, {"seed", "seed"},
       {"checkpoint-every", "checkpoint_every"}, {"precision", "precision"}, {"synthetic-scenes", "synthetic_scenes"},
-      {"batch", "batch"}};
+      {"batch", "batch"}, {"wiener-on", "wiener_on"}};
   std::vector<std::string> diffs;
   for (const auto& [opt, key] : fields) {
     if (!a.has(opt)) continue;

@@ -83,7 +83,9 @@ std::vector<OptionSpec> training_options() {
           seed(),
           synthetic_scenes("12"),
           opt("batch", "scenes per optimiser step, an integer in [1, 100000]", "4"),
-          psf_path()};
+          psf_path(),
+          opt("wiener-on", "where the wiener objective runs: device (OpenCL, the run's precision) or cpu (double, the reference)",
+              "device")};
 }
 
 std::vector<OptionSpec> concat(std::vector<OptionSpec> a, const std::vector<OptionSpec>& b) {
@@ -125,7 +127,8 @@ std::vector<CommandSpec> make_table() {
                cmd_design, true});
   t.push_back({"gradcheck", "check the analytic gradients against finite differences (exit 5 on failure)", "", "",
                {preset(), config(), mode(), opt("levels", "height levels L, an integer in [2, 65536]", "4"), placement(),
-                parameterization(), objective(), target(), seed(), device(), psf_path()},
+                parameterization(), objective(), target(), seed(), device(), psf_path(),
+                opt("wiener-on", "where the wiener objective's device row is checked: device (default) or cpu (no such row)", "device")},
                cmd_gradcheck});
   t.push_back({"eval", "evaluate a run's design: metrics, reconstructions and figures", "RUN", "run folder written by qdo design",
                {data("test scenes (default: synthetic scenes)"),

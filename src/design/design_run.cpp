@@ -25,6 +25,7 @@
 #include "qdo/run.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/wiener.hpp"
+#include "qdo/wiener_device.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -67,11 +68,33 @@ struct Problem {
   RealStack target;
 };
 
-PsfObjective make_objective(const DesignRunOptions& o, const Problem& pb, long step) {
+// The Wiener expected-error objective on the device for this run, when it asks for one
+// (objective wiener, wiener_on device) and the device has float64 for the C x C solve; null
+// otherwise (the CPU objective then runs).
+std::unique_ptr<wiener::DeviceObjective> make_device_objective(Runtime& rt, const DesignRunOptions& o, const Problem& pb) {
+  if (o.objective != "wiener" || o.wiener_on != "device") return nullptr;
+  if (!rt.has_fp64()) {  // float32 cannot hold σ² next to M's large eigenvalues (kernels/wiener.cl)
+    if (!o.quiet)
+      std::fprintf(stderr, "qdo: note: %s has no float64; the wiener objective runs on the CPU (double) instead\n",
+                   rt.info().name.c_str());
+    return nullptr;
+  }
+  return std::make_unique<wiener::DeviceObjective>(rt, o.precision, pb.srf, pb.prior, o.decoder_noise_sigma,
+                                                   o.cfg.sensor_size_px());
+}
+
+// The step's objective; `dev` (from make_device_objective) evaluates the wiener objective when given.
+PsfObjective make_objective(const DesignRunOptions& o, const Problem& pb, long step, wiener::DeviceObjective* dev = nullptr) {
   if (o.objective == "psf-target") return psf_target_objective(pb.target);
   const wiener::Loss loss = o.objective == "wiener" ? wiener::Loss::Expected
                             : o.objective == "wiener-mse" ? wiener::Loss::Mse
                                                           : wiener::Loss::Mae;
+  if (loss == wiener::Loss::Expected && dev)
+    return [dev](const RealStack& psf, RealStack& grad) {
+      wiener::PsfObjective r = dev->expected(psf);
+      grad = std::move(r.grad_psf);
+      return r.value;
+    };
   std::vector<RealStack> batch;
   if (loss != wiener::Loss::Expected) {
     std::mt19937_64 rng(o.design.seed * 1000003ull + std::uint64_t(step));
@@ -163,6 +186,7 @@ void DesignRunOptions::validate() const {
   if (batch < 1) reject("batch", batch, ">= 1");
   if (synthetic_scenes < 1) reject("synthetic_scenes", synthetic_scenes, ">= 1");
   if (prior_bins < 2) reject("prior_bins", prior_bins, ">= 2");
+  if (wiener_on != "device" && wiener_on != "cpu") reject("wiener_on", wiener_on, "device or cpu");
   if (checkpoint_every < 1) reject("checkpoint_every", checkpoint_every, ">= 1");
   if (!(decoder_noise_sigma >= 0) || !std::isfinite(decoder_noise_sigma)) reject("noise_sigma", decoder_noise_sigma, ">= 0");
   if (out.empty()) reject("out", "(missing)", "a run folder");
@@ -252,6 +276,9 @@ const std::vector<RunField>& run_fields() {
       integer_field_of<std::size_t>("epochs", [](auto& o) -> auto& { return o.epochs; }),
       real_field("decoder_noise_sigma", [](auto& o) -> auto& { return o.decoder_noise_sigma; }),
       integer_field_of<std::size_t>("prior_bins", [](auto& o) -> auto& { return o.prior_bins; }),
+      {"wiener_on",
+       [](DesignRunOptions& o, const json& d) { o.wiener_on = d.value("wiener_on", std::string("cpu")); },
+       [](const DesignRunOptions& o, json& d) { d["wiener_on"] = o.wiener_on; }},
       text_field("init", [](auto& o) -> auto& { return o.init; }),
       integer_field_of<std::size_t>("checkpoint_every", [](auto& o) -> auto& { return o.checkpoint_every; }),
       named_field("precision", [](auto& o) -> auto& { return o.precision; }, precision_from_string,
@@ -328,6 +355,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
 
   Simulator sim(rt, o.cfg, o.precision);
   Designer d(sim, o.design);
+  const std::unique_ptr<wiener::DeviceObjective> dev = make_device_objective(rt, o, pb);
   const std::size_t levels = static_cast<std::size_t>(o.design.quantizer.levels);
   if (resume && resumed.state.w.size() != parameter_count(o.design.parameterization, o.cfg.n))
     throw Error("internal: resume state sized for another parameterization");
@@ -348,7 +376,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   double last_loss = losses.empty() ? NAN : losses.back();
   while (s.step < stop) {
     const auto t0 = std::chrono::steady_clock::now();
-    const StepReport rep = d.step(s, make_objective(o, pb, s.step));
+    const StepReport rep = d.step(s, make_objective(o, pb, s.step, dev.get()));
     if (!std::isfinite(rep.loss) || !std::isfinite(rep.loss_aq))
       throw NumericalError("design step " + std::to_string(rep.step) + ": the loss is " + to_str(rep.loss) +
                            " (L_aq " + to_str(rep.loss_aq) + "); stopped before writing it: " + ckpt_path.string() +
@@ -543,6 +571,24 @@ std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& given, 
     worst = std::max(worst, rel((obj(a, tmp) - obj(b, tmp)) / 2e-7, gp.data[i], rms(gp.data)));
   }
   rows.push_back({"objective " + o.objective + " vs PSF (6 largest-gradient entries)", worst, 1e-5});
+  // 6. The design loop's device objective (wiener, --wiener-on device) against that CPU reference
+  // at the same PSF: the larger of the value's relative error and the gradient's relative L2
+  // error. Rows 3-5 use the CPU objective (double) so that they check the chain alone.
+  if (const auto dev = make_device_objective(rt, o, pb)) {
+    const wiener::PsfObjective r = dev->expected(psf);
+    const double ref_value = obj(psf, gp);
+    double gnum = 0, gden = 0;
+    for (std::size_t i = 0; i < gp.data.size(); ++i) {
+      gnum += (r.grad_psf.data[i] - gp.data[i]) * (r.grad_psf.data[i] - gp.data[i]);
+      gden += gp.data[i] * gp.data[i];
+    }
+    const double value_err = std::fabs(r.value - ref_value) / std::fabs(ref_value);
+    // float64: round-off amplified by the solve's conditioning; float32: the OTFs and A P in float
+    // (measured at the paper preset: 1e-6 value, 1e-5 gradient; BENCHMARKS "One optimiser step").
+    rows.push_back({"objective wiener on the device (" + to_string(o.precision) + ") vs the CPU reference",
+                    std::max(value_err, gden > 0 ? std::sqrt(gnum / gden) : std::sqrt(gnum)),
+                    o.precision == Precision::F64 ? 1e-8 : 1e-2});
+  }
   return rows;
 }
 
