@@ -361,6 +361,83 @@ TEST_SUITE("io") {
     std::filesystem::remove_all(dir);
   }
 
+  TEST_CASE("compressed datasets: chunked with HDF5's shuffle + deflate, read back exactly, edge chunks included") {
+    const auto dir = qdo::test::temp_dir("io_deflate");
+    // 2 x 1100 x 1000 float64: a plane is 8.8 MB, so chunks are bands of 524 rows (4 MiB) and the
+    // last band of each plane is a partial edge chunk; 3 x 300 x 500 float32: one chunk per plane.
+    for (const bool f32 : {false, true}) {
+      const std::size_t planes = f32 ? 3 : 2, rows = f32 ? 300 : 1100, cols = f32 ? 500 : 1000;
+      std::vector<double> v(planes * rows * cols);
+      for (std::size_t i = 0; i < v.size(); ++i) v[i] = std::floor(4 * (0.5 + 0.5 * std::sin(0.001 * double(i)))) * 1e-7 +
+                                                       (i % 977 == 0 ? std::sin(double(i)) : 0.0);
+      H5Dataset d{"/g/x", {planes, rows, cols}, v, {{"pitch_m", 4e-6}}, {{"units", "m"}}};
+      d.float32 = f32;
+      d.compress = true;
+      H5Dataset plain = d;
+      plain.compress = false;
+      const std::string pc = (dir / (f32 ? "c32.h5" : "c64.h5")).string(), pp = (dir / (f32 ? "p32.h5" : "p64.h5")).string();
+      h5_write(pc, {d});
+      h5_write(pp, {plain});
+      const H5Dataset r = h5_read(pc, "/g/x");
+      CHECK(r.shape == d.shape);
+      CHECK(r.num_attrs.at("pitch_m") == 4e-6);
+      REQUIRE(r.data.size() == v.size());
+      std::size_t mismatches = 0;
+      for (std::size_t i = 0; i < v.size(); ++i) mismatches += r.data[i] != (f32 ? double(float(v[i])) : v[i]);
+      CHECK(mismatches == 0);
+      CHECK(h5_read(pp, "/g/x").data == r.data);
+      // Smaller on disk, and stored the way any HDF5 reader expects: chunked, 2 filters.
+      CHECK(std::filesystem::file_size(pc) * 4 < std::filesystem::file_size(pp));
+      const hid_t file = H5Fopen(pc.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+      REQUIRE(file >= 0);
+      const hid_t ds = H5Dopen2(file, "/g/x", H5P_DEFAULT);
+      const hid_t dcpl = H5Dget_create_plist(ds);
+      CHECK(H5Pget_layout(dcpl) == H5D_CHUNKED);
+      CHECK(H5Pget_nfilters(dcpl) == 2);
+      hsize_t chunk[3] = {0, 0, 0};
+      CHECK(H5Pget_chunk(dcpl, 3, chunk) == 3);
+      CHECK(chunk[0] == 1);
+      CHECK(chunk[1] == (f32 ? 300u : 524u));
+      CHECK(chunk[2] == cols);
+      H5Pclose(dcpl);
+      H5Dclose(ds);
+      H5Fclose(file);
+    }
+    // Small datasets stay contiguous even when asked (chunk overhead would exceed the gain).
+    H5Dataset small{"/s", {16, 16}, std::vector<double>(256, 1.0), {}, {}};
+    small.compress = true;
+    const std::string ps = (dir / "s.h5").string();
+    h5_write(ps, {small});
+    const hid_t file = H5Fopen(ps.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    const hid_t ds = H5Dopen2(file, "/s", H5P_DEFAULT);
+    const hid_t dcpl = H5Dget_create_plist(ds);
+    CHECK(H5Pget_layout(dcpl) != H5D_CHUNKED);
+    H5Pclose(dcpl);
+    H5Dclose(ds);
+    H5Fclose(file);
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("a compressed dataset whose chunk bytes were damaged is refused naming the file, not read as garbage") {
+    const auto dir = qdo::test::temp_dir("io_deflate_bad");
+    std::vector<double> v(2 * 512 * 512);
+    for (std::size_t i = 0; i < v.size(); ++i) v[i] = double(i % 7) * 0.25;
+    H5Dataset d{"/x", {2, 512, 512}, v, {}, {}};
+    d.compress = true;
+    const std::string p = (dir / "x.h5").string();
+    h5_write(p, {d});
+    // Overwrite bytes in the middle of the file (inside the compressed chunks).
+    {
+      std::fstream f(p, std::ios::in | std::ios::out | std::ios::binary);
+      const auto size = static_cast<std::streamoff>(std::filesystem::file_size(p));
+      f.seekp(size / 2);
+      const std::string junk(64, '\x5a');
+      f.write(junk.data(), static_cast<std::streamsize>(junk.size()));
+    }
+    CHECK_THROWS_WITH_AS(h5_read(p, "/x"), doctest::Contains("x.h5"), InputError);
+    std::filesystem::remove_all(dir);
+  }
+
   TEST_CASE("h5_read errors name the file and the dataset") {
     TmpDir tmp;
     const std::string path = tmp / "x.h5";

@@ -26,6 +26,13 @@ struct H5Dataset {
   // Store as IEEE float32 (half the bytes; ~7 significant digits): for large outputs whose
   // precision is float anyway (PSF stacks of a float32 run). Readers convert back to double.
   bool float32 = false;
+  // When set, a dataset of rank >= 2 and at least 1 MiB is stored chunked (one plane of the last
+  // two axes per chunk, at most 4 MiB) with HDF5's shuffle + deflate (level 1) filters, the chunks
+  // compressed on every core; any HDF5 reader reads it as usual. Pays for data with structure
+  // (a 4-level 1024² height map: 8.4 MB -> 1.2 MB); float PSF stacks shrink only ~20 % (their
+  // low mantissa bits are noise) for ~0.25 s at the paper preset, so they are compressed only on
+  // request (`--compress`; BENCHMARKS "CPU speed").
+  bool compress = false;
 };
 
 // Writes all datasets into one new file atomically (temp file + rename). Every value and

@@ -49,6 +49,9 @@ OptionSpec out_dir_opt() { return opt("out", "output folder (created)"); }
 OptionSpec save_opt() {
   return opt("save", "extra outputs, comma-separated: native (the native-grid PSF stack /psf, bands x N x N, in psf.h5)");
 }
+OptionSpec compress() {
+  return flag("compress", "store psf.h5's PSF stacks chunked with HDF5's shuffle + deflate filters (smaller, slower; BENCHMARKS)");
+}
 OptionSpec scene() {
   return opt("scene", "scene: builtin (the configuration's chart), a cube file (.mat or .h5), or a folder of PNG bands", "builtin");
 }
@@ -98,7 +101,8 @@ std::vector<CommandSpec> make_table() {
   t.push_back({"devices", "list the OpenCL platforms and devices and the default choice", "", "", {}, cmd_devices});
   t.push_back({"config", "print the system configuration as JSON", "", "", {preset(), config()}, cmd_config});
   t.push_back({"psf", "compute a design's PSF stack: DIR/psf.h5 (the sensor-grid stack), psf.png, design.png", "", "",
-               {preset(), config(), design_spec(), levels_post(), placement(), precision(), device(), save_opt(), out_dir_opt()},
+               {preset(), config(), design_spec(), levels_post(), placement(), precision(), device(), save_opt(), compress(),
+                out_dir_opt()},
                cmd_psf});
   t.push_back({"quantize", "quantize a design to L levels (post-hoc, uniform) into a design .h5 file", "", "",
                {preset(), config(), design_spec(), opt("levels", "number of height levels L, an integer in [2, 65536] (required)"),
@@ -106,7 +110,7 @@ std::vector<CommandSpec> make_table() {
                cmd_quantize});
   t.push_back({"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*", "", "",
                {preset(), config(), design_spec(), levels_post(), placement(), scene(), key(), resample_bands(), precision(), device(),
-                save_opt(), out_dir_opt()},
+                save_opt(), compress(), out_dir_opt()},
                cmd_simulate});
   t.push_back({"demo", "QDO+A against conventional deep optics (DO) at L levels, designed and evaluated end to end", "", "",
                {opt("preset", "system preset: paper or small", "small"), opt("levels", "height levels L, an integer in [2, 65536]", "4"),

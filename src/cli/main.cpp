@@ -51,7 +51,7 @@ bool save_native(const Args& a) {
 // an f32 run (exactly the device's values, half the bytes), float64 for f64. Reads the device
 // (call it on the thread that owns the simulator).
 void write_psf_h5(Simulator& sim, const RealStack& psf_s, const Map2D& h, const std::string& dir, const std::string& tag,
-                  bool native) {
+                  bool native, bool compress) {
   const SystemConfig& cfg = sim.config();
   const bool f32 = sim.precision() == Precision::F32;
   std::vector<H5Dataset> ds;
@@ -59,10 +59,12 @@ void write_psf_h5(Simulator& sim, const RealStack& psf_s, const Map2D& h, const 
     const RealStack psf = sim.psf_native();
     ds.push_back({"/psf", {psf.planes, psf.rows, psf.cols}, psf.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "fraction of band energy per sample"}}});
     ds.back().float32 = f32;
+    ds.back().compress = compress;
   }
   ds.push_back({"/psf_sensor", {psf_s.planes, psf_s.rows, psf_s.cols}, psf_s.data, {{"pitch_m", cfg.sensor_pitch_m}},
                 {{"units", "fraction of band energy per sensor pixel"}}});
   ds.back().float32 = f32;
+  ds.back().compress = compress;
   ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});
   std::vector<double> alias, outside;
   for (const auto& b : sim.sampling().bands) {
@@ -72,6 +74,7 @@ void write_psf_h5(Simulator& sim, const RealStack& psf_s, const Map2D& h, const 
   ds.push_back({"/aliased_energy_fraction", {cfg.bands}, alias, {}, {{"units", "fraction"}}});
   ds.push_back({"/energy_outside_window", {cfg.bands}, outside, {}, {{"units", "fraction"}}});
   ds.push_back({"/height_m", {h.rows, h.cols}, h.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "m"}}});
+  ds.back().compress = true;  // as in design files: a quantized map shrinks ~7-fold
   h5_write(dir + "/psf.h5", ds, {{"config", config_to_json_text(cfg)}, {"design", tag}, {"precision", to_string(sim.precision())}});
 }
 
@@ -129,7 +132,7 @@ int cmd_psf(const Args& a) {
   rt.queue().finish();
   const double psf_seconds = seconds_since(t1);
   const RealStack psf_s = sim.psf_sensor();
-  write_concurrently([&] { write_psf_h5(sim, psf_s, h, dir, a.get("design"), save_native(a)); },
+  write_concurrently([&] { write_psf_h5(sim, psf_s, h, dir, a.get("design"), save_native(a), a.has("compress")); },
                      [&] { write_psf_figures(cfg, psf_s, h, dir); });
   std::printf("device: %s (%s)\nPSF stack: %zu bands x %zu x %zu (window %zu), %s, %.3f s (setup %.3f s: kernels %.3f s, FFT plans %.3f s)\n%s\nwrote %s/psf.h5, psf.png, design.png\n",
               rt.info().name.c_str(), rt.info().platform.c_str(), cfg.bands, cfg.n, cfg.n, sim.geometry().m,
@@ -192,7 +195,7 @@ int cmd_simulate(const Args& a) {
         clip = clip_to_full_scale(rgb, "sensor image");
         const auto t1 = std::chrono::steady_clock::now();
         write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
-        write_psf_h5(sim, psf_s, h, dir, a.get("design"), save_native(a));
+        write_psf_h5(sim, psf_s, h, dir, a.get("design"), save_native(a), a.has("compress"));
         write_rgb_png(dir + "/sensor.png", rgb);
         outputs_s = seconds_since(t1);
       },

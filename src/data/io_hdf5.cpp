@@ -2,9 +2,16 @@
 // and the contract helpers (design, PSF, cube and RGB files).
 #include <hdf5.h>
 
+#include <zlib.h>
+
+#include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <memory>
+#include <thread>
+#include <vector>
 
 #include "data/io_internal.hpp"
 #include "qdo/error.hpp"
@@ -88,6 +95,93 @@ void h5_write_num_attr(hid_t obj, const std::string& file, const std::string& na
     fail(file, "attribute '" + name + "'", "cannot write" + h5_detail());
 }
 
+// Compressed storage of large datasets (H5Dataset::compress): HDF5's own shuffle + deflate
+// filters, so any HDF5 reader (h5py, MATLAB, h5dump) reads the file as it is; the chunks are
+// filtered here, on every core, and written with H5Dwrite_chunk (HDF5 alone would run the
+// filters on one thread).
+constexpr std::size_t kCompressMinBytes = std::size_t(1) << 20;  // smaller datasets stay contiguous
+constexpr std::size_t kChunkBytes = std::size_t(4) << 20;        // target chunk size
+constexpr int kDeflateLevel = 1;                                  // fast; shuffle does most of the work
+
+// Chunk shape: one plane of the last two axes (1 x ... x 1 x rows x cols), or a band of rows of it
+// when a plane is larger than kChunkBytes.
+std::vector<hsize_t> chunk_dims(const std::vector<std::size_t>& shape, std::size_t elem) {
+  std::vector<hsize_t> c(shape.size(), 1);
+  const std::size_t rows = shape[shape.size() - 2], cols = shape.back();
+  c.back() = cols;
+  c[c.size() - 2] = std::max<std::size_t>(1, std::min(rows, kChunkBytes / std::max<std::size_t>(1, cols * elem)));
+  return c;
+}
+
+// HDF5's shuffle filter: byte j of element i goes to position j * count + i.
+void shuffle_bytes(const unsigned char* in, unsigned char* out, std::size_t count, std::size_t elem) {
+  for (std::size_t i = 0; i < count; ++i)
+    for (std::size_t j = 0; j < elem; ++j) out[j * count + i] = in[i * elem + j];
+}
+
+// Converts, shuffles and deflates every chunk of d (row-major, chunk shape `chunk`), the chunks
+// spread over the machine's cores, then writes them in order with H5Dwrite_chunk. Edge chunks
+// are padded with zeros to the full chunk shape, as HDF5 stores them.
+void write_chunks_compressed(hid_t dset, const std::string& path, const std::string& what, const H5Dataset& d,
+                             const std::vector<hsize_t>& chunk) {
+  const std::size_t rank = d.shape.size(), elem = d.float32 ? 4 : 8;
+  std::vector<std::size_t> grid(rank);
+  std::size_t chunks = 1, chunk_elems = 1;
+  for (std::size_t k = 0; k < rank; ++k) {
+    grid[k] = (d.shape[k] + chunk[k] - 1) / chunk[k];
+    chunks *= grid[k];
+    chunk_elems *= chunk[k];
+  }
+  const std::size_t rows = d.shape[rank - 2], cols = d.shape[rank - 1], plane = rows * cols;
+  const std::size_t crow = chunk[rank - 2];
+  std::vector<std::vector<unsigned char>> packed(chunks);
+  std::vector<std::vector<hsize_t>> offsets(chunks, std::vector<hsize_t>(rank));
+  std::atomic<std::size_t> next{0};
+  std::atomic<bool> failed{false};
+  const auto work = [&]() {
+    std::vector<unsigned char> raw(chunk_elems * elem), shuf(chunk_elems * elem);
+    for (std::size_t c = next++; c < chunks; c = next++) {
+      // Chunk c's grid coordinates (row-major over the grid), its first element and its rows.
+      std::size_t rem = c, plane_index = 0;
+      for (std::size_t k = rank; k-- > 0;) {
+        offsets[c][k] = hsize_t((rem % grid[k]) * chunk[k]);
+        rem /= grid[k];
+      }
+      for (std::size_t k = 0; k + 2 < rank; ++k) plane_index = plane_index * d.shape[k] + offsets[c][k];
+      const std::size_t y0 = offsets[c][rank - 2];
+      std::fill(raw.begin(), raw.end(), 0);
+      for (std::size_t y = 0; y < crow && y0 + y < rows; ++y) {
+        const double* src = d.data.data() + plane_index * plane + (y0 + y) * cols;
+        unsigned char* dst = raw.data() + y * cols * elem;
+        if (d.float32)
+          for (std::size_t x = 0; x < cols; ++x) {
+            const float f = static_cast<float>(src[x]);
+            std::memcpy(dst + x * 4, &f, 4);
+          }
+        else
+          std::memcpy(dst, src, cols * 8);
+      }
+      shuffle_bytes(raw.data(), shuf.data(), chunk_elems, elem);
+      uLongf len = compressBound(static_cast<uLong>(shuf.size()));
+      packed[c].resize(len);
+      if (compress2(packed[c].data(), &len, shuf.data(), static_cast<uLong>(shuf.size()), kDeflateLevel) != Z_OK) {
+        failed = true;
+        return;
+      }
+      packed[c].resize(len);
+    }
+  };
+  const unsigned threads = std::max(1u, std::min<unsigned>(std::thread::hardware_concurrency(), unsigned(chunks)));
+  std::vector<std::thread> pool;
+  for (unsigned t = 1; t < threads; ++t) pool.emplace_back(work);
+  work();
+  for (auto& t : pool) t.join();
+  if (failed) fail(path, what, "compressing a chunk failed (zlib)");
+  for (std::size_t c = 0; c < chunks; ++c)
+    if (H5Dwrite_chunk(dset, H5P_DEFAULT, 0, offsets[c].data(), packed[c].size(), packed[c].data()) < 0)
+      fail(path, what, "writing a compressed chunk failed" + h5_detail());
+}
+
 // One dataset, shape in C order, float64 on disk; validates shape against data size first.
 void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
   const std::string what = "dataset '" + d.name + "'";
@@ -102,11 +196,22 @@ void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
   H5Id lcpl(H5Pcreate(H5P_LINK_CREATE), H5Pclose);
   if (!space.valid() || !lcpl.valid() || H5Pset_create_intermediate_group(lcpl.get(), 1) < 0)
     fail(path, what, "cannot create dataspace" + h5_detail());
+  const std::size_t elem = d.float32 ? 4 : 8;
+  const bool compress = d.compress && d.shape.size() >= 2 && n * elem >= kCompressMinBytes;
+  H5Id dcpl(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
+  std::vector<hsize_t> chunk;
+  if (compress) {
+    chunk = chunk_dims(d.shape, elem);
+    if (!dcpl.valid() || H5Pset_chunk(dcpl.get(), static_cast<int>(chunk.size()), chunk.data()) < 0 ||
+        H5Pset_shuffle(dcpl.get()) < 0 || H5Pset_deflate(dcpl.get(), kDeflateLevel) < 0)
+      fail(path, what, "cannot set up chunked, compressed storage" + h5_detail());
+  }
   H5Id dset(H5Dcreate2(file, d.name.c_str(), d.float32 ? H5T_IEEE_F32LE : H5T_IEEE_F64LE, space.get(), lcpl.get(),
-                       H5P_DEFAULT, H5P_DEFAULT),
+                       compress ? dcpl.get() : H5P_DEFAULT, H5P_DEFAULT),
             H5Dclose);
   if (!dset.valid()) fail(path, what, "cannot create" + h5_detail());
-  if (n > 0 && H5Dwrite(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.data.data()) < 0)
+  if (compress) write_chunks_compressed(dset.get(), path, what, d, chunk);
+  else if (n > 0 && H5Dwrite(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.data.data()) < 0)
     fail(path, what, "write failed" + h5_detail());
   for (const auto& kv : d.num_attrs) h5_write_num_attr(dset.get(), path, kv.first, kv.second);
   for (const auto& kv : d.str_attrs) h5_write_str_attr(dset.get(), path, kv.first, kv.second);
@@ -296,6 +401,7 @@ void write_design(const std::string& path, const Design& d, const std::map<std::
            "a non-empty square N x N map");
   H5Dataset h{"/height_m", {d.height_m.rows, d.height_m.cols}, d.height_m.data, {{"pitch_m", d.pitch_m}},
               {{"units", "m"}}};
+  h.compress = true;  // a quantized map holds L distinct values: deflate shrinks it (4 levels at N = 1024: 8.4 MB -> 1.2 MB)
   std::vector<H5Dataset> sets{h};
   if (!d.levels_m.empty()) sets.push_back({"/levels_m", {d.levels_m.size()}, d.levels_m, {}, {{"units", "m"}}});
   h5_write(path, sets, provenance);
