@@ -9,6 +9,7 @@
 //      unpruned: the fastest FFT on the machine for the transforms compute_psf needs; (b) the
 //      transforms compute_psf itself runs (the runtime's backend, with the field's zero-padding
 //      hint) on a device buffer, nothing else. The ratio column is the PSF time over (a);
+//      (c) the memory floor of compute_psf's passes outside the FFT (memory_floor below);
 //   2b. compute_psf + psf_sensor_vjp (forward and adjoint to dL/dH) and its ratio to compute_psf;
 //   3. the CPU reference ref::psf_stack (double, FFTW_ESTIMATE, single thread);
 //   4. the error of each OpenCL PSF stack (bands x N x N) against the CPU reference.
@@ -226,6 +227,64 @@ Timing fftw_floor(qdo::Precision p, std::size_t m, std::size_t bands, const Opti
   return t;
 }
 
+// The memory floor of compute_psf's passes outside the FFT, on host arrays with every core: the
+// same bytes moved the same number of times, with no arithmetic beyond a multiply: (1) write the
+// bands x M x M complex window (the DOE field kernel writes it all, zeros included), (2) read and
+// write it once (the transfer-function pass), (3) read the N x N crop and write the intensity
+// (bands x N x N real), (4) read that and write the S x S sensor stack (2 x 2 box, S = N/2), (5)
+// read and write the sensor stack (normalisation). An unfused pipeline cannot be faster than
+// this floor plus the FFT floor; only fusing passes into the transforms would go below it.
+Timing memory_floor(qdo::Precision p, std::size_t n, std::size_t m, std::size_t bands, const Options& opt) {
+  const unsigned threads = std::max(1u, std::thread::hardware_concurrency());
+  const auto run = [&](auto zero) {
+    using T = decltype(zero);
+    std::vector<T> field(bands * m * m * 2), native(bands * n * n), sensor(bands * (n / 2) * (n / 2));
+    const std::size_t s = n / 2;
+    const auto per_band = [&](auto&& f) {
+      std::vector<std::thread> pool;
+      for (unsigned t = 0; t < threads; ++t)
+        pool.emplace_back([&, t] {
+          for (std::size_t b = t; b < bands; b += threads) f(b);
+        });
+      for (auto& th : pool) th.join();
+    };
+    return time_it(opt.warmup, opt.repeats, [&] {
+      per_band([&](std::size_t b) {
+        T* w = field.data() + b * m * m * 2;
+        std::fill(w, w + m * m * 2, T(0.5));
+      });
+      per_band([&](std::size_t b) {
+        T* w = field.data() + b * m * m * 2;
+        for (std::size_t i = 0; i < m * m * 2; ++i) w[i] *= T(0.999);
+      });
+      per_band([&](std::size_t b) {
+        const T* w = field.data() + b * m * m * 2;
+        T* o = native.data() + b * n * n;
+        for (std::size_t y = 0; y < n; ++y)
+          for (std::size_t x = 0; x < n; ++x) {
+            const T re = w[2 * (y * m + x)], im = w[2 * (y * m + x) + 1];
+            o[y * n + x] = re * re + im * im;
+          }
+      });
+      per_band([&](std::size_t b) {
+        const T* in = native.data() + b * n * n;
+        T* o = sensor.data() + b * s * s;
+        for (std::size_t y = 0; y < s; ++y)
+          for (std::size_t x = 0; x < s; ++x)
+            o[y * s + x] = in[2 * y * n + 2 * x] + in[2 * y * n + 2 * x + 1] + in[(2 * y + 1) * n + 2 * x] +
+                           in[(2 * y + 1) * n + 2 * x + 1];
+      });
+      per_band([&](std::size_t b) {
+        T* o = sensor.data() + b * s * s;
+        T sum = 0;
+        for (std::size_t i = 0; i < s * s; ++i) sum += o[i];
+        for (std::size_t i = 0; i < s * s; ++i) o[i] /= sum;
+      });
+    });
+  };
+  return p == qdo::Precision::F64 ? run(0.0) : run(0.0f);
+}
+
 // One row of the results table.
 struct Row {
   std::size_t n = 0, m = 0;
@@ -371,7 +430,7 @@ int main(int argc, char** argv) {
 
     for (const qdo::Precision p : opt.precisions) {
       const std::string ps = qdo::to_string(p);
-      Row psf_row, fft_row, floor_row;
+      Row psf_row, fft_row, floor_row, mem_row;
       std::vector<Row> extra_rows;
       psf_row.n = fft_row.n = n;
       psf_row.m = fft_row.m = m;
@@ -456,6 +515,16 @@ int main(int argc, char** argv) {
         floor_row.t = fftw_floor(p, m, bands, opt);
         psf_row.floor_ratio = fmt("%.2f", psf_row.t->median / floor_row.t->median);
         std::cerr << "N = " << n << " bare FFTW floor " << ps << ": " << fmt("%.1f ms", floor_row.t->median * 1e3) << "\n";
+        // 2. (c) The memory floor of the passes outside the FFT; its ratio column holds
+        // (FFT floor + memory floor) / FFT floor, the best an unfused pipeline can reach.
+        mem_row.n = n;
+        mem_row.m = m;
+        mem_row.bands = bands;
+        mem_row.path = "memory floor of the non-FFT passes (host arrays, " +
+                       std::to_string(std::thread::hardware_concurrency()) + " threads: field write, TF read+write, crop, resample, normalise)";
+        mem_row.t = memory_floor(p, n, m, bands, opt);
+        mem_row.floor_ratio = fmt("%.2f (with the FFT floor)", (floor_row.t->median + mem_row.t->median) / floor_row.t->median);
+        std::cerr << "N = " << n << " memory floor " << ps << ": " << fmt("%.1f ms", mem_row.t->median * 1e3) << "\n";
       } catch (const cl::Error& e) {
         psf_row.note = std::string("FAILED: ") + e.what() + " " + qdo::cl_error_name(e.err());
         std::cerr << "N = " << n << " OpenCL " << ps << ": " << psf_row.note << "\n";
@@ -467,6 +536,7 @@ int main(int argc, char** argv) {
       for (const Row& r : extra_rows) rows.push_back(r);
       if (psf_row.t) rows.push_back(fft_row);
       if (floor_row.t) rows.push_back(floor_row);
+      if (mem_row.t) rows.push_back(mem_row);
     }
   }
 

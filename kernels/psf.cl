@@ -43,7 +43,7 @@ __kernel void scale_by_sums(__global real* x, __global const real* sums, const i
 
 // Area resampling: out[b][oy][ox] = sum_{ty,tx} w[oy][ty] w[ox][tx] in[b][start[oy]+ty][start[ox]+tx]
 // in: bands x N x N, out: bands x S x S, start: S ints, w: S x taps reals (zero where the
-// tap falls outside the input).
+// tap falls outside the input: such taps are read clamped and add nothing).
 __kernel void resample_area(__global const real* in, __global real* out, __global const int* start,
                             __global const real* w, const int n, const int s, const int taps, const int bands) {
   const size_t gid = get_global_id(0);
@@ -52,17 +52,16 @@ __kernel void resample_area(__global const real* in, __global real* out, __globa
   const int b = (int)(gid / ss);
   const int rem = (int)(gid - (size_t)b * ss);
   const int oy = rem / s, ox = rem - oy * s;
+  // Branch-free (so the work-group loop vectorizes): a tap outside the input has weight 0
+  // (AreaWeights::make), and its index is clamped into the input only to stay in bounds.
   real acc = R(0.0);
   for (int ty = 0; ty < taps; ++ty) {
     const real wy = w[oy * taps + ty];
-    const int iy = start[oy] + ty;
-    if (wy == R(0.0) || iy < 0 || iy >= n) continue;
-    for (int tx = 0; tx < taps; ++tx) {
-      const real wx = w[ox * taps + tx];
-      const int ix = start[ox] + tx;
-      if (wx == R(0.0) || ix < 0 || ix >= n) continue;
-      acc += wy * wx * in[((size_t)b * n + iy) * n + ix];
-    }
+    const int iy = clamp(start[oy] + ty, 0, n - 1);
+    __global const real* row = in + ((size_t)b * n + iy) * n;
+    real racc = R(0.0);
+    for (int tx = 0; tx < taps; ++tx) racc += w[ox * taps + tx] * row[clamp(start[ox] + tx, 0, n - 1)];
+    acc += wy * racc;
   }
   out[gid] = acc;
 }
