@@ -16,6 +16,9 @@ pkgs=(
   doctest-dev            # tests
   libcli11-dev           # the command line (header-only CLI11)
   klayout                # tests: an independent GDSII reader for the mask round trip (issue 7)
+  pybind11-dev           # the Python extension qdo._qdo (pyproject.toml)
+  python3-venv python3-pip python3-numpy python3-pytest  # the Python package's build and tests
+  python3-torch          # qdo.torch (the PyTorch operators) and its tests
 )
 missing=()
 for p in "${pkgs[@]}"; do

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Sets up (dependencies + build) and runs the default test suite with CTest on the OpenCL CPU
-# device (PoCL). Extra arguments go to ctest, e.g. scripts/test.sh -R physics.
+# device (PoCL), then the Python package's tests (scripts/test_python.sh). Extra arguments go to
+# ctest and skip the Python tests, e.g. scripts/test.sh -R physics.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh
@@ -10,3 +11,8 @@ cd build
 # Two entries at a time: a cold run is mostly PoCL compiling kernels and FFT plans, one compiler
 # thread per process, so two processes halve it on 2 cores (README "Test time").
 ctest -L default --output-on-failure -j2 "$@"
+cd ..
+# Then the Python package (python/, scripts/test_python.sh), unless only some entries were asked for.
+if [ "$#" -eq 0 ]; then
+  bash scripts/test_python.sh
+fi

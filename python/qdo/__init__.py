@@ -1,0 +1,188 @@
+"""qdo from Python: the OpenCL optics of qdo as NumPy functions (this module) and PyTorch
+operators (`qdo.torch`).
+
+Everything runs in qdo's C++ library (the one the `qdo` command uses), on an OpenCL device; no
+physics is re-implemented here. Arrays are NumPy float64 in C order:
+
+- height maps: N x N, metres of glass relief (REFERENCE §1);
+- PSF stacks: bands x S x S on the sensor grid, each band summing to 1 (as `qdo psf` writes
+  `/psf_sensor`);
+- scenes: bands x H x W (or batch x bands x H x W), values in [0, 1];
+- sensor images: 3 x H x W (or batch x 3 x H x W).
+
+A wrong shape, dtype or a non-finite value raises ValueError naming the argument, before any
+device work. Configuration errors are the same messages as the command line's.
+"""
+import json
+import os
+
+import numpy as np
+
+from . import _qdo
+
+__version__ = _qdo.__version__
+
+__all__ = ["__version__", "Optics", "devices", "preset", "quantize", "lens_design", "estimate_prior",
+           "wiener_decode", "read_cube", "read_design", "write_design", "read_h5"]
+
+
+def devices():
+    """Every OpenCL device: a list of dicts (platform, name, type, driver_version, fp64,
+    compute_units, selector). Pass a selector, "cpu", "gpu" or a name substring as `device`."""
+    return _qdo.devices()
+
+
+def preset(name):
+    """The configuration of a preset ("small", "paper") as a dict (the keys of `qdo config`)."""
+    return json.loads(_qdo.preset_json(name))
+
+
+def _config_text(preset_name, config):
+    if preset_name is not None and config is not None:
+        raise ValueError("Optics: give preset= or config=, not both")
+    if config is None:
+        name = "small" if preset_name is None else preset_name
+        return _qdo.preset_json(name), "preset " + str(name)
+    if isinstance(config, dict):
+        return json.dumps(config), "config (dict)"
+    if isinstance(config, (str, os.PathLike)):
+        path = os.fspath(config)
+        if not os.path.isfile(path):
+            raise ValueError("config: file '%s' not found" % path)
+        with open(path, "r", encoding="utf-8") as f:
+            return f.read(), path
+    raise ValueError("config: %s; expected a dict or the path of a JSON file" % type(config).__name__)
+
+
+def _as_batch(name, a, rank):
+    """A (rank)-D array as a batch of one, else the (rank + 1)-D array as it is."""
+    if not isinstance(a, np.ndarray):
+        raise ValueError("%s: expected a NumPy float64 array, got %s" % (name, type(a).__name__))
+    if a.ndim == rank:
+        return a[None], True
+    return a, False
+
+
+class Optics:
+    """A qdo configuration on an OpenCL device: the PSF chain and the camera operator, with their
+    adjoints.
+
+    Optics(preset="small") | Optics(config={...} or "config.json"), device="" (default choice:
+    QDO_DEVICE, else the first GPU, else the CPU), precision="f32" | "f64".
+    """
+
+    def __init__(self, preset=None, config=None, device="", precision="f32"):
+        text, origin = _config_text(preset, config)
+        if precision not in ("f32", "f64"):
+            raise ValueError("precision: %r; expected 'f32' or 'f64'" % (precision,))
+        self._o = _qdo.Optics(text, origin, device, precision)
+
+    @property
+    def config(self):
+        """The full configuration (dict, the keys of `qdo config`)."""
+        return json.loads(self._o.config_json)
+
+    @property
+    def device(self):
+        return self._o.device_name
+
+    @property
+    def precision(self):
+        return self._o.precision
+
+    @property
+    def n(self):
+        """DOE samples per side (height maps are n x n)."""
+        return self._o.n
+
+    @property
+    def bands(self):
+        return self._o.bands
+
+    @property
+    def sensor_size(self):
+        """S: PSF stacks are bands x S x S."""
+        return self._o.sensor_size
+
+    @property
+    def wavelengths_nm(self):
+        return np.asarray(self._o.wavelengths_nm)
+
+    @property
+    def h_max_m(self):
+        """The height of one 2π phase step at the base wavelength (quantizers' full scale)."""
+        return self._o.h_max_m
+
+    def srf(self):
+        """The sensor response, 3 x bands, rows summing to 1."""
+        return self._o.srf()
+
+    def psf(self, height_m):
+        """height_m (n x n float64, metres) -> the sensor-grid PSF stack (bands x S x S)."""
+        return self._o.psf(height_m)
+
+    def psf_vjp(self, grad_psf):
+        """Adjoint of the last psf() call: dL/dPSF (bands x S x S) -> dL/dheight (n x n, per metre)."""
+        return self._o.psf_vjp(grad_psf)
+
+    def sensor_psf(self, height_m):
+        """The PSF as the RGB sensor sees it: 3 x S x S, srf · psf (each channel sums to 1)."""
+        p = self.psf(height_m)
+        return np.tensordot(self.srf(), p, axes=(1, 0))
+
+    def camera(self, scene, psf):
+        """Sensor image(s) of scene(s) through a PSF stack on the device: scene bands x H x W
+        (or batch x bands x H x W), psf bands x S x S -> 3 x H x W (or batch x 3 x H x W).
+        The configuration's convolution (linear by default), sensor response and noise."""
+        batch, single = _as_batch("scene", scene, 3)
+        out = self._o.camera(batch, psf)
+        return out[0] if single else out
+
+    def camera_vjp(self, grad_rgb):
+        """Adjoint of the last camera() call's noiseless camera: dL/dimage -> (dL/dpsf,
+        dL/dscene), shapes as that call's psf and scene."""
+        batch, single = _as_batch("grad_rgb", grad_rgb, 3)
+        g_psf, g_scene = self._o.camera_vjp(batch)
+        return g_psf, (g_scene[0] if single else g_scene)
+
+
+def quantize(height_m, h_max_m, levels, placement="inclusive"):
+    """Uniform L-level quantization of a height map (REFERENCE §2): n x n -> n x n."""
+    return _qdo.quantize(height_m, float(h_max_m), int(levels), placement)
+
+
+def lens_design(optics, wavelength_nm=550.0):
+    """The Fresnel lens of `optics`' configuration focused at wavelength_nm (n x n heights)."""
+    return _qdo.lens_design(optics._o.config_json, float(wavelength_nm))
+
+
+def estimate_prior(scenes, bins=16):
+    """The Wiener decoder's spectral prior from training scenes (count x bands x H x W):
+    bins x bands x bands, one second-moment matrix per radial frequency bin."""
+    return _qdo.estimate_prior(scenes, int(bins))
+
+
+def wiener_decode(y, psf, srf, prior, noise_sigma):
+    """Linear MMSE reconstruction: sensor image y (3 x H x W), PSF stack (bands x S x S), srf
+    (3 x bands), prior (from estimate_prior on H x W scenes), noise_sigma -> bands x H x W."""
+    return _qdo.wiener_decode(y, psf, srf, prior, float(noise_sigma))
+
+
+def read_cube(path, key=""):
+    """A hyperspectral cube (CAVE .mat, PNG folder, HDF5) as bands x H x W in [0, 1]."""
+    return _qdo.read_cube(os.fspath(path), key)
+
+
+def read_design(path):
+    """A design file: (height_m n x n, pitch_m, levels_m list)."""
+    return _qdo.read_design(os.fspath(path))
+
+
+def write_design(path, height_m, pitch_m, levels_m=()):
+    """Writes a design file qdo's commands (and `qdo export`) read, atomically."""
+    _qdo.write_design(os.fspath(path), height_m, float(pitch_m), list(levels_m))
+
+
+def read_h5(path, name):
+    """One dataset of a qdo HDF5 file (e.g. read_h5("out/psf.h5", "/psf_sensor"))."""
+    return _qdo.read_h5(os.fspath(path), name)

@@ -1,0 +1,102 @@
+"""qdo's optics as PyTorch operators: autograd Functions whose backward calls qdo's hand-written,
+gradient-checked adjoint kernels, and nn.Modules holding the configuration and device state.
+
+- `PSF(optics)`: height map (n x n, metres) -> sensor-grid PSF stack (bands x S x S).
+- `Camera(optics)`: (scene bands x H x W or batch x bands x H x W, PSF stack) -> sensor image(s).
+
+Tensors cross through host memory: each call copies its inputs to float64 NumPy arrays and its
+results back (BENCHMARKS "Python" measures what it costs). qdo runs on its own OpenCL device, so
+only CPU tensors are taken; a tensor on another device (CUDA, meta) raises ValueError saying so,
+nothing is copied behind the caller's back. Results come back in the input's dtype on the CPU.
+
+Each Function keeps the Optics' counter of its forward calls: when another forward ran between
+a forward and its backward (two graphs alive at once), backward first re-runs its own forward,
+so the adjoint is always that of its own inputs. Double backward is not supported.
+"""
+import numpy as np
+import torch
+from torch.autograd.function import once_differentiable
+
+from . import Optics
+
+__all__ = ["PSF", "Camera", "PSFFunction", "CameraFunction", "to_numpy"]
+
+
+def to_numpy(name, t):
+    """A CPU tensor as a C-order float64 NumPy array (a copy); ValueError naming `name` otherwise."""
+    if not isinstance(t, torch.Tensor):
+        raise ValueError("%s: expected a torch.Tensor, got %s" % (name, type(t).__name__))
+    if t.device.type != "cpu":
+        raise ValueError("%s: tensor on device '%s'; qdo.torch takes CPU tensors (qdo computes on its own "
+                         "OpenCL device): pass t.cpu(), and move the result back with .to(device)" % (name, t.device))
+    if not t.is_floating_point():
+        raise ValueError("%s: dtype %s; expected a floating-point tensor" % (name, t.dtype))
+    return np.ascontiguousarray(t.detach().to(torch.float64).numpy())
+
+
+class PSFFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, height_m, optics):
+        psf = optics.psf(to_numpy("height_m", height_m))
+        ctx.optics = optics
+        ctx.calls = optics._o.psf_calls
+        ctx.save_for_backward(height_m)
+        return torch.from_numpy(psf).to(height_m.dtype)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad_psf):
+        optics = ctx.optics
+        (height_m,) = ctx.saved_tensors
+        if optics._o.psf_calls != ctx.calls:
+            optics.psf(to_numpy("height_m", height_m))
+        g = optics.psf_vjp(to_numpy("grad_psf", grad_psf))
+        return torch.from_numpy(g).to(height_m.dtype), None
+
+
+class CameraFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, scene, psf, optics):
+        s = to_numpy("scene", scene)
+        p = to_numpy("psf", psf)
+        single = s.ndim == 3
+        rgb = optics.camera(s, p)
+        ctx.optics = optics
+        ctx.calls = optics._o.camera_calls
+        ctx.single = single
+        ctx.save_for_backward(scene, psf)
+        return torch.from_numpy(rgb).to(scene.dtype)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad_rgb):
+        optics = ctx.optics
+        scene, psf = ctx.saved_tensors
+        if optics._o.camera_calls != ctx.calls:
+            optics.camera(to_numpy("scene", scene), to_numpy("psf", psf))
+        g_psf, g_scene = optics.camera_vjp(to_numpy("grad_rgb", grad_rgb))
+        gs = torch.from_numpy(g_scene).to(scene.dtype) if ctx.needs_input_grad[0] else None
+        gp = torch.from_numpy(g_psf).to(psf.dtype) if ctx.needs_input_grad[1] else None
+        return gs, gp, None
+
+
+class PSF(torch.nn.Module):
+    """height map (n x n, metres) -> PSF stack (bands x S x S), differentiable in the heights."""
+
+    def __init__(self, optics=None, **optics_kwargs):
+        super().__init__()
+        self.optics = optics if optics is not None else Optics(**optics_kwargs)
+
+    def forward(self, height_m):
+        return PSFFunction.apply(height_m, self.optics)
+
+
+class Camera(torch.nn.Module):
+    """(scene, PSF stack) -> sensor image(s), differentiable in both."""
+
+    def __init__(self, optics=None, **optics_kwargs):
+        super().__init__()
+        self.optics = optics if optics is not None else Optics(**optics_kwargs)
+
+    def forward(self, scene, psf):
+        return CameraFunction.apply(scene, psf, self.optics)

@@ -1,0 +1,124 @@
+"""The NumPy API of qdo: configuration, shapes, refusals, and agreement with the `qdo` command on
+the same inputs."""
+import json
+import os
+import re
+import subprocess
+
+import numpy as np
+import pytest
+
+import qdo
+from conftest import tiny_config
+
+
+def test_version_is_the_projects():
+    cmake = open(os.path.join(os.path.dirname(__file__), "..", "..", "CMakeLists.txt")).read()
+    assert qdo.__version__ == re.search(r"project\(qdo VERSION ([0-9.]+)", cmake).group(1)
+
+
+def test_version_matches_the_command(qdo_binary):
+    out = subprocess.run([qdo_binary, "--version"], capture_output=True, text=True).stdout
+    assert qdo.__version__ in out
+
+
+def test_devices_and_configuration_sources(tmp_path):
+    devs = qdo.devices()
+    assert devs and all({"name", "selector", "fp64"} <= set(d) for d in devs)
+    small = qdo.Optics(preset="small")
+    assert small.config["n"] == 256 and small.bands == 31
+    cfg = tiny_config()
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(cfg))
+    a, b = qdo.Optics(config=cfg), qdo.Optics(config=str(path))
+    assert a.config == b.config and a.n == 16
+    assert qdo.preset("paper")["n"] == 1024
+
+
+def test_bad_configurations_are_refused_with_the_commands_messages(tmp_path):
+    with pytest.raises(ValueError, match="bands"):
+        qdo.Optics(config=dict(tiny_config(), bands=0))
+    with pytest.raises(ValueError, match="nonsense"):
+        qdo.Optics(config=dict(tiny_config(), nonsense=1))
+    with pytest.raises(ValueError, match="not found"):
+        qdo.Optics(config=str(tmp_path / "missing.json"))
+    with pytest.raises(ValueError, match="not both"):
+        qdo.Optics(preset="small", config=tiny_config())
+    with pytest.raises(ValueError, match="precision"):
+        qdo.Optics(preset="small", precision="f16")
+
+
+def test_psf_shapes_and_normalisation(optics64, rng):
+    h = rng.uniform(0, optics64.h_max_m, (optics64.n, optics64.n))
+    psf = optics64.psf(h)
+    s = optics64.sensor_size
+    assert psf.shape == (optics64.bands, s, s) and psf.dtype == np.float64
+    np.testing.assert_allclose(psf.sum(axis=(1, 2)), 1.0, rtol=1e-12)
+    rgb_psf = optics64.sensor_psf(h)
+    assert rgb_psf.shape == (3, s, s)
+    np.testing.assert_allclose(rgb_psf.sum(axis=(1, 2)), 1.0, rtol=1e-12)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (np.zeros((16, 16), dtype=np.float32), "height_m: dtype float32; expected float64"),
+    (np.zeros((16, 15)), r"height_m: shape \(16, 15\); expected \(16, 16\)"),
+    (np.zeros((2, 16, 16)), "height_m: 3 dimensions; expected 2"),
+    (np.full((16, 16), np.nan), "height_m: non-finite value"),
+    ([[0.0] * 16] * 16, "height_m: expected a NumPy float64 array"),
+])
+def test_bad_arrays_are_refused_naming_the_argument(optics64, bad, match):
+    calls = optics64._o.psf_calls
+    with pytest.raises(ValueError, match=match):
+        optics64.psf(bad)
+    assert optics64._o.psf_calls == calls  # refused before any device work
+
+
+def test_psf_equals_the_qdo_command_on_the_same_design(tmp_path, qdo_binary, rng):
+    cfg = tiny_config()
+    (tmp_path / "c.json").write_text(json.dumps(cfg))
+    o = qdo.Optics(config=cfg, precision="f64")
+    h = qdo.quantize(rng.uniform(0, o.h_max_m, (o.n, o.n)), o.h_max_m, 4)
+    qdo.write_design(tmp_path / "d.h5", h, o.config["pitch_m"])
+    run = subprocess.run([qdo_binary, "psf", "--config", str(tmp_path / "c.json"), "--design", str(tmp_path / "d.h5"),
+                          "--precision", "f64", "--out", str(tmp_path / "out")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    ref = qdo.read_h5(tmp_path / "out" / "psf.h5", "/psf_sensor")
+    np.testing.assert_allclose(o.psf(h), ref, rtol=0, atol=1e-14)
+
+
+def test_camera_and_its_adjoint(optics64, rng):
+    s = optics64.sensor_size
+    psf = optics64.psf(rng.uniform(0, optics64.h_max_m, (optics64.n, optics64.n)))
+    scene = rng.uniform(0, 1, (2, optics64.bands, 9, 7))
+    rgb = optics64.camera(scene, psf)
+    assert rgb.shape == (2, 3, 9, 7)
+    assert optics64.camera(scene[0], psf).shape == (3, 9, 7)
+    # Dot-product test of the adjoint (linear in the scene for a fixed PSF, and in the PSF).
+    rgb = optics64.camera(scene, psf)
+    g = rng.normal(size=rgb.shape)
+    g_psf, g_scene = optics64.camera_vjp(g)
+    assert g_psf.shape == (optics64.bands, s, s) and g_scene.shape == scene.shape
+    lhs = float(np.sum(rgb * g))
+    np.testing.assert_allclose(lhs, float(np.sum(scene * g_scene)), rtol=1e-12)
+    np.testing.assert_allclose(lhs, float(np.sum(psf * g_psf)), rtol=1e-12)
+    with pytest.raises(ValueError, match="scene"):
+        optics64.camera(rng.uniform(0, 1, (2, optics64.bands + 1, 9, 7)), psf)
+
+
+def test_wiener_decoder_recovers_a_scene_through_a_sharp_psf(optics64, rng):
+    b, hh, ww = optics64.bands, 12, 12
+    scenes = rng.uniform(0.2, 0.8, (6, b, hh, ww))
+    prior = qdo.estimate_prior(scenes, bins=4)
+    assert prior.shape == (4, b, b)
+    s = optics64.sensor_size
+    delta = np.zeros((b, s, s))
+    delta[:, s // 2, s // 2] = 1.0
+    srf = optics64.srf()
+    o = qdo.Optics(config=dict(tiny_config(), convolution="circular"), precision="f64")
+    y = o.camera(scenes[0], delta)
+    x = qdo.wiener_decode(y, delta, srf, prior, 1e-3)
+    assert x.shape == (b, hh, ww)
+    # 3 channels cannot determine 3 bands exactly under noise regularisation, but the estimate
+    # is far closer than the prior mean alone.
+    err = np.sqrt(np.mean((x - scenes[0]) ** 2))
+    assert err < 0.5 * np.sqrt(np.mean((scenes[0] - scenes.mean(axis=0)) ** 2)) + 0.05
