@@ -35,6 +35,10 @@ struct H5Dataset {
   bool compress = false;
 };
 
+// True when v holds at most max_distinct distinct values (a quantized height map): such data is
+// worth H5Dataset::compress (stops counting at max_distinct + 1, so a continuous map costs little).
+bool few_distinct_values(const std::vector<double>& v, std::size_t max_distinct = 256);
+
 // Writes all datasets into one new file atomically (temp file + rename). Every value and
 // numeric attribute must be finite: NaN or Inf is a NumericalError naming the file and the
 // dataset, raised before the file is created; so is a float32 dataset holding a value beyond

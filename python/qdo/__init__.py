@@ -23,7 +23,8 @@ from . import _qdo
 __version__ = _qdo.__version__
 
 __all__ = ["__version__", "Optics", "devices", "preset", "quantize", "lens_design", "estimate_prior",
-           "wiener_decode", "read_cube", "read_design", "write_design", "read_h5"]
+           "wiener_decode", "read_cube", "read_design", "write_design", "read_h5", "write_rgb_png",
+           "write_montage_png", "write_map_png"]
 
 
 def devices():
@@ -186,3 +187,19 @@ def write_design(path, height_m, pitch_m, levels_m=()):
 def read_h5(path, name):
     """One dataset of a qdo HDF5 file (e.g. read_h5("out/psf.h5", "/psf_sensor"))."""
     return _qdo.read_h5(os.fspath(path), name)
+
+
+def write_rgb_png(path, rgb):
+    """A 3 x H x W image as an 8-bit sRGB PNG (99.9th percentile to white), atomically."""
+    _qdo.write_rgb_png(os.fspath(path), rgb)
+
+
+def write_montage_png(path, stack, wavelengths_nm=(), gamma=0.5):
+    """Every plane of a stack (e.g. a PSF stack, bands x S x S) tiled into one PNG, each tinted
+    by its wavelength when given."""
+    _qdo.write_montage_png(os.fspath(path), stack, [float(w) for w in wavelengths_nm], float(gamma))
+
+
+def write_map_png(path, m):
+    """A 2-D map (e.g. a height map) as a colour-mapped PNG, min to max."""
+    _qdo.write_map_png(os.fspath(path), m)

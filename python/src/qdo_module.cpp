@@ -365,6 +365,29 @@ PYBIND11_MODULE(_qdo, m) {
       },
       py::arg("path"), py::arg("height_m"), py::arg("pitch_m"), py::arg("levels_m") = std::vector<double>{});
   m.def(
+      "write_rgb_png",
+      [](const std::string& path, const py::handle& rgb_obj) {
+        const Array a = checked(rgb_obj, "rgb", 3);
+        if (a.shape(0) != 3) throw py::value_error("rgb: shape " + shape_of(a) + "; expected (3, H, W)");
+        write_rgb_png(path, to_stack(a));
+      },
+      py::arg("path"), py::arg("rgb"));
+  m.def(
+      "write_montage_png",
+      [](const std::string& path, const py::handle& stack_obj, const std::vector<double>& wavelengths_nm, double gamma) {
+        write_montage_png(path, to_stack(checked(stack_obj, "stack", 3)), wavelengths_nm, gamma);
+      },
+      py::arg("path"), py::arg("stack"), py::arg("wavelengths_nm") = std::vector<double>{}, py::arg("gamma") = 0.5);
+  m.def(
+      "write_map_png",
+      [](const std::string& path, const py::handle& map_obj) {
+        const Array a = checked(map_obj, "map", 2);
+        Map2D mp(std::size_t(a.shape(0)), std::size_t(a.shape(1)));
+        std::copy(a.data(), a.data() + a.size(), mp.data.begin());
+        write_map_png(path, mp);
+      },
+      py::arg("path"), py::arg("map"));
+  m.def(
       "read_h5",
       [](const std::string& path, const std::string& name) {
         const H5Dataset d = h5_read(path, name);

@@ -74,14 +74,33 @@ void write_psf_h5(Simulator& sim, const RealStack& psf_s, const Map2D& h, const 
   ds.push_back({"/aliased_energy_fraction", {cfg.bands}, alias, {}, {{"units", "fraction"}}});
   ds.push_back({"/energy_outside_window", {cfg.bands}, outside, {}, {{"units", "fraction"}}});
   ds.push_back({"/height_m", {h.rows, h.cols}, h.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "m"}}});
-  ds.back().compress = true;  // as in design files: a quantized map shrinks ~7-fold
+  ds.back().compress = few_distinct_values(h.data);  // as in design files: quantized maps only
   h5_write(dir + "/psf.h5", ds, {{"config", config_to_json_text(cfg)}, {"design", tag}, {"precision", to_string(sim.precision())}});
 }
 
 // DIR/psf.png (montage of the sensor PSF stack) and DIR/design.png (height map). Host only.
+// design.png is a preview at most 512 px per side (every k-th sample, k = ceil(N / 512): every
+// 2nd at N = 1024); the heights themselves are in the HDF5 files. The two figures are drawn on two
+// threads (libpng is reentrant).
 void write_psf_figures(const SystemConfig& cfg, const RealStack& psf_s, const Map2D& h, const std::string& dir) {
-  write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
-  write_map_png(dir + "/design.png", h);
+  auto montage = std::async(std::launch::async, [&] {
+    write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
+  });
+  const std::size_t k = (std::max(h.rows, h.cols) + 511) / 512;
+  try {
+    if (k <= 1) {
+      write_map_png(dir + "/design.png", h);
+    } else {
+      Map2D small((h.rows + k - 1) / k, (h.cols + k - 1) / k);
+      for (std::size_t y = 0; y < small.rows; ++y)
+        for (std::size_t x = 0; x < small.cols; ++x) small(y, x) = h(y * k, x * k);
+      write_map_png(dir + "/design.png", small);
+    }
+  } catch (...) {
+    montage.wait();
+    throw;
+  }
+  montage.get();
 }
 
 // Runs `figures` (PNG writers only: libpng is reentrant) on a second thread while `data` (every
@@ -117,12 +136,16 @@ int cmd_config(const Args& a) {
 }
 
 int cmd_psf(const Args& a) {
+  const auto t_cmd = std::chrono::steady_clock::now();
   (void)save_native(a);  // validated before any work
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision"));
   const Map2D h = design_heights(cfg, a);
   const std::string dir = out_dir(a);
+  const double inputs_s = seconds_since(t_cmd);
+  const auto t_dev = std::chrono::steady_clock::now();
   Runtime rt(a.get("device"));
+  const double device_s = seconds_since(t_dev);
   const auto t0 = std::chrono::steady_clock::now();
   Simulator sim(rt, cfg, p);
   const double setup_s = seconds_since(t0);
@@ -131,13 +154,19 @@ int cmd_psf(const Args& a) {
   sim.compute_psf();
   rt.queue().finish();
   const double psf_seconds = seconds_since(t1);
+  const auto t_read = std::chrono::steady_clock::now();
   const RealStack psf_s = sim.psf_sensor();
+  const double read_s = seconds_since(t_read);
+  const auto t_write = std::chrono::steady_clock::now();
   write_concurrently([&] { write_psf_h5(sim, psf_s, h, dir, a.get("design"), save_native(a), a.has("compress")); },
                      [&] { write_psf_figures(cfg, psf_s, h, dir); });
+  const double write_s = seconds_since(t_write);
   std::printf("device: %s (%s)\nPSF stack: %zu bands x %zu x %zu (window %zu), %s, %.3f s (setup %.3f s: kernels %.3f s, FFT plans %.3f s)\n%s\nwrote %s/psf.h5, psf.png, design.png\n",
               rt.info().name.c_str(), rt.info().platform.c_str(), cfg.bands, cfg.n, cfg.n, sim.geometry().m,
               to_string(p).c_str(), psf_seconds, setup_s, rt.build_seconds(), rt.fft_bake_seconds(), sim.sampling().summary().c_str(),
               dir.c_str());
+  std::printf("time: inputs %.3f s, device %.3f s, setup %.3f s, PSF %.3f s, read-back %.3f s, files %.3f s; command %.3f s\n",
+              inputs_s, device_s, setup_s, psf_seconds, read_s, write_s, seconds_since(t_cmd));
   return 0;
 }
 

@@ -11,6 +11,7 @@
 #include <limits>
 #include <memory>
 #include <thread>
+#include <unordered_set>
 #include <vector>
 
 #include "data/io_internal.hpp"
@@ -211,7 +212,13 @@ void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
             H5Dclose);
   if (!dset.valid()) fail(path, what, "cannot create" + h5_detail());
   if (compress) write_chunks_compressed(dset.get(), path, what, d, chunk);
-  else if (n > 0 && H5Dwrite(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.data.data()) < 0)
+  else if (n > 0 && d.float32) {
+    // Converted here (h5_write checked the range): HDF5's own double -> float conversion path is
+    // several times slower than this loop.
+    const std::vector<float> f(d.data.begin(), d.data.end());
+    if (H5Dwrite(dset.get(), H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, f.data()) < 0)
+      fail(path, what, "write failed" + h5_detail());
+  } else if (n > 0 && H5Dwrite(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.data.data()) < 0)
     fail(path, what, "write failed" + h5_detail());
   for (const auto& kv : d.num_attrs) h5_write_num_attr(dset.get(), path, kv.first, kv.second);
   for (const auto& kv : d.str_attrs) h5_write_str_attr(dset.get(), path, kv.first, kv.second);
@@ -344,6 +351,13 @@ H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::si
 // HDF5 public API
 // =========================================================================================
 
+bool few_distinct_values(const std::vector<double>& v, std::size_t max_distinct) {
+  std::unordered_set<double> seen;
+  for (double x : v)
+    if (seen.insert(x).second && seen.size() > max_distinct) return false;
+  return true;
+}
+
 void h5_write(const std::string& path, const std::vector<H5Dataset>& datasets,
               const std::map<std::string, std::string>& root_str_attrs) {
   for (const H5Dataset& d : datasets) {
@@ -401,7 +415,9 @@ void write_design(const std::string& path, const Design& d, const std::map<std::
            "a non-empty square N x N map");
   H5Dataset h{"/height_m", {d.height_m.rows, d.height_m.cols}, d.height_m.data, {{"pitch_m", d.pitch_m}},
               {{"units", "m"}}};
-  h.compress = true;  // a quantized map holds L distinct values: deflate shrinks it (4 levels at N = 1024: 8.4 MB -> 1.2 MB)
+  // A quantized map holds L distinct values: deflate shrinks it (4 levels at N = 1024: 8.4 MB ->
+  // 1.2 MB); a continuous one barely shrinks and is written as it is.
+  h.compress = few_distinct_values(d.height_m.data);
   std::vector<H5Dataset> sets{h};
   if (!d.levels_m.empty()) sets.push_back({"/levels_m", {d.levels_m.size()}, d.levels_m, {}, {{"units", "m"}}});
   h5_write(path, sets, provenance);

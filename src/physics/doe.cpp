@@ -139,6 +139,7 @@ Map2D lens_design(const SystemConfig& cfg, double design_wavelength_nm) {
   const double k = 2.0 * M_PI / (design_wavelength_nm * 1e-9);
   const double z = cfg.sensor_distance_m, d = cfg.scene_distance_m;
   const std::size_t n = cfg.n;
+  const double h_max_m = cfg.h_max_m();  // evaluates the material's dispersion: once, not per pixel
   Map2D h(n, n);
   for (std::size_t i = 0; i < n; ++i) {
     for (std::size_t j = 0; j < n; ++j) {
@@ -149,7 +150,7 @@ Map2D lens_design(const SystemConfig& cfg, double design_wavelength_nm) {
       if (!cfg.scene_at_infinity) path += r2 / (std::sqrt(r2 + d * d) + d);
       double phi = std::fmod(-k * path, 2.0 * M_PI);
       if (phi < 0) phi += 2.0 * M_PI;
-      h(i, j) = std::min(phi / (k * dn), cfg.h_max_m());
+      h(i, j) = std::min(phi / (k * dn), h_max_m);
     }
   }
   return h;
