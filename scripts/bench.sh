@@ -19,7 +19,9 @@ if ! /usr/bin/python3 -c "import numpy" 2> /dev/null; then
   $sudo_cmd env DEBIAN_FRONTEND=noninteractive apt-get install -y -q python3-numpy > /dev/null
 fi
 /usr/bin/python3 bench/psf_numpy.py --repeats 3 | tee "$out/psf_numpy.txt"
-# The whole paper-preset PSF command: wall time and peak memory (GNU time).
-for i in 1 2 3; do /usr/bin/time -f "qdo psf --preset paper: %e s wall, %M KB peak" ./build/qdo psf --preset paper \
-  --design lens:550 --out "$out/psf_paper" > /dev/null; done 2>&1 | tee "$out/psf_command.txt"
+# The whole paper-preset PSF command against its in-process compute, and with --compress.
+bash bench/psf_command.sh ./build/qdo paper 7 | tee "$out/psf_command.txt"
+bash bench/psf_command.sh ./build/qdo paper 5 --compress | tee "$out/psf_command_compress.txt"
+# What crossing between PyTorch and qdo costs (needs the package: scripts/test_python.sh builds it).
+if [ -x build/venv/bin/python ]; then build/venv/bin/python bench/python_overhead.py | tee "$out/python.txt"; fi
 echo "bench: tables in $out/"

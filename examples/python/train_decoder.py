@@ -12,10 +12,11 @@ At the end the DOE is fully quantized (alpha = 1): the three test crops of ../sh
 montage, a test scene next to its reconstruction, as RGB through the camera response) and
 OUT/log.csv (loss per step).
 
-    python3 examples/python/train_decoder.py --steps 150 --out train_decoder_out
+    python3 examples/python/train_decoder.py --out train_decoder_out
 
-Needs the qdo package (`pip install .`, README "Python") and PyTorch; ~3 minutes on 2 CPU cores
-at the defaults (the `small` preset: 256 x 256 DOE, 31 bands, 64 x 64 patches, batch 4).
+Needs the qdo package (`pip install .`, README "Python") and PyTorch; 2.4 minutes on 2 CPU cores
+at the defaults (the `small` preset: 256 x 256 DOE, 31 bands, 64 x 64 patches, batch 4, 500 steps;
+measured on the 2-core AMD EPYC with PoCL: 140 s, mean test PSNR 22.3 dB).
 """
 import argparse
 import csv
@@ -39,7 +40,7 @@ def parse():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", default=os.path.join(HERE, "..", "..", "..", "shared", "data", "hsi"),
                    help="folder holding cave_train/ (training) and cave/ (test)")
-    p.add_argument("--steps", type=int, default=150)
+    p.add_argument("--steps", type=int, default=500)
     p.add_argument("--levels", type=int, default=4, help="height levels L of the fabricated DOE")
     p.add_argument("--patch", type=int, default=64)
     p.add_argument("--batch", type=int, default=4)
