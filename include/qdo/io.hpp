@@ -30,7 +30,7 @@ struct H5Dataset {
   // two axes per chunk, at most 4 MiB) with HDF5's shuffle + deflate (level 1) filters, the chunks
   // compressed on every core; any HDF5 reader reads it as usual. Pays for data with structure
   // (a 4-level 1024² height map: 8.4 MB -> 1.2 MB); float PSF stacks shrink only ~20 % (their
-  // low mantissa bits are noise) for ~0.25 s at the paper preset, so they are compressed only on
+  // low mantissa bits are noise) for ~0.2 s at the paper preset, so they are compressed only on
   // request (`--compress`; BENCHMARKS "CPU speed").
   bool compress = false;
 };
