@@ -2,7 +2,11 @@
 
 #include "qdo/camera.hpp"
 
+#include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
 
 #include "qdo/error.hpp"
 #include "qdo/fft.hpp"
@@ -347,8 +351,24 @@ void Simulator::resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer
 
 void Simulator::compute_psf() {
   const std::size_t n = cfg_.n, m = geom_.m, bands = nb_;
+  // QDO_STAGE_TIMES=1: a queue.finish() after each stage and its time on stderr (diagnostics:
+  // the finishes cost a little; bench_psf's stage times come from here).
+  static const bool stage_times = [] {
+    const char* e = std::getenv("QDO_STAGE_TIMES");
+    return e && std::string(e) == "1";
+  }();
+  auto t_stage = std::chrono::steady_clock::now();
+  const auto stage = [&](const char* what) {
+    if (!stage_times) return;
+    rt_.queue().finish();
+    const auto now = std::chrono::steady_clock::now();
+    std::fprintf(stderr, "compute_psf stage %-12s %.4f s\n", what, std::chrono::duration<double>(now - t_stage).count());
+    t_stage = now;
+  };
   run_doe_field();
+  stage("field");
   run_propagation(field_, cfg_.sensor_distance_m, true);
+  stage("propagation");
   // Intensity of the N x N crop and its per-band sums in one pass. The native stack stays
   // unnormalised (normalising it before the linear area resampling would not change the
   // normalised sensor stack); psf_native() and the adjoints normalise it when they need it.
@@ -358,8 +378,11 @@ void Simulator::compute_psf() {
                                    cl::NDRange(Runtime::kLocalSize, 1));
   rt_.launch_1d(k_finalize_, bands, prec_, partial_, sums_crop_, int(kGroupsPerBand), int(bands));
   native_normalized_ = false;
+  stage("crop");
   resample(psf_, psf_s_, wstart_, wts_, n, s_, weights_.taps);
+  stage("resample");
   normalize_bands(psf_s_, s_ * s_, sums_sensor_);
+  stage("normalise");
   psf_valid_ = field_valid_ = true;
   ++psf_generation_;
   if (cfg_.strict_sampling) {
