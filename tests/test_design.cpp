@@ -8,6 +8,9 @@
 #include "qdo/adjoint.hpp"
 #include "qdo/design.hpp"
 #include "qdo/error.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/wiener.hpp"
+#include "qdo/wiener_device.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
@@ -131,6 +134,85 @@ TEST_SUITE("design") {
         CHECK(distinct.size() <= 4);
         for (double v : distinct) CHECK(std::find(table.begin(), table.end(), v) != table.end());
       }
+    }
+  }
+
+  TEST_CASE("the device-resident objective path gives the host path's numbers; the radial path keeps the host") {
+    // Designer::gradient with a DevicePsfObjective: the PSF, the Wiener objective and the PSF
+    // adjoint stay on the device. Against the same DeviceObjective called through host copies
+    // (float32 survives the double round trip exactly), every step must be bit-identical.
+    Fixture f;
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::vector<RealStack> scenes;
+    for (int k = 0; k < 4; ++k) {
+      RealStack sc(f.cfg.bands, 12, 12);
+      for (double& v : sc.data) v = 0.2 + 0.8 * u(rng);
+      scenes.push_back(std::move(sc));
+    }
+    const wiener::SpectralPrior prior = wiener::estimate_prior(scenes, 4);
+    const Eigen::MatrixXd srf = sensor_response(f.cfg);
+    const std::size_t s_px = f.cfg.sensor_size_px();
+    for (Precision p : device_precisions(runtime())) {
+      if (p == Precision::F32 && !runtime().has_fp64()) continue;  // the objective's f64 accumulation
+      for (DesignMode m : {DesignMode::Full, DesignMode::QDOA}) {
+        CAPTURE(to_string(p));
+        CAPTURE(to_string(m));
+        wiener::DeviceObjective dev(runtime(), p, srf, prior, 1e-2, s_px);
+        const PsfObjective host = [&dev](const RealStack& psf, RealStack& g) {
+          wiener::PsfObjective r = dev.expected(psf);
+          g = std::move(r.grad_psf);
+          return r.value;
+        };
+        const DevicePsfObjective resident = [&dev](const cl::Buffer& psf, cl::Buffer& g) { return dev.expected(psf, g); };
+        int host_calls = 0;
+        const PsfObjective counting = [&](const RealStack& psf, RealStack& g) {
+          ++host_calls;
+          return host(psf, g);
+        };
+        DesignOptions o = options(m);
+        o.height_noise_m = m == DesignMode::QDOA ? 20e-9 : 0.0;
+        Simulator sim_a(runtime(), f.cfg, p), sim_b(runtime(), f.cfg, p);
+        Designer da(sim_a, o), db(sim_b, o);
+        DesignState sa = da.initial_state(start_params(f.cfg, 5)), sb = db.initial_state(start_params(f.cfg, 5));
+        for (int i = 0; i < 4; ++i) {
+          const StepReport ra = da.step(sa, host);
+          const StepReport rb = db.step(sb, counting, &resident);
+          CHECK(ra.loss == rb.loss);
+          CHECK(ra.loss_aq == rb.loss_aq);
+        }
+        CHECK(host_calls == 0);
+        CHECK(sa.w == sb.w);
+        CHECK(sa.offsets == sb.offsets);
+        // The radial path has its PSF on the host: it uses the host objective even when given one.
+        DesignOptions orad = o;
+        orad.psf_path = PsfPath::Radial;
+        Simulator sim_r(runtime(), f.cfg, p);
+        Designer dr(sim_r, orad);
+        DesignState sr = dr.initial_state(start_params(f.cfg, 5));
+        dr.step(sr, counting, &resident);
+        CHECK(host_calls == 1);
+      }
+    }
+    // The simulator's device-gradient adjoint equals the host form, and refuses a short buffer.
+    for (Precision p : device_precisions(runtime())) {
+      Simulator sim(runtime(), f.cfg, p);
+      sim.set_heights(lens_design(f.cfg, 520));
+      sim.compute_psf();
+      RealStack g(f.cfg.bands, s_px, s_px);
+      for (double& v : g.data) v = u(rng) - 0.5;
+      const std::size_t rsz = p == Precision::F64 ? 8 : 4;
+      cl::Buffer gbuf(runtime().context(), CL_MEM_READ_WRITE, g.size() * rsz);
+      runtime().write_reals(gbuf, g.data.data(), g.size(), p);
+      RealStack g_rounded(g.planes, g.rows, g.cols);  // what the device holds (float32 rounding)
+      runtime().read_reals(gbuf, g_rounded.data.data(), g.size(), p);
+      const Map2D want = sim.psf_sensor_vjp(g_rounded);
+      CHECK(sim.psf_sensor_vjp(gbuf).data == want.data);
+      std::vector<double> after(g.size());
+      runtime().read_reals(gbuf, after.data(), g.size(), p);
+      CHECK(after == g_rounded.data);  // the input buffer is not modified
+      cl::Buffer small(runtime().context(), CL_MEM_READ_WRITE, rsz);
+      CHECK_THROWS_WITH_AS(sim.psf_sensor_vjp(small), doctest::Contains("g_psf_sensor buffer"), InputError);
     }
   }
 

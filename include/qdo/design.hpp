@@ -88,6 +88,10 @@ std::vector<double> subset_sum_levels(const std::vector<double>& depths, int lev
 
 // Objective: given the sensor PSF stack (bands x S x S), return the loss and write dL/dpsf.
 using PsfObjective = std::function<double(const RealStack& psf_sensor, RealStack& grad)>;
+// The same on the device: psf_sensor is Simulator::psf_sensor_buffer() (bands x S x S reals of the
+// simulator's precision, row-major); dL/dpsf is written into grad (same shape, layout and
+// precision). Returns the loss. Keeps the PSF and its gradient off the host (wiener::DeviceObjective).
+using DevicePsfObjective = std::function<double(const cl::Buffer& psf_sensor, cl::Buffer& grad)>;
 
 struct StepReport {
   long step = 0;
@@ -105,9 +109,12 @@ class Designer {
     StepReport report;
     std::vector<double> g_w, g_offsets;
   };
-  Gradient gradient(const DesignState& s, const PsfObjective& objective);
+  // With `device` given, the 2-D path evaluates it on the PSF where it lies (no host copy of the
+  // PSF or its gradient; the same numbers as `objective` would give on the downloaded PSF when
+  // both compute the same loss); the radial path, whose PSF is on the host, uses `objective`.
+  Gradient gradient(const DesignState& s, const PsfObjective& objective, const DevicePsfObjective* device = nullptr);
   // One optimiser step (gradient, then Adam on each group); returns the loss before the update.
-  StepReport step(DesignState& s, const PsfObjective& objective);
+  StepReport step(DesignState& s, const PsfObjective& objective, const DevicePsfObjective* device = nullptr);
   // The heights the current state means at step s (blended, noise-free) and the design as it
   // would be fabricated (hard-quantized unless mode is full).
   Map2D training_heights(const DesignState& s) const;
@@ -129,6 +136,7 @@ class Designer {
   DesignOptions opt_;
   double h_max_;
   std::unique_ptr<RadialEngine> radial_;
+  cl::Buffer device_grad_;  // dL/dpsf_sensor of the device objective (bands x S x S reals)
 };
 
 // Loss of matching a target PSF stack: mean over bands x S x S of (psf - target)^2, scaled by

@@ -82,6 +82,9 @@ class Simulator {
   // reused, all on the device): dL/dH (N x N, per metre) for a gradient of L with respect to
   // psf_sensor() (bands x S x S) or psf_native() (bands x N x N). See include/qdo/adjoint.hpp.
   Map2D psf_sensor_vjp(const RealStack& g_psf_sensor);
+  // The same with the gradient on the device: bands x S x S reals of precision(), row-major (as
+  // psf_sensor_buffer()); it is copied, not modified. Equal to the host form for the same values.
+  Map2D psf_sensor_vjp(const cl::Buffer& g_psf_sensor);
   // Adjoint of sensor_images() for the batch of its last call (same scenes, still on the
   // device): gradients on the RGB images (3 x H x W per scene) -> gradient on psf_sensor()
   // (bands x S x S), through the sensor integration and the per-band convolution. Noise is an
@@ -180,6 +183,7 @@ class Simulator {
   // Adjoint state: transposed resampling weights, the back-propagation TF, gradient buffers.
   AreaWeights weights_t_;
   cl::Buffer wstart_t_, wts_t_, tf_back_, gfield_, dots_, dh_;
+  Map2D sensor_vjp_in_scratch(cl::Buffer& g_sensor);
   cl::Buffer g_native_, g_sensor_;  // adjoint inputs (bands x N x N, bands x S x S), reused across calls
 };
 

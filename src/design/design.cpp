@@ -179,7 +179,8 @@ Map2D Designer::fabricated_heights(const DesignState& s) const {
   return quantize_heights(hf, h_max_, quantizer(s), 1.0);
 }
 
-Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& objective) {
+Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& objective,
+                                      const DevicePsfObjective* device) {
   const SystemConfig& cfg = sim_.config();
   const std::size_t n = cfg.n;
   const std::vector<double> p = params_m(s);
@@ -193,29 +194,44 @@ Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& 
   std::mt19937_64 rng(opt_.seed * 0x9E3779B97F4A7C15ull + std::uint64_t(s.step));
   std::uniform_real_distribution<double> noise(-opt_.height_noise_m, opt_.height_noise_m);
   RadialEngine* radial = radial_engine();
-  RealStack psf;
-  if (radial) {
-    // Ring heights of the same blended/quantized map; noise drawn per ring (it cannot be per pixel).
-    std::vector<double> rings = ring_heights_of_map(h);
-    if (opt_.height_noise_m > 0)
-      for (double& v : rings) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
-    radial->compute_psf(rings);
-    psf = radial->psf_sensor();
-  } else {
+  StepReport rep;
+  rep.step = s.step;
+  rep.alpha = alpha;
+  Map2D gh;
+  if (device && !radial) {
+    // PSF, objective and the PSF adjoint on the device: only the heights go up and dL/dH comes back.
     if (opt_.height_noise_m > 0)
       for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
     sim_.set_heights(h);
     sim_.compute_psf();
-    psf = sim_.psf_sensor();
+    const cl::Buffer& psf_dev = sim_.psf_sensor_buffer();
+    const std::size_t bytes = psf_dev.getInfo<CL_MEM_SIZE>();
+    if (!device_grad_() || device_grad_.getInfo<CL_MEM_SIZE>() != bytes)
+      device_grad_ = cl::Buffer(sim_.runtime().context(), CL_MEM_READ_WRITE, bytes);
+    rep.loss = (*device)(psf_dev, device_grad_);
+    gh = sim_.psf_sensor_vjp(device_grad_);
+  } else {
+    RealStack psf;
+    if (radial) {
+      // Ring heights of the same blended/quantized map; noise drawn per ring (it cannot be per pixel).
+      std::vector<double> rings = ring_heights_of_map(h);
+      if (opt_.height_noise_m > 0)
+        for (double& v : rings) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
+      radial->compute_psf(rings);
+      psf = radial->psf_sensor();
+    } else {
+      if (opt_.height_noise_m > 0)
+        for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
+      sim_.set_heights(h);
+      sim_.compute_psf();
+      psf = sim_.psf_sensor();
+    }
+    RealStack g(psf.planes, psf.rows, psf.cols);
+    rep.loss = objective(psf, g);
+    // dL/dH on the N x N map; on the radial path the per-ring gradient spread evenly over each ring's
+    // pixels, so the per-pixel quantizer adjoint and expand_parameters_vjp below give it back per ring.
+    gh = radial ? spread_ring_gradient(radial->psf_sensor_vjp(g), n) : sim_.psf_sensor_vjp(g);
   }
-  RealStack g(psf.planes, psf.rows, psf.cols);
-  StepReport rep;
-  rep.step = s.step;
-  rep.alpha = alpha;
-  rep.loss = objective(psf, g);
-  // dL/dH on the N x N map; on the radial path the per-ring gradient spread evenly over each ring's
-  // pixels, so the per-pixel quantizer adjoint and expand_parameters_vjp below give it back per ring.
-  const Map2D gh = radial ? spread_ring_gradient(radial->psf_sensor_vjp(g), n) : sim_.psf_sensor_vjp(g);
 
   Map2D ghf = gh;
   std::vector<double> ga(static_cast<std::size_t>(q.levels), 0.0);
@@ -270,8 +286,8 @@ Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& 
   return {rep, gw, ga};
 }
 
-StepReport Designer::step(DesignState& s, const PsfObjective& objective) {
-  Gradient g = gradient(s, objective);
+StepReport Designer::step(DesignState& s, const PsfObjective& objective, const DevicePsfObjective* device) {
+  Gradient g = gradient(s, objective, device);
   const double epoch = std::floor(double(s.step) / double(opt_.steps_per_epoch));
   g.report.lr = opt_.lr_optics * std::pow(opt_.lr_decay_per_epoch, epoch);
   s.adam_w.step(s.w, g.g_w, g.report.lr, -1.0, 1.0);

@@ -356,6 +356,10 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   Simulator sim(rt, o.cfg, o.precision);
   Designer d(sim, o.design);
   const std::unique_ptr<wiener::DeviceObjective> dev = make_device_objective(rt, o, pb);
+  // The device objective evaluated where the PSF lies (Designer::gradient's device path): the same
+  // numbers as through the host (float32 survives the double round trip exactly), no PSF copies.
+  DevicePsfObjective dev_resident;
+  if (dev) dev_resident = [&dev](const cl::Buffer& psf, cl::Buffer& grad) { return dev->expected(psf, grad); };
   const std::size_t levels = static_cast<std::size_t>(o.design.quantizer.levels);
   if (resume && resumed.state.w.size() != parameter_count(o.design.parameterization, o.cfg.n))
     throw Error("internal: resume state sized for another parameterization");
@@ -376,7 +380,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   double last_loss = losses.empty() ? NAN : losses.back();
   while (s.step < stop) {
     const auto t0 = std::chrono::steady_clock::now();
-    const StepReport rep = d.step(s, make_objective(o, pb, s.step, dev.get()));
+    const StepReport rep = d.step(s, make_objective(o, pb, s.step, dev.get()), dev ? &dev_resident : nullptr);
     if (!std::isfinite(rep.loss) || !std::isfinite(rep.loss_aq))
       throw NumericalError("design step " + std::to_string(rep.step) + ": the loss is " + to_str(rep.loss) +
                            " (L_aq " + to_str(rep.loss_aq) + "); stopped before writing it: " + ckpt_path.string() +

@@ -468,6 +468,24 @@ Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
   if (g_psf_sensor.planes != cfg_.bands || g_psf_sensor.rows != s_ || g_psf_sensor.cols != s_)
     reject("g_psf_sensor", to_str(g_psf_sensor.planes) + " x " + to_str(g_psf_sensor.rows) + " x " + to_str(g_psf_sensor.cols),
            "bands x S x S = " + to_str(cfg_.bands) + " x " + to_str(s_) + " x " + to_str(s_));
+  return sensor_vjp_in_scratch(write_scratch(g_sensor_, g_psf_sensor.data));
+}
+
+Map2D Simulator::psf_sensor_vjp(const cl::Buffer& g_psf_sensor) {
+  require_single_design("psf_sensor_vjp");
+  if (!psf_valid_ || !field_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
+  const std::size_t bytes = cfg_.bands * s_ * s_ * rsz_;
+  if (g_psf_sensor.getInfo<CL_MEM_SIZE>() < bytes)
+    reject("g_psf_sensor buffer", to_str(g_psf_sensor.getInfo<CL_MEM_SIZE>()) + " bytes",
+           ">= " + to_str(bytes) + " (bands x S x S reals of the simulator's precision)");
+  // The adjoint works in place on its input: copy into the scratch buffer (device to device).
+  if (!g_sensor_()) g_sensor_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bytes);
+  rt_.queue().enqueueCopyBuffer(g_psf_sensor, g_sensor_, 0, 0, bytes);
+  return sensor_vjp_in_scratch(g_sensor_);
+}
+
+// g_sensor (bands x S x S, the scratch g_sensor_) is overwritten.
+Map2D Simulator::sensor_vjp_in_scratch(cl::Buffer& g_sensor) {
   const std::size_t n = cfg_.n, bands = cfg_.bands;
   if (!dots_()) dots_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * rsz_);
   if (!wts_t_()) {
@@ -475,7 +493,6 @@ Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
     wstart_t_ = upload(weights_t_.start);
     wts_t_ = upload_real(weights_t_.w);
   }
-  cl::Buffer& g_sensor = write_scratch(g_sensor_, g_psf_sensor.data);
   normalize_vjp(g_sensor, psf_s_, s_ * s_, sums_sensor_);
   // Transposed area resampling: the same kernel with the transposed weights (S -> N).
   if (!g_native_()) g_native_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * n * n * rsz_);
