@@ -137,7 +137,7 @@ TEST_SUITE("design") {
     }
   }
 
-  TEST_CASE("the device-resident objective path gives the host path's numbers; the radial path keeps the host") {
+  TEST_CASE("the device-resident objective path gives the host path's numbers, 2-D and radial") {
     // Designer::gradient with a DevicePsfObjective: the PSF, the Wiener objective and the PSF
     // adjoint stay on the device. Against the same DeviceObjective called through host copies
     // (float32 survives the double round trip exactly), every step must be bit-identical.
@@ -184,14 +184,17 @@ TEST_SUITE("design") {
         CHECK(host_calls == 0);
         CHECK(sa.w == sb.w);
         CHECK(sa.offsets == sb.offsets);
-        // The radial path has its PSF on the host: it uses the host objective even when given one.
+        // The radial path likewise: its device form against the host form, step for step.
         DesignOptions orad = o;
         orad.psf_path = PsfPath::Radial;
-        Simulator sim_r(runtime(), f.cfg, p);
-        Designer dr(sim_r, orad);
-        DesignState sr = dr.initial_state(start_params(f.cfg, 5));
-        dr.step(sr, counting, &resident);
-        CHECK(host_calls == 1);
+        Simulator sim_r(runtime(), f.cfg, p), sim_r2(runtime(), f.cfg, p);
+        Designer dr(sim_r, orad), dr2(sim_r2, orad);
+        REQUIRE(dr.uses_radial());
+        DesignState sr = dr.initial_state(start_params(f.cfg, 5)), sr2 = dr2.initial_state(start_params(f.cfg, 5));
+        for (int i = 0; i < 4; ++i) CHECK(dr.step(sr, host).loss == dr2.step(sr2, counting, &resident).loss);
+        CHECK(host_calls == 0);
+        CHECK(sr.w == sr2.w);
+        CHECK(sr.offsets == sr2.offsets);
       }
     }
     // The simulator's device-gradient adjoint equals the host form, and refuses a short buffer.

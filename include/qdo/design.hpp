@@ -109,9 +109,9 @@ class Designer {
     StepReport report;
     std::vector<double> g_w, g_offsets;
   };
-  // With `device` given, the 2-D path evaluates it on the PSF where it lies (no host copy of the
-  // PSF or its gradient; the same numbers as `objective` would give on the downloaded PSF when
-  // both compute the same loss); the radial path, whose PSF is on the host, uses `objective`.
+  // With `device` given, it is evaluated on the PSF where it lies, on the 2-D and the radial path
+  // (no host copy of the PSF or its gradient; the same numbers as `objective` would give on the
+  // downloaded PSF when both compute the same loss), and `objective` is not called.
   Gradient gradient(const DesignState& s, const PsfObjective& objective, const DevicePsfObjective* device = nullptr);
   // One optimiser step (gradient, then Adam on each group); returns the loss before the update.
   StepReport step(DesignState& s, const PsfObjective& objective, const DevicePsfObjective* device = nullptr);

@@ -43,6 +43,7 @@
 #pragma once
 #include <CL/opencl.hpp>
 
+#include <chrono>
 #include <cstddef>
 #include <memory>
 #include <string>
@@ -134,12 +135,18 @@ class RadialEngine {
   std::vector<double> intensity() const;      // host copy of I, bands x J (tests)
   // Adjoint at the last compute_psf(): dL/dpsf_sensor (bands x S x S) -> dL/dh_ring (N/2, per metre).
   std::vector<double> psf_sensor_vjp(const RealStack& g_psf_sensor);
+  // Device forms: the buffer behind psf_sensor() (bands x S x S reals of precision(), row-major,
+  // valid after compute_psf()), and the adjoint from a gradient in that layout on the device (read,
+  // not modified; the same numbers as the host form for the same values).
+  const cl::Buffer& psf_sensor_buffer() const;
+  std::vector<double> psf_sensor_vjp(const cl::Buffer& g_psf_sensor);
   // Seconds of the last compute_psf / psf_sensor_vjp (device work included, queue finished).
   double last_forward_seconds() const { return t_fwd_; }
   double last_adjoint_seconds() const { return t_adj_; }
 
  private:
   struct Impl;
+  std::vector<double> vjp_from(const cl::Buffer& g_s, std::chrono::steady_clock::time_point t0);
   Runtime& rt_;
   SystemConfig cfg_;
   Precision prec_;

@@ -198,18 +198,28 @@ Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& 
   rep.step = s.step;
   rep.alpha = alpha;
   Map2D gh;
-  if (device && !radial) {
-    // PSF, objective and the PSF adjoint on the device: only the heights go up and dL/dH comes back.
-    if (opt_.height_noise_m > 0)
-      for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
-    sim_.set_heights(h);
-    sim_.compute_psf();
-    const cl::Buffer& psf_dev = sim_.psf_sensor_buffer();
-    const std::size_t bytes = psf_dev.getInfo<CL_MEM_SIZE>();
+  if (device) {
+    // PSF, objective and the PSF adjoint on the device: only the heights go up and dL/dH comes
+    // back. The PSF and the noise draws are those of the host path below.
+    std::vector<double> rings;
+    if (radial) {
+      rings = ring_heights_of_map(h);
+      if (opt_.height_noise_m > 0)
+        for (double& v : rings) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
+      radial->compute_psf(rings);
+    } else {
+      if (opt_.height_noise_m > 0)
+        for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
+      sim_.set_heights(h);
+      sim_.compute_psf();
+    }
+    const cl::Buffer& psf_dev = radial ? radial->psf_sensor_buffer() : sim_.psf_sensor_buffer();
+    const std::size_t bytes = cfg.bands * cfg.sensor_size_px() * cfg.sensor_size_px() *
+                              (sim_.precision() == Precision::F64 ? sizeof(double) : sizeof(float));
     if (!device_grad_() || device_grad_.getInfo<CL_MEM_SIZE>() != bytes)
       device_grad_ = cl::Buffer(sim_.runtime().context(), CL_MEM_READ_WRITE, bytes);
     rep.loss = (*device)(psf_dev, device_grad_);
-    gh = sim_.psf_sensor_vjp(device_grad_);
+    gh = radial ? spread_ring_gradient(radial->psf_sensor_vjp(device_grad_), n) : sim_.psf_sensor_vjp(device_grad_);
   } else {
     RealStack psf;
     if (radial) {

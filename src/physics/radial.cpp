@@ -493,11 +493,29 @@ std::vector<double> RadialEngine::psf_sensor_vjp(const RealStack& g_psf_sensor) 
     if (!std::isfinite(v)) reject("g_psf_sensor", v, "finite values");
   if (!valid_) throw Error("RadialEngine: compute_psf() must run before an adjoint");
   const auto t0 = clock_type::now();
+  upload_into(rt_.queue(), impl_->g_s, g_psf_sensor.data, prec_);
+  return vjp_from(impl_->g_s, t0);
+}
+
+const cl::Buffer& RadialEngine::psf_sensor_buffer() const { return impl_->psf_s; }
+
+std::vector<double> RadialEngine::psf_sensor_vjp(const cl::Buffer& g_psf_sensor) {
+  const RadialTables& t = *tab_;
+  const std::size_t bytes = t.bands * t.s * t.s * (prec_ == Precision::F64 ? sizeof(double) : sizeof(float));
+  if (g_psf_sensor.getInfo<CL_MEM_SIZE>() < bytes)
+    reject("g_psf_sensor buffer", to_str(g_psf_sensor.getInfo<CL_MEM_SIZE>()) + " bytes",
+           ">= " + to_str(bytes) + " (bands x S x S reals of the engine's precision)");
+  if (!valid_) throw Error("RadialEngine: compute_psf() must run before an adjoint");
+  return vjp_from(g_psf_sensor, clock_type::now());
+}
+
+// The adjoint chain from dL/dpsf_sensor on the device (g_s: bands x S x S, only read).
+std::vector<double> RadialEngine::vjp_from(const cl::Buffer& g_s, std::chrono::steady_clock::time_point t0) {
+  const RadialTables& t = *tab_;
   Impl& d = *impl_;
   cl::CommandQueue& q = rt_.queue();
   const std::size_t bands = t.bands;
-  upload_into(q, d.g_s, g_psf_sensor.data, prec_);
-  rt_.launch_1d(d.k_fold, bands * t.unique, prec_, d.g_s, d.class_start, d.class_members, d.pair_y, d.pair_x, d.g_u,
+  rt_.launch_1d(d.k_fold, bands * t.unique, prec_, g_s, d.class_start, d.class_members, d.pair_y, d.pair_x, d.g_u,
                 int(t.s), int(t.unique), int(bands));
   band_dot(q, d.k_band_dot, prec_, d.g_u, d.v, int(t.unique), d.dots, t.unique, bands);
   rt_.launch_1d(d.k_norm_vjp, bands * t.unique, prec_, d.g_u, d.mult, d.dots, d.sums, d.g_v, int(t.unique), int(bands));
