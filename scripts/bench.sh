@@ -19,6 +19,10 @@ if ! /usr/bin/python3 -c "import numpy" 2> /dev/null; then
   $sudo_cmd env DEBIAN_FRONTEND=noninteractive apt-get install -y -q python3-numpy > /dev/null
 fi
 /usr/bin/python3 bench/psf_numpy.py --repeats 3 | tee "$out/psf_numpy.txt"
+# The same in PyTorch (Debian's python3-torch, CPU; bench/psf_torch.py --device cuda on a GPU).
+if /usr/bin/python3 -c "import torch" 2> /dev/null; then
+  /usr/bin/python3 bench/psf_torch.py --device cpu --repeats 3 | tee "$out/psf_torch.txt"
+fi
 # The whole paper-preset PSF command against its in-process compute, and with --compress.
 bash bench/psf_command.sh ./build/qdo paper 7 | tee "$out/psf_command.txt"
 bash bench/psf_command.sh ./build/qdo paper 5 --compress | tee "$out/psf_command_compress.txt"
