@@ -8,8 +8,9 @@
 // Phase = k (r²/(sqrt(r² + d²) + d) + dn H): the source term is the exact spherical phase
 // minus the constant k·d, written without cancellation, so float32 keeps ~1e-6 rad
 // accuracy where k·d itself (1.6e7 rad) would lose everything. d <= 0 means a plane wave.
-// The aperture test compares the integer pixel radius² with r_ap2_px = (r_ap / pitch)² (plus a
-// relative 1e-12, computed in double on the host), so boundary samples agree in every precision.
+// The aperture test compares the integer pixel radius² with r_ap2_px, half an integer computed in
+// double on the host (SystemConfig::aperture_inside_px2: r <= R or r < R as aperture_edge), so
+// boundary samples agree in every precision.
 // Several designs can share one launch: plane b (of `bands` planes in all) uses height map
 // b / bands_per_design of height_m (designs x N x N).
 // NDRange (columns rounded up to the work-group size, rows, designs): each work item computes its

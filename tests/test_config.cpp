@@ -25,6 +25,7 @@ void check_same(const SystemConfig& a, const SystemConfig& b) {
   CHECK(a.scene_at_infinity == b.scene_at_infinity);
   CHECK(a.sensor_distance_m == b.sensor_distance_m);
   CHECK(a.aperture_radius_m == b.aperture_radius_m);
+  CHECK(a.aperture_edge == b.aperture_edge);
   CHECK(a.material == b.material);
   CHECK(a.base_wavelength_nm == b.base_wavelength_nm);
   CHECK(a.base_plate_m == b.base_plate_m);
@@ -110,11 +111,12 @@ TEST_SUITE("config") {
     const SystemConfig custom = from_json(R"({"preset": "small", "n": 128, "scene_distance_m": "inf",
         "material": "bk7", "propagator": "asm", "convolution": "circular", "pitch_m": 3.3e-6,
         "wavelength_start_nm": 420.5, "wavelength_step_nm": 7.25, "bands": 3, "padding_px": 0,
-        "aperture_radius_m": 1.0e-4, "strict_sampling": true, "srf_interpolate": true,
+        "aperture_radius_m": 1.0e-4, "aperture_edge": "strict", "strict_sampling": true, "srf_interpolate": true,
         "sensor_pitch_m": 6.6e-6, "scene_size_px": 1, "camera": "my_srf.csv", "read_noise_sigma": 0.0123,
         "full_well_photons": 10000.5, "noise_seed": 18446744073709551615, "base_plate_m": 0,
         "base_wavelength_nm": 650, "sensor_distance_m": 0.02})");
     CHECK(custom.preset == "small");
+    CHECK(custom.aperture_edge == qdo::ApertureEdge::Strict);
     CHECK(custom.n == 128);
     CHECK(custom.scene_at_infinity);
     CHECK(std::isinf(custom.scene_distance_m));
@@ -156,6 +158,8 @@ TEST_SUITE("config") {
     check_json_rejected("sensor_distance_m", "11");
     check_json_rejected("aperture_radius_m", "-1e-3");
     check_json_rejected("aperture_radius_m", "1");
+    check_json_rejected("aperture_edge", "\"open\"");
+    check_json_rejected("aperture_edge", "true");
     check_json_rejected("material", "\"unobtainium\"");
     check_json_rejected("propagator", "\"rayleigh\"");
     check_json_rejected("convolution", "\"cyclic\"");

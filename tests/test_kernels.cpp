@@ -267,20 +267,61 @@ TEST_SUITE("kernels") {
     // With the release's aperture (N/2 - 1) pitch, samples on the axes sit exactly on the rim;
     // a radius test in metres rounds differently per precision and toggles whole samples
     // (a regression: it put 1e-3 relative error into float32 PSFs at N = 256).
-    for (std::size_t n : {64ul, 256ul, 512ul}) {
-      SystemConfig c = preset_config("paper");
-      c.n = n;
-      c.padding_px = 0;
-      c.bands = 1;
-      c.validate();
-      Simulator sim(runtime(), c, Precision::F32);
-      sim.set_heights(flat_design(c));
-      const ComplexStack got = sim.debug_field_after_doe();
-      const ComplexStack want = ref::doe_field(c, flat_design(c), sim.geometry());
-      std::size_t toggled = 0;
-      for (std::size_t i = 0; i < got.size(); ++i) toggled += (std::abs(got.data[i]) > 0.5) != (std::abs(want.data[i]) > 0.5);
-      CAPTURE(n);
-      CHECK(toggled == 0);
-    }
+    // Both edges: r <= R (qdo's default) and r < R (the release's, aperture_edge "strict").
+    for (ApertureEdge edge : {ApertureEdge::Inclusive, ApertureEdge::Strict})
+      for (std::size_t n : {64ul, 256ul, 512ul}) {
+        SystemConfig c = preset_config("paper");
+        c.n = n;
+        c.padding_px = 0;
+        c.bands = 1;
+        c.aperture_edge = edge;
+        c.validate();
+        for (Precision p : device_precisions(runtime())) {
+          Simulator sim(runtime(), c, p);
+          sim.set_heights(flat_design(c));
+          const ComplexStack got = sim.debug_field_after_doe();
+          const ComplexStack want = ref::doe_field(c, flat_design(c), sim.geometry());
+          std::size_t toggled = 0, inside = 0;
+          for (std::size_t i = 0; i < got.size(); ++i) {
+            toggled += (std::abs(got.data[i]) > 0.5) != (std::abs(want.data[i]) > 0.5);
+            inside += std::abs(want.data[i]) > 0.5;
+          }
+          // The reference keeps exactly the samples with di² + dj² <= R² (or < R²), R = N/2 - 1,
+          // counted here with integers.
+          const long r = long(n / 2) - 1;
+          std::size_t want_inside = 0;
+          for (long di = -long(n / 2); di < long(n / 2); ++di)
+            for (long dj = -long(n / 2); dj < long(n / 2); ++dj)
+              want_inside += edge == ApertureEdge::Strict ? di * di + dj * dj < r * r : di * di + dj * dj <= r * r;
+          CAPTURE(n);
+          CAPTURE(to_string(p));
+          CAPTURE(int(edge));
+          CHECK(toggled == 0);
+          CHECK(inside == want_inside);
+        }
+      }
+  }
+
+  TEST_CASE("aperture_edge strict drops exactly the samples on the rim (12 at N = 1024, as the release)") {
+    // REFERENCE §1: the release keeps r < (N/2 - 1) pitch; r <= adds 12 samples at N = 1024
+    // (511² = 511² + 0² = 385² + 336²: 4 + 8 lattice points).
+    SystemConfig c = preset_config("paper");
+    const double inclusive = c.aperture_inside_px2();
+    c.aperture_edge = ApertureEdge::Strict;
+    const double strict = c.aperture_inside_px2();
+    CHECK(inclusive == 511.0 * 511.0 + 0.5);
+    CHECK(strict == 511.0 * 511.0 - 0.5);
+    std::size_t rim = 0;
+    for (long di = -512; di < 512; ++di)
+      for (long dj = -512; dj < 512; ++dj) {
+        const double r2 = double(di * di + dj * dj);
+        rim += (r2 <= inclusive) != (r2 <= strict);
+      }
+    CHECK(rim == 12);
+    // A radius that is not a lattice radius: both edges keep the same samples.
+    c.aperture_radius_m = 300.5 * c.pitch_m;
+    const double s2 = c.aperture_inside_px2();
+    c.aperture_edge = ApertureEdge::Inclusive;
+    CHECK(c.aperture_inside_px2() == s2);
   }
 }

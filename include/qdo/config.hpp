@@ -9,6 +9,9 @@ namespace qdo {
 
 enum class Propagator { Fresnel, AngularSpectrum };
 enum class ConvolutionMode { Linear, Circular };
+// Which DOE samples the circular aperture keeps: r <= R (qdo's default) or r < R (the release's,
+// REFERENCE §1: at N = 1024 the release drops the 12 samples at exactly r = (N/2 - 1) pitch).
+enum class ApertureEdge { Inclusive, Strict };
 
 struct SystemConfig {
   std::string preset = "custom";        // name of the preset it came from, informational
@@ -25,6 +28,7 @@ struct SystemConfig {
   bool scene_at_infinity = false;
   double sensor_distance_m = 0.05;       // DOE to sensor, z
   double aperture_radius_m = 0;          // 0 means the release's (N/2 - 1) * pitch_m
+  ApertureEdge aperture_edge = ApertureEdge::Inclusive;  // JSON "aperture_edge": "inclusive" | "strict"
   std::string material = "OHARA_SK1300";
   double base_wavelength_nm = 700;       // h_max = base_wavelength / (n(base) - 1)
   double base_plate_m = 2e-3;            // glass under the relief (fabrication files only)
@@ -44,6 +48,10 @@ struct SystemConfig {
   // Derived quantities.
   std::vector<double> wavelengths_nm() const;
   double aperture_radius() const;        // metres, resolved default
+  // The aperture test on the DOE grid: sample (i, j), at integer offsets (di, dj) = (i - N/2,
+  // j - N/2) pixels, is inside when di² + dj² <= aperture_inside_px2(). Half an integer, so the
+  // comparison is exact in float32 as well; it encodes aperture_edge (ties at r = R in or out).
+  double aperture_inside_px2() const;
   double h_max_m() const;                // one 2π phase at base_wavelength_nm
   std::size_t sensor_size_px() const;    // round(n * pitch_m / sensor_pitch_m)
 

@@ -40,7 +40,8 @@ void normalize_planes(RealStack& s);
 
 // Per-band convolution of a cube (bands x H x W) with a PSF stack (bands x S x S, optical axis
 // at (S/2, S/2)). Linear: zero-padded, output H x W aligned with the input ("same").
-// Circular: periodic over the H x W scene (the release's behaviour; PSF folded onto H x W).
+// Circular: periodic over the H x W scene (PSF folded onto H x W; the Wiener decoder's model, not the
+// release's image formation, which mirror-pads and shifts: docs/physics.md).
 RealStack convolve(const RealStack& cube, const RealStack& psf, ConvolutionMode mode);
 
 // Eq. 7 without noise: rgb(c, y, x) = sum_b srf(c, b) * cube(b, y, x); srf is 3 x B with

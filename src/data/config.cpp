@@ -31,6 +31,14 @@ double SystemConfig::aperture_radius() const {
   return aperture_radius_m > 0 ? aperture_radius_m : (static_cast<double>(n) / 2.0 - 1.0) * pitch_m;
 }
 
+double SystemConfig::aperture_inside_px2() const {
+  const double r_px = aperture_radius() / pitch_m, r2 = r_px * r_px;
+  // Integer radii² below R² (strict) or up to R² (inclusive); 1e-12 absorbs the rounding of R²
+  // computed from metres, so a radius of exactly 511 pixels is a tie, as in the release.
+  const double last_inside = aperture_edge == ApertureEdge::Strict ? std::ceil(r2 * (1 - 1e-12)) - 1 : std::floor(r2 * (1 + 1e-12));
+  return last_inside + 0.5;
+}
+
 double SystemConfig::h_max_m() const {
   const double n_base = material_by_name(material).index(base_wavelength_nm, "base_wavelength_nm");
   return base_wavelength_nm * 1e-9 / (n_base - 1.0);
@@ -103,6 +111,8 @@ void SystemConfig::validate() const {
                          " m (the PSF is area-integrated onto sensor pixels, never interpolated finer)");
   if (scene_size_px < 1 || scene_size_px > 16384) reject("scene_size_px", scene_size_px, "an integer from 1 to 16384");
   if (camera.empty()) reject("camera", "\"\"", "a built-in camera name or a CSV path, not empty");
+  if (aperture_edge != ApertureEdge::Inclusive && aperture_edge != ApertureEdge::Strict)
+    reject("aperture_edge", static_cast<int>(aperture_edge), "\"inclusive\" or \"strict\"");
   if (convolution != ConvolutionMode::Linear && convolution != ConvolutionMode::Circular)
     reject("convolution", static_cast<int>(convolution), "\"linear\" or \"circular\"");
   check_finite_range("read_noise_sigma", read_noise_sigma, 0.0, inf, "a finite sigma >= 0 (units of full scale)");
@@ -140,6 +150,7 @@ SystemConfig preset_config(const std::string& name) {
   c.scene_at_infinity = false;
   c.sensor_distance_m = 0.05;
   c.aperture_radius_m = 0;
+  c.aperture_edge = ApertureEdge::Inclusive;
   c.material = "OHARA_SK1300";
   c.base_wavelength_nm = 700;
   c.base_plate_m = 2e-3;
@@ -279,6 +290,8 @@ const std::vector<Field>& fields() {
        [](const SystemConfig& c) { return c.scene_at_infinity ? nlohmann::ordered_json("inf") : nlohmann::ordered_json(c.scene_distance_m); }},
       number_field("sensor_distance_m", &SystemConfig::sensor_distance_m),
       number_field("aperture_radius_m", &SystemConfig::aperture_radius_m),
+      choice_field("aperture_edge", &SystemConfig::aperture_edge, "inclusive", ApertureEdge::Inclusive, "strict",
+                   ApertureEdge::Strict),
       {"material",
        [](SystemConfig& c, const std::string& k, const json& v) {
          c.material = material_by_name(get_string(k, v)).name;  // canonical name; aliases accepted

@@ -23,8 +23,8 @@ ComplexStack doe_field(const SystemConfig& cfg, const Map2D& height_m, const Pro
     reject("height_m", to_str(height_m.rows) + " x " + to_str(height_m.cols), "an N x N map with N = " + to_str(cfg.n));
   const auto k = wavenumber_per_band(cfg);
   const auto dn = delta_n_per_band(cfg);
-  // Aperture: integer pixel radius² against (r_ap / pitch)² (1 + 1e-12), as kernels/field.cl.
-  const double r_px = cfg.aperture_radius() / g.pitch_m, r_ap2_px = r_px * r_px * (1 + 1e-12);
+  // Aperture: integer pixel radius² against cfg.aperture_inside_px2() (aperture_edge), as kernels/field.cl.
+  const double r_ap2_px = cfg.aperture_inside_px2();
   const double d = cfg.scene_distance_m;
   ComplexStack f(cfg.bands, g.m, g.m, cdouble(0, 0));
   for (std::size_t b = 0; b < cfg.bands; ++b) {

@@ -125,7 +125,8 @@ RadialTables RadialTables::build(const SystemConfig& cfg, const RadialOptions& o
     t.rho_per_m[m] = zeros[m] / (2.0 * M_PI * rr);
     t.inv_j1[m] = 1.0 / std::fabs(bessel_j1(zeros[m]));
   }
-  // Ring k spans [k pitch, (k+1) pitch) clipped to the aperture; the last ring (which also holds the
+  // Ring k spans [k pitch, (k+1) pitch) clipped to the aperture (a continuous radius: aperture_edge,
+  // which decides ties of sampled radii, does not apply); the last ring (which also holds the
   // grid's corners in expand_parameters) extends to r_ap, should a custom aperture reach beyond N/2.
   const double r_ap = cfg.aperture_radius() * (1 + 1e-12);
   std::vector<double> lo(t.rings), hi(t.rings);

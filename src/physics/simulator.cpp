@@ -255,8 +255,7 @@ Map2D Simulator::heights() const {
 template <typename A3, typename A4>
 void Simulator::set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& k_tab, const cl::Buffer& dn_tab,
                                const A3& a3, const A4& a4) {
-  const double r_px = cfg_.aperture_radius() / cfg_.pitch_m;
-  const double r_ap2_px = r_px * r_px * (1 + 1e-12);  // as ref::doe_field
+  const double r_ap2_px = cfg_.aperture_inside_px2();  // as ref::doe_field: half an integer, exact in float
   const double d = cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m;
   set_args(k, p, heights_, k_tab, dn_tab, a3, a4, int(cfg_.n), int(geom_.m), int(kFieldOffset), int(nb_),
            Real{cfg_.pitch_m}, Real{d}, Real{r_ap2_px});
