@@ -1,0 +1,160 @@
+// The release's image formation (include/qdo/release.hpp): geometry, the CPU reference in double,
+// and the device path (kernels/release.cl).
+#include "qdo/release.hpp"
+
+#include <cmath>
+#include <string>
+
+#include "qdo/error.hpp"
+#include "qdo/fft.hpp"
+#include "qdo/fftw2.hpp"
+
+namespace qdo {
+
+ReleaseGeometry release_geometry(std::size_t s, std::size_t n) {
+  if (s < 1) reject("scene size S", s, "at least 1 pixel");
+  if (n < s + 2)
+    reject("PSF size N", n, "at least S + 2 = " + to_str(s + 2) + " (the release pads the up-sampled scene by (N - S)/2 per side and crops [before : -after])");
+  ReleaseGeometry g;
+  g.s = s;
+  g.n = n;
+  const std::size_t d = n - s;
+  g.before = (d + 1) / 2;  // ceil
+  g.after = d / 2;         // floor
+  g.g = n + g.before + g.after;
+  const std::size_t dp = g.g - n;  // psf2otf's padding
+  if (dp % 2) {
+    g.psf_before = (dp + 1) / 2;
+    g.psf_after = dp / 2;
+  } else {
+    g.psf_before = dp / 2 + 1;
+    g.psf_after = dp / 2 - 1;
+  }
+  g.split = g.g - (g.g + 1) / 2;
+  return g;
+}
+
+namespace ref {
+namespace {
+// TF2's half-pixel bilinear taps for output index i of an in -> out resize.
+void tap(std::size_t i, std::size_t in, std::size_t out, std::size_t& lo, std::size_t& hi, double& w) {
+  const double t = (double(i) + 0.5) * double(in) / double(out) - 0.5;
+  const double f = std::floor(t);
+  lo = f < 0 ? 0 : std::size_t(f);
+  const double c = std::ceil(t);
+  hi = std::min(in - 1, c < 0 ? std::size_t(0) : std::size_t(c));
+  w = t - f;
+}
+}  // namespace
+
+RealStack resize_bilinear(const RealStack& x, std::size_t rows, std::size_t cols) {
+  if (x.rows == 0 || x.cols == 0) reject("x", to_str(x.rows) + " x " + to_str(x.cols), "non-empty planes");
+  if (rows == 0 || cols == 0) reject("output size", to_str(rows) + " x " + to_str(cols), "positive sizes");
+  RealStack out(x.planes, rows, cols);
+  for (std::size_t b = 0; b < x.planes; ++b)
+    for (std::size_t i = 0; i < rows; ++i) {
+      std::size_t y0, y1, x0, x1;
+      double wy, wx;
+      tap(i, x.rows, rows, y0, y1, wy);
+      for (std::size_t j = 0; j < cols; ++j) {
+        tap(j, x.cols, cols, x0, x1, wx);
+        const double top = x(b, y0, x0) + (x(b, y0, x1) - x(b, y0, x0)) * wx;
+        const double bot = x(b, y1, x0) + (x(b, y1, x1) - x(b, y1, x0)) * wx;
+        out(b, i, j) = top + (bot - top) * wy;
+      }
+    }
+  return out;
+}
+
+RealStack release_blur(const RealStack& cube, const RealStack& psf_native) {
+  if (cube.rows != cube.cols) reject("cube", to_str(cube.rows) + " x " + to_str(cube.cols), "square S x S scenes");
+  if (psf_native.rows != psf_native.cols) reject("psf_native", to_str(psf_native.rows) + " x " + to_str(psf_native.cols), "square N x N");
+  if (cube.planes != psf_native.planes) reject("cube bands", cube.planes, "the PSF's band count (" + to_str(psf_native.planes) + ")");
+  const ReleaseGeometry g = release_geometry(cube.rows, psf_native.rows);
+  const std::size_t n = g.n, gg = g.g;
+  // 1. Up-sample; 2. symmetric padding (edge repeated), as arrays.
+  const RealStack up = resize_bilinear(cube, n, n);
+  auto mirror = [&](std::size_t k) {
+    long v = long(k) - long(g.before);
+    if (v < 0) v = -v - 1;
+    if (v >= long(n)) v = 2 * long(n) - 1 - v;
+    return std::size_t(v);
+  };
+  ComplexStack a(cube.planes, gg, gg), k(cube.planes, gg, gg, cdouble(0, 0));
+  for (std::size_t b = 0; b < cube.planes; ++b)
+    for (std::size_t y = 0; y < gg; ++y)
+      for (std::size_t x = 0; x < gg; ++x) a(b, y, x) = up(b, mirror(y), mirror(x));
+  // 3. psf2otf: zero-pad the PSF to G (psf_before first), then ifftshift (index split -> 0).
+  ComplexStack padded(cube.planes, gg, gg, cdouble(0, 0));
+  for (std::size_t b = 0; b < cube.planes; ++b)
+    for (std::size_t y = 0; y < n; ++y)
+      for (std::size_t x = 0; x < n; ++x) padded(b, y + g.psf_before, x + g.psf_before) = psf_native(b, y, x);
+  for (std::size_t b = 0; b < cube.planes; ++b)
+    for (std::size_t y = 0; y < gg; ++y)
+      for (std::size_t x = 0; x < gg; ++x) k(b, y, x) = padded(b, (y + g.split) % gg, (x + g.split) % gg);
+  fftw2(a, true);
+  fftw2(k, true);
+  for (std::size_t i = 0; i < a.size(); ++i) a.data[i] *= k.data[i];
+  fftw2(a, false);  // scaled by 1 / G²
+  // 4. Crop [before, before + N), down-sample to S.
+  RealStack crop(cube.planes, n, n);
+  for (std::size_t b = 0; b < cube.planes; ++b)
+    for (std::size_t y = 0; y < n; ++y)
+      for (std::size_t x = 0; x < n; ++x) crop(b, y, x) = a(b, y + g.before, x + g.before).real();
+  return resize_bilinear(crop, cube.rows, cube.cols);
+}
+
+}  // namespace ref
+
+ReleaseImager::ReleaseImager(Runtime& rt, Precision p, std::size_t bands, std::size_t s, std::size_t n)
+    : rt_(rt), prec_(p), bands_(bands), geo_(release_geometry(s, n)) {
+  if (bands < 1) reject("bands", bands, "at least 1");
+  rt_.require(p);
+  k_up_pad_ = rt_.kernel("release.cl", "release_up_pad", p);
+  k_place_ = rt_.kernel("release.cl", "release_place_psf", p);
+  k_cmul_ = rt_.kernel("release.cl", "release_cmul", p);
+  k_crop_down_ = rt_.kernel("release.cl", "release_crop_down", p);
+  const std::size_t rsz = real_size(p), gg = geo_.g;
+  psf_ = cl::Buffer(rt_.context(), CL_MEM_READ_ONLY, bands * n * n * rsz);
+  otf_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * gg * gg * 2 * rsz);
+  scene_ = cl::Buffer(rt_.context(), CL_MEM_READ_ONLY, bands * s * s * rsz);
+  work_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * gg * gg * 2 * rsz);
+  out_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * s * s * rsz);
+  rt_.fft(gg, gg, bands, p);  // bake the plan now, not inside the first blur
+}
+
+void ReleaseImager::set_psf(const RealStack& psf_native) {
+  const std::size_t n = geo_.n, gg = geo_.g;
+  if (psf_native.planes != bands_ || psf_native.rows != n || psf_native.cols != n)
+    reject("psf_native", to_str(psf_native.planes) + " x " + to_str(psf_native.rows) + " x " + to_str(psf_native.cols),
+           "bands x N x N = " + to_str(bands_) + " x " + to_str(n) + " x " + to_str(n));
+  for (double v : psf_native.data)
+    if (!std::isfinite(v)) reject("psf_native", v, "finite values");
+  rt_.write_reals(psf_, psf_native.data.data(), psf_native.size(), prec_);
+  rt_.launch_1d(k_place_, bands_ * gg * gg, prec_, psf_, otf_, int(n), int(gg), int(geo_.psf_before), int(geo_.split),
+                int(bands_));
+  rt_.fft(gg, gg, bands_, prec_).forward(otf_);
+  have_psf_ = true;
+}
+
+RealStack ReleaseImager::blur(const RealStack& cube) {
+  const std::size_t s = geo_.s, n = geo_.n, gg = geo_.g;
+  if (!have_psf_) throw Error("ReleaseImager: set_psf() must be called before blur()");
+  if (cube.planes != bands_ || cube.rows != s || cube.cols != s)
+    reject("cube", to_str(cube.planes) + " x " + to_str(cube.rows) + " x " + to_str(cube.cols),
+           "bands x S x S = " + to_str(bands_) + " x " + to_str(s) + " x " + to_str(s));
+  for (double v : cube.data)
+    if (!std::isfinite(v)) reject("cube", v, "finite values");
+  rt_.write_reals(scene_, cube.data.data(), cube.size(), prec_);
+  rt_.launch_1d(k_up_pad_, bands_ * gg * gg, prec_, scene_, work_, int(s), int(n), int(gg), int(geo_.before), int(bands_));
+  FftPlan& fft = rt_.fft(gg, gg, bands_, prec_);
+  fft.forward(work_);
+  rt_.launch_1d(k_cmul_, bands_ * gg * gg, prec_, work_, otf_, int(bands_ * gg * gg));
+  fft.inverse(work_);
+  rt_.launch_1d(k_crop_down_, bands_ * s * s, prec_, work_, out_, int(s), int(n), int(gg), int(geo_.before), int(bands_));
+  RealStack out(bands_, s, s);
+  rt_.read_reals(out_, out.data.data(), out.size(), prec_);
+  return out;
+}
+
+}  // namespace qdo
