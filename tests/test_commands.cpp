@@ -26,6 +26,9 @@
 #include "qdo/doe.hpp"
 #include "qdo/fab.hpp"
 #include "qdo/io.hpp"
+#include "qdo/cpu_reference.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/release.hpp"
 #include "qdo/run.hpp"
 #include "qdo/simulator.hpp"
 
@@ -524,6 +527,51 @@ TEST_SUITE("commands") {
     // A bad scheme, or a fab constraint the design breaks (fewer levels allowed than it has): exit 2.
     CHECK(qdo_run("export " + s.dir.string() + " --scheme stencil --out " + (dir / "x").string()).code == 2);
     CHECK(qdo_run("export " + s.dir.string() + " --scheme nested --max-levels 2 --out " + (dir / "y").string()).code == 2);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("qdo simulate --formation release equals the release reference; its refusals") {
+    const auto dir = temp_dir("cmd_release");
+    SystemConfig c = tiny();
+    c.aperture_edge = ApertureEdge::Strict;
+    const fs::path cfg_file = dir / "strict.json";
+    std::ofstream(cfg_file) << config_to_json_text(c) << "\n";
+    const std::string cfg = "--config " + cfg_file.string();
+    const RealStack scene = random_cube(c.bands, 14, 14, 5);  // S = 14, N = 32: G = 50
+    write_cube((dir / "scene.h5").string(), scene, c.wavelengths_nm());
+    for (const Precision p : {Precision::F32, Precision::F64}) {
+      if (p == Precision::F64 && !runtime().has_fp64()) continue;
+      CAPTURE(to_string(p));
+      const fs::path out = dir / to_string(p);
+      const Run r = qdo_run("simulate " + cfg + " --design lens:550 --formation release --scene " + (dir / "scene.h5").string() +
+                            " --precision " + to_string(p) + " --out " + out.string());
+      CAPTURE(r.out);
+      REQUIRE(r.code == 0);
+      CHECK(r.out.find("formation: release") != std::string::npos);
+      Simulator sim(runtime(), c, Precision::F64);
+      sim.set_heights(lens_design(c, 550));
+      sim.compute_psf();
+      RealStack want = ref::sensor_integrate(ref::release_blur(scene, sim.psf_native()), sim.srf());
+      ref::add_noise(want, c.read_noise_sigma, c.full_well_photons, c.noise_seed, 0);
+      for (double& v : want.data) v = std::min(v, 1.0);  // the command clips at full scale
+      const H5Dataset rgb = h5_read((out / "sensor.h5").string(), "/rgb");
+      REQUIRE(rgb.shape == std::vector<std::size_t>{3, 14, 14});
+      // The PSF itself in float32 (1e-6) dominates the float32 tolerance.
+      CHECK(diff(rgb.data, want.data).rel_l2 <= (p == Precision::F64 ? 1e-12 : 2e-5));
+    }
+    const std::string base = "simulate " + cfg + " --design flat --out " + (dir / "x").string();
+    Run r = qdo_run(base + " --formation tf");
+    CHECK(r.code == 2);
+    CHECK(r.out.find("--formation") != std::string::npos);
+    write_cube((dir / "wide.h5").string(), random_cube(c.bands, 14, 12, 6), c.wavelengths_nm());
+    r = qdo_run(base + " --formation release --scene " + (dir / "wide.h5").string());
+    CHECK(r.code == 2);
+    CHECK(r.out.find("square") != std::string::npos);
+    write_cube((dir / "big.h5").string(), random_cube(c.bands, 31, 31, 7), c.wavelengths_nm());
+    r = qdo_run(base + " --formation release --scene " + (dir / "big.h5").string());
+    CHECK(r.code == 2);
+    CHECK(r.out.find("PSF size N") != std::string::npos);
+    CHECK_FALSE(fs::exists(dir / "x"));
     fs::remove_all(dir);
   }
 

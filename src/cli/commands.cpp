@@ -109,8 +109,13 @@ std::vector<CommandSpec> make_table() {
                 placement(), opt("out", "output design .h5 file")},
                cmd_quantize});
   t.push_back({"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*", "", "",
-               {preset(), config(), design_spec(), levels_post(), placement(), scene(), key(), resample_bands(), precision(), device(),
-                save_opt(), compress(), out_dir_opt()},
+               {preset(), config(), design_spec(), levels_post(), placement(), scene(), key(), resample_bands(),
+                opt("formation",
+                    "image formation: qdo (the configuration's convolution on the sensor grid, area-sampled PSF) or release "
+                    "(the paper release's: bilinear up, mirror padding, PSF one 4 um sample off centre, bilinear down; "
+                    "a square scene, N >= S + 2; pair it with \"aperture_edge\": \"strict\")",
+                    "qdo"),
+                precision(), device(), save_opt(), compress(), out_dir_opt()},
                cmd_simulate});
   t.push_back({"demo", "QDO+A against conventional deep optics (DO) at L levels, designed and evaluated end to end", "", "",
                {opt("preset", "system preset: paper or small", "small"), opt("levels", "height levels L, an integer in [2, 65536]", "4"),

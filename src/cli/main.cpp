@@ -25,6 +25,7 @@
 #include "qdo/run.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/scenes.hpp"
+#include "qdo/release.hpp"
 #include "qdo/simulator.hpp"
 #include "cli.hpp"
 
@@ -195,10 +196,21 @@ int cmd_quantize(const Args& a) {
 
 int cmd_simulate(const Args& a) {
   (void)save_native(a);  // validated before any work
+  const std::string formation = a.get("formation");
+  if (formation != "qdo" && formation != "release") reject("--formation", formation, "qdo or release");
+  const bool release = formation == "release";
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision"));
   const Map2D h = design_heights(cfg, a);
   const RealStack scene = scene_from_args(cfg, a);
+  if (release) {  // the release's geometry needs a square scene and N >= S + 2; checked before any device work
+    if (scene.rows != scene.cols)
+      reject("--formation release", "a " + to_str(scene.rows) + " x " + to_str(scene.cols) + " scene", "a square S x S scene");
+    (void)release_geometry(scene.rows, cfg.n);
+    if (cfg.aperture_edge != ApertureEdge::Strict)
+      std::fprintf(stderr, "qdo: note: --formation release with \"aperture_edge\": \"inclusive\"; the release's aperture is strict "
+                           "(set it in the configuration for parity)\n");
+  }
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
   Simulator sim(rt, cfg, p);
@@ -218,8 +230,17 @@ int cmd_simulate(const Args& a) {
         // what contributes exactly nothing is skipped (bands the camera does not see or the scene
         // leaves dark, PSF rings holding no energy), so the error bound is 0 and the image is
         // Simulator::sensor_image's to the rounding of the precision, with fewer transforms.
-        Camera camera(sim);
-        rgb = camera.images({scene}, SkipOptions::split(0.0)).front();
+        if (release) {
+          // The release's pipeline on the DOE grid with the native PSF, then the sensor response and
+          // qdo's noise model (the release adds its noise on the DOE grid, before the sensor).
+          ReleaseImager imager(rt, p, cfg.bands, scene.rows, cfg.n);
+          imager.set_psf(sim.psf_native());
+          rgb = ref::sensor_integrate(imager.blur(scene), sim.srf());
+          ref::add_noise(rgb, cfg.read_noise_sigma, cfg.full_well_photons, cfg.noise_seed, 0);
+        } else {
+          Camera camera(sim);
+          rgb = camera.images({scene}, SkipOptions::split(0.0)).front();
+        }
         secs = seconds_since(t0);
         clip = clip_to_full_scale(rgb, "sensor image");
         const auto t1 = std::chrono::steady_clock::now();
@@ -233,10 +254,12 @@ int cmd_simulate(const Args& a) {
         write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
         write_map_png(dir + "/design.png", h);
       });
-  std::printf("device: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s); "
+  std::printf("device: %s\nformation: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s); "
               "outputs written in %.3f s after it (figures of the PSF, design and scene drawn meanwhile)\n%s\n%s\n"
               "wrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png, design.png\n",
-              rt.info().name.c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
+              rt.info().name.c_str(),
+              release ? "release (bilinear up, mirror padding, shifted PSF, bilinear down)" : "qdo (camera operator, area-sampled PSF)",
+              scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
               outputs_s, sim.sampling().summary().c_str(), clip_summary(clip).c_str(), dir.c_str());
   return 0;
 }
