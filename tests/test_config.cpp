@@ -8,6 +8,7 @@
 #include <string>
 
 #include "qdo/config.hpp"
+#include "qdo/decoder_spec.hpp"
 #include "qdo/error.hpp"
 
 using qdo::SystemConfig;
@@ -290,5 +291,34 @@ TEST_SUITE("config") {
     CHECK_THROWS_WITH_AS(qdo::config_from_json_file(path), doctest::Contains(path.c_str()), qdo::InputError);
     CHECK_THROWS_WITH_AS(qdo::config_from_json_file(path), doctest::Contains("'n'"), qdo::InputError);
     std::remove(path.c_str());
+  }
+}
+
+TEST_SUITE("config") {
+  TEST_CASE("decoder specs: wiener, resunet, resunet:paper, resunet:depth=D,root=R; bad keys and values named") {
+    using qdo::DecoderSpec;
+    CHECK(qdo::decoder_spec_from_string("wiener").kind == DecoderSpec::Kind::Wiener);
+    const DecoderSpec d = qdo::decoder_spec_from_string("resunet");
+    CHECK(d.kind == DecoderSpec::Kind::ResUNet);
+    CHECK(d.to_string() == "resunet:depth=4,root=16");
+    CHECK(qdo::decoder_spec_from_string("resunet:paper").to_string() == "resunet:depth=7,root=32");
+    CHECK(qdo::decoder_spec_from_string("resunet:depth=3,root=8").to_string() == "resunet:depth=3,root=8");
+    CHECK(qdo::decoder_spec_from_string("resunet:root=8").to_string() == "resunet:depth=4,root=8");
+    // The canonical form reads back as itself.
+    for (const char* s : {"wiener", "resunet:depth=10,root=1024", "resunet:depth=1,root=1"})
+      CHECK(qdo::decoder_spec_from_string(qdo::decoder_spec_from_string(s).to_string()).to_string() == s);
+    auto refused = [](const std::string& spec, const char* named) {
+      CAPTURE(spec);
+      CHECK_THROWS_WITH_AS(qdo::decoder_spec_from_string(spec), doctest::Contains(named), qdo::InputError);
+    };
+    refused("unet", "--decoder");
+    refused("resunet:", "nothing after");
+    refused("resunet:depth=0", "'depth'");
+    refused("resunet:depth=11", "'depth'");
+    refused("resunet:root=x", "'root'");
+    refused("resunet:root=", "'root'");
+    refused("resunet:width=3", "width");
+    refused("resunet:depth=3,depth=4", "given once");
+    refused("resunet:depth", "key=value");
   }
 }

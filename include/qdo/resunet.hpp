@@ -1,0 +1,56 @@
+// The paper's decoder (REFERENCE §3): a residual UNet in LibTorch's C++ API (Debian libtorch-dev,
+// or another LibTorch through Torch_DIR). Built only with QDO_TORCH (target qdo_net).
+//
+// Tensors are NCHW: input batch x in_channels x H x W (the RGB sensor images, 3 channels), output
+// batch x out_channels x H x W (the bands), in [0, 1] (final sigmoid). H and W must be divisible by
+// 2^(depth - 1) (max-pool down, nearest up-sampling by 2 per level); forward() refuses others.
+//
+// Level i (0 .. depth-1) has c_i = root * 2^i filters. Down level i: a residual block
+//   y = ELU( conv1x1_nobias(x) + BN(conv3x3(ELU(BN(conv_k(x))))) ),  k = 7 at level 0, else 3,
+// then, except at the deepest level, a 2x2 max-pool (the block's output is kept for the skip).
+// Up level i (depth-2 .. 0): u = ELU(conv1x1(upsample2(x))) with c_i filters, concatenated with the
+// skip of level i (2 c_i channels), then y = ELU( conv1x1_nobias(cat) + BN(conv3x3(ELU(BN(conv3x3(cat))))) ).
+// Last: conv1x1 to out_channels, sigmoid. Batch norm before ELU; convolutions "same"-padded with
+// bias (except the 1x1 identities); He-uniform weights (bound sqrt(6 / fan_in)), zero biases,
+// batch-norm scale 1 and shift 0.
+#pragma once
+#include <torch/torch.h>
+
+#include <cstddef>
+#include <cstdint>
+
+#include "qdo/decoder_spec.hpp"
+
+namespace qdo {
+
+struct ResUNetImpl : torch::nn::Module {
+  // in_channels >= 1, out_channels >= 1, depth in [1, 10], root >= 1 (InputError otherwise).
+  // The initial weights are drawn from a generator seeded with `seed`, so a network is
+  // reproducible (torch's global generator is left untouched).
+  ResUNetImpl(std::size_t in_channels, std::size_t out_channels, std::size_t depth, std::size_t root, std::uint64_t seed);
+  torch::Tensor forward(const torch::Tensor& x);
+
+  std::size_t depth() const { return depth_; }
+  std::size_t root() const { return root_; }
+  std::size_t parameter_count() const;  // trainable values (batch-norm running statistics excluded)
+
+ private:
+  struct Down {
+    torch::nn::Conv2d identity{nullptr}, conv1{nullptr}, conv2{nullptr};
+    torch::nn::BatchNorm2d bn1{nullptr}, bn2{nullptr};
+  };
+  struct Up {
+    torch::nn::Conv2d up_conv{nullptr}, conv1{nullptr}, conv2{nullptr}, identity{nullptr};
+    torch::nn::BatchNorm2d bn1{nullptr}, bn2{nullptr};
+  };
+  std::size_t in_, out_, depth_, root_;
+  std::vector<Down> down_;
+  std::vector<Up> up_;  // up_[i] is level i (i < depth - 1)
+  torch::nn::Conv2d final_{nullptr};
+};
+TORCH_MODULE(ResUNet);
+
+// The network a DecoderSpec of kind ResUNet describes.
+ResUNet make_resunet(const DecoderSpec& spec, std::size_t in_channels, std::size_t out_channels, std::uint64_t seed);
+
+}  // namespace qdo

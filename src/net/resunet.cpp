@@ -1,0 +1,107 @@
+#include "qdo/resunet.hpp"
+
+#include <cmath>
+#include <string>
+
+#include "qdo/error.hpp"
+
+namespace qdo {
+
+namespace {
+torch::nn::Conv2d conv(std::size_t in, std::size_t out, std::size_t k, bool bias) {
+  return torch::nn::Conv2d(torch::nn::Conv2dOptions(std::int64_t(in), std::int64_t(out), std::int64_t(k))
+                               .padding(std::int64_t(k / 2))
+                               .bias(bias));
+}
+
+// He-uniform: U(-b, b), b = sqrt(6 / fan_in), fan_in = in_channels * k * k; drawn from `gen`.
+void he_uniform(torch::nn::Conv2d& c, torch::Generator& gen) {
+  torch::NoGradGuard guard;
+  const auto& w = c->weight;
+  const double fan_in = double(w.size(1) * w.size(2) * w.size(3));
+  const double b = std::sqrt(6.0 / fan_in);
+  w.copy_(torch::rand(w.sizes(), gen, w.options()) * (2 * b) - b);
+  if (c->options.bias()) c->bias.zero_();
+}
+}  // namespace
+
+ResUNetImpl::ResUNetImpl(std::size_t in_channels, std::size_t out_channels, std::size_t depth, std::size_t root,
+                         std::uint64_t seed)
+    : in_(in_channels), out_(out_channels), depth_(depth), root_(root) {
+  if (in_channels < 1) reject("in_channels", in_channels, "at least 1");
+  if (out_channels < 1) reject("out_channels", out_channels, "at least 1");
+  if (depth < 1 || depth > 10) reject("depth", depth, "an integer from 1 to 10");
+  if (root < 1 || root > 1024) reject("root", root, "an integer from 1 to 1024");
+  torch::Generator gen = at::detail::createCPUGenerator(seed);
+  std::size_t c_in = in_channels;
+  for (std::size_t i = 0; i < depth; ++i) {
+    const std::size_t c = root << i;
+    Down d;
+    d.identity = register_module("down" + std::to_string(i) + "_identity", conv(c_in, c, 1, false));
+    d.conv1 = register_module("down" + std::to_string(i) + "_conv1", conv(c_in, c, i == 0 ? 7 : 3, true));
+    d.bn1 = register_module("down" + std::to_string(i) + "_bn1", torch::nn::BatchNorm2d(std::int64_t(c)));
+    d.conv2 = register_module("down" + std::to_string(i) + "_conv2", conv(c, c, 3, true));
+    d.bn2 = register_module("down" + std::to_string(i) + "_bn2", torch::nn::BatchNorm2d(std::int64_t(c)));
+    for (auto* cv : {&d.identity, &d.conv1, &d.conv2}) he_uniform(*cv, gen);
+    down_.push_back(d);
+    c_in = c;
+  }
+  up_.resize(depth > 1 ? depth - 1 : 0);
+  for (std::size_t k = depth - 1; k-- > 0;) {  // built deepest first, the order forward() uses them
+    const std::size_t c = root << k;
+    Up u;
+    const std::string p = "up" + std::to_string(k);
+    u.up_conv = register_module(p + "_upconv", conv(c_in, c, 1, true));
+    u.conv1 = register_module(p + "_conv1", conv(2 * c, c, 3, true));
+    u.bn1 = register_module(p + "_bn1", torch::nn::BatchNorm2d(std::int64_t(c)));
+    u.conv2 = register_module(p + "_conv2", conv(c, c, 3, true));
+    u.bn2 = register_module(p + "_bn2", torch::nn::BatchNorm2d(std::int64_t(c)));
+    u.identity = register_module(p + "_identity", conv(2 * c, c, 1, false));
+    for (auto* cv : {&u.up_conv, &u.conv1, &u.conv2, &u.identity}) he_uniform(*cv, gen);
+    up_[k] = u;
+    c_in = c;
+  }
+  final_ = register_module("final", conv(root, out_channels, 1, true));
+  he_uniform(final_, gen);
+}
+
+torch::Tensor ResUNetImpl::forward(const torch::Tensor& x) {
+  if (x.dim() != 4 || x.size(1) != std::int64_t(in_))
+    reject("network input", std::to_string(x.dim()) + "-d tensor", "batch x " + std::to_string(in_) + " x H x W (NCHW)");
+  const std::int64_t m = std::int64_t(1) << (depth_ - 1);
+  if (x.size(2) % m || x.size(3) % m)
+    reject("network input size", std::to_string(x.size(2)) + " x " + std::to_string(x.size(3)),
+           "H and W divisible by 2^(depth - 1) = " + std::to_string(m));
+  std::vector<torch::Tensor> skips;
+  torch::Tensor h = x;
+  for (std::size_t i = 0; i < depth_; ++i) {
+    Down& d = down_[i];
+    const torch::Tensor a = torch::elu(d.bn1(d.conv1(h)));
+    h = torch::elu(d.identity(h) + d.bn2(d.conv2(a)));
+    if (i + 1 < depth_) {
+      skips.push_back(h);
+      h = torch::max_pool2d(h, 2);
+    }
+  }
+  for (std::size_t k = depth_ - 1; k-- > 0;) {
+    Up& u = up_[k];
+    const torch::Tensor up = torch::elu(u.up_conv(torch::upsample_nearest2d(h, {h.size(2) * 2, h.size(3) * 2})));
+    const torch::Tensor cat = torch::cat({up, skips[k]}, 1);
+    const torch::Tensor a = torch::elu(u.bn1(u.conv1(cat)));
+    h = torch::elu(u.identity(cat) + u.bn2(u.conv2(a)));
+  }
+  return torch::sigmoid(final_(h));
+}
+
+std::size_t ResUNetImpl::parameter_count() const {
+  std::size_t n = 0;
+  for (const auto& p : parameters()) n += std::size_t(p.numel());
+  return n;
+}
+
+ResUNet make_resunet(const DecoderSpec& spec, std::size_t in_channels, std::size_t out_channels, std::uint64_t seed) {
+  if (spec.kind != DecoderSpec::Kind::ResUNet) reject("decoder", spec.to_string(), "a resunet spec");
+  return ResUNet(in_channels, out_channels, spec.depth, spec.root, seed);
+}
+
+}  // namespace qdo
