@@ -1,0 +1,174 @@
+// bench_train: the cost of one joint-training step (issue 13 item 9) with the pieces that exist:
+// the optics forward (OpenCL PSF), the camera (OpenCL, a batch of scenes), the Res-UNet forward +
+// backward (LibTorch, MAE loss against the scenes), the adjoints back to the heights (OpenCL camera
+// and PSF adjoints) and the network's Adam step, each timed alone (median of --repeats after one
+// warm-up), then the whole step. The question it answers: is the physics the bottleneck of joint
+// training (the issue's goal: at the small preset the optics' share at most the network's)?
+// Speed is never asserted. Peak resident memory (VmHWM) is printed at the end.
+//
+// Usage: bench_train [--presets small,paper] [--decoder resunet] [--batch 4] [--repeats 3]
+//                    [--precision f32] [--out FILE.md]
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "qdo/resunet.hpp"
+#include "qdo/doe.hpp"
+#include "qdo/simulator.hpp"
+
+using namespace qdo;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+template <typename F>
+double median_time(int repeats, F&& f) {
+  f();  // warm-up
+  std::vector<double> t;
+  for (int i = 0; i < repeats; ++i) {
+    const auto t0 = Clock::now();
+    f();
+    t.push_back(since(t0));
+  }
+  std::sort(t.begin(), t.end());
+  return t[t.size() / 2];
+}
+
+std::vector<std::string> split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  for (std::string x; std::getline(ss, x, ',');)
+    if (!x.empty()) out.push_back(x);
+  return out;
+}
+
+long peak_rss_kib() {
+  std::ifstream f("/proc/self/status");
+  for (std::string line; std::getline(f, line);)
+    if (line.rfind("VmHWM:", 0) == 0) return std::stol(line.substr(6));
+  return -1;
+}
+
+torch::Tensor batch_tensor(const std::vector<RealStack>& xs) {  // each planes x H x W -> B x planes x H x W (float)
+  std::vector<torch::Tensor> ts;
+  for (const auto& x : xs)
+    ts.push_back(torch::from_blob(const_cast<double*>(x.data.data()),
+                                  {std::int64_t(x.planes), std::int64_t(x.rows), std::int64_t(x.cols)}, torch::kDouble)
+                     .to(torch::kFloat));
+  return torch::stack(ts);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::vector<std::string> presets{"small", "paper"};
+  std::string decoder = "resunet", out;
+  int repeats = 3;
+  std::size_t batch = 4;
+  Precision prec = Precision::F32;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string k = argv[i], v = argv[i + 1];
+    if (k == "--presets") presets = split(v);
+    else if (k == "--decoder") decoder = v;
+    else if (k == "--batch") batch = std::size_t(std::stoul(v));
+    else if (k == "--repeats") repeats = std::stoi(v);
+    else if (k == "--precision") prec = precision_from_string(v);
+    else if (k == "--out") out = v;
+    else {
+      std::fprintf(stderr, "usage: bench_train [--presets small,paper] [--decoder resunet] [--batch 4] [--repeats 3] "
+                           "[--precision f32] [--out FILE.md]\n");
+      return 2;
+    }
+  }
+  const DecoderSpec spec = decoder_spec_from_string(decoder);
+  torch::set_num_threads(int(std::max(1u, std::thread::hardware_concurrency())));
+  Runtime rt;
+  std::ostringstream md;
+  md << "Device: " << rt.info().name << " (" << rt.info().platform << "); LibTorch CPU, " << torch::get_num_threads()
+     << " threads; decoder " << spec.to_string() << "; batch " << batch << "; " << to_string(prec) << "\n\n"
+     << "| preset | N | scene H x W | stage | median s | share of the step |\n|---|---:|---|---|---:|---:|\n";
+  for (const std::string& pname : presets) {
+    const SystemConfig cfg = preset_config(pname);
+    const std::size_t s = cfg.sensor_size_px();
+    std::mt19937_64 rng(1);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::vector<RealStack> scenes;
+    for (std::size_t k = 0; k < batch; ++k) {
+      RealStack sc(cfg.bands, s, s);
+      for (double& v : sc.data) v = u(rng);
+      scenes.push_back(std::move(sc));
+    }
+    Simulator sim(rt, cfg, prec);
+    const Map2D h = lens_design(cfg, 550);
+    ResUNet net = make_resunet(spec, 3, cfg.bands, 1);
+    torch::optim::Adam adam(net->parameters(), torch::optim::AdamOptions(1e-3));
+    const torch::Tensor target = batch_tensor(scenes);
+    std::vector<RealStack> rgb, g_rgb;
+    RealStack g_psf;
+    torch::Tensor rgb_t, loss;
+    auto optics = [&] {
+      sim.set_heights(h);
+      sim.compute_psf();
+      rt.queue().finish();
+    };
+    auto camera = [&] { rgb = sim.sensor_images(scenes); };
+    auto network = [&] {
+      adam.zero_grad();
+      rgb_t = batch_tensor(rgb).requires_grad_(true);
+      loss = (net->forward(rgb_t) - target).abs().mean();
+      loss.backward();
+      const torch::Tensor g = rgb_t.grad().to(torch::kDouble).contiguous();
+      g_rgb.assign(batch, RealStack(3, s, s));
+      for (std::size_t k = 0; k < batch; ++k)
+        std::copy(g[std::int64_t(k)].data_ptr<double>(), g[std::int64_t(k)].data_ptr<double>() + 3 * s * s,
+                  g_rgb[k].data.begin());
+    };
+    auto adjoints = [&] {
+      g_psf = sim.sensor_images_vjp(g_rgb);
+      (void)sim.psf_sensor_vjp(g_psf);
+    };
+    auto optimizer = [&] { adam.step(); };
+    optics();
+    camera();
+    const double t_opt = median_time(repeats, optics);
+    const double t_cam = median_time(repeats, camera);
+    const double t_net = median_time(repeats, network);
+    const double t_adj = median_time(repeats, adjoints);
+    const double t_adam = median_time(repeats, optimizer);
+    const double t_step = median_time(repeats, [&] {
+      optics();
+      camera();
+      network();
+      adjoints();
+      optimizer();
+    });
+    std::printf("%s (N=%zu, scenes %zu x %zu x %zu x %zu, %zu network parameters):\n", pname.c_str(), cfg.n, batch,
+                cfg.bands, s, s, net->parameter_count());
+    const std::pair<const char*, double> rows[] = {{"optics forward (PSF)", t_opt},
+                                                   {"camera (batch of scenes -> RGB)", t_cam},
+                                                   {"network forward + backward (MAE)", t_net},
+                                                   {"adjoints: camera, then PSF chain to dL/dH", t_adj},
+                                                   {"network Adam step", t_adam},
+                                                   {"whole step", t_step}};
+    for (const auto& [what, t] : rows) {
+      std::printf("  %-44s %8.3f s  %5.1f %%\n", what, t, 100 * t / t_step);
+      md << "| " << pname << " | " << cfg.n << " | " << s << " x " << s << " | " << what << " | " << t << " | "
+         << 100 * t / t_step << " % |\n";
+    }
+    const double physics = t_opt + t_cam + t_adj;
+    std::printf("  physics (optics + camera + adjoints) / network (forward + backward + Adam) = %.2f\n", physics / (t_net + t_adam));
+    md << "| " << pname << " | " << cfg.n << " | | physics / network | " << physics / (t_net + t_adam) << " | |\n";
+  }
+  std::printf("peak resident memory: %.0f MiB\n", double(peak_rss_kib()) / 1024.0);
+  md << "\nPeak resident memory of the whole run: " << peak_rss_kib() / 1024 << " MiB\n";
+  if (!out.empty()) std::ofstream(out) << md.str();
+  return 0;
+}
