@@ -18,6 +18,8 @@ if [ -e build ] && [ ! -L build ]; then
   return 1
 fi
 ln -sfn "$b/build" build
+bdir="$(cat "$b/build/BUILD_DIR" 2>/dev/null || echo build)"
+[ "$bdir" = build ] || [ -e "$bdir" ] || ln -sfn "$b/build" "$bdir"
 mkdir -p /work
 [ "$PWD" = /work/main ] || ln -sfn "$PWD" /work/main
 [ -e /work/shared ] || ln -sfn "$b/shared" /work/shared
