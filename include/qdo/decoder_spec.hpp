@@ -2,7 +2,7 @@
 //   wiener                       the linear MMSE decoder (REFERENCE §3b)
 //   resunet                      the paper's Res-UNet at a default size that trains in minutes on
 //                                2 CPU cores at the small preset (depth 4, filter root 16)
-//   resunet:paper                the paper's size (depth 7, filter root 32; ~1.4e8 parameters)
+//   resunet:paper                the paper's size (depth 7, filter root 32; 1.217e8 parameters)
 //   resunet:depth=D,root=R       any size: D in [1, 10] levels, R in [1, 1024] filters (either key
 //                                may be left out; the default's value is then used)
 // A bad spec is an InputError naming the key and the value.
