@@ -77,6 +77,9 @@ struct DesignState {
                                        // normalised mask depths delta_j (heights / h_max)
   Adam adam_w, adam_a;
   long step = 0;
+  // Network runs (DesignRunOptions::decoder a network): the network's state at this step, a file
+  // in the run folder (path relative to it) and the FNV-1a 64 checksum of its bytes. Empty otherwise.
+  std::string network_file, network_checksum;
 };
 
 // qdo+m helpers. Number of binary-coded masks for L levels (L must be a power of two >= 2;

@@ -1,9 +1,11 @@
 // `qdo design` and `qdo gradcheck` as library calls (the CLI is a thin wrapper; tests call these).
 #pragma once
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "qdo/design.hpp"
+#include "qdo/network_decoder.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/wiener.hpp"
 
@@ -13,8 +15,18 @@ struct DesignRunOptions {
   SystemConfig cfg;
   DesignOptions design;
   // wiener (closed-form expected MSE under the scene prior, REFERENCE §3b), wiener-mse,
-  // wiener-mae (empirical, on batches of training scenes), psf-target (match `target`).
+  // wiener-mae (empirical, on batches of training scenes), psf-target (match `target`),
+  // network (the network decoder's loss, Eq. 14: needs `decoder` a network spec, and only it).
   std::string objective = "wiener";
+  // The decoder trained with the optics (decoder_spec.hpp): wiener (closed form, nothing to
+  // train) or a resunet spec, trained jointly (qdo/joint.hpp) at lr_decoder with weight decay
+  // gamma_decoder (Eq. 14's γ), Adam, decayed with the optics' lr_decay_per_epoch.
+  std::string decoder = "wiener";
+  double lr_decoder = 1e-3;
+  double gamma_decoder = 1e-4;
+  // do-finetune (issue 13 item 4): the finished network `do` run whose network is trained on for
+  // epochs x steps_per_epoch steps with its DOE quantized to this run's levels and frozen. Mode do.
+  std::string finetune_from;
   std::string target;                  // psf-target: lens:NM or a design .h5 whose PSF is the target
   std::vector<std::string> data;       // scene files/folders; empty: synthetic scenes
   std::string data_format = "auto";
@@ -49,7 +61,13 @@ struct DesignRunResult {
 // folder is locked (RunLock) while this runs: a second writer gets an InputError naming the pid.
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& o, bool resume);
 
-// `qdo eval`: reconstruct test scenes through a run's design with the Wiener decoder.
+// The network of a run that trained one (decoder a resunet spec), in the state of its last
+// checkpoint (a finished run: the final network), checksum verified. InputError naming the run
+// for a Wiener run, a missing or corrupt state, or a qdo built without LibTorch.
+std::unique_ptr<NetworkDecoder> load_run_network(const std::string& run);
+
+// `qdo eval`: reconstruct test scenes through a run's design with its decoder (the Wiener decoder,
+// or the run's network).
 struct EvalOptions {
   std::string run;                     // the run folder
   std::vector<std::string> data;       // test scenes; empty: held-out synthetic scenes
@@ -60,6 +78,8 @@ struct EvalOptions {
   Placement placement = Placement::Inclusive;
   // matched: the decoder is built for the evaluated design; mismatch: for the full-precision
   // design (the paper's DO: a decoder trained for H_f, measurements through the quantized DOE).
+  // Network runs: mismatch is the network as trained; matched only where the evaluated design
+  // is the one it was trained with (see evaluate_run).
   std::string decoder = "matched";
   double noise_sigma = -1;             // measurement noise; < 0: the run's decoder sigma
   std::vector<std::pair<std::size_t, std::size_t>> pixels;  // spectral curves at (y, x); empty: centre

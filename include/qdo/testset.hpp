@@ -41,7 +41,16 @@ std::vector<Patch> patches(const SystemConfig& cfg, std::size_t s, const std::ve
 class PatchCamera {
  public:
   PatchCamera(Runtime& rt, const SystemConfig& cfg);
+  // The same camera in precision p (the joint training runs it in the run's precision).
+  PatchCamera(Runtime& rt, const SystemConfig& cfg, Precision p);
   std::vector<RealStack> measure(const RealStack& psf_sensor, const std::vector<Patch>& patches);
+  // Adjoint of the last measure() call (at most kMaxBatch patches, so one device call): gradients
+  // on its images (3 x S x S each, in patch order) -> the gradient on its sensor PSF stack
+  // (bands x S x S, summed over the patches). With the periodic extension the image gradient
+  // sits on the kept centre of each extended image (zero elsewhere). InputError after a larger
+  // call or with a wrong count or shape.
+  RealStack vjp(const std::vector<RealStack>& g_images);
+  static constexpr std::size_t kMaxBatch = 64;  // patches per device call (bounds the device memory)
   Precision precision() const { return prec_; }
   bool periodic_extension() const { return extend_; }
 
@@ -49,6 +58,7 @@ class PatchCamera {
   std::size_t s_ = 0;
   Precision prec_ = Precision::F32;
   bool extend_ = false;
+  std::size_t last_count_ = 0;  // patches of the last measure() call
   std::unique_ptr<Camera> camera_;
 };
 
@@ -81,6 +91,14 @@ struct Evaluation {
 };
 Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,
                     const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
+                    const std::function<void(std::size_t k, const RealStack& xh)>& each = {});
+
+// The same with any decoder: `decode` maps a batch of noisy images (3 x S x S each, patch k's noise
+// drawn as reconstruct() draws it) to one cube per image (bands x S x S); the cubes are clamped to
+// [0, 1] and scored as above. For the network decoder (network_decoder.hpp); batches of `batch`.
+using BatchDecoder = std::function<std::vector<RealStack>(const std::vector<RealStack>& noisy)>;
+Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,
+                    const BatchDecoder& decode, double sigma, std::uint64_t run_seed, std::size_t batch = 8,
                     const std::function<void(std::size_t k, const RealStack& xh)>& each = {});
 
 }  // namespace qdo::testset

@@ -159,7 +159,11 @@ DesignRunOptions design_options(const Args& a) {
   o.design.psf_path = psf_path_from_string(a.get("psf-path", "auto"));
   if (o.design.psf_path == PsfPath::Radial && o.design.parameterization != Parameterization::Radial)
     reject("--psf-path", "radial", "auto or 2d unless --parameterization is radial");
-  o.objective = a.get("objective", "wiener");
+  o.decoder = decoder_spec_from_string(a.get("decoder", "wiener")).to_string();
+  const bool network = o.decoder != "wiener";
+  o.objective = a.has("objective") ? a.get("objective") : network ? "network" : "wiener";
+  o.lr_decoder = parse_double("--lr-decoder", a.get("lr-decoder", "0.001"));
+  o.gamma_decoder = parse_double("--gamma", a.get("gamma", "0.0001"));
   o.target = a.get("target", "lens:550");
   o.data = split_list(a.get("data", ""));
   o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "12"), 1, 100000));
@@ -194,7 +198,8 @@ void check_resume_options(const Args& a, const DesignRunOptions& given) {
       {"lr", "lr_optics"}, {"lr-offsets", "lr_offsets"}, {"decay", "lr_decay_per_epoch"}, {"beta", "beta_aq"},
       {"height-noise-nm", "height_noise_m"}, {"noise-sigma", "decoder_noise_sigma"}, {"init", "init"}, {"seed", "seed"},
       {"checkpoint-every", "checkpoint_every"}, {"precision", "precision"}, {"synthetic-scenes", "synthetic_scenes"},
-      {"batch", "batch"}, {"wiener-on", "wiener_on"}};
+      {"batch", "batch"}, {"wiener-on", "wiener_on"}, {"decoder", "decoder"}, {"lr-decoder", "lr_decoder"},
+      {"gamma", "gamma_decoder"}};
   std::vector<std::string> diffs;
   for (const auto& [opt, key] : fields) {
     if (!a.has(opt)) continue;

@@ -16,6 +16,9 @@
 #include "qdo/io.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/fft.hpp"
+#ifdef QDO_WITH_TORCH
+#include "qdo/net.hpp"
+#endif
 #include <clFFT.h>
 
 #ifndef QDO_VERSION
@@ -66,7 +69,9 @@ OptionSpec psf_path() {
 }
 OptionSpec mode() { return opt("mode", "design mode: full, do, qdo, ste, qdo+a or qdo+m", "qdo+a"); }
 OptionSpec parameterization() { return opt("parameterization", "height map parameterization: radial, quad or 2d", "radial"); }
-OptionSpec objective() { return opt("objective", "design objective: wiener, wiener-mse, wiener-mae or psf-target", "wiener"); }
+OptionSpec objective() {
+  return opt("objective", "design objective: wiener, wiener-mse, wiener-mae, psf-target or network (default: wiener; network with a network --decoder)");
+}
 OptionSpec target() { return opt("target", "PSF target for --objective psf-target: lens:NM or a design .h5 file", "lens:550"); }
 OptionSpec height_noise() { return opt("height-noise-nm", "fabrication height noise during training, std in nm (>= 0)", "0"); }
 
@@ -88,7 +93,11 @@ std::vector<OptionSpec> training_options() {
           opt("batch", "scenes per optimiser step, an integer in [1, 100000]", "4"),
           psf_path(),
           opt("wiener-on", "where the wiener objective runs: device (OpenCL, the run's precision) or cpu (double, the reference)",
-              "device")};
+              "device"),
+          opt("decoder", "decoder trained with the optics: wiener (closed form), resunet (depth 4, root 16), resunet:paper "
+                         "(depth 7, root 32) or resunet:depth=D,root=R (needs the qdo tool built with LibTorch)", "wiener"),
+          opt("lr-decoder", "learning rate of the network decoder (> 0; do-finetune: default the do run's last)", "0.001"),
+          opt("gamma", "weight decay gamma of the network's convolution weights (Eq. 14, >= 0)", "0.0001")};
 }
 
 std::vector<OptionSpec> concat(std::vector<OptionSpec> a, const std::vector<OptionSpec>& b) {
@@ -125,8 +134,13 @@ std::vector<CommandSpec> make_table() {
                 opt("out", "output folder (created; its qdoa/ and do/ run folders are replaced)", "out/demo")},
                cmd_demo, true});
   t.push_back({"design", "optimise a design end to end into a run folder (resumable)", "", "",
-               concat({preset(), config(), mode(), opt("levels", "height levels L, an integer in [2, 65536]", "4"), placement(),
-                       parameterization(), objective(), target(), data("training scenes (default: synthetic scenes)")},
+               concat({preset(), config(),
+                       opt("mode", "design mode: full, do, qdo, ste, qdo+a, qdo+m, or do-finetune (with --from: a network do run's "
+                                   "network trained on with its DOE quantized to --levels and frozen)", "qdo+a"),
+                       opt("levels", "height levels L, an integer in [2, 65536]", "4"), placement(),
+                       parameterization(), objective(), target(), data("training scenes (default: synthetic scenes)"),
+                       opt("from", "do-finetune: the finished network do run folder to fine-tune"),
+                       opt("finetune-steps", "do-finetune: network steps with the DOE frozen, an integer in [1, 100000000]", "200")},
                       concat(training_options(),
                              {opt("checkpoint-every", "steps between checkpoints, an integer in [1, 100000000]", "10"),
                               opt("max-steps", "stop after N steps in this session, resumable, an integer >= 0 (default: no limit)"),
@@ -367,6 +381,9 @@ int print_version() {
 }  // namespace
 
 int main(int argc, char** argv) {
+#ifdef QDO_WITH_TORCH
+  qdo::register_torch_network();  // --decoder resunet (qdo/net.hpp)
+#endif
   const std::string first = argc < 2 ? "" : argv[1];
   if (argc < 2 || first == "--help" || first == "-h" || first == "help") {
     std::fputs(top_help().c_str(), argc < 2 ? stderr : stdout);

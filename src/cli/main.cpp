@@ -277,8 +277,50 @@ int print_gradcheck(const std::vector<GradcheckRow>& rows) {
 
 }  // namespace
 
+namespace {
+// qdo design --mode do-finetune --from RUN: the options of the do run RUN with this run's levels
+// and placement, frozen optics, finetune-steps network steps in one epoch at the do run's last
+// network learning rate (or --lr-decoder), constant. Options that would be dropped are refused.
+DesignRunOptions finetune_options(const Args& a) {
+  static const std::set<std::string> allowed = {"mode",  "from", "levels", "placement", "finetune-steps", "lr-decoder", "checkpoint-every",
+                                                "max-steps", "device", "out", "precision"};
+  for (const auto& [k, v] : a.opt)
+    if (!allowed.count(k))
+      reject("--" + k, v, "not with --mode do-finetune (it takes the do run's options; allowed: --from --levels --placement "
+                          "--finetune-steps --lr-decoder --checkpoint-every --max-steps --precision --device --out)");
+  if (!a.has("from")) reject("--from", "(missing)", "the network do run folder to fine-tune (--mode do-finetune)");
+  const std::string from = a.get("from");
+  DesignRunOptions o = read_run_config(from, "--from", "a run folder written by qdo design (config.json missing)");
+  if (o.design.mode != DesignMode::DO || o.decoder == "wiener")
+    reject("--from", from, "a do run with a network decoder (it is a " + to_string(o.design.mode) + " run, decoder " + o.decoder +
+                               "); with the Wiener decoder the refit is qdo eval --decoder matched");
+  const double last_lr = o.lr_decoder * std::pow(o.design.lr_decay_per_epoch, double(o.epochs - 1));
+  o.finetune_from = from;
+  if (a.has("levels")) o.design.quantizer.levels = parse_int("--levels", a.get("levels"), 2, 65536);
+  if (a.has("placement")) o.design.quantizer.placement = placement_from_string(a.get("placement"));
+  o.design.steps_per_epoch = std::size_t(parse_int("--finetune-steps", a.get("finetune-steps", "200"), 1, 100000000));
+  o.epochs = 1;
+  o.design.t0_epochs = 0;
+  o.design.t1_epochs = 1;
+  o.design.lr_decay_per_epoch = 1;
+  o.lr_decoder = a.has("lr-decoder") ? parse_double("--lr-decoder", a.get("lr-decoder")) : last_lr;
+  o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));
+  o.max_steps = a.has("max-steps") ? parse_int("--max-steps", a.get("max-steps"), 0, 2147483647) : -1;
+  if (a.has("precision")) o.precision = precision_from_string(a.get("precision"));
+  o.out = a.get("out");
+  return o;
+}
+}  // namespace
+
 int cmd_design(const Args& a) {
-  DesignRunOptions o = design_options(a);
+  const bool finetune = a.get("mode") == "do-finetune";
+  if (finetune && a.has("resume")) {  // a do-finetune run resumes like any run: its stored options
+    Args b = a;
+    b.opt.erase("mode");
+    b.opt.erase("from");
+    return cmd_design(b);
+  }
+  DesignRunOptions o = finetune ? finetune_options(a) : design_options(a);
   const bool resume = a.has("resume");
   if (!resume) o.validate();
   else check_resume_options(a, o);

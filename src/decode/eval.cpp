@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <sstream>
 
 #include "qdo/run_folder.hpp"
@@ -13,6 +14,7 @@
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
+#include "qdo/network_decoder.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
 #include "qdo/scenes.hpp"
@@ -68,6 +70,19 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   if (e.decoder != "matched" && e.decoder != "mismatch") reject("decoder", e.decoder, "matched or mismatch");
   if (e.out.empty()) reject("out", "(missing)", "an output folder");
   const SystemConfig& cfg = o.cfg;
+  // A network run reconstructs with its network, which cannot be refit in closed form: `matched`
+  // needs the evaluated design to be the one the network was trained with (the run's own design;
+  // H_f for full and for do at full precision; a do-finetune run's quantized DOE); `mismatch`
+  // evaluates the network as trained, measured through the evaluated design (a network do run at
+  // its levels: the paper's DO).
+  const bool network = decoder_spec_from_string(o.decoder).kind == DecoderSpec::Kind::ResUNet;
+  if (network && e.decoder == "matched" && !e.full_precision &&
+      (e.levels > 0 || (o.design.mode == DesignMode::DO && o.finetune_from.empty())))
+    reject("decoder", "matched",
+           "mismatch for this network run: its network was trained for " +
+               std::string(o.design.mode == DesignMode::DO ? "the full-precision design H_f" : "the run's own design") +
+               ", and a network cannot be refit in closed form (--decoder mismatch evaluates it through the " +
+               (e.levels > 0 ? "re-quantized" : "quantized") + " DOE, the paper's DO; a do-finetune run retrains it for that DOE)");
   const Design full = folder.design_full();
   const Design fab = folder.design();
   const std::size_t s = cfg.sensor_size_px();
@@ -98,7 +113,10 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   }
   const Eigen::MatrixXd srf = sensor_response(cfg);
   testset::PatchCamera camera(rt, cfg);
-  const WienerDecoder dec(wiener::psf_to_otf(psf_dec, s, s), srf, prior, sigma);
+  std::unique_ptr<NetworkDecoder> net;
+  if (network) net = load_run_network(e.run);
+  std::unique_ptr<WienerDecoder> dec;
+  if (!network) dec = std::make_unique<WienerDecoder>(wiener::psf_to_otf(psf_dec, s, s), srf, prior, sigma);
 
   EvalResult res;
   res.deviation_nm = quantization_deviation_m(h_eval, full.height_m) * 1e9;
@@ -128,10 +146,14 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
     }
     write_line_plot_png((fs::path(e.out) / ("spectra_" + tag + ".png")).string(), {curves[0], curves[1]});
   };
-  const testset::Evaluation ev = testset::evaluate(camera, psf_eval, patches, dec, sigma, o.design.seed, keep);
+  const testset::Evaluation ev =
+      network ? testset::evaluate(camera, psf_eval, patches, [&](const std::vector<RealStack>& y) { return net->reconstruct(y); },
+                                  sigma, o.design.seed, 8, keep)
+              : testset::evaluate(camera, psf_eval, patches, *dec, sigma, o.design.seed, keep);
   const auto& per_patch = ev.per_patch;
   recon.push_back({"/wavelengths_nm", {wl.size()}, wl, {}, {{"units", "nm"}}});
-  h5_write((fs::path(e.out) / "reconstructions.h5").string(), recon, {{"run", e.run}, {"decoder", e.decoder}});
+  h5_write((fs::path(e.out) / "reconstructions.h5").string(), recon,
+           {{"run", e.run}, {"decoder", e.decoder}, {"decoder_kind", network ? o.decoder : std::string("wiener")}});
   std::ostringstream csv;
   csv << "scene,patches,psnr_db,psnr_h_db,ssim,rmse,ergas,sam_rad\n";
   csv.precision(6);
@@ -157,6 +179,7 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   nlohmann::json j;
   j["run"] = e.run;
   j["decoder"] = e.decoder;
+  j["decoder_kind"] = network ? o.decoder : std::string("wiener");
   j["levels"] = e.full_precision ? 0 : e.levels > 0 ? e.levels : o.design.quantizer.levels;
   j["full_precision"] = e.full_precision;
   j["requantized"] = e.levels > 0;
@@ -172,7 +195,9 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
                       {"rmse", "whole cube"},
                       {"ergas", "100 sqrt(mean_b MSE_b / mu_b^2), ratio 1"},
                       {"sam_rad", "mean spectral angle, radians"},
-                      {"imaging", "circular per-band convolution on the S x S patch grid, Gaussian noise sigma, Wiener decoder, output clipped to [0, 1]"}};
+                      {"imaging", std::string("circular per-band convolution on the S x S patch grid, Gaussian noise sigma, ") +
+                                      (network ? "the run's network (" + o.decoder + ", inference mode)" : std::string("Wiener decoder")) +
+                                      ", output clipped to [0, 1]"}};
   write_text_atomic((fs::path(e.out) / "metrics.json").string(), j.dump(2) + "\n");
   return res;
 }

@@ -30,8 +30,10 @@ std::vector<Patch> patches(const SystemConfig& cfg, std::size_t s, const std::ve
   return out;
 }
 
-PatchCamera::PatchCamera(Runtime& rt, const SystemConfig& cfg) : s_(cfg.sensor_size_px()) {
-  prec_ = rt.has_fp64() ? Precision::F64 : Precision::F32;
+PatchCamera::PatchCamera(Runtime& rt, const SystemConfig& cfg)
+    : PatchCamera(rt, cfg, rt.has_fp64() ? Precision::F64 : Precision::F32) {}
+
+PatchCamera::PatchCamera(Runtime& rt, const SystemConfig& cfg, Precision p) : s_(cfg.sensor_size_px()), prec_(p) {
   extend_ = fast_fft_size(s_) != s_;
   SystemConfig c = cfg;
   c.convolution = extend_ ? ConvolutionMode::Linear : ConvolutionMode::Circular;
@@ -48,7 +50,8 @@ std::vector<RealStack> PatchCamera::measure(const RealStack& psf_sensor, const s
   camera_->set_psf(psf_sensor);
   SkipOptions exact;
   exact.exact = true;
-  constexpr std::size_t kBatch = 64;  // patches per device call (bounds the device memory)
+  constexpr std::size_t kBatch = kMaxBatch;
+  last_count_ = patches.size();
   std::vector<RealStack> out;
   out.reserve(patches.size());
   for (std::size_t base = 0; base < patches.size(); base += kBatch) {
@@ -79,6 +82,32 @@ std::vector<RealStack> PatchCamera::measure(const RealStack& psf_sensor, const s
     }
   }
   return out;
+}
+
+RealStack PatchCamera::vjp(const std::vector<RealStack>& g_images) {
+  if (last_count_ == 0 || last_count_ > kMaxBatch)
+    reject("g_images", to_str(g_images.size()) + " gradients",
+           "the gradients of a measure() call of 1 to " + to_str(kMaxBatch) + " patches (the last one had " + to_str(last_count_) + ")");
+  if (g_images.size() != last_count_)
+    reject("g_images", to_str(g_images.size()) + " gradients", "one per patch of the last measure() call (" + to_str(last_count_) + ")");
+  const std::size_t s = s_, lead = s - 1 - s / 2, e = extend_ ? 2 * s - 1 : s;
+  std::vector<RealStack> g;
+  g.reserve(g_images.size());
+  for (std::size_t k = 0; k < g_images.size(); ++k) {
+    const RealStack& gi = g_images[k];
+    if (gi.planes != 3 || gi.rows != s || gi.cols != s)
+      reject("g_images[" + to_str(k) + "]", shape(gi), "3 x S x S with S = " + to_str(s));
+    if (!extend_) {
+      g.push_back(gi);
+      continue;
+    }
+    RealStack ext(3, e, e, 0.0);  // the image kept the centre [lead, lead + S) of the extended one
+    for (std::size_t ch = 0; ch < 3; ++ch)
+      for (std::size_t r = 0; r < s; ++r)
+        for (std::size_t col = 0; col < s; ++col) ext(ch, r + lead, col + lead) = gi(ch, r, col);
+    g.push_back(std::move(ext));
+  }
+  return camera_->vjp(g, false).psf;
 }
 
 RealStack reconstruct(const RealStack& y_noiseless, const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
@@ -144,6 +173,40 @@ Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std:
     const RealStack xh = reconstruct(measured[k], dec, sigma, run_seed, k);
     ev.per_patch.push_back({patches[k].scene, score(xh, patches[k].cube)});
     if (each) each(k, xh);
+  }
+  ev.per_scene = per_scene_means(ev.per_patch);
+  std::vector<Scores> rows;
+  for (const auto& s : ev.per_scene) rows.push_back(s.second);
+  ev.mean = mean_of(rows);
+  return ev;
+}
+
+Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,
+                    const BatchDecoder& decode, double sigma, std::uint64_t run_seed, std::size_t batch,
+                    const std::function<void(std::size_t k, const RealStack& xh)>& each) {
+  if (batch < 1) reject("batch", batch, ">= 1");
+  const std::vector<RealStack> measured = camera.measure(psf_actual, patches);
+  Evaluation ev;
+  for (std::size_t base = 0; base < patches.size(); base += batch) {
+    const std::size_t end = std::min(patches.size(), base + batch);
+    std::vector<RealStack> noisy;
+    for (std::size_t k = base; k < end; ++k) {
+      RealStack y = measured[k];
+      ref::add_noise(y, sigma, 0, run_seed + 77, k);  // as reconstruct()
+      noisy.push_back(std::move(y));
+    }
+    std::vector<RealStack> xs = decode(noisy);
+    if (xs.size() != noisy.size())
+      throw Error("internal: the decoder returned " + to_str(xs.size()) + " cubes for " + to_str(noisy.size()) + " images");
+    for (std::size_t k = base; k < end; ++k) {
+      RealStack& xh = xs[k - base];
+      const RealStack& x = patches[k].cube;
+      if (xh.planes != x.planes || xh.rows != x.rows || xh.cols != x.cols)
+        throw Error("internal: the decoder returned a " + shape(xh) + " cube for a " + shape(x) + " patch");
+      for (double& v : xh.data) v = std::clamp(v, 0.0, 1.0);
+      ev.per_patch.push_back({patches[k].scene, score(xh, x)});
+      if (each) each(k, xh);
+    }
   }
   ev.per_scene = per_scene_means(ev.per_patch);
   std::vector<Scores> rows;

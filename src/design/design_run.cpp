@@ -20,7 +20,10 @@
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
 #include "data/json_strict.hpp"
+#include "qdo/hash.hpp"
 #include "qdo/io.hpp"
+#include "qdo/joint.hpp"
+#include "qdo/network_decoder.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
 #include "qdo/run_folder.hpp"
@@ -66,6 +69,7 @@ struct Problem {
   wiener::SpectralPrior prior;
   std::vector<RealStack> scenes;
   RealStack target;
+  JointData joint;  // objective network: the scenes the network trains and validates on
 };
 
 // The Wiener expected-error objective on the device for this run, when it asks for one
@@ -134,7 +138,14 @@ Problem make_problem(Runtime& rt, const DesignRunOptions& o) {
     pb.target = sim.psf_sensor();
     return pb;
   }
-  pb.scenes = training_scenes(o);
+  if (o.objective == "network") {  // the network's training scenes; the prior (for Wiener evaluations) from their patches
+    pb.joint = load_joint_data(o.cfg, o.data, o.data_format, o.synthetic_scenes, o.design.seed);
+    const std::size_t s = o.cfg.sensor_size_px();
+    for (const RealStack& c : pb.joint.train)
+      for (auto& p : extract_patches(c, s, s / 2)) pb.scenes.push_back(std::move(p));
+  } else {
+    pb.scenes = training_scenes(o);
+  }
   pb.prior = wiener::estimate_prior(pb.scenes, o.prior_bins);
   return pb;
 }
@@ -175,8 +186,26 @@ void DesignRunOptions::validate() const {
   cfg.validate();
   design.validate();
   if (design.mode == DesignMode::QDOM) mask_count(design.quantizer.levels);  // a power of two
-  if (objective != "wiener" && objective != "wiener-mse" && objective != "wiener-mae" && objective != "psf-target")
-    reject("objective", objective, "one of wiener, wiener-mse, wiener-mae, psf-target");
+  if (objective != "wiener" && objective != "wiener-mse" && objective != "wiener-mae" && objective != "psf-target" &&
+      objective != "network")
+    reject("objective", objective, "one of wiener, wiener-mse, wiener-mae, psf-target, network");
+  const DecoderSpec spec = decoder_spec_from_string(decoder);
+  const bool net = spec.kind == DecoderSpec::Kind::ResUNet;
+  if (net && objective != "network")
+    reject("objective", objective, "network: a network decoder (" + spec.to_string() + ") is trained with its own loss (Eq. 14)");
+  if (!net && objective == "network") reject("decoder", decoder, "a network (resunet, resunet:paper, resunet:depth=D,root=R) for objective network");
+  if (net) {
+    const std::size_t s = cfg.sensor_size_px(), m = std::size_t(1) << (spec.depth - 1);
+    if (s % m)
+      reject("decoder", decoder, "a depth D whose 2^(D-1) divides the sensor patch size S = " + to_str(s) + " (the network pools D-1 times)");
+    if (!(lr_decoder > 0) || !std::isfinite(lr_decoder)) reject("lr_decoder", lr_decoder, "a finite learning rate > 0");
+    if (!(gamma_decoder >= 0) || !std::isfinite(gamma_decoder)) reject("gamma_decoder", gamma_decoder, "a finite weight >= 0");
+    if (batch > testset::PatchCamera::kMaxBatch) reject("batch", batch, "1 to " + to_str(testset::PatchCamera::kMaxBatch) + " with a network decoder");
+  }
+  if (!finetune_from.empty()) {
+    if (!net) reject("finetune_from", finetune_from, "empty: do-finetune trains a network (a resunet decoder)");
+    if (design.mode != DesignMode::DO) reject("mode", to_string(design.mode), "do for a do-finetune run");
+  }
   if (objective == "psf-target" && target.rfind("lens:", 0) != 0 && !fs::exists(target))
     reject("target", target, "lens:NM or an existing design .h5 file");
   if (init != "random" && init != "flat" && init.rfind("lens:", 0) != 0) reject("init", init, "random, flat or lens:NM");
@@ -283,6 +312,15 @@ const std::vector<RunField>& run_fields() {
       integer_field_of<std::size_t>("checkpoint_every", [](auto& o) -> auto& { return o.checkpoint_every; }),
       named_field("precision", [](auto& o) -> auto& { return o.precision; }, precision_from_string,
                   [](Precision p) { return to_string(p); }),
+      // Run folders written before the network decoder existed trained against the Wiener decoder.
+      {"decoder", [](DesignRunOptions& o, const json& d) { o.decoder = d.value("decoder", std::string("wiener")); },
+       [](const DesignRunOptions& o, json& d) { d["decoder"] = o.decoder; }},
+      {"lr_decoder", [](DesignRunOptions& o, const json& d) { o.lr_decoder = d.value("lr_decoder", 1e-3); },
+       [](const DesignRunOptions& o, json& d) { d["lr_decoder"] = o.lr_decoder; }},
+      {"gamma_decoder", [](DesignRunOptions& o, const json& d) { o.gamma_decoder = d.value("gamma_decoder", 1e-4); },
+       [](const DesignRunOptions& o, json& d) { d["gamma_decoder"] = o.gamma_decoder; }},
+      {"finetune_from", [](DesignRunOptions& o, const json& d) { o.finetune_from = d.value("finetune_from", std::string()); },
+       [](const DesignRunOptions& o, json& d) { d["finetune_from"] = o.finetune_from; }},
   };
   return t;
 }
@@ -314,6 +352,105 @@ DesignRunOptions design_run_options_from_json(const std::string& text, const std
   return o;
 }
 
+namespace {
+
+std::string read_file_bytes(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  if (!f) throw InputError("file '" + p.string() + "': cannot be read");
+  std::ostringstream ss;
+  ss << f.rdbuf();
+  return ss.str();
+}
+
+std::string bytes_checksum(const std::string& bytes) {
+  Fnv1a64 f;
+  f.add(bytes.data(), bytes.size());
+  return f.hex();
+}
+
+// The network's state at s.step as RUN/network/step_<8 digits>.pt (written, then renamed), named
+// with its checksum in s (save_checkpoint then records both).
+void save_network_state(const fs::path& dir, const NetworkDecoder& net, DesignState& s) {
+  char name[64];
+  std::snprintf(name, sizeof name, "network/step_%08ld.pt", s.step);
+  make_output_dir((dir / "network").string(), "out");
+  const std::string bytes = net.save();
+  write_text_atomic((dir / name).string(), bytes);
+  s.network_file = name;
+  s.network_checksum = bytes_checksum(bytes);
+}
+
+// The network file a checkpoint names (its /counters attribute), or "" (none, or unreadable).
+std::string network_file_of(const fs::path& ckpt) {
+  std::error_code ec;
+  if (!fs::is_regular_file(ckpt, ec)) return "";
+  try {
+    const H5Dataset c = h5_read(ckpt.string(), "/counters", 16);
+    const auto it = c.str_attrs.find("network_file");
+    return it == c.str_attrs.end() ? "" : it->second;
+  } catch (const InputError&) {
+    return "";
+  }
+}
+
+// Removes the network states this run wrote (RUN/network/step_*.pt) that no checkpoint of the
+// folder names any more (checkpoint.h5, checkpoint.prev.h5, checkpoint.refused.h5).
+void prune_network_states(const fs::path& dir) {
+  const fs::path nd = dir / "network";
+  std::error_code ec;
+  if (!fs::is_directory(nd, ec)) return;
+  std::vector<std::string> keep;
+  for (const char* c : {"checkpoint.h5", "checkpoint.prev.h5", "checkpoint.refused.h5"}) keep.push_back(network_file_of(dir / c));
+  for (const auto& e : fs::directory_iterator(nd, ec)) {
+    const std::string fname = e.path().filename().string();
+    if (fname.rfind("step_", 0) != 0 || e.path().extension() != ".pt" || fname.size() != 16) continue;  // not ours
+    if (std::find(keep.begin(), keep.end(), "network/" + fname) != keep.end()) continue;
+    fs::remove(e.path(), ec);
+  }
+}
+
+// The network state a checkpoint's state names, its checksum verified.
+std::string read_network_state(const fs::path& dir, const DesignState& s, const std::string& ckpt) {
+  if (s.network_file.empty())
+    throw InputError("file '" + ckpt + "': names no network state, but the run trains a network decoder (a checkpoint of a Wiener run?)");
+  const fs::path p = dir / s.network_file;
+  if (!fs::is_regular_file(p))
+    throw InputError("file '" + p.string() + "': missing (named by " + ckpt + "); the run's network state is gone");
+  const std::string bytes = read_file_bytes(p);
+  const std::string sum = bytes_checksum(bytes);
+  if (sum != s.network_checksum)
+    throw InputError("file '" + p.string() + "': checksum mismatch (" + ckpt + " recorded " + s.network_checksum + ", the file hashes to " +
+                     sum + "): the network state is corrupt");
+  return bytes;
+}
+
+NetworkSettings network_settings(const DesignRunOptions& o) {
+  NetworkSettings ns;
+  ns.spec = decoder_spec_from_string(o.decoder);
+  ns.in_channels = 3;
+  ns.out_channels = o.cfg.bands;
+  ns.seed = o.design.seed;
+  ns.weight_decay_gamma = o.gamma_decoder;
+  return ns;
+}
+
+double network_lr(const DesignRunOptions& o, long step) {
+  return o.lr_decoder * std::pow(o.design.lr_decay_per_epoch, std::floor(double(step) / double(o.design.steps_per_epoch)));
+}
+
+}  // namespace
+
+std::unique_ptr<NetworkDecoder> load_run_network(const std::string& run) {
+  const ResumeState st = load_resume_state(run);
+  const DesignRunOptions& o = st.options;
+  if (decoder_spec_from_string(o.decoder).kind != DecoderSpec::Kind::ResUNet)
+    reject("run", run, "a run that trained a network decoder (this one's decoder is " + o.decoder + ")");
+  std::unique_ptr<NetworkDecoder> net = make_network_decoder(network_settings(o));
+  const fs::path p = fs::path(run) / st.state.network_file;
+  net->load(read_network_state(run, st.state, st.checkpoint), p.string());
+  return net;
+}
+
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resume) {
   const fs::path dir(given.out);
   const RunFolder folder(given.out);
@@ -343,7 +480,25 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     reject("out", given.out, "a folder without a checkpoint (this one holds one: continue it with --resume)");
   }
   o.validate();
+  const bool network = o.objective == "network", finetune = !o.finetune_from.empty();
+  // do-finetune: the network `do` run it continues (its state, network and configuration checked
+  // here, before any writing).
+  ResumeState source;
+  std::string source_network;
+  if (finetune && !resume) {
+    source = load_resume_state(o.finetune_from);
+    const DesignRunOptions& so = source.options;
+    if (so.design.mode != DesignMode::DO || so.decoder != o.decoder || so.design.parameterization != o.design.parameterization ||
+        config_to_json_text(so.cfg) != config_to_json_text(o.cfg))
+      reject("finetune_from", o.finetune_from,
+             "a network do run of this configuration and decoder (it is a " + to_string(so.design.mode) + " run with decoder " + so.decoder + ")");
+    source_network = read_network_state(o.finetune_from, source.state, source.checkpoint);
+  }
   const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing
+  std::unique_ptr<NetworkDecoder> net;
+  if (network) net = make_network_decoder(network_settings(o));  // refused here when built without LibTorch
+  if (network && resume) net->load(read_network_state(dir, resumed.state, resumed.checkpoint), (dir / resumed.state.network_file).string());
+  if (finetune && !resume) net->load(source_network, (fs::path(o.finetune_from) / source.state.network_file).string());
   make_output_dir(dir.string(), "out");
   if (!lock) {
     lock = std::make_unique<RunLock>(given.out);
@@ -352,26 +507,58 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   }
   if (!resume) write_text_atomic(cfg_path.string(), design_run_options_to_json(o) + "\n");
   if (o.objective != "psf-target") save_prior(folder.prior_path(), pb.prior);
+  if (network && !resume) {  // the scenes the network trains and validates on (issue 13 item 6)
+    json sp;
+    sp["train"] = pb.joint.train_names;
+    sp["validation"] = pb.joint.val_names;
+    sp["validation_patches"] = pb.joint.val.size();
+    sp["patch_px"] = o.cfg.sensor_size_px();
+    sp["augmentation"] = "random S x S crops, one of the 8 flips/rotations each (qdo/joint.hpp)";
+    if (finetune) sp["finetune_from"] = o.finetune_from;
+    write_text_atomic((dir / "split.json").string(), sp.dump(2) + "\n");
+  }
 
   Simulator sim(rt, o.cfg, o.precision);
   Designer d(sim, o.design);
-  const std::unique_ptr<wiener::DeviceObjective> dev = make_device_objective(rt, o, pb);
+  const std::unique_ptr<wiener::DeviceObjective> dev = network ? nullptr : make_device_objective(rt, o, pb);
   // The device objective evaluated where the PSF lies (Designer::gradient's device path): the same
   // numbers as through the host (float32 survives the double round trip exactly), no PSF copies.
   DevicePsfObjective dev_resident;
   if (dev) dev_resident = [&dev](const cl::Buffer& psf, cl::Buffer& grad) { return dev->expected(psf, grad); };
+  std::unique_ptr<JointTrainer> joint;
+  if (network) joint = std::make_unique<JointTrainer>(rt, o.cfg, o.precision, *net, pb.joint, o.batch, o.decoder_noise_sigma, o.design.seed);
   const std::size_t levels = static_cast<std::size_t>(o.design.quantizer.levels);
-  if (resume && resumed.state.w.size() != parameter_count(o.design.parameterization, o.cfg.n))
+  DesignState s;
+  if (resume) {
+    s = std::move(resumed.state);
+  } else if (finetune) {  // the do run's optics, frozen; a fresh step count
+    s = source.state;
+    s.step = 0;
+  } else {
+    s = d.initial_state(initial_params(o));
+  }
+  if (s.w.size() != parameter_count(o.design.parameterization, o.cfg.n))
     throw Error("internal: resume state sized for another parameterization");
-  if (resume && resumed.state.offsets.size() != d.level_parameter_count())
-    throw Error("internal: resume state sized for another level count");
-  DesignState s = resume ? std::move(resumed.state) : d.initial_state(initial_params(o));
+  if (s.offsets.size() != d.level_parameter_count()) {
+    if (!finetune) throw Error("internal: resume state sized for another level count");
+    s.offsets.assign(d.level_parameter_count(), 0.0);  // do has no trained offsets; the finetune's levels may differ
+    s.adam_a = Adam{};
+  }
+  // do-finetune: the PSF of the frozen, quantized DOE (the run's levels), computed once.
+  RealStack frozen_psf;
+  if (finetune) {
+    sim.set_heights(d.fabricated_heights(s));
+    sim.compute_psf();
+    frozen_psf = sim.psf_sensor();
+  }
   std::vector<std::string> rows = std::move(resumed.log_rows);
   std::vector<double> losses = std::move(resumed.losses);
   const long total = long(o.epochs * o.design.steps_per_epoch);
   const long stop = o.max_steps >= 0 ? std::min(total, o.max_steps) : total;
   auto write_log = [&]() {
-    std::string text = "step,loss,loss_aq,alpha,lr,step_s,level_heights_nm\n";
+    std::string text = "step,loss,loss_aq,alpha,lr,step_s,level_heights_nm";
+    if (network) text += ",mae,train_psnr_db,val_psnr_db,lr_decoder";
+    text += "\n";
     for (const auto& r : rows) text += r + "\n";
     write_text_atomic(log_path.string(), text);
   };
@@ -380,12 +567,30 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   double last_loss = losses.empty() ? NAN : losses.back();
   while (s.step < stop) {
     const auto t0 = std::chrono::steady_clock::now();
-    const StepReport rep = d.step(s, make_objective(o, pb, s.step, dev.get()), dev ? &dev_resident : nullptr);
+    const long cur = s.step;
+    const double lr_net = network ? network_lr(o, cur) : 0.0;
+    StepReport rep;
+    if (finetune) {  // the network alone; the optics stay as they are
+      RealStack unused;
+      rep.step = cur;
+      rep.loss = joint->step(cur, lr_net, frozen_psf, unused);
+      rep.alpha = 1;
+      rep.lr = 0;
+      ++s.step;
+    } else if (network) {
+      const PsfObjective obj = [&](const RealStack& psf, RealStack& grad) { return joint->step(cur, lr_net, psf, grad); };
+      rep = d.step(s, obj, nullptr);
+    } else {
+      rep = d.step(s, make_objective(o, pb, s.step, dev.get()), dev ? &dev_resident : nullptr);
+    }
     if (!std::isfinite(rep.loss) || !std::isfinite(rep.loss_aq))
       throw NumericalError("design step " + std::to_string(rep.step) + ": the loss is " + to_str(rep.loss) +
                            " (L_aq " + to_str(rep.loss_aq) + "); stopped before writing it: " + ckpt_path.string() +
                            " still holds step " + std::to_string(s.step - 1 >= 0 ? s.step - 1 : 0) +
                            " or earlier (lower --lr, or check the data)");
+    const bool epoch_end = s.step % long(o.design.steps_per_epoch) == 0 || s.step == stop;
+    double val_psnr = NAN;
+    if (network && epoch_end) val_psnr = joint->validation_psnr_db(joint->last_psf());
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     last_loss = rep.loss;
     losses.push_back(rep.loss);
@@ -394,20 +599,38 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     row << rep.step << "," << rep.loss << "," << rep.loss_aq << "," << rep.alpha << "," << rep.lr << "," << dt << ",";
     const auto lv = d.quantizer(s).level_heights_m(o.cfg.h_max_m());
     for (std::size_t l = 0; l < lv.size(); ++l) row << (l ? ";" : "") << lv[l] * 1e9;
+    if (network) {
+      row << "," << joint->last().mae << "," << joint->last().psnr_db << ",";
+      if (std::isfinite(val_psnr)) row << val_psnr;
+      row << "," << lr_net;
+    }
     rows.push_back(row.str());
     const bool tty = ::isatty(2) != 0;
     const long every = std::max<long>(1, (stop - first) / 20);
-    if (!o.quiet && (tty || (s.step - first) % every == 0 || s.step == stop)) {
+    if (!o.quiet && (tty || (s.step - first) % every == 0 || s.step == stop || (network && epoch_end))) {
       const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
       const double eta = el / double(s.step - first) * double(stop - s.step);
-      std::fprintf(stderr, "%s[design %s] step %ld/%ld  loss %.5g  alpha %.3f  lr %.4g  %.2f s/step  ETA %s   %s", tty ? "\r" : "",
-                   to_string(o.design.mode).c_str(), s.step, total, rep.loss, rep.alpha, rep.lr, dt, fmt_time(eta).c_str(),
-                   tty ? "" : "\n");
+      std::string extra;
+      if (network) {
+        char b[96];
+        std::snprintf(b, sizeof b, "  train PSNR %.2f dB", joint->last().psnr_db);
+        extra = b;
+        if (std::isfinite(val_psnr)) {
+          std::snprintf(b, sizeof b, "  val PSNR %.2f dB", val_psnr);
+          extra += b;
+        }
+      }
+      std::fprintf(stderr, "%s[design %s%s] step %ld/%ld  loss %.5g%s  alpha %.3f  lr %.4g  %.2f s/step  ETA %s   %s",
+                   tty ? "\r" : "", finetune ? "do-finetune" : to_string(o.design.mode).c_str(),
+                   network ? (", " + o.decoder).c_str() : "", s.step, total, rep.loss, extra.c_str(), rep.alpha, rep.lr, dt,
+                   fmt_time(eta).c_str(), tty && !(network && epoch_end) ? "" : "\n");
       std::fflush(stderr);
     }
     if (s.step % long(o.checkpoint_every) == 0 || s.step == stop) {
       write_log();  // the log first: a kill between the two leaves rows the resume redoes, never a gap
+      if (network) save_network_state(dir, *net, s);  // then the network state the checkpoint will name
       save_checkpoint(ckpt_path.string(), s);
+      if (network) prune_network_states(dir);
     }
   }
   if (!o.quiet && ::isatty(2)) std::fprintf(stderr, "\n");
@@ -420,7 +643,8 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   if (o.design.mode != DesignMode::Full) out.levels_m = d.quantizer(s).level_heights_m(o.cfg.h_max_m());
   std::map<std::string, std::string> provenance = {{"mode", to_string(o.design.mode)}, {"levels", std::to_string(levels)},
                                                    {"objective", o.objective}, {"steps", std::to_string(s.step)},
-                                                   {"run", dir.string()}};
+                                                   {"run", dir.string()}, {"decoder", o.decoder}};
+  if (finetune) provenance["finetune_from"] = o.finetune_from;
   if (o.design.mode == DesignMode::QDOM) {  // the k binary-mask etch depths (level l = sum over the bits of l)
     std::ostringstream md;
     md.precision(12);
@@ -439,6 +663,17 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   write_montage_png((dir / "psf.png").string(), psf, o.cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf.rows, 96));
   write_map_png((dir / "design.png").string(), out.height_m);
   if (!losses.empty()) write_line_plot_png((dir / "loss.png").string(), {losses});
+  if (network && !rows.empty()) {  // training PSNR per step (blue), validation PSNR per epoch (red)
+    std::vector<double> tr, va;
+    for (const auto& r : rows) {
+      std::vector<std::string> f;
+      std::stringstream ss(r);
+      for (std::string x; std::getline(ss, x, ',');) f.push_back(x);
+      tr.push_back(f.size() > 8 && !f[8].empty() ? std::strtod(f[8].c_str(), nullptr) : NAN);
+      va.push_back(f.size() > 9 && !f[9].empty() ? std::strtod(f[9].c_str(), nullptr) : NAN);
+    }
+    write_line_plot_png((dir / "psnr.png").string(), {tr, va});
+  }
   DesignRunResult r;
   r.steps_done = s.step;
   r.final_loss = last_loss;

@@ -29,8 +29,14 @@ const char* const kCheckpointSets[] = {"/w", "/offsets", "/adam_w_m", "/adam_w_v
 
 // FNV-1a (64 bit) over each dataset's name, value count and float64 bit patterns (little-endian),
 // as "fnv1a64:<16 hex digits>". HDF5 stores float64 exactly, so an intact file reproduces it.
-std::string checkpoint_checksum(const std::vector<std::pair<std::string, const std::vector<double>*>>& sets) {
+// Network runs: the network file's name and checksum (attributes of /counters) are covered too.
+std::string checkpoint_checksum(const std::vector<std::pair<std::string, const std::vector<double>*>>& sets,
+                                const std::string& network_file = "", const std::string& network_checksum = "") {
   Fnv1a64 f;
+  if (!network_file.empty()) {
+    f.add(network_file);
+    f.add(network_checksum);
+  }
   for (const auto& [name, data] : sets) {
     f.add(name);  // name and a '\0'
     f.add_u64(data->size());
@@ -100,7 +106,11 @@ void save_checkpoint(const std::string& path, const DesignState& s) {
   ds.push_back({"/counters", {3}, {double(s.step), double(s.adam_w.t), double(s.adam_a.t)}, {}, {{"names", "step, adam_w.t, adam_a.t"}}});
   std::vector<std::pair<std::string, const std::vector<double>*>> sets;
   for (const H5Dataset& d : ds) sets.emplace_back(d.name, &d.data);
-  ds.back().str_attrs["checksum"] = checkpoint_checksum(sets);
+  if (!s.network_file.empty()) {
+    ds.back().str_attrs["network_file"] = s.network_file;
+    ds.back().str_attrs["network_checksum"] = s.network_checksum;
+  }
+  ds.back().str_attrs["checksum"] = checkpoint_checksum(sets, s.network_file, s.network_checksum);
   std::error_code ec;
   if (std::filesystem::is_regular_file(path, ec)) {
     std::filesystem::rename(path, checkpoint_prev_path(path), ec);
@@ -122,10 +132,17 @@ DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std
   for (const char* name : kCheckpointSets) sets[name] = h5_read(path, name, 1u << 28);
   const auto& cattrs = sets["/counters"].str_attrs;
   const auto stored = cattrs.find("checksum");
+  const auto nf = cattrs.find("network_file"), nc = cattrs.find("network_checksum");
+  const std::string network_file = nf != cattrs.end() ? nf->second : "", network_checksum = nc != cattrs.end() ? nc->second : "";
+  if (network_file.empty() != network_checksum.empty())
+    throw InputError("file '" + path + "': names a network file without its checksum, or a checksum without the file");
+  if (!network_file.empty() &&
+      (network_file.find("..") != std::string::npos || network_file.front() == '/' || network_file.rfind("network/", 0) != 0))
+    throw InputError("file '" + path + "': network_file '" + network_file + "' is not a file under the run's network/ folder");
   if (stored != cattrs.end()) {
     std::vector<std::pair<std::string, const std::vector<double>*>> covered;
     for (const char* name : kCheckpointSets) covered.emplace_back(name, &sets[name].data);
-    const std::string actual = checkpoint_checksum(covered);
+    const std::string actual = checkpoint_checksum(covered, network_file, network_checksum);
     if (stored->second != actual)
       throw InputError("file '" + path + "': checksum mismatch (stored " + stored->second + ", the datasets hash to " + actual +
                        "): the checkpoint is corrupt; resume from a copy or start the run anew");
@@ -175,6 +192,8 @@ DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std
     if ((l == 0 && s.offsets[l] != 0) || std::fabs(s.offsets[l]) > lim)
       throw InputError("file '" + path + "': dataset '/offsets' holds " + to_str(s.offsets[l]) + " at level " + to_str(l) +
                        (l == 0 ? " (level 0 is fixed at 0)" : " outside [-" + to_str(lim) + ", " + to_str(lim) + "]"));
+  s.network_file = network_file;
+  s.network_checksum = network_checksum;
   s.step = long(c[0]);
   s.adam_w.t = long(c[1]);
   s.adam_a.t = long(c[2]);

@@ -1,0 +1,70 @@
+// Joint training of the optics and a network decoder (issue 13 item 3), the core half: the
+// training patches, the device camera with its adjoint, the sensor noise, and the glue that turns
+// a NetworkDecoder step into a PsfObjective for Designer::step. Per step:
+//   batch of S x S scene patches (random crops, one of the 8 flips/rotations each)
+//   -> PatchCamera (circular per-band convolution on the S x S patch grid, sensor integration;
+//      the imaging `qdo eval` uses) -> + Gaussian read noise σ (drawn per step)
+//   -> NetworkDecoder::train (loss, dL/d(images), the network's Adam step)
+//   -> PatchCamera::vjp -> dL/dPSF (bands x S x S), which Designer carries to the heights.
+#pragma once
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/network_decoder.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/testset.hpp"
+#include "qdo/types.hpp"
+
+namespace qdo {
+
+// The scenes a network run trains and validates on. train: whole cubes (bands x H x W, H and
+// W >= S) from which patches are cropped; val: fixed S x S patches (testset::Patch).
+struct JointData {
+  std::vector<RealStack> train;
+  std::vector<std::string> train_names, val_names;  // file paths (or synthetic_<i>)
+  std::vector<testset::Patch> val;
+};
+// Scenes under `data` (cfg's band grid) split at random by `seed` into 90 % training and 10 %
+// validation scenes (at least one of each when there are two or more; with one scene both use
+// it, and the caller is told by val_names == train_names). With no data: `synthetic` training
+// scenes and max(2, synthetic / 4) validation scenes of S x S drawn with other seeds. Validation
+// patches: non-overlapping S x S crops, at most `max_val_patches` (spread evenly).
+// InputError naming `data` for a scene smaller than S x S.
+JointData load_joint_data(const SystemConfig& cfg, const std::vector<std::string>& data, const std::string& data_format,
+                          std::size_t synthetic, std::uint64_t seed, std::size_t max_val_patches = 16);
+
+// The batch of step `step`: `batch` S x S crops, scene, position and transform (bit 0: flip
+// columns, bit 1: flip rows, bit 2: transpose) drawn from a generator seeded with (seed, step),
+// so a resumed run draws the same batches.
+std::vector<RealStack> joint_batch(const JointData& d, std::size_t s, std::size_t batch, std::uint64_t seed, long step);
+
+class JointTrainer {
+ public:
+  // `net` and `data` must outlive the trainer. noise_sigma: the read noise added to each image.
+  JointTrainer(Runtime& rt, const SystemConfig& cfg, Precision p, NetworkDecoder& net, const JointData& data,
+               std::size_t batch, double noise_sigma, std::uint64_t seed);
+  // One joint step at the sensor PSF stack psf (bands x S x S): images the step's batch, trains
+  // the network one step at learning rate lr_net, and writes dL/dpsf into grad_psf. Returns the
+  // loss (NetworkStep::loss).
+  double step(long step, double lr_net, const RealStack& psf, RealStack& grad_psf);
+  const NetworkStep& last() const { return last_; }
+  const RealStack& last_psf() const { return last_psf_; }
+  // Mean PSNR (peak 1) over the validation patches through psf, with noise drawn per patch from
+  // (seed + 78, k), network in inference mode. Same value for the same state and PSF.
+  double validation_psnr_db(const RealStack& psf);
+
+ private:
+  testset::PatchCamera camera_;
+  NetworkDecoder& net_;
+  const JointData& data_;
+  std::size_t s_, batch_;
+  double sigma_;
+  std::uint64_t seed_;
+  NetworkStep last_;
+  RealStack last_psf_;
+};
+
+}  // namespace qdo

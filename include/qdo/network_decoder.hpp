@@ -1,0 +1,62 @@
+// A learned decoder trained with the optics (issue 13: the paper's Res-UNet), as the LibTorch-free
+// core sees it. The core (qdo_core) draws the training patches, images them through the device
+// camera, adds the sensor noise, hands the noisy images to a NetworkDecoder, and carries the image
+// gradient it returns back through the camera adjoint to the PSF (src/design/joint.cpp). The
+// network itself lives in qdo_net (src/net/, LibTorch), which registers its factory with
+// register_network_factory(); a qdo built without LibTorch has none, and asking for a network is
+// then an InputError that says so.
+//
+// Shapes: images are RGB sensor images, 3 x S x S each (row-major planes, RealStack); targets and
+// reconstructions are scene cubes, bands x S x S each, values in [0, 1].
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "qdo/decoder_spec.hpp"
+#include "qdo/types.hpp"
+
+namespace qdo {
+
+struct NetworkStep {
+  double loss = 0;      // MAE(x̂, x) + γ ||ω||² (Eq. 14 without the optics' β L_aq)
+  double mae = 0;       // the data term alone
+  double psnr_db = 0;   // PSNR of the batch's reconstruction (whole batch, peak 1)
+  std::vector<RealStack> grad_images;  // dL/d(images), 3 x S x S each
+};
+
+class NetworkDecoder {
+ public:
+  virtual ~NetworkDecoder() = default;
+  virtual std::string spec() const = 0;  // DecoderSpec::to_string() of the network
+  virtual std::size_t parameter_count() const = 0;
+  // One training step in training mode (batch statistics): loss and dL/d(images) at the current
+  // weights, then one Adam step of the network at learning rate lr. images and targets pair up.
+  virtual NetworkStep train(const std::vector<RealStack>& images, const std::vector<RealStack>& targets, double lr) = 0;
+  // Inference (batch norm's running statistics, no gradient): one cube per image.
+  virtual std::vector<RealStack> reconstruct(const std::vector<RealStack>& images) = 0;
+  // The network's weights, running statistics and optimiser state, as bytes; load() restores
+  // exactly that state (bit-identical continuation). load() refuses (InputError naming `origin`)
+  // bytes that are not such a state or that hold another architecture (both specs named).
+  virtual std::string save() const = 0;
+  virtual void load(const std::string& bytes, const std::string& origin) = 0;
+};
+
+struct NetworkSettings {
+  DecoderSpec spec;                 // kind ResUNet
+  std::size_t in_channels = 3, out_channels = 31;
+  std::uint64_t seed = 0;           // initial weights
+  double weight_decay_gamma = 1e-4; // γ of Eq. 14 on the convolution weights
+};
+using NetworkFactory = std::function<std::unique_ptr<NetworkDecoder>(const NetworkSettings&)>;
+
+// Registers the factory make_network_decoder uses (qdo_net's register_torch_network()).
+void register_network_factory(NetworkFactory factory);
+bool network_decoder_available();
+// A fresh network; InputError naming `decoder` when no factory is registered (built without LibTorch).
+std::unique_ptr<NetworkDecoder> make_network_decoder(const NetworkSettings& s);
+
+}  // namespace qdo

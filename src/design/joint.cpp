@@ -1,0 +1,153 @@
+#include "qdo/joint.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <mutex>
+#include <random>
+
+#include "qdo/cpu_reference.hpp"
+#include "qdo/datasets.hpp"
+#include "qdo/error.hpp"
+#include "qdo/wiener.hpp"
+
+namespace qdo {
+
+namespace {
+std::mutex& factory_mutex() {
+  static std::mutex m;
+  return m;
+}
+NetworkFactory& factory_slot() {
+  static NetworkFactory f;
+  return f;
+}
+}  // namespace
+
+void register_network_factory(NetworkFactory factory) {
+  const std::lock_guard<std::mutex> lock(factory_mutex());
+  factory_slot() = std::move(factory);
+}
+
+bool network_decoder_available() {
+  const std::lock_guard<std::mutex> lock(factory_mutex());
+  return bool(factory_slot());
+}
+
+std::unique_ptr<NetworkDecoder> make_network_decoder(const NetworkSettings& s) {
+  NetworkFactory f;
+  {
+    const std::lock_guard<std::mutex> lock(factory_mutex());
+    f = factory_slot();
+  }
+  if (!f)
+    reject("decoder", s.spec.to_string(),
+           "wiener: this qdo was built without LibTorch (-DQDO_TORCH=OFF, or the Python extension); the network decoder "
+           "needs the qdo tool built with LibTorch (scripts/install-deps.sh installs libtorch-dev)");
+  return f(s);
+}
+
+JointData load_joint_data(const SystemConfig& cfg, const std::vector<std::string>& data, const std::string& data_format,
+                          std::size_t synthetic, std::uint64_t seed, std::size_t max_val_patches) {
+  const std::size_t s = cfg.sensor_size_px();
+  JointData d;
+  std::vector<testset::Patch> val_all;
+  if (data.empty()) {
+    const SceneIndex tr = SceneIndex::synthetic(cfg, std::max<std::size_t>(synthetic, 1), s, seed);
+    for (std::size_t i = 0; i < tr.size(); ++i) {
+      d.train.push_back(tr.load(i));
+      d.train_names.push_back("synthetic_" + std::to_string(i));
+    }
+    const SceneIndex va = SceneIndex::synthetic(cfg, std::max<std::size_t>(2, synthetic / 4), s, seed + 500009);
+    for (std::size_t i = 0; i < va.size(); ++i) {
+      d.val_names.push_back("synthetic_val_" + std::to_string(i));
+      val_all.push_back({d.val_names.back(), va.load(i)});
+    }
+  } else {
+    const SceneIndex idx(data, data_format, cfg.bands, cfg.wavelengths_nm());
+    SceneSplit sp = idx.split(seed, 0.9, 0.1);
+    if (idx.size() >= 2 && sp.val.empty()) {  // at least one validation scene
+      sp.val.push_back(sp.train.back());
+      sp.train.pop_back();
+    }
+    if (sp.train.empty()) sp.train = sp.val;
+    if (sp.val.empty()) sp.val = sp.train;
+    for (std::size_t i : sp.train) {
+      RealStack cube = idx.load(i);
+      check_training_scene(cube, idx[i].path);
+      if (cube.rows < s || cube.cols < s)
+        reject("data", idx[i].path, "scenes of at least S x S = " + to_str(s) + " x " + to_str(s) + " pixels (the sensor PSF size)");
+      d.train.push_back(std::move(cube));
+      d.train_names.push_back(idx[i].path);
+    }
+    for (std::size_t i : sp.val) {
+      const RealStack cube = idx.load(i);
+      if (cube.rows < s || cube.cols < s)
+        reject("data", idx[i].path, "scenes of at least S x S = " + to_str(s) + " x " + to_str(s) + " pixels (the sensor PSF size)");
+      d.val_names.push_back(idx[i].path);
+      for (auto& p : extract_patches(cube, s, s)) val_all.push_back({idx[i].path, std::move(p)});
+    }
+  }
+  const std::size_t keep = std::min(val_all.size(), std::max<std::size_t>(max_val_patches, 1));
+  for (std::size_t k = 0; k < keep; ++k) d.val.push_back(val_all[k * val_all.size() / keep]);
+  return d;
+}
+
+std::vector<RealStack> joint_batch(const JointData& d, std::size_t s, std::size_t batch, std::uint64_t seed, long step) {
+  if (d.train.empty()) reject("data", "(no training scenes)", "at least one training scene");
+  std::mt19937_64 rng(seed * 0x9E3779B97F4A7C15ull + std::uint64_t(step) * 2654435761ull + 0x5eedull);
+  std::vector<RealStack> out;
+  out.reserve(batch);
+  for (std::size_t k = 0; k < batch; ++k) {
+    const RealStack& c = d.train[rng() % d.train.size()];
+    const std::size_t y0 = std::size_t(rng() % (c.rows - s + 1)), x0 = std::size_t(rng() % (c.cols - s + 1));
+    const unsigned t = unsigned(rng() % 8);
+    RealStack p(c.planes, s, s);
+    for (std::size_t b = 0; b < c.planes; ++b)
+      for (std::size_t y = 0; y < s; ++y)
+        for (std::size_t x = 0; x < s; ++x) {
+          std::size_t yy = (t & 4) ? x : y, xx = (t & 4) ? y : x;
+          if (t & 1) xx = s - 1 - xx;
+          if (t & 2) yy = s - 1 - yy;
+          p(b, y, x) = c(b, y0 + yy, x0 + xx);
+        }
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
+JointTrainer::JointTrainer(Runtime& rt, const SystemConfig& cfg, Precision p, NetworkDecoder& net, const JointData& data,
+                           std::size_t batch, double noise_sigma, std::uint64_t seed)
+    : camera_(rt, cfg, p), net_(net), data_(data), s_(cfg.sensor_size_px()), batch_(batch), sigma_(noise_sigma), seed_(seed) {
+  if (batch < 1 || batch > testset::PatchCamera::kMaxBatch)
+    reject("batch", batch, "1 to " + to_str(testset::PatchCamera::kMaxBatch) + " scenes per step");
+  if (!(noise_sigma >= 0) || !std::isfinite(noise_sigma)) reject("noise_sigma", noise_sigma, ">= 0");
+}
+
+double JointTrainer::step(long step, double lr_net, const RealStack& psf, RealStack& grad_psf) {
+  const std::vector<RealStack> cubes = joint_batch(data_, s_, batch_, seed_, step);
+  std::vector<testset::Patch> patches;
+  for (const RealStack& c : cubes) patches.push_back({"", c});
+  std::vector<RealStack> images = camera_.measure(psf, patches);
+  // Read noise, drawn per step (scene k of the batch: counters of ref::add_noise's scene k).
+  const unsigned long long noise_seed = (seed_ + 31) * 1000003ull + std::uint64_t(step);
+  for (std::size_t k = 0; k < images.size(); ++k) ref::add_noise(images[k], sigma_, 0, noise_seed, k);
+  last_ = net_.train(images, cubes, lr_net);
+  if (last_.grad_images.size() != images.size() || !std::isfinite(last_.loss))
+    throw NumericalError("joint step " + std::to_string(step) + ": the network returned loss " + to_str(last_.loss) + " and " +
+                         to_str(last_.grad_images.size()) + " image gradients for " + to_str(images.size()) + " images");
+  grad_psf = camera_.vjp(last_.grad_images);
+  last_psf_ = psf;
+  return last_.loss;
+}
+
+double JointTrainer::validation_psnr_db(const RealStack& psf) {
+  if (data_.val.empty()) return NAN;
+  const testset::Evaluation ev = testset::evaluate(
+      camera_, psf, data_.val, [&](const std::vector<RealStack>& noisy) { return net_.reconstruct(noisy); }, sigma_,
+      seed_ + 1, batch_);
+  double sum = 0;
+  for (const auto& [scene, sc] : ev.per_patch) sum += sc.psnr;
+  return sum / double(ev.per_patch.size());
+}
+
+}  // namespace qdo

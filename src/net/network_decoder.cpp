@@ -1,0 +1,196 @@
+// The Res-UNet (resunet.hpp) behind the core's NetworkDecoder interface (network_decoder.hpp):
+// float32 tensors on LibTorch's CPU device, Adam (lr set per step by the design loop), the loss of
+// Eq. 14 without the optics' term: MAE(x̂, x) + γ Σ ω² over the convolution weights (4-d
+// parameters; batch-norm scales and biases are not decayed).
+#include <torch/torch.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <sstream>
+#include <thread>
+
+#include "qdo/error.hpp"
+#include "qdo/net.hpp"
+#include "qdo/network_decoder.hpp"
+#include "qdo/resunet.hpp"
+
+namespace qdo {
+namespace {
+
+// A batch of same-shape stacks (planes x H x W each) as a B x planes x H x W float tensor.
+torch::Tensor to_tensor(const std::vector<RealStack>& xs, const char* what) {
+  if (xs.empty()) reject(what, "an empty batch", "at least one image");
+  const RealStack& a = xs.front();
+  torch::Tensor t = torch::empty({std::int64_t(xs.size()), std::int64_t(a.planes), std::int64_t(a.rows), std::int64_t(a.cols)},
+                                 torch::kFloat);
+  float* p = t.data_ptr<float>();
+  for (std::size_t k = 0; k < xs.size(); ++k) {
+    const RealStack& x = xs[k];
+    if (x.planes != a.planes || x.rows != a.rows || x.cols != a.cols)
+      reject(std::string(what) + "[" + std::to_string(k) + "]", shape(x), "the shape of the first, " + shape(a));
+    for (double v : x.data) *p++ = float(v);
+  }
+  return t;
+}
+
+std::vector<RealStack> from_tensor(const torch::Tensor& t) {
+  const torch::Tensor c = t.detach().to(torch::kDouble).contiguous();
+  std::vector<RealStack> out;
+  const double* p = c.data_ptr<double>();
+  for (std::int64_t k = 0; k < c.size(0); ++k) {
+    RealStack x(std::size_t(c.size(1)), std::size_t(c.size(2)), std::size_t(c.size(3)));
+    std::copy(p, p + x.data.size(), x.data.begin());
+    p += x.data.size();
+    out.push_back(std::move(x));
+  }
+  return out;
+}
+
+class TorchNetworkDecoder final : public NetworkDecoder {
+ public:
+  explicit TorchNetworkDecoder(const NetworkSettings& s)
+      : settings_(s),
+        net_(make_resunet(s.spec, s.in_channels, s.out_channels, s.seed)),
+        adam_(net_->parameters(), torch::optim::AdamOptions(1e-3)) {
+    if (!(s.weight_decay_gamma >= 0) || !std::isfinite(s.weight_decay_gamma))
+      reject("gamma_decoder", s.weight_decay_gamma, ">= 0 (γ of Eq. 14)");
+  }
+  std::string spec() const override { return settings_.spec.to_string(); }
+  std::size_t parameter_count() const override { return net_->parameter_count(); }
+
+  NetworkStep train(const std::vector<RealStack>& images, const std::vector<RealStack>& targets, double lr) override {
+    if (images.size() != targets.size())
+      reject("targets", std::to_string(targets.size()) + " cubes", "one per image (" + std::to_string(images.size()) + ")");
+    if (!(lr >= 0) || !std::isfinite(lr)) reject("lr_decoder", lr, "a finite learning rate >= 0");
+    net_->train();
+    torch::Tensor x = to_tensor(images, "images").requires_grad_(true);
+    const torch::Tensor target = to_tensor(targets, "targets");
+    adam_.zero_grad();
+    const torch::Tensor out = net_->forward(x);
+    if (out.sizes() != target.sizes())
+      reject("targets", shape(targets.front()), "the network's output shape per image");
+    const torch::Tensor mae = (out - target).abs().mean();
+    torch::Tensor reg = torch::zeros({}, torch::kFloat);
+    for (const auto& p : net_->parameters())
+      if (p.dim() == 4) reg = reg + p.pow(2).sum();
+    const torch::Tensor loss = mae + settings_.weight_decay_gamma * reg;
+    loss.backward();
+    NetworkStep r;
+    r.loss = loss.item<double>();
+    r.mae = mae.item<double>();
+    const double mse = (out.detach() - target).pow(2).mean().item<double>();
+    r.psnr_db = mse > 0 ? 10 * std::log10(1 / mse) : INFINITY;
+    r.grad_images = from_tensor(x.grad());
+    for (auto& g : adam_.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
+    adam_.step();
+    return r;
+  }
+
+  std::vector<RealStack> reconstruct(const std::vector<RealStack>& images) override {
+    torch::NoGradGuard guard;
+    net_->eval();
+    return from_tensor(net_->forward(to_tensor(images, "images")));
+  }
+
+  std::string save() const override {
+    // Adam's state is written per parameter in the network's parameter order (LibTorch's own
+    // serialisation keys it by tensor addresses, in hash-map order: the bytes would differ from
+    // run to run for the same state). Its options are not stored: lr is set every step.
+    torch::serialize::OutputArchive ar, net_ar, adam_ar;
+    net_->save(net_ar);
+    const auto params = net_->parameters();
+    const auto& state = adam_.state();
+    adam_ar.write("count", c10::IValue(std::int64_t(params.size())));
+    for (std::size_t i = 0; i < params.size(); ++i) {
+      const auto it = state.find(c10::guts::to_string(params[i].unsafeGetTensorImpl()));
+      if (it == state.end()) continue;
+      const auto& st = static_cast<const torch::optim::AdamParamState&>(*it->second);
+      const std::string k = std::to_string(i);
+      adam_ar.write("step_" + k, c10::IValue(st.step()));
+      adam_ar.write("m_" + k, st.exp_avg());
+      adam_ar.write("v_" + k, st.exp_avg_sq());
+    }
+    ar.write("qdo_network_format", c10::IValue(std::int64_t(1)));
+    ar.write("spec", c10::IValue(spec()));
+    ar.write("out_channels", c10::IValue(std::int64_t(settings_.out_channels)));
+    ar.write("net", net_ar);
+    ar.write("adam", adam_ar);
+    std::ostringstream os;
+    ar.save_to(os);
+    return os.str();
+  }
+
+  void load(const std::string& bytes, const std::string& origin) override {
+    torch::serialize::InputArchive ar;
+    try {
+      std::istringstream is(bytes);
+      ar.load_from(is);
+    } catch (const c10::Error& e) {
+      throw InputError("file '" + origin + "': not a network state written by qdo (LibTorch: " + first_line(e.what()) + ")");
+    }
+    c10::IValue fmt, spec_v, out_v;
+    if (!ar.try_read("qdo_network_format", fmt) || !ar.try_read("spec", spec_v) || !ar.try_read("out_channels", out_v) ||
+        !spec_v.isString() || !out_v.isInt())
+      throw InputError("file '" + origin + "': not a network state written by qdo (format, spec or band count missing)");
+    const std::string stored = spec_v.toStringRef();
+    if (stored != spec() || out_v.toInt() != std::int64_t(settings_.out_channels))
+      throw InputError("file '" + origin + "': holds a " + stored + " network with " + std::to_string(out_v.toInt()) +
+                       " output bands; the run asks for " + spec() + " with " + std::to_string(settings_.out_channels) +
+                       " (a checkpoint of another architecture)");
+    try {
+      torch::serialize::InputArchive net_ar, adam_ar;
+      ar.read("net", net_ar);
+      ar.read("adam", adam_ar);
+      net_->load(net_ar);
+      const auto params = net_->parameters();
+      c10::IValue count;
+      adam_ar.read("count", count);
+      if (!count.isInt() || count.toInt() != std::int64_t(params.size()))
+        throw InputError("file '" + origin + "': the optimiser state holds another parameter count");
+      auto& state = adam_.state();
+      state.clear();
+      for (std::size_t i = 0; i < params.size(); ++i) {
+        const std::string k = std::to_string(i);
+        c10::IValue step;
+        if (!adam_ar.try_read("step_" + k, step)) continue;  // no Adam step taken on it yet
+        torch::Tensor m, v;
+        adam_ar.read("m_" + k, m);
+        adam_ar.read("v_" + k, v);
+        if (!step.isInt() || !m.sizes().equals(params[i].sizes()) || !v.sizes().equals(params[i].sizes()))
+          throw InputError("file '" + origin + "': the optimiser state of parameter " + k + " does not fit the network");
+        auto st = std::make_unique<torch::optim::AdamParamState>();
+        st->step(step.toInt());
+        st->exp_avg(m);
+        st->exp_avg_sq(v);
+        state[c10::guts::to_string(params[i].unsafeGetTensorImpl())] = std::move(st);
+      }
+    } catch (const c10::Error& e) {
+      throw InputError("file '" + origin + "': the network state does not load into " + spec() + " (LibTorch: " +
+                       first_line(e.what()) + ")");
+    }
+  }
+
+ private:
+  static std::string first_line(const std::string& s) { return s.substr(0, s.find('\n')); }
+  NetworkSettings settings_;
+  ResUNet net_;
+  torch::optim::Adam adam_;
+};
+
+}  // namespace
+
+void register_torch_network() {
+  int threads = int(std::max(1u, std::thread::hardware_concurrency()));
+  if (const char* t = std::getenv("QDO_TORCH_THREADS")) {
+    char* end = nullptr;
+    const long v = std::strtol(t, &end, 10);
+    if (end == t || *end || v < 1 || v > 1024) reject("QDO_TORCH_THREADS", t, "an integer from 1 to 1024");
+    threads = int(v);
+  }
+  torch::set_num_threads(threads);
+  register_network_factory([](const NetworkSettings& s) -> std::unique_ptr<NetworkDecoder> {
+    return std::make_unique<TorchNetworkDecoder>(s);
+  });
+}
+
+}  // namespace qdo
