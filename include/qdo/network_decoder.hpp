@@ -55,6 +55,7 @@ using NetworkFactory = std::function<std::unique_ptr<NetworkDecoder>(const Netwo
 
 // Registers the factory make_network_decoder uses (qdo_net's register_torch_network()).
 void register_network_factory(NetworkFactory factory);
+NetworkFactory registered_network_factory();  // the one registered (empty if none)
 bool network_decoder_available();
 // A fresh network; InputError naming `decoder` when no factory is registered (built without LibTorch).
 std::unique_ptr<NetworkDecoder> make_network_decoder(const NetworkSettings& s);

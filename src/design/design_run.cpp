@@ -588,7 +588,9 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
                            " (L_aq " + to_str(rep.loss_aq) + "); stopped before writing it: " + ckpt_path.string() +
                            " still holds step " + std::to_string(s.step - 1 >= 0 ? s.step - 1 : 0) +
                            " or earlier (lower --lr, or check the data)");
-    const bool epoch_end = s.step % long(o.design.steps_per_epoch) == 0 || s.step == stop;
+    // Validation at the end of each epoch (not where a session stops: a resumed run logs what an
+    // uninterrupted one does).
+    const bool epoch_end = s.step % long(o.design.steps_per_epoch) == 0;
     double val_psnr = NAN;
     if (network && epoch_end) val_psnr = joint->validation_psnr_db(joint->last_psf());
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -28,6 +28,11 @@ void register_network_factory(NetworkFactory factory) {
   factory_slot() = std::move(factory);
 }
 
+NetworkFactory registered_network_factory() {
+  const std::lock_guard<std::mutex> lock(factory_mutex());
+  return factory_slot();
+}
+
 bool network_decoder_available() {
   const std::lock_guard<std::mutex> lock(factory_mutex());
   return bool(factory_slot());

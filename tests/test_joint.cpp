@@ -1,0 +1,436 @@
+// Joint training of the optics with a network decoder, the core half (qdo/joint.hpp): the camera's
+// adjoint on the patch grid, the training batches, the gradient a JointTrainer hands the optics,
+// and network runs of qdo design / eval (checkpointed network state, bit-identical resume,
+// refusals, do-finetune). The network here is a stand-in written in plain C++ (a per-pixel affine
+// map RGB -> bands trained by Adam on the MSE), so these run without LibTorch; the Res-UNet
+// itself is tested in tests/net/.
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <random>
+#include <set>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "common.hpp"
+#include "qdo/design_run.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/joint.hpp"
+#include "qdo/network_decoder.hpp"
+#include "qdo/run.hpp"
+#include "qdo/run_folder.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+
+namespace {
+
+// x̂_b(p) = sum_c W[b][c] y_c(p) + c_b; loss = mean (x̂ - x)²; Adam on (W, c).
+class AffineNet final : public NetworkDecoder {
+ public:
+  explicit AffineNet(const NetworkSettings& s) : s_(s), w_(s.out_channels * 4, 0.0), m_(w_.size(), 0.0), v_(w_.size(), 0.0) {
+    std::mt19937_64 rng(s.seed);
+    std::uniform_real_distribution<double> u(-0.5, 0.5);
+    for (double& x : w_) x = u(rng);
+  }
+  std::string spec() const override { return s_.spec.to_string(); }
+  std::size_t parameter_count() const override { return w_.size(); }
+  NetworkStep train(const std::vector<RealStack>& y, const std::vector<RealStack>& x, double lr) override {
+    NetworkStep r;
+    std::vector<double> g(w_.size(), 0.0);
+    double n = 0;
+    for (const auto& xi : x) n += double(xi.size());
+    double sse = 0;
+    for (std::size_t k = 0; k < y.size(); ++k) {
+      RealStack gy(3, y[k].rows, y[k].cols, 0.0);
+      const RealStack xh = apply(y[k]);
+      for (std::size_t b = 0; b < xh.planes; ++b)
+        for (std::size_t p = 0; p < xh.plane_size(); ++p) {
+          const double e = xh.plane(b)[p] - x[k].plane(b)[p];
+          sse += e * e;
+          const double d = 2 * e / n;
+          for (std::size_t c = 0; c < 3; ++c) {
+            g[b * 4 + c] += d * y[k].plane(c)[p];
+            gy.plane(c)[p] += d * w_[b * 4 + c];
+          }
+          g[b * 4 + 3] += d;
+        }
+      r.grad_images.push_back(std::move(gy));
+    }
+    r.mae = r.loss = sse / n;
+    r.psnr_db = 10 * std::log10(1 / r.loss);
+    ++t_;
+    for (std::size_t i = 0; i < w_.size(); ++i) {  // Adam
+      m_[i] = 0.9 * m_[i] + 0.1 * g[i];
+      v_[i] = 0.999 * v_[i] + 0.001 * g[i] * g[i];
+      const double mh = m_[i] / (1 - std::pow(0.9, double(t_))), vh = v_[i] / (1 - std::pow(0.999, double(t_)));
+      w_[i] -= lr * mh / (std::sqrt(vh) + 1e-8);
+    }
+    return r;
+  }
+  std::vector<RealStack> reconstruct(const std::vector<RealStack>& y) override {
+    std::vector<RealStack> out;
+    for (const auto& yi : y) out.push_back(apply(yi));
+    return out;
+  }
+  std::string save() const override {
+    std::string b = "affine " + spec() + "\n";
+    auto put = [&](const std::vector<double>& v) { b.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(double)); };
+    put(w_);
+    put(m_);
+    put(v_);
+    b.append(reinterpret_cast<const char*>(&t_), sizeof t_);
+    return b;
+  }
+  void load(const std::string& bytes, const std::string& origin) override {
+    const std::string head = "affine " + spec() + "\n";
+    if (bytes.rfind("affine ", 0) != 0) throw InputError("file '" + origin + "': not an affine network");
+    if (bytes.compare(0, head.size(), head) != 0)
+      throw InputError("file '" + origin + "': holds " + bytes.substr(7, bytes.find('\n') - 7) + ", the run asks for " + spec());
+    if (bytes.size() != head.size() + 3 * w_.size() * sizeof(double) + sizeof t_) throw InputError("file '" + origin + "': truncated");
+    const char* p = bytes.data() + head.size();
+    for (auto* v : {&w_, &m_, &v_}) {
+      std::memcpy(v->data(), p, v->size() * sizeof(double));
+      p += v->size() * sizeof(double);
+    }
+    std::memcpy(&t_, p, sizeof t_);
+  }
+
+ private:
+  RealStack apply(const RealStack& y) const {
+    RealStack xh(s_.out_channels, y.rows, y.cols);
+    for (std::size_t b = 0; b < xh.planes; ++b)
+      for (std::size_t p = 0; p < xh.plane_size(); ++p)
+        xh.plane(b)[p] = w_[b * 4] * y.plane(0)[p] + w_[b * 4 + 1] * y.plane(1)[p] + w_[b * 4 + 2] * y.plane(2)[p] + w_[b * 4 + 3];
+    return xh;
+  }
+  NetworkSettings s_;
+  std::vector<double> w_, m_, v_;
+  long t_ = 0;
+};
+
+// Registers AffineNet as the network for the guard's lifetime, then puts back what was there.
+struct AffineFactory {
+  NetworkFactory previous = registered_network_factory();
+  AffineFactory() {
+    register_network_factory([](const NetworkSettings& s) -> std::unique_ptr<NetworkDecoder> { return std::make_unique<AffineNet>(s); });
+  }
+  ~AffineFactory() { register_network_factory(previous); }
+};
+
+DesignRunOptions net_run(const std::string& out, DesignMode mode) {
+  DesignRunOptions o;
+  o.cfg = tiny_config(32, 3);  // S = 16
+  o.design.mode = mode;
+  o.design.quantizer.levels = 4;
+  o.design.steps_per_epoch = 2;
+  o.design.t0_epochs = 1;
+  o.design.t1_epochs = 2;
+  o.design.seed = 3;
+  o.epochs = 3;
+  o.synthetic_scenes = 3;
+  o.checkpoint_every = 2;
+  o.batch = 2;
+  o.decoder = "resunet:depth=2,root=4";
+  o.objective = "network";
+  o.lr_decoder = 0.05;
+  o.precision = runtime().has_fp64() ? Precision::F64 : Precision::F32;
+  o.out = out;
+  o.quiet = true;
+  return o;
+}
+
+// The message of the InputError f throws ("" when it throws none).
+template <typename F>
+std::string input_error_of(F&& f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+std::string file_bytes(const std::string& p) {
+  std::ifstream f(p, std::ios::binary);
+  std::ostringstream ss;
+  ss << f.rdbuf();
+  return ss.str();
+}
+
+}  // namespace
+
+TEST_SUITE("joint") {
+  TEST_CASE("the patch camera's adjoint: <A psf, g> = <psf, A^T g>, circular and periodic-extension grids, in double") {
+    Runtime& rt = runtime();
+    if (skip_unless(rt.has_fp64(), "float64 device")) return;
+    for (std::size_t n : {32, 44}) {  // S = 16 (7-smooth: circular camera), S = 22 = 2 x 11 (periodic extension)
+      SystemConfig c = tiny_config(n, 3);
+      const std::size_t s = c.sensor_size_px();
+      CAPTURE(s);
+      testset::PatchCamera cam(rt, c, Precision::F64);
+      std::vector<testset::Patch> patches;
+      for (unsigned k = 0; k < 3; ++k) patches.push_back({"p", random_cube(3, s, s, 10 + k)});
+      const RealStack psf = random_cube(3, s, s, 20), dpsf = random_cube(3, s, s, 21);
+      std::vector<RealStack> g;
+      for (unsigned k = 0; k < 3; ++k) g.push_back(random_cube(3, s, s, 30 + k));
+      const std::vector<RealStack> y = cam.measure(psf, patches);
+      const RealStack gp = cam.vjp(g);
+      const std::vector<RealStack> yd = cam.measure(dpsf, patches);
+      double lhs = 0, rhs = 0, scale = 0;
+      for (std::size_t k = 0; k < 3; ++k)
+        for (std::size_t i = 0; i < g[k].size(); ++i) {
+          lhs += yd[k].data[i] * g[k].data[i];
+          scale += std::fabs(yd[k].data[i] * g[k].data[i]);
+        }
+      for (std::size_t i = 0; i < dpsf.size(); ++i) rhs += dpsf.data[i] * gp.data[i];
+      CHECK(std::fabs(lhs - rhs) <= 1e-12 * scale);
+      CHECK(cam.periodic_extension() == (n == 44));
+      (void)y;
+      // The adjoint belongs to one device call: a count that does not match is refused.
+      CHECK_THROWS_WITH_AS(cam.vjp({g[0]}), doctest::Contains("one per patch"), InputError);
+    }
+  }
+
+  TEST_CASE("training batches: S x S windows of the training scenes, flipped or rotated, the same for the same (seed, step)") {
+    const SystemConfig c = tiny_config(32, 2);
+    const std::size_t s = c.sensor_size_px();
+    JointData d;
+    RealStack scene(2, 40, 50);
+    for (std::size_t b = 0; b < 2; ++b)
+      for (std::size_t y = 0; y < 40; ++y)
+        for (std::size_t x = 0; x < 50; ++x) scene(b, y, x) = double(b * 100000 + y * 100 + x);
+    d.train.push_back(scene);
+    const auto a = joint_batch(d, s, 16, 7, 3), b = joint_batch(d, s, 16, 7, 3), c2 = joint_batch(d, s, 16, 7, 4);
+    REQUIRE(a.size() == 16);
+    bool differs = false;
+    std::set<std::vector<double>> corners;
+    for (std::size_t k = 0; k < 16; ++k) {
+      CHECK(a[k].data == b[k].data);
+      differs = differs || a[k].data != c2[k].data;
+      // Band 0 holds 100 y + x: a window [y0, y0+S) x [x0, x0+S) under one of the 8 symmetries
+      // has its smallest value at a corner, 100 y0 + x0, and every value of the window once.
+      const RealStack& p = a[k];
+      const auto mn = *std::min_element(p.data.begin(), p.data.begin() + long(s * s));
+      const std::size_t y0 = std::size_t(mn) / 100, x0 = std::size_t(mn) % 100;
+      std::multiset<double> want, got(p.data.begin(), p.data.begin() + long(s * s));
+      for (std::size_t y = 0; y < s; ++y)
+        for (std::size_t x = 0; x < s; ++x) want.insert(double((y0 + y) * 100 + x0 + x));
+      CHECK(got == want);
+      corners.insert({p(0, 0, 0), p(0, 0, 1), p(0, 1, 0)});  // which symmetry was used
+      for (std::size_t i = 0; i < s * s; ++i) CHECK(p.data[s * s + i] == p.data[i] + 100000);  // bands move together
+    }
+    CHECK(differs);
+    CHECK(corners.size() > 4);  // several of the 8 symmetries in 16 draws
+  }
+
+  TEST_CASE("the joint step's PSF gradient against a directional central difference, in double") {
+    Runtime& rt = runtime();
+    if (skip_unless(rt.has_fp64(), "float64 device")) return;
+    const SystemConfig c = tiny_config(32, 3);
+    const std::size_t s = c.sensor_size_px();
+    NetworkSettings ns;
+    ns.spec = decoder_spec_from_string("resunet:depth=2,root=4");
+    ns.out_channels = 3;
+    ns.seed = 1;
+    AffineNet net(ns);
+    const JointData d = load_joint_data(c, {}, "auto", 3, 9);
+    JointTrainer jt(rt, c, Precision::F64, net, d, 2, 1e-3, 9);
+    const RealStack psf = random_cube(3, s, s, 40), dir = random_cube(3, s, s, 41);
+    RealStack g, unused;
+    jt.step(5, 0.0, psf, g);  // lr 0: the network is unchanged, so the loss is a function of the PSF
+    double an = 0;
+    for (std::size_t i = 0; i < g.size(); ++i) an += g.data[i] * (dir.data[i] - 0.5);
+    const double h = 1e-5;
+    RealStack a = psf, b = psf;
+    for (std::size_t i = 0; i < psf.size(); ++i) {
+      a.data[i] += h * (dir.data[i] - 0.5);
+      b.data[i] -= h * (dir.data[i] - 0.5);
+    }
+    const double fd = (jt.step(5, 0.0, a, unused) - jt.step(5, 0.0, b, unused)) / (2 * h);
+    CHECK(std::fabs(fd - an) <= 1e-7 * std::fabs(an));
+    CHECK(std::fabs(an) > 0);
+    // The validation PSNR is a property of the state and the PSF: asking twice gives one value.
+    CHECK(jt.validation_psnr_db(psf) == jt.validation_psnr_db(psf));
+  }
+
+  TEST_CASE("a network run resumes bit-identically: optics, network state and log") {
+    const AffineFactory fake;
+    const auto dir = temp_dir("joint_resume");
+    const std::string a = (dir / "a").string(), b = (dir / "b").string();
+    CHECK(run_design(runtime(), net_run(a, DesignMode::QDOA), false).steps_done == 6);
+    DesignRunOptions first = net_run(b, DesignMode::QDOA);
+    first.max_steps = 3;  // "killed" after step 3 (checkpoint at 2, then the final one at 3)
+    CHECK(run_design(runtime(), first, false).steps_done == 3);
+    CHECK(run_design(runtime(), net_run(b, DesignMode::QDOA), true).steps_done == 6);
+    const DesignState sa = load_checkpoint(a + "/checkpoint.h5", 16, 4), sb = load_checkpoint(b + "/checkpoint.h5", 16, 4);
+    CHECK(sa.w == sb.w);
+    CHECK(sa.offsets == sb.offsets);
+    CHECK(sa.network_file == "network/step_00000006.pt");
+    CHECK(sa.network_file == sb.network_file);
+    CHECK(sa.network_checksum == sb.network_checksum);
+    CHECK(file_bytes(a + "/" + sa.network_file) == file_bytes(b + "/" + sb.network_file));
+    // Every log column but the step time, row by row.
+    auto rows = [](const std::string& p) {
+      std::vector<std::string> out;
+      std::ifstream f(p);
+      for (std::string l; std::getline(f, l);) {
+        std::vector<std::string> cols;
+        std::stringstream ss(l);
+        for (std::string x; std::getline(ss, x, ',');) cols.push_back(x);
+        if (cols.size() > 5) cols.erase(cols.begin() + 5);  // step_s
+        std::string j;
+        for (const auto& x : cols) j += x + ",";
+        out.push_back(j);
+      }
+      return out;
+    };
+    const auto ra = rows(a + "/log.csv"), rb = rows(b + "/log.csv");
+    REQUIRE(ra.size() == 7);
+    for (std::size_t r = 0; r < ra.size(); ++r) {
+      CAPTURE(r);
+      CHECK(ra[r] == rb.at(r));
+    }
+    CHECK(ra[0].find("train_psnr_db,val_psnr_db") != std::string::npos);
+    // Validation PSNR at the end of each epoch (steps 2, 4, 6), empty otherwise.
+    auto val = [&](std::size_t r) { std::vector<std::string> c; std::stringstream ss(ra[r]); for (std::string x; std::getline(ss, x, ',');) c.push_back(x); return c.at(8); };
+    CHECK(val(1).empty());
+    CHECK(!val(2).empty());
+    CHECK(!val(6).empty());
+    // Only the states the checkpoints name are kept; the scene split and the PSNR curves are written.
+    std::set<std::string> kept;
+    for (const auto& e : std::filesystem::directory_iterator(std::filesystem::path(b) / "network")) kept.insert(e.path().filename().string());
+    CHECK(kept == std::set<std::string>{"step_00000004.pt", "step_00000006.pt"});
+    for (const char* f : {"split.json", "psnr.png", "loss.png", "design.h5", "prior.h5"}) CHECK(std::filesystem::exists(std::filesystem::path(b) / f));
+    const auto split = nlohmann::json::parse(file_bytes(b + "/split.json"));
+    CHECK(split.at("train").size() == 3);
+    CHECK(split.at("validation").size() == 2);
+    // The network learns: the data term (column mae) falls from the first step to the last.
+    auto mae = [&](std::size_t r) { std::vector<std::string> c; std::stringstream ss(ra[r]); for (std::string x; std::getline(ss, x, ',');) c.push_back(x); return std::stod(c.at(6)); };
+    CHECK(mae(6) < mae(1));
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("a network run's state is checked before resuming: missing, corrupt, another architecture") {
+    const AffineFactory fake;
+    const auto dir = temp_dir("joint_refuse");
+    const std::string a = (dir / "a").string();
+    DesignRunOptions o = net_run(a, DesignMode::QDO);
+    o.max_steps = 2;
+    run_design(runtime(), o, false);
+    const DesignState st = load_checkpoint(a + "/checkpoint.h5", 16, 4);
+    const std::string net = a + "/" + st.network_file, bytes = file_bytes(net);
+    // Corrupt: one byte changed.
+    std::string bad = bytes;
+    bad[bad.size() / 2] = char(bad[bad.size() / 2] ^ 1);
+    write_text_atomic(net, bad);
+    CHECK_THROWS_WITH_AS(run_design(runtime(), net_run(a, DesignMode::QDO), true), doctest::Contains("checksum mismatch"), InputError);
+    // Missing.
+    std::filesystem::remove(net);
+    CHECK_THROWS_WITH_AS(run_design(runtime(), net_run(a, DesignMode::QDO), true), doctest::Contains("missing"), InputError);
+    // Another architecture: the run's config.json asks for another spec than the state holds.
+    write_text_atomic(net, bytes);
+    std::string cfg = file_bytes(a + "/config.json");
+    const auto at = cfg.find("resunet:depth=2,root=4");
+    REQUIRE(at != std::string::npos);
+    cfg.replace(at, std::strlen("resunet:depth=2,root=4"), "resunet:depth=3,root=4");
+    write_text_atomic(a + "/config.json", cfg);
+    const std::string msg = input_error_of([&] { run_design(runtime(), net_run(a, DesignMode::QDO), true); });
+    CHECK(msg.find("resunet:depth=2,root=4") != std::string::npos);
+    CHECK(msg.find("resunet:depth=3,root=4") != std::string::npos);
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("network runs: refusals before any work, eval's matched/mismatch rule, do-finetune keeps the optics frozen") {
+    const AffineFactory fake;
+    const auto dir = temp_dir("joint_eval");
+    // Options refused by name.
+    DesignRunOptions o = net_run((dir / "x").string(), DesignMode::DO);
+    o.objective = "wiener";
+    const std::string msg = input_error_of([&] { o.validate(); });
+    CHECK(msg.find("objective") != std::string::npos);
+    CHECK(msg.find("network") != std::string::npos);
+    o = net_run((dir / "x").string(), DesignMode::DO);
+    o.decoder = "resunet:depth=6,root=4";  // 2^5 = 32 does not divide S = 16
+    CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("S = 16"), InputError);
+    o = net_run((dir / "x").string(), DesignMode::DO);
+    o.decoder = "wiener";
+    CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("decoder"), InputError);
+    o = net_run((dir / "x").string(), DesignMode::QDOA);
+    o.finetune_from = "somewhere";
+    CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("do-finetune"), InputError);
+    CHECK(!std::filesystem::exists(dir / "x"));
+    // Without a registered network (a qdo built without LibTorch) the run is refused, naming LibTorch.
+    {
+      const NetworkFactory keep = registered_network_factory();
+      register_network_factory(nullptr);
+      CHECK_THROWS_WITH_AS(run_design(runtime(), net_run((dir / "y").string(), DesignMode::DO), false),
+                           doctest::Contains("LibTorch"), InputError);
+      register_network_factory(keep);
+    }
+    // A network do run: matched is refused at its levels (the network was trained for H_f),
+    // mismatch is the paper's DO, matched at full precision is the network's own design.
+    const std::string d = (dir / "do").string();
+    run_design(runtime(), net_run(d, DesignMode::DO), false);
+    EvalOptions e;
+    e.run = d;
+    e.synthetic_scenes = 2;
+    e.renders = 1;
+    e.out = (dir / "eval").string();
+    CHECK_THROWS_WITH_AS(evaluate_run(runtime(), e), doctest::Contains("mismatch"), InputError);
+    e.decoder = "mismatch";
+    const EvalResult mis = evaluate_run(runtime(), e);
+    CHECK(std::isfinite(mis.mean.psnr));
+    const auto mj = nlohmann::json::parse(file_bytes(e.out + "/metrics.json"));
+    CHECK(mj.at("decoder_kind") == "resunet:depth=2,root=4");
+    e.decoder = "matched";
+    e.full_precision = true;
+    CHECK(std::isfinite(evaluate_run(runtime(), e).mean.psnr));
+    // do-finetune: the do run's optics at 2 levels, frozen; its network trained on.
+    DesignRunOptions f = net_run((dir / "ft").string(), DesignMode::DO);
+    f.finetune_from = d;
+    f.design.quantizer.levels = 2;
+    f.epochs = 1;
+    f.design.steps_per_epoch = 3;
+    f.design.t0_epochs = 0;
+    f.design.t1_epochs = 1;
+    run_design(runtime(), f, false);
+    const DesignState src = load_checkpoint(d + "/checkpoint.h5", 16, 4), ft = load_checkpoint(f.out + "/checkpoint.h5", 16, 2);
+    CHECK(ft.w == src.w);
+    CHECK(ft.step == 3);
+    CHECK(file_bytes(f.out + "/" + ft.network_file) != file_bytes(d + "/" + src.network_file));
+    const Design fd = read_design(f.out + "/design.h5");
+    CHECK(std::set<double>(fd.height_m.data.begin(), fd.height_m.data.end()).size() <= 2);
+    // Its network is matched to its quantized DOE: eval's default decoder is accepted.
+    EvalOptions ef = e;
+    ef.run = f.out;
+    ef.full_precision = false;
+    ef.out = (dir / "eval_ft").string();
+    CHECK(std::isfinite(evaluate_run(runtime(), ef).mean.psnr));
+    // A finetune source that is not a network do run is refused, naming it.
+    DesignRunOptions g = f;
+    g.out = (dir / "ft2").string();
+    g.finetune_from = f.out + "_none";
+    CHECK_THROWS_AS(run_design(runtime(), g, false), InputError);
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("a run's config.json keeps the decoder; run folders from before it read as Wiener runs") {
+    DesignRunOptions o = net_run("/tmp/unused", DesignMode::QDOA);
+    o.lr_decoder = 0.002;
+    o.gamma_decoder = 3e-4;
+    const DesignRunOptions back = design_run_options_from_json(design_run_options_to_json(o), "mem");
+    CHECK(back.decoder == o.decoder);
+    CHECK(back.lr_decoder == 0.002);
+    CHECK(back.gamma_decoder == 3e-4);
+    CHECK(back.objective == "network");
+    auto j = nlohmann::json::parse(design_run_options_to_json(o));
+    for (const char* k : {"decoder", "lr_decoder", "gamma_decoder", "finetune_from"}) j["design"].erase(k);
+    j["design"]["objective"] = "wiener";
+    const DesignRunOptions old = design_run_options_from_json(j.dump(), "old");
+    CHECK(old.decoder == "wiener");
+    CHECK(old.finetune_from.empty());
+  }
+}
