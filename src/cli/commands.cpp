@@ -128,10 +128,15 @@ std::vector<CommandSpec> make_table() {
                cmd_simulate});
   t.push_back({"demo", "QDO+A against conventional deep optics (DO) at L levels, designed and evaluated end to end", "", "",
                {opt("preset", "system preset: paper or small", "small"), opt("levels", "height levels L, an integer in [2, 65536]", "4"),
-                opt("epochs", "epochs per design, an integer in [2, 100000]", "15"),
-                opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 100000]", "8"),
+                opt("epochs", "epochs per design, an integer in [2, 100000] (default: 15; 8 with a network decoder)"),
+                opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 100000] (default: 8; 50 with a network decoder)"),
+                opt("decoder", "decoder: wiener (closed form, trained on synthetic scenes) or a network spec (resunet, ...; "
+                               "trained with the optics on --train-data; about 10 minutes on 2 cores with resunet)", "wiener"),
+                opt("train-data", "training scenes of the network decoder (comma-separated; those that exist are used)",
+                    "../shared/data/hsi/cave_train,../shared/data/hsi/cave_png"),
+                opt("finetune-steps", "network decoder: do-finetune steps (doft/), an integer in [1, 100000000]", "100"),
                 opt("data", "real test scenes (CAVE folder); skipped when absent", "../shared/data/hsi/cave"), precision(), device(),
-                opt("out", "output folder (created; its qdoa/ and do/ run folders are replaced)", "out/demo")},
+                opt("out", "output folder (created; its qdoa/ and do/ (and doft/) run folders are replaced)", "out/demo")},
                cmd_demo, true});
   t.push_back({"design", "optimise a design end to end into a run folder (resumable)", "", "",
                concat({preset(), config(),

@@ -21,6 +21,7 @@
 #include "qdo/error.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/io.hpp"
+#include "qdo/network_decoder.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
 #include "qdo/runtime.hpp"
@@ -388,22 +389,35 @@ int cmd_demo(const Args& a) {
   const std::string dir = out_dir(a, "out/demo");
   DesignRunOptions o;
   o.cfg = preset_config(a.get("preset"));
+  o.decoder = decoder_spec_from_string(a.get("decoder", "wiener")).to_string();
+  const bool network = o.decoder != "wiener";
   o.design.quantizer.levels = parse_int("--levels", a.get("levels"), 2, 65536);
-  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs"), 2, 100000));
-  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch"), 1, 100000));
+  // The Wiener demo: 15 x 8 steps on synthetic scenes. The network demo: 8 x 50 steps on the CAVE
+  // training scenes (the network needs real data and more steps; README: how long it takes).
+  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", network ? "8" : "15"), 2, 100000));
+  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch", network ? "50" : "8"), 1, 100000));
   o.design.t0_epochs = 0.1 * double(o.epochs);
   o.design.t1_epochs = 0.8 * double(o.epochs);
   o.precision = precision_from_string(a.get("precision"));
-  o.objective = "wiener";
+  o.objective = network ? "network" : "wiener";
+  if (network) {
+    for (const std::string& d : split_list(a.get("train-data")))
+      if (fs::exists(d)) o.data.push_back(d);
+    if (o.data.empty())
+      std::fprintf(stderr, "qdo demo: note: no --train-data found (%s); the network trains on synthetic scenes\n",
+                   a.get("train-data").c_str());
+  }
+  const std::size_t finetune_steps = std::size_t(parse_int("--finetune-steps", a.get("finetune-steps"), 1, 100000000));
   std::string real = a.get("data");
   if (!fs::exists(real)) real.clear();
   struct Job {
     DesignMode mode;
     std::string name;
   };
-  const std::vector<Job> jobs = {Job{DesignMode::QDOA, "qdoa"}, Job{DesignMode::DO, "do"}};
-  // demo replaces only what it made: DIR/qdoa and DIR/do must be absent, empty, or run folders
-  // an earlier demo wrote (its marker file inside). Both are checked before any work.
+  std::vector<Job> jobs = {Job{DesignMode::QDOA, "qdoa"}, Job{DesignMode::DO, "do"}};
+  if (network) jobs.push_back(Job{DesignMode::DO, "doft"});  // do-finetune of do/ (the network's refit)
+  // demo replaces only what it made: its run folders must be absent, empty, or run folders
+  // an earlier demo wrote (its marker file inside). All are checked before any work.
   for (const Job& j : jobs) {
     const fs::path run = fs::path(dir) / j.name;
     if (!fs::exists(run)) continue;
@@ -414,6 +428,8 @@ int cmd_demo(const Args& a) {
                                "' is absent, empty or a run folder qdo demo made (it holds files qdo demo did not write, and demo "
                                "would replace them; move them, or choose another --out)");
   }
+  if (network && !network_decoder_available())
+    reject("--decoder", o.decoder, "wiener: this qdo was built without LibTorch (-DQDO_TORCH=OFF); the network demo needs it");
   Runtime rt(a.get("device"));
   std::printf("qdo demo: preset %s (N = %zu, %zu bands, z = %.4g m), %d levels, %zu steps per design, device %s\n",
               o.cfg.preset.c_str(), o.cfg.n, o.cfg.bands, o.cfg.sensor_distance_m, o.design.quantizer.levels,
@@ -423,7 +439,16 @@ int cmd_demo(const Args& a) {
     DesignRunOptions r = o;
     r.design.mode = j.mode;
     r.out = dir + "/" + j.name;
-    std::printf("[%s] designing (%s) into %s\n", j.name.c_str(), to_string(j.mode).c_str(), r.out.c_str());
+    if (j.name == "doft") {  // the do run's network trained on with its DOE quantized to L levels, frozen
+      r.finetune_from = dir + "/do";
+      r.epochs = 1;
+      r.design.steps_per_epoch = finetune_steps;
+      r.design.t0_epochs = 0;
+      r.design.t1_epochs = 1;
+      r.lr_decoder = o.lr_decoder * std::pow(o.design.lr_decay_per_epoch, double(o.epochs - 1));
+      r.design.lr_decay_per_epoch = 1;
+    }
+    std::printf("[%s] designing (%s) into %s\n", j.name.c_str(), j.name == "doft" ? "do-finetune" : to_string(j.mode).c_str(), r.out.c_str());
     fs::create_directories(r.out);
     {
       // Under the folder's lock (a concurrent writer is refused): drop the previous demo run's
@@ -443,10 +468,11 @@ int cmd_demo(const Args& a) {
     std::string decoder;
   };
   const std::string L = std::to_string(o.design.quantizer.levels);
-  const std::vector<Cell> cells = {{"DO, full precision (reference)", "do", true, "matched"},
-                                   {"DO, " + L + " levels (decoder for H_f, the paper's DO)", "do", false, "mismatch"},
-                                   {"DO, " + L + " levels (decoder refit)", "do", false, "matched"},
-                                   {"QDO+A, " + L + " levels", "qdoa", false, "matched"}};
+  std::vector<Cell> cells = {{"DO, full precision (reference)", "do", true, "matched"},
+                             {"DO, " + L + " levels (decoder for H_f, the paper's DO)", "do", false, "mismatch"},
+                             {"DO, " + L + " levels (decoder refit)", "do", false, "matched"},
+                             {"QDO+A, " + L + " levels", "qdoa", false, "matched"}};
+  if (network) cells[2] = {"DO, " + L + " levels (network fine-tuned, do-finetune)", "doft", false, "matched"};
   std::string md = "| design | test set | PSNR [dB] | SSIM | RMSE | ERGAS | deviation [nm] |\n|---|---|---|---|---|---|---|\n";
   std::printf("\n%-46s %-10s %9s %7s %8s %8s %10s\n", "design", "test set", "PSNR", "SSIM", "RMSE", "ERGAS", "dev [nm]");
   for (const std::string& set : {std::string("synthetic"), std::string("CAVE")}) {
@@ -478,11 +504,15 @@ int cmd_demo(const Args& a) {
   write_rgb_png(dir + "/chart_scene.png", ref::sensor_integrate(scene, sim.srf()));
   write_rgb_png(dir + "/chart_sensor_qdoa.png", sim.sensor_image(scene));
   md = "# qdo demo\n\nPreset `" + cfg.preset + "`, " + L + " levels, " + std::to_string(o.epochs * o.design.steps_per_epoch) +
-       " optimiser steps per design, Wiener decoder, objective: expected MSE under the synthetic-scene prior.\n"
+       " optimiser steps per design, " +
+       (network ? "decoder " + o.decoder + " trained with the optics (Eq. 14) on " +
+                      (o.data.empty() ? std::string("synthetic scenes") : "the scenes in " + o.data.front() + (o.data.size() > 1 ? " and more" : "")) +
+                      "; do-finetune: " + std::to_string(finetune_steps) + " network steps with the quantized DOE frozen.\n"
+                : std::string("Wiener decoder, objective: expected MSE under the synthetic-scene prior.\n")) +
        "Test sets: held-out synthetic scenes" + (real.empty() ? "" : std::string(" and the CAVE scenes in ") + real) + ".\n\n" + md;
   write_text_atomic(dir + "/summary.md", md);
-  std::printf("\n%.0f s in all. wrote %s/: qdoa/ and do/ (run folders), eval/ (metrics, renders), summary.md, chart_*.png\n",
-              seconds_since(t0), dir.c_str());
+  std::printf("\n%.0f s in all. wrote %s/: qdoa/ and do/%s (run folders), eval/ (metrics, renders), summary.md, chart_*.png\n",
+              seconds_since(t0), dir.c_str(), network ? " and doft/" : "");
   return 0;
 }
 

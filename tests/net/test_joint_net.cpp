@@ -1,0 +1,144 @@
+// The LibTorch network behind the core's NetworkDecoder (src/net/network_decoder.cpp): its state
+// round trip is exact (weights, batch-norm statistics, Adam moments: the continuation after a
+// load equals the uninterrupted one, bytes included), other architectures and foreign bytes are
+// refused naming both, and a whole network design run resumes bit-identically with the Res-UNet.
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+// LibTorch first: its glog-style CHECK macros (which abort) are then replaced by doctest's.
+#include "qdo/resunet.hpp"
+#undef CHECK
+#undef CHECK_EQ
+#undef CHECK_NE
+#undef CHECK_LE
+#undef CHECK_LT
+#undef CHECK_GE
+#undef CHECK_GT
+
+#include "../common.hpp"
+#include "qdo/design_run.hpp"
+#include "qdo/error.hpp"
+#include "qdo/net.hpp"
+#include "qdo/network_decoder.hpp"
+#include "qdo/run.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+
+namespace {
+
+NetworkSettings settings(const std::string& spec, std::size_t bands = 3) {
+  NetworkSettings s;
+  s.spec = decoder_spec_from_string(spec);
+  s.out_channels = bands;
+  s.seed = 4;
+  return s;
+}
+
+std::vector<RealStack> cubes(std::size_t planes, std::size_t n, unsigned seed, std::size_t count = 2) {
+  std::vector<RealStack> v;
+  for (std::size_t k = 0; k < count; ++k) v.push_back(random_cube(planes, n, n, seed + unsigned(k)));
+  return v;
+}
+
+// Registers the LibTorch network for the guard's lifetime, then puts back what was there.
+struct TorchFactory {
+  NetworkFactory previous = registered_network_factory();
+  TorchFactory() { register_torch_network(); }
+  ~TorchFactory() { register_network_factory(previous); }
+};
+
+std::string file_bytes(const std::string& p) {
+  std::ifstream f(p, std::ios::binary);
+  std::ostringstream ss;
+  ss << f.rdbuf();
+  return ss.str();
+}
+
+}  // namespace
+
+TEST_SUITE("net") {
+  TEST_CASE("the network state round trip is exact: a loaded network continues as the original, bytes included") {
+    const TorchFactory torch_net;
+    const auto y = cubes(3, 16, 1), x = cubes(3, 16, 5);
+    auto a = make_network_decoder(settings("resunet:depth=2,root=4"));
+    a->train(y, x, 1e-2);
+    a->train(y, x, 1e-2);
+    const std::string saved = a->save();
+    auto b = make_network_decoder(settings("resunet:depth=2,root=4"));
+    b->load(saved, "mem");
+    CHECK(b->save() == saved);
+    const NetworkStep sa = a->train(y, x, 1e-2), sb = b->train(y, x, 1e-2);
+    CHECK(sa.loss == sb.loss);
+    CHECK(sa.grad_images.front().data == sb.grad_images.front().data);
+    CHECK(a->save() == b->save());
+    CHECK(a->reconstruct(y).front().data == b->reconstruct(y).front().data);
+    // Training moves the network (the step is not a no-op) and the loss includes γ||ω||².
+    CHECK(a->save() != saved);
+    CHECK(sa.loss > sa.mae);
+  }
+
+  TEST_CASE("a network state of another architecture, band count or format is refused, naming both") {
+    const TorchFactory torch_net;
+    auto small = make_network_decoder(settings("resunet:depth=2,root=4"));
+    auto other = make_network_decoder(settings("resunet:depth=3,root=4"));
+    std::string msg;
+    try {
+      other->load(small->save(), "ckpt.pt");
+    } catch (const InputError& e) {
+      msg = e.what();
+    }
+    CHECK(msg.find("ckpt.pt") != std::string::npos);
+    CHECK(msg.find("resunet:depth=2,root=4") != std::string::npos);
+    CHECK(msg.find("resunet:depth=3,root=4") != std::string::npos);
+    auto bands = make_network_decoder(settings("resunet:depth=2,root=4", 5));
+    CHECK_THROWS_WITH_AS(bands->load(small->save(), "b.pt"), doctest::Contains("output bands"), InputError);
+    CHECK_THROWS_WITH_AS(small->load("not a torch archive", "junk.pt"), doctest::Contains("junk.pt"), InputError);
+  }
+
+  TEST_CASE("a Res-UNet design run resumes bit-identically after a stop; eval reconstructs with its network") {
+    const TorchFactory torch_net;
+    const auto dir = temp_dir("net_resume");
+    auto run = [&](const std::string& out) {
+      DesignRunOptions o;
+      o.cfg = tiny_config(32, 3);  // S = 16
+      o.design.mode = DesignMode::QDOA;
+      o.design.quantizer.levels = 4;
+      o.design.steps_per_epoch = 2;
+      o.design.t0_epochs = 0;
+      o.design.t1_epochs = 2;
+      o.design.seed = 2;
+      o.epochs = 2;
+      o.synthetic_scenes = 3;
+      o.checkpoint_every = 1;
+      o.batch = 2;
+      o.decoder = "resunet:depth=2,root=4";
+      o.objective = "network";
+      o.precision = Precision::F32;
+      o.out = out;
+      o.quiet = true;
+      return o;
+    };
+    const std::string a = (dir / "a").string(), b = (dir / "b").string();
+    run_design(runtime(), run(a), false);
+    DesignRunOptions first = run(b);
+    first.max_steps = 1;
+    run_design(runtime(), first, false);
+    run_design(runtime(), run(b), true);
+    const DesignState sa = load_checkpoint(a + "/checkpoint.h5", 16, 4), sb = load_checkpoint(b + "/checkpoint.h5", 16, 4);
+    CHECK(sa.w == sb.w);
+    CHECK(sa.offsets == sb.offsets);
+    REQUIRE(!sa.network_file.empty());
+    CHECK(file_bytes(a + "/" + sa.network_file) == file_bytes(b + "/" + sb.network_file));
+    EvalOptions e;
+    e.run = a;
+    e.synthetic_scenes = 2;
+    e.renders = 1;
+    e.out = (dir / "eval").string();
+    const EvalResult r = evaluate_run(runtime(), e);
+    CHECK(std::isfinite(r.mean.psnr));
+    CHECK(r.mean.psnr > 0);
+    std::filesystem::remove_all(dir);
+  }
+}
