@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <map>
 #include <random>
 #include <set>
 #include <sstream>
@@ -21,6 +22,7 @@
 #include "qdo/network_decoder.hpp"
 #include "qdo/run.hpp"
 #include "qdo/run_folder.hpp"
+#include "qdo/sweep.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
@@ -432,5 +434,46 @@ TEST_SUITE("joint") {
     const DesignRunOptions old = design_run_options_from_json(j.dump(), "old");
     CHECK(old.decoder == "wiener");
     CHECK(old.finetune_from.empty());
+  }
+
+  TEST_CASE("qdo sweep's decoder axis: Wiener and network runs side by side, do-finetune for both, do-refit for Wiener only") {
+    const AffineFactory fake;
+    const auto dir = temp_dir("joint_sweep");
+    GridOptions g;
+    g.base = net_run("(per run)", DesignMode::DO);
+    g.base.decoder = "wiener";
+    g.base.objective = "wiener";
+    g.levels = {2};
+    g.modes = {"do", "do-refit", "do-finetune", "qdo"};
+    g.decoders = {"wiener", "resunet:depth=2,root=4"};
+    g.finetune_steps = 2;
+    g.eval_synthetic_scenes = 2;
+    g.out = dir.string();
+    const auto cells = run_grid(runtime(), g);
+    std::map<std::string, GridCell> by;
+    for (const auto& c : cells) by[c.name] = c;
+    // Wiener: full + 4 modes; network: full + 3 (no do-refit).
+    CHECK(cells.size() == 9);
+    for (const char* n : {"full", "do_L2", "do-refit_L2", "do-finetune_L2", "qdo_L2", "full_resunet-depth2-root4", "do_L2_resunet-depth2-root4",
+                          "do-finetune_L2_resunet-depth2-root4", "qdo_L2_resunet-depth2-root4"})
+      CHECK(by.count(n) == 1);
+    CHECK(by.count("do-refit_L2_resunet-depth2-root4") == 0);
+    CHECK(by["qdo_L2_resunet-depth2-root4"].mode == "qdo@resunet:depth=2,root=4");
+    CHECK(by["qdo_L2_resunet-depth2-root4"].decoder == "resunet:depth=2,root=4");
+    // With the Wiener decoder do-finetune is the closed-form refit: the do-refit cell's numbers.
+    CHECK(by["do-finetune_L2"].mean.psnr == by["do-refit_L2"].mean.psnr);
+    // The network's do-finetune is a run of its own, from the do run, optics frozen.
+    const DesignRunOptions ft = read_run_config((dir / "runs" / "do-finetune_L2_resunet-depth2-root4").string());
+    CHECK(ft.finetune_from == (dir / "runs" / "do_resunet-depth2-root4").string());
+    CHECK(ft.decoder == "resunet:depth=2,root=4");
+    CHECK(read_run_config((dir / "runs" / "qdo_L2").string()).decoder == "wiener");
+    // A rerun reuses every run and cell.
+    const auto again = run_grid(runtime(), g);
+    REQUIRE(again.size() == cells.size());
+    for (std::size_t i = 0; i < cells.size(); ++i) CHECK(again[i].mean.psnr == cells[i].mean.psnr);
+    std::ifstream t1(dir / "table1.md");
+    const std::string text((std::istreambuf_iterator<char>(t1)), std::istreambuf_iterator<char>());
+    CHECK(text.find("| 2 | qdo@resunet:depth=2,root=4 |") != std::string::npos);
+    std::filesystem::remove_all(dir);
   }
 }

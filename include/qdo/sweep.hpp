@@ -48,6 +48,14 @@ struct GridOptions {
   DesignRunOptions base;               // system, optimiser and objective settings of every run
   std::vector<int> levels{2, 4, 8, 16, 32};
   std::vector<std::string> modes{"do", "do-refit", "qdo", "qdo+a"};
+  // Decoders (decoder_spec.hpp): every mode is run with each. Empty: base.decoder alone. A network
+  // decoder trains with the optics (objective network); its runs and cells are named with the
+  // spec (e.g. qdo+a_L4_resunet-depth4-root16) and its modes labelled mode@spec in the tables.
+  // do-refit is the Wiener decoder's closed-form refit (skipped for networks); do-finetune is the
+  // network's counterpart (the do run's network trained on for finetune_steps steps with the DOE
+  // quantized to L levels and frozen), and for the Wiener decoder the same cell as do-refit.
+  std::vector<std::string> decoders;
+  std::size_t finetune_steps = 100;
   // Training scenes are base.data (empty: synthetic scenes). Test scenes: test_data when given
   // (all of it); else the test part of base.data's scene-level 80/10/10 split by
   // base.design.seed; else held-out synthetic scenes.
@@ -64,7 +72,9 @@ struct GridOptions {
   bool quiet = true;
 };
 struct GridCell {
-  std::string name, mode;              // mode: full, do, do-refit, qdo, qdo+a, ..., fresnel, cassi
+  std::string name, mode;              // mode: full, do, do-refit, do-finetune, qdo, qdo+a, ..., fresnel, cassi
+                                       // (with @spec for a network decoder)
+  std::string decoder = "wiener";      // the decoder's spec
   int levels = 0;                      // 0: full precision; -1: not applicable (cassi)
   EvalRow mean;
   double deviation_nm = 0;

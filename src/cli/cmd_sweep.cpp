@@ -84,7 +84,7 @@ int cmd_sweep(const Args& a) {
   const auto grids = a.multi.find("grid");
   for (const auto& spec : grids == a.multi.end() ? std::vector<std::string>{} : grids->second) {
     const auto eq = spec.find('=');
-    if (eq == std::string::npos) reject("--grid", spec, "AXIS=V1,V2,... with AXIS levels or mode");
+    if (eq == std::string::npos) reject("--grid", spec, "AXIS=V1,V2,... with AXIS levels, mode, encoder or decoder");
     const std::string axis = spec.substr(0, eq);
     const auto vals = split_list(spec.substr(eq + 1));
     if (axis == "levels") {
@@ -94,10 +94,13 @@ int cmd_sweep(const Args& a) {
       g.modes = vals;
     } else if (axis == "encoder") {
       g.encoders = vals;
+    } else if (axis == "decoder") {
+      g.decoders = vals;
     } else {
-      reject("--grid", axis, "levels, mode or encoder");
+      reject("--grid", axis, "levels, mode, encoder or decoder");
     }
   }
+  g.finetune_steps = std::size_t(parse_int("--finetune-steps", a.get("finetune-steps", "100"), 1, 100000000));
   g.test_data = split_list(a.get("test-data"));
   g.eval_synthetic_scenes = std::size_t(parse_int("--eval-scenes", a.get("eval-scenes"), 1, 10000));
   g.out = out_dir(a);

@@ -195,8 +195,10 @@ std::vector<CommandSpec> make_table() {
                 flag("save-psfs", "write every trial's PSF stack to psfs.h5"), precision(), device(), out_dir_opt()},
                cmd_tolerance});
   t.push_back({"sweep", "a grid of designs (levels x modes x encoders), each designed and evaluated, with summary tables", "", "",
-               concat({{"grid", "a grid axis AXIS=V1,V2,...: levels=2,4,8; mode=do,do-refit,qdo,qdo+a; encoder=doe,fresnel,cassi (repeatable)",
+               concat({{"grid", "a grid axis AXIS=V1,V2,...: levels=2,4,8; mode=do,do-refit,do-finetune,qdo,qdo+a; "
+                                "encoder=doe,fresnel,cassi; decoder=wiener,resunet (repeatable)",
                         "", false, true},
+                       opt("finetune-steps", "do-finetune with a network decoder: network steps with the DOE frozen, an integer in [1, 100000000]", "100"),
                        preset(), config(), placement(), parameterization(), objective(),
                        data("training scenes (default: synthetic scenes)"),
                        opt("test-data", "test scenes: CAVE folders, cube files or folders of them, comma-separated (default: synthetic)"),

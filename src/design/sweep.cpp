@@ -309,13 +309,29 @@ void ensure_run(Runtime& rt, const DesignRunOptions& o, const std::string& input
 std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   if (g.out.empty()) reject("out", "(missing)", "an output folder");
   for (const auto& m : g.modes)
-    if (m != "do" && m != "do-refit" && m != "qdo" && m != "qdo+a" && m != "ste" && m != "qdo+m")
-      reject("grid mode", m, "do, do-refit, qdo, qdo+a, ste or qdo+m");
+    if (m != "do" && m != "do-refit" && m != "do-finetune" && m != "qdo" && m != "qdo+a" && m != "ste" && m != "qdo+m")
+      reject("grid mode", m, "do, do-refit, do-finetune, qdo, qdo+a, ste or qdo+m");
+  std::vector<std::string> decoders;
+  for (const auto& d : g.decoders.empty() ? std::vector<std::string>{g.base.decoder} : g.decoders) {
+    const std::string spec = decoder_spec_from_string(d).to_string();  // refused by name when bad
+    if (std::find(decoders.begin(), decoders.end(), spec) == decoders.end()) decoders.push_back(spec);
+  }
+  if (g.finetune_steps < 1) reject("finetune_steps", g.finetune_steps, ">= 1");
   for (int l : g.levels)
     if (l < 2 || l > 256) reject("grid levels", l, "integers in [2, 256]");
   DesignRunOptions base = g.base;
   base.out = "(set per run)";
+  base.decoder = "wiener";
+  if (base.objective == "network") base.objective = "wiener";
   base.validate();
+  for (const auto& d : decoders) {  // every decoder's runs validated before any work
+    DesignRunOptions o = base;
+    o.decoder = d;
+    if (d != "wiener") o.objective = "network";
+    o.validate();
+    if (d != "wiener" && !network_decoder_available())
+      reject("grid decoder", d, "wiener: this qdo was built without LibTorch (-DQDO_TORCH=OFF)");
+  }
   // Test scenes.
   std::vector<std::string> test = g.test_data;
   if (test.empty() && !base.data.empty()) {
@@ -326,19 +342,24 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   const fs::path out(g.out);
   fs::create_directories(out / "runs");
   fs::create_directories(out / "cells");
-  auto run_opts = [&](DesignMode mode, int levels, const std::string& name) {
+  // Runs of decoder `dec`: Wiener runs keep the names they always had, network runs carry the spec.
+  auto tag_of = [](const std::string& dec) {
+    if (dec == "wiener") return std::string();
+    std::string t = "_";
+    for (char ch : dec) t += ch == ':' || ch == ',' ? '-' : ch == '=' ? '\0' : ch;
+    t.erase(std::remove(t.begin(), t.end(), '\0'), t.end());
+    return t;
+  };
+  auto run_opts = [&](DesignMode mode, int levels, const std::string& name, const std::string& dec) {
     DesignRunOptions o = base;
     o.design.mode = mode;
     o.design.quantizer.levels = levels;
-    o.out = (out / "runs" / name).string();
+    o.decoder = dec;
+    if (dec != "wiener") o.objective = "network";
+    o.out = (out / "runs" / (name + tag_of(dec))).string();
     return o;
   };
-  // DO is trained once in full precision; its levels only matter for design.h5.
-  const DesignRunOptions do_run = run_opts(DesignMode::DO, g.levels.front(), "do");
-  // The DO run's levels and placement only shape its design.h5, which no cell reads (cells
-  // quantize design_full.h5 themselves).
   const std::string train_inputs = hash_paths(base.data);  // once: every run trains on base.data
-  ensure_run(rt, do_run, train_inputs, g.quiet, g.out, {"design.checkpoint_every", "design.levels", "design.placement"});
   // What determines every cell: the test scenes (bytes), and per run, its outputs (bytes).
   const std::string test_inputs = test.empty() ? "synthetic" : hash_paths(test);
   auto run_outputs = [](const std::string& run) {
@@ -420,30 +441,58 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     if (!g.quiet) std::fprintf(stderr, "[sweep] %-16s PSNR %.2f dB\n", name.c_str(), c.mean.psnr);
     cells.push_back(c);
   };
-  {
-    EvalOptions e;
-    e.run = do_run.out;
-    e.full_precision = true;
-    eval_cell("full", "full", 0, e);
-  }
   const bool doe = std::find(g.encoders.begin(), g.encoders.end(), "doe") != g.encoders.end();
-  for (int L : g.levels)
-    for (const auto& m : g.modes) {
-      if (!doe) break;
-      const std::string name = m + "_L" + std::to_string(L);
+  std::string first_do;  // the first decoder's DO run: the prior of the other encoders
+  for (const std::string& dec : decoders) {
+    const bool network = dec != "wiener";
+    const std::string tag = tag_of(dec), label = network ? "@" + dec : "";
+    // DO is trained once in full precision; its levels and placement only shape its design.h5,
+    // which no cell reads (cells quantize design_full.h5 themselves).
+    const DesignRunOptions do_run = run_opts(DesignMode::DO, g.levels.front(), "do", dec);
+    ensure_run(rt, do_run, train_inputs, g.quiet, g.out, {"design.checkpoint_every", "design.levels", "design.placement"});
+    if (first_do.empty()) first_do = do_run.out;
+    {
       EvalOptions e;
-      if (m == "do" || m == "do-refit") {
-        e.run = do_run.out;
-        e.levels = L;
-        e.placement = base.design.quantizer.placement;
-        e.decoder = m == "do" ? "mismatch" : "matched";
-      } else {
-        const DesignRunOptions r = run_opts(design_mode_from_string(m), L, m + "_L" + std::to_string(L));
-        ensure_run(rt, r, train_inputs, g.quiet, g.out);
-        e.run = r.out;
-      }
-      eval_cell(name, m, L, e);
+      e.run = do_run.out;
+      e.full_precision = true;
+      eval_cell("full" + tag, "full" + label, 0, e);
+      cells.back().decoder = dec;
     }
+    for (int L : g.levels)
+      for (const auto& m : g.modes) {
+        if (!doe) break;
+        if (network && m == "do-refit") {
+          if (!g.quiet) std::fprintf(stderr, "[sweep] do-refit_L%d%s skipped: a network has no closed-form refit (do-finetune is its counterpart)\n", L, tag.c_str());
+          continue;
+        }
+        const std::string name = m + "_L" + std::to_string(L) + tag;
+        EvalOptions e;
+        if (m == "do" || m == "do-refit" || (m == "do-finetune" && !network)) {
+          e.run = do_run.out;
+          e.levels = L;
+          e.placement = base.design.quantizer.placement;
+          e.decoder = m == "do" ? "mismatch" : "matched";
+        } else if (m == "do-finetune") {  // the do run's network trained on, the DOE quantized to L and frozen
+          DesignRunOptions r = run_opts(DesignMode::DO, L, "do-finetune_L" + std::to_string(L), dec);
+          r.finetune_from = do_run.out;
+          r.epochs = 1;
+          r.design.steps_per_epoch = g.finetune_steps;
+          r.design.t0_epochs = 0;
+          r.design.t1_epochs = 1;
+          r.lr_decoder = base.lr_decoder * std::pow(base.design.lr_decay_per_epoch, double(base.epochs - 1));
+          r.design.lr_decay_per_epoch = 1;
+          ensure_run(rt, r, train_inputs, g.quiet, g.out);
+          e.run = r.out;
+        } else {
+          const DesignRunOptions r = run_opts(design_mode_from_string(m), L, m + "_L" + std::to_string(L), dec);
+          ensure_run(rt, r, train_inputs, g.quiet, g.out);
+          e.run = r.out;
+        }
+        eval_cell(name, m + label, L, e);
+        cells.back().decoder = dec;
+      }
+  }
+  const DesignRunOptions do_run = read_run_config(first_do);
   // Other encoders with the same decoder family and the DO run's prior.
   const bool fresnel = std::find(g.encoders.begin(), g.encoders.end(), "fresnel") != g.encoders.end();
   const bool cassi = std::find(g.encoders.begin(), g.encoders.end(), "cassi") != g.encoders.end();
@@ -534,13 +583,15 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   write_text_atomic((out / "table2.csv").string(), t2csv.str());
   // PSNR vs levels, one series per mode (levels in the order given).
   std::vector<std::vector<double>> series;
-  for (const auto& m : g.modes) {
-    std::vector<double> s;
-    for (int L : g.levels)
-      for (const auto& c : cells)
-        if (c.mode == m && c.levels == L) s.push_back(c.mean.psnr);
-    series.push_back(s);
-  }
+  for (const auto& dec : decoders)
+    for (const auto& m : g.modes) {
+      const std::string label = m + (dec == "wiener" ? "" : "@" + dec);
+      std::vector<double> s;
+      for (int L : g.levels)
+        for (const auto& c : cells)
+          if (c.mode == label && c.levels == L) s.push_back(c.mean.psnr);
+      if (!s.empty()) series.push_back(s);
+    }
   write_line_plot_png((out / "psnr_vs_levels.png").string(), series);
   return cells;
 }
