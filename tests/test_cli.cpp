@@ -172,7 +172,8 @@ TEST_SUITE("cli") {
     // Defaults are shown; --name=value and a missing value.
     const Run dh = qdo_run("design --help");
     CHECK(dh.out.find("default: qdo+a") != std::string::npos);
-    CHECK(dh.out.find("full, do, qdo, ste, qdo+a or qdo+m") != std::string::npos);
+    CHECK(dh.out.find("full, do, qdo, ste, qdo+a, qdo+m, or do-finetune") != std::string::npos);
+    CHECK(dh.out.find("--decoder") != std::string::npos);
     const Run cfg = qdo_run("config --preset=small");
     CHECK(cfg.code == 0);
     CHECK(cfg.out.find("\"n\"") != std::string::npos);

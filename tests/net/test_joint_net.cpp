@@ -19,6 +19,7 @@
 #include "../common.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
+#include "qdo/io.hpp"
 #include "qdo/net.hpp"
 #include "qdo/network_decoder.hpp"
 #include "qdo/run.hpp"
@@ -139,6 +140,38 @@ TEST_SUITE("net") {
     const EvalResult r = evaluate_run(runtime(), e);
     CHECK(std::isfinite(r.mean.psnr));
     CHECK(r.mean.psnr > 0);
+    std::filesystem::remove_all(dir);
+  }
+
+  TEST_CASE("the qdo tool trains, resumes, fine-tunes and evaluates a network run from the command line") {
+    const auto dir = temp_dir("net_cli");
+    const std::string cfg = (dir / "tiny.json").string();
+    write_text_atomic(cfg, config_to_json_text(tiny_config(32, 3)));
+    const std::string d = (dir / "do").string(), common = " --config " + cfg + " --epochs 2 --steps-per-epoch 2 --synthetic-scenes 2 --batch 2";
+    const Run r1 = qdo_run("design --mode do --decoder resunet:depth=2,root=4" + common + " --max-steps 1 --out " + d);
+    CAPTURE(r1.out);
+    REQUIRE(r1.code == 0);
+    const Run r2 = qdo_run("design --resume --out " + d);
+    CAPTURE(r2.out);
+    REQUIRE(r2.code == 0);
+    CHECK(r2.out.find("design: 4 steps") != std::string::npos);
+    // A given option that differs from the stored one is refused on resume, the decoder included.
+    const Run r3 = qdo_run("design --resume --decoder resunet:depth=3,root=4 --out " + d);
+    CHECK(r3.code == 2);
+    CHECK(r3.out.find("--decoder") != std::string::npos);
+    const Run ft = qdo_run("design --mode do-finetune --from " + d + " --levels 2 --finetune-steps 2 --out " + (dir / "ft").string());
+    CAPTURE(ft.out);
+    CHECK(ft.code == 0);
+    const Run bad = qdo_run("design --mode do-finetune --from " + d + " --lr 0.5 --out " + (dir / "ft2").string());
+    CHECK(bad.code == 2);
+    CHECK(bad.out.find("--lr") != std::string::npos);
+    const Run ev = qdo_run("eval " + d + " --decoder mismatch --synthetic-scenes 2 --renders 1 --out " + (dir / "ev").string());
+    CAPTURE(ev.out);
+    CHECK(ev.code == 0);
+    CHECK(ev.out.find("mean") != std::string::npos);
+    const Run ev2 = qdo_run("eval " + d + " --synthetic-scenes 2 --out " + (dir / "ev2").string());
+    CHECK(ev2.code == 2);
+    CHECK(ev2.out.find("mismatch") != std::string::npos);
     std::filesystem::remove_all(dir);
   }
 }
