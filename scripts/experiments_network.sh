@@ -6,7 +6,7 @@
 # DO is trained once in full precision; do-finetune trains its network on with the DOE quantized to
 # L levels and frozen. Finished runs are skipped, interrupted ones resumed, so a rerun continues.
 #
-# Usage: scripts/experiments_network.sh [OUT]   (env: LEVELS="2 4 8", EPOCHS=8, STEPS_PER_EPOCH=50,
+# Usage: scripts/experiments_network.sh [OUT]   (env: LEVELS="2 4 8", EPOCHS=8, STEPS_PER_EPOCH=50, DECAY,
 #        FT_STEPS=100, QDO=./build/qdo). Writes OUT/table.md and OUT/table.csv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,11 +14,13 @@ OUT=${1:-out/experiments_network}
 QDO=${QDO:-./build/qdo}
 LEVELS=${LEVELS:-"2 4 8"}
 EPOCHS=${EPOCHS:-8}
+# The release decays both learning rates by 0.8 every 500 steps (REFERENCE §3); per epoch of SPE steps that is 0.8^(SPE/500).
+DECAY=${DECAY:-$(python3 -c "print(round(0.8 ** (${STEPS_PER_EPOCH:-50} / 500), 6))")}
 SPE=${STEPS_PER_EPOCH:-50}
 FT=${FT_STEPS:-100}
 TRAIN=../shared/data/hsi/cave_train,../shared/data/hsi/cave_png
 TEST=../shared/data/hsi/cave
-COMMON=(--preset small --decoder resunet --data "$TRAIN" --epochs "$EPOCHS" --steps-per-epoch "$SPE" --seed 0)
+COMMON=(--preset small --decoder resunet --data "$TRAIN" --epochs "$EPOCHS" --steps-per-epoch "$SPE" --decay "$DECAY" --seed 0)
 mkdir -p "$OUT"
 start=$(date +%s)
 

@@ -19,7 +19,10 @@
 #include <vector>
 
 #include "qdo/resunet.hpp"
+#include "qdo/design.hpp"
 #include "qdo/doe.hpp"
+#include "qdo/joint.hpp"
+#include "qdo/net.hpp"
 #include "qdo/simulator.hpp"
 
 using namespace qdo;
@@ -154,6 +157,22 @@ int main(int argc, char** argv) {
       adjoints();
       optimizer();
     });
+    // The step `qdo design --decoder` runs: Designer::step (radial PSF path, quantizer, Adam on the
+    // optics) around JointTrainer::step (random crops, the patch camera in circular mode, noise,
+    // the network's step, the camera adjoint), on synthetic scenes of S x S.
+    register_torch_network();
+    auto net2 = make_network_decoder(NetworkSettings{spec, 3, cfg.bands, 1, 1e-4});
+    const JointData jd = load_joint_data(cfg, {}, "auto", std::max<std::size_t>(batch, 4), 1);
+    JointTrainer jt(rt, cfg, prec, *net2, jd, batch, 1e-3, 1);
+    DesignOptions dopt;
+    dopt.quantizer.levels = 4;
+    Designer designer(sim, dopt);
+    std::vector<double> p0(parameter_count(Parameterization::Radial, cfg.n), 0.3 * cfg.h_max_m());
+    DesignState st = designer.initial_state(p0);
+    const double t_loop = median_time(repeats, [&] {
+      const long cur = st.step;
+      designer.step(st, [&](const RealStack& psf, RealStack& g) { return jt.step(cur, 1e-3, psf, g); });
+    });
     std::printf("%s (N=%zu, scenes %zu x %zu x %zu x %zu, %zu network parameters):\n", pname.c_str(), cfg.n, batch,
                 cfg.bands, s, s, net->parameter_count());
     const std::pair<const char*, double> rows[] = {{"optics forward (PSF)", t_opt},
@@ -162,7 +181,8 @@ int main(int argc, char** argv) {
                                                    {"camera adjoint (dL/dRGB -> dL/dPSF)", t_cam_adj},
                                                    {"PSF-chain adjoint (dL/dPSF -> dL/dH)", t_psf_adj},
                                                    {"network Adam step", t_adam},
-                                                   {"whole step", t_step}};
+                                                   {"whole step", t_step},
+                                                   {"qdo design's step (Designer + JointTrainer, radial path)", t_loop}};
     for (const auto& [what, t] : rows) {
       std::printf("  %-44s %8.3f s  %5.1f %%\n", what, t, 100 * t / t_step);
       md << "| " << pname << " | " << cfg.n << " | " << s << " x " << s << " | " << what << " | " << t << " | "
