@@ -1,5 +1,7 @@
 // The Res-UNet (resunet.hpp) behind the core's NetworkDecoder interface (network_decoder.hpp):
-// float32 tensors on LibTorch's CPU device, Adam (lr set per step by the design loop), the loss of
+// float32 tensors on LibTorch's device (network_device(): CUDA when the LibTorch found through
+// Torch_DIR has it and a GPU is there, else the CPU; QDO_TORCH_DEVICE=cpu|cuda chooses), Adam (lr
+// set per step by the design loop), the loss of
 // Eq. 14 without the optics' term: MAE(x̂, x) + γ Σ ω² over the convolution weights (4-d
 // parameters; batch-norm scales and biases are not decayed).
 #include <torch/torch.h>
@@ -16,6 +18,21 @@
 
 namespace qdo {
 namespace {
+
+// QDO_TORCH_DEVICE: cpu, cuda, or unset (cuda when available, else cpu).
+torch::Device network_device() {
+  const char* e = std::getenv("QDO_TORCH_DEVICE");
+  const std::string want = e ? e : "";
+  if (want == "cpu") return torch::kCPU;
+  if (want == "cuda") {
+    if (!torch::cuda::is_available())
+      reject("QDO_TORCH_DEVICE", want, "cpu: this LibTorch has no CUDA, or no GPU is visible (Debian's libtorch-dev is CPU-only; "
+                                       "configure with Torch_DIR pointing at a CUDA LibTorch)");
+    return torch::kCUDA;
+  }
+  if (!want.empty()) reject("QDO_TORCH_DEVICE", want, "cpu, cuda, or unset (cuda when available)");
+  return torch::cuda::is_available() ? torch::Device(torch::kCUDA) : torch::Device(torch::kCPU);
+}
 
 // A batch of same-shape stacks (planes x H x W each) as a B x planes x H x W float tensor.
 torch::Tensor to_tensor(const std::vector<RealStack>& xs, const char* what) {
@@ -34,7 +51,7 @@ torch::Tensor to_tensor(const std::vector<RealStack>& xs, const char* what) {
 }
 
 std::vector<RealStack> from_tensor(const torch::Tensor& t) {
-  const torch::Tensor c = t.detach().to(torch::kDouble).contiguous();
+  const torch::Tensor c = t.detach().to(torch::kCPU).to(torch::kDouble).contiguous();
   std::vector<RealStack> out;
   const double* p = c.data_ptr<double>();
   for (std::int64_t k = 0; k < c.size(0); ++k) {
@@ -50,8 +67,9 @@ class TorchNetworkDecoder final : public NetworkDecoder {
  public:
   explicit TorchNetworkDecoder(const NetworkSettings& s)
       : settings_(s),
+        device_(network_device()),
         net_(make_resunet(s.spec, s.in_channels, s.out_channels, s.seed)),
-        adam_(net_->parameters(), torch::optim::AdamOptions(1e-3)) {
+        adam_((net_->to(device_), net_->parameters()), torch::optim::AdamOptions(1e-3)) {
     if (!(s.weight_decay_gamma >= 0) || !std::isfinite(s.weight_decay_gamma))
       reject("gamma_decoder", s.weight_decay_gamma, ">= 0 (γ of Eq. 14)");
   }
@@ -63,14 +81,14 @@ class TorchNetworkDecoder final : public NetworkDecoder {
       reject("targets", std::to_string(targets.size()) + " cubes", "one per image (" + std::to_string(images.size()) + ")");
     if (!(lr >= 0) || !std::isfinite(lr)) reject("lr_decoder", lr, "a finite learning rate >= 0");
     net_->train();
-    torch::Tensor x = to_tensor(images, "images").requires_grad_(true);
-    const torch::Tensor target = to_tensor(targets, "targets");
+    torch::Tensor x = to_tensor(images, "images").to(device_).requires_grad_(true);
+    const torch::Tensor target = to_tensor(targets, "targets").to(device_);
     adam_.zero_grad();
     const torch::Tensor out = net_->forward(x);
     if (out.sizes() != target.sizes())
       reject("targets", shape(targets.front()), "the network's output shape per image");
     const torch::Tensor mae = (out - target).abs().mean();
-    torch::Tensor reg = torch::zeros({}, torch::kFloat);
+    torch::Tensor reg = torch::zeros({}, torch::TensorOptions().dtype(torch::kFloat).device(device_));
     for (const auto& p : net_->parameters())
       if (p.dim() == 4) reg = reg + p.pow(2).sum();
     const torch::Tensor loss = mae + settings_.weight_decay_gamma * reg;
@@ -89,7 +107,7 @@ class TorchNetworkDecoder final : public NetworkDecoder {
   std::vector<RealStack> reconstruct(const std::vector<RealStack>& images) override {
     torch::NoGradGuard guard;
     net_->eval();
-    return from_tensor(net_->forward(to_tensor(images, "images")));
+    return from_tensor(net_->forward(to_tensor(images, "images").to(device_)));
   }
 
   std::string save() const override {
@@ -124,7 +142,7 @@ class TorchNetworkDecoder final : public NetworkDecoder {
     torch::serialize::InputArchive ar;
     try {
       std::istringstream is(bytes);
-      ar.load_from(is);
+      ar.load_from(is, device_);
     } catch (const c10::Error& e) {
       throw InputError("file '" + origin + "': not a network state written by qdo (LibTorch: " + first_line(e.what()) + ")");
     }
@@ -173,6 +191,7 @@ class TorchNetworkDecoder final : public NetworkDecoder {
  private:
   static std::string first_line(const std::string& s) { return s.substr(0, s.find('\n')); }
   NetworkSettings settings_;
+  torch::Device device_;
   ResUNet net_;
   torch::optim::Adam adam_;
 };

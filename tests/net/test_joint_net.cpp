@@ -80,6 +80,19 @@ TEST_SUITE("net") {
     CHECK(sa.loss > sa.mae);
   }
 
+  TEST_CASE("QDO_TORCH_DEVICE chooses the network's device; cuda without CUDA is refused by name") {
+    const TorchFactory torch_net;
+    ::setenv("QDO_TORCH_DEVICE", "cpu", 1);
+    CHECK(make_network_decoder(settings("resunet:depth=2,root=4"))->parameter_count() > 0);
+    ::setenv("QDO_TORCH_DEVICE", "tpu", 1);
+    CHECK_THROWS_WITH_AS(make_network_decoder(settings("resunet:depth=2,root=4")), doctest::Contains("QDO_TORCH_DEVICE"), InputError);
+    if (!torch::cuda::is_available()) {
+      ::setenv("QDO_TORCH_DEVICE", "cuda", 1);
+      CHECK_THROWS_WITH_AS(make_network_decoder(settings("resunet:depth=2,root=4")), doctest::Contains("Torch_DIR"), InputError);
+    }
+    ::unsetenv("QDO_TORCH_DEVICE");
+  }
+
   TEST_CASE("a network state of another architecture, band count or format is refused, naming both") {
     const TorchFactory torch_net;
     auto small = make_network_decoder(settings("resunet:depth=2,root=4"));
