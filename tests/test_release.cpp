@@ -89,6 +89,23 @@ TEST_SUITE("release") {
     for (double v : blurred.data) CHECK(v == doctest::Approx(0.37).epsilon(1e-12));
   }
 
+  TEST_CASE("a release grid clFFT cannot plan is refused before any work, naming S and G; FFTW takes it") {
+    // S = 9, N = 20: G = 2N - S = 31, a prime.
+    Runtime cl(std::string(""), FftBackend::ClFFT);
+    CHECK_THROWS_WITH_AS(ReleaseImager(cl, Precision::F32, 2, 9, 20), doctest::Contains("G = 2N - S = 31"), InputError);
+    CHECK_NOTHROW(ReleaseImager(cl, Precision::F32, 2, 8, 20));  // G = 32
+    if (cl.info().type == "CPU") {
+      Runtime fw(std::string(""), FftBackend::FFTW);
+      const RealStack cube = random_stack(2, 9, 9, 3, false), psf = random_stack(2, 20, 20, 4, true);
+      ReleaseImager im(fw, Precision::F32, 2, 9, 20);
+      im.set_psf(psf);
+      const RealStack got = im.blur(cube), want = ref::release_blur(cube, psf);
+      double worst = 0;
+      for (std::size_t i = 0; i < got.size(); ++i) worst = std::max(worst, std::fabs(got.data[i] - want.data[i]));
+      CHECK(worst < 1e-5);
+    }
+  }
+
   TEST_CASE("device release imager equals the reference (float32, float64; even and odd N - S)") {
     struct Size {
       std::size_t s, n;

@@ -2,6 +2,8 @@
 // and the device path (kernels/release.cl).
 #include "qdo/release.hpp"
 
+#include <algorithm>
+
 #include <cmath>
 #include <string>
 
@@ -110,6 +112,21 @@ ReleaseImager::ReleaseImager(Runtime& rt, Precision p, std::size_t bands, std::s
     : rt_(rt), prec_(p), bands_(bands), geo_(release_geometry(s, n)) {
   if (bands < 1) reject("bands", bands, "at least 1");
   rt_.require(p);
+  // clFFT plans only lengths whose prime factors are at most 13: refuse others here, naming the
+  // sizes, rather than when the plan is baked (FFTW and VkFFT take any length).
+  if (rt_.fft_backend() == FftBackend::ClFFT) {
+    std::size_t g = geo_.g, largest = 1;
+    for (std::size_t f = 2; f * f <= g; ++f)
+      while (g % f == 0) {
+        largest = f;
+        g /= f;
+      }
+    largest = std::max(largest, g);
+    if (largest > 13)
+      reject("s", s, "a scene size S whose release grid G = 2N - S = " + to_str(geo_.g) + " (N = " + to_str(n) +
+                         ") has no prime factor above 13 on the clFFT backend (it has " + to_str(largest) +
+                         "); QDO_FFT=fftw or vkfft take any size");
+  }
   k_up_pad_ = rt_.kernel("release.cl", "release_up_pad", p);
   k_place_ = rt_.kernel("release.cl", "release_place_psf", p);
   k_cmul_ = rt_.kernel("release.cl", "release_cmul", p);
