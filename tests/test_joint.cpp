@@ -419,6 +419,25 @@ TEST_SUITE("joint") {
     std::filesystem::remove_all(dir);
   }
 
+  TEST_CASE("synthetic:N adds synthetic training scenes to a network run's real ones; refused for Wiener runs") {
+    const SystemConfig c = tiny_config(32, 3);
+    const JointData only = load_joint_data(c, {"synthetic:3"}, "auto", 12, 1);
+    CHECK(only.train.size() == 3);
+    CHECK_THROWS_WITH_AS(load_joint_data(c, {"synthetic:x"}, "auto", 12, 1), doctest::Contains("synthetic:N"), InputError);
+    DesignRunOptions o = net_run("/tmp/unused", DesignMode::QDOA);
+    o.data = {"synthetic:4"};
+    CHECK_NOTHROW(o.validate());
+    o.decoder = "wiener";
+    o.objective = "wiener";
+    CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("synthetic:4"), InputError);
+    if (skip_unless(have_shared(), "../shared/data/hsi (the CAVE scenes)")) return;
+    const std::string cave = std::string(shared_dir()) + "/data/hsi/cave";
+    const JointData real = load_joint_data(c, {cave}, "auto", 12, 1), mixed = load_joint_data(c, {cave, "synthetic:2"}, "auto", 12, 1);
+    CHECK(mixed.train.size() == real.train.size() + 2);
+    CHECK(mixed.val_names == real.val_names);  // only the real scenes are split
+    CHECK(std::count(mixed.train_names.begin(), mixed.train_names.end(), "synthetic:1") == 1);
+  }
+
   TEST_CASE("a run's config.json keeps the decoder; run folders from before it read as Wiener runs") {
     DesignRunOptions o = net_run("/tmp/unused", DesignMode::QDOA);
     o.lr_decoder = 0.002;

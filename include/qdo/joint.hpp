@@ -32,6 +32,8 @@ struct JointData {
 // it, and the caller is told by val_names == train_names). With no data: `synthetic` training
 // scenes and max(2, synthetic / 4) validation scenes of S x S drawn with other seeds. Validation
 // patches: non-overlapping S x S crops, at most `max_val_patches` (spread evenly).
+// An entry "synthetic:N" of `data` adds N synthetic S x S training scenes (drawn with the seed)
+// to the real ones, which alone are split (issue 13 item 6: do synthetic scenes help?).
 // InputError naming `data` for a scene smaller than S x S.
 JointData load_joint_data(const SystemConfig& cfg, const std::vector<std::string>& data, const std::string& data_format,
                           std::size_t synthetic, std::uint64_t seed, std::size_t max_val_patches = 16);
@@ -39,6 +41,9 @@ JointData load_joint_data(const SystemConfig& cfg, const std::vector<std::string
 // The batch of step `step`: `batch` S x S crops, scene, position and transform (bit 0: flip
 // columns, bit 1: flip rows, bit 2: transpose) drawn from a generator seeded with (seed, step),
 // so a resumed run draws the same batches.
+// N of "synthetic:N" (an integer in [1, 100000]); InputError naming `data` otherwise.
+std::size_t synthetic_count(const std::string& entry);
+
 std::vector<RealStack> joint_batch(const JointData& d, std::size_t s, std::size_t batch, std::uint64_t seed, long step);
 
 class JointTrainer {

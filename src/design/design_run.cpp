@@ -220,8 +220,15 @@ void DesignRunOptions::validate() const {
   if (!(decoder_noise_sigma >= 0) || !std::isfinite(decoder_noise_sigma)) reject("noise_sigma", decoder_noise_sigma, ">= 0");
   if (out.empty()) reject("out", "(missing)", "a run folder");
   if (double(design.t1_epochs) > double(epochs)) reject("t1", design.t1_epochs, "<= epochs (" + to_str(epochs) + ")");
-  for (const auto& d : data)
-    if (!fs::exists(d)) reject("data", d, "existing scene files or folders");
+  for (const auto& d : data) {
+    if (d.rfind("synthetic:", 0) == 0) {  // network runs: N synthetic training scenes beside the real ones
+      if (decoder_spec_from_string(decoder).kind != DecoderSpec::Kind::ResUNet)
+        reject("data", d, "existing scene files or folders (synthetic:N adds synthetic scenes to a network run's training set)");
+      synthetic_count(d);
+      continue;
+    }
+    if (!fs::exists(d)) reject("data", d, "existing scene files or folders, or synthetic:N (network runs)");
+  }
 }
 
 namespace {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <mutex>
 #include <random>
 
@@ -51,11 +52,33 @@ std::unique_ptr<NetworkDecoder> make_network_decoder(const NetworkSettings& s) {
   return f(s);
 }
 
-JointData load_joint_data(const SystemConfig& cfg, const std::vector<std::string>& data, const std::string& data_format,
+std::size_t synthetic_count(const std::string& entry) {
+  const std::string num = entry.rfind("synthetic:", 0) == 0 ? entry.substr(10) : std::string();
+  char* end = nullptr;
+  const long n = num.empty() ? 0 : std::strtol(num.c_str(), &end, 10);
+  if (num.empty() || *end || n < 1 || n > 100000) reject("data", entry, "synthetic:N with N an integer in [1, 100000]");
+  return std::size_t(n);
+}
+
+JointData load_joint_data(const SystemConfig& cfg, const std::vector<std::string>& data_given, const std::string& data_format,
                           std::size_t synthetic, std::uint64_t seed, std::size_t max_val_patches) {
   const std::size_t s = cfg.sensor_size_px();
   JointData d;
   std::vector<testset::Patch> val_all;
+  std::vector<std::string> data;
+  std::size_t extra_synthetic = 0;
+  for (const std::string& e : data_given) {
+    if (e.rfind("synthetic:", 0) == 0) extra_synthetic += synthetic_count(e);
+    else data.push_back(e);
+  }
+  if (extra_synthetic > 0 && !data.empty()) {
+    const SceneIndex sy = SceneIndex::synthetic(cfg, extra_synthetic, s, seed + 700001);
+    for (std::size_t i = 0; i < sy.size(); ++i) {
+      d.train.push_back(sy.load(i));
+      d.train_names.push_back("synthetic:" + std::to_string(i));
+    }
+  }
+  if (data.empty() && extra_synthetic > 0) synthetic = extra_synthetic;
   if (data.empty()) {
     const SceneIndex tr = SceneIndex::synthetic(cfg, std::max<std::size_t>(synthetic, 1), s, seed);
     for (std::size_t i = 0; i < tr.size(); ++i) {
