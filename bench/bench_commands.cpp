@@ -14,7 +14,6 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -25,24 +24,17 @@
 
 #include "qdo/io.hpp"
 
+#include "bench_util.hpp"
+
 namespace fs = std::filesystem;
 
 namespace {
 
-struct Stats {
-  double median = 0, min = 0, max = 0;
-};
-
-Stats stats(std::vector<double> t) {
-  std::sort(t.begin(), t.end());
-  const std::size_t n = t.size();
-  return {n % 2 ? t[n / 2] : 0.5 * (t[n / 2 - 1] + t[n / 2]), t.front(), t.back()};
-}
-
+// Wall time in seconds of one run of the shell command `cmd` (output discarded); exits on failure.
 double run_once(const std::string& cmd) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = qdo::bench::Clock::now();
   const int status = std::system((cmd + " > /dev/null 2>&1").c_str());
-  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double s = qdo::bench::seconds_since(t0);
   if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
     std::fprintf(stderr, "bench_commands: failed: %s\n", cmd.c_str());
     std::exit(1);
@@ -83,13 +75,13 @@ int main(int argc, char** argv) {
     rows.push_back({"`qdo simulate` f32, " + before, before, "simulate" + common + " --precision f32", "before_f32"});
     rows.push_back({"`qdo image` f32, default tolerance, " + before, before, "image" + common + " --precision f32", "before_image_f32"});
   }
-  std::vector<Stats> st;
+  std::vector<qdo::bench::Timing> st;
   for (const Row& r : rows) {
     const std::string cmd = r.binary + " " + r.args + " --out " + (work / r.dir).string();
     run_once(cmd);  // warm-up: kernel and FFT-plan caches
     std::vector<double> t;
     for (int k = 0; k < repeats; ++k) t.push_back(run_once(cmd));
-    st.push_back(stats(t));
+    st.push_back(qdo::bench::summarize(t));
     std::fprintf(stderr, "%s: median %.3f s\n", r.label.c_str(), st.back().median);
   }
   const auto a = qdo::h5_read((work / "simulate_f32" / "sensor.h5").string(), "/rgb");

@@ -48,11 +48,16 @@
 #include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
 
+#include "bench_util.hpp"
+
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+using qdo::bench::Clock;
+using qdo::bench::cpu_model;
+using qdo::bench::fmt;
+using qdo::bench::seconds_since;
+using qdo::bench::split;
+using qdo::bench::Timing;
 
 struct Options {
   std::vector<std::size_t> psf{384, 768, 1536}, conv{512, 768, 1024};
@@ -63,15 +68,6 @@ struct Options {
   bool zero_pad = true, error = true;
   std::string out;
 };
-
-std::vector<std::string> split(const std::string& s, char sep) {
-  std::vector<std::string> parts;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, sep))
-    if (!item.empty()) parts.push_back(item);
-  return parts;
-}
 
 [[noreturn]] void usage(const std::string& err) {
   if (!err.empty()) std::cerr << "bench_fft: " << err << "\n";
@@ -144,40 +140,6 @@ Options parse(int argc, char** argv) {
   }
   if (o.psf.empty() && o.conv.empty()) usage("nothing to run: --psf and --conv are both empty");
   return o;
-}
-
-struct Timing {
-  double median = 0, min = 0, max = 0;  // seconds
-  int runs = 0;
-};
-
-Timing summarize(std::vector<double> t) {
-  Timing s;
-  if (t.empty()) return s;
-  std::sort(t.begin(), t.end());
-  const std::size_t k = t.size();
-  s.median = k % 2 ? t[k / 2] : 0.5 * (t[k / 2 - 1] + t[k / 2]);
-  s.min = t.front();
-  s.max = t.back();
-  s.runs = static_cast<int>(k);
-  return s;
-}
-
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
-
-std::string cpu_model() {
-  std::ifstream in("/proc/cpuinfo");
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind("model name", 0) == 0) {
-      const auto c = line.find(':');
-      if (c != std::string::npos) return line.substr(line.find_first_not_of(" \t", c + 1));
-    }
-  return "unknown CPU";
 }
 
 // One workload: batch x rows x cols, with an optional zero-padding hint.
@@ -295,14 +257,7 @@ Row run_one(qdo::Runtime& rt, const Workload& w, qdo::Precision p, qdo::FftBacke
       plan.inverse(buf);  // back to the input (up to rounding): the timed runs see bounded data
       rt.queue().finish();
     }
-    for (int i = 0; i < opt.warmup; ++i) once();
-    std::vector<double> t;
-    for (int i = 0; i < opt.repeats; ++i) {
-      const auto t0 = Clock::now();
-      once();
-      t.push_back(seconds_since(t0));
-    }
-    r.t = summarize(std::move(t));
+    r.t = qdo::bench::time_it(opt.warmup, opt.repeats, once);
   } catch (const std::exception& e) {
     r.note = e.what();
   }

@@ -49,12 +49,15 @@
 #include "qdo/types.hpp"
 #include "qdo/wiener.hpp"
 
+#include "bench_util.hpp"
+
 using namespace qdo;
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+using qdo::bench::Clock;
+using qdo::bench::seconds_since;
+using qdo::bench::split;
 
 struct Options {
   std::size_t n = 1024;
@@ -65,30 +68,14 @@ struct Options {
   std::string out;
 };
 
-std::vector<std::string> split(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  for (std::string x; std::getline(ss, x, ',');)
-    if (!x.empty()) out.push_back(x);
-  return out;
-}
-
+// The sorted samples are kept (the report prints median, min, max and count of them).
 struct Timing {
   std::vector<double> s;  // sorted seconds
   double median() const { return s.empty() ? NAN : s[s.size() / 2]; }
 };
 
-Timing timed(int repeats, const std::function<void()>& f) {
-  f();  // warm-up
-  Timing t;
-  for (int i = 0; i < repeats; ++i) {
-    const auto t0 = Clock::now();
-    f();
-    t.s.push_back(since(t0));
-  }
-  std::sort(t.s.begin(), t.s.end());
-  return t;
-}
+// `repeats` runs of f() after one unmeasured warm-up run.
+Timing timed(int repeats, const std::function<void()>& f) { return {qdo::bench::sorted_seconds(1, repeats, f)}; }
 
 struct Row {
   std::string workload, config;
@@ -237,7 +224,7 @@ void section_psf(const Options& o, const Reference& ref) {
     Runtime rt;
     const auto t0 = Clock::now();
     RadialEngine eng(rt, ref.cfg, p);
-    const double setup_s = since(t0);
+    const double setup_s = seconds_since(t0);
     add_setup("psf: radial " + to_string(p) + " (tables " + to_str(std::round(setup_s * 100) / 100) + " s, incl. build)", rt);
     const std::vector<double> rings = ring_heights_of_map(h);
     Row r;
@@ -511,13 +498,7 @@ void section_sweep(const Options& o, const Reference& ref) {
 }
 
 std::string machine() {
-  std::string cpu = "unknown CPU";
-  std::ifstream f("/proc/cpuinfo");
-  for (std::string line; std::getline(f, line);)
-    if (line.rfind("model name", 0) == 0) {
-      cpu = line.substr(line.find(':') + 2);
-      break;
-    }
+  const std::string cpu = qdo::bench::cpu_model();
   Runtime rt;
   const DeviceInfo& d = rt.info();
   return "CPU: " + cpu + ", " + std::to_string(std::thread::hardware_concurrency()) + " hardware threads; OpenCL device: " +
@@ -623,7 +604,7 @@ int main(int argc, char** argv) {
     if (o.sections.count("step")) section_step(o, ref);
     if (o.sections.count("sweep")) section_sweep(o, ref);
     if (o.sections.count("psnr")) section_psnr(o, ref);
-    write_report(o, since(t0));
+    write_report(o, seconds_since(t0));
   } catch (const std::exception& e) {
     std::cerr << "bench_pareto: " << e.what() << "\n";
     return 1;

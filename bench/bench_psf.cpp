@@ -46,11 +46,18 @@
 #include "qdo/simulator.hpp"
 #include "qdo/types.hpp"
 
+#include "bench_util.hpp"
+
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+using qdo::bench::Clock;
+using qdo::bench::cpu_model;
+using qdo::bench::fmt;
+using qdo::bench::seconds_since;
+using qdo::bench::split;
+using qdo::bench::summarize;
+using qdo::bench::time_it;
+using qdo::bench::Timing;
 
 struct Options {
   std::vector<std::size_t> sizes{256, 512, 1024};
@@ -59,15 +66,6 @@ struct Options {
   bool cpu = true;
   std::string out;
 };
-
-std::vector<std::string> split(const std::string& s, char sep) {
-  std::vector<std::string> parts;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, sep))
-    if (!item.empty()) parts.push_back(item);
-  return parts;
-}
 
 [[noreturn]] void usage(const std::string& err) {
   if (!err.empty()) std::cerr << "bench_psf: " << err << "\n";
@@ -117,36 +115,6 @@ Options parse(int argc, char** argv) {
   return o;
 }
 
-struct Timing {
-  double median = 0, min = 0, max = 0;  // seconds
-  int runs = 0;
-};
-
-Timing summarize(std::vector<double> t) {
-  Timing s;
-  if (t.empty()) return s;
-  std::sort(t.begin(), t.end());
-  const std::size_t k = t.size();
-  s.median = k % 2 ? t[k / 2] : 0.5 * (t[k / 2 - 1] + t[k / 2]);
-  s.min = t.front();
-  s.max = t.back();
-  s.runs = static_cast<int>(k);
-  return s;
-}
-
-// Runs f() `warmup` times untimed, then `repeats` times timed.
-template <typename F>
-Timing time_it(int warmup, int repeats, F&& f) {
-  for (int i = 0; i < warmup; ++i) f();
-  std::vector<double> t;
-  for (int i = 0; i < repeats; ++i) {
-    const auto t0 = Clock::now();
-    f();
-    t.push_back(seconds_since(t0));
-  }
-  return summarize(std::move(t));
-}
-
 struct ErrStats {
   double rel_l2 = 0;       // ||a - b||_2 / ||b||_2 over the whole stack
   double max_abs_rel = 0;  // max |a - b| / max |b|
@@ -165,23 +133,6 @@ ErrStats compare(const std::vector<double>& a, const std::vector<double>& ref) {
   e.rel_l2 = den > 0 ? std::sqrt(num / den) : 0;
   e.max_abs_rel = max_ref > 0 ? max_abs / max_ref : 0;
   return e;
-}
-
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
-
-std::string cpu_model() {
-  std::ifstream in("/proc/cpuinfo");
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind("model name", 0) == 0) {
-      const auto c = line.find(':');
-      if (c != std::string::npos) return line.substr(line.find_first_not_of(" \t", c + 1));
-    }
-  return "unknown CPU";
 }
 
 // The bare FFTW floor: a forward and an inverse 2-D FFT of bands x m x m complex values on a

@@ -19,7 +19,6 @@
 //   --quick   small preset (N = 256, S = 128), scenes centre-cropped to 128 x 128, 1 repeat
 // Device: QDO_DEVICE (see runtime.hpp); kernel disk cache: QDO_CACHE_DIR.
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <exception>
@@ -41,13 +40,15 @@
 #include "qdo/simulator.hpp"
 #include "qdo/types.hpp"
 
+#include "bench_util.hpp"
+
 namespace fs = std::filesystem;
 using namespace qdo;
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+using qdo::bench::fmt;
+using qdo::bench::median_seconds;
 
 struct Options {
   std::string data = "../shared/data/hsi/cave", preset = "paper", out;
@@ -106,25 +107,6 @@ Err error(const std::vector<RealStack>& a, const std::vector<RealStack>& truth) 
     }
   e.mean = n ? sum / double(n) : 0;
   return e;
-}
-
-template <typename F>
-double median_seconds(int warmup, int repeats, F&& f) {
-  for (int i = 0; i < warmup; ++i) f();
-  std::vector<double> t;
-  for (int i = 0; i < repeats; ++i) {
-    const auto t0 = Clock::now();
-    f();
-    t.push_back(seconds_since(t0));
-  }
-  std::sort(t.begin(), t.end());
-  return t[t.size() / 2];
-}
-
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
 }
 
 }  // namespace

@@ -9,7 +9,6 @@
 // Usage: bench_step [--presets small,paper] [--repeats 3] [--precision f32] [--cpu-repeats 1]
 //                   [--out FILE.md]
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -24,33 +23,19 @@
 #include "qdo/wiener.hpp"
 #include "qdo/wiener_device.hpp"
 
+#include "bench_util.hpp"
+
 using namespace qdo;
-using Clock = std::chrono::steady_clock;
 
 namespace {
 
-double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
-
+// Sorted run times in seconds of `repeats` runs of f() after one unmeasured warm-up run.
 template <typename F>
 std::vector<double> timed(int repeats, F&& f) {
-  f();  // warm-up
-  std::vector<double> t;
-  for (int i = 0; i < repeats; ++i) {
-    const auto t0 = Clock::now();
-    f();
-    t.push_back(since(t0));
-  }
-  std::sort(t.begin(), t.end());
-  return t;
+  return qdo::bench::sorted_seconds(1, repeats, std::forward<F>(f));
 }
 
-std::vector<std::string> split(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  for (std::string x; std::getline(ss, x, ',');)
-    if (!x.empty()) out.push_back(x);
-  return out;
-}
+using qdo::bench::split;
 
 }  // namespace
 

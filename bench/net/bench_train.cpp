@@ -9,7 +9,6 @@
 // Usage: bench_train [--presets small,paper] [--decoder resunet] [--batch 4] [--repeats 3]
 //                    [--precision f32] [--out FILE.md]
 #include <algorithm>
-#include <chrono>
 #include <cstdio>
 #include <fstream>
 #include <random>
@@ -25,40 +24,20 @@
 #include "qdo/net.hpp"
 #include "qdo/simulator.hpp"
 
+#include "../bench_util.hpp"
+
 using namespace qdo;
-using Clock = std::chrono::steady_clock;
 
 namespace {
 
-double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
-
+// Median in seconds of `repeats` runs of f() after one unmeasured warm-up run.
 template <typename F>
 double median_time(int repeats, F&& f) {
-  f();  // warm-up
-  std::vector<double> t;
-  for (int i = 0; i < repeats; ++i) {
-    const auto t0 = Clock::now();
-    f();
-    t.push_back(since(t0));
-  }
-  std::sort(t.begin(), t.end());
-  return t[t.size() / 2];
+  return qdo::bench::median_seconds(1, repeats, std::forward<F>(f));
 }
 
-std::vector<std::string> split(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  for (std::string x; std::getline(ss, x, ',');)
-    if (!x.empty()) out.push_back(x);
-  return out;
-}
-
-long peak_rss_kib() {
-  std::ifstream f("/proc/self/status");
-  for (std::string line; std::getline(f, line);)
-    if (line.rfind("VmHWM:", 0) == 0) return std::stol(line.substr(6));
-  return -1;
-}
+using qdo::bench::peak_rss_kib;
+using qdo::bench::split;
 
 torch::Tensor batch_tensor(const std::vector<RealStack>& xs) {  // each planes x H x W -> B x planes x H x W (float)
   std::vector<torch::Tensor> ts;
