@@ -1,5 +1,6 @@
 // Helpers shared by the test files.
 #pragma once
+#include "qdo/error.hpp"
 #include <doctest/doctest.h>
 
 #include <cmath>
@@ -149,6 +150,25 @@ inline std::vector<Precision> device_precisions(const Runtime& rt) {
   std::vector<Precision> ps{Precision::F32};
   if (skip_unless(rt.has_fp64(), "float64 cases: the device has no float64")) ps.push_back(Precision::F64);
   return ps;
+}
+
+// A file's bytes ("" when it cannot be read).
+inline std::string slurp(const std::filesystem::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  return ss.str();
+}
+
+// The message of the InputError that f throws, or a marker when it throws none.
+template <typename F>
+std::string input_error_of(F&& f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "<no InputError thrown>";
 }
 
 }  // namespace qdo::test

@@ -39,13 +39,6 @@ using nlohmann::json;
 
 namespace {
 
-std::string slurp(const fs::path& p) {
-  std::ifstream f(p, std::ios::binary);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
 json read_json(const fs::path& p) { return json::parse(slurp(p)); }
 
 // Data rows of a CSV file (lines after the header, empty lines ignored).

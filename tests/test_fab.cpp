@@ -56,13 +56,6 @@ std::vector<std::uint8_t> random_mask(std::size_t n, unsigned seed, int density_
   return m;
 }
 
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream f(p);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
 int run_shell(const std::string& cmd, std::string* out = nullptr) {
   const auto dir = temp_dir("fab_sh");
   const std::string log = (dir / "log.txt").string();

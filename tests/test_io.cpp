@@ -23,6 +23,8 @@
 
 namespace fs = std::filesystem;
 using namespace qdo;
+using qdo::test::input_error_of;
+using qdo::test::slurp;
 
 namespace {
 
@@ -46,23 +48,8 @@ struct TmpDir {
   }
 };
 
-// The message of the InputError that f throws, or a marker when it throws none.
-template <typename F>
-std::string input_error_of(F&& f) {
-  try {
-    f();
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "<no InputError thrown>";
-}
-
 bool contains(const std::string& s, const std::string& part) { return s.find(part) != std::string::npos; }
 
-std::string slurp(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-}
 
 // Signature and IHDR width/height of a PNG file (big-endian at byte 16 and 20).
 struct PngHeader {

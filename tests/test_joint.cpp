@@ -144,24 +144,6 @@ DesignRunOptions net_run(const std::string& out, DesignMode mode) {
   return o;
 }
 
-// The message of the InputError f throws ("" when it throws none).
-template <typename F>
-std::string input_error_of(F&& f) {
-  try {
-    f();
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "";
-}
-
-std::string file_bytes(const std::string& p) {
-  std::ifstream f(p, std::ios::binary);
-  std::ostringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
 }  // namespace
 
 TEST_SUITE("joint") {
@@ -273,7 +255,7 @@ TEST_SUITE("joint") {
     CHECK(sa.network_file == "network/step_00000006.pt");
     CHECK(sa.network_file == sb.network_file);
     CHECK(sa.network_checksum == sb.network_checksum);
-    CHECK(file_bytes(a + "/" + sa.network_file) == file_bytes(b + "/" + sb.network_file));
+    CHECK(slurp(a + "/" + sa.network_file) == slurp(b + "/" + sb.network_file));
     // Every log column but the step time, row by row.
     auto rows = [](const std::string& p) {
       std::vector<std::string> out;
@@ -306,7 +288,7 @@ TEST_SUITE("joint") {
     for (const auto& e : std::filesystem::directory_iterator(std::filesystem::path(b) / "network")) kept.insert(e.path().filename().string());
     CHECK(kept == std::set<std::string>{"step_00000004.pt", "step_00000006.pt"});
     for (const char* f : {"split.json", "psnr.png", "loss.png", "design.h5", "prior.h5"}) CHECK(std::filesystem::exists(std::filesystem::path(b) / f));
-    const auto split = nlohmann::json::parse(file_bytes(b + "/split.json"));
+    const auto split = nlohmann::json::parse(slurp(b + "/split.json"));
     CHECK(split.at("train").size() == 3);
     CHECK(split.at("validation").size() == 2);
     // The network learns: the data term (column mae) falls from the first step to the last.
@@ -323,7 +305,7 @@ TEST_SUITE("joint") {
     o.max_steps = 2;
     run_design(runtime(), o, false);
     const DesignState st = load_checkpoint(a + "/checkpoint.h5", 16, 4);
-    const std::string net = a + "/" + st.network_file, bytes = file_bytes(net);
+    const std::string net = a + "/" + st.network_file, bytes = slurp(net);
     // Corrupt: one byte changed.
     std::string bad = bytes;
     bad[bad.size() / 2] = char(bad[bad.size() / 2] ^ 1);
@@ -334,7 +316,7 @@ TEST_SUITE("joint") {
     CHECK_THROWS_WITH_AS(run_design(runtime(), net_run(a, DesignMode::QDO), true), doctest::Contains("missing"), InputError);
     // Another architecture: the run's config.json asks for another spec than the state holds.
     write_text_atomic(net, bytes);
-    std::string cfg = file_bytes(a + "/config.json");
+    std::string cfg = slurp(a + "/config.json");
     const auto at = cfg.find("resunet:depth=2,root=4");
     REQUIRE(at != std::string::npos);
     cfg.replace(at, std::strlen("resunet:depth=2,root=4"), "resunet:depth=3,root=4");
@@ -385,7 +367,7 @@ TEST_SUITE("joint") {
     e.decoder = "mismatch";
     const EvalResult mis = evaluate_run(runtime(), e);
     CHECK(std::isfinite(mis.mean.psnr));
-    const auto mj = nlohmann::json::parse(file_bytes(e.out + "/metrics.json"));
+    const auto mj = nlohmann::json::parse(slurp(e.out + "/metrics.json"));
     CHECK(mj.at("decoder_kind") == "resunet:depth=2,root=4");
     e.decoder = "matched";
     e.full_precision = true;
@@ -402,7 +384,7 @@ TEST_SUITE("joint") {
     const DesignState src = load_checkpoint(d + "/checkpoint.h5", 16, 4), ft = load_checkpoint(f.out + "/checkpoint.h5", 16, 2);
     CHECK(ft.w == src.w);
     CHECK(ft.step == 3);
-    CHECK(file_bytes(f.out + "/" + ft.network_file) != file_bytes(d + "/" + src.network_file));
+    CHECK(slurp(f.out + "/" + ft.network_file) != slurp(d + "/" + src.network_file));
     const Design fd = read_design(f.out + "/design.h5");
     CHECK(std::set<double>(fd.height_m.data.begin(), fd.height_m.data.end()).size() <= 2);
     // Its network is matched to its quantized DOE: eval's default decoder is accepted.

@@ -167,18 +167,13 @@ Scores mean_of(const std::vector<Scores>& rows) {
 Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,
                     const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
                     const std::function<void(std::size_t k, const RealStack& xh)>& each) {
-  const std::vector<RealStack> measured = camera.measure(psf_actual, patches);
-  Evaluation ev;
-  for (std::size_t k = 0; k < patches.size(); ++k) {
-    const RealStack xh = reconstruct(measured[k], dec, sigma, run_seed, k);
-    ev.per_patch.push_back({patches[k].scene, score(xh, patches[k].cube)});
-    if (each) each(k, xh);
-  }
-  ev.per_scene = per_scene_means(ev.per_patch);
-  std::vector<Scores> rows;
-  for (const auto& s : ev.per_scene) rows.push_back(s.second);
-  ev.mean = mean_of(rows);
-  return ev;
+  // reconstruct()'s steps: the noise of patch k, the decoder, the clamp (in the batch overload).
+  const BatchDecoder wiener = [&](const std::vector<RealStack>& noisy) {
+    std::vector<RealStack> out;
+    for (const RealStack& y : noisy) out.push_back(dec.decode(y));
+    return out;
+  };
+  return evaluate(camera, psf_actual, patches, wiener, sigma, run_seed, 1, each);
 }
 
 Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,

@@ -50,13 +50,6 @@ struct TorchFactory {
   ~TorchFactory() { register_network_factory(previous); }
 };
 
-std::string file_bytes(const std::string& p) {
-  std::ifstream f(p, std::ios::binary);
-  std::ostringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
 }  // namespace
 
 TEST_SUITE("net") {
@@ -144,7 +137,7 @@ TEST_SUITE("net") {
     CHECK(sa.w == sb.w);
     CHECK(sa.offsets == sb.offsets);
     REQUIRE(!sa.network_file.empty());
-    CHECK(file_bytes(a + "/" + sa.network_file) == file_bytes(b + "/" + sb.network_file));
+    CHECK(slurp(a + "/" + sa.network_file) == slurp(b + "/" + sb.network_file));
     EvalOptions e;
     e.run = a;
     e.synthetic_scenes = 2;
