@@ -4,17 +4,7 @@
 #include <cmath>
 #include <random>
 
-// LibTorch first: its glog-style CHECK macros (which abort) are then replaced by doctest's.
-#include "qdo/resunet.hpp"
-#undef CHECK
-#undef CHECK_EQ
-#undef CHECK_NE
-#undef CHECK_LE
-#undef CHECK_LT
-#undef CHECK_GE
-#undef CHECK_GT
-
-#include "../common.hpp"
+#include "torch_common.hpp"  // LibTorch, then doctest's CHECK macros and the common helpers
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
 #include "qdo/simulator.hpp"
