@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <sstream>
 #include <thread>
+#include <type_traits>
 
 #include "qdo/error.hpp"
 #include "qdo/net.hpp"
@@ -20,6 +21,21 @@ namespace qdo {
 namespace {
 
 // QDO_TORCH_DEVICE: cpu, cuda, or unset (cuda when available, else cpu).
+// The key of Adam's per-parameter state: the parameter's TensorImpl address, as a string in
+// LibTorch 1.x (c10::guts::to_string of the pointer) and as the pointer itself in 2.x.
+using AdamStateKey = std::decay_t<decltype(std::declval<torch::optim::Adam&>().state())>::key_type;
+template <class Key>
+Key adam_key_of(c10::TensorImpl* p) {
+  if constexpr (std::is_same_v<Key, std::string>) {
+    std::ostringstream os;
+    os << p;
+    return os.str();
+  } else {
+    return static_cast<Key>(p);
+  }
+}
+AdamStateKey adam_key(const torch::Tensor& t) { return adam_key_of<AdamStateKey>(t.unsafeGetTensorImpl()); }
+
 torch::Device network_device() {
   const char* e = std::getenv("QDO_TORCH_DEVICE");
   const std::string want = e ? e : "";
@@ -72,6 +88,15 @@ class TorchNetworkDecoder final : public NetworkDecoder {
         adam_((net_->to(device_), net_->parameters()), torch::optim::AdamOptions(1e-3)) {
     if (!(s.weight_decay_gamma >= 0) || !std::isfinite(s.weight_decay_gamma))
       reject("gamma_decoder", s.weight_decay_gamma, ">= 0 (γ of Eq. 14)");
+    if (device_.is_cuda()) {
+      // A resumed run repeats the uninterrupted one bit for bit only with reproducible kernels:
+      // cuDNN's default convolution backward sums with atomics in varying order, and its
+      // autotuner may pick another algorithm per process. Ops without a deterministic CUDA
+      // kernel warn (none in the Res-UNet: convolutions, batch norm, max-pool, nearest upsampling).
+      at::globalContext().setDeterministicCuDNN(true);
+      at::globalContext().setBenchmarkCuDNN(false);
+      at::globalContext().setDeterministicAlgorithms(true, /*warn_only=*/true);
+    }
   }
   std::string spec() const override { return settings_.spec.to_string(); }
   std::size_t parameter_count() const override { return net_->parameter_count(); }
@@ -120,7 +145,7 @@ class TorchNetworkDecoder final : public NetworkDecoder {
     const auto& state = adam_.state();
     adam_ar.write("count", c10::IValue(std::int64_t(params.size())));
     for (std::size_t i = 0; i < params.size(); ++i) {
-      const auto it = state.find(c10::guts::to_string(params[i].unsafeGetTensorImpl()));
+      const auto it = state.find(adam_key(params[i]));
       if (it == state.end()) continue;
       const auto& st = static_cast<const torch::optim::AdamParamState&>(*it->second);
       const std::string k = std::to_string(i);
@@ -180,7 +205,7 @@ class TorchNetworkDecoder final : public NetworkDecoder {
         st->step(step.toInt());
         st->exp_avg(m);
         st->exp_avg_sq(v);
-        state[c10::guts::to_string(params[i].unsafeGetTensorImpl())] = std::move(st);
+        state[adam_key(params[i])] = std::move(st);
       }
     } catch (const c10::Error& e) {
       throw InputError("file '" + origin + "': the network state does not load into " + spec() + " (LibTorch: " +
