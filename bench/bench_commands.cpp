@@ -47,8 +47,8 @@ double run_once(const std::string& cmd) {
 int main(int argc, char** argv) {
   std::string qdo = "build/qdo", before, scene = "../shared/data/hsi/cave/balloons_256.mat", preset = "small", out;
   int repeats = 5;
-  for (int i = 1; i + 1 < argc; i += 2) {
-    const std::string k = argv[i], v = argv[i + 1];
+  for (int i = 1; i < argc; i += 2) {  // --help, or a flag without its value, prints the usage (exit 2)
+    const std::string k = i + 1 < argc ? argv[i] : "--help", v = i + 1 < argc ? argv[i + 1] : "";
     if (k == "--qdo") qdo = v;
     else if (k == "--qdo-before") before = v;
     else if (k == "--scene") scene = v;

@@ -44,8 +44,8 @@ int main(int argc, char** argv) {
   int repeats = 3, cpu_repeats = 1;
   Precision prec = Precision::F32;
   std::string out;
-  for (int i = 1; i + 1 < argc; i += 2) {
-    const std::string k = argv[i], v = argv[i + 1];
+  for (int i = 1; i < argc; i += 2) {  // --help, or a flag without its value, prints the usage (exit 2)
+    const std::string k = i + 1 < argc ? argv[i] : "--help", v = i + 1 < argc ? argv[i + 1] : "";
     if (k == "--presets") presets = split(v);
     else if (k == "--repeats") repeats = std::stoi(v);
     else if (k == "--cpu-repeats") cpu_repeats = std::stoi(v);

@@ -7,7 +7,7 @@
 # L levels and frozen. Finished runs are skipped, interrupted ones resumed, so a rerun continues.
 #
 # Usage: scripts/experiments_network.sh [OUT]   (env: LEVELS="2 4 8", EPOCHS=8, STEPS_PER_EPOCH=50, DECAY,
-#        FT_STEPS=100, QDO=./build/qdo). Writes OUT/table.md and OUT/table.csv.
+#        FT_STEPS=100, SYNTH=0, QDO=./build/qdo). Writes OUT/table.md and OUT/table.csv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/experiments_network}
@@ -19,6 +19,8 @@ DECAY=${DECAY:-$(python3 -c "print(round(0.8 ** (${STEPS_PER_EPOCH:-50} / 500), 
 SPE=${STEPS_PER_EPOCH:-50}
 FT=${FT_STEPS:-100}
 TRAIN=../shared/data/hsi/cave_train,../shared/data/hsi/cave_png
+# SYNTH=N adds N synthetic training scenes (issue 13 item 6: do they help?)
+if [ "${SYNTH:-0}" != 0 ]; then TRAIN="$TRAIN,synthetic:$SYNTH"; fi
 TEST=../shared/data/hsi/cave
 COMMON=(--preset small --decoder resunet --data "$TRAIN" --epochs "$EPOCHS" --steps-per-epoch "$SPE" --decay "$DECAY" --seed 0)
 mkdir -p "$OUT"

@@ -56,8 +56,8 @@ int main(int argc, char** argv) {
   int repeats = 3;
   std::size_t batch = 4;
   Precision prec = Precision::F32;
-  for (int i = 1; i + 1 < argc; i += 2) {
-    const std::string k = argv[i], v = argv[i + 1];
+  for (int i = 1; i < argc; i += 2) {  // --help, or a flag without its value, prints the usage (exit 2)
+    const std::string k = i + 1 < argc ? argv[i] : "--help", v = i + 1 < argc ? argv[i + 1] : "";
     if (k == "--presets") presets = split(v);
     else if (k == "--decoder") decoder = v;
     else if (k == "--batch") batch = std::size_t(std::stoul(v));
