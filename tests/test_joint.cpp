@@ -190,7 +190,6 @@ TEST_SUITE("joint") {
     const auto a = joint_batch(d, s, 16, 7, 3), b = joint_batch(d, s, 16, 7, 3), c2 = joint_batch(d, s, 16, 7, 4);
     REQUIRE(a.size() == 16);
     bool differs = false;
-    std::set<std::vector<double>> corners;
     for (std::size_t k = 0; k < 16; ++k) {
       CHECK(a[k].data == b[k].data);
       differs = differs || a[k].data != c2[k].data;
@@ -203,11 +202,17 @@ TEST_SUITE("joint") {
       for (std::size_t y = 0; y < s; ++y)
         for (std::size_t x = 0; x < s; ++x) want.insert(double((y0 + y) * 100 + x0 + x));
       CHECK(got == want);
-      corners.insert({p(0, 0, 0), p(0, 0, 1), p(0, 1, 0)});  // which symmetry was used
       for (std::size_t i = 0; i < s * s; ++i) CHECK(p.data[s * s + i] == p.data[i] + 100000);  // bands move together
     }
     CHECK(differs);
-    CHECK(corners.size() > 4);  // several of the 8 symmetries in 16 draws
+    // Which symmetry a crop has: the steps from its first pixel to the next along x and along y
+    // (+-1: a row of the scene, +-100: a column, i.e. transposed). All 8 appear in 64 draws.
+    std::set<std::pair<long, long>> symmetries;
+    for (long step = 3; step < 7; ++step)
+      for (const RealStack& p : joint_batch(d, s, 16, 7, step))
+        symmetries.insert({long(p(0, 0, 1) - p(0, 0, 0)), long(p(0, 1, 0) - p(0, 0, 0))});
+    CHECK(symmetries == std::set<std::pair<long, long>>{{1, 100}, {-1, 100}, {1, -100}, {-1, -100},
+                                                        {100, 1}, {-100, 1}, {100, -1}, {-100, -1}});
   }
 
   TEST_CASE("the joint step's PSF gradient against a directional central difference, in double") {
