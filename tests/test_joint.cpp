@@ -149,7 +149,7 @@ DesignRunOptions net_run(const std::string& out, DesignMode mode) {
 TEST_SUITE("joint") {
   TEST_CASE("the patch camera's adjoint: <A psf, g> = <psf, A^T g>, circular and periodic-extension grids, in double") {
     Runtime& rt = runtime();
-    if (skip_unless(rt.has_fp64(), "float64 device")) return;
+    if (!skip_unless(rt.has_fp64(), "float64 device")) return;
     for (std::size_t n : {32, 44}) {  // S = 16 (7-smooth: circular camera), S = 22 = 2 x 11 (periodic extension)
       SystemConfig c = tiny_config(n, 3);
       const std::size_t s = c.sensor_size_px();
@@ -217,7 +217,7 @@ TEST_SUITE("joint") {
 
   TEST_CASE("the joint step's PSF gradient against a directional central difference, in double") {
     Runtime& rt = runtime();
-    if (skip_unless(rt.has_fp64(), "float64 device")) return;
+    if (!skip_unless(rt.has_fp64(), "float64 device")) return;
     const SystemConfig c = tiny_config(32, 3);
     const std::size_t s = c.sensor_size_px();
     NetworkSettings ns;
@@ -417,9 +417,13 @@ TEST_SUITE("joint") {
     o.decoder = "wiener";
     o.objective = "wiener";
     CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("synthetic:4"), InputError);
-    if (skip_unless(have_shared(), "../shared/data/hsi (the CAVE scenes)")) return;
+    if (!skip_unless(have_shared(), "../shared/data/hsi (the CAVE scenes)")) return;
     const std::string cave = std::string(shared_dir()) + "/data/hsi/cave";
-    const JointData real = load_joint_data(c, {cave}, "auto", 12, 1), mixed = load_joint_data(c, {cave, "synthetic:2"}, "auto", 12, 1);
+    SystemConfig c31 = tiny_config(32, 31);  // CAVE's bands: 400 to 700 nm in 10 nm steps
+    c31.wavelength_start_nm = 400;
+    c31.wavelength_step_nm = 10;
+    c31.validate();
+    const JointData real = load_joint_data(c31, {cave}, "auto", 12, 1), mixed = load_joint_data(c31, {cave, "synthetic:2"}, "auto", 12, 1);
     CHECK(mixed.train.size() == real.train.size() + 2);
     CHECK(mixed.val_names == real.val_names);  // only the real scenes are split
     CHECK(std::count(mixed.train_names.begin(), mixed.train_names.end(), "synthetic:1") == 1);
