@@ -26,6 +26,10 @@ pre="$PWD/build-devprefix"
 case "${1:-}" in
 pack)
   n_train="${2:-10}"
+  # Replaces only a folder this script made (its marker file), never anything else at that path.
+  if [ -e "$pre" ] && [ ! -e "$pre/.qdo-device-prefix" ]; then
+    echo "device_build: $pre exists and was not made by this script: left as it is" >&2; exit 2
+  fi
   rm -rf "$pre" && mkdir -p "$pre/include" "$pre/lib" "$pre/lib/cmake/clFFT" "$pre/lib/pkgconfig" \
     "$pre/shared/data/hsi/cave_train"
   cp /usr/include/clFFT.h /usr/include/clFFT.version.h /usr/include/matio.h /usr/include/matio_pubconf.h \
@@ -57,6 +61,7 @@ EOF
   cp -r ../shared/data/spectral "$pre/shared/data/"
   find ../shared/data/hsi/cave_train -name '*.mat' | sort | head -n "$n_train" |
     xargs -I{} cp {} "$pre/shared/data/hsi/cave_train/"
+  touch "$pre/.qdo-device-prefix"
   echo "device_build: $pre ($(du -sh "$pre" | cut -f1))"
   ;;
 build)
