@@ -20,7 +20,6 @@
 namespace qdo {
 namespace {
 
-// QDO_TORCH_DEVICE: cpu, cuda, or unset (cuda when available, else cpu).
 // The key of Adam's per-parameter state: the parameter's TensorImpl address, as a string in
 // LibTorch 1.x (c10::guts::to_string of the pointer) and as the pointer itself in 2.x.
 using AdamStateKey = std::decay_t<decltype(std::declval<torch::optim::Adam&>().state())>::key_type;
@@ -36,6 +35,7 @@ Key adam_key_of(c10::TensorImpl* p) {
 }
 AdamStateKey adam_key(const torch::Tensor& t) { return adam_key_of<AdamStateKey>(t.unsafeGetTensorImpl()); }
 
+// QDO_TORCH_DEVICE: cpu, cuda, or unset (cuda when available, else cpu).
 torch::Device network_device() {
   const char* e = std::getenv("QDO_TORCH_DEVICE");
   const std::string want = e ? e : "";
