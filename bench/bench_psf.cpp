@@ -11,6 +11,8 @@
 //      hint) on a device buffer, nothing else. The ratio column is the PSF time over (a);
 //      (c) the memory floor of compute_psf's passes outside the FFT (memory_floor below);
 //   2b. compute_psf + psf_sensor_vjp (forward and adjoint to dL/dH) and its ratio to compute_psf;
+//   1b. on CPU devices with the FFTW backend, 1 and 2b again with the host fusion off
+//      (Simulator::set_host_fusion(false): pruned FFT plan + kernels), same run;
 //   3. the CPU reference ref::psf_stack (double, FFTW_ESTIMATE, single thread);
 //   4. the error of each OpenCL PSF stack (bands x N x N) against the CPU reference.
 // Speed is never asserted; this program only reports.
@@ -435,6 +437,39 @@ int main(int argc, char** argv) {
           });
           adj.floor_ratio = fmt("%.2f x fwd", adj.t->median / psf_row.t->median);
           extra_rows.push_back(adj);
+          // 1b. With the host fusion off (CPU devices with the FFTW backend only): the pruned
+          // FFT plan plus the transfer-function, crop and adjoint kernels, the path of every
+          // other backend; same heights, same gradient, same run.
+          if (sim.uses_host_propagation()) {
+            sim.set_host_fusion(false);
+            Row off;
+            off.n = n;
+            off.m = m;
+            off.bands = bands;
+            off.path = "OpenCL " + ps + " compute_psf, host fusion off (pruned FFT plan + kernels)";
+            off.t = time_it(opt.warmup, opt.repeats, [&] {
+              sim.compute_psf();
+              rt.queue().finish();
+            });
+            if (ref_psf) {
+              const ErrStats e = compare(sim.psf_native().data, ref_psf->data);
+              off.rel_l2 = fmt("%.2e", e.rel_l2);
+              off.max_err = fmt("%.2e", e.max_abs_rel);
+            }
+            Row off_adj = off;
+            off_adj.rel_l2 = off_adj.max_err = "";
+            off_adj.path = "OpenCL " + ps + " compute_psf + psf_sensor_vjp, host fusion off";
+            off_adj.t = time_it(opt.warmup, opt.repeats, [&] {
+              sim.compute_psf();
+              (void)sim.psf_sensor_vjp(g);
+            });
+            off_adj.floor_ratio = fmt("%.2f x fwd", off_adj.t->median / off.t->median);
+            off.floor_ratio = "floor";  // filled in once the floor is measured
+            extra_rows.push_back(off);
+            extra_rows.push_back(off_adj);
+            sim.set_host_fusion(true);
+            std::cerr << "N = " << n << " OpenCL " << ps << " host fusion off: " << fmt("%.1f ms", off.t->median * 1e3) << "\n";
+          }
         }
         // 2. (b) The transforms compute_psf runs: its own plan (backend and hint), on a device buffer.
         const std::string backend = qdo::to_string(rt.fft_backend());
@@ -465,6 +500,8 @@ int main(int argc, char** argv) {
                          " threads, fwd + inv)";
         floor_row.t = fftw_floor(p, m, bands, opt);
         psf_row.floor_ratio = fmt("%.2f", psf_row.t->median / floor_row.t->median);
+        for (Row& r : extra_rows)
+          if (r.floor_ratio == "floor" && r.t) r.floor_ratio = fmt("%.2f", r.t->median / floor_row.t->median);
         std::cerr << "N = " << n << " bare FFTW floor " << ps << ": " << fmt("%.1f ms", floor_row.t->median * 1e3) << "\n";
         // 2. (c) The memory floor of the passes outside the FFT; its ratio column holds
         // (FFT floor + memory floor) / FFT floor, the best an unfused pipeline can reach.

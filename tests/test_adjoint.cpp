@@ -260,3 +260,117 @@ TEST_SUITE("adjoint") {
     }
   }
 }
+
+TEST_SUITE("adjoint") {
+  // The fused host propagation (HostPropagator, FFTW on CPU devices) against the same Simulator
+  // with fusion off (FFT plan, transfer-function and crop kernels, intensity and resampling
+  // adjoint kernels: the path of every other backend), and against the CPU reference. N = 42
+  // (M = 62: a partial column block, rows off the SIMD alignment), both propagators, a sensor
+  // distance long enough for the Fresnel band limit to cut the spectrum, and a two-design batch.
+  TEST_CASE("the fused host propagation gives the kernel path's PSF, sampling report and gradients") {
+    if (!skip_unless(runtime().fft_backend() == FftBackend::FFTW, "the host propagation runs with the FFTW backend (CPU devices)"))
+      return;
+    for (Precision p : device_precisions(runtime())) {
+      for (Propagator prop : {Propagator::Fresnel, Propagator::AngularSpectrum}) {
+        for (std::size_t n : {40, 42}) {
+          CAPTURE(to_string(p));
+          CAPTURE(int(prop));
+          CAPTURE(n);
+          SystemConfig c = tiny_config(n, 3);
+          c.propagator = prop;
+          c.sensor_pitch_m = 10e-6;  // ratio 2.5: fractional area weights, transposed taps > 1
+          c.sensor_distance_m *= 3;
+          const Map2D h = smooth_heights(c, 21);
+          Simulator fused(runtime(), c, p), plain(runtime(), c, p);
+          plain.set_host_fusion(false);
+          REQUIRE(fused.uses_host_propagation());
+          REQUIRE_FALSE(plain.uses_host_propagation());
+          for (Simulator* s : {&fused, &plain}) {
+            s->set_heights(h);
+            s->compute_psf();
+          }
+          const double m = double(fused.geometry().m);
+          // Two evaluation orders of the same float computation: 16 eps per FFT stage (|U|²
+          // doubles the field's error).
+          const double tol = 16 * eps(p) * 2 * std::log2(m);
+          const auto dn = diff(fused.psf_native().data, plain.psf_native().data);
+          CAPTURE(dn.rel_l2);
+          CHECK(dn.rel_l2 <= tol);
+          const auto ds = diff(fused.psf_sensor().data, plain.psf_sensor().data);
+          CAPTURE(ds.rel_l2);
+          CHECK(ds.rel_l2 <= tol);
+          // Sampling energies: the host sums per column in double, the kernels per work-group.
+          const auto want = ref::psf_stack(c, h);
+          for (std::size_t b = 0; b < c.bands; ++b) {
+            CAPTURE(b);
+            const BandSampling &f = fused.sampling().bands[b], &k = plain.sampling().bands[b];
+            CHECK(f.aliased_energy_fraction == doctest::Approx(k.aliased_energy_fraction).epsilon(1e-4).scale(1.0));
+            CHECK(f.energy_outside_window == doctest::Approx(k.energy_outside_window).epsilon(1e-4).scale(1.0));
+            CHECK(f.aliased_energy_fraction ==
+                  doctest::Approx(want.sampling.bands[b].aliased_energy_fraction).epsilon(1e-3).scale(1.0));
+            CHECK(f.energy_outside_window ==
+                  doctest::Approx(want.sampling.bands[b].energy_outside_window).epsilon(1e-3).scale(1.0));
+          }
+          // A band limit that cuts the spectrum: the aliased fraction is not trivially zero.
+          if (prop == Propagator::Fresnel) CHECK(fused.sampling().bands[c.bands - 1].aliased_energy_fraction > 1e-6);
+          // Gradients: the fused sensor adjoint (resampling, |U|² and propagation in one pass)
+          // and the native one (intensity kernel, host propagation), against the kernel path
+          // and the CPU reference. Sums of bands x M² terms of both signs: 2e3 eps as in
+          // "the OpenCL adjoint matches the CPU reference adjoint".
+          const RealStack gs = random_stack(c.bands, fused.sensor_size(), fused.sensor_size(), 22);
+          const Map2D gf = fused.psf_sensor_vjp(gs), gp = plain.psf_sensor_vjp(gs);
+          const auto dg = diff(gf.data, gp.data);
+          CAPTURE(dg.rel_l2);
+          CHECK(dg.rel_l2 <= 2e3 * eps(p));
+          const auto dr = diff(gf.data, ref::psf_sensor_vjp(c, h, gs).data);
+          CAPTURE(dr.rel_l2);
+          CHECK(dr.rel_l2 <= 2e3 * eps(p));
+          const RealStack gn = random_stack(c.bands, c.n, c.n, 23);
+          const auto dgn = diff(fused.psf_native_vjp(gn).data, plain.psf_native_vjp(gn).data);
+          CAPTURE(dgn.rel_l2);
+          CHECK(dgn.rel_l2 <= 2e3 * eps(p));
+        }
+      }
+      // A batch of two designs: each plane set equals its single-design stack.
+      SystemConfig c = tiny_config(40, 3);
+      const Map2D h0 = random_heights(c.n, c.h_max_m(), 24), h1 = random_heights(c.n, c.h_max_m(), 25);
+      Simulator batch(runtime(), c, p, 2), one(runtime(), c, p);
+      REQUIRE(batch.uses_host_propagation());
+      batch.set_heights_batch({h0, h1});
+      batch.compute_psf();
+      const RealStack both = batch.psf_sensor();
+      const std::size_t per = c.bands * batch.sensor_size() * batch.sensor_size();
+      for (std::size_t d = 0; d < 2; ++d) {
+        CAPTURE(d);
+        one.set_heights(d == 0 ? h0 : h1);
+        one.compute_psf();
+        const std::vector<double> part(both.data.begin() + std::ptrdiff_t(d * per), both.data.begin() + std::ptrdiff_t((d + 1) * per));
+        const auto dd = diff(part, one.psf_sensor().data);
+        CAPTURE(dd.rel_l2);
+        CHECK(dd.rel_l2 <= 4 * eps(p));
+      }
+    }
+  }
+
+  TEST_CASE("the host propagation refuses bad sizes and buffers before any work") {
+    if (!skip_unless(runtime().info().type == "CPU", "the host propagation maps buffers of CPU devices")) return;
+    Runtime& rt = runtime();
+    CHECK_THROWS_AS(make_host_propagator(rt, 60, 60, 3, Precision::F32), InputError);
+    CHECK_THROWS_AS(make_host_propagator(rt, 60, 0, 3, Precision::F32), InputError);
+    CHECK_THROWS_AS(make_host_propagator(rt, 60, 40, 0, Precision::F32), InputError);
+    auto hp = make_host_propagator(rt, 60, 40, 3, Precision::F32);
+    cl::Buffer small(rt.context(), CL_MEM_READ_WRITE, 16);
+    cl::Buffer field(rt.context(), CL_MEM_READ_WRITE, 3 * 60 * 60 * 8), tf(rt.context(), CL_MEM_READ_WRITE, 3 * 60 * 8);
+    try {
+      hp->run(small, HostPropagator::Tf{&tf, true}, HostPropagator::Outputs{});
+      FAIL("a too-small field buffer was accepted");
+    } catch (const InputError& e) {
+      CHECK(std::string(e.what()).find("field") != std::string::npos);
+    }
+    CHECK_THROWS_AS(hp->run(field, HostPropagator::Tf{&small, true}, HostPropagator::Outputs{}), InputError);
+    CHECK_THROWS_AS(hp->run(field, HostPropagator::Tf{&tf, false}, HostPropagator::Outputs{}), InputError);  // needs M x M
+    HostPropagator::Outputs no_klim;
+    no_klim.energy3 = &small;
+    CHECK_THROWS_AS(hp->run(field, HostPropagator::Tf{&tf, true}, no_klim), InputError);
+  }
+}

@@ -41,6 +41,14 @@ class Simulator {
   Simulator(const Simulator&) = delete;
   Simulator& operator=(const Simulator&) = delete;
   bool phase_fp64() const { return phase_fp64_; }
+  // The fused host propagation (HostPropagator, fft.hpp) on CPU devices with the FFTW backend:
+  // on by default; off runs the same propagation as FFT plan + transfer-function kernel + crop
+  // kernel, as on every other backend (tests compare the two, benchmarks time both).
+  void set_host_fusion(bool on) { host_fusion_ = on; }
+  bool host_fusion() const { return host_fusion_; }
+  // Whether compute_psf() and psf_sensor_vjp() propagate on the host (fusion on, FFTW backend,
+  // N < M).
+  bool uses_host_propagation() const { return host_propagation(true); }
   std::size_t designs() const { return designs_; }
 
   const SystemConfig& config() const { return cfg_; }
@@ -122,11 +130,21 @@ class Simulator {
   std::vector<double> download_real(const cl::Buffer& b, std::size_t count) const;
   cl::Buffer& write_scratch(cl::Buffer& buf, const std::vector<double>& host);
   std::vector<cdouble> download_complex(const cl::Buffer& b, std::size_t count) const;
-  void run_doe_field();
+  // The DOE field into field_; crop_rows: only rows [0, N) are written (enough for the host
+  // propagation, which reads nothing else), else the whole M x M window.
+  void run_doe_field(bool crop_rows = false);
   // In-place propagation of a bands x M x M field over z_m; hinted: the field is zero outside
-  // [0, N)^2 and only [0, N)^2 of the result is read (field_plan()).
-  void run_propagation(cl::Buffer& field, double z_m, bool record_sampling, bool hinted = true);
+  // [0, N)^2 and only [0, N)^2 of the result is read (field_plan()). With the host propagation
+  // (host_propagation(hinted)) and `intensity`/`crop_sums` given, the crop's |U|² (bands x N x N)
+  // and its per-band sums are written too and true is returned; otherwise false (the caller
+  // computes them).
+  bool run_propagation(cl::Buffer& field, double z_m, bool record_sampling, bool hinted = true,
+                       cl::Buffer* intensity = nullptr, cl::Buffer* crop_sums = nullptr);
   FftPlan& field_plan(bool hinted = true);
+  // Whether a propagation with this hint runs fused on the host (HostPropagator): the FFT
+  // backend is FFTW (CPU devices), the field is zero-padded (N < M) and fusion is on.
+  bool host_propagation(bool hinted) const;
+  HostPropagator& host_propagator();
   // A device field of the stored layout (samples at [0, N)) as the centred window of
   // PropagationGeometry (samples at [offset, offset + N)): for the debug accessors.
   ComplexStack centred(const cl::Buffer& field) const;
@@ -150,6 +168,9 @@ class Simulator {
   void ensure_native_normalized();
   void normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len, const cl::Buffer& sums);
   Map2D backward_from_native(const cl::Buffer& g_native);
+  template <typename Stage>
+  Map2D phase_vjp_gradient(Stage& stage);
+  cl::Buffer tf_for(double z_m);
 
   Runtime& rt_;
   SystemConfig cfg_;
@@ -172,6 +193,9 @@ class Simulator {
   bool native_normalized_ = true;  // psf_ holds normalised values (else raw |U|², sums in sums_crop_)
   std::uint64_t psf_generation_ = 0;
   static constexpr std::size_t kGroupsPerBand = 32;
+  bool host_fusion_ = true;
+  std::unique_ptr<HostPropagator> host_prop_;
+  std::vector<int> klim_host_;  // klim_ on the host (bands), for the host propagation
 
   cl::Buffer heights_, k_, dn_, field_, psf_, psf_s_, partial_, tf_, klim_, wstart_, wts_, srf_buf_;
   cl::Buffer energy3_;                              // per band: spectrum total, beyond limit, after TF (bands x 3)

@@ -13,6 +13,34 @@
 
 namespace qdo {
 
+namespace {
+// QDO_STAGE_TIMES=1: a queue.finish() after each stage and its time on stderr (diagnostics: the
+// finishes cost a little; bench_psf's stage times come from here). Otherwise free.
+class StageTimer {
+ public:
+  StageTimer(cl::CommandQueue& q, const char* chain) : q_(q), chain_(chain) {}
+  void operator()(const char* what) {
+    if (!enabled()) return;
+    q_.finish();
+    const auto now = std::chrono::steady_clock::now();
+    std::fprintf(stderr, "%s stage %-16s %.4f s\n", chain_, what, std::chrono::duration<double>(now - t_).count());
+    t_ = now;
+  }
+
+ private:
+  static bool enabled() {
+    static const bool on = [] {
+      const char* e = std::getenv("QDO_STAGE_TIMES");
+      return e && std::string(e) == "1";
+    }();
+    return on;
+  }
+  cl::CommandQueue& q_;
+  const char* chain_;
+  std::chrono::steady_clock::time_point t_ = std::chrono::steady_clock::now();
+};
+}  // namespace
+
 Simulator::~Simulator() = default;
 
 Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs, bool phase_fp64)
@@ -77,6 +105,7 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::siz
     klim[b] = std::isfinite(f) ? static_cast<int>(std::min(double(m), std::floor(f * double(m) * cfg_.pitch_m))) : int(m);
   }
   klim_ = upload(klim);
+  klim_host_ = klim;
   tf_ = make_tf(cfg_.sensor_distance_m);
   wstart_ = upload(weights_.start);
   wts_ = upload_real(weights_.w);
@@ -94,7 +123,20 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::siz
   energy3_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * 3 * rsz_);
   sums_crop_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
   sums_sensor_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, bands * rsz_);
-  field_plan();  // bake the plan now, so its cost is not charged to the first PSF
+  // Bake what the first PSF will use now, so its cost is not charged to it.
+  if (host_propagation(true))
+    host_propagator();
+  else
+    field_plan();
+}
+
+bool Simulator::host_propagation(bool hinted) const {
+  return host_fusion_ && hinted && cfg_.n < geom_.m && rt_.fft_backend() == FftBackend::FFTW;
+}
+
+HostPropagator& Simulator::host_propagator() {
+  if (!host_prop_) host_prop_ = make_host_propagator(rt_, geom_.m, cfg_.n, nb_, prec_);
+  return *host_prop_;
 }
 
 // The field's N x N samples are stored at window rows/cols [0, N), i.e. the centred window of
@@ -261,7 +303,7 @@ void Simulator::set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& k_t
            Real{cfg_.pitch_m}, Real{d}, Real{r_ap2_px});
 }
 
-void Simulator::run_doe_field() {
+void Simulator::run_doe_field(bool crop_rows) {
   if (!heights_set_) throw Error("Simulator: set_heights() must be called before computing fields or PSFs");
   // Argument 4: planes per design (plane b uses height map b / bands). doe_field_p64 takes the
   // tables and scalars in double.
@@ -269,17 +311,45 @@ void Simulator::run_doe_field() {
     set_phase_args(k_field_, Precision::F64, k64_, dn64_, field_, int(cfg_.bands));
   else
     set_phase_args(k_field_, prec_, k_, dn_, field_, int(cfg_.bands));
-  const std::size_t m = geom_.m;  // 3-D NDRange (columns, rows, designs), work-group (kLocalSize, 1, 1)
-  rt_.queue().enqueueNDRangeKernel(k_field_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, designs_),
+  // 3-D NDRange (columns, rows, designs), work-group (kLocalSize, 1, 1); crop_rows: rows [0, N)
+  // and the columns up to N rounded to the work-group size (the rest of the window is not read).
+  const std::size_t m = geom_.m, n = cfg_.n, rows = crop_rows ? n : m;
+  const std::size_t cols = crop_rows ? std::min(Runtime::global_for(n), Runtime::global_for(m)) : Runtime::global_for(m);
+  rt_.queue().enqueueNDRangeKernel(k_field_, cl::NullRange, cl::NDRange(cols, rows, designs_),
                                    cl::NDRange(Runtime::kLocalSize, 1, 1));
 }
 
-void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampling, bool hinted) {
+// The transfer function over z_m: the cached +z and -z tables, else a new one.
+cl::Buffer Simulator::tf_for(double z_m) {
+  if (z_m == cfg_.sensor_distance_m) return tf_;
+  if (z_m == -cfg_.sensor_distance_m) {
+    if (!tf_back_()) tf_back_ = make_tf(z_m);
+    return tf_back_;
+  }
+  return make_tf(z_m);
+}
+
+bool Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampling, bool hinted, cl::Buffer* intensity,
+                                cl::Buffer* crop_sums) {
   const std::size_t m = geom_.m, bands = nb_;
+  cl::Buffer tf = tf_for(z_m);
+  if (host_propagation(hinted)) {
+    HostPropagator::Outputs out;
+    if (record_sampling) {
+      out.energy3 = &energy3_;
+      out.klim = klim_host_.data();
+    }
+    out.intensity = intensity;
+    out.crop_sums = intensity ? crop_sums : nullptr;
+    host_propagator().run(field, HostPropagator::Tf{&tf, cfg_.propagator == Propagator::Fresnel}, out);
+    if (record_sampling) {
+      sampling_z_m_ = z_m;
+      sampling_fresh_ = false;
+    }
+    return intensity != nullptr;
+  }
   FftPlan& fft = field_plan(hinted);
   fft.forward(field);
-  if (z_m == -cfg_.sensor_distance_m && !tf_back_()) tf_back_ = make_tf(z_m);
-  cl::Buffer tf = z_m == cfg_.sensor_distance_m ? tf_ : z_m == -cfg_.sensor_distance_m ? tf_back_ : make_tf(z_m);
   if (record_sampling) {
     // One pass: TF multiplication plus the sampling-check and energy reductions; the sums
     // stay on the device (energy3_) until sampling() asks for them.
@@ -300,6 +370,7 @@ void Simulator::run_propagation(cl::Buffer& field, double z_m, bool record_sampl
     }
   }
   fft.inverse(field);
+  return false;
 }
 
 const SamplingReport& Simulator::sampling() const {
@@ -350,27 +421,19 @@ void Simulator::resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer
 
 void Simulator::compute_psf() {
   const std::size_t n = cfg_.n, m = geom_.m, bands = nb_;
-  // QDO_STAGE_TIMES=1: a queue.finish() after each stage and its time on stderr (diagnostics:
-  // the finishes cost a little; bench_psf's stage times come from here).
-  static const bool stage_times = [] {
-    const char* e = std::getenv("QDO_STAGE_TIMES");
-    return e && std::string(e) == "1";
-  }();
-  auto t_stage = std::chrono::steady_clock::now();
-  const auto stage = [&](const char* what) {
-    if (!stage_times) return;
-    rt_.queue().finish();
-    const auto now = std::chrono::steady_clock::now();
-    std::fprintf(stderr, "compute_psf stage %-12s %.4f s\n", what, std::chrono::duration<double>(now - t_stage).count());
-    t_stage = now;
-  };
-  run_doe_field();
+  StageTimer stage(rt_.queue(), "compute_psf");
+  const bool host = host_propagation(true);
+  run_doe_field(host);
   stage("field");
-  run_propagation(field_, cfg_.sensor_distance_m, true);
+  // Intensity of the N x N crop and its per-band sums (fused into the host propagation, else one
+  // kernel pass). The native stack stays unnormalised (normalising it before the linear area
+  // resampling would not change the normalised sensor stack); psf_native() and the adjoints
+  // normalise it when they need it.
+  if (run_propagation(field_, cfg_.sensor_distance_m, true, true, &psf_, &sums_crop_)) {
+    native_normalized_ = false;
+    stage("propagation+crop");
+  } else {
   stage("propagation");
-  // Intensity of the N x N crop and its per-band sums in one pass. The native stack stays
-  // unnormalised (normalising it before the linear area resampling would not change the
-  // normalised sensor stack); psf_native() and the adjoints normalise it when they need it.
   set_args(k_crop_sums_, prec_, field_, psf_, int(n), int(m), int(kFieldOffset), partial_, int(kGroupsPerBand),
            cl::Local(Runtime::kLocalSize * rsz_));
   rt_.queue().enqueueNDRangeKernel(k_crop_sums_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
@@ -378,6 +441,7 @@ void Simulator::compute_psf() {
   rt_.launch_1d(k_finalize_, bands, prec_, partial_, sums_crop_, int(kGroupsPerBand), int(bands));
   native_normalized_ = false;
   stage("crop");
+  }
   resample(psf_, psf_s_, wstart_, wts_, n, s_, weights_.taps);
   stage("resample");
   normalize_bands(psf_s_, s_ * s_, sums_sensor_);
@@ -435,16 +499,32 @@ void Simulator::normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t le
 
 Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
   const std::size_t n = cfg_.n, m = geom_.m, bands = cfg_.bands;
+  StageTimer stage(rt_.queue(), "adjoint");
   if (!gfield_()) gfield_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * m * m * 2 * rsz_);
   if (!dh_()) dh_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, n * n * rsz_);
   set_args(k_int_vjp_, prec_, g_native, field_, gfield_, int(n), int(m), int(kFieldOffset), int(bands));
-  rt_.queue().enqueueNDRangeKernel(k_int_vjp_, cl::NullRange, cl::NDRange(Runtime::global_for(m), m, bands),
+  // The host propagation reads only [0, N)^2: the kernel then covers rows [0, N) and the columns
+  // up to N rounded to the work-group size.
+  const bool host = host_propagation(true);
+  const std::size_t rows = host ? n : m, cols = host ? std::min(Runtime::global_for(n), Runtime::global_for(m)) : Runtime::global_for(m);
+  rt_.queue().enqueueNDRangeKernel(k_int_vjp_, cl::NullRange, cl::NDRange(cols, rows, bands),
                                    cl::NDRange(Runtime::kLocalSize, 1, 1));
+  stage("intensity_vjp");
   run_propagation(gfield_, -cfg_.sensor_distance_m, false);  // adjoint of +z propagation
+  stage("propagation");
+  return phase_vjp_gradient(stage);
+}
+
+// dL/dH from the back-propagated field gradient in gfield_ ([0, N)^2), read back to the host.
+template <typename Stage>
+Map2D Simulator::phase_vjp_gradient(Stage& stage) {
+  const std::size_t n = cfg_.n;
   set_phase_args(k_phase_vjp_, prec_, k_, dn_, gfield_, dh_);
   rt_.enqueue_1d(k_phase_vjp_, n * n);
+  stage("phase_vjp");
   Map2D out(n, n);
   out.data = download_real(dh_, n * n);
+  stage("read-back");
   return out;
 }
 
@@ -492,13 +572,35 @@ Map2D Simulator::sensor_vjp_in_scratch(cl::Buffer& g_sensor) {
     wstart_t_ = upload(weights_t_.start);
     wts_t_ = upload_real(weights_t_.w);
   }
+  StageTimer stage(rt_.queue(), "adjoint");
   normalize_vjp(g_sensor, psf_s_, s_ * s_, sums_sensor_);
+  stage("normalize_vjp");
+  if (host_propagation(true)) {
+    // Fused on the host: transposed resampling, |U|² vjp and the -z propagation in one pass
+    // (HostPropagator::IntensityAdjointInput), then the phase vjp kernel.
+    const std::size_t m = geom_.m;
+    if (!gfield_()) gfield_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * m * m * 2 * rsz_);
+    if (!dh_()) dh_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, n * n * rsz_);
+    HostPropagator::IntensityAdjointInput in;
+    in.g_sensor = &g_sensor;
+    in.u = &field_;
+    in.s = s_;
+    in.taps = weights_t_.taps;
+    in.start = weights_t_.start.data();
+    in.w = weights_t_.w.data();
+    const cl::Buffer tf = tf_for(-cfg_.sensor_distance_m);
+    host_propagator().run(gfield_, HostPropagator::Tf{&tf, cfg_.propagator == Propagator::Fresnel}, HostPropagator::Outputs{},
+                          &in);
+    stage("resample+intensity+propagation vjp");
+    return phase_vjp_gradient(stage);
+  }
   // Transposed area resampling: the same kernel with the transposed weights (S -> N).
   if (!g_native_()) g_native_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * n * n * rsz_);
   cl::Buffer& g = g_native_;
   // The forward resampled the unnormalised intensity (the native normalisation cancels in
   // the sensor normalisation), so the transposed resampling already gives dL/d|U|².
   resample(g_sensor, g, wstart_t_, wts_t_, s_, n, weights_t_.taps);
+  stage("resample_vjp");
   return backward_from_native(g);
 }
 

@@ -26,59 +26,13 @@
 
 #include "qdo/error.hpp"
 #include "qdo/fft.hpp"
+#include "runtime/fftw_internal.hpp"
 
 namespace qdo {
 namespace {
 
-std::mutex g_planner_mutex;  // FFTW's planner and wisdom are process-global and not thread-safe
-
-// float / double through one interface.
-template <typename R>
-struct Fftw;
-template <>
-struct Fftw<float> {
-  using complex = fftwf_complex;
-  using plan = fftwf_plan;
-  static void init_threads() { fftwf_init_threads(); }
-  static void threads(int n) { fftwf_plan_with_nthreads(n); }
-  static plan guru(int rank, const fftwf_iodim64* dims, int hrank, const fftwf_iodim64* hdims, complex* data, int sign,
-                   unsigned flags) {
-    return fftwf_plan_guru64_dft(rank, dims, hrank, hdims, data, data, sign, flags);
-  }
-  static void execute(plan p, complex* data) { fftwf_execute_dft(p, data, data); }
-  static void destroy(plan p) { fftwf_destroy_plan(p); }
-  static complex* alloc(std::size_t n) { return fftwf_alloc_complex(n); }
-  static void free(complex* p) { fftwf_free(p); }
-  static int import_wisdom(const char* f) { return fftwf_import_wisdom_from_filename(f); }
-  static int export_wisdom(const char* f) { return fftwf_export_wisdom_to_filename(f); }
-  static int alignment(const float* p) { return fftwf_alignment_of(const_cast<float*>(p)); }
-  static const char* tag() { return "f32"; }
-};
-template <>
-struct Fftw<double> {
-  using complex = fftw_complex;
-  using plan = fftw_plan;
-  static void init_threads() { fftw_init_threads(); }
-  static void threads(int n) { fftw_plan_with_nthreads(n); }
-  static plan guru(int rank, const fftw_iodim64* dims, int hrank, const fftw_iodim64* hdims, complex* data, int sign,
-                   unsigned flags) {
-    return fftw_plan_guru64_dft(rank, dims, hrank, hdims, data, data, sign, flags);
-  }
-  static void execute(plan p, complex* data) { fftw_execute_dft(p, data, data); }
-  static void destroy(plan p) { fftw_destroy_plan(p); }
-  static complex* alloc(std::size_t n) { return fftw_alloc_complex(n); }
-  static void free(complex* p) { fftw_free(p); }
-  static int import_wisdom(const char* f) { return fftw_import_wisdom_from_filename(f); }
-  static int export_wisdom(const char* f) { return fftw_export_wisdom_to_filename(f); }
-  static int alignment(const double* p) { return fftw_alignment_of(const_cast<double*>(p)); }
-  static const char* tag() { return "f64"; }
-};
-
-std::filesystem::path wisdom_file(const char* tag) {
-  const std::filesystem::path dir = kernel_cache_dir();
-  if (dir.empty()) return {};
-  return dir / (std::string("fftw-wisdom-") + tag + ".txt");
-}
+using fftw_detail::Fftw;
+using fftw_detail::planner_mutex;
 
 // One 1-D pass over one plane: `count` transforms of length n (stride `stride`, consecutive
 // transforms `dist` apart), in place.
@@ -101,27 +55,16 @@ class FftwPlan final : public FftPlan {
     row_blocks_ = rows_hint ? blocks(zp.row_begin, zp.row_end, rows) : std::vector<Block>{{0, r}};
     col_blocks_ = cols_hint ? blocks(zp.col_begin, zp.col_end, cols) : std::vector<Block>{{0, c}};
     const int threads = int(std::max(1u, std::min(rt.info().compute_units, std::max(1u, std::thread::hardware_concurrency()))));
-    const std::lock_guard<std::mutex> lock(g_planner_mutex);
-    static std::once_flag once;
-    std::call_once(once, [] {
-      Fftw<float>::init_threads();
-      Fftw<double>::init_threads();
-    });
-    const std::filesystem::path wf = wisdom_file(F::tag());
-    if (!wf.empty() && std::filesystem::exists(wf)) F::import_wisdom(wf.string().c_str());
+    const std::lock_guard<std::mutex> lock(planner_mutex());
+    fftw_detail::init_threads_once();
+    fftw_detail::load_wisdom<F>();
     // Scratch for FFTW_MEASURE (it overwrites the array): one plane.
     own_.scratch = F::alloc(std::size_t(pl));
     if (!own_.scratch) throw std::bad_alloc();
     F::threads(threads);
     make_all(0);
     F::threads(1);  // the host code's own FFTW plans (CPU references) stay single-threaded
-    if (!wf.empty()) {
-      std::error_code ec;
-      std::filesystem::create_directories(wf.parent_path(), ec);
-      const std::string tmp = wf.string() + ".tmp-" + std::to_string(long(::getpid()));
-      if (!ec && F::export_wisdom(tmp.c_str())) std::filesystem::rename(tmp, wf, ec);
-      std::filesystem::remove(tmp, ec);
-    }
+    fftw_detail::save_wisdom<F>();
     align_ = F::alignment(reinterpret_cast<const R*>(own_.scratch));
     bake_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
@@ -159,7 +102,7 @@ class FftwPlan final : public FftPlan {
   // scratch array's (FFTW's new-array execute requires the same alignment).
   void ensure_unaligned() {
     if (!own_.rows_u[0].empty()) return;
-    const std::lock_guard<std::mutex> lock(g_planner_mutex);
+    const std::lock_guard<std::mutex> lock(planner_mutex());
     F::threads(threads_of());
     make_all(FFTW_UNALIGNED);
     F::threads(1);
@@ -233,7 +176,7 @@ class FftwPlan final : public FftPlan {
     Owned(const Owned&) = delete;
     Owned& operator=(const Owned&) = delete;
     ~Owned() {
-      const std::lock_guard<std::mutex> lock(g_planner_mutex);
+      const std::lock_guard<std::mutex> lock(planner_mutex());
       for (auto* set : {rows, cols, rows_u, cols_u})
         for (int d = 0; d < 2; ++d)
           for (auto p : set[d]) F::destroy(p);
@@ -247,6 +190,33 @@ class FftwPlan final : public FftPlan {
 }  // namespace
 
 std::string fftw_library_version() { return fftw_version; }
+
+namespace fftw_detail {
+std::mutex& planner_mutex() {
+  static std::mutex m;
+  return m;
+}
+void init_threads_once() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    Fftw<float>::init_threads();
+    Fftw<double>::init_threads();
+  });
+}
+std::filesystem::path wisdom_file(const char* tag) {
+  const std::filesystem::path dir = kernel_cache_dir();
+  if (dir.empty()) return {};
+  return dir / (std::string("fftw-wisdom-") + tag + ".txt");
+}
+void save_wisdom_file(const std::filesystem::path& wf, int (*export_fn)(const char*)) {
+  if (wf.empty()) return;
+  std::error_code ec;
+  std::filesystem::create_directories(wf.parent_path(), ec);
+  const std::string tmp = wf.string() + ".tmp-" + std::to_string(long(::getpid()));
+  if (!ec && export_fn(tmp.c_str())) std::filesystem::rename(tmp, wf, ec);
+  std::filesystem::remove(tmp, ec);
+}
+}  // namespace fftw_detail
 
 namespace detail {
 std::unique_ptr<FftPlan> make_fftw_plan(Runtime& rt, std::size_t rows, std::size_t cols, std::size_t batch, Precision p,
