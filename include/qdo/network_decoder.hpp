@@ -56,8 +56,18 @@ using NetworkFactory = std::function<std::unique_ptr<NetworkDecoder>(const Netwo
 // Registers the factory make_network_decoder uses (qdo_net's register_torch_network()).
 void register_network_factory(NetworkFactory factory);
 NetworkFactory registered_network_factory();  // the one registered (empty if none)
+// A loader that registers the factory on first need: the qdo tool loads its LibTorch plugin
+// (libqdo-net.so) only when a network is asked for, so commands without one do not pay LibTorch's
+// ~0.5 s start-up. It returns "" on success, else why it failed (reported by the two calls below);
+// it runs at most once per process.
+using NetworkLoader = std::function<std::string()>;
+void register_network_loader(NetworkLoader loader);
+// Whether a factory is registered, after running the loader if there is one and no factory yet.
 bool network_decoder_available();
-// A fresh network; InputError naming `decoder` when no factory is registered (built without LibTorch).
+// Why network_decoder_available() is false: the loader's message, or that none is built in.
+std::string network_decoder_unavailable_reason();
+// A fresh network; InputError naming `decoder` when no factory is registered (built without
+// LibTorch, or the plugin failed to load: the reason is in the message).
 std::unique_ptr<NetworkDecoder> make_network_decoder(const NetworkSettings& s);
 
 }  // namespace qdo

@@ -57,6 +57,8 @@ const CommandSpec* find_command(const std::string& name);
 bool parse_command_line(const CommandSpec& c, int argc, char** argv, Args& out);
 // The command's help text (usage, options with descriptions and defaults).
 std::string command_help(const CommandSpec& c);
+// Registers the on-demand loader of the LibTorch plugin (net_plugin.cpp).
+void register_net_plugin_loader();
 
 // The command bodies (src/cli/*.cpp); options are parsed before any of them runs.
 int cmd_devices(const Args& a);

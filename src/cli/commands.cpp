@@ -16,9 +16,6 @@
 #include "qdo/io.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/fft.hpp"
-#ifdef QDO_WITH_TORCH
-#include "qdo/net.hpp"
-#endif
 #include <clFFT.h>
 
 #ifndef QDO_VERSION
@@ -389,7 +386,7 @@ int print_version() {
 
 int main(int argc, char** argv) {
 #ifdef QDO_WITH_TORCH
-  qdo::register_torch_network();  // --decoder resunet (qdo/net.hpp)
+  qdo::cli::register_net_plugin_loader();  // --decoder resunet: libqdo-net.so, loaded on first use (net_plugin.cpp)
 #endif
   const std::string first = argc < 2 ? "" : argv[1];
   if (argc < 2 || first == "--help" || first == "-h" || first == "help") {

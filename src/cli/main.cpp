@@ -433,7 +433,7 @@ int cmd_demo(const Args& a) {
                                "would replace them; move them, or choose another --out)");
   }
   if (network && !network_decoder_available())
-    reject("--decoder", o.decoder, "wiener: this qdo was built without LibTorch (-DQDO_TORCH=OFF); the network demo needs it");
+    reject("--decoder", o.decoder, "wiener: " + network_decoder_unavailable_reason());
   Runtime rt(a.get("device"));
   std::printf("qdo demo: preset %s (N = %zu, %zu bands, z = %.4g m), %d levels, %zu steps per design, device %s\n",
               o.cfg.preset.c_str(), o.cfg.n, o.cfg.bands, o.cfg.sensor_distance_m, o.design.quantizer.levels,

@@ -34,21 +34,61 @@ NetworkFactory registered_network_factory() {
   return factory_slot();
 }
 
-bool network_decoder_available() {
+namespace {
+struct LoaderState {
+  NetworkLoader loader;
+  bool tried = false;
+  std::string error;
+};
+LoaderState& loader_state() {
+  static LoaderState s;
+  return s;
+}
+std::mutex& loader_mutex() {  // held while the loader runs (it takes factory_mutex to register)
+  static std::mutex m;
+  return m;
+}
+// The registered factory, after running the loader once if there is none yet.
+NetworkFactory factory_after_loading() {
+  {
+    const std::lock_guard<std::mutex> lock(factory_mutex());
+    if (factory_slot()) return factory_slot();
+  }
+  {
+    const std::lock_guard<std::mutex> lock(loader_mutex());
+    LoaderState& st = loader_state();
+    if (st.loader && !st.tried) {
+      st.tried = true;
+      try {
+        st.error = st.loader();
+      } catch (const std::exception& e) {
+        st.error = e.what();
+      }
+    }
+  }
   const std::lock_guard<std::mutex> lock(factory_mutex());
-  return bool(factory_slot());
+  return factory_slot();
+}
+}  // namespace
+
+void register_network_loader(NetworkLoader loader) {
+  const std::lock_guard<std::mutex> lock(loader_mutex());
+  loader_state() = LoaderState{std::move(loader), false, ""};
+}
+
+bool network_decoder_available() { return bool(factory_after_loading()); }
+
+std::string network_decoder_unavailable_reason() {
+  if (factory_after_loading()) return "";
+  const std::lock_guard<std::mutex> lock(loader_mutex());
+  if (!loader_state().error.empty()) return "the LibTorch plugin did not load: " + loader_state().error;
+  return "this qdo was built without LibTorch (-DQDO_TORCH=OFF, or the Python extension); the network decoder needs the qdo "
+         "tool built with LibTorch (scripts/install-deps.sh installs libtorch-dev)";
 }
 
 std::unique_ptr<NetworkDecoder> make_network_decoder(const NetworkSettings& s) {
-  NetworkFactory f;
-  {
-    const std::lock_guard<std::mutex> lock(factory_mutex());
-    f = factory_slot();
-  }
-  if (!f)
-    reject("decoder", s.spec.to_string(),
-           "wiener: this qdo was built without LibTorch (-DQDO_TORCH=OFF, or the Python extension); the network decoder "
-           "needs the qdo tool built with LibTorch (scripts/install-deps.sh installs libtorch-dev)");
+  const NetworkFactory f = factory_after_loading();
+  if (!f) reject("decoder", s.spec.to_string(), "wiener: " + network_decoder_unavailable_reason());
   return f(s);
 }
 

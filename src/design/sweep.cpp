@@ -330,7 +330,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     if (d != "wiener") o.objective = "network";
     o.validate();
     if (d != "wiener" && !network_decoder_available())
-      reject("grid decoder", d, "wiener: this qdo was built without LibTorch (-DQDO_TORCH=OFF)");
+      reject("grid decoder", d, "wiener: " + network_decoder_unavailable_reason());
   }
   // Test scenes.
   std::vector<std::string> test = g.test_data;

@@ -238,3 +238,7 @@ void register_torch_network() {
 }
 
 }  // namespace qdo
+
+// The entry point of the plugin module libqdo-net.so (CMake target qdo_net_plugin), which the qdo
+// tool dlopen()s when a network decoder is first asked for (src/cli/net_plugin.cpp).
+extern "C" __attribute__((visibility("default"))) void qdo_net_plugin_register() { qdo::register_torch_network(); }

@@ -170,4 +170,35 @@ TEST_SUITE("net") {
     CHECK(ev2.out.find("mismatch") != std::string::npos);
     std::filesystem::remove_all(dir);
   }
+
+  // The tool links no LibTorch: its plugin (libqdo-net.so, src/cli/net_plugin.cpp) is loaded when a
+  // network is first asked for, so other commands start without LibTorch's ~0.5 s of
+  // initialisers. LD_DEBUG=files makes the dynamic loader name every object it opens.
+  TEST_CASE("the qdo tool loads LibTorch only when a network is asked for; a missing plugin is an error naming it") {
+    const Run version = qdo_run("--version", "LD_DEBUG=files");
+    CAPTURE(version.out);
+    REQUIRE(version.code == 0);
+    CHECK(version.out.find("file=") != std::string::npos);  // the loader did report its files
+    CHECK(version.out.find("libtorch") == std::string::npos);
+    CHECK(version.out.find("libqdo-net") == std::string::npos);
+
+    const auto dir = temp_dir("net_plugin");
+    const std::string cfg = (dir / "tiny.json").string();
+    write_text_atomic(cfg, config_to_json_text(tiny_config(32, 3)));
+    const std::string args = "design --mode do --decoder resunet:depth=2,root=4 --config " + cfg +
+                             " --epochs 1 --steps-per-epoch 1 --synthetic-scenes 2 --batch 2 --max-steps 1 --out ";
+    const Run net = qdo_run(args + (dir / "run").string(), "LD_DEBUG=files");
+    CAPTURE(net.out);
+    CHECK(net.code == 0);
+    CHECK(net.out.find("libqdo-net") != std::string::npos);
+    CHECK(net.out.find("libtorch") != std::string::npos);
+
+    const Run missing = qdo_run(args + (dir / "run2").string(), "QDO_NET_PLUGIN=/nonexistent/libqdo-net.so");
+    CAPTURE(missing.out);
+    CHECK(missing.code == 2);
+    CHECK(missing.out.find("LibTorch plugin did not load") != std::string::npos);
+    CHECK(missing.out.find("/nonexistent/libqdo-net.so") != std::string::npos);
+    CHECK_FALSE(std::filesystem::exists(dir / "run2" / "config.json"));  // refused before any work
+    std::filesystem::remove_all(dir);
+  }
 }
