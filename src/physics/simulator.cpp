@@ -563,7 +563,7 @@ Map2D Simulator::psf_sensor_vjp(const cl::Buffer& g_psf_sensor) {
   return sensor_vjp_in_scratch(g_sensor_);
 }
 
-// g_sensor (bands x S x S, the scratch g_sensor_) is overwritten.
+// g_sensor (bands x S x S, the scratch g_sensor_) is overwritten by the kernel path (read only by the host one).
 Map2D Simulator::sensor_vjp_in_scratch(cl::Buffer& g_sensor) {
   const std::size_t n = cfg_.n, bands = cfg_.bands;
   if (!dots_()) dots_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * rsz_);
@@ -573,11 +573,9 @@ Map2D Simulator::sensor_vjp_in_scratch(cl::Buffer& g_sensor) {
     wts_t_ = upload_real(weights_t_.w);
   }
   StageTimer stage(rt_.queue(), "adjoint");
-  normalize_vjp(g_sensor, psf_s_, s_ * s_, sums_sensor_);
-  stage("normalize_vjp");
   if (host_propagation(true)) {
-    // Fused on the host: transposed resampling, |U|² vjp and the -z propagation in one pass
-    // (HostPropagator::IntensityAdjointInput), then the phase vjp kernel.
+    // Fused on the host: normalisation vjp, transposed resampling, |U|² vjp and the -z
+    // propagation in one pass (HostPropagator::IntensityAdjointInput), then the phase vjp kernel.
     const std::size_t m = geom_.m;
     if (!gfield_()) gfield_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * m * m * 2 * rsz_);
     if (!dh_()) dh_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, n * n * rsz_);
@@ -588,12 +586,16 @@ Map2D Simulator::sensor_vjp_in_scratch(cl::Buffer& g_sensor) {
     in.taps = weights_t_.taps;
     in.start = weights_t_.start.data();
     in.w = weights_t_.w.data();
+    in.y_sensor = &psf_s_;
+    in.sensor_sums = &sums_sensor_;
     const cl::Buffer tf = tf_for(-cfg_.sensor_distance_m);
     host_propagator().run(gfield_, HostPropagator::Tf{&tf, cfg_.propagator == Propagator::Fresnel}, HostPropagator::Outputs{},
                           &in);
-    stage("resample+intensity+propagation vjp");
+    stage("normalize+resample+intensity+propagation vjp");
     return phase_vjp_gradient(stage);
   }
+  normalize_vjp(g_sensor, psf_s_, s_ * s_, sums_sensor_);
+  stage("normalize_vjp");
   // Transposed area resampling: the same kernel with the transposed weights (S -> N).
   if (!g_native_()) g_native_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * n * n * rsz_);
   cl::Buffer& g = g_native_;
