@@ -157,9 +157,10 @@ class FftwPropagator final : public HostPropagator {
     }
 
     std::atomic<std::size_t> next{0};
+    // Per-thread scratch allocated here, so that nothing in the worker threads can throw.
+    std::vector<std::vector<R>> resampled(threads_, std::vector<R>(in ? in->s : 0));
     auto work = [&](std::size_t t) {
-      std::vector<R> resampled(in ? in->s : 0);
-      for (std::size_t b = next++; b < planes; b = next++) plane(job, b, own_.rows[t], own_.cols[t], resampled.data());
+      for (std::size_t b = next++; b < planes; b = next++) plane(job, b, own_.rows[t], own_.cols[t], resampled[t].data());
     };
     std::vector<std::thread> pool;
     for (std::size_t t = 1; t < threads_; ++t) pool.emplace_back(work, t);
