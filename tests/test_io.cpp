@@ -348,6 +348,38 @@ TEST_SUITE("io") {
     std::filesystem::remove_all(dir);
   }
 
+  TEST_CASE("large float32 datasets are written in slabs (a partial last one included) and from a view without a copy") {
+    const auto dir = qdo::test::temp_dir("io_f32_slabs");
+    // 5 x 600 x 600: 360,000 values per leading entry, so slabs of 2, 2 and 1 entries.
+    std::vector<double> v(5 * 600 * 600);
+    for (std::size_t i = 0; i < v.size(); ++i) v[i] = std::cos(1e-3 * double(i)) + double(i / 360000);
+    H5Dataset f{"/stack", {5, 600, 600}, {}, {}, {}};
+    f.view = &v;
+    f.float32 = true;
+    // A rank-1 dataset of 2^20 + 3 values: slabs of 2^20 and 3 along its only axis.
+    std::vector<double> w((std::size_t(1) << 20) + 3);
+    for (std::size_t i = 0; i < w.size(); ++i) w[i] = double(i % 977) * 0.5;
+    H5Dataset g{"/line", {w.size()}, w, {}, {}};
+    g.float32 = true;
+    const std::string p = (dir / "slabs.h5").string();
+    h5_write(p, {f, g});
+    CHECK(f.data.empty());  // the view was not copied into the dataset
+    const H5Dataset r = h5_read(p, "/stack"), rl = h5_read(p, "/line");
+    REQUIRE(r.data.size() == v.size());
+    std::size_t bad = 0;
+    for (std::size_t i = 0; i < v.size(); ++i) bad += r.data[i] != double(float(v[i]));
+    CHECK(bad == 0);
+    REQUIRE(rl.data.size() == w.size());
+    bad = 0;
+    for (std::size_t i = 0; i < w.size(); ++i) bad += rl.data[i] != double(float(w[i]));
+    CHECK(bad == 0);
+    // The checks before writing see the view too: a NaN in it is refused, nothing written.
+    v[123456] = std::nan("");
+    CHECK_THROWS_AS(h5_write((dir / "nan.h5").string(), {f}), NumericalError);
+    CHECK_FALSE(std::filesystem::exists(dir / "nan.h5"));
+    std::filesystem::remove_all(dir);
+  }
+
   TEST_CASE("compressed datasets: chunked with HDF5's shuffle + deflate, read back exactly, edge chunks included") {
     const auto dir = qdo::test::temp_dir("io_deflate");
     // 2 x 1100 x 1000 float64: a plane is 8.8 MB, so chunks are bands of 524 rows (4 MiB) and the

@@ -33,6 +33,10 @@ struct H5Dataset {
   // low mantissa bits are noise) for ~0.2 s at the paper preset, so they are compressed only on
   // request (`--compress`; BENCHMARKS "CPU speed").
   bool compress = false;
+  // When set, the values are read from *view instead of `data` (which stays empty): a large
+  // array the caller keeps alive until h5_write returns, written without a copy.
+  const std::vector<double>* view = nullptr;
+  const std::vector<double>& values() const { return view ? *view : data; }
 };
 
 // True when v holds at most max_distinct distinct values (a quantized height map): such data is

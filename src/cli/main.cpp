@@ -63,8 +63,9 @@ void write_psf_h5(Simulator& sim, const RealStack& psf_s, const Map2D& h, const 
     ds.back().float32 = f32;
     ds.back().compress = compress;
   }
-  ds.push_back({"/psf_sensor", {psf_s.planes, psf_s.rows, psf_s.cols}, psf_s.data, {{"pitch_m", cfg.sensor_pitch_m}},
+  ds.push_back({"/psf_sensor", {psf_s.planes, psf_s.rows, psf_s.cols}, {}, {{"pitch_m", cfg.sensor_pitch_m}},
                 {{"units", "fraction of band energy per sensor pixel"}}});
+  ds.back().view = &psf_s.data;  // written from psf_s itself (the figures read it meanwhile)
   ds.back().float32 = f32;
   ds.back().compress = compress;
   ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});

@@ -152,7 +152,7 @@ void write_chunks_compressed(hid_t dset, const std::string& path, const std::str
       const std::size_t y0 = offsets[c][rank - 2];
       std::fill(raw.begin(), raw.end(), 0);
       for (std::size_t y = 0; y < crow && y0 + y < rows; ++y) {
-        const double* src = d.data.data() + plane_index * plane + (y0 + y) * cols;
+        const double* src = d.values().data() + plane_index * plane + (y0 + y) * cols;
         unsigned char* dst = raw.data() + y * cols * elem;
         if (d.float32)
           for (std::size_t x = 0; x < cols; ++x) {
@@ -188,8 +188,8 @@ void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
   const std::string what = "dataset '" + d.name + "'";
   if (d.name.size() < 2 || d.name[0] != '/') fail(path, what, "name must be an absolute path like \"/psf\"");
   std::size_t n = 0;
-  if (!element_count(d.shape, std::numeric_limits<std::size_t>::max(), n) || n != d.data.size())
-    fail(path, what, "shape " + shape_str(d.shape) + " does not match the data size " + std::to_string(d.data.size()));
+  if (!element_count(d.shape, std::numeric_limits<std::size_t>::max(), n) || n != d.values().size())
+    fail(path, what, "shape " + shape_str(d.shape) + " does not match the data size " + std::to_string(d.values().size()));
   const std::vector<hsize_t> dims(d.shape.begin(), d.shape.end());
   H5Id space(d.shape.empty() ? H5Screate(H5S_SCALAR)
                              : H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr),
@@ -214,11 +214,34 @@ void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
   if (compress) write_chunks_compressed(dset.get(), path, what, d, chunk);
   else if (n > 0 && d.float32) {
     // Converted here (h5_write checked the range): HDF5's own double -> float conversion path is
-    // several times slower than this loop.
-    const std::vector<float> f(d.data.begin(), d.data.end());
-    if (H5Dwrite(dset.get(), H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, f.data()) < 0)
-      fail(path, what, "write failed" + h5_detail());
-  } else if (n > 0 && H5Dwrite(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.data.data()) < 0)
+    // several times slower than this loop. In slabs of whole leading-axis entries through one
+    // buffer of at most ~4 MiB: a full-size float copy (32 MB for a paper-preset PSF stack) costs
+    // more in fresh pages than the conversion itself.
+    const std::vector<double>& v = d.values();
+    const std::size_t inner = d.shape.empty() ? 1 : n / std::max<std::size_t>(1, d.shape[0]);
+    const std::size_t lead = d.shape.empty() ? 1 : d.shape[0];
+    const std::size_t per = std::max<std::size_t>(1, (std::size_t(1) << 20) / std::max<std::size_t>(1, inner));
+    std::vector<float> f(std::min(lead, per) * inner);
+    H5Id fspace(H5Dget_space(dset.get()), H5Sclose);
+    if (!fspace.valid()) fail(path, what, "cannot get its dataspace" + h5_detail());
+    for (std::size_t a = 0; a < lead; a += per) {
+      const std::size_t cnt = std::min(per, lead - a);
+      std::copy(v.begin() + std::ptrdiff_t(a * inner), v.begin() + std::ptrdiff_t((a + cnt) * inner), f.begin());
+      if (d.shape.empty()) {
+        if (H5Dwrite(dset.get(), H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, f.data()) < 0)
+          fail(path, what, "write failed" + h5_detail());
+        continue;
+      }
+      std::vector<hsize_t> start(dims.size(), 0), count(dims.begin(), dims.end());
+      start[0] = hsize_t(a);
+      count[0] = hsize_t(cnt);
+      const hsize_t mcount = hsize_t(cnt * inner);
+      H5Id mspace(H5Screate_simple(1, &mcount, nullptr), H5Sclose);
+      if (!mspace.valid() || H5Sselect_hyperslab(fspace.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr) < 0 ||
+          H5Dwrite(dset.get(), H5T_NATIVE_FLOAT, mspace.get(), fspace.get(), H5P_DEFAULT, f.data()) < 0)
+        fail(path, what, "write failed" + h5_detail());
+    }
+  } else if (n > 0 && H5Dwrite(dset.get(), H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.values().data()) < 0)
     fail(path, what, "write failed" + h5_detail());
   for (const auto& kv : d.num_attrs) h5_write_num_attr(dset.get(), path, kv.first, kv.second);
   for (const auto& kv : d.str_attrs) h5_write_str_attr(dset.get(), path, kv.first, kv.second);
@@ -361,11 +384,11 @@ bool few_distinct_values(const std::vector<double>& v, std::size_t max_distinct)
 void h5_write(const std::string& path, const std::vector<H5Dataset>& datasets,
               const std::map<std::string, std::string>& root_str_attrs) {
   for (const H5Dataset& d : datasets) {
-    if (const std::size_t bad = count_nonfinite(d.data))
+    if (const std::size_t bad = count_nonfinite(d.values()))
       throw NumericalError("file '" + path + "': dataset '" + d.name + "': " + std::to_string(bad) + " of " +
-                           std::to_string(d.data.size()) + " values are NaN or Inf; not written");
+                           std::to_string(d.values().size()) + " values are NaN or Inf; not written");
     if (d.float32)
-      for (double v : d.data)
+      for (double v : d.values())
         if (std::fabs(v) > double(std::numeric_limits<float>::max()))
           throw NumericalError("file '" + path + "': dataset '" + d.name + "': value " + to_str(v) +
                                " is beyond float32's range; not written");

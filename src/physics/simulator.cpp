@@ -462,8 +462,10 @@ void Simulator::ensure_native_normalized() {
 
 RealStack Simulator::psf_native() const {
   if (!psf_valid_) throw Error("Simulator: compute_psf() has not run for the current heights");
-  RealStack out(nb_, cfg_.n, cfg_.n);
-  out.data = download_real(psf_, out.size());
+  RealStack out;  // filled straight from the device (no zeroed allocation first)
+  out.planes = nb_;
+  out.rows = out.cols = cfg_.n;
+  out.data = download_real(psf_, nb_ * cfg_.n * cfg_.n);
   if (!native_normalized_) {
     // Normalise on the host (in double) with the device's per-band sums, as scale_by_sums.
     const auto sums = download_real(sums_crop_, nb_);
@@ -477,8 +479,10 @@ RealStack Simulator::psf_native() const {
 
 RealStack Simulator::psf_sensor() const {
   if (!psf_valid_) throw Error("Simulator: compute_psf() has not run for the current heights");
-  RealStack out(nb_, s_, s_);
-  out.data = download_real(psf_s_, out.size());
+  RealStack out;  // filled straight from the device (no zeroed allocation first)
+  out.planes = nb_;
+  out.rows = out.cols = s_;
+  out.data = download_real(psf_s_, nb_ * s_ * s_);
   return out;
 }
 
