@@ -46,9 +46,11 @@ class Mapping {
     ptr_ = q_.enqueueMapBuffer(b_, CL_TRUE, flags, 0, bytes);
   }
   ~Mapping() {
+    // A destructor may run while an exception unwinds, so it must not throw: an unmap that fails
+    // here (the queue already broken) is left to the buffer's release, which ends the mapping.
     try {
       q_.enqueueUnmapMemObject(b_, ptr_);
-    } catch (...) {
+    } catch (const cl::Error&) {
     }
   }
   Mapping(const Mapping&) = delete;
