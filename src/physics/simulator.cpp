@@ -430,18 +430,17 @@ void Simulator::compute_psf() {
   // resampling would not change the normalised sensor stack); psf_native() and the adjoints
   // normalise it when they need it.
   if (run_propagation(field_, cfg_.sensor_distance_m, true, true, &psf_, &sums_crop_)) {
-    native_normalized_ = false;
     stage("propagation+crop");
   } else {
-  stage("propagation");
-  set_args(k_crop_sums_, prec_, field_, psf_, int(n), int(m), int(kFieldOffset), partial_, int(kGroupsPerBand),
-           cl::Local(Runtime::kLocalSize * rsz_));
-  rt_.queue().enqueueNDRangeKernel(k_crop_sums_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
-                                   cl::NDRange(Runtime::kLocalSize, 1));
-  rt_.launch_1d(k_finalize_, bands, prec_, partial_, sums_crop_, int(kGroupsPerBand), int(bands));
-  native_normalized_ = false;
-  stage("crop");
+    stage("propagation");
+    set_args(k_crop_sums_, prec_, field_, psf_, int(n), int(m), int(kFieldOffset), partial_, int(kGroupsPerBand),
+             cl::Local(Runtime::kLocalSize * rsz_));
+    rt_.queue().enqueueNDRangeKernel(k_crop_sums_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
+                                     cl::NDRange(Runtime::kLocalSize, 1));
+    rt_.launch_1d(k_finalize_, bands, prec_, partial_, sums_crop_, int(kGroupsPerBand), int(bands));
+    stage("crop");
   }
+  native_normalized_ = false;
   resample(psf_, psf_s_, wstart_, wts_, n, s_, weights_.taps);
   stage("resample");
   normalize_bands(psf_s_, s_ * s_, sums_sensor_);
@@ -561,7 +560,12 @@ Map2D Simulator::psf_sensor_vjp(const cl::Buffer& g_psf_sensor) {
   if (g_psf_sensor.getInfo<CL_MEM_SIZE>() < bytes)
     reject("g_psf_sensor buffer", to_str(g_psf_sensor.getInfo<CL_MEM_SIZE>()) + " bytes",
            ">= " + to_str(bytes) + " (bands x S x S reals of the simulator's precision)");
-  // The adjoint works in place on its input: copy into the scratch buffer (device to device).
+  // The host path only reads its input; the kernel path works in place on it: a copy into the
+  // scratch buffer first (device to device).
+  if (host_propagation(true)) {
+    cl::Buffer read_only = g_psf_sensor;  // a second handle to the caller's buffer, not a copy
+    return sensor_vjp_in_scratch(read_only);
+  }
   if (!g_sensor_()) g_sensor_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bytes);
   rt_.queue().enqueueCopyBuffer(g_psf_sensor, g_sensor_, 0, 0, bytes);
   return sensor_vjp_in_scratch(g_sensor_);
