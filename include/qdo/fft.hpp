@@ -120,7 +120,8 @@ class HostPropagator {
     const cl::Buffer* y_sensor = nullptr;
     const cl::Buffer* sensor_sums = nullptr;
   };
-  // Blocks until done (the queue is finished first: the buffers are mapped). field must hold
+  // Blocks until done (the queue is finished first: the buffers are mapped); one call at a time
+  // per object (its per-thread arrays are members; separate objects may run concurrently). field must hold
   // planes x M x M complex values; the tables as above. With `in`, field's contents are not
   // read (only written).
   virtual void run(cl::Buffer& field, const Tf& tf, const Outputs& out, const IntensityAdjointInput* in) = 0;
