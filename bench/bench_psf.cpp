@@ -245,6 +245,7 @@ struct Row {
   std::optional<Timing> t;     // absent when the configuration failed
   std::size_t bands = 0;
   std::string floor_ratio;     // PSF time / FFT floor, OpenCL rows only
+  bool ratio_to_floor = false; // floor_ratio to be filled in once the floor is measured
   std::string rel_l2, max_err; // OpenCL rows with a CPU reference only
   std::string note;
 };
@@ -431,10 +432,15 @@ int main(int argc, char** argv) {
           adj.m = m;
           adj.bands = bands;
           adj.path = "OpenCL " + ps + " compute_psf + psf_sensor_vjp (forward + adjoint)";
-          adj.t = time_it(opt.warmup, opt.repeats, [&] {
+          const auto forward = [&] {
+            sim.compute_psf();
+            rt.queue().finish();
+          };
+          const auto forward_adjoint = [&] {
             sim.compute_psf();
             (void)sim.psf_sensor_vjp(g);
-          });
+          };
+          adj.t = time_it(opt.warmup, opt.repeats, forward_adjoint);
           adj.floor_ratio = fmt("%.2f x fwd", adj.t->median / psf_row.t->median);
           extra_rows.push_back(adj);
           // 1b. With the host fusion off (CPU devices with the FFTW backend only): the pruned
@@ -447,10 +453,7 @@ int main(int argc, char** argv) {
             off.m = m;
             off.bands = bands;
             off.path = "OpenCL " + ps + " compute_psf, host fusion off (pruned FFT plan + kernels)";
-            off.t = time_it(opt.warmup, opt.repeats, [&] {
-              sim.compute_psf();
-              rt.queue().finish();
-            });
+            off.t = time_it(opt.warmup, opt.repeats, forward);
             if (ref_psf) {
               const ErrStats e = compare(sim.psf_native().data, ref_psf->data);
               off.rel_l2 = fmt("%.2e", e.rel_l2);
@@ -459,12 +462,9 @@ int main(int argc, char** argv) {
             Row off_adj = off;
             off_adj.rel_l2 = off_adj.max_err = "";
             off_adj.path = "OpenCL " + ps + " compute_psf + psf_sensor_vjp, host fusion off";
-            off_adj.t = time_it(opt.warmup, opt.repeats, [&] {
-              sim.compute_psf();
-              (void)sim.psf_sensor_vjp(g);
-            });
+            off_adj.t = time_it(opt.warmup, opt.repeats, forward_adjoint);
             off_adj.floor_ratio = fmt("%.2f x fwd", off_adj.t->median / off.t->median);
-            off.floor_ratio = "floor";  // filled in once the floor is measured
+            off.ratio_to_floor = true;
             extra_rows.push_back(off);
             extra_rows.push_back(off_adj);
             sim.set_host_fusion(true);
@@ -501,7 +501,7 @@ int main(int argc, char** argv) {
         floor_row.t = fftw_floor(p, m, bands, opt);
         psf_row.floor_ratio = fmt("%.2f", psf_row.t->median / floor_row.t->median);
         for (Row& r : extra_rows)
-          if (r.floor_ratio == "floor" && r.t) r.floor_ratio = fmt("%.2f", r.t->median / floor_row.t->median);
+          if (r.ratio_to_floor && r.t) r.floor_ratio = fmt("%.2f", r.t->median / floor_row.t->median);
         std::cerr << "N = " << n << " bare FFTW floor " << ps << ": " << fmt("%.1f ms", floor_row.t->median * 1e3) << "\n";
         // 2. (c) The memory floor of the passes outside the FFT; its ratio column holds
         // (FFT floor + memory floor) / FFT floor, the best an unfused pipeline can reach.

@@ -75,7 +75,7 @@ class FftPlan {
 //   3. each of the N data rows: inverse transform, columns [0, N) written back, and the crop's
 //      intensity |U|² and its sum when asked for.
 // 2-D circular propagation of the padded field restricted to the [0, N)^2 crop, with 5/6 of the
-// 1-D transforms of an unpruned 2-D pair at N = 2M/3 and every pass cache-resident; planes run
+// 1-D transforms of an unpruned 2-D pair at N = 2M/3 and the column passes cache-resident; planes run
 // in parallel on the device's compute units. Output: field rows [0, N), columns [0, N) hold the
 // propagated samples; the rest of the plane is scratch (undefined).
 class HostPropagator {
