@@ -12,7 +12,8 @@
 //      (c) the memory floor of compute_psf's passes outside the FFT (memory_floor below);
 //   2b. compute_psf + psf_sensor_vjp (forward and adjoint to dL/dH) and its ratio to compute_psf;
 //   1b. on CPU devices with the FFTW backend, 1 and 2b again with the host fusion off
-//      (Simulator::set_host_fusion(false): pruned FFT plan + kernels), same run;
+//      (Simulator::set_host_fusion(false): pruned FFT plan + kernels), same run; 1c. 1 with the
+//      field not kept (Simulator::set_keep_field(false): streamed, as `qdo psf` runs it);
 //   3. the CPU reference ref::psf_stack (double, FFTW_ESTIMATE, single thread);
 //   4. the error of each OpenCL PSF stack (bands x N x N) against the CPU reference.
 // Speed is never asserted; this program only reports.
@@ -469,6 +470,24 @@ int main(int argc, char** argv) {
             extra_rows.push_back(off_adj);
             sim.set_host_fusion(true);
             std::cerr << "N = " << n << " OpenCL " << ps << " host fusion off: " << fmt("%.1f ms", off.t->median * 1e3) << "\n";
+            // 1c. The field not kept (Simulator::set_keep_field(false), as `qdo psf` runs it):
+            // field and propagation streamed a few planes at a time through one small buffer.
+            sim.set_keep_field(false);
+            Row st;
+            st.n = n;
+            st.m = m;
+            st.bands = bands;
+            st.path = "OpenCL " + ps + " compute_psf, field not kept (streamed; `qdo psf`)";
+            st.t = time_it(opt.warmup, opt.repeats, forward);
+            if (ref_psf) {
+              const ErrStats e = compare(sim.psf_native().data, ref_psf->data);
+              st.rel_l2 = fmt("%.2e", e.rel_l2);
+              st.max_err = fmt("%.2e", e.max_abs_rel);
+            }
+            st.ratio_to_floor = true;
+            extra_rows.push_back(st);
+            sim.set_keep_field(true);
+            std::cerr << "N = " << n << " OpenCL " << ps << " streamed: " << fmt("%.1f ms", st.t->median * 1e3) << "\n";
           }
         }
         // 2. (b) The transforms compute_psf runs: its own plan (backend and hint), on a device buffer.

@@ -355,6 +355,72 @@ TEST_SUITE("adjoint") {
     }
   }
 
+  // Simulator::set_keep_field(false) (what `qdo psf` runs): the field made and propagated a chunk
+  // of planes at a time through one small buffer gives the kept path's results bit for bit (the
+  // same kernel values, the same FFTW plans on the same per-thread arrays), with 11 bands (a
+  // chunk of 8 and a partial one), in every precision, with the float64 phase, both propagators;
+  // the adjoints then refuse, naming the setting, and work again after a kept compute_psf().
+  TEST_CASE("a PSF streamed without keeping the field equals the kept one bit for bit; adjoints then refuse") {
+    if (!skip_unless(runtime().info().type == "CPU", "the host propagation runs with the FFTW backend, on CPU devices only"))
+      return;
+    Runtime rt(std::string(""), FftBackend::FFTW);
+    struct Variant {
+      Precision p;
+      bool phase_fp64;
+      Propagator prop;
+    };
+    std::vector<Variant> variants;
+    for (Precision p : device_precisions(rt))
+      for (Propagator prop : {Propagator::Fresnel, Propagator::AngularSpectrum}) variants.push_back({p, false, prop});
+    if (rt.has_fp64()) variants.push_back({Precision::F32, true, Propagator::Fresnel});
+    for (const Variant& v : variants) {
+      CAPTURE(to_string(v.p));
+      CAPTURE(v.phase_fp64);
+      CAPTURE(int(v.prop));
+      SystemConfig c = tiny_config(42, 11);
+      c.propagator = v.prop;
+      c.sensor_distance_m *= 3;  // the Fresnel band limit cuts the spectrum: the aliased energy is not 0
+      const Map2D h = smooth_heights(c, 31);
+      Simulator kept(rt, c, v.p, 1, v.phase_fp64), streamed(rt, c, v.p, 1, v.phase_fp64);
+      streamed.set_keep_field(false);
+      REQUIRE(streamed.uses_host_propagation());
+      for (Simulator* s : {&kept, &streamed}) {
+        s->set_heights(h);
+        s->compute_psf();
+      }
+      CHECK(kept.psf_native().data == streamed.psf_native().data);
+      CHECK(kept.psf_sensor().data == streamed.psf_sensor().data);
+      for (std::size_t b = 0; b < c.bands; ++b) {
+        CAPTURE(b);
+        CHECK(kept.sampling().bands[b].aliased_energy_fraction == streamed.sampling().bands[b].aliased_energy_fraction);
+        CHECK(kept.sampling().bands[b].energy_outside_window == streamed.sampling().bands[b].energy_outside_window);
+      }
+      if (v.prop == Propagator::Fresnel) CHECK(streamed.sampling().bands[c.bands - 1].aliased_energy_fraction > 1e-6);
+      const RealStack gs = random_stack(c.bands, kept.sensor_size(), kept.sensor_size(), 32);
+      CHECK_THROWS_WITH_AS(streamed.psf_sensor_vjp(gs), doctest::Contains("set_keep_field"), qdo::Error);
+      CHECK_THROWS_WITH_AS(streamed.psf_native_vjp(random_stack(c.bands, c.n, c.n, 33)), doctest::Contains("set_keep_field"),
+                           qdo::Error);
+      // A second streamed run over other heights reuses the chunk buffer: still equal.
+      const Map2D h2 = random_heights(c.n, c.h_max_m(), 34);
+      for (Simulator* s : {&kept, &streamed}) {
+        s->set_heights(h2);
+        s->compute_psf();
+      }
+      CHECK(kept.psf_sensor().data == streamed.psf_sensor().data);
+      streamed.set_keep_field(true);
+      streamed.compute_psf();
+      CHECK(kept.psf_sensor_vjp(gs).data == streamed.psf_sensor_vjp(gs).data);
+    }
+    // Where nothing is streamed (the kernel path), the setting changes nothing and the adjoints work.
+    SystemConfig c = tiny_config(40, 3);
+    Simulator plain(rt, c, Precision::F32);
+    plain.set_host_fusion(false);
+    plain.set_keep_field(false);
+    plain.set_heights(smooth_heights(c, 35));
+    plain.compute_psf();
+    CHECK_NOTHROW(plain.psf_sensor_vjp(random_stack(c.bands, plain.sensor_size(), plain.sensor_size(), 36)));
+  }
+
   TEST_CASE("the host propagation refuses bad sizes and buffers before any work") {
     if (!skip_unless(runtime().info().type == "CPU", "the host propagation maps buffers of CPU devices")) return;
     Runtime& rt = runtime();
@@ -375,5 +441,9 @@ TEST_SUITE("adjoint") {
     HostPropagator::Outputs no_klim;
     no_klim.energy3 = &small;
     CHECK_THROWS_AS(hp->run(field, HostPropagator::Tf{&tf, true}, no_klim), InputError);
+    // run_planes: a range beyond the planes, an empty range, a field too small for its planes.
+    CHECK_THROWS_AS(hp->run_planes(field, 2, 2, HostPropagator::Tf{&tf, true}, HostPropagator::Outputs{}), InputError);
+    CHECK_THROWS_AS(hp->run_planes(field, 0, 0, HostPropagator::Tf{&tf, true}, HostPropagator::Outputs{}), InputError);
+    CHECK_THROWS_AS(hp->run_planes(small, 1, 1, HostPropagator::Tf{&tf, true}, HostPropagator::Outputs{}), InputError);
   }
 }

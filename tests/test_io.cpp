@@ -380,6 +380,44 @@ TEST_SUITE("io") {
     std::filesystem::remove_all(dir);
   }
 
+  TEST_CASE("float32 datasets from a float view: written as they are, plain and compressed; NaN and misuse refused") {
+    const auto dir = qdo::test::temp_dir("io_f32_view");
+    // 3 x 300 x 500 floats (4.5 MB: compressed as one chunk per plane when asked).
+    std::vector<float> v(3 * 300 * 500);
+    for (std::size_t i = 0; i < v.size(); ++i) v[i] = float(std::sin(1e-3 * double(i))) * 1e-5f + float(i % 7);
+    for (const bool compress : {false, true}) {
+      CAPTURE(compress);
+      H5Dataset f{"/stack", {3, 300, 500}, {}, {}, {}};
+      f.f32_view = v.data();
+      f.f32_count = v.size();
+      f.float32 = true;
+      f.compress = compress;
+      const std::string p = (dir / (compress ? "z.h5" : "plain.h5")).string();
+      h5_write(p, {f});
+      const H5Dataset r = h5_read(p, "/stack");
+      REQUIRE(r.shape == std::vector<std::size_t>{3, 300, 500});
+      REQUIRE(r.data.size() == v.size());
+      std::size_t bad = 0;
+      for (std::size_t i = 0; i < v.size(); ++i) bad += r.data[i] != double(v[i]);
+      CHECK(bad == 0);
+    }
+    H5Dataset f{"/stack", {3, 300, 500}, {}, {}, {}};
+    f.f32_view = v.data();
+    f.f32_count = v.size();
+    // Without float32 set, or with a shape that does not match the count: refused, nothing written.
+    CHECK_THROWS_WITH_AS(h5_write((dir / "no32.h5").string(), {f}), doctest::Contains("f32_view"), InputError);
+    CHECK_FALSE(std::filesystem::exists(dir / "no32.h5"));
+    f.float32 = true;
+    f.f32_count = v.size() - 1;
+    CHECK_THROWS_WITH_AS(h5_write((dir / "short.h5").string(), {f}), doctest::Contains("does not match"), InputError);
+    CHECK_FALSE(std::filesystem::exists(dir / "short.h5"));
+    f.f32_count = v.size();
+    v[4321] = std::numeric_limits<float>::infinity();
+    CHECK_THROWS_WITH_AS(h5_write((dir / "inf.h5").string(), {f}), doctest::Contains("NaN or Inf"), NumericalError);
+    CHECK_FALSE(std::filesystem::exists(dir / "inf.h5"));
+    std::filesystem::remove_all(dir);
+  }
+
   TEST_CASE("compressed datasets: chunked with HDF5's shuffle + deflate, read back exactly, edge chunks included") {
     const auto dir = qdo::test::temp_dir("io_deflate");
     // 2 x 1100 x 1000 float64: a plane is 8.8 MB, so chunks are bands of 524 rows (4 MiB) and the

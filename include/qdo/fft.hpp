@@ -126,6 +126,15 @@ class HostPropagator {
   // read (only written).
   virtual void run(cl::Buffer& field, const Tf& tf, const Outputs& out, const IntensityAdjointInput* in) = 0;
   void run(cl::Buffer& field, const Tf& tf, const Outputs& out) { run(field, tf, out, nullptr); }
+  // Forward only, planes [first, first + count) of the planes given at construction, with
+  // `field` holding just those planes (count x M x M complex, plane first + i at complex offset
+  // i * M * M): the streamed PSF of Simulator::set_keep_field(false), which reuses one small field
+  // buffer for all planes. The transfer-function table and the outputs are indexed by the global
+  // plane as in run(); outputs of other planes are left as they are. The same arithmetic as run(),
+  // so each plane's results are bit-identical to it. InputError unless first + count <= planes.
+  virtual void run_planes(cl::Buffer& field, std::size_t first, std::size_t count, const Tf& tf, const Outputs& out) = 0;
+  // How many planes run at once (one per thread): the natural `count` for run_planes.
+  virtual std::size_t threads() const = 0;
 
   std::size_t m() const { return m_; }
   std::size_t n() const { return n_; }

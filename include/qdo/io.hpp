@@ -37,6 +37,12 @@ struct H5Dataset {
   // array the caller keeps alive until h5_write returns, written without a copy.
   const std::vector<double>* view = nullptr;
   const std::vector<double>& values() const { return view ? *view : data; }
+  // When set, the values are f32_count floats at f32_view (a float32 device stack mapped on the
+  // host, say), written as float32 without any conversion or copy; `data` and `view` stay empty
+  // and `float32` must be set. The caller keeps the memory alive until h5_write returns.
+  const float* f32_view = nullptr;
+  std::size_t f32_count = 0;
+  std::size_t size() const { return f32_view ? f32_count : values().size(); }
 };
 
 // True when v holds at most max_distinct distinct values (a quantized height map): such data is

@@ -197,4 +197,34 @@ class Runtime {
 // Human-readable OpenCL error name, e.g. "CL_OUT_OF_RESOURCES (-5)".
 std::string cl_error_name(int code);
 
+// The first `bytes` of a buffer mapped on the host (a blocking map on q) for the object's
+// lifetime, unmapped on destruction, also while an exception unwinds. On CPU devices (PoCL) the
+// map is the buffer's own memory, no copy; elsewhere the driver copies. One thread maps; any
+// number may read a read-only mapping.
+class MappedBuffer {
+ public:
+  MappedBuffer(cl::CommandQueue& q, const cl::Buffer& b, cl_map_flags flags, std::size_t bytes) : q_(q), b_(b) {
+    ptr_ = q_.enqueueMapBuffer(b_, CL_TRUE, flags, 0, bytes);
+  }
+  ~MappedBuffer() {
+    // Must not throw: an unmap that fails here (the queue already broken) is left to the
+    // buffer's release, which ends the mapping.
+    try {
+      q_.enqueueUnmapMemObject(b_, ptr_);
+    } catch (const cl::Error&) {
+    }
+  }
+  MappedBuffer(const MappedBuffer&) = delete;
+  MappedBuffer& operator=(const MappedBuffer&) = delete;
+  template <typename T>
+  T* as() const {
+    return static_cast<T*>(ptr_);
+  }
+
+ private:
+  cl::CommandQueue& q_;
+  cl::Buffer b_;
+  void* ptr_ = nullptr;
+};
+
 }  // namespace qdo

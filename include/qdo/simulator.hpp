@@ -50,6 +50,16 @@ class Simulator {
   // N < M).
   bool uses_host_propagation() const { return host_propagation(true); }
   std::size_t designs() const { return designs_; }
+  // Whether compute_psf() keeps the propagated field (bands x M x M complex) for the adjoints:
+  // on by default. Off, with the host propagation and one design, the field is made and
+  // propagated a few planes at a time (HostPropagator::threads() of them) in one small reused
+  // buffer: the PSF, its sums and the sampling report are bit-identical, the run touches
+  // ~2 x N x M complex values instead of bands x N x M (390 MB at the paper preset, whose first
+  // touch and release cost ~0.2 s in a fresh process), and the adjoints refuse until a
+  // compute_psf() with it on. For commands that need only the PSF (`qdo psf`, `qdo simulate`).
+  // Elsewhere (kernel path, batches) it changes nothing.
+  void set_keep_field(bool keep) { keep_field_ = keep; }
+  bool keep_field() const { return keep_field_; }
 
   const SystemConfig& config() const { return cfg_; }
   Runtime& runtime() const { return rt_; }
@@ -133,6 +143,9 @@ class Simulator {
   // The DOE field into field_; crop_rows: only rows [0, N) are written (enough for the host
   // propagation, which reads nothing else), else the whole M x M window.
   void run_doe_field(bool crop_rows = false);
+  // compute_psf()'s field + propagation + crop without keeping the field (set_keep_field(false)):
+  // planes [b0, b0 + c) at a time through field_ring_ (c x M x M complex, rows [0, N) used).
+  void run_streamed_propagation();
   // In-place propagation of a bands x M x M field over z_m; hinted: the field is zero outside
   // [0, N)^2 and only [0, N)^2 of the result is read (field_plan()). With the host propagation
   // (host_propagation(hinted)) and `intensity`/`crop_sums` given, the crop's |U|² (bands x N x N)
@@ -162,6 +175,8 @@ class Simulator {
   void set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& k_tab, const cl::Buffer& dn_tab, const A3& a3,
                       const A4& a4);
   void require_single_design(const char* what) const;
+  // Error unless compute_psf() ran and kept its field (set_keep_field).
+  void require_adjoint_state() const;
   void normalize_bands(cl::Buffer& x, std::size_t len, cl::Buffer& sums);
   void resample(const cl::Buffer& in, cl::Buffer& out, const cl::Buffer& start, const cl::Buffer& w, std::size_t n_in,
                 std::size_t n_out, std::size_t taps);
@@ -194,6 +209,10 @@ class Simulator {
   std::uint64_t psf_generation_ = 0;
   static constexpr std::size_t kGroupsPerBand = 32;
   bool host_fusion_ = true;
+  bool keep_field_ = true;
+  bool field_streamed_ = false;  // the last compute_psf() streamed its field (field_valid_ false for that reason)
+  cl::Buffer field_ring_;                  // the streamed PSF's field: threads x M x M complex
+  std::vector<cl::Buffer> chunk_k_, chunk_dn_;  // per chunk of the streamed PSF: its planes' k and dn
   std::unique_ptr<HostPropagator> host_prop_;
   std::vector<int> klim_host_;  // klim_ on the host (bands), for the host propagation
 

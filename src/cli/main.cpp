@@ -48,11 +48,33 @@ bool save_native(const Args& a) {
   return native;
 }
 
+// The sensor PSF stack as the writers below take it (bands x S x S, row-major): a host stack of
+// doubles, or the float32 device buffer mapped on the host (no read-back, no conversion).
+struct SensorStack {
+  std::size_t planes = 0, rows = 0, cols = 0;
+  const std::vector<double>* f64 = nullptr;
+  const float* f32 = nullptr;
+  explicit SensorStack(const RealStack& s) : planes(s.planes), rows(s.rows), cols(s.cols), f64(&s.data) {}
+  SensorStack(std::size_t p, std::size_t r, std::size_t c, const float* v) : planes(p), rows(r), cols(c), f32(v) {}
+  // The central crop x crop of every plane (the montage's view), as doubles.
+  RealStack central(std::size_t crop) const {
+    const std::size_t h = std::min(crop, rows), w = std::min(crop, cols), y0 = (rows - h) / 2, x0 = (cols - w) / 2;
+    RealStack out(planes, h, w);
+    for (std::size_t b = 0; b < planes; ++b)
+      for (std::size_t y = 0; y < h; ++y)
+        for (std::size_t x = 0; x < w; ++x) {
+          const std::size_t at = (b * rows + y0 + y) * cols + x0 + x;
+          out(b, y, x) = f32 ? double(f32[at]) : (*f64)[at];
+        }
+    return out;
+  }
+};
+
 // DIR/psf.h5: the sensor PSF stack psf_s (bands x S x S), the native-grid stack when `native`,
 // wavelengths, sampling, heights. The PSF stacks are stored in the run's precision: float32 for
 // an f32 run (exactly the device's values, half the bytes), float64 for f64. Reads the device
 // (call it on the thread that owns the simulator).
-void write_psf_h5(Simulator& sim, const RealStack& psf_s, const Map2D& h, const std::string& dir, const std::string& tag,
+void write_psf_h5(Simulator& sim, const SensorStack& psf_s, const Map2D& h, const std::string& dir, const std::string& tag,
                   bool native, bool compress) {
   const SystemConfig& cfg = sim.config();
   const bool f32 = sim.precision() == Precision::F32;
@@ -65,8 +87,14 @@ void write_psf_h5(Simulator& sim, const RealStack& psf_s, const Map2D& h, const 
   }
   ds.push_back({"/psf_sensor", {psf_s.planes, psf_s.rows, psf_s.cols}, {}, {{"pitch_m", cfg.sensor_pitch_m}},
                 {{"units", "fraction of band energy per sensor pixel"}}});
-  ds.back().view = &psf_s.data;  // written from psf_s itself (the figures read it meanwhile)
-  ds.back().float32 = f32;
+  // Written from psf_s itself (the figures read it meanwhile).
+  if (psf_s.f32) {
+    ds.back().f32_view = psf_s.f32;
+    ds.back().f32_count = psf_s.planes * psf_s.rows * psf_s.cols;
+  } else {
+    ds.back().view = psf_s.f64;
+  }
+  ds.back().float32 = f32 || psf_s.f32;
   ds.back().compress = compress;
   ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});
   std::vector<double> alias, outside;
@@ -85,9 +113,11 @@ void write_psf_h5(Simulator& sim, const RealStack& psf_s, const Map2D& h, const 
 // design.png is a preview at most 512 px per side (every k-th sample, k = ceil(N / 512): every
 // 2nd at N = 1024); the heights themselves are in the HDF5 files. The two figures are drawn on two
 // threads (libpng is reentrant).
-void write_psf_figures(const SystemConfig& cfg, const RealStack& psf_s, const Map2D& h, const std::string& dir) {
+void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const Map2D& h, const std::string& dir) {
   auto montage = std::async(std::launch::async, [&] {
-    write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
+    // The montage shows the central 96 x 96 of each plane: only that part is converted.
+    const RealStack crop = psf_s.central(96);
+    write_montage_png(dir + "/psf.png", crop, cfg.wavelengths_nm(), 0.5, crop.rows);
   });
   const std::size_t k = (std::max(h.rows, h.cols) + 511) / 512;
   try {
@@ -143,33 +173,70 @@ int cmd_psf(const Args& a) {
   (void)save_native(a);  // validated before any work
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision"));
-  const Map2D h = design_heights(cfg, a);
-  const std::string dir = out_dir(a);
+  // The device (context, kernels from the disk cache, FFT plans) starts on a second thread while
+  // this one makes the design's heights and the output folder; an error in those inputs is
+  // reported first (the device's own error only when the inputs are good). Nothing in the
+  // device start touches HDF5, which is not thread-safe here.
+  struct Started {
+    std::unique_ptr<Runtime> rt;
+    std::unique_ptr<Simulator> sim;
+    double device_s = 0, setup_s = 0;
+  };
+  auto starting = std::async(std::launch::async, [&cfg, p, device = a.get("device")] {
+    Started st;
+    const auto t_dev = std::chrono::steady_clock::now();
+    st.rt = std::make_unique<Runtime>(device);
+    st.device_s = seconds_since(t_dev);
+    const auto t0 = std::chrono::steady_clock::now();
+    st.sim = std::make_unique<Simulator>(*st.rt, cfg, p);
+    st.setup_s = seconds_since(t0);
+    return st;
+  });
+  Map2D h;
+  std::string dir;
+  try {
+    h = design_heights(cfg, a);
+    dir = out_dir(a);
+  } catch (...) {
+    starting.wait();
+    throw;
+  }
   const double inputs_s = seconds_since(t_cmd);
-  const auto t_dev = std::chrono::steady_clock::now();
-  Runtime rt(a.get("device"));
-  const double device_s = seconds_since(t_dev);
-  const auto t0 = std::chrono::steady_clock::now();
-  Simulator sim(rt, cfg, p);
-  const double setup_s = seconds_since(t0);
+  Started st = starting.get();
+  Runtime& rt = *st.rt;
+  Simulator& sim = *st.sim;
+  sim.set_keep_field(false);  // no adjoint follows (Simulator::set_keep_field)
   sim.set_heights(h);
   const auto t1 = std::chrono::steady_clock::now();
   sim.compute_psf();
   rt.queue().finish();
   const double psf_seconds = seconds_since(t1);
+  // float32: the files are written from the device buffer mapped on the host (on a CPU device the
+  // buffer itself); float64: read back into a host stack.
   const auto t_read = std::chrono::steady_clock::now();
-  const RealStack psf_s = sim.psf_sensor();
+  const std::size_t s = sim.sensor_size(), count = cfg.bands * s * s;
+  std::unique_ptr<MappedBuffer> mapped;
+  RealStack host;
+  std::unique_ptr<SensorStack> psf_s;
+  if (p == Precision::F32) {
+    mapped = std::make_unique<MappedBuffer>(rt.queue(), sim.psf_sensor_buffer(), CL_MAP_READ, count * sizeof(float));
+    psf_s = std::make_unique<SensorStack>(cfg.bands, s, s, mapped->as<const float>());
+  } else {
+    host = sim.psf_sensor();
+    psf_s = std::make_unique<SensorStack>(host);
+  }
   const double read_s = seconds_since(t_read);
   const auto t_write = std::chrono::steady_clock::now();
-  write_concurrently([&] { write_psf_h5(sim, psf_s, h, dir, a.get("design"), save_native(a), a.has("compress")); },
-                     [&] { write_psf_figures(cfg, psf_s, h, dir); });
+  write_concurrently([&] { write_psf_h5(sim, *psf_s, h, dir, a.get("design"), save_native(a), a.has("compress")); },
+                     [&] { write_psf_figures(cfg, *psf_s, h, dir); });
   const double write_s = seconds_since(t_write);
   std::printf("device: %s (%s)\nPSF stack: %zu bands x %zu x %zu (window %zu), %s, %.3f s (setup %.3f s: kernels %.3f s, FFT plans %.3f s)\n%s\nwrote %s/psf.h5, psf.png, design.png\n",
               rt.info().name.c_str(), rt.info().platform.c_str(), cfg.bands, cfg.n, cfg.n, sim.geometry().m,
-              to_string(p).c_str(), psf_seconds, setup_s, rt.build_seconds(), rt.fft_bake_seconds(), sim.sampling().summary().c_str(),
+              to_string(p).c_str(), psf_seconds, st.setup_s, rt.build_seconds(), rt.fft_bake_seconds(), sim.sampling().summary().c_str(),
               dir.c_str());
-  std::printf("time: inputs %.3f s, device %.3f s, setup %.3f s, PSF %.3f s, read-back %.3f s, files %.3f s; command %.3f s\n",
-              inputs_s, device_s, setup_s, psf_seconds, read_s, write_s, seconds_since(t_cmd));
+  std::printf("time: inputs %.3f s, device %.3f s, setup %.3f s (both on a second thread during the inputs), PSF %.3f s, "
+              "read-back %.3f s, files %.3f s; command %.3f s\n",
+              inputs_s, st.device_s, st.setup_s, psf_seconds, read_s, write_s, seconds_since(t_cmd));
   return 0;
 }
 
@@ -216,6 +283,7 @@ int cmd_simulate(const Args& a) {
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
   Simulator sim(rt, cfg, p);
+  sim.set_keep_field(false);  // no adjoint follows (Simulator::set_keep_field)
   sim.set_heights(h);
   const auto t0 = std::chrono::steady_clock::now();
   sim.compute_psf();
@@ -247,7 +315,7 @@ int cmd_simulate(const Args& a) {
         clip = clip_to_full_scale(rgb, "sensor image");
         const auto t1 = std::chrono::steady_clock::now();
         write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
-        write_psf_h5(sim, psf_s, h, dir, a.get("design"), save_native(a), a.has("compress"));
+        write_psf_h5(sim, SensorStack(psf_s), h, dir, a.get("design"), save_native(a), a.has("compress"));
         write_rgb_png(dir + "/sensor.png", rgb);
         outputs_s = seconds_since(t1);
       },

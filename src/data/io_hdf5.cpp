@@ -152,8 +152,13 @@ void write_chunks_compressed(hid_t dset, const std::string& path, const std::str
       const std::size_t y0 = offsets[c][rank - 2];
       std::fill(raw.begin(), raw.end(), 0);
       for (std::size_t y = 0; y < crow && y0 + y < rows; ++y) {
-        const double* src = d.values().data() + plane_index * plane + (y0 + y) * cols;
+        const std::size_t at = plane_index * plane + (y0 + y) * cols;
         unsigned char* dst = raw.data() + y * cols * elem;
+        if (d.f32_view) {
+          std::memcpy(dst, d.f32_view + at, cols * 4);
+          continue;
+        }
+        const double* src = d.values().data() + at;
         if (d.float32)
           for (std::size_t x = 0; x < cols; ++x) {
             const float f = static_cast<float>(src[x]);
@@ -188,8 +193,10 @@ void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
   const std::string what = "dataset '" + d.name + "'";
   if (d.name.size() < 2 || d.name[0] != '/') fail(path, what, "name must be an absolute path like \"/psf\"");
   std::size_t n = 0;
-  if (!element_count(d.shape, std::numeric_limits<std::size_t>::max(), n) || n != d.values().size())
-    fail(path, what, "shape " + shape_str(d.shape) + " does not match the data size " + std::to_string(d.values().size()));
+  if (!element_count(d.shape, std::numeric_limits<std::size_t>::max(), n) || n != d.size())
+    fail(path, what, "shape " + shape_str(d.shape) + " does not match the data size " + std::to_string(d.size()));
+  if (d.f32_view && (!d.float32 || !d.data.empty() || d.view))
+    fail(path, what, "f32_view needs float32 set and neither data nor view");
   const std::vector<hsize_t> dims(d.shape.begin(), d.shape.end());
   H5Id space(d.shape.empty() ? H5Screate(H5S_SCALAR)
                              : H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr),
@@ -212,7 +219,10 @@ void h5_write_dataset(hid_t file, const std::string& path, const H5Dataset& d) {
             H5Dclose);
   if (!dset.valid()) fail(path, what, "cannot create" + h5_detail());
   if (compress) write_chunks_compressed(dset.get(), path, what, d, chunk);
-  else if (n > 0 && d.float32) {
+  else if (n > 0 && d.f32_view) {
+    if (H5Dwrite(dset.get(), H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, d.f32_view) < 0)
+      fail(path, what, "write failed" + h5_detail());
+  } else if (n > 0 && d.float32) {
     // Converted here (h5_write checked the range): HDF5's own double -> float conversion path is
     // several times slower than this loop. In slabs of whole leading-axis entries through one
     // buffer of at most ~4 MiB: a full-size float copy (32 MB for a paper-preset PSF stack) costs
@@ -384,6 +394,14 @@ bool few_distinct_values(const std::vector<double>& v, std::size_t max_distinct)
 void h5_write(const std::string& path, const std::vector<H5Dataset>& datasets,
               const std::map<std::string, std::string>& root_str_attrs) {
   for (const H5Dataset& d : datasets) {
+    if (d.f32_view) {
+      // Floats are within float32's range by construction; only NaN and Inf are refused.
+      std::size_t bad = 0;
+      for (std::size_t i = 0; i < d.f32_count; ++i) bad += !std::isfinite(d.f32_view[i]);
+      if (bad)
+        throw NumericalError("file '" + path + "': dataset '" + d.name + "': " + std::to_string(bad) + " of " +
+                             std::to_string(d.f32_count) + " values are NaN or Inf; not written");
+    }
     if (const std::size_t bad = count_nonfinite(d.values()))
       throw NumericalError("file '" + path + "': dataset '" + d.name + "': " + std::to_string(bad) + " of " +
                            std::to_string(d.values().size()) + " values are NaN or Inf; not written");

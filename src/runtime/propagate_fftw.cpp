@@ -26,6 +26,7 @@
 
 #include "qdo/error.hpp"
 #include "qdo/fft.hpp"
+#include "qdo/runtime.hpp"
 #include "runtime/fftw_internal.hpp"
 
 namespace qdo {
@@ -38,33 +39,7 @@ using fftw_detail::planner_mutex;
 // float32) and a gathered row segment is one 64-byte cache line in float32.
 constexpr std::size_t kBlock = 8;
 
-// A buffer mapped for the lifetime of the object (PoCL maps CPU buffers without copying);
-// unmapped on destruction, also when the propagation throws.
-class Mapping {
- public:
-  Mapping(cl::CommandQueue& q, const cl::Buffer& b, cl_map_flags flags, std::size_t bytes) : q_(q), b_(b) {
-    ptr_ = q_.enqueueMapBuffer(b_, CL_TRUE, flags, 0, bytes);
-  }
-  ~Mapping() {
-    // A destructor may run while an exception unwinds, so it must not throw: an unmap that fails
-    // here (the queue already broken) is left to the buffer's release, which ends the mapping.
-    try {
-      q_.enqueueUnmapMemObject(b_, ptr_);
-    } catch (const cl::Error&) {
-    }
-  }
-  Mapping(const Mapping&) = delete;
-  Mapping& operator=(const Mapping&) = delete;
-  template <typename T>
-  T* as() const {
-    return static_cast<T*>(ptr_);
-  }
-
- private:
-  cl::CommandQueue& q_;
-  cl::Buffer b_;
-  void* ptr_ = nullptr;
-};
+using Mapping = MappedBuffer;
 
 template <typename R>
 class FftwPropagator final : public HostPropagator {
@@ -96,12 +71,26 @@ class FftwPropagator final : public HostPropagator {
   }
 
   void run(cl::Buffer& field, const Tf& tf, const Outputs& out, const IntensityAdjointInput* in) override {
+    run_range(field, 0, planes_, tf, out, in);
+  }
+  void run_planes(cl::Buffer& field, std::size_t first, std::size_t count, const Tf& tf, const Outputs& out) override {
+    if (count < 1 || first >= planes_ || count > planes_ - first)
+      reject("first/count", std::to_string(first) + "/" + std::to_string(count),
+             "count >= 1 and first + count <= " + std::to_string(planes_) + " planes");
+    run_range(field, first, count, tf, out, nullptr);
+  }
+  std::size_t threads() const override { return threads_; }
+
+ private:
+  // Planes [first, first + count); `field` (and in->u) hold those planes only, from plane `first`.
+  void run_range(cl::Buffer& field, std::size_t first, std::size_t count, const Tf& tf, const Outputs& out,
+                 const IntensityAdjointInput* in) {
     const std::size_t m = m_, n = n_, planes = planes_, rs = sizeof(R);
     if (!tf.table) reject("tf.table", "null", "a transfer-function buffer");
     if (out.energy3 && !out.klim) reject("out.klim", "null", "a planes-long limit table when energy3 is asked for");
     if ((out.intensity == nullptr) != (out.crop_sums == nullptr))
       reject("out.intensity/out.crop_sums", "one of the two", "both or neither");
-    const std::size_t field_bytes = planes * m * m * 2 * rs, tf_bytes = (tf.separable ? planes * m : planes * m * m) * 2 * rs;
+    const std::size_t field_bytes = count * m * m * 2 * rs, tf_bytes = (tf.separable ? planes * m : planes * m * m) * 2 * rs;
     check_size("field", field, field_bytes);
     check_size("tf.table", *tf.table, tf_bytes);
     if (out.energy3) check_size("out.energy3", *out.energy3, planes * 3 * rs);
@@ -133,6 +122,7 @@ class FftwPropagator final : public HostPropagator {
       ms = std::make_unique<Mapping>(q, *out.crop_sums, CL_MAP_WRITE, planes * rs);
     }
     Plane job;
+    job.first = first;
     job.field = mf.as<C>();
     job.tf = mt.as<const C>();
     job.separable = tf.separable;
@@ -158,20 +148,21 @@ class FftwPropagator final : public HostPropagator {
       }
     }
 
-    std::atomic<std::size_t> next{0};
+    std::atomic<std::size_t> next{first};
+    const std::size_t end = first + count, workers = std::min(threads_, count);
     // Per-thread scratch allocated here, so that nothing in the worker threads can throw.
-    std::vector<std::vector<R>> resampled(threads_, std::vector<R>(in ? in->s : 0));
+    std::vector<std::vector<R>> resampled(workers, std::vector<R>(in ? in->s : 0));
     auto work = [&](std::size_t t) {
-      for (std::size_t b = next++; b < planes; b = next++) plane(job, b, own_.rows[t], own_.cols[t], resampled[t].data());
+      for (std::size_t b = next++; b < end; b = next++) plane(job, b, own_.rows[t], own_.cols[t], resampled[t].data());
     };
     std::vector<std::thread> pool;
-    for (std::size_t t = 1; t < threads_; ++t) pool.emplace_back(work, t);
+    for (std::size_t t = 1; t < workers; ++t) pool.emplace_back(work, t);
     work(0);
     for (auto& th : pool) th.join();
   }
 
- private:
   struct Plane {
+    std::size_t first = 0;  // the global plane held at field (and u) offset 0
     C* field = nullptr;
     const C* tf = nullptr;
     bool separable = true;
@@ -219,7 +210,7 @@ class FftwPropagator final : public HostPropagator {
       const R* gr = g + std::size_t(clamp(std::ptrdiff_t(job.start[y]) + std::ptrdiff_t(ty))) * s;
       for (std::size_t x = 0; x < s; ++x) r[x] += wy * (na * gr[x] + nc);
     }
-    const C* u = job.u + b * m * m + y * m;
+    const C* u = job.u + (b - job.first) * m * m + y * m;
     for (std::size_t x = 0; x < n; ++x) {
       R acc = 0;
       for (std::size_t tx = 0; tx < taps; ++tx)
@@ -251,7 +242,7 @@ class FftwPropagator final : public HostPropagator {
   void plane(const Plane& job, std::size_t b, C* row, C* cols, R* resampled) const {
     const std::size_t m = m_, n = n_;
     const std::ptrdiff_t half = std::ptrdiff_t(m + 1) / 2;
-    C* const P = job.field + b * m * m;
+    C* const P = job.field + (b - job.first) * m * m;
     const C* const T = job.tf + (job.separable ? b * m : b * m * m);
     // 1. Data rows, forward.
     R na = 1, nc = 0;
