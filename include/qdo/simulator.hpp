@@ -213,6 +213,7 @@ class Simulator {
   bool field_streamed_ = false;  // the last compute_psf() streamed its field (field_valid_ false for that reason)
   cl::Buffer field_ring_;                  // the streamed PSF's field: threads x M x M complex
   std::vector<cl::Buffer> chunk_k_, chunk_dn_;  // per chunk of the streamed PSF: its planes' k and dn
+  std::size_t chunk_planes_ = 0;                // the planes per chunk those tables were made for
   std::unique_ptr<HostPropagator> host_prop_;
   std::vector<int> klim_host_;  // klim_ on the host (bands), for the host propagation
 

@@ -467,14 +467,24 @@ void Simulator::run_streamed_propagation() {
   HostPropagator& hp = host_propagator();
   const std::size_t m = geom_.m, n = cfg_.n, bands = nb_, threads = std::max<std::size_t>(1, hp.threads());
   // Planes per chunk: a multiple of the threads, at least kMinChunk: each chunk costs a field
-  // launch and a hand-over between PoCL's threads and the propagation's (measured at the paper
-  // preset on 2 cores: chunks of 2 planes 0.88 s, 4 planes 0.77 s, 8 planes 0.71 s, one chunk of
-  // all 31 0.74 s; fresh processes, medians of 6).
+  // launch and a hand-over between PoCL's threads and the propagation's (BENCHMARKS "CPU speed":
+  // at the paper preset on 2 cores, 8 planes beat 2 and 4 and one chunk of all 31). The
+  // environment variable QDO_STREAM_BANDS (an integer >= 1) overrides it, for such measurements.
   constexpr std::size_t kMinChunk = 8;
-  const std::size_t chunk = std::min(bands, threads * ((kMinChunk + threads - 1) / threads));
+  std::size_t chunk = threads * ((kMinChunk + threads - 1) / threads);
+  if (const char* e = std::getenv("QDO_STREAM_BANDS"); e && *e) {
+    char* end = nullptr;
+    const long v = std::strtol(e, &end, 10);
+    if (*end != '\0' || v < 1) reject("QDO_STREAM_BANDS", e, "an integer >= 1 (bands per streamed chunk)");
+    chunk = std::size_t(v);
+  }
+  chunk = std::min(bands, chunk);
   const std::size_t chunks = (bands + chunk - 1) / chunk;
-  if (!field_ring_()) field_ring_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, chunk * m * m * 2 * rsz_);
-  if (chunk_k_.size() != chunks) {
+  const std::size_t ring_bytes = chunk * m * m * 2 * rsz_;
+  if (!field_ring_() || field_ring_.getInfo<CL_MEM_SIZE>() < ring_bytes)
+    field_ring_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, ring_bytes);
+  if (chunk_k_.size() != chunks || chunk_planes_ != chunk) {
+    chunk_planes_ = chunk;
     // Each chunk's k and dn as their own small tables, so doe_field writes just those planes
     // (a sub-buffer would need an aligned origin).
     const auto kk = wavenumber_per_band(cfg_), dd = delta_n_per_band(cfg_);
