@@ -424,28 +424,27 @@ void Simulator::compute_psf() {
   StageTimer stage(rt_.queue(), "compute_psf");
   const bool host = host_propagation(true);
   const bool streamed = host && !keep_field_ && designs_ == 1;
-  if (streamed) {
-    run_streamed_propagation();
-    stage("field+propagation+crop (streamed)");
-  } else {
-    run_doe_field(host);
-    stage("field");
-  }
   // Intensity of the N x N crop and its per-band sums (fused into the host propagation, else one
   // kernel pass). The native stack stays unnormalised (normalising it before the linear area
   // resampling would not change the normalised sensor stack); psf_native() and the adjoints
   // normalise it when they need it.
   if (streamed) {
-  } else if (run_propagation(field_, cfg_.sensor_distance_m, true, true, &psf_, &sums_crop_)) {
-    stage("propagation+crop");
+    run_streamed_propagation();  // field, propagation and crop a chunk of planes at a time
+    stage("field+propagation+crop (streamed)");
   } else {
-    stage("propagation");
-    set_args(k_crop_sums_, prec_, field_, psf_, int(n), int(m), int(kFieldOffset), partial_, int(kGroupsPerBand),
-             cl::Local(Runtime::kLocalSize * rsz_));
-    rt_.queue().enqueueNDRangeKernel(k_crop_sums_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
-                                     cl::NDRange(Runtime::kLocalSize, 1));
-    rt_.launch_1d(k_finalize_, bands, prec_, partial_, sums_crop_, int(kGroupsPerBand), int(bands));
-    stage("crop");
+    run_doe_field(host);
+    stage("field");
+    if (run_propagation(field_, cfg_.sensor_distance_m, true, true, &psf_, &sums_crop_)) {
+      stage("propagation+crop");
+    } else {
+      stage("propagation");
+      set_args(k_crop_sums_, prec_, field_, psf_, int(n), int(m), int(kFieldOffset), partial_, int(kGroupsPerBand),
+               cl::Local(Runtime::kLocalSize * rsz_));
+      rt_.queue().enqueueNDRangeKernel(k_crop_sums_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
+                                       cl::NDRange(Runtime::kLocalSize, 1));
+      rt_.launch_1d(k_finalize_, bands, prec_, partial_, sums_crop_, int(kGroupsPerBand), int(bands));
+      stage("crop");
+    }
   }
   native_normalized_ = false;
   resample(psf_, psf_s_, wstart_, wts_, n, s_, weights_.taps);
@@ -554,10 +553,10 @@ RealStack Simulator::psf_sensor() const {
 }
 
 void Simulator::require_adjoint_state() const {
-  if (!psf_valid_ || (!field_valid_ && !field_streamed_)) throw Error("Simulator: compute_psf() must run before an adjoint");
-  if (!field_valid_ && field_streamed_)
+  if (psf_valid_ && !field_valid_ && field_streamed_)
     throw Error("Simulator: the adjoints need the propagated field, which the last compute_psf() did not keep "
                 "(set_keep_field(false)); call set_keep_field(true) and compute_psf() again");
+  if (!psf_valid_ || !field_valid_) throw Error("Simulator: compute_psf() must run before an adjoint");
 }
 
 void Simulator::require_single_design(const char* what) const {
