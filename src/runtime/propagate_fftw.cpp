@@ -39,8 +39,6 @@ using fftw_detail::planner_mutex;
 // float32) and a gathered row segment is one 64-byte cache line in float32.
 constexpr std::size_t kBlock = 8;
 
-using Mapping = MappedBuffer;
-
 template <typename R>
 class FftwPropagator final : public HostPropagator {
   using F = Fftw<R>;
@@ -113,13 +111,13 @@ class FftwPropagator final : public HostPropagator {
       w_in.assign(in->w, in->w + n * in->taps);
     }
     auto& q = rt_.queue();
-    const Mapping mf(q, field, CL_MAP_READ | CL_MAP_WRITE, field_bytes);
-    const Mapping mt(q, *tf.table, CL_MAP_READ, tf_bytes);
-    std::unique_ptr<Mapping> me, mi, ms;
-    if (out.energy3) me = std::make_unique<Mapping>(q, *out.energy3, CL_MAP_WRITE, planes * 3 * rs);
+    const MappedBuffer mf(q, field, CL_MAP_READ | CL_MAP_WRITE, field_bytes);
+    const MappedBuffer mt(q, *tf.table, CL_MAP_READ, tf_bytes);
+    std::unique_ptr<MappedBuffer> me, mi, ms;
+    if (out.energy3) me = std::make_unique<MappedBuffer>(q, *out.energy3, CL_MAP_WRITE, planes * 3 * rs);
     if (out.intensity) {
-      mi = std::make_unique<Mapping>(q, *out.intensity, CL_MAP_WRITE, planes * n * n * rs);
-      ms = std::make_unique<Mapping>(q, *out.crop_sums, CL_MAP_WRITE, planes * rs);
+      mi = std::make_unique<MappedBuffer>(q, *out.intensity, CL_MAP_WRITE, planes * n * n * rs);
+      ms = std::make_unique<MappedBuffer>(q, *out.crop_sums, CL_MAP_WRITE, planes * rs);
     }
     Plane job;
     job.first = first;
@@ -130,10 +128,10 @@ class FftwPropagator final : public HostPropagator {
     job.energy3 = me ? me->as<R>() : nullptr;
     job.intensity = mi ? mi->as<R>() : nullptr;
     job.crop_sums = ms ? ms->as<R>() : nullptr;
-    std::unique_ptr<Mapping> mg, mu, my, mss;
+    std::unique_ptr<MappedBuffer> mg, mu, my, mss;
     if (in) {
-      mg = std::make_unique<Mapping>(q, *in->g_sensor, CL_MAP_READ, planes * in->s * in->s * rs);
-      mu = std::make_unique<Mapping>(q, *in->u, CL_MAP_READ, field_bytes);
+      mg = std::make_unique<MappedBuffer>(q, *in->g_sensor, CL_MAP_READ, planes * in->s * in->s * rs);
+      mu = std::make_unique<MappedBuffer>(q, *in->u, CL_MAP_READ, field_bytes);
       job.g = mg->as<const R>();
       job.u = mu->as<const C>();
       job.s = in->s;
@@ -141,8 +139,8 @@ class FftwPropagator final : public HostPropagator {
       job.start = in->start;
       job.w = w_in.data();
       if (in->y_sensor) {
-        my = std::make_unique<Mapping>(q, *in->y_sensor, CL_MAP_READ, planes * in->s * in->s * rs);
-        mss = std::make_unique<Mapping>(q, *in->sensor_sums, CL_MAP_READ, planes * rs);
+        my = std::make_unique<MappedBuffer>(q, *in->y_sensor, CL_MAP_READ, planes * in->s * in->s * rs);
+        mss = std::make_unique<MappedBuffer>(q, *in->sensor_sums, CL_MAP_READ, planes * rs);
         job.y = my->as<const R>();
         job.sums = mss->as<const R>();
       }
