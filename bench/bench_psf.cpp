@@ -448,46 +448,39 @@ int main(int argc, char** argv) {
           // FFT plan plus the transfer-function, crop and adjoint kernels, the path of every
           // other backend; same heights, same gradient, same run.
           if (sim.uses_host_propagation()) {
+            // The forward timed under one setting, with its error against the reference.
+            const auto forward_row = [&](const std::string& what) {
+              Row r;
+              r.n = n;
+              r.m = m;
+              r.bands = bands;
+              r.path = "OpenCL " + ps + " compute_psf, " + what;
+              r.t = time_it(opt.warmup, opt.repeats, forward);
+              if (ref_psf) {
+                const ErrStats e = compare(sim.psf_native().data, ref_psf->data);
+                r.rel_l2 = fmt("%.2e", e.rel_l2);
+                r.max_err = fmt("%.2e", e.max_abs_rel);
+              }
+              r.ratio_to_floor = true;
+              std::cerr << "N = " << n << " OpenCL " << ps << " " << what << ": " << fmt("%.1f ms", r.t->median * 1e3) << "\n";
+              return r;
+            };
             sim.set_host_fusion(false);
-            Row off;
-            off.n = n;
-            off.m = m;
-            off.bands = bands;
-            off.path = "OpenCL " + ps + " compute_psf, host fusion off (pruned FFT plan + kernels)";
-            off.t = time_it(opt.warmup, opt.repeats, forward);
-            if (ref_psf) {
-              const ErrStats e = compare(sim.psf_native().data, ref_psf->data);
-              off.rel_l2 = fmt("%.2e", e.rel_l2);
-              off.max_err = fmt("%.2e", e.max_abs_rel);
-            }
+            const Row off = forward_row("host fusion off (pruned FFT plan + kernels)");
             Row off_adj = off;
             off_adj.rel_l2 = off_adj.max_err = "";
+            off_adj.ratio_to_floor = false;
             off_adj.path = "OpenCL " + ps + " compute_psf + psf_sensor_vjp, host fusion off";
             off_adj.t = time_it(opt.warmup, opt.repeats, forward_adjoint);
             off_adj.floor_ratio = fmt("%.2f x fwd", off_adj.t->median / off.t->median);
-            off.ratio_to_floor = true;
             extra_rows.push_back(off);
             extra_rows.push_back(off_adj);
             sim.set_host_fusion(true);
-            std::cerr << "N = " << n << " OpenCL " << ps << " host fusion off: " << fmt("%.1f ms", off.t->median * 1e3) << "\n";
             // 1c. The field not kept (Simulator::set_keep_field(false), as `qdo psf` runs it):
             // field and propagation streamed a few planes at a time through one small buffer.
             sim.set_keep_field(false);
-            Row st;
-            st.n = n;
-            st.m = m;
-            st.bands = bands;
-            st.path = "OpenCL " + ps + " compute_psf, field not kept (streamed; `qdo psf`)";
-            st.t = time_it(opt.warmup, opt.repeats, forward);
-            if (ref_psf) {
-              const ErrStats e = compare(sim.psf_native().data, ref_psf->data);
-              st.rel_l2 = fmt("%.2e", e.rel_l2);
-              st.max_err = fmt("%.2e", e.max_abs_rel);
-            }
-            st.ratio_to_floor = true;
-            extra_rows.push_back(st);
+            extra_rows.push_back(forward_row("field not kept (streamed; `qdo psf`)"));
             sim.set_keep_field(true);
-            std::cerr << "N = " << n << " OpenCL " << ps << " streamed: " << fmt("%.1f ms", st.t->median * 1e3) << "\n";
           }
         }
         // 2. (b) The transforms compute_psf runs: its own plan (backend and hint), on a device buffer.
