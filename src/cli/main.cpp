@@ -117,7 +117,7 @@ void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const 
   auto montage = std::async(std::launch::async, [&] {
     // The montage shows the central 96 x 96 of each plane: only that part is converted.
     const RealStack crop = psf_s.central(96);
-    write_montage_png(dir + "/psf.png", crop, cfg.wavelengths_nm(), 0.5, crop.rows);
+    write_montage_png(dir + "/psf.png", crop, cfg.wavelengths_nm(), 0.5, 0);  // 0: the whole (cropped) stack
   });
   const std::size_t k = (std::max(h.rows, h.cols) + 511) / 512;
   try {
