@@ -170,10 +170,11 @@ class Simulator {
   void run_sensor(const cl::Buffer& in, cl::Buffer& out, std::size_t hw, std::size_t scenes);
   // Sets the arguments doe_field, doe_field_p64 and phase_vjp share: (height, k_tab, dn_tab,
   // a3, a4, n, m, offset, bands, pitch, distance (<= 0: plane wave), aperture radius^2), the
-  // scalars in precision p.
+  // scalars in precision p; bands = `planes`, or all planes (nb_) when 0 (the streamed PSF passes
+  // its chunk's planes).
   template <typename A3, typename A4>
   void set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& k_tab, const cl::Buffer& dn_tab, const A3& a3,
-                      const A4& a4);
+                      const A4& a4, std::size_t planes = 0);
   void require_single_design(const char* what) const;
   // Error unless compute_psf() ran and kept its field (set_keep_field).
   void require_adjoint_state() const;

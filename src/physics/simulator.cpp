@@ -296,10 +296,10 @@ Map2D Simulator::heights() const {
 
 template <typename A3, typename A4>
 void Simulator::set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& k_tab, const cl::Buffer& dn_tab,
-                               const A3& a3, const A4& a4) {
+                               const A3& a3, const A4& a4, std::size_t planes) {
   const double r_ap2_px = cfg_.aperture_inside_px2();  // as ref::doe_field: half an integer, exact in float
   const double d = cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m;
-  set_args(k, p, heights_, k_tab, dn_tab, a3, a4, int(cfg_.n), int(geom_.m), int(kFieldOffset), int(nb_),
+  set_args(k, p, heights_, k_tab, dn_tab, a3, a4, int(cfg_.n), int(geom_.m), int(kFieldOffset), int(planes ? planes : nb_),
            Real{cfg_.pitch_m}, Real{d}, Real{r_ap2_px});
 }
 
@@ -497,8 +497,6 @@ void Simulator::run_streamed_propagation() {
       chunk_dn_.push_back(phase_fp64_ ? upload(d1) : upload_real(d1));
     }
   }
-  const double r_ap2_px = cfg_.aperture_inside_px2();
-  const double d = cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m;
   const Precision pp = phase_fp64_ ? Precision::F64 : prec_;  // doe_field_p64 takes its scalars in double
   const std::size_t cols = std::min(Runtime::global_for(n), Runtime::global_for(m));
   const cl::Buffer tf = tf_for(cfg_.sensor_distance_m);
@@ -511,8 +509,7 @@ void Simulator::run_streamed_propagation() {
     const std::size_t b0 = i * chunk, c = std::min(chunk, bands - b0);
     // doe_field over c planes of one design (bands_per_design = bands = c), rows [0, N) only, as
     // run_doe_field(true).
-    set_args(k_field_, pp, heights_, chunk_k_[i], chunk_dn_[i], field_ring_, int(c), int(n), int(m), int(kFieldOffset),
-             int(c), Real{cfg_.pitch_m}, Real{d}, Real{r_ap2_px});
+    set_phase_args(k_field_, pp, chunk_k_[i], chunk_dn_[i], field_ring_, int(c), c);
     rt_.queue().enqueueNDRangeKernel(k_field_, cl::NullRange, cl::NDRange(cols, n, 1), cl::NDRange(Runtime::kLocalSize, 1, 1));
     hp.run_planes(field_ring_, b0, c, HostPropagator::Tf{&tf, cfg_.propagator == Propagator::Fresnel}, out);
   }
