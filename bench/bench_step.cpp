@@ -19,6 +19,7 @@
 #include "qdo/adjoint.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/design.hpp"
+#include "qdo/simulator.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/wiener.hpp"
 #include "qdo/wiener_device.hpp"

@@ -48,7 +48,7 @@ TEST_SUITE("cli") {
     CAPTURE(r.out);
     REQUIRE(r.code == 0);
     CHECK(r.out.find("sampling:") != std::string::npos);
-    const H5Dataset psf = h5_read((dir / "psf.h5").string(), "/psf");
+    const H5Dataset psf = h5_read((dir / "psf.h5").string(), "/psf_native");
     REQUIRE(psf.shape == std::vector<std::size_t>{31, 256, 256});
     for (std::size_t b = 0; b < 31; ++b) {
       double s = 0;
@@ -93,14 +93,14 @@ TEST_SUITE("cli") {
     // the native-grid stack, which --save native adds; an unknown --save value is exit 2.
     const std::string psf = (dir / "psf.h5").string();
     CHECK(h5_has(psf, "/psf_sensor"));
-    CHECK_FALSE(h5_has(psf, "/psf"));
+    CHECK_FALSE(h5_has(psf, "/psf_native"));
     const auto lean = std::filesystem::file_size(psf);
     const auto dir2 = temp_dir("cli_sim_native");
     const Run n = qdo_run("simulate --preset small --design lens:550 --scene builtin --save native --out " + dir2.string());
     REQUIRE(n.code == 0);
     const std::string psf2 = (dir2 / "psf.h5").string();
-    REQUIRE(h5_has(psf2, "/psf"));
-    const H5Dataset native = h5_read(psf2, "/psf");
+    REQUIRE(h5_has(psf2, "/psf_native"));
+    const H5Dataset native = h5_read(psf2, "/psf_native");
     CHECK(native.shape == std::vector<std::size_t>{31, 256, 256});
     // float32 storage: 4 bytes per value of both stacks (plus small datasets and metadata).
     const auto full = std::filesystem::file_size(psf2);

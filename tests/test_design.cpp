@@ -8,6 +8,7 @@
 #include "qdo/adjoint.hpp"
 #include "qdo/design.hpp"
 #include "qdo/error.hpp"
+#include "qdo/simulator.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/wiener.hpp"
 #include "qdo/wiener_device.hpp"

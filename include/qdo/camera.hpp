@@ -49,12 +49,11 @@
 #include <vector>
 
 #include "qdo/config.hpp"
+#include "qdo/psf_source.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
 
 namespace qdo {
-
-class Simulator;
 
 enum class TileMode { Off, On, Auto };
 TileMode tile_mode_from_string(const std::string& s);  // "off", "on", "auto"; InputError otherwise
@@ -107,10 +106,11 @@ struct SkipReport {
 
 class Camera {
  public:
-  // Follows `sim`'s current sensor PSF (Simulator::psf_sensor_buffer(), rebuilt when
-  // psf_generation() changes); configuration, precision and response are the simulator's.
-  // `sim` must outlive the imager.
-  explicit Camera(Simulator& sim);
+  // Follows `source`'s current sensor PSF stack (PsfSource::psf_sensor_buffer(), the OTFs rebuilt
+  // when psf_generation() changes): a Simulator, the radial engine, a PSF file
+  // (StackPsfSource)... Configuration, precision and runtime are the source's; it must have one
+  // design (psf_planes() == bands) and outlive the camera.
+  explicit Camera(const PsfSource& source);
   // Standalone: the PSF comes from set_psf() (tests, tools with a PSF from elsewhere).
   Camera(Runtime& rt, const SystemConfig& cfg, Precision p);
 
@@ -151,6 +151,16 @@ class Camera {
 
  private:
   void init();
+  // What images() decides on the host before any device work: the kept bands, the crop radius r,
+  // the FFT grid gy x gx of one window of th x tw pixels, the tile grid nty x ntx per scene and the
+  // skipped tiles (scenes x nty x ntx, 1 = skipped); report_ is filled with it.
+  struct Plan {
+    std::vector<std::size_t> kept;
+    std::size_t r = 0, gy = 0, gx = 0, th = 0, tw = 0, nty = 1, ntx = 1;
+    bool tiled = false;
+    std::vector<std::uint8_t> tile_skip;
+  };
+  Plan plan_images(const std::vector<RealStack>& cubes, const SkipOptions& opt);
   // Shape, band-count and finiteness checks of a batch (InputError naming the scene and pixel);
   // also refuses non-7-smooth sizes in circular mode and a missing PSF.
   void check_batch(const std::vector<RealStack>& cubes) const;
@@ -164,7 +174,7 @@ class Camera {
   std::uint64_t current_generation() const;
 
   Runtime& rt_;
-  Simulator* sim_ = nullptr;
+  const PsfSource* source_ = nullptr;
   SystemConfig cfg_;
   Precision prec_;
   std::size_t s_ = 0, rsz_ = 4;

@@ -1,7 +1,8 @@
 // Host-side design optimisation: Adam over the DOE parameters (and the adaptive level offsets),
 // with the quantization modes of REFERENCE §2, driven by any differentiable objective of the
-// sensor PSF stack. Gradients come from Simulator::psf_sensor_vjp (OpenCL adjoint) and the
-// host adjoints of the quantizer and the parameterization (qdo/adjoint.hpp).
+// sensor PSF stack. The PSF comes from a HeightMapPsfSource (psf_source.hpp: the Simulator's 2-D
+// path) or, for radial designs, the radial engine; gradients from the source's psf_sensor_vjp
+// (OpenCL adjoint) and the host adjoints of the quantizer and the parameterization (qdo/adjoint.hpp).
 #pragma once
 #include <cstdint>
 #include <functional>
@@ -11,7 +12,7 @@
 
 #include "qdo/doe.hpp"
 #include "qdo/radial.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/psf_source.hpp"
 
 namespace qdo {
 
@@ -28,7 +29,7 @@ enum class DesignMode { Full, DO, QDO, STE, QDOA, QDOM };
 DesignMode design_mode_from_string(const std::string& s);
 std::string to_string(DesignMode m);
 
-// Which PSF engine Designer::gradient uses. twod: the Simulator's 2-D FFT path on the N x N pixel map.
+// Which PSF engine Designer::gradient uses. twod: the 2-D source (the Simulator's FFT path) on the N x N pixel map.
 // radial: the rotationally symmetric engine (qdo/radial.hpp) on the N/2 ring heights, no 2-D FFT;
 // only for Parameterization::Radial. auto: radial when the parameterization is radial, else 2-D.
 // The radial path feeds the engine the per-ring values of the same blended/quantized N x N map and
@@ -91,8 +92,8 @@ std::vector<double> subset_sum_levels(const std::vector<double>& depths, int lev
 
 // Objective: given the sensor PSF stack (bands x S x S), return the loss and write dL/dpsf.
 using PsfObjective = std::function<double(const RealStack& psf_sensor, RealStack& grad)>;
-// The same on the device: psf_sensor is Simulator::psf_sensor_buffer() (bands x S x S reals of the
-// simulator's precision, row-major); dL/dpsf is written into grad (same shape, layout and
+// The same on the device: psf_sensor is PsfSource::psf_sensor_buffer() (bands x S x S reals of the
+// source's precision, row-major); dL/dpsf is written into grad (same shape, layout and
 // precision). Returns the loss. Keeps the PSF and its gradient off the host (wiener::DeviceObjective).
 using DevicePsfObjective = std::function<double(const cl::Buffer& psf_sensor, cl::Buffer& grad)>;
 
@@ -103,7 +104,9 @@ struct StepReport {
 
 class Designer {
  public:
-  Designer(Simulator& sim, const DesignOptions& opt);
+  // `psf` (the 2-D path; its runtime, configuration and precision also build the radial engine) must
+  // outlive the designer.
+  Designer(HeightMapPsfSource& psf, const DesignOptions& opt);
   // A fresh state: w from an initial height map's parameters (metres), offsets zero.
   DesignState initial_state(const std::vector<double>& params_m) const;
   // Loss and gradients at the state (forward on the device, adjoint on the device, host adjoints
@@ -130,12 +133,12 @@ class Designer {
   double alpha_at(long step) const;
   // Whether gradient() runs the radial engine (psf_path radial, or auto with a radial parameterization).
   bool uses_radial() const;
-  // The radial engine (built on first use, on the Simulator's runtime and precision); nullptr on the
+  // The radial engine (built on first use, on the 2-D source's runtime and precision); nullptr on the
   // 2-D path.
   RadialEngine* radial_engine();
 
  private:
-  Simulator& sim_;
+  HeightMapPsfSource& sim_;
   DesignOptions opt_;
   double h_max_;
   std::unique_ptr<RadialEngine> radial_;

@@ -1,6 +1,7 @@
 // Files in and out. The HDF5 layout is a contract (docs/formats.md):
 //   designs       /height_m        (N x N, float64, attribute pitch_m)  [+ optional /levels_m]
-//   PSF stacks    /psf             (bands x N x N, float64) + /wavelengths_nm (bands)
+//   PSF stacks    /psf_sensor      (bands x S x S on the sensor grid, attribute pitch_m) + /wavelengths_nm
+//                 (bands); `qdo psf --native` adds /psf_native (bands x N x N on the DOE grid)
 //   cubes         /cube            (bands x H x W, float64 in [0,1]) + /wavelengths_nm
 //   sensor images /rgb             (3 x H x W, float64)
 // Every writer writes to "<path>.tmp-<pid>" and renames, so a failure never leaves a
@@ -75,8 +76,23 @@ void write_design(const std::string& path, const Design& d,
                   const std::map<std::string, std::string>& provenance = {});
 Design read_design(const std::string& path);   // checks square, finite, pitch_m > 0
 
+// A sensor-grid PSF stack (planes x S x S) as /psf_sensor with its pitch, and /wavelengths_nm: the
+// layout `qdo psf` writes and read_psf_stack_file reads.
 void write_psf(const std::string& path, const RealStack& psf, const std::vector<double>& wavelengths_nm,
                double pitch_m, const std::map<std::string, double>& extra_num_attrs = {});
+// A sensor-grid PSF stack file (`qdo psf`, `qdo simulate`, a run folder's psf.h5): /psf_sensor
+// (planes x S x S, attribute pitch_m) and /wavelengths_nm (planes). Files from before the name
+// was unified hold the stack as /psf (a run folder's psf.h5); it is read when /psf_sensor is
+// absent. Checked: rank 3 with square planes, finite values, a finite pitch_m > 0, one finite
+// wavelength per plane. An InputError naming the file and the dataset otherwise. The caller checks
+// it against a configuration (psf_source.hpp: psf_source_from_file).
+struct PsfStackFile {
+  RealStack psf_sensor;                // planes x S x S
+  std::vector<double> wavelengths_nm;  // planes
+  double pitch_m = 0;                  // sensor pixel pitch of the stack, metres
+  std::string dataset;                 // the dataset read: "/psf_sensor" or "/psf"
+};
+PsfStackFile read_psf_stack_file(const std::string& path);
 void write_cube(const std::string& path, const RealStack& cube, const std::vector<double>& wavelengths_nm);
 // rgb: 3 x H x W as /rgb, with numeric attributes (e.g. clipped_fraction).
 void write_rgb(const std::string& path, const RealStack& rgb, const std::map<std::string, double>& attrs = {});

@@ -45,12 +45,14 @@
 
 #include <chrono>
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "qdo/config.hpp"
 #include "qdo/optics.hpp"
+#include "qdo/psf_source.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
 
@@ -116,8 +118,9 @@ std::vector<double> ring_heights_of_map(const Map2D& h);
 Map2D spread_ring_gradient(const std::vector<double>& g_ring, std::size_t n);
 
 // The OpenCL engine. One per (configuration, precision, options); tables built once and kept on the
-// device. Buffers persist between calls; forward then adjoint reuse the forward state.
-class RadialEngine {
+// device. Buffers persist between calls; forward then adjoint reuse the forward state. A PsfSource
+// (psf_source.hpp) whose parameters are the N/2 ring heights (metres, from the centre out).
+class RadialEngine final : public PsfSource {
  public:
   RadialEngine(Runtime& rt, const SystemConfig& cfg, Precision p, const RadialOptions& opt = {});
   ~RadialEngine();
@@ -125,20 +128,28 @@ class RadialEngine {
   RadialEngine& operator=(const RadialEngine&) = delete;
 
   const RadialTables& tables() const { return *tab_; }
-  Precision precision() const { return prec_; }
-  std::size_t sensor_size() const { return tab_->s; }
+  Runtime& runtime() const override { return rt_; }
+  const SystemConfig& config() const override { return cfg_; }
+  Precision precision() const override { return prec_; }
+  std::size_t sensor_size() const override { return tab_->s; }
+  std::size_t psf_planes() const override { return cfg_.bands; }
+  bool psf_ready() const override { return valid_; }
+  std::uint64_t psf_generation() const override { return generation_; }
+  std::size_t parameter_count() const override { return cfg_.n / 2; }
+  std::vector<double> parameter_vjp(const cl::Buffer& g_psf_sensor) override { return psf_sensor_vjp(g_psf_sensor); }
+  std::string describe() const override;
 
   // Forward: ring heights (N/2 values, metres; finite, within [0, 2 h_max], else InputError) ->
   // sensor PSF stack (bands x S x S, each band sums to 1), on the device.
   void compute_psf(const std::vector<double>& ring_heights_m);
-  RealStack psf_sensor() const;               // host copy, bands x S x S
+  RealStack psf_sensor() const override;      // host copy, bands x S x S
   std::vector<double> intensity() const;      // host copy of I, bands x J (tests)
   // Adjoint at the last compute_psf(): dL/dpsf_sensor (bands x S x S) -> dL/dh_ring (N/2, per metre).
   std::vector<double> psf_sensor_vjp(const RealStack& g_psf_sensor);
   // Device forms: the buffer behind psf_sensor() (bands x S x S reals of precision(), row-major,
   // valid after compute_psf()), and the adjoint from a gradient in that layout on the device (read,
   // not modified; the same numbers as the host form for the same values).
-  const cl::Buffer& psf_sensor_buffer() const;
+  const cl::Buffer& psf_sensor_buffer() const override;
   std::vector<double> psf_sensor_vjp(const cl::Buffer& g_psf_sensor);
   // Seconds of the last compute_psf / psf_sensor_vjp (device work included, queue finished).
   double last_forward_seconds() const { return t_fwd_; }
@@ -153,6 +164,7 @@ class RadialEngine {
   std::shared_ptr<const RadialTables> tab_;
   std::unique_ptr<Impl> impl_;
   bool valid_ = false;
+  std::uint64_t generation_ = 0;  // incremented by every compute_psf()
   double t_fwd_ = 0, t_adj_ = 0;
 };
 

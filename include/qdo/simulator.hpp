@@ -19,6 +19,7 @@
 #include "qdo/doe.hpp"
 #include "qdo/fft.hpp"
 #include "qdo/optics.hpp"
+#include "qdo/psf_source.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
 
@@ -26,7 +27,8 @@ namespace qdo {
 
 class Camera;
 
-class Simulator {
+// A HeightMapPsfSource (psf_source.hpp): its parameters are the N x N height map (metres, row-major).
+class Simulator final : public HeightMapPsfSource {
  public:
   // Validates cfg (InputError) and the precision against the device (DeviceError); builds
   // or loads the kernels, bakes the FFT plan and uploads the per-band tables.
@@ -61,15 +63,19 @@ class Simulator {
   void set_keep_field(bool keep) { keep_field_ = keep; }
   bool keep_field() const { return keep_field_; }
 
-  const SystemConfig& config() const { return cfg_; }
-  Runtime& runtime() const { return rt_; }
+  const SystemConfig& config() const override { return cfg_; }
+  Runtime& runtime() const override { return rt_; }
   const PropagationGeometry& geometry() const { return geom_; }
-  Precision precision() const { return prec_; }
-  std::size_t sensor_size() const { return s_; }
+  Precision precision() const override { return prec_; }
+  std::size_t sensor_size() const override { return s_; }
+  // PsfSource: designs x bands planes; a stack exists after compute_psf() for the current heights.
+  std::size_t psf_planes() const override { return nb_; }
+  bool psf_ready() const override { return psf_valid_; }
+  std::string describe() const override;
 
   // Uploads an N x N height map (metres, row-major). Rejects wrong shapes, NaN/Inf and
   // heights outside [0, 2 h_max] before any device work.
-  void set_heights(const Map2D& height_m);
+  void set_heights(const Map2D& height_m) override;
   // One N x N map per design (designs() of them), for batched PSF stacks.
   void set_heights_batch(const std::vector<Map2D>& maps);
   // The same from design parameters, on the device: expands `params` (layout of
@@ -82,27 +88,27 @@ class Simulator {
 
   // Runs the PSF chain on the device (all bands in one batched pass). The results stay on the
   // device; the accessors below copy them to the host. Honours cfg.strict_sampling.
-  void compute_psf();
+  void compute_psf() override;
   RealStack psf_native() const;        // (designs x bands) x N x N, each band sums to 1
-  RealStack psf_sensor() const;        // (designs x bands) x S x S on the sensor pitch, each band sums to 1
+  RealStack psf_sensor() const override;  // (designs x bands) x S x S on the sensor pitch, each band sums to 1
   // Read back from the device on first use after each compute_psf() (a small bands x 4
   // transfer), so the PSF loop itself has no host round trip.
   const SamplingReport& sampling() const;
   // The device buffer behind psf_sensor(): (designs x bands) x S x S reals of precision(),
   // row-major, valid after compute_psf() until the heights change. For stages that consume
   // the PSF on the device (src/physics/camera.cpp) without a host round trip.
-  const cl::Buffer& psf_sensor_buffer() const { return psf_s_; }
+  const cl::Buffer& psf_sensor_buffer() const override { return psf_s_; }
   // Incremented by every compute_psf(): consumers that cache something derived from the PSF
   // (OTFs, crops) compare it to know when to rebuild.
-  std::uint64_t psf_generation() const { return psf_generation_; }
+  std::uint64_t psf_generation() const override { return psf_generation_; }
 
   // Adjoints at the current heights (compute_psf() must have run; its field, sums and PSFs are
   // reused, all on the device): dL/dH (N x N, per metre) for a gradient of L with respect to
   // psf_sensor() (bands x S x S) or psf_native() (bands x N x N). See include/qdo/adjoint.hpp.
-  Map2D psf_sensor_vjp(const RealStack& g_psf_sensor);
+  Map2D psf_sensor_vjp(const RealStack& g_psf_sensor) override;
   // The same with the gradient on the device: bands x S x S reals of precision(), row-major (as
   // psf_sensor_buffer()); it is copied, not modified. Equal to the host form for the same values.
-  Map2D psf_sensor_vjp(const cl::Buffer& g_psf_sensor);
+  Map2D psf_sensor_vjp(const cl::Buffer& g_psf_sensor) override;
   // Adjoint of sensor_images() for the batch of its last call (same scenes, still on the
   // device): gradients on the RGB images (3 x H x W per scene) -> gradient on psf_sensor()
   // (bands x S x S), through the sensor integration and the per-band convolution. Noise is an

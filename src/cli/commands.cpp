@@ -44,10 +44,14 @@ OptionSpec device() {
 OptionSpec precision() { return opt("precision", "floating-point precision on the device: f32 or f64", "f32"); }
 OptionSpec placement() { return opt("placement", "quantization level placement: inclusive or wrapped", "inclusive"); }
 OptionSpec design_spec() { return opt("design", "design: lens:NM (a diffractive lens for NM nanometres), flat, or a design .h5 file"); }
+OptionSpec psf_file() {
+  return opt("psf", "PSF stack file in place of --design: psf.h5 as qdo psf writes it (/psf_sensor, bands x S x S, with "
+                    "/wavelengths_nm), for the configuration's bands and sensor grid (checked)");
+}
 OptionSpec levels_post() { return opt("levels", "quantize the design to L height levels, an integer in [2, 65536] (default: not quantized)"); }
 OptionSpec out_dir_opt() { return opt("out", "output folder (created)"); }
 OptionSpec save_opt() {
-  return opt("save", "extra outputs, comma-separated: native (the native-grid PSF stack /psf, bands x N x N, in psf.h5)");
+  return opt("save", "extra outputs, comma-separated: native (the native-grid PSF stack /psf_native, bands x N x N, in psf.h5)");
 }
 OptionSpec compress() {
   return flag("compress", "store psf.h5's PSF stacks chunked with HDF5's shuffle + deflate filters (smaller, slower; BENCHMARKS)");
@@ -115,7 +119,7 @@ std::vector<CommandSpec> make_table() {
                 placement(), opt("out", "output design .h5 file")},
                cmd_quantize});
   t.push_back({"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*", "", "",
-               {preset(), config(), design_spec(), levels_post(), placement(), scene(), key(), resample_bands(),
+               {preset(), config(), design_spec(), psf_file(), levels_post(), placement(), scene(), key(), resample_bands(),
                 opt("formation",
                     "image formation: qdo (the configuration's convolution on the sensor grid, area-sampled PSF) or release "
                     "(the paper release's: bilinear up, mirror padding, PSF one 4 um sample off centre, bilinear down; "
@@ -165,8 +169,8 @@ std::vector<CommandSpec> make_table() {
                 precision(), device(), out_dir_opt()},
                cmd_eval});
   t.push_back({"image", "the RGB sensor image of one scene with the skipping rules of Camera and a skip report", "", "",
-               {preset(), config(), design_spec(), levels_post(), placement(), scene(), key(), resample_bands(), precision(), device(),
-                opt("tolerance", "error bound of the skipped work, in units of full scale (>= 0)", "3e-7"),
+               {preset(), config(), design_spec(), psf_file(), levels_post(), placement(), scene(), key(), resample_bands(), precision(),
+                device(), opt("tolerance", "error bound of the skipped work, in units of full scale (>= 0)", "3e-7"),
                 flag("exact", "skip nothing"), opt("tiles", "tiled convolution: off, on or auto", "off"),
                 opt("tile-px", "tile size in sensor pixels, an integer in [8, 4096]", "64"), out_dir_opt()},
                cmd_image});

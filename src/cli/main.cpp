@@ -1,4 +1,5 @@
-// qdo command bodies: devices, config, psf, quantize, simulate, demo, design, eval, gradcheck (main() and the command table: commands.cpp).
+// qdo command bodies: devices, config, quantize, demo, design, eval, gradcheck (main() and the command table:
+// commands.cpp; psf: cmd_psf.cpp; simulate and image: cmd_simulate.cpp).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -35,122 +36,6 @@ using namespace qdo;
 using namespace qdo::cli;
 
 namespace qdo::cli {
-namespace {
-
-// --save: extra outputs of psf and simulate, comma-separated; today only "native" (the native-grid PSF
-// stack /psf in psf.h5, bands x N x N: the largest output, off by default).
-bool save_native(const Args& a) {
-  bool native = false;
-  for (const auto& s : split_list(a.get("save"))) {
-    if (s == "native") native = true;
-    else reject("--save", s, "a comma-separated list of: native");
-  }
-  return native;
-}
-
-// The sensor PSF stack as the writers below take it (bands x S x S, row-major): a host stack of
-// doubles, or the float32 device buffer mapped on the host (no read-back, no conversion).
-struct SensorStack {
-  std::size_t planes = 0, rows = 0, cols = 0;
-  const std::vector<double>* f64 = nullptr;
-  const float* f32 = nullptr;
-  explicit SensorStack(const RealStack& s) : planes(s.planes), rows(s.rows), cols(s.cols), f64(&s.data) {}
-  SensorStack(std::size_t p, std::size_t r, std::size_t c, const float* v) : planes(p), rows(r), cols(c), f32(v) {}
-  // The central crop x crop of every plane (the montage's view), as doubles.
-  RealStack central(std::size_t crop) const {
-    const std::size_t h = std::min(crop, rows), w = std::min(crop, cols), y0 = (rows - h) / 2, x0 = (cols - w) / 2;
-    RealStack out(planes, h, w);
-    for (std::size_t b = 0; b < planes; ++b)
-      for (std::size_t y = 0; y < h; ++y)
-        for (std::size_t x = 0; x < w; ++x) {
-          const std::size_t at = (b * rows + y0 + y) * cols + x0 + x;
-          out(b, y, x) = f32 ? double(f32[at]) : (*f64)[at];
-        }
-    return out;
-  }
-};
-
-// DIR/psf.h5: the sensor PSF stack psf_s (bands x S x S), the native-grid stack when `native`,
-// wavelengths, sampling, heights. The PSF stacks are stored in the run's precision: float32 for
-// an f32 run (exactly the device's values, half the bytes), float64 for f64. Reads the device
-// (call it on the thread that owns the simulator).
-void write_psf_h5(Simulator& sim, const SensorStack& psf_s, const Map2D& h, const std::string& dir, const std::string& tag,
-                  bool native, bool compress) {
-  const SystemConfig& cfg = sim.config();
-  const bool f32 = sim.precision() == Precision::F32;
-  std::vector<H5Dataset> ds;
-  if (native) {
-    const RealStack psf = sim.psf_native();
-    ds.push_back({"/psf", {psf.planes, psf.rows, psf.cols}, psf.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "fraction of band energy per sample"}}});
-    ds.back().float32 = f32;
-    ds.back().compress = compress;
-  }
-  ds.push_back({"/psf_sensor", {psf_s.planes, psf_s.rows, psf_s.cols}, {}, {{"pitch_m", cfg.sensor_pitch_m}},
-                {{"units", "fraction of band energy per sensor pixel"}}});
-  // Written from psf_s itself (the figures read it meanwhile).
-  if (psf_s.f32) {
-    ds.back().f32_view = psf_s.f32;
-    ds.back().f32_count = psf_s.planes * psf_s.rows * psf_s.cols;
-  } else {
-    ds.back().view = psf_s.f64;
-  }
-  ds.back().float32 = f32 || psf_s.f32;
-  ds.back().compress = compress;
-  ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});
-  std::vector<double> alias, outside;
-  for (const auto& b : sim.sampling().bands) {
-    alias.push_back(b.aliased_energy_fraction);
-    outside.push_back(b.energy_outside_window);
-  }
-  ds.push_back({"/aliased_energy_fraction", {cfg.bands}, alias, {}, {{"units", "fraction"}}});
-  ds.push_back({"/energy_outside_window", {cfg.bands}, outside, {}, {{"units", "fraction"}}});
-  ds.push_back({"/height_m", {h.rows, h.cols}, h.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "m"}}});
-  ds.back().compress = few_distinct_values(h.data);  // as in design files: quantized maps only
-  h5_write(dir + "/psf.h5", ds, {{"config", config_to_json_text(cfg)}, {"design", tag}, {"precision", to_string(sim.precision())}});
-}
-
-// DIR/psf.png (montage of the sensor PSF stack) and DIR/design.png (height map). Host only.
-// design.png is a preview at most 512 px per side (every k-th sample, k = ceil(N / 512): every
-// 2nd at N = 1024); the heights themselves are in the HDF5 files. The two figures are drawn on two
-// threads (libpng is reentrant).
-void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const Map2D& h, const std::string& dir) {
-  auto montage = std::async(std::launch::async, [&] {
-    // The montage shows the central 96 x 96 of each plane: only that part is converted.
-    const RealStack crop = psf_s.central(96);
-    write_montage_png(dir + "/psf.png", crop, cfg.wavelengths_nm(), 0.5, 0);  // 0: the whole (cropped) stack
-  });
-  const std::size_t k = (std::max(h.rows, h.cols) + 511) / 512;
-  try {
-    if (k <= 1) {
-      write_map_png(dir + "/design.png", h);
-    } else {
-      Map2D small((h.rows + k - 1) / k, (h.cols + k - 1) / k);
-      for (std::size_t y = 0; y < small.rows; ++y)
-        for (std::size_t x = 0; x < small.cols; ++x) small(y, x) = h(y * k, x * k);
-      write_map_png(dir + "/design.png", small);
-    }
-  } catch (...) {
-    montage.wait();
-    throw;
-  }
-  montage.get();
-}
-
-// Runs `figures` (PNG writers only: libpng is reentrant) on a second thread while `data` (every
-// HDF5 writer, one at a time: the HDF5 library is not built thread-safe, and any device read)
-// runs on this one; after both have stopped, rethrows the first failure (data's first).
-void write_concurrently(const std::function<void()>& data, const std::function<void()>& figures) {
-  auto fig = std::async(std::launch::async, figures);
-  try {
-    data();
-  } catch (...) {
-    fig.wait();
-    throw;
-  }
-  fig.get();
-}
-
-}  // namespace
 
 int cmd_devices(const Args&) {
   const auto devs = list_devices();
@@ -165,78 +50,6 @@ int cmd_devices(const Args&) {
 
 int cmd_config(const Args& a) {
   std::cout << config_to_json_text(load_config(a)) << "\n";
-  return 0;
-}
-
-int cmd_psf(const Args& a) {
-  const auto t_cmd = std::chrono::steady_clock::now();
-  (void)save_native(a);  // validated before any work
-  const SystemConfig cfg = load_config(a);
-  const Precision p = precision_from_string(a.get("precision"));
-  // The device (context, kernels from the disk cache, FFT plans) starts on a second thread while
-  // this one makes the design's heights and the output folder; an error in those inputs is
-  // reported first (the device's own error only when the inputs are good). Nothing in the
-  // device start touches HDF5, which is not thread-safe here.
-  struct Started {
-    std::unique_ptr<Runtime> rt;
-    std::unique_ptr<Simulator> sim;
-    double device_s = 0, setup_s = 0;
-  };
-  auto starting = std::async(std::launch::async, [&cfg, p, device = a.get("device")] {
-    Started st;
-    const auto t_dev = std::chrono::steady_clock::now();
-    st.rt = std::make_unique<Runtime>(device);
-    st.device_s = seconds_since(t_dev);
-    const auto t0 = std::chrono::steady_clock::now();
-    st.sim = std::make_unique<Simulator>(*st.rt, cfg, p);
-    st.setup_s = seconds_since(t0);
-    return st;
-  });
-  Map2D h;
-  std::string dir;
-  try {
-    h = design_heights(cfg, a);
-    dir = out_dir(a);
-  } catch (...) {
-    starting.wait();
-    throw;
-  }
-  const double inputs_s = seconds_since(t_cmd);
-  Started st = starting.get();
-  Runtime& rt = *st.rt;
-  Simulator& sim = *st.sim;
-  sim.set_keep_field(false);  // no adjoint follows (Simulator::set_keep_field)
-  sim.set_heights(h);
-  const auto t1 = std::chrono::steady_clock::now();
-  sim.compute_psf();
-  rt.queue().finish();
-  const double psf_seconds = seconds_since(t1);
-  // float32: the files are written from the device buffer mapped on the host (on a CPU device the
-  // buffer itself); float64: read back into a host stack.
-  const auto t_read = std::chrono::steady_clock::now();
-  const std::size_t s = sim.sensor_size(), count = cfg.bands * s * s;
-  std::unique_ptr<MappedBuffer> mapped;
-  RealStack host;
-  std::unique_ptr<SensorStack> psf_s;
-  if (p == Precision::F32) {
-    mapped = std::make_unique<MappedBuffer>(rt.queue(), sim.psf_sensor_buffer(), CL_MAP_READ, count * sizeof(float));
-    psf_s = std::make_unique<SensorStack>(cfg.bands, s, s, mapped->as<const float>());
-  } else {
-    host = sim.psf_sensor();
-    psf_s = std::make_unique<SensorStack>(host);
-  }
-  const double read_s = seconds_since(t_read);
-  const auto t_write = std::chrono::steady_clock::now();
-  write_concurrently([&] { write_psf_h5(sim, *psf_s, h, dir, a.get("design"), save_native(a), a.has("compress")); },
-                     [&] { write_psf_figures(cfg, *psf_s, h, dir); });
-  const double write_s = seconds_since(t_write);
-  std::printf("device: %s (%s)\nPSF stack: %zu bands x %zu x %zu (window %zu), %s, %.3f s (setup %.3f s: kernels %.3f s, FFT plans %.3f s)\n%s\nwrote %s/psf.h5, psf.png, design.png\n",
-              rt.info().name.c_str(), rt.info().platform.c_str(), cfg.bands, cfg.n, cfg.n, sim.geometry().m,
-              to_string(p).c_str(), psf_seconds, st.setup_s, rt.build_seconds(), rt.fft_bake_seconds(), sim.sampling().summary().c_str(),
-              dir.c_str());
-  std::printf("time: inputs %.3f s, device %.3f s, setup %.3f s (both on a second thread during the inputs), PSF %.3f s, "
-              "read-back %.3f s, files %.3f s; command %.3f s\n",
-              inputs_s, st.device_s, st.setup_s, psf_seconds, read_s, write_s, seconds_since(t_cmd));
   return 0;
 }
 
@@ -262,77 +75,6 @@ int cmd_quantize(const Args& a) {
   return 0;
 }
 
-
-int cmd_simulate(const Args& a) {
-  (void)save_native(a);  // validated before any work
-  const std::string formation = a.get("formation");
-  if (formation != "qdo" && formation != "release") reject("--formation", formation, "qdo or release");
-  const bool release = formation == "release";
-  const SystemConfig cfg = load_config(a);
-  const Precision p = precision_from_string(a.get("precision"));
-  const Map2D h = design_heights(cfg, a);
-  const RealStack scene = scene_from_args(cfg, a);
-  if (release) {  // the release's geometry needs a square scene and N >= S + 2; checked before any device work
-    if (scene.rows != scene.cols)
-      reject("--formation release", "a " + to_str(scene.rows) + " x " + to_str(scene.cols) + " scene", "a square S x S scene");
-    (void)release_geometry(scene.rows, cfg.n);
-    if (cfg.aperture_edge != ApertureEdge::Strict)
-      std::fprintf(stderr, "qdo: note: --formation release with \"aperture_edge\": \"inclusive\"; the release's aperture is strict "
-                           "(set it in the configuration for parity)\n");
-  }
-  const std::string dir = out_dir(a);
-  Runtime rt(a.get("device"));
-  Simulator sim(rt, cfg, p);
-  sim.set_keep_field(false);  // no adjoint follows (Simulator::set_keep_field)
-  sim.set_heights(h);
-  const auto t0 = std::chrono::steady_clock::now();
-  sim.compute_psf();
-  const RealStack psf_s = sim.psf_sensor();
-  const RealStack scene_rgb = ref::sensor_integrate(scene, sim.srf());  // the same camera without the DOE blur
-  RealStack rgb;
-  SensorClip clip;
-  double secs = 0, outputs_s = 0;
-  // The figures that need only the PSF, the design and the scene are drawn on a second thread
-  // while the camera runs and the HDF5 files are written on this one.
-  write_concurrently(
-      [&] {
-        // The camera through Camera's exact reorganisation with every skipping tolerance at 0: only
-        // what contributes exactly nothing is skipped (bands the camera does not see or the scene
-        // leaves dark, PSF rings holding no energy), so the error bound is 0 and the image is
-        // Simulator::sensor_image's to the rounding of the precision, with fewer transforms.
-        if (release) {
-          // The release's pipeline on the DOE grid with the native PSF, then the sensor response and
-          // qdo's noise model (the release adds its noise on the DOE grid, before the sensor).
-          ReleaseImager imager(rt, p, cfg.bands, scene.rows, cfg.n);
-          imager.set_psf(sim.psf_native());
-          rgb = ref::sensor_integrate(imager.blur(scene), sim.srf());
-          ref::add_noise(rgb, cfg.read_noise_sigma, cfg.full_well_photons, cfg.noise_seed, 0);
-        } else {
-          Camera camera(sim);
-          rgb = camera.images({scene}, SkipOptions::split(0.0)).front();
-        }
-        secs = seconds_since(t0);
-        clip = clip_to_full_scale(rgb, "sensor image");
-        const auto t1 = std::chrono::steady_clock::now();
-        write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
-        write_psf_h5(sim, SensorStack(psf_s), h, dir, a.get("design"), save_native(a), a.has("compress"));
-        write_rgb_png(dir + "/sensor.png", rgb);
-        outputs_s = seconds_since(t1);
-      },
-      [&] {
-        write_rgb_png(dir + "/scene.png", scene_rgb);
-        write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
-        write_map_png(dir + "/design.png", h);
-      });
-  std::printf("device: %s\nformation: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s); "
-              "outputs written in %.3f s after it (figures of the PSF, design and scene drawn meanwhile)\n%s\n%s\n"
-              "wrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png, design.png\n",
-              rt.info().name.c_str(),
-              release ? "release (bilinear up, mirror padding, shifted PSF, bilinear down)" : "qdo (camera operator, area-sampled PSF)",
-              scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
-              outputs_s, sim.sampling().summary().c_str(), clip_summary(clip).c_str(), dir.c_str());
-  return 0;
-}
 
 namespace {
 int print_gradcheck(const std::vector<GradcheckRow>& rows) {
@@ -575,7 +317,9 @@ int cmd_demo(const Args& a) {
   sim.compute_psf();
   const RealStack scene = builtin_chart_scene(cfg);
   write_rgb_png(dir + "/chart_scene.png", ref::sensor_integrate(scene, sim.srf()));
-  write_rgb_png(dir + "/chart_sensor_qdoa.png", sim.sensor_image(scene));
+  SkipOptions exact;
+  exact.exact = true;
+  write_rgb_png(dir + "/chart_sensor_qdoa.png", Camera(sim).images({scene}, exact).front());
   md = "# qdo demo\n\nPreset `" + cfg.preset + "`, " + L + " levels, " + std::to_string(o.epochs * o.design.steps_per_epoch) +
        " optimiser steps per design, " +
        (network ? "decoder " + o.decoder + " trained with the optics (Eq. 14) on " +

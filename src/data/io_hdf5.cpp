@@ -492,9 +492,37 @@ void write_psf(const std::string& path, const RealStack& psf, const std::vector<
   if (wavelengths_nm.size() != psf.planes)
     reject("wavelengths_nm", wavelengths_nm.size(), "one wavelength per PSF plane (" + std::to_string(psf.planes) + ")");
   if (!(pitch_m > 0) || !std::isfinite(pitch_m)) reject("pitch_m", pitch_m, "a finite pitch > 0 in metres");
-  H5Dataset p{"/psf", {psf.planes, psf.rows, psf.cols}, psf.data, extra_num_attrs, {}};
+  H5Dataset p{"/psf_sensor", {psf.planes, psf.rows, psf.cols}, psf.data, extra_num_attrs,
+              {{"units", "fraction of band energy per sensor pixel"}}};
   p.num_attrs["pitch_m"] = pitch_m;
   h5_write(path, {p, H5Dataset{"/wavelengths_nm", {wavelengths_nm.size()}, wavelengths_nm, {}, {{"units", "nm"}}}});
+}
+
+PsfStackFile read_psf_stack_file(const std::string& path) {
+  require_file(path);
+  PsfStackFile f;
+  f.dataset = h5_has(path, "/psf_sensor") ? "/psf_sensor" : h5_has(path, "/psf") ? "/psf" : "";
+  if (f.dataset.empty()) fail(path, "", "no dataset '/psf_sensor' (a PSF stack as qdo psf writes it)");
+  const std::string what = "dataset '" + f.dataset + "'";
+  H5Dataset d = h5_read(path, f.dataset);
+  if (d.shape.size() != 3 || d.shape[1] != d.shape[2] || d.shape[0] == 0 || d.shape[1] == 0)
+    fail(path, what, "shape " + shape_str(d.shape) + " is not a stack of square planes (bands x S x S)");
+  if (const std::size_t bad = count_nonfinite(d.data)) fail(path, what, to_str(bad) + " values are NaN or Inf");
+  const auto it = d.num_attrs.find("pitch_m");
+  if (it == d.num_attrs.end()) fail(path, what, "attribute 'pitch_m' is missing");
+  if (!(it->second > 0) || !std::isfinite(it->second))
+    fail(path, what, "attribute 'pitch_m' = " + to_str(it->second) + " is invalid (must be finite and > 0)");
+  f.pitch_m = it->second;
+  if (!h5_has(path, "/wavelengths_nm")) fail(path, "", "no dataset '/wavelengths_nm' beside " + what);
+  const H5Dataset w = h5_read(path, "/wavelengths_nm", 1 << 20);
+  if (w.shape.size() != 1 || w.shape[0] != d.shape[0])
+    fail(path, "dataset '/wavelengths_nm'", "shape " + shape_str(w.shape) + ": one wavelength per plane of " + what + " (" +
+                                              to_str(d.shape[0]) + ") expected");
+  if (count_nonfinite(w.data)) fail(path, "dataset '/wavelengths_nm'", "NaN or Inf values");
+  f.wavelengths_nm = w.data;
+  f.psf_sensor = RealStack(d.shape[0], d.shape[1], d.shape[2]);
+  f.psf_sensor.data = std::move(d.data);
+  return f;
 }
 
 void write_cube(const std::string& path, const RealStack& cube, const std::vector<double>& wavelengths_nm) {

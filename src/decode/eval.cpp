@@ -11,6 +11,7 @@
 #include "qdo/run_folder.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/simulator.hpp"
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"

@@ -108,7 +108,7 @@ void DesignOptions::validate() const {
   radial.validate();
 }
 
-Designer::Designer(Simulator& sim, const DesignOptions& opt) : sim_(sim), opt_(opt), h_max_(sim.config().h_max_m()) {
+Designer::Designer(HeightMapPsfSource& sim, const DesignOptions& opt) : sim_(sim), opt_(opt), h_max_(sim.config().h_max_m()) {
   opt_.quantizer.offsets.clear();
   opt_.validate();
 }

@@ -17,6 +17,7 @@
 #include <unistd.h>
 
 #include "qdo/adjoint.hpp"
+#include "qdo/simulator.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
 #include "data/json_strict.hpp"

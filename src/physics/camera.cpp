@@ -10,7 +10,6 @@
 #include "qdo/error.hpp"
 #include "qdo/fft.hpp"
 #include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
 
 namespace qdo {
 
@@ -39,10 +38,11 @@ double cost_model(std::size_t windows, std::size_t gy, std::size_t gx, std::size
 
 }  // namespace
 
-Camera::Camera(Simulator& sim)
-    : rt_(sim.runtime()), sim_(&sim), cfg_(sim.config()), prec_(sim.precision()), s_(sim.sensor_size()),
-      rsz_(real_size(sim.precision())), srf_(sim.srf()) {
-  if (sim.designs() != 1) reject("simulator designs", sim.designs(), "a simulator of one design");
+Camera::Camera(const PsfSource& source)
+    : rt_(source.runtime()), source_(&source), cfg_(source.config()), prec_(source.precision()), s_(source.sensor_size()),
+      rsz_(real_size(source.precision())), srf_(sensor_response(source.config())) {
+  if (source.psf_planes() != cfg_.bands)
+    reject("PSF source planes", source.psf_planes(), "one design: the configuration's " + to_str(cfg_.bands) + " bands (" + source.describe() + ")");
   init();
 }
 
@@ -79,7 +79,7 @@ void Camera::init() {
 }
 
 void Camera::set_psf(const RealStack& psf_sensor) {
-  if (sim_) reject("set_psf", "(imager bound to a Simulator)", "a standalone Camera (the simulator's PSF is followed)");
+  if (source_) reject("set_psf", "(camera bound to a PSF source)", "a standalone Camera (a bound camera follows its source: " + source_->describe() + ")");
   if (psf_sensor.planes != cfg_.bands || psf_sensor.rows != s_ || psf_sensor.cols != s_)
     reject("psf_sensor", to_str(psf_sensor.planes) + " x " + to_str(psf_sensor.rows) + " x " + to_str(psf_sensor.cols),
            "bands x S x S = " + to_str(cfg_.bands) + " x " + to_str(s_) + " x " + to_str(s_));
@@ -91,8 +91,11 @@ void Camera::set_psf(const RealStack& psf_sensor) {
   ++own_generation_;
 }
 
-const cl::Buffer& Camera::psf_buffer() const { return sim_ ? sim_->psf_sensor_buffer() : own_psf_; }
-std::uint64_t Camera::current_generation() const { return sim_ ? sim_->psf_generation() : own_generation_; }
+const cl::Buffer& Camera::psf_buffer() const {
+  if (source_ && !source_->psf_ready()) throw Error("Camera: its PSF source has no stack yet (" + source_->describe() + ")");
+  return source_ ? source_->psf_sensor_buffer() : own_psf_;
+}
+std::uint64_t Camera::current_generation() const { return source_ ? source_->psf_generation() : own_generation_; }
 
 cl::Buffer& Camera::grow(cl::Buffer& b, std::size_t& cap, std::size_t bytes, cl_mem_flags flags) {
   bytes = std::max<std::size_t>(bytes, 8);
@@ -162,21 +165,16 @@ void Camera::check_batch(const std::vector<RealStack>& cubes) const {
   if (cfg_.convolution == ConvolutionMode::Circular && (fast_fft_size(h) != h || fast_fft_size(w) != w))
     reject("cube", to_str(h) + " x " + to_str(w),
            "sizes made of the factors 2, 3, 5 and 7 in circular convolution mode (the FFT runs on the scene grid)");
-  if (current_generation() == 0)
-    throw Error(sim_ ? "Camera: the simulator's compute_psf() must run before images()"
-                     : "Camera: set_psf() must be called before images()");
+  if (source_ ? !source_->psf_ready() : current_generation() == 0)
+    throw Error(source_ ? "Camera: its PSF source has no stack yet (" + source_->describe() + "; a simulator's compute_psf() must run before images())"
+                        : std::string("Camera: set_psf() must be called before images()"));
 }
 
-std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const SkipOptions& opt) {
-  // ---- Validation (before any device work) ----
-  opt.validate();
-  check_batch(cubes);
-  vjp_ready_ = false;
+// The host half of images(): the per-band (and per-tile) maxima of the batch, the three skipping
+// rules and the report. No device work but the per-generation ring energies (ensure_rings).
+Camera::Plan Camera::plan_images(const std::vector<RealStack>& cubes, const SkipOptions& opt) {
   const std::size_t bands = cfg_.bands, h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size();
   const bool circular = cfg_.convolution == ConvolutionMode::Circular;
-  if (circular && !opt.exact && opt.tiles == TileMode::On)
-    reject("tiles", "on", "off or auto in circular convolution mode (tiles need linear convolution)");
-
   // ---- Host pass: per-band maxima over the batch, and per tile when tiling is possible ----
   const bool may_tile = !opt.exact && !circular && opt.tiles != TileMode::Off;
   const std::size_t tpx = opt.tile_px, nty = may_tile ? (h + tpx - 1) / tpx : 1, ntx = may_tile ? (w + tpx - 1) / tpx : 1;
@@ -270,9 +268,7 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
     r_min = lo;
   }
   // Grid for a window of th x tw pixels and the largest radius >= r_min that grid holds.
-  struct Layout {
-    std::size_t r = 0, gy = 0, gx = 0, th = 0, tw = 0, nty = 1, ntx = 1;
-  };
+  using Layout = Plan;
   auto layout = [&](bool tiled) {
     Layout L;
     L.th = tiled ? std::min(tpx, h) : h;
@@ -368,6 +364,27 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
   rep.total_bound = 0;
   for (std::size_t ch = 0; ch < 3; ++ch) rep.total_bound = std::max(rep.total_bound, band_c[ch] + crop_c[ch] + tile_c[ch]);
   report_ = rep;
+  L.kept = kept;
+  L.tiled = tiled;
+  L.tile_skip = tile_skip;
+  return L;
+}
+
+std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const SkipOptions& opt) {
+  // ---- Validation (before any device work) ----
+  opt.validate();
+  check_batch(cubes);
+  vjp_ready_ = false;
+  const std::size_t h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size();
+  const bool circular = cfg_.convolution == ConvolutionMode::Circular;
+  if (circular && !opt.exact && opt.tiles == TileMode::On)
+    reject("tiles", "on", "off or auto in circular convolution mode (tiles need linear convolution)");
+
+  const Plan L = plan_images(cubes, opt);
+  const std::vector<std::size_t>& kept = L.kept;
+  const std::size_t nk = kept.size(), pairs = (nk + 1) / 2;
+  const std::vector<std::uint8_t>& tile_skip = L.tile_skip;
+  const bool tiled = L.tiled;
 
   // ---- Device work ----
   const std::size_t hw = h * w, g = L.gy * L.gx;

@@ -469,6 +469,7 @@ void RadialEngine::compute_psf(const std::vector<double>& ring_heights_m) {
                 int(bands));
   q.finish();
   valid_ = true;
+  ++generation_;
   t_fwd_ = std::chrono::duration<double>(clock_type::now() - t0).count();
 }
 
@@ -499,6 +500,10 @@ std::vector<double> RadialEngine::psf_sensor_vjp(const RealStack& g_psf_sensor) 
 }
 
 const cl::Buffer& RadialEngine::psf_sensor_buffer() const { return impl_->psf_s; }
+
+std::string RadialEngine::describe() const {
+  return "simulated (radial, N = " + to_str(cfg_.n) + ", " + to_string(prec_) + ")";
+}
 
 std::vector<double> RadialEngine::psf_sensor_vjp(const cl::Buffer& g_psf_sensor) {
   const RadialTables& t = *tab_;

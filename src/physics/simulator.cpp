@@ -43,6 +43,11 @@ class StageTimer {
 
 Simulator::~Simulator() = default;
 
+std::string Simulator::describe() const {
+  return "simulated (2-D, N = " + to_str(cfg_.n) + (designs_ > 1 ? ", " + to_str(designs_) + " designs" : "") + ", " +
+         to_string(prec_) + ")";
+}
+
 Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs, bool phase_fp64)
     : rt_(rt), cfg_(cfg), prec_(p), designs_(designs), phase_fp64_(phase_fp64 && p == Precision::F32) {
   cfg_.validate();
@@ -264,8 +269,8 @@ void Simulator::set_heights_batch(const std::vector<Map2D>& maps) {
 void Simulator::set_design(Parameterization kind, const std::vector<double>& params, const Quantizer* q, double alpha) {
   require_single_design("set_design");
   const std::size_t n = cfg_.n;
-  if (params.size() != parameter_count(kind, n))
-    reject("params.size()", params.size(), "exactly " + to_str(parameter_count(kind, n)) + " for this parameterization and N");
+  if (params.size() != qdo::parameter_count(kind, n))
+    reject("params.size()", params.size(), "exactly " + to_str(qdo::parameter_count(kind, n)) + " for this parameterization and N");
   for (std::size_t i = 0; i < params.size(); ++i)
     if (!std::isfinite(params[i])) reject("params[" + to_str(i) + "]", params[i], "finite heights in metres");
   if (q) {

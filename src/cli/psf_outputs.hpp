@@ -1,0 +1,43 @@
+// What `qdo psf` and `qdo simulate` share (private to src/cli/): the PSF outputs (psf.h5 and its
+// figures) and the concurrent writing of data and figures.
+#pragma once
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "cli.hpp"
+#include "qdo/simulator.hpp"
+#include "qdo/types.hpp"
+
+namespace qdo::cli {
+
+// --save: extra outputs of psf and simulate, comma-separated; today only "native" (the native-grid
+// PSF stack /psf_native in psf.h5, bands x N x N: the largest output, off by default).
+bool save_native(const Args& a);
+
+// The sensor PSF stack as the writers below take it (bands x S x S, row-major): a host stack of
+// doubles, or the float32 device buffer mapped on the host (no read-back, no conversion).
+struct SensorStack {
+  std::size_t planes = 0, rows = 0, cols = 0;
+  const std::vector<double>* f64 = nullptr;
+  const float* f32 = nullptr;
+  explicit SensorStack(const RealStack& s) : planes(s.planes), rows(s.rows), cols(s.cols), f64(&s.data) {}
+  SensorStack(std::size_t p, std::size_t r, std::size_t c, const float* v) : planes(p), rows(r), cols(c), f32(v) {}
+  // The central crop x crop of every plane, in double (figures).
+  RealStack central(std::size_t crop) const;
+};
+
+// DIR/psf.h5: the sensor PSF stack psf_s (bands x S x S) as /psf_sensor, the native-grid stack
+// /psf_native when `native`, wavelengths, sampling, heights. The PSF stacks are stored in the run's
+// precision: float32 for an f32 run (exactly the device's values, half the bytes), float64 for
+// f64. Reads the device (call it on the thread that owns the simulator).
+void write_psf_h5(Simulator& sim, const SensorStack& psf_s, const Map2D& h, const std::string& dir, const std::string& tag,
+                  bool native, bool compress);
+// DIR/psf.png (montage of the sensor PSF stack) and DIR/design.png (height map). Host only.
+void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const Map2D& h, const std::string& dir);
+// Runs `figures` (PNG writers only: libpng is reentrant) on a second thread while `data` (every
+// HDF5 writer, one at a time: the HDF5 library is not built thread-safe, and any device read)
+// runs on this one; after both have stopped, rethrows the first failure (data's first).
+void write_concurrently(const std::function<void()>& data, const std::function<void()>& figures);
+
+}  // namespace qdo::cli

@@ -1,0 +1,213 @@
+// The PSF source seam (include/qdo/psf_source.hpp): the camera takes any PsfSource (the 2-D
+// simulator, the radial engine, a fixed stack such as a PSF file) and gives the same images for the
+// same stack; `qdo simulate --psf` and `qdo image --psf` with a stack written by `qdo psf` give the
+// images of the design that made it; a stack for other bands or another sensor grid is refused
+// naming both, before anything is written.
+#include <fstream>
+
+#include "common.hpp"
+#include "qdo/camera.hpp"
+#include "qdo/io.hpp"
+#include "qdo/psf_source.hpp"
+#include "qdo/radial.hpp"
+#include "qdo/simulator.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+namespace fs = std::filesystem;
+
+namespace {
+
+SkipOptions exact() {
+  SkipOptions o;
+  o.exact = true;
+  return o;
+}
+
+fs::path write_config(const fs::path& dir, const SystemConfig& c, const std::string& name) {
+  const fs::path f = dir / name;
+  std::ofstream(f) << config_to_json_text(c) << "\n";
+  return f;
+}
+
+}  // namespace
+
+TEST_SUITE("psf-source") {
+  TEST_CASE("a camera gives the same images from the simulator and from a fixed stack of its PSF") {
+    const SystemConfig c = tiny_config(32, 3);
+    const std::vector<RealStack> scenes{random_cube(c.bands, 20, 18, 5), random_cube(c.bands, 20, 18, 6)};
+    for (const Precision p : device_precisions(runtime())) {
+      CAPTURE(to_string(p));
+      Simulator sim(runtime(), c, p);
+      CHECK_FALSE(sim.psf_ready());
+      sim.set_heights(random_heights(c.n, c.h_max_m(), 3));
+      sim.compute_psf();
+      REQUIRE(sim.psf_ready());
+      CHECK(sim.parameter_count() == c.n * c.n);
+      const RealStack psf = sim.psf_sensor();
+      StackPsfSource fixed(runtime(), c, p, psf, "test stack");
+      CHECK(fixed.parameter_count() == 0);
+      CHECK(fixed.psf_sensor().data == psf.data);
+      Camera from_sim(sim), from_stack(fixed);
+      const auto a = from_sim.images(scenes, exact()), b = from_stack.images(scenes, exact());
+      REQUIRE(a.size() == b.size());
+      // The stack holds the device's own values (float32 read back to double and written again is
+      // exact), so the images are identical, not merely close.
+      for (std::size_t k = 0; k < a.size(); ++k) CHECK(a[k].data == b[k].data);
+      // The camera follows its source: a new stack is a new generation and new images.
+      const std::uint64_t g = fixed.psf_generation();
+      RealStack flat(c.bands, psf.rows, psf.cols);
+      for (auto& v : flat.data) v = 1.0 / double(psf.rows * psf.cols);
+      fixed.set(flat);
+      CHECK(fixed.psf_generation() == g + 1);
+      CHECK(from_stack.images(scenes, exact())[0].data != b[0].data);
+      // A fixed stack has no parameters to take a gradient to.
+      CHECK_THROWS_AS(fixed.parameter_vjp(sim.psf_sensor_buffer()), Error);
+    }
+  }
+
+  TEST_CASE("the radial engine is a PSF source for the camera too") {
+    SystemConfig c = tiny_config(32, 3);
+    RadialEngine radial(runtime(), c, runtime().has_fp64() ? Precision::F64 : Precision::F32);
+    CHECK_FALSE(radial.psf_ready());
+    std::vector<double> rings(c.n / 2);
+    for (std::size_t k = 0; k < rings.size(); ++k) rings[k] = c.h_max_m() * double(k % 5) / 5.0;
+    radial.compute_psf(rings);
+    REQUIRE(radial.psf_ready());
+    CHECK(radial.parameter_count() == c.n / 2);
+    StackPsfSource fixed(runtime(), c, radial.precision(), radial.psf_sensor(), "radial stack");
+    const std::vector<RealStack> scenes{random_cube(c.bands, 16, 16, 9)};
+    Camera a(radial), b(fixed);
+    CHECK(a.images(scenes, exact())[0].data == b.images(scenes, exact())[0].data);
+    // Its parameter gradient is the ring gradient of psf_sensor_vjp.
+    RealStack g = random_cube(c.bands, radial.sensor_size(), radial.sensor_size(), 4);
+    const std::vector<double> host = radial.psf_sensor_vjp(g);
+    cl::Buffer gb(runtime().context(), CL_MEM_READ_WRITE, g.size() * real_size(radial.precision()));
+    runtime().write_reals(gb, g.data.data(), g.size(), radial.precision());
+    CHECK(radial.parameter_vjp(gb) == host);
+  }
+
+  TEST_CASE("a fixed stack is checked against the configuration before any device work") {
+    const SystemConfig c = tiny_config(32, 3);
+    const std::size_t s = c.sensor_size_px();
+    RealStack ok(c.bands, s, s);
+    for (auto& v : ok.data) v = 1.0 / double(s * s);
+    RealStack wrong_bands(c.bands + 1, s, s);
+    std::string e = input_error_of([&] { StackPsfSource(runtime(), c, Precision::F32, wrong_bands, "x"); });
+    CHECK(e.find(to_str(c.bands + 1) + " x " + to_str(s)) != std::string::npos);
+    CHECK(e.find(to_str(c.bands) + " x " + to_str(s) + " x " + to_str(s)) != std::string::npos);
+    RealStack negative = ok;
+    negative.data[7] = -1e-3;
+    CHECK(input_error_of([&] { StackPsfSource(runtime(), c, Precision::F32, negative, "x"); }).find(">= 0") != std::string::npos);
+    RealStack half = ok;
+    for (std::size_t i = 0; i < s * s; ++i) half.data[s * s + i] *= 0.5;  // band 1 sums to 0.5
+    e = input_error_of([&] { StackPsfSource(runtime(), c, Precision::F32, half, "x"); });
+    CHECK(e.find("band 1") != std::string::npos);
+    CHECK(e.find("sums to 0.5") != std::string::npos);
+  }
+
+  TEST_CASE("qdo simulate --psf and qdo image --psf with qdo psf's stack give the design's images") {
+    const fs::path dir = temp_dir("psf_source_cmd");
+    const SystemConfig c = tiny_config(32, 3);
+    const std::string cfg = "--config " + write_config(dir, c, "tiny.json").string();
+    write_cube((dir / "scene.h5").string(), random_cube(c.bands, 24, 20, 11), c.wavelengths_nm());
+    const std::string scene = " --scene " + (dir / "scene.h5").string();
+    for (const Precision p : device_precisions(runtime())) {
+      CAPTURE(to_string(p));
+      const std::string prec = " --precision " + to_string(p), tag = to_string(p);
+      Run r = qdo_run("psf " + cfg + " --design lens:500" + prec + " --out " + (dir / ("psf_" + tag)).string());
+      CAPTURE(r.out);
+      REQUIRE(r.code == 0);
+      const std::string psf_file = (dir / ("psf_" + tag) / "psf.h5").string();
+      r = qdo_run("simulate " + cfg + " --design lens:500" + scene + prec + " --out " + (dir / ("design_" + tag)).string());
+      REQUIRE(r.code == 0);
+      r = qdo_run("simulate " + cfg + " --psf " + psf_file + scene + prec + " --out " + (dir / ("file_" + tag)).string());
+      CAPTURE(r.out);
+      REQUIRE(r.code == 0);
+      CHECK(r.out.find("PSF file") != std::string::npos);
+      const auto want = h5_read((dir / ("design_" + tag) / "sensor.h5").string(), "/rgb").data;
+      const auto got = h5_read((dir / ("file_" + tag) / "sensor.h5").string(), "/rgb").data;
+      // qdo psf writes the device's values in the run's precision: the same stack, the same image.
+      CHECK(got == want);
+      // The stack simulate used is written back in the same layout, and reads as the same stack.
+      CHECK(read_psf_stack_file((dir / ("file_" + tag) / "psf.h5").string()).psf_sensor.data ==
+            read_psf_stack_file(psf_file).psf_sensor.data);
+      CHECK_FALSE(fs::exists(dir / ("file_" + tag) / "design.png"));
+      // qdo image too (its skip report and PNG; the image itself is checked through simulate).
+      r = qdo_run("image " + cfg + " --psf " + psf_file + scene + prec + " --exact --out " + (dir / ("image_" + tag)).string());
+      CAPTURE(r.out);
+      CHECK(r.code == 0);
+      CHECK(fs::exists(dir / ("image_" + tag) / "skip.json"));
+    }
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("a PSF file for other bands or another sensor grid is refused naming both, nothing written") {
+    const fs::path dir = temp_dir("psf_source_refuse");
+    const SystemConfig c = tiny_config(32, 3);
+    const std::string cfg = "--config " + write_config(dir, c, "tiny.json").string();
+    write_cube((dir / "scene.h5").string(), random_cube(c.bands, 16, 16, 1), c.wavelengths_nm());
+    const std::string scene = " --scene " + (dir / "scene.h5").string();
+    const std::size_t s = c.sensor_size_px();
+    auto stack = [](std::size_t b, std::size_t n) {
+      RealStack st(b, n, n);
+      for (auto& v : st.data) v = 1.0 / double(n * n);
+      return st;
+    };
+    struct Bad {
+      std::string name, file, want1, want2;
+    };
+    std::vector<Bad> bad;
+    // Four bands where the configuration has three.
+    SystemConfig four = tiny_config(32, 4);
+    write_psf((dir / "bands.h5").string(), stack(4, s), four.wavelengths_nm(), c.sensor_pitch_m);
+    bad.push_back({"bands", "bands.h5", "4 x " + to_str(s) + " x " + to_str(s), "3 x " + to_str(s) + " x " + to_str(s)});
+    // Another size.
+    write_psf((dir / "size.h5").string(), stack(3, s + 2), c.wavelengths_nm(), c.sensor_pitch_m);
+    bad.push_back({"size", "size.h5", "3 x " + to_str(s + 2), "3 x " + to_str(s) + " x " + to_str(s)});
+    // Another pitch (a native-grid stack, say).
+    write_psf((dir / "pitch.h5").string(), stack(3, s), c.wavelengths_nm(), c.pitch_m);
+    bad.push_back({"pitch", "pitch.h5", "pitch of " + to_str(c.pitch_m * 1e6), "pitch of " + to_str(c.sensor_pitch_m * 1e6)});
+    // The same band count on another wavelength grid.
+    std::vector<double> shifted = c.wavelengths_nm();
+    for (double& w : shifted) w += 10;
+    write_psf((dir / "grid.h5").string(), stack(3, s), shifted, c.sensor_pitch_m);
+    bad.push_back({"grid", "grid.h5", to_str(shifted.front()) + " ... " + to_str(shifted.back()), to_str(c.wavelengths_nm().front())});
+    // Not a PSF file at all.
+    write_cube((dir / "cube.h5").string(), stack(3, s), c.wavelengths_nm());
+    bad.push_back({"nostack", "cube.h5", "/psf_sensor", "cube.h5"});
+    for (const Bad& b : bad) {
+      CAPTURE(b.name);
+      for (const char* cmd : {"simulate", "image"}) {
+        CAPTURE(cmd);
+        const fs::path out = dir / ("out_" + b.name + cmd);
+        const Run r = qdo_run(std::string(cmd) + " " + cfg + " --psf " + (dir / b.file).string() + scene + " --out " + out.string());
+        CAPTURE(r.out);
+        CHECK(r.code == 2);
+        CHECK(r.out.find(b.want1) != std::string::npos);
+        CHECK(r.out.find(b.want2) != std::string::npos);
+        CHECK_FALSE(fs::exists(out));
+      }
+    }
+    // One PSF source at a time.
+    write_psf((dir / "good.h5").string(), stack(3, s), c.wavelengths_nm(), c.sensor_pitch_m);
+    const Run both = qdo_run("simulate " + cfg + " --psf " + (dir / "good.h5").string() + " --design flat" + scene +
+                             " --out " + (dir / "both").string());
+    CHECK(both.code == 2);
+    CHECK(both.out.find("either --psf or --design") != std::string::npos);
+    const Run release = qdo_run("simulate " + cfg + " --psf " + (dir / "good.h5").string() + scene + " --formation release --out " +
+                                (dir / "rel").string());
+    CHECK(release.code == 2);
+    CHECK(release.out.find("native-grid PSF") != std::string::npos);
+    // A run folder's psf.h5 from before the dataset name was unified (/psf) still reads.
+    h5_write((dir / "legacy.h5").string(),
+             {H5Dataset{"/psf", {3, s, s}, stack(3, s).data, {{"pitch_m", c.sensor_pitch_m}}, {}},
+              H5Dataset{"/wavelengths_nm", {3}, c.wavelengths_nm(), {}, {}}});
+    const PsfStackFile legacy = read_psf_stack_file((dir / "legacy.h5").string());
+    CHECK(legacy.dataset == "/psf");
+    const Run ok = qdo_run("simulate " + cfg + " --psf " + (dir / "legacy.h5").string() + scene + " --out " + (dir / "legacy").string());
+    CAPTURE(ok.out);
+    CHECK(ok.code == 0);
+    fs::remove_all(dir);
+  }
+}
