@@ -55,10 +55,13 @@ inline void write_png16(const std::string& path, std::size_t w, std::size_t h, c
 }
 
 // Test value of band b, pixel (y, x), below 4096 and distinct per position.
-inline std::uint16_t tv(std::size_t b, std::size_t y, std::size_t x) { return static_cast<std::uint16_t>((b * 131 + y * 17 + x * 3 + 1) % 4096); }
+inline std::uint16_t tv(std::size_t b, std::size_t y, std::size_t x) {
+  return static_cast<std::uint16_t>((b * 131 + y * 17 + x * 3 + 1) % 4096);
+}
 
 // A CAVE-like folder: `bands` 16-bit PNGs of h x w, band b holding tv(b, y, x) * 16.
-inline void write_png_folder(const std::string& dir, std::size_t bands, std::size_t h, std::size_t w, bool zero_pad = true) {
+inline void write_png_folder(const std::string& dir, std::size_t bands, std::size_t h, std::size_t w,
+                             bool zero_pad = true) {
   std::filesystem::create_directories(dir);
   for (std::size_t b = 0; b < bands; ++b) {
     std::vector<std::uint16_t> px(h * w);

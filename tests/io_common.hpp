@@ -25,7 +25,8 @@ struct TmpDir {
   }
   std::string operator/(const std::string& name) const { return (dir / name).string(); }
   std::size_t entries() const {
-    return static_cast<std::size_t>(std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator()));
+    return static_cast<std::size_t>(
+        std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator()));
   }
 };
 

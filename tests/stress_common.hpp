@@ -39,7 +39,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // tiny_config(n, bands) with the given pitch, scene distance (kInf: plane wave) and sensor
 // distance; the sensor pitch is twice the DOE pitch (S = N/2).
-inline SystemConfig extreme_config(std::size_t n, double pitch_m, double scene_m, double sensor_m, std::size_t bands = 3) {
+inline SystemConfig extreme_config(std::size_t n, double pitch_m, double scene_m, double sensor_m,
+                                   std::size_t bands = 3) {
   SystemConfig c = tiny_config(n, bands);
   c.pitch_m = pitch_m;
   c.sensor_pitch_m = 2 * pitch_m;
@@ -89,7 +90,8 @@ inline double dot(const std::vector<double>& a, const std::vector<double>& b) {
   return std::inner_product(a.begin(), a.end(), b.begin(), 0.0);
 }
 
-inline RealStack random_stack(std::size_t p, std::size_t r, std::size_t c, unsigned seed, double lo = -1, double hi = 1) {
+inline RealStack random_stack(std::size_t p, std::size_t r, std::size_t c, unsigned seed, double lo = -1,
+                              double hi = 1) {
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(lo, hi);
   RealStack s(p, r, c);
@@ -98,7 +100,8 @@ inline RealStack random_stack(std::size_t p, std::size_t r, std::size_t c, unsig
 }
 
 // Energy of the propagated field inside the central N x N crop and in the whole window, per band.
-inline void window_energies(const ComplexStack& f, const PropagationGeometry& g, std::vector<double>& crop, std::vector<double>& total) {
+inline void window_energies(const ComplexStack& f, const PropagationGeometry& g, std::vector<double>& crop,
+                            std::vector<double>& total) {
   crop.assign(f.planes, 0.0);
   total.assign(f.planes, 0.0);
   for (std::size_t b = 0; b < f.planes; ++b)

@@ -1,4 +1,4 @@
-// Tests of the file I/O layer (src/io_*.cpp), CSV: the tables in data/ and the parser's details
+// Tests of the file I/O layer (src/data/io_*.cpp), CSV: the tables in data/ and the parser's details
 // and malformed input.
 #include <doctest/doctest.h>
 

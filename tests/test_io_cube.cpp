@@ -1,4 +1,4 @@
-// Tests of the file I/O layer (src/io_*.cpp), hyperspectral cubes: the stored band axis checked
+// Tests of the file I/O layer (src/data/io_*.cpp), hyperspectral cubes: the stored band axis checked
 // or resampled, the radiance rule, and read_cube on .mat v5 and v7.3 files (the CAVE scenes in
 // ../shared when present, files written here, truncated and corrupted ones).
 #include <doctest/doctest.h>

@@ -1,4 +1,4 @@
-// Tests of the file I/O layer (src/io_*.cpp), HDF5: contract files (design, PSF, cube, RGB)
+// Tests of the file I/O layer (src/data/io_*.cpp), HDF5: contract files (design, PSF, cube, RGB)
 // round trip, float32 and compressed datasets, and the errors of h5_read and read_design.
 #include <doctest/doctest.h>
 #include <hdf5.h>

@@ -1,4 +1,4 @@
-// Tests of the file I/O layer (src/io_*.cpp), writing outputs: an output stage takes files from
+// Tests of the file I/O layer (src/data/io_*.cpp), writing outputs: an output stage takes files from
 // several threads, and a failed write leaves no file behind (nor a temporary one).
 #include <doctest/doctest.h>
 

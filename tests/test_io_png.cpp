@@ -1,4 +1,4 @@
-// Tests of the file I/O layer (src/io_*.cpp), PNG: gray, montage, RGB and map images are valid
+// Tests of the file I/O layer (src/data/io_*.cpp), PNG: gray, montage, RGB and map images are valid
 // files of the expected size; bad input and non-finite values are refused.
 #include <doctest/doctest.h>
 
