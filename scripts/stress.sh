@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The stability suite (tests/test_stress.cpp, STABILITY.md): installs and builds like
+# The stability suite (tests/test_stress_*.cpp, STABILITY.md): installs and builds like
 # scripts/test.sh, then runs the quick part (CTest "stress-quick", also in the default label),
 # the long cases (CTest "stress", label "stress": 10,000 design steps, N up to 4096, kill -9 of
 # design runs; about 5 minutes on 2 cores) and the fuzz corpus replay ("fuzz-regression").

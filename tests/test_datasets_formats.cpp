@@ -1,32 +1,29 @@
-// Training scenes: readers on small files written here in every format (and on the real CAVE
-// scenes when ../shared is present), corrupt inputs, the index and its split, patches,
-// augmentation, the sampler and the synthetic scene generator.
+// Training scenes, the readers: small files written here in every format (HDF5, ICVL .mat v7.3,
+// Harvard and KAIST .mat v5, CAVE PNG folders, PNG band folders) and the real CAVE scenes when
+// ../shared is present; the radiance rule and the band axis; corrupt inputs.
 #include <doctest/doctest.h>
 #include <matio.h>
 #include <png.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
-#include <random>
-#include <set>
 #include <string>
 #include <vector>
 
 #include "common.hpp"
+#include "datasets_common.hpp"
 #include "qdo/config.hpp"
 #include "qdo/datasets.hpp"
-#include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;
+using namespace qdo::test::datasets_suite;
 
 namespace {
 
@@ -35,29 +32,6 @@ const std::string kSharedDir = QDO_SHARED_DIR;
 #else
 const std::string kSharedDir = "/work/shared";
 #endif
-
-// A fresh temporary folder, removed with everything in it at the end of the test.
-class TempDir {
- public:
-  explicit TempDir(const std::string& tag) {
-    static int counter = 0;
-    path_ = fs::temp_directory_path() /
-            ("qdo_ds_" + tag + "_" + std::to_string(static_cast<long>(::getpid())) + "_" + std::to_string(counter++));
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string operator/(const std::string& name) const { return (path_ / name).string(); }
-  std::string str() const { return path_.string(); }
-
- private:
-  fs::path path_;
-};
 
 struct MatCloser {
   void operator()(mat_t* m) const { Mat_Close(m); }
@@ -88,19 +62,6 @@ void write_mat(const std::string& path, mat_ft version, const std::vector<MatVar
   }
 }
 
-// A 16-bit grayscale PNG through libpng's simplified write API (pixels row-major).
-void write_png16(const std::string& path, std::size_t w, std::size_t h, const std::vector<std::uint16_t>& px) {
-  png_image img;
-  std::memset(&img, 0, sizeof img);
-  img.version = PNG_IMAGE_VERSION;
-  img.width = static_cast<png_uint_32>(w);
-  img.height = static_cast<png_uint_32>(h);
-  img.format = PNG_FORMAT_LINEAR_Y;
-  const int ok = png_image_write_to_file(&img, path.c_str(), 0, px.data(), 0, nullptr);
-  png_image_free(&img);
-  REQUIRE(ok);
-}
-
 // A PNG through libpng's simplified write API in any format (pixels row-major, interleaved).
 template <typename T>
 void write_png_format(const std::string& path, std::size_t w, std::size_t h, png_uint_32 format, const std::vector<T>& px) {
@@ -116,48 +77,10 @@ void write_png_format(const std::string& path, std::size_t w, std::size_t h, png
   REQUIRE(ok);
 }
 
-// Test value of band b, pixel (y, x), below 4096 and distinct per position.
-std::uint16_t tv(std::size_t b, std::size_t y, std::size_t x) { return static_cast<std::uint16_t>((b * 131 + y * 17 + x * 3 + 1) % 4096); }
-
-// A CAVE-like folder: `bands` 16-bit PNGs of h x w, band b holding tv(b, y, x) * 16.
-void write_png_folder(const std::string& dir, std::size_t bands, std::size_t h, std::size_t w, bool zero_pad = true) {
-  fs::create_directories(dir);
-  for (std::size_t b = 0; b < bands; ++b) {
-    std::vector<std::uint16_t> px(h * w);
-    for (std::size_t y = 0; y < h; ++y)
-      for (std::size_t x = 0; x < w; ++x) px[y * w + x] = static_cast<std::uint16_t>(tv(b, y, x) * 16);
-    const std::string num = (zero_pad && b + 1 < 10 ? "0" : "") + std::to_string(b + 1);
-    write_png16(dir + "/scene_ms_" + num + ".png", w, h, px);
-  }
-}
-
-RealStack random_stack(std::size_t b, std::size_t h, std::size_t w, std::uint64_t seed) {
-  std::mt19937_64 rng(seed);
-  RealStack c(b, h, w);
-  for (double& v : c.data) v = static_cast<double>(rng() >> 11) * (1.0 / 9007199254740992.0);
-  return c;
-}
-
 std::vector<double> band_grid(std::size_t bands) {
   std::vector<double> wl;
   for (std::size_t b = 0; b < bands; ++b) wl.push_back(400.0 + 10.0 * static_cast<double>(b));
   return wl;
-}
-
-// The InputError message of f(), failing the test when f does not throw one.
-template <typename F>
-std::string input_error(F&& f) {
-  try {
-    f();
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  FAIL("no InputError thrown");
-  return "";
-}
-
-bool same(const RealStack& a, const RealStack& b) {
-  return a.planes == b.planes && a.rows == b.rows && a.cols == b.cols && a.data == b.data;
 }
 
 }  // namespace
@@ -487,249 +410,5 @@ TEST_SUITE("datasets") {
     CHECK(input_error([&] { load_scene(txt, "auto", 31); }).find(txt) != std::string::npos);
     CHECK(input_error([&] { load_scene(tmp / "missing.mat", "auto", 31); }).find("missing.mat") != std::string::npos);
     CHECK(input_error([&] { load_scene(txt, "envi", 31); }).find("envi") != std::string::npos);
-  }
-
-  TEST_CASE("SceneIndex finds scenes recursively, caches shapes and splits deterministically") {
-    TempDir tmp("index");
-    for (int k = 0; k < 11; ++k) {
-      fs::create_directories(tmp / ("set" + std::to_string(k % 3)));
-      write_cube(tmp / ("set" + std::to_string(k % 3) + "/s" + std::to_string(k) + ".h5"),
-                 random_stack(3, 6 + static_cast<std::size_t>(k), 8, static_cast<std::uint64_t>(k)), {450, 550, 650});
-    }
-    write_png_folder(tmp / "cave/balloons_ms/balloons_ms", 3, 5, 6);
-    { std::ofstream(tmp / "set0/readme.txt") << "not a scene"; }
-    const SceneIndex idx({tmp.str()}, "auto", 3);
-    REQUIRE(idx.size() == 12);
-    CHECK(std::is_sorted(idx.entries().begin(), idx.entries().end(),
-                         [](const SceneEntry& a, const SceneEntry& b) { return a.path < b.path; }));
-    std::size_t png = 0;
-    for (std::size_t i = 0; i < idx.size(); ++i) {
-      if (idx[i].format == "cave-png") {
-        ++png;
-        CHECK(idx[i].shape == SceneShape{3, 5, 6});
-      } else {
-        CHECK(idx[i].format == "h5");
-      }
-      const RealStack c = idx.load(i);
-      CHECK(idx[i].shape == SceneShape{c.planes, c.rows, c.cols});
-    }
-    CHECK(png == 1);
-    // A single file is an index of one.
-    CHECK(SceneIndex({idx[0].path}, "auto", 3).size() == 1);
-    CHECK(input_error([&] { SceneIndex({tmp / "nothing_here"}, "auto", 3); }).find("nothing_here") != std::string::npos);
-
-    // Splits: deterministic by seed, disjoint, covering, sized by the fractions.
-    const SceneIndex icvl = SceneIndex::synthetic(preset_config("paper"), 201, 8, 0);
-    const SceneSplit a = icvl.split(42, 0.83, 0.085), b = icvl.split(42, 0.83, 0.085), c = icvl.split(43, 0.83, 0.085);
-    CHECK(a.train.size() == 167);
-    CHECK(a.val.size() == 17);
-    CHECK(a.test.size() == 17);
-    CHECK(a.train == b.train);
-    CHECK(a.val == b.val);
-    CHECK(a.test == b.test);
-    CHECK(a.train != c.train);
-    std::set<std::size_t> all(a.train.begin(), a.train.end());
-    all.insert(a.val.begin(), a.val.end());
-    all.insert(a.test.begin(), a.test.end());
-    CHECK(all.size() == 201);
-    CHECK(*all.rbegin() == 200);
-    const SceneSplit s = idx.split(1, 0.5, 0.25);
-    CHECK(s.train.size() == 6);
-    CHECK(s.val.size() == 3);
-    CHECK(s.test.size() == 3);
-    CHECK(input_error([&] { idx.split(1, 0.9, 0.2); }).find("train_frac + val_frac") != std::string::npos);
-  }
-
-  TEST_CASE("patches: counts, positions, the paper's 9 crops cover the corners") {
-    CHECK(patch_starts(1392, 512, 440) == std::vector<std::size_t>{0, 440, 880});
-    CHECK(patch_starts(10, 4, 3) == std::vector<std::size_t>{0, 3, 6});
-    CHECK(patch_starts(7, 4, 2) == std::vector<std::size_t>{0, 2, 3});  // last aligned to the edge
-    CHECK(patch_starts(4, 4, 9) == std::vector<std::size_t>{0});
-    CHECK_THROWS_AS(patch_starts(3, 4, 1), InputError);
-    CHECK_THROWS_AS(patch_starts(8, 4, 0), InputError);
-
-    const RealStack small = random_stack(2, 10, 7, 5);
-    const std::vector<RealStack> p = extract_patches(small, 4, 3);
-    const std::vector<PatchOrigin> o = patch_origins(10, 7, 4, 3);
-    REQUIRE(p.size() == 6);  // rows 0, 3, 6 x cols 0, 3
-    REQUIRE(o.size() == 6);
-    CHECK(o[5] == PatchOrigin{6, 3});
-    for (std::size_t k = 0; k < p.size(); ++k)
-      for (std::size_t b = 0; b < 2; ++b)
-        for (std::size_t y = 0; y < 4; ++y)
-          for (std::size_t x = 0; x < 4; ++x) REQUIRE(p[k](b, y, x) == small(b, o[k].y + y, o[k].x + x));
-    CHECK(input_error([&] { extract_patches(small, 8, 2); }).find("patch size") != std::string::npos);
-
-    // ICVL-sized scene: 9 crops of 512 from 1392 x 1300.
-    RealStack scene(1, 1392, 1300);
-    for (std::size_t y = 0; y < 1392; ++y)
-      for (std::size_t x = 0; x < 1300; ++x) scene(0, y, x) = static_cast<double>(y * 1300 + x);
-    const std::vector<PatchOrigin> g = grid_origins(1392, 1300, 512, 3);
-    REQUIRE(g.size() == 9);
-    CHECK(g[0] == PatchOrigin{0, 0});
-    CHECK(g[1] == PatchOrigin{0, 394});
-    CHECK(g[4] == PatchOrigin{440, 394});
-    CHECK(g[8] == PatchOrigin{880, 788});
-    const std::vector<RealStack> nine = paper_crops(scene, 512);
-    REQUIRE(nine.size() == 9);
-    CHECK(nine[0](0, 0, 0) == scene(0, 0, 0));
-    CHECK(nine[2](0, 0, 511) == scene(0, 0, 1299));
-    CHECK(nine[6](0, 511, 0) == scene(0, 1391, 0));
-    CHECK(nine[8](0, 511, 511) == scene(0, 1391, 1299));
-    // Together the 9 crops cover every pixel.
-    std::vector<char> covered(1392 * 1300, 0);
-    for (const PatchOrigin& q : g)
-      for (std::size_t y = 0; y < 512; ++y)
-        for (std::size_t x = 0; x < 512; ++x) covered[(q.y + y) * 1300 + q.x + x] = 1;
-    CHECK(std::count(covered.begin(), covered.end(), 1) == 1392 * 1300);
-  }
-
-  TEST_CASE("augmentation is the dihedral group D4") {
-    RealStack m(1, 2, 2);
-    m.data = {1, 2, 3, 4};
-    CHECK(augment(m, 1).data == std::vector<double>{2, 4, 1, 3});  // quarter turn counter-clockwise
-    CHECK(augment(m, 2).data == std::vector<double>{4, 3, 2, 1});
-    CHECK(augment(m, 4).data == std::vector<double>{2, 1, 4, 3});  // left-right mirror
-
-    const RealStack c = random_stack(3, 6, 6, 11);
-    std::vector<RealStack> all;
-    for (int g = 0; g < 8; ++g) {
-      all.push_back(augment(c, g));
-      CHECK(same(augment(all.back(), augment_inverse(g)), c));
-    }
-    for (int a = 0; a < 8; ++a)
-      for (int b = a + 1; b < 8; ++b) CHECK_FALSE(same(all[static_cast<std::size_t>(a)], all[static_cast<std::size_t>(b)]));
-    CHECK(same(all[0], c));
-    // Closed under composition.
-    for (int a = 0; a < 8; ++a)
-      for (int b = 0; b < 8; ++b) {
-        const RealStack ab = augment(all[static_cast<std::size_t>(a)], b);
-        CHECK(std::any_of(all.begin(), all.end(), [&](const RealStack& r) { return same(r, ab); }));
-      }
-    // Non-square: odd quarter turns swap rows and cols.
-    const RealStack r = random_stack(2, 3, 5, 12);
-    for (int g = 0; g < 8; ++g) {
-      const RealStack t = augment(r, g);
-      CHECK(t.rows == (g % 2 ? 5u : 3u));
-      CHECK(same(augment(t, augment_inverse(g)), r));
-    }
-    CHECK_THROWS_AS(augment(r, 8), InputError);
-  }
-
-  TEST_CASE("PatchSampler: deterministic by seed, bounded LRU cache, patches match their refs") {
-    SystemConfig cfg = preset_config("paper");
-    cfg.bands = 4;
-    const SceneIndex idx = SceneIndex::synthetic(cfg, 5, 24, 9);
-    PatchSamplerOptions opt;
-    opt.patch_size = 16;
-    opt.batch_size = 4;
-    opt.cache_scenes = 2;
-    PatchSampler a(idx, {0, 1, 2, 3, 4}, opt, 7), b(idx, {0, 1, 2, 3, 4}, opt, 7), c(idx, {0, 1, 2, 3, 4}, opt, 8);
-    CHECK(a.patches_per_epoch() == 45);
-    bool differ = false;
-    std::set<int> codes;
-    for (int step = 0; step < 12; ++step) {  // 48 patches: past one epoch
-      const std::vector<RealStack> ba = a.next_batch(), bb = b.next_batch(), bc = c.next_batch();
-      REQUIRE(ba.size() == 4);
-      for (std::size_t k = 0; k < ba.size(); ++k) {
-        CHECK(same(ba[k], bb[k]));
-        if (!same(ba[k], bc[k])) differ = true;
-        const PatchRef& r = a.last_refs()[k];
-        codes.insert(r.code);
-        CHECK(same(ba[k], augment(crop_patch(idx.load(r.scene), r.origin, 16), r.code)));
-      }
-      CHECK(a.cache().held() <= 2);
-    }
-    CHECK(differ);
-    CHECK(codes.size() > 4);
-    CHECK(a.epoch() == 2);
-    CHECK(a.cache().loads() <= 5 + 2);  // each cube decoded once per epoch (+ the start of epoch 2)
-
-    // An epoch visits every crop of every scene once.
-    PatchSamplerOptions one = opt;
-    one.batch_size = 1;
-    one.augment = false;
-    PatchSampler e(idx, {1, 3}, one, 3);
-    std::set<std::tuple<std::size_t, std::size_t, std::size_t>> seen;
-    for (int k = 0; k < 18; ++k) {
-      e.next_batch();
-      const PatchRef& r = e.last_refs()[0];
-      CHECK(r.code == 0);
-      seen.insert({r.scene, r.origin.y, r.origin.x});
-    }
-    CHECK(seen.size() == 18);
-    CHECK(e.cache().loads() == 2);
-
-    opt.patch_size = 32;
-    CHECK(input_error([&] { PatchSampler(idx, {0}, opt, 1); }).find("synthetic:0") != std::string::npos);
-  }
-
-  TEST_CASE("synthetic scenes: in [0, 1], reproducible, mixtures of the measured tables") {
-    const SystemConfig cfg = preset_config("paper");
-    const SyntheticScene s = synthetic_scene_detail(cfg, 96, 1234);
-    const std::size_t B = cfg.wavelengths_nm().size();
-    REQUIRE(s.cube.planes == B);
-    REQUIRE(s.cube.rows == 96);
-    REQUIRE(s.cube.cols == 96);
-    CHECK(std::all_of(s.cube.data.begin(), s.cube.data.end(), [](double v) { return std::isfinite(v) && v >= 0 && v <= 1; }));
-    CHECK(*std::max_element(s.cube.data.begin(), s.cube.data.end()) > 0.05);
-    CHECK(same(synthetic_scene(cfg, 96, 1234), s.cube));
-    CHECK_FALSE(same(synthetic_scene(cfg, 96, 1235), s.cube));
-    std::set<std::uint32_t> labels(s.label.begin(), s.label.end());
-    CHECK(labels.size() >= 3);  // background plus visible shapes
-
-    // Every material is a row of an embedded table (checked against the table here) and every
-    // pixel is albedo x that row x the illuminant.
-    auto table_row = [](const std::string& tag) {
-      const std::size_t colon = tag.find(':');
-      const CsvTable t = parse_csv(embedded_file(tag.substr(0, colon)), tag);
-      const std::string name = tag.substr(colon + 1);
-      for (std::size_t r = 0; r < t.raw[0].size(); ++r)
-        if (t.raw[0][r] == name) {
-          std::vector<double> v;
-          for (std::size_t c = 1; c < t.header.size(); ++c) v.push_back(t.columns[c][r]);
-          return v;
-        }
-      FAIL("row " << tag << " not found");
-      return std::vector<double>();
-    };
-    std::vector<double> illum = table_row(s.illuminant);
-    const double imax = *std::max_element(illum.begin(), illum.end());
-    for (double& v : illum) v /= imax;
-    REQUIRE(illum.size() == B);
-    for (std::size_t b = 0; b < B; ++b) CHECK(s.illuminant_spd[b] == doctest::Approx(illum[b]).epsilon(1e-12));
-    for (std::size_t m = 0; m < s.material.size(); ++m) {
-      const std::vector<double> row = table_row(s.material[m]);
-      for (std::size_t b = 0; b < B; ++b) REQUIRE(s.reflectance[m][b] == doctest::Approx(std::clamp(row[b], 0.0, 1.0)));
-    }
-    double worst = 0;
-    for (std::size_t y = 0; y < 96; ++y)
-      for (std::size_t x = 0; x < 96; ++x) {
-        const std::size_t i = y * 96 + x;
-        const std::vector<double>& r = s.reflectance[s.label[i]];
-        // The best non-negative multiple of r x illuminant, and the residual.
-        double num = 0, den = 0;
-        for (std::size_t b = 0; b < B; ++b) {
-          num += s.cube(b, y, x) * r[b] * illum[b];
-          den += r[b] * illum[b] * r[b] * illum[b];
-        }
-        const double k = num / den;
-        REQUIRE(k >= 0);
-        CHECK(k == doctest::Approx(s.albedo.data[i]).epsilon(1e-9));
-        for (std::size_t b = 0; b < B; ++b) worst = std::max(worst, std::abs(s.cube(b, y, x) - k * r[b] * illum[b]));
-      }
-    CHECK(worst < 1e-12);
-
-    // Other band grids are interpolated; outside 400..700 nm is an InputError.
-    SystemConfig fine = cfg;
-    fine.wavelength_step_nm = 5;
-    fine.bands = 61;
-    const RealStack f = synthetic_scene(fine, 16, 5);
-    CHECK(f.planes == 61);
-    CHECK(std::all_of(f.data.begin(), f.data.end(), [](double v) { return std::isfinite(v) && v >= 0 && v <= 1; }));
-    SystemConfig uv = cfg;
-    uv.wavelength_start_nm = 380;
-    CHECK_THROWS_AS(synthetic_scene(uv, 16, 5), InputError);
-    CHECK_THROWS_AS(synthetic_scene(cfg, 0, 5), InputError);
   }
 }

@@ -1,0 +1,69 @@
+// Tests of the file I/O layer (src/data/io_*.cpp), CSV: the tables in data/ and the parser's details
+// and malformed input.
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "common.hpp"
+#include "io_common.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+
+namespace fs = std::filesystem;
+using namespace qdo;
+using namespace qdo::test::io_suite;
+using qdo::test::input_error_of;
+using qdo::test::slurp;
+
+namespace {
+
+const fs::path kDataDir = fs::path(__FILE__).parent_path().parent_path() / "data";
+
+}  // namespace
+
+TEST_SUITE("io") {
+  TEST_CASE("CSV tables from data/") {
+    const CsvTable srf = read_csv((kDataDir / "srf_FLIR_GS3-U3-41S4C.csv").string());
+    CHECK(srf.header == std::vector<std::string>{"wavelength_nm", "R", "G", "B"});
+    REQUIRE(srf.column("R").size() == 31);
+    CHECK(srf.column("R")[0] == 7.111793475);
+    CHECK(srf.column("wavelength_nm")[0] == 400);
+    CHECK(srf.column("wavelength_nm")[30] == 700);
+    CHECK(srf.comments.size() == 4);
+
+    const CsvTable cc = read_csv((kDataDir / "colorchecker24_400-700nm_10nm.csv").string());
+    REQUIRE(cc.header.size() == 32);
+    CHECK(cc.header[0] == "name");
+    REQUIRE(cc.raw[0].size() == 24);
+    CHECK(cc.raw[0][0] == "dark skin");
+    CHECK(std::isnan(cc.columns[0][0]));
+    CHECK(cc.column("400")[0] == 0.061);
+    CHECK(cc.column("700")[0] == 0.182);
+    const std::string msg = input_error_of([&] { cc.column("750"); });
+    CHECK(contains(msg, "750"));
+    CHECK(contains(msg, "name, 400, 410"));
+
+    const CsvTable d65 = read_csv((kDataDir / "cie_d65_400-700nm_10nm.csv").string());
+    CHECK(d65.column("relative_power")[0] == 82.7549);
+  }
+
+  TEST_CASE("CSV parsing details and malformed input") {
+    const CsvTable t = parse_csv("# c1\n\n a , b \n1, 2\r\n  \n# c2\n3,x\n", "mem");
+    CHECK(t.header == std::vector<std::string>{"a", "b"});
+    CHECK(t.comments == std::vector<std::string>{"c1", "c2"});
+    CHECK(t.column("a") == std::vector<double>{1, 3});
+    CHECK(t.columns[1][0] == 2);
+    CHECK(std::isnan(t.columns[1][1]));
+    CHECK(t.raw[1][1] == "x");
+
+    std::string msg = input_error_of([] { parse_csv("# c\na,b\n1,2\n3,4,5\n", "ragged.csv"); });
+    CHECK(contains(msg, "ragged.csv"));
+    CHECK(contains(msg, "line 4"));
+    msg = input_error_of([] { parse_csv("# only comments\n", "empty.csv"); });
+    CHECK(contains(msg, "empty.csv"));
+    CHECK_THROWS_AS(read_csv("/nonexistent/table.csv"), InputError);
+  }
+}

@@ -1,0 +1,111 @@
+// Tests of the file I/O layer (src/data/io_*.cpp), PNG: gray, montage, RGB and map images are valid
+// files of the expected size; bad input and non-finite values are refused.
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "common.hpp"
+#include "io_common.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+
+namespace fs = std::filesystem;
+using namespace qdo;
+using namespace qdo::test::io_suite;
+using qdo::test::input_error_of;
+using qdo::test::slurp;
+
+namespace {
+
+// Signature and IHDR width/height of a PNG file (big-endian at byte 16 and 20).
+struct PngHeader {
+  bool signature_ok = false;
+  std::uint32_t width = 0, height = 0;
+  int color_type = -1;
+};
+PngHeader png_header(const std::string& path) {
+  const std::string b = slurp(path);
+  PngHeader h;
+  if (b.size() < 33) return h;
+  static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  h.signature_ok = std::equal(sig, sig + 8, reinterpret_cast<const unsigned char*>(b.data())) &&
+                   b.compare(12, 4, "IHDR") == 0;
+  auto be32 = [&](std::size_t o) {
+    std::uint32_t v = 0;
+    for (std::size_t i = 0; i < 4; ++i) v = (v << 8) | static_cast<unsigned char>(b[o + i]);
+    return v;
+  };
+  h.width = be32(16);
+  h.height = be32(20);
+  h.color_type = static_cast<unsigned char>(b[25]);
+  return h;
+}
+
+}  // namespace
+
+TEST_SUITE("io") {
+  TEST_CASE("PNG files are valid and have the expected size") {
+    TmpDir tmp;
+    const std::string g = tmp / "gray.png";
+    write_png(g, 5, 3, 1, std::vector<unsigned char>(15, 128));
+    PngHeader h = png_header(g);
+    CHECK(h.signature_ok);
+    CHECK(h.width == 5);
+    CHECK(h.height == 3);
+    CHECK(h.color_type == 0);
+    CHECK_THROWS_AS(write_png(g, 5, 3, 1, std::vector<unsigned char>(14)), InputError);
+    CHECK_THROWS_AS(write_png(g, 5, 3, 2, std::vector<unsigned char>(30)), InputError);
+
+    // 5 planes of 10 x 12 -> 3 x 2 grid with 2 px gaps.
+    RealStack s(5, 10, 12);
+    for (std::size_t i = 0; i < s.size(); ++i) s.data[i] = static_cast<double>(i % 17);
+    const std::string m = tmp / "montage.png";
+    write_montage_png(m, s, {400, 450, 500, 600, 700});
+    h = png_header(m);
+    CHECK(h.signature_ok);
+    CHECK(h.width == 3 * 12 + 2 * 2);
+    CHECK(h.height == 2 * 10 + 2);
+    CHECK(h.color_type == 2);
+    write_montage_png(m, s, {}, 1.0, 6);  // centre 6 x 6 crop, gray
+    h = png_header(m);
+    CHECK(h.width == 3 * 6 + 2 * 2);
+    CHECK(h.height == 2 * 6 + 2);
+    CHECK_THROWS_AS(write_montage_png(m, s, {400, 500}), InputError);
+
+    RealStack big(1, 600, 600, 1.0);  // tiles larger than 256 px are box-averaged down
+    write_montage_png(m, big, {});
+    h = png_header(m);
+    CHECK(h.width <= 256);
+    CHECK(h.width == 200);
+
+    RealStack rgb(3, 4, 6);
+    for (std::size_t i = 0; i < rgb.size(); ++i) rgb.data[i] = static_cast<double>(i);
+    const std::string r = tmp / "rgb.png";
+    write_rgb_png(r, rgb);
+    h = png_header(r);
+    CHECK(h.signature_ok);
+    CHECK(h.width == 6);
+    CHECK(h.height == 4);
+    CHECK_THROWS_AS(write_rgb_png(r, RealStack(2, 4, 6)), InputError);
+
+    Map2D map(7, 9);
+    for (std::size_t i = 0; i < map.data.size(); ++i) map.data[i] = static_cast<double>(i) * 1e-7;
+    const std::string mp = tmp / "map.png";
+    write_map_png(mp, map);
+    h = png_header(mp);
+    CHECK(h.signature_ok);
+    CHECK(h.width == 9);
+    CHECK(h.height == 7);
+    write_map_png(mp, Map2D(2, 2, 3.0));  // constant map: mid colour, no division by zero
+    CHECK(png_header(mp).signature_ok);
+    Map2D bad(2, 2);
+    bad.data[1] = std::numeric_limits<double>::quiet_NaN();
+    CHECK_THROWS_AS(write_map_png(mp, bad), NumericalError);  // an output that is not finite: nothing written,
+    CHECK(png_header(mp).signature_ok);                         // the earlier file of that name kept as it was
+    CHECK(tmp.entries() == 4);  // gray, montage, rgb, map: no temp files
+  }
+}
