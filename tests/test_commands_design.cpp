@@ -138,7 +138,7 @@ TEST_SUITE("commands") {
     CHECK(full.height_m.rows == 32);
     CHECK(std::set<double>(full.height_m.data.begin(), full.height_m.data.end()).size() > std::size_t(kLevels));
     // psf.h5: design.h5's PSF stack on the sensor grid (the library's), each band summing to 1.
-    const H5Dataset ps = h5_read((run / "psf.h5").string(), "/psf");
+    const H5Dataset ps = h5_read((run / "psf.h5").string(), "/psf_sensor");
     REQUIRE(ps.shape == std::vector<std::size_t>{3, tiny().sensor_size_px(), tiny().sensor_size_px()});
     for (double sum : plane_sums(ps)) CHECK(sum == doctest::Approx(1.0).epsilon(1e-4));
     {

@@ -59,7 +59,7 @@ TEST_SUITE("commands") {
     dev /= double(fab.height_m.data.size());
     CHECK(j[3].at("deviation_nm").get<double>() == doctest::Approx(dev * 1e9).epsilon(1e-6));
     // ... and its PSF stack is the run's psf.h5 (same heights, same f32 PSF chain, batched here).
-    CHECK(diff(h5_read((dir / "psf.h5").string(), "/psf_L4-adaptive").data, h5_read((s.dir / "psf.h5").string(), "/psf").data).rel_l2 <=
+    CHECK(diff(h5_read((dir / "psf.h5").string(), "/psf_L4-adaptive").data, h5_read((s.dir / "psf.h5").string(), "/psf_sensor").data).rel_l2 <=
           10 * kEps32);
     CHECK(csv_rows(dir / "sweep.csv") == labels.size() * 3);
     CHECK(fs::exists(dir / "psf_L4-adaptive.png"));

@@ -73,7 +73,7 @@ TEST_SUITE("io") {
     for (std::size_t i = 0; i < psf.size(); ++i) psf.data[i] = std::sin(static_cast<double>(i));
     const std::string p = tmp / "psf.h5";
     write_psf(p, psf, {450, 550}, 1e-6, {{"z_m", 0.05}});
-    const H5Dataset r = h5_read(p, "/psf");
+    const H5Dataset r = h5_read(p, "/psf_sensor");
     CHECK(r.shape == std::vector<std::size_t>{2, 4, 4});
     CHECK(r.data == psf.data);
     CHECK(r.num_attrs.at("pitch_m") == 1e-6);

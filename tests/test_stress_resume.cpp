@@ -245,7 +245,7 @@ TEST_SUITE("stress") {
         } else if (name == "design.h5" || name == "design_full.h5") {
           CHECK(input_error([&] { read_design(f); }).empty());
         } else if (name == "psf.h5") {
-          CHECK(input_error([&] { h5_read(f, "/psf"); }).empty());
+          CHECK(input_error([&] { read_psf_stack_file(f); }).empty());
         } else if (name == "prior.h5") {
           CHECK(input_error([&] { h5_has(f, "/cov"); }).empty());
         } else if (name == "config.json") {
