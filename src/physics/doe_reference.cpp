@@ -1,3 +1,6 @@
+// The host side of include/qdo/doe.hpp: parameterizations and their expansion, the quantizer,
+// alpha blending and schedule, lens and flat designs, in double (the CPU reference of kernels/doe.cl's
+// expand_params and quantize_blend; the device launcher is src/physics/doe.cpp).
 #include "qdo/doe.hpp"
 
 #include <algorithm>
