@@ -47,6 +47,7 @@
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
 #include "qdo/simulator.hpp"
+#include "stage_probes.hpp"
 
 extern char** environ;
 
@@ -474,8 +475,8 @@ TEST_SUITE("stress") {
             // Energy: the Fresnel transfer function is unitary (Parseval), and the reported
             // energy outside the N x N window equals what the field itself says.
             const SamplingReport rep = s64.sampling(), rep32 = s32.sampling();  // copies: the debug calls below redo the stages
-            const ComplexStack before = s64.debug_field_after_doe();
-            const ComplexStack after = s64.debug_field_after_propagation();
+            const ComplexStack before = field_after_doe(s64);
+            const ComplexStack after = field_after_propagation(s64);
             std::vector<double> crop0, tot0, crop1, tot1;
             window_energies(before, s64.geometry(), crop0, tot0);
             window_energies(after, s64.geometry(), crop1, tot1);
@@ -532,8 +533,8 @@ TEST_SUITE("stress") {
         check_unit_planes(s32.psf_sensor(), 2e-5, "asm f32");
         CHECK(rel_l2(s32.psf_sensor().data, s64.psf_sensor().data) <= 2e-4);
         std::vector<double> c0, t0, c1, t1;
-        window_energies(s64.debug_field_after_doe(), s64.geometry(), c0, t0);
-        window_energies(s64.debug_field_after_propagation(), s64.geometry(), c1, t1);
+        window_energies(field_after_doe(s64), s64.geometry(), c0, t0);
+        window_energies(field_after_propagation(s64), s64.geometry(), c1, t1);
         for (std::size_t b = 0; b < c.bands; ++b) {
           // The band limit and the evanescent cut remove energy; nothing adds it.
           CHECK(t1[b] <= t0[b] * (1 + 1e-10));
