@@ -1,8 +1,8 @@
 // The field just after the DOE, for all bands in one launch.
 //
 // doe_field: out[b][y][x], shape bands x M x M complex (row-major), written in full: the DOE
-// samples (i, j) of the N x N height map land at (offset + i, offset + j) (the Simulator passes
-// offset 0: see Simulator::field_plan); everything else,
+// samples (i, j) of the N x N height map land at (offset + i, offset + j) (FieldStage passes
+// offset 0: see PropagationStage::plan); everything else,
 // and everything outside the circular aperture, is zero (so the buffer needs no clearing).
 // height_m: N x N real, row-major. k_per_m[b] = 2π/λ_b, dn[b] = n(λ_b) - 1 (bands reals).
 // Phase = k (r²/(sqrt(r² + d²) + d) + dn H): the source term is the exact spherical phase

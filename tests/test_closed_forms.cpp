@@ -8,6 +8,7 @@
 #include "qdo/cpu_reference.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/simulator.hpp"
+#include "stage_probes.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
@@ -57,7 +58,7 @@ ComplexStack propagate_both(Simulator& sim, const ComplexStack& f, double wl, do
                             ComplexStack& ref_out) {
   ref_out = f;
   ref::propagate(ref_out, {wl}, pitch, z, p);
-  return sim.propagate_field(f, z);
+  return propagate_field(sim, f, z);
 }
 
 }  // namespace

@@ -22,6 +22,7 @@
 #include "qdo/materials.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/simulator.hpp"
+#include "stage_probes.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
@@ -218,7 +219,7 @@ TEST_SUITE("references") {
     const Map2D flat(c.n, c.n, h0);
     Simulator sim(runtime(), c, Precision::F32);
     sim.set_heights(flat);
-    const ComplexStack got = sim.debug_field_after_doe();
+    const ComplexStack got = field_after_doe(sim);
     const ComplexStack ref_field = ref::doe_field(c, flat, sim.geometry());
     const std::size_t centre = sim.geometry().offset + c.n / 2;
     for (std::size_t b = 0; b < c.bands; ++b) {

@@ -1,13 +1,17 @@
-// DOE height maps: parameterizations, designs and the quantizer of REFERENCE §2.
+// DOE height maps: parameterizations, designs and the quantizer of REFERENCE §2, on the host
+// (src/physics/doe_reference.cpp) and on the device (DoeStage, kernels/doe.cl, src/physics/doe.cpp).
 // Heights are the glass relief H above the base plate, in metres, bounded to [0, h_max];
 // normalised height u = H / h_max. Grid: N x N, sample (i, j) (row, col) sits at
 // ((j - N/2) * pitch, (i - N/2) * pitch), row-major.
 #pragma once
+#include <CL/opencl.hpp>
+
 #include <cstddef>
 #include <string>
 #include <vector>
 
 #include "qdo/config.hpp"
+#include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
 
 namespace qdo {
@@ -70,5 +74,32 @@ double quantization_deviation_m(const Map2D& h_q, const Map2D& h_f);
 Map2D lens_design(const SystemConfig& cfg, double design_wavelength_nm);
 // A flat (zero-height) design.
 Map2D flat_design(const SystemConfig& cfg);
+
+// The DOE stage on the device (kernels/doe.cl): height maps into a device buffer of
+// designs x N x N reals of the precision (row-major, map d at element d * N * N), the input of
+// FieldStage (field.hpp). One per (configuration, precision); the configuration is taken as valid.
+class DoeStage {
+ public:
+  DoeStage(Runtime& rt, const SystemConfig& cfg, Precision p);
+  DoeStage(const DoeStage&) = delete;
+  DoeStage& operator=(const DoeStage&) = delete;
+
+  // Writes the maps (each N x N metres, row-major) into heights[0, maps.size() x N x N), blocking.
+  // Rejects wrong shapes, NaN/Inf and heights outside [0, 2 h_max] (InputError) before any device work.
+  void write(const cl::Buffer& heights, const std::vector<Map2D>& maps);
+  // Expands `params` (layout of parameter_count(kind, N), metres) onto heights[0, N x N) clamped to
+  // [0, h_max] (expand_params) and, when q is given, applies the alpha-blended quantizer in place
+  // (quantize_blend); as expand_parameters and quantize_heights in double. Rejects NaN/Inf, wrong
+  // sizes, an invalid quantizer and alpha outside [0, 1] before any device work. Returns with the
+  // queue finished (the parameter and level tables it uploads are released on return).
+  void expand(const cl::Buffer& heights, Parameterization kind, const std::vector<double>& params,
+              const Quantizer* q = nullptr, double alpha = 1.0);
+
+ private:
+  Runtime& rt_;
+  SystemConfig cfg_;
+  Precision prec_;
+  cl::Kernel k_expand_, k_quantize_;
+};
 
 }  // namespace qdo

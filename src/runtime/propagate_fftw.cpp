@@ -1,4 +1,4 @@
-// Fused, pruned propagation on CPU devices (HostPropagator in fft.hpp: the passes and the layout).
+// Fused, pruned propagation on CPU devices (HostPropagator in host_propagator.hpp: the passes and the layout).
 //
 // Why it exists: on a CPU device the transforms run at FFTW's speed (the FFTW backend), but the
 // passes between them (zero-padded field, transfer function with its energy sums, crop) went
@@ -25,7 +25,7 @@
 #include <vector>
 
 #include "qdo/error.hpp"
-#include "qdo/fft.hpp"
+#include "qdo/host_propagator.hpp"
 #include "qdo/runtime.hpp"
 #include "runtime/fftw_internal.hpp"
 
