@@ -271,7 +271,9 @@ void section_image(const Options& o, const Reference& ref) {
     Simulator sim(rt, cfg, Precision::F64);
     sim.set_heights(ref.heights);
     sim.compute_psf();
-    want = sim.sensor_images(scenes);
+    SkipOptions exact;
+    exact.exact = true;
+    want = Camera(sim).images(scenes, exact);
   }
   std::vector<double> want_flat;
   for (const auto& w : want) want_flat.insert(want_flat.end(), w.data.begin(), w.data.end());
@@ -284,7 +286,10 @@ void section_image(const Options& o, const Reference& ref) {
     Row r;
     r.workload = "image";
     r.config = "3 CAVE scenes 256 x 256, unskipped, " + to_string(p);
-    r.t = timed(o.repeats, [&] { got = sim.sensor_images(scenes); });
+    Camera cam(sim);
+    SkipOptions exact;
+    exact.exact = true;
+    r.t = timed(o.repeats, [&] { got = cam.images(scenes, exact); });
     add_setup("image: " + r.config, rt);
     std::vector<double> flat;
     for (const auto& g : got) flat.insert(flat.end(), g.data.begin(), g.data.end());

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "qdo/camera.hpp"
 #include "qdo/config.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
@@ -57,6 +58,14 @@ Diff<T> diff(const std::vector<T>& a, const std::vector<T>& b) {
 }
 
 // A small configuration for kernel-vs-reference tests: N x N grid, few bands.
+// The camera's options that skip nothing (SkipOptions::exact): images of the unskipped camera
+// operator, to the rounding of the precision.
+inline SkipOptions no_skipping() {
+  SkipOptions o;
+  o.exact = true;
+  return o;
+}
+
 inline SystemConfig tiny_config(std::size_t n = 32, std::size_t bands = 3) {
   SystemConfig c = preset_config("small");
   c.n = n;
@@ -84,6 +93,35 @@ inline RealStack random_cube(std::size_t b, std::size_t h, std::size_t w, unsign
   RealStack c(b, h, w);
   for (auto& v : c.data) v = u(rng);
   return c;
+}
+
+// Uniform random stack in [lo, hi] (seeded).
+inline RealStack uniform_stack(std::size_t p, std::size_t r, std::size_t c, unsigned seed, double lo = -1, double hi = 1) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(lo, hi);
+  RealStack s(p, r, c);
+  for (auto& v : s.data) v = u(rng);
+  return s;
+}
+
+// A smooth design well inside (0, h_max) so finite differences never hit the clamp.
+inline Map2D smooth_heights(const SystemConfig& c, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0, 2 * M_PI);
+  const double a = u(rng), b = u(rng);
+  Map2D h(c.n, c.n);
+  for (std::size_t i = 0; i < c.n; ++i)
+    for (std::size_t j = 0; j < c.n; ++j)
+      h(i, j) = c.h_max_m() * (0.5 + 0.3 * std::sin(0.37 * double(i) + a) * std::cos(0.23 * double(j) + b));
+  return h;
+}
+
+// Largest |phase| the DOE stage evaluates: source term plus DOE term at the shortest band.
+inline double max_phase(const SystemConfig& c) {
+  const double r = c.aperture_radius();
+  const double k = 2 * M_PI / (c.wavelength_start_nm * 1e-9);
+  const double src = c.scene_at_infinity ? 0 : r * r / (std::sqrt(r * r + c.scene_distance_m * c.scene_distance_m) + c.scene_distance_m);
+  return k * (src + 0.6 * 2 * c.h_max_m());
 }
 
 inline std::filesystem::path temp_dir(const std::string& tag) {

@@ -1,12 +1,20 @@
-// The adjoint ladder (double precision, CPU reference): a dot-product test for each
-// forward/adjoint pair, a directional finite difference of the whole chain, central differences
-// on sampled parameters; then the OpenCL adjoint against the CPU reference.
+// The adjoint suite. One table (tests/adjoint_table.hpp) holds every forward/adjoint pair of the PSF
+// chain, the camera references, the parameterizations and the quantizer, the radial engine, the
+// encoders and the design loop, one Stage row each, and one test body (tests/adjoint_ladder.hpp)
+// runs it: a dot-product test, a directional finite difference, central differences on probed
+// parameters, in double. Then the checks the ladder has no rung for: the OpenCL adjoints against
+// the CPU reference adjoints, the transposed area weights, the quantizer's blend and STE. This file
+// builds the rows of the PSF chain, the camera references and the DOE.
 #include <cmath>
+#include <memory>
 #include <random>
+#include <string>
 
+#include "adjoint_table.hpp"
 #include "common.hpp"
 #include "qdo/adjoint.hpp"
 #include "qdo/cpu_reference.hpp"
+#include "qdo/doe.hpp"
 #include "qdo/simulator.hpp"
 
 using namespace qdo;
@@ -14,23 +22,6 @@ using namespace qdo::test;
 
 namespace {
 
-double dot(const std::vector<double>& a, const std::vector<double>& b) {
-  double s = 0;
-  for (std::size_t i = 0; i < a.size(); ++i) s += a[i] * b[i];
-  return s;
-}
-double cdot(const std::vector<cdouble>& a, const std::vector<cdouble>& b) {  // Re <a, b>
-  double s = 0;
-  for (std::size_t i = 0; i < a.size(); ++i) s += (std::conj(a[i]) * b[i]).real();
-  return s;
-}
-RealStack random_stack(std::size_t p, std::size_t r, std::size_t c, unsigned seed, double lo = -1, double hi = 1) {
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(lo, hi);
-  RealStack s(p, r, c);
-  for (auto& v : s.data) v = u(rng);
-  return s;
-}
 Map2D random_map(std::size_t n, unsigned seed, double scale) {
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> u(0, scale);
@@ -38,121 +29,367 @@ Map2D random_map(std::size_t n, unsigned seed, double scale) {
   for (auto& v : m.data) v = u(rng);
   return m;
 }
-// A smooth design well inside (0, h_max) so finite differences never hit the clamp.
-Map2D smooth_heights(const SystemConfig& c, unsigned seed) {
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(0, 2 * M_PI);
-  const double a = u(rng), b = u(rng);
-  Map2D h(c.n, c.n);
-  for (std::size_t i = 0; i < c.n; ++i)
-    for (std::size_t j = 0; j < c.n; ++j)
-      h(i, j) = c.h_max_m() * (0.5 + 0.3 * std::sin(0.37 * double(i) + a) * std::cos(0.23 * double(j) + b));
-  return h;
-}
 constexpr double kDotTol = 1e-11;  // relative, double precision with O(M² log M) operations
+
+RealStack as_stack(const std::vector<double>& x, std::size_t p, std::size_t r, std::size_t c) {
+  RealStack s(p, r, c);
+  s.data = x;
+  return s;
+}
+Map2D as_map(const std::vector<double>& x, std::size_t n) {
+  Map2D m(n, n);
+  m.data = x;
+  return m;
+}
+// planes x m x m complex field from interleaved reals.
+ComplexStack as_field(const std::vector<double>& x, std::size_t planes, std::size_t m) {
+  ComplexStack f(planes, m, m);
+  f.data = deinterleave(x);
+  return f;
+}
+
+// Twelve heights inside the aperture (row-major indices i N + j), drawn with `seed`.
+std::vector<std::size_t> aperture_probes(const SystemConfig& c, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::vector<std::size_t> out;
+  while (out.size() < 12) {
+    const std::size_t i = rng() % c.n, j = rng() % c.n;
+    const double y = (double(i) - double(c.n / 2)) * c.pitch_m, x = (double(j) - double(c.n / 2)) * c.pitch_m;
+    if (x * x + y * y > c.aperture_radius() * c.aperture_radius()) continue;
+    out.push_back(i * c.n + j);
+  }
+  return out;
+}
+
+// Finite-difference settings of a stage whose input is the height map (metres): rung 2 along
+// x +- 1e-12 m d for a unit-scale d (phase steps ~1e-5 rad), within 1e-6 of the adjoint; rung 3 at
+// twelve heights inside the aperture, +- 1e-11 m, within 1e-5 of the entry plus 1e-6 of the
+// gradient's RMS.
+void height_fd(Stage& st, const SystemConfig& c) {
+  st.fd_tol = 0;
+  st.dir_step = 1e-12;
+  st.dir_rel = 1e-6;
+  st.probes = aperture_probes(c, 7);
+  st.probe_step = 1e-11;
+  st.probe_rel = 1e-5;
+  st.probe_rms = 1e-6;
+}
+
+// Heights -> sensor PSF through the CPU reference chain (jvp and vjp of adjoint.hpp).
+Stage chain_row(const std::string& name, const SystemConfig& c) {
+  const std::size_t s = c.sensor_size_px();
+  Stage st(name, c.n * c.n, c.bands * s * s);
+  st.forward = [c](const std::vector<double>& x) { return ref::psf_sensor_stack(c, as_map(x, c.n)).data; };
+  st.vjp = [c, s](const std::vector<double>& x, const std::vector<double>& g) {
+    return ref::psf_sensor_vjp(c, as_map(x, c.n), as_stack(g, c.bands, s, s)).data;
+  };
+  st.jvp = [c](const std::vector<double>& x, const std::vector<double>& d) {
+    return ref::psf_sensor_jvp(c, as_map(x, c.n), as_map(d, c.n)).data;
+  };
+  st.dot_tol = 0;
+  st.dot_rel = 1e-9;
+  height_fd(st, c);
+  return st;
+}
 
 }  // namespace
 
+std::vector<Stage> adjoint_rows::psf_chain() {
+  std::vector<Stage> rows;
+  {  // The DOE phase (field stage): heights -> the field after the DOE, complex as interleaved reals.
+    const SystemConfig c = tiny_config(32, 3);
+    const auto geo = PropagationGeometry::from_config(c);
+    Stage st("DOE phase: heights -> field (reference)", c.n * c.n, 2 * c.bands * geo.m * geo.m);
+    st.forward = [c, geo](const std::vector<double>& x) { return interleave(ref::doe_field(c, as_map(x, c.n), geo).data); };
+    st.vjp = [c, geo](const std::vector<double>& x, const std::vector<double>& g) {
+      return ref::doe_phase_vjp(c, geo, ref::doe_field(c, as_map(x, c.n), geo), as_field(g, c.bands, geo.m)).data;
+    };
+    st.jvp = [c, geo](const std::vector<double>& x, const std::vector<double>& d) {
+      return interleave(ref::doe_phase_jvp(c, geo, ref::doe_field(c, as_map(x, c.n), geo), as_map(d, c.n)).data);
+    };
+    st.x0 = smooth_heights(c, 41).data;
+    st.d0 = random_map(c.n, 42, 1.0).data;
+    st.dot_tol = 0;
+    st.dot_rel = kDotTol;
+    height_fd(st, c);
+    rows.push_back(st);
+  }
+  SystemConfig c = tiny_config(32, 3);
+  c.sensor_pitch_m = 10e-6;
+  for (Propagator p : {Propagator::Fresnel, Propagator::AngularSpectrum}) {  // linear: forward over z, adjoint over -z
+    const std::size_t m = 48;
+    ComplexStack x(3, m, m), y(3, m, m);
+    std::mt19937_64 rng(5);
+    std::normal_distribution<double> nd;
+    for (auto& v : x.data) v = cdouble(nd(rng), nd(rng));
+    for (auto& v : y.data) v = cdouble(nd(rng), nd(rng));
+    Stage st(std::string("propagation, ") + (p == Propagator::Fresnel ? "Fresnel" : "angular spectrum") + " (reference)",
+             2 * x.size(), 2 * y.size());
+    const std::vector<double> wl = c.wavelengths_nm();
+    const double pitch = c.pitch_m, z = c.sensor_distance_m;
+    st.forward = [wl, pitch, z, p, m](const std::vector<double>& v) {
+      ComplexStack f = as_field(v, 3, m);
+      ref::propagate(f, wl, pitch, z, p);
+      return interleave(f.data);
+    };
+    st.vjp = [wl, pitch, z, p, m](const std::vector<double>&, const std::vector<double>& g) {
+      ComplexStack f = as_field(g, 3, m);
+      ref::propagate(f, wl, pitch, -z, p);
+      return interleave(f.data);
+    };
+    st.jvp = [f = st.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    st.d0 = interleave(x.data);
+    st.g0 = interleave(y.data);
+    st.dot_tol = 0;
+    st.dot_rel = kDotTol;
+    rows.push_back(st);
+  }
+  {  // Area resampling (linear; pitch ratio 2.5: fractional weights).
+    const AreaWeights w = AreaWeights::make(c.n, c.pitch_m, c.sensor_size_px(), c.sensor_pitch_m);
+    Stage st("area resampling, pitch ratio 2.5 (reference)", 3 * c.n * c.n, 3 * w.s * w.s);
+    st.forward = [w](const std::vector<double>& x) { return ref::resample_area(as_stack(x, 3, w.n, w.n), w).data; };
+    st.vjp = [w](const std::vector<double>&, const std::vector<double>& g) {
+      return ref::resample_area_adjoint(as_stack(g, 3, w.s, w.s), w).data;
+    };
+    st.jvp = [f = st.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    st.d0 = uniform_stack(3, c.n, c.n, 6).data;
+    st.g0 = uniform_stack(3, w.s, w.s, 7).data;
+    st.dot_tol = 0;
+    st.dot_rel = kDotTol;
+    rows.push_back(st);
+  }
+  {  // Normalisation (a nonlinear stage: its JVP and VJP at a point of positive planes).
+    const auto normalised = [](const std::vector<double>& x, std::vector<double>& sums) {
+      RealStack y = as_stack(x, 3, 8, 8);
+      sums.clear();
+      for (std::size_t b = 0; b < 3; ++b) {
+        double s = 0;
+        for (std::size_t i = 0; i < 64; ++i) s += y.plane(b)[i];
+        sums.push_back(s);
+      }
+      ref::normalize_planes(y);
+      return y;
+    };
+    Stage st("per-plane normalisation (reference)", 3 * 64, 3 * 64);
+    st.forward = [normalised](const std::vector<double>& x) {
+      std::vector<double> sums;
+      return normalised(x, sums).data;
+    };
+    st.vjp = [normalised](const std::vector<double>& x, const std::vector<double>& g) {
+      std::vector<double> sums;
+      const RealStack y = normalised(x, sums);
+      return ref::normalize_vjp(as_stack(g, 3, 8, 8), y, sums).data;
+    };
+    st.jvp = [normalised](const std::vector<double>& x, const std::vector<double>& d) {
+      std::vector<double> sums;
+      const RealStack y = normalised(x, sums);
+      return ref::normalize_jvp(as_stack(d, 3, 8, 8), y, sums).data;
+    };
+    st.x0 = uniform_stack(3, 8, 8, 8, 0.1, 1.0).data;
+    st.d0 = uniform_stack(3, 8, 8, 9).data;
+    st.g0 = uniform_stack(3, 8, 8, 10).data;
+    st.dot_tol = 0;
+    st.dot_rel = kDotTol;
+    rows.push_back(st);
+  }
+  {  // The whole chain H -> sensor PSF, pitch ratio 2.5 (d in metres of size 1e-8: rung 2 steps 1e-4 d).
+    Stage st = chain_row("heights -> sensor PSF, pitch ratio 2.5 (reference)", c);
+    st.x0 = smooth_heights(c, 1).data;
+    st.d0 = random_map(c.n, 2, 1e-8).data;
+    st.g0 = uniform_stack(c.bands, c.sensor_size_px(), c.sensor_size_px(), 3).data;
+    st.dir_step = 1e-4;
+    rows.push_back(st);
+  }
+  {  // The whole chain at the default sensor pitch.
+    const SystemConfig c1 = tiny_config(32, 3);
+    Stage st = chain_row("heights -> sensor PSF (reference)", c1);
+    st.x0 = smooth_heights(c1, 4).data;
+    st.d0 = random_map(c1.n, 6, 1.0).data;
+    st.g0 = uniform_stack(c1.bands, c1.sensor_size_px(), c1.sensor_size_px(), 5).data;
+    rows.push_back(st);
+  }
+  {  // Heights -> native PSF (bands x N x N on the DOE grid): psf_native_vjp.
+    const SystemConfig c1 = tiny_config(32, 3);
+    Stage st("heights -> native PSF (reference)", c1.n * c1.n, c1.bands * c1.n * c1.n);
+    st.forward = [c1](const std::vector<double>& x) { return ref::psf_stack(c1, as_map(x, c1.n)).psf.data; };
+    st.vjp = [c1](const std::vector<double>& x, const std::vector<double>& g) {
+      return ref::psf_native_vjp(c1, as_map(x, c1.n), as_stack(g, c1.bands, c1.n, c1.n)).data;
+    };
+    st.x0 = smooth_heights(c1, 8).data;
+    st.d0 = random_map(c1.n, 9, 1.0).data;
+    height_fd(st, c1);
+    rows.push_back(st);
+  }
+  return rows;
+}
+
+std::vector<Stage> adjoint_rows::camera() {
+  std::vector<Stage> rows;
+  const SystemConfig c = tiny_config(32, 3);
+  const std::size_t s = c.sensor_size_px();
+  for (ConvolutionMode mode : {ConvolutionMode::Linear, ConvolutionMode::Circular}) {  // linear in the PSF
+    const RealStack cube = uniform_stack(c.bands, 12, 15, 21, 0, 1), psf = uniform_stack(c.bands, s, s, 22, 0, 1);
+    const RealStack g = uniform_stack(c.bands, 12, 15, 23);
+    Stage st(std::string("convolution, PSF -> blurred cube, ") + (mode == ConvolutionMode::Linear ? "linear" : "circular") +
+                 " (reference)",
+             psf.size(), cube.size());
+    const std::size_t bands = c.bands;
+    st.forward = [cube, mode, bands, s](const std::vector<double>& x) { return ref::convolve(cube, as_stack(x, bands, s, s), mode).data; };
+    st.vjp = [cube, mode, s](const std::vector<double>&, const std::vector<double>& gv) {
+      return ref::convolve_vjp_psf(cube, as_stack(gv, cube.planes, cube.rows, cube.cols), s, mode).data;
+    };
+    st.jvp = [f = st.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    st.d0 = psf.data;
+    st.g0 = g.data;
+    st.dot_tol = 0;
+    st.dot_rel = kDotTol;
+    rows.push_back(st);
+  }
+  {  // Sensor integration (linear): srf^T g.
+    const Eigen::MatrixXd srf = sensor_response(c);
+    const RealStack x = uniform_stack(c.bands, 5, 6, 24), gr = uniform_stack(3, 5, 6, 25);
+    Stage st("sensor integration (reference)", x.size(), gr.size());
+    const std::size_t bands = c.bands;
+    st.forward = [srf, bands](const std::vector<double>& v) { return ref::sensor_integrate(as_stack(v, bands, 5, 6), srf).data; };
+    st.vjp = [srf](const std::vector<double>&, const std::vector<double>& g) {
+      return ref::sensor_integrate_vjp(as_stack(g, 3, 5, 6), srf).data;
+    };
+    st.jvp = [f = st.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    st.d0 = x.data;
+    st.g0 = gr.data;
+    st.dot_tol = 0;
+    st.dot_rel = 1e-12;
+    rows.push_back(st);
+  }
+  // End to end on the device in float64: L(H) = sum_k <g_k, sensor_image_k(H)>, gradient through
+  // every stage (PSF, convolution, sensor; the additive read noise has no effect on gradients).
+  if (skip_unless(runtime().has_fp64(), "float64 cases: the device has no float64")) {
+    SystemConfig cm = c;
+    cm.convolution = ConvolutionMode::Linear;
+    cm.read_noise_sigma = 0.01;  // additive: no effect on gradients
+    auto sim = std::make_shared<Simulator>(runtime(), cm, Precision::F64);
+    auto cam = std::make_shared<Camera>(*sim);  // follows sim's PSF
+    const std::vector<RealStack> cubes = {uniform_stack(cm.bands, 20, 18, 27, 0, 1), uniform_stack(cm.bands, 20, 18, 28, 0, 1)};
+    const std::vector<RealStack> g = {uniform_stack(3, 20, 18, 29), uniform_stack(3, 20, 18, 30)};
+    const std::size_t n = cm.n, per = 3 * 20 * 18;
+    Stage st("heights -> sensor images of two scenes, linear (device float64)", n * n, 2 * per);
+    st.forward = [sim, cam, cubes, n](const std::vector<double>& x) {
+      sim->set_heights(as_map(x, n));
+      sim->compute_psf();
+      const auto imgs = cam->images(cubes, no_skipping());
+      std::vector<double> out = imgs[0].data;
+      out.insert(out.end(), imgs[1].data.begin(), imgs[1].data.end());
+      return out;
+    };
+    st.vjp = [sim, cam, cubes, n, per](const std::vector<double>& x, const std::vector<double>& gv) {
+      sim->set_heights(as_map(x, n));
+      sim->compute_psf();
+      cam->images(cubes, no_skipping());
+      const std::vector<RealStack> gk = {as_stack({gv.begin(), gv.begin() + long(per)}, 3, 20, 18),
+                                         as_stack({gv.begin() + long(per), gv.end()}, 3, 20, 18)};
+      return sim->psf_sensor_vjp(cam->vjp(gk, false).psf).data;
+    };
+    st.x0 = smooth_heights(cm, 26).data;
+    st.g0 = g[0].data;
+    st.g0.insert(st.g0.end(), g[1].data.begin(), g[1].data.end());
+    st.d0 = random_map(n, 31, 1.0).data;
+    height_fd(st, cm);
+    st.probes = {16 * n + 16, 12 * n + 20, 20 * n + 9};
+    st.probe_rms = 1e-7;
+    rows.push_back(st);
+  }
+  return rows;
+}
+
+std::vector<Stage> adjoint_rows::doe() {
+  std::vector<Stage> rows;
+  const std::size_t n = 16;
+  const double hmax = 1.5e-6;
+  for (Parameterization p : {Parameterization::Full2D, Parameterization::Radial, Parameterization::Quad}) {
+    // Expansion is linear inside the clamp: <E dp, g> = <dp, E^T g> (E dp with the clamp off).
+    std::vector<double> params(parameter_count(p, n));
+    std::mt19937_64 rng(3);
+    std::uniform_real_distribution<double> u(0.1 * hmax, 0.9 * hmax);
+    for (double& v : params) v = u(rng);
+    std::vector<double> dp(params.size());
+    for (double& v : dp) v = u(rng);
+    Stage st(std::string("parameter expansion, ") + (p == Parameterization::Full2D ? "full 2-D" : p == Parameterization::Radial ? "radial" : "quad"),
+             params.size(), n * n);
+    st.forward = [p, n, hmax](const std::vector<double>& x) { return expand_parameters(p, x, n, hmax).data; };
+    st.vjp = [p, n, hmax](const std::vector<double>& x, const std::vector<double>& g) {
+      return ref::expand_parameters_vjp(p, x, n, hmax, as_map(g, n));
+    };
+    st.jvp = [p, n](const std::vector<double>&, const std::vector<double>& d) { return expand_parameters(p, d, n, 1e9).data; };
+    st.x0 = params;
+    st.d0 = dp;
+    st.g0 = random_map(n, 8, 1.0).data;
+    st.dot_tol = 0;
+    st.dot_rel = 1e-12;
+    st.dir_step = 0.01;    // x +- 0.01 d stays inside (0, h_max)
+    st.probe_step = 1e-9;  // metres
+    rows.push_back(st);
+  }
+  {  // Quantizer: the adaptive offsets a_1..a_3 (a_0 is fixed at 0) -> blended heights; each
+     // offset moves its level by alpha h_max 0.5 / denom. Within 1e-8 (1 + min(|FD|, |adjoint|)).
+    Quantizer q;
+    q.levels = 4;
+    q.offsets = {0.0, 0.2, -0.3, 0.1};
+    const Map2D hf = random_heights(n, hmax, 9);
+    const double alpha = 0.7;
+    const auto with = [q](const std::vector<double>& a) {
+      Quantizer qa = q;
+      qa.offsets = {0.0, a[0], a[1], a[2]};
+      return qa;
+    };
+    Stage st("quantizer offsets a_1..a_3 -> heights (alpha 0.7)", 3, n * n);
+    st.forward = [hf, hmax, alpha, with](const std::vector<double>& x) { return quantize_heights(hf, hmax, with(x), alpha).data; };
+    st.vjp = [hf, hmax, alpha, with, n](const std::vector<double>& x, const std::vector<double>& g) {
+      const auto v = ref::quantize_vjp(hf, hmax, with(x), alpha, as_map(g, n));
+      return std::vector<double>(v.g_offsets.begin() + 1, v.g_offsets.end());
+    };
+    st.x0 = {0.2, -0.3, 0.1};
+    st.g0 = random_map(n, 10, 1.0).data;
+    st.fd_tol = 0;
+    st.fd_step = 1e-4;
+    st.dir_rel = st.probe_rel = 1e-8;
+    st.dir_abs = st.probe_abs = 1e-8;
+    st.probes = {0, 1, 2};
+    rows.push_back(st);
+  }
+  return rows;
+}
+
 TEST_SUITE("adjoint") {
-  TEST_CASE("dot-product tests: propagation, resampling, normalisation, the whole PSF chain") {
+  TEST_CASE("the adjoint table: every forward/adjoint pair through the ladder (dot product, directional and central differences)") {
+    struct Group {
+      const char* name;
+      std::vector<Stage> (*rows)();
+    };
+    const Group table[] = {
+        {"PSF chain", adjoint_rows::psf_chain}, {"camera", adjoint_rows::camera},     {"DOE", adjoint_rows::doe},
+        {"radial engine", adjoint_rows::radial}, {"encoders", adjoint_rows::encoders}, {"design loop", adjoint_rows::design},
+    };
+    std::uint64_t group_seed = 0;
+    for (const Group& gr : table) {
+      INFO("group: " << gr.name);
+      std::uint64_t seed = group_seed += 1000;
+      for (const Stage& st : gr.rows()) check_ladder(st, seed += 10);
+    }
+  }
+
+  TEST_CASE("area resampling: the transposed weights give the adjoint") {
     SystemConfig c = tiny_config(32, 3);
     c.sensor_pitch_m = 10e-6;
-    for (Propagator p : {Propagator::Fresnel, Propagator::AngularSpectrum}) {
-      CAPTURE(int(p));
-      const std::size_t m = 48;
-      ComplexStack x(3, m, m), y(3, m, m);
-      std::mt19937_64 rng(5);
-      std::normal_distribution<double> nd;
-      for (auto& v : x.data) v = cdouble(nd(rng), nd(rng));
-      for (auto& v : y.data) v = cdouble(nd(rng), nd(rng));
-      ComplexStack ax = x, aty = y;
-      ref::propagate(ax, c.wavelengths_nm(), c.pitch_m, c.sensor_distance_m, p);
-      ref::propagate(aty, c.wavelengths_nm(), c.pitch_m, -c.sensor_distance_m, p);
-      const double l = cdot(ax.data, y.data), r = cdot(x.data, aty.data);
-      CHECK(std::fabs(l - r) <= kDotTol * std::fabs(l));
-    }
     const AreaWeights w = AreaWeights::make(c.n, c.pitch_m, c.sensor_size_px(), c.sensor_pitch_m);
-    const RealStack x = random_stack(3, c.n, c.n, 6), y = random_stack(3, w.s, w.s, 7);
-    const double l = dot(ref::resample_area(x, w).data, y.data), r = dot(x.data, ref::resample_area_adjoint(y, w).data);
-    CHECK(std::fabs(l - r) <= kDotTol * std::fabs(l));
+    const RealStack y = uniform_stack(3, w.s, w.s, 7);
     // The transposed weights describe the same operator.
     const AreaWeights wt = w.transposed();
     CHECK(diff(ref::resample_area(y, wt).data, ref::resample_area_adjoint(y, w).data).max_abs <= 1e-14);
-    // Normalisation (a nonlinear stage: its JVP and VJP at a point).
-    RealStack pos = random_stack(3, 8, 8, 8, 0.1, 1.0);
-    std::vector<double> sums;
-    for (std::size_t b = 0; b < 3; ++b) {
-      double s = 0;
-      for (std::size_t i = 0; i < 64; ++i) s += pos.plane(b)[i];
-      sums.push_back(s);
-    }
-    RealStack yn = pos;
-    ref::normalize_planes(yn);
-    const RealStack dx = random_stack(3, 8, 8, 9), g = random_stack(3, 8, 8, 10);
-    const double ln = dot(ref::normalize_jvp(dx, yn, sums).data, g.data), rn = dot(dx.data, ref::normalize_vjp(g, yn, sums).data);
-    CHECK(std::fabs(ln - rn) <= kDotTol * std::fabs(ln));
-    // The whole chain H -> sensor PSF.
-    const Map2D h = smooth_heights(c, 1), dh = random_map(c.n, 2, 1e-8);
-    const RealStack gs = random_stack(c.bands, c.sensor_size_px(), c.sensor_size_px(), 3);
-    const double lc = dot(ref::psf_sensor_jvp(c, h, dh).data, gs.data);
-    const double rc = dot(dh.data, ref::psf_sensor_vjp(c, h, gs).data);
-    CHECK(std::fabs(lc - rc) <= 1e-9 * std::fabs(lc));
   }
 
-  TEST_CASE("directional and central finite differences of the PSF chain") {
-    SystemConfig c = tiny_config(32, 3);
-    const Map2D h = smooth_heights(c, 4);
-    const RealStack g = random_stack(c.bands, c.sensor_size_px(), c.sensor_size_px(), 5);
-    auto loss = [&](const Map2D& hh) { return dot(ref::psf_sensor_stack(c, hh).data, g.data); };
-    const Map2D grad = ref::psf_sensor_vjp(c, h, g);
-    // Directional: (L(h + e d) - L(h - e d)) / 2e against <grad, d>.
-    const Map2D d = random_map(c.n, 6, 1.0);
-    const double e = 1e-12;  // metres: phase steps ~1e-5 rad
-    Map2D hp = h, hm = h;
-    for (std::size_t i = 0; i < h.data.size(); ++i) {
-      hp.data[i] += e * d.data[i];
-      hm.data[i] -= e * d.data[i];
-    }
-    const double fd = (loss(hp) - loss(hm)) / (2 * e), an = dot(grad.data, d.data);
-    CAPTURE(fd);
-    CAPTURE(an);
-    CHECK(std::fabs(fd - an) <= 1e-6 * std::fabs(an));
-    // Central differences on 12 sampled heights (inside the aperture).
-    std::mt19937_64 rng(7);
-    int checked = 0;
-    while (checked < 12) {
-      const std::size_t i = rng() % c.n, j = rng() % c.n;
-      const double y = (double(i) - 16) * c.pitch_m, x = (double(j) - 16) * c.pitch_m;
-      if (x * x + y * y > c.aperture_radius() * c.aperture_radius()) continue;
-      Map2D a = h, b = h;
-      a(i, j) += 1e-11;
-      b(i, j) -= 1e-11;
-      const double fdij = (loss(a) - loss(b)) / 2e-11;
-      CAPTURE(i);
-      CAPTURE(j);
-      CHECK(std::fabs(fdij - grad(i, j)) <= 1e-5 * std::fabs(grad(i, j)) + 1e-6 * std::sqrt(dot(grad.data, grad.data) / double(grad.data.size())));
-      ++checked;
-    }
-  }
-
-  TEST_CASE("parameterization and quantizer adjoints") {
+  TEST_CASE("the quantizer's adjoint passes (1 - alpha) of the gradient to H_f, all of it with STE") {
     const std::size_t n = 16;
     const double hmax = 1.5e-6;
-    for (Parameterization p : {Parameterization::Full2D, Parameterization::Radial, Parameterization::Quad}) {
-      CAPTURE(int(p));
-      std::vector<double> params(parameter_count(p, n));
-      std::mt19937_64 rng(3);
-      std::uniform_real_distribution<double> u(0.1 * hmax, 0.9 * hmax);
-      for (double& v : params) v = u(rng);
-      std::vector<double> dp(params.size());
-      for (double& v : dp) v = u(rng);
-      const Map2D g = random_map(n, 8, 1.0);
-      // Expansion is linear inside the clamp: <E dp, g> = <dp, E^T g>.
-      const Map2D edp = expand_parameters(p, dp, n, 1e9);
-      const double l = dot(edp.data, g.data), r = dot(dp, ref::expand_parameters_vjp(p, params, n, hmax, g));
-      CHECK(std::fabs(l - r) <= 1e-12 * std::fabs(l));
-    }
-    // Quantizer: the blend passes (1 - alpha) to H_f; offsets get alpha h_max 0.5/denom per sample.
     Quantizer q;
     q.levels = 4;
     q.offsets = {0.0, 0.2, -0.3, 0.1};
@@ -162,14 +399,6 @@ TEST_SUITE("adjoint") {
     const auto vjp = ref::quantize_vjp(hf, hmax, q, alpha, g);
     for (std::size_t i = 0; i < hf.data.size(); ++i) CHECK(vjp.g_full.data[i] == doctest::Approx(0.3 * g.data[i]));
     CHECK(ref::quantize_vjp(hf, hmax, q, alpha, g, true).g_full.data[5] == g.data[5]);
-    for (int l = 1; l < 4; ++l) {
-      Quantizer qp = q, qm = q;
-      qp.offsets[std::size_t(l)] += 1e-4;
-      qm.offsets[std::size_t(l)] -= 1e-4;
-      const double fd = (dot(quantize_heights(hf, hmax, qp, alpha).data, g.data) -
-                         dot(quantize_heights(hf, hmax, qm, alpha).data, g.data)) / 2e-4;
-      CHECK(vjp.g_offsets[std::size_t(l)] == doctest::Approx(fd).epsilon(1e-8));
-    }
   }
 
   TEST_CASE("the OpenCL adjoint matches the CPU reference adjoint") {
@@ -182,37 +411,23 @@ TEST_SUITE("adjoint") {
       Simulator sim(runtime(), c, p);
       sim.set_heights(h);
       sim.compute_psf();
-      const RealStack gs = random_stack(c.bands, sim.sensor_size(), sim.sensor_size(), 12);
+      const RealStack gs = uniform_stack(c.bands, sim.sensor_size(), sim.sensor_size(), 12);
       const Map2D got = sim.psf_sensor_vjp(gs);
       const Map2D want = ref::psf_sensor_vjp(c, h, gs);
       const auto d = diff(got.data, want.data);
       // The gradient sums bands x M² terms of both signs: relative L2 within 2e3 eps (f32: 2.4e-4).
       CAPTURE(d.rel_l2);
       CHECK(d.rel_l2 <= 2e3 * eps(p));
-      const RealStack gn = random_stack(c.bands, c.n, c.n, 13);
+      const RealStack gn = uniform_stack(c.bands, c.n, c.n, 13);
       const auto dn = diff(sim.psf_native_vjp(gn).data, ref::psf_native_vjp(c, h, gn).data);
       CAPTURE(dn.rel_l2);
       CHECK(dn.rel_l2 <= 2e3 * eps(p));
     }
   }
-}
 
-TEST_SUITE("adjoint") {
-  TEST_CASE("convolution and sensor adjoints: dot-product tests, OpenCL vs CPU, end-to-end differences") {
+  TEST_CASE("convolution and sensor adjoints: OpenCL vs CPU (float32, float64; linear, circular)") {
     SystemConfig c = tiny_config(32, 3);
     const std::size_t s = c.sensor_size_px();
-    for (ConvolutionMode mode : {ConvolutionMode::Linear, ConvolutionMode::Circular}) {
-      CAPTURE(int(mode));
-      const RealStack cube = random_stack(c.bands, 12, 15, 21, 0, 1), psf = random_stack(c.bands, s, s, 22, 0, 1);
-      const RealStack g = random_stack(c.bands, 12, 15, 23);
-      const double l = dot(ref::convolve(cube, psf, mode).data, g.data);
-      const double r = dot(psf.data, ref::convolve_vjp_psf(cube, g, s, mode).data);
-      CHECK(std::fabs(l - r) <= kDotTol * std::fabs(l));
-    }
-    const Eigen::MatrixXd srf = sensor_response(c);
-    const RealStack x = random_stack(c.bands, 5, 6, 24), gr = random_stack(3, 5, 6, 25);
-    CHECK(std::fabs(dot(ref::sensor_integrate(x, srf).data, gr.data) - dot(x.data, ref::sensor_integrate_vjp(gr, srf).data)) <=
-          1e-12 * std::fabs(dot(x.data, ref::sensor_integrate_vjp(gr, srf).data)));
     for (Precision p : {Precision::F32, Precision::F64}) {
       if (p == Precision::F64 && !skip_unless(runtime().has_fp64(), "float64 cases: the device has no float64")) continue;
       for (ConvolutionMode mode : {ConvolutionMode::Linear, ConvolutionMode::Circular}) {
@@ -225,10 +440,11 @@ TEST_SUITE("adjoint") {
         const Map2D h = smooth_heights(cm, 26);
         sim.set_heights(h);
         sim.compute_psf();
-        const std::vector<RealStack> cubes = {random_stack(cm.bands, 20, 18, 27, 0, 1), random_stack(cm.bands, 20, 18, 28, 0, 1)};
-        sim.sensor_images(cubes);
-        const std::vector<RealStack> g = {random_stack(3, 20, 18, 29), random_stack(3, 20, 18, 30)};
-        const RealStack got = sim.sensor_images_vjp(g);
+        const std::vector<RealStack> cubes = {uniform_stack(cm.bands, 20, 18, 27, 0, 1), uniform_stack(cm.bands, 20, 18, 28, 0, 1)};
+        Camera cam(sim);
+        cam.images(cubes, no_skipping());
+        const std::vector<RealStack> g = {uniform_stack(3, 20, 18, 29), uniform_stack(3, 20, 18, 30)};
+        const RealStack got = cam.vjp(g, false).psf;
         RealStack want(cm.bands, s, s);
         for (std::size_t k = 0; k < 2; ++k) {
           const RealStack part = ref::convolve_vjp_psf(cubes[k], ref::sensor_integrate_vjp(g[k], sim.srf()), s, mode);
@@ -237,228 +453,7 @@ TEST_SUITE("adjoint") {
         const auto d = diff(got.data, want.data);
         CAPTURE(d.rel_l2);
         CHECK(d.rel_l2 <= 1e3 * eps(p));
-        if (p == Precision::F64 && mode == ConvolutionMode::Linear) {
-          // End to end: L(H) = sum_k <g_k, sensor_image_k(H)>, gradient through every stage.
-          const Map2D dh = sim.psf_sensor_vjp(got);
-          auto loss = [&](const Map2D& hh) {
-            sim.set_heights(hh);
-            sim.compute_psf();
-            const auto imgs = sim.sensor_images(cubes);
-            return dot(imgs[0].data, g[0].data) + dot(imgs[1].data, g[1].data);
-          };
-          for (auto [i, j] : {std::pair<std::size_t, std::size_t>{16, 16}, {12, 20}, {20, 9}}) {
-            Map2D a = h, b = h;
-            a(i, j) += 1e-11;
-            b(i, j) -= 1e-11;
-            const double fd = (loss(a) - loss(b)) / 2e-11;
-            CAPTURE(i);
-            CAPTURE(j);
-            CHECK(std::fabs(fd - dh(i, j)) <= 1e-5 * std::fabs(dh(i, j)) + 1e-7 * std::sqrt(dot(dh.data, dh.data) / double(dh.data.size())));
-          }
-        }
       }
     }
-  }
-}
-
-TEST_SUITE("adjoint") {
-  // The fused host propagation (HostPropagator, FFTW on CPU devices) against the same Simulator
-  // with fusion off (FFT plan, transfer-function and crop kernels, intensity and resampling
-  // adjoint kernels: the path of every other backend), and against the CPU reference. N = 42
-  // (M = 62: a partial column block, rows off the SIMD alignment), both propagators, a sensor
-  // distance long enough for the Fresnel band limit to cut the spectrum, and a two-design batch.
-  TEST_CASE("the fused host propagation gives the kernel path's PSF, sampling report and gradients") {
-    if (!skip_unless(runtime().info().type == "CPU", "the host propagation runs with the FFTW backend, on CPU devices only"))
-      return;
-    // Its own Runtime with the FFTW backend, whatever QDO_FFT says (the suite also runs with clfft
-    // and vkfft).
-    Runtime rt(std::string(""), FftBackend::FFTW);
-    for (Precision p : device_precisions(rt)) {
-      for (Propagator prop : {Propagator::Fresnel, Propagator::AngularSpectrum}) {
-        for (std::size_t n : {40, 42}) {
-          CAPTURE(to_string(p));
-          CAPTURE(int(prop));
-          CAPTURE(n);
-          SystemConfig c = tiny_config(n, 3);
-          c.propagator = prop;
-          c.sensor_pitch_m = 10e-6;  // ratio 2.5: fractional area weights, transposed taps > 1
-          c.sensor_distance_m *= 3;
-          const Map2D h = smooth_heights(c, 21);
-          Simulator fused(rt, c, p), plain(rt, c, p);
-          plain.set_host_fusion(false);
-          REQUIRE(fused.uses_host_propagation());
-          REQUIRE_FALSE(plain.uses_host_propagation());
-          for (Simulator* s : {&fused, &plain}) {
-            s->set_heights(h);
-            s->compute_psf();
-          }
-          const double m = double(fused.geometry().m);
-          // Two evaluation orders of the same float computation: 16 eps per FFT stage (|U|²
-          // doubles the field's error).
-          const double tol = 16 * eps(p) * 2 * std::log2(m);
-          const auto dn = diff(fused.psf_native().data, plain.psf_native().data);
-          CAPTURE(dn.rel_l2);
-          CHECK(dn.rel_l2 <= tol);
-          const auto ds = diff(fused.psf_sensor().data, plain.psf_sensor().data);
-          CAPTURE(ds.rel_l2);
-          CHECK(ds.rel_l2 <= tol);
-          // Sampling energies: the host sums per column in double, the kernels per work-group.
-          const auto want = ref::psf_stack(c, h);
-          for (std::size_t b = 0; b < c.bands; ++b) {
-            CAPTURE(b);
-            const BandSampling &f = fused.sampling().bands[b], &k = plain.sampling().bands[b];
-            CHECK(f.aliased_energy_fraction == doctest::Approx(k.aliased_energy_fraction).epsilon(1e-4).scale(1.0));
-            CHECK(f.energy_outside_window == doctest::Approx(k.energy_outside_window).epsilon(1e-4).scale(1.0));
-            CHECK(f.aliased_energy_fraction ==
-                  doctest::Approx(want.sampling.bands[b].aliased_energy_fraction).epsilon(1e-3).scale(1.0));
-            CHECK(f.energy_outside_window ==
-                  doctest::Approx(want.sampling.bands[b].energy_outside_window).epsilon(1e-3).scale(1.0));
-          }
-          // A band limit that cuts the spectrum: the aliased fraction is not trivially zero.
-          if (prop == Propagator::Fresnel) CHECK(fused.sampling().bands[c.bands - 1].aliased_energy_fraction > 1e-6);
-          // Gradients: the fused sensor adjoint (resampling, |U|² and propagation in one pass)
-          // and the native one (intensity kernel, host propagation), against the kernel path
-          // and the CPU reference. Sums of bands x M² terms of both signs: 2e3 eps as in
-          // "the OpenCL adjoint matches the CPU reference adjoint".
-          const RealStack gs = random_stack(c.bands, fused.sensor_size(), fused.sensor_size(), 22);
-          const Map2D gf = fused.psf_sensor_vjp(gs), gp = plain.psf_sensor_vjp(gs);
-          // The device-buffer form on both paths: the same bits as the host form (the kernel
-          // path copies the whole stack into its scratch first, the fused one reads the
-          // caller's buffer), and the caller's buffer is left as it was.
-          {
-            cl::Buffer gdev(rt.context(), CL_MEM_READ_WRITE, gs.data.size() * real_size(p));
-            rt.write_reals(gdev, gs.data.data(), gs.data.size(), p);
-            CHECK(fused.psf_sensor_vjp(gdev).data == gf.data);
-            CHECK(plain.psf_sensor_vjp(gdev).data == gp.data);
-            std::vector<double> after(gs.data.size());
-            rt.read_reals(gdev, after.data(), after.size(), p);
-            std::vector<double> before(gs.data.size());
-            for (std::size_t i = 0; i < before.size(); ++i)
-              before[i] = p == Precision::F32 ? double(float(gs.data[i])) : gs.data[i];
-            CHECK(after == before);
-          }
-          const auto dg = diff(gf.data, gp.data);
-          CAPTURE(dg.rel_l2);
-          CHECK(dg.rel_l2 <= 2e3 * eps(p));
-          const auto dr = diff(gf.data, ref::psf_sensor_vjp(c, h, gs).data);
-          CAPTURE(dr.rel_l2);
-          CHECK(dr.rel_l2 <= 2e3 * eps(p));
-          const RealStack gn = random_stack(c.bands, c.n, c.n, 23);
-          const auto dgn = diff(fused.psf_native_vjp(gn).data, plain.psf_native_vjp(gn).data);
-          CAPTURE(dgn.rel_l2);
-          CHECK(dgn.rel_l2 <= 2e3 * eps(p));
-        }
-      }
-      // A batch of two designs: each plane set equals its single-design stack.
-      SystemConfig c = tiny_config(40, 3);
-      const Map2D h0 = random_heights(c.n, c.h_max_m(), 24), h1 = random_heights(c.n, c.h_max_m(), 25);
-      Simulator batch(rt, c, p, 2), one(rt, c, p);
-      REQUIRE(batch.uses_host_propagation());
-      batch.set_heights_batch({h0, h1});
-      batch.compute_psf();
-      const RealStack both = batch.psf_sensor();
-      const std::size_t per = c.bands * batch.sensor_size() * batch.sensor_size();
-      for (std::size_t d = 0; d < 2; ++d) {
-        CAPTURE(d);
-        one.set_heights(d == 0 ? h0 : h1);
-        one.compute_psf();
-        const std::vector<double> part(both.data.begin() + std::ptrdiff_t(d * per), both.data.begin() + std::ptrdiff_t((d + 1) * per));
-        const auto dd = diff(part, one.psf_sensor().data);
-        CAPTURE(dd.rel_l2);
-        CHECK(dd.rel_l2 <= 4 * eps(p));
-      }
-    }
-  }
-
-  // Simulator::set_keep_field(false) (what `qdo psf` runs): the field made and propagated a chunk
-  // of planes at a time through one small buffer gives the kept path's results bit for bit (the
-  // same kernel values, the same FFTW plans on the same per-thread arrays), with 11 bands (a
-  // chunk of 8 and a partial one), in every precision, with the float64 phase, both propagators;
-  // the adjoints then refuse, naming the setting, and work again after a kept compute_psf().
-  TEST_CASE("a PSF streamed without keeping the field equals the kept one bit for bit; adjoints then refuse") {
-    if (!skip_unless(runtime().info().type == "CPU", "the host propagation runs with the FFTW backend, on CPU devices only"))
-      return;
-    Runtime rt(std::string(""), FftBackend::FFTW);
-    struct Variant {
-      Precision p;
-      bool phase_fp64;
-      Propagator prop;
-    };
-    std::vector<Variant> variants;
-    for (Precision p : device_precisions(rt))
-      for (Propagator prop : {Propagator::Fresnel, Propagator::AngularSpectrum}) variants.push_back({p, false, prop});
-    if (rt.has_fp64()) variants.push_back({Precision::F32, true, Propagator::Fresnel});
-    for (const Variant& v : variants) {
-      CAPTURE(to_string(v.p));
-      CAPTURE(v.phase_fp64);
-      CAPTURE(int(v.prop));
-      SystemConfig c = tiny_config(42, 11);
-      c.propagator = v.prop;
-      c.sensor_distance_m *= 3;  // the Fresnel band limit cuts the spectrum: the aliased energy is not 0
-      const Map2D h = smooth_heights(c, 31);
-      Simulator kept(rt, c, v.p, 1, v.phase_fp64), streamed(rt, c, v.p, 1, v.phase_fp64);
-      streamed.set_keep_field(false);
-      REQUIRE(streamed.uses_host_propagation());
-      for (Simulator* s : {&kept, &streamed}) {
-        s->set_heights(h);
-        s->compute_psf();
-      }
-      CHECK(kept.psf_native().data == streamed.psf_native().data);
-      CHECK(kept.psf_sensor().data == streamed.psf_sensor().data);
-      for (std::size_t b = 0; b < c.bands; ++b) {
-        CAPTURE(b);
-        CHECK(kept.sampling().bands[b].aliased_energy_fraction == streamed.sampling().bands[b].aliased_energy_fraction);
-        CHECK(kept.sampling().bands[b].energy_outside_window == streamed.sampling().bands[b].energy_outside_window);
-      }
-      if (v.prop == Propagator::Fresnel) CHECK(streamed.sampling().bands[c.bands - 1].aliased_energy_fraction > 1e-6);
-      const RealStack gs = random_stack(c.bands, kept.sensor_size(), kept.sensor_size(), 32);
-      CHECK_THROWS_WITH_AS(streamed.psf_sensor_vjp(gs), doctest::Contains("set_keep_field"), qdo::Error);
-      CHECK_THROWS_WITH_AS(streamed.psf_native_vjp(random_stack(c.bands, c.n, c.n, 33)), doctest::Contains("set_keep_field"),
-                           qdo::Error);
-      // A second streamed run over other heights reuses the chunk buffer: still equal.
-      const Map2D h2 = random_heights(c.n, c.h_max_m(), 34);
-      for (Simulator* s : {&kept, &streamed}) {
-        s->set_heights(h2);
-        s->compute_psf();
-      }
-      CHECK(kept.psf_sensor().data == streamed.psf_sensor().data);
-      streamed.set_keep_field(true);
-      streamed.compute_psf();
-      CHECK(kept.psf_sensor_vjp(gs).data == streamed.psf_sensor_vjp(gs).data);
-    }
-    // Where nothing is streamed (the kernel path), the setting changes nothing and the adjoints work.
-    SystemConfig c = tiny_config(40, 3);
-    Simulator plain(rt, c, Precision::F32);
-    plain.set_host_fusion(false);
-    plain.set_keep_field(false);
-    plain.set_heights(smooth_heights(c, 35));
-    plain.compute_psf();
-    CHECK_NOTHROW(plain.psf_sensor_vjp(random_stack(c.bands, plain.sensor_size(), plain.sensor_size(), 36)));
-  }
-
-  TEST_CASE("the host propagation refuses bad sizes and buffers before any work") {
-    if (!skip_unless(runtime().info().type == "CPU", "the host propagation maps buffers of CPU devices")) return;
-    Runtime& rt = runtime();
-    CHECK_THROWS_AS(make_host_propagator(rt, 60, 60, 3, Precision::F32), InputError);
-    CHECK_THROWS_AS(make_host_propagator(rt, 60, 0, 3, Precision::F32), InputError);
-    CHECK_THROWS_AS(make_host_propagator(rt, 60, 40, 0, Precision::F32), InputError);
-    auto hp = make_host_propagator(rt, 60, 40, 3, Precision::F32);
-    cl::Buffer small(rt.context(), CL_MEM_READ_WRITE, 16);
-    cl::Buffer field(rt.context(), CL_MEM_READ_WRITE, 3 * 60 * 60 * 8), tf(rt.context(), CL_MEM_READ_WRITE, 3 * 60 * 8);
-    try {
-      hp->run(small, HostPropagator::Tf{&tf, true}, HostPropagator::Outputs{});
-      FAIL("a too-small field buffer was accepted");
-    } catch (const InputError& e) {
-      CHECK(std::string(e.what()).find("field") != std::string::npos);
-    }
-    CHECK_THROWS_AS(hp->run(field, HostPropagator::Tf{&small, true}, HostPropagator::Outputs{}), InputError);
-    CHECK_THROWS_AS(hp->run(field, HostPropagator::Tf{&tf, false}, HostPropagator::Outputs{}), InputError);  // needs M x M
-    HostPropagator::Outputs no_klim;
-    no_klim.energy3 = &small;
-    CHECK_THROWS_AS(hp->run(field, HostPropagator::Tf{&tf, true}, no_klim), InputError);
-    // run_planes: a range beyond the planes, an empty range, a field too small for its planes.
-    CHECK_THROWS_AS(hp->run_planes(field, 2, 2, HostPropagator::Tf{&tf, true}, HostPropagator::Outputs{}), InputError);
-    CHECK_THROWS_AS(hp->run_planes(field, 0, 0, HostPropagator::Tf{&tf, true}, HostPropagator::Outputs{}), InputError);
-    CHECK_THROWS_AS(hp->run_planes(small, 1, 1, HostPropagator::Tf{&tf, true}, HostPropagator::Outputs{}), InputError);
   }
 }

@@ -93,9 +93,10 @@ TEST_SUITE("commands") {
       CAPTURE(r.out);
       REQUIRE(r.code == 0);
       Simulator sim(runtime(), c, p);
+      Camera cam(sim);
       sim.set_heights(read_design(design).height_m);
       sim.compute_psf();
-      const RealStack want = sim.sensor_image(scene);
+      const RealStack want = cam.images({scene}, no_skipping()).front();
       const H5Dataset rgb = h5_read((out / "sensor.h5").string(), "/rgb");
       REQUIRE(rgb.shape == std::vector<std::size_t>{3, want.rows, want.cols});
       CHECK(want.rows == 24);

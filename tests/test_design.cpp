@@ -1,9 +1,14 @@
-// Design optimisation: end-to-end gradients in every mode against finite differences (float64
-// kernels), a few steps lower the objective, determinism, exactly L fabricated heights.
+// Design optimisation: a few steps lower the objective, determinism, exactly L fabricated heights,
+// the STE gradient, the device-resident objective path, the radial PSF path. The end-to-end
+// gradients in every mode against finite differences (float64 kernels) are rows of the adjoint
+// table (tests/adjoint_table.hpp), built here and run by the `adjoint` suite.
 #include <cmath>
+#include <memory>
 #include <random>
 #include <set>
+#include <string>
 
+#include "adjoint_table.hpp"
 #include "common.hpp"
 #include "qdo/adjoint.hpp"
 #include "qdo/design.hpp"
@@ -53,41 +58,82 @@ std::vector<double> start_params(const SystemConfig& c, unsigned seed) {
 
 }  // namespace
 
+// End-to-end gradients (the design loop's, through the device in float64) against central
+// differences, in every mode, on the 2-D and the radial PSF paths: the loss as a function of the
+// weights w (and, for QDO+A, of the offsets a_1..a_3) at a mid-schedule state (0 < alpha < 1).
+// Quantized modes are piecewise smooth; a step of 1e-7 in w (0.08 pm) crosses a level boundary
+// with negligible probability. Within 1e-5 of the entry plus 1e-9.
+std::vector<Stage> adjoint_rows::design() {
+  REQUIRE(runtime().has_fp64());  // gradient checks run in double (PoCL has fp64)
+  const auto f = std::make_shared<const Fixture>();
+  const auto obj = std::make_shared<const PsfObjective>(psf_target_objective(f->target));
+  struct Run {
+    Simulator sim;
+    Designer d;
+    DesignState s;
+    Run(const Fixture& fx, const DesignOptions& o) : sim(runtime(), fx.cfg, fx.prec), d(sim, o) {}
+  };
+  std::vector<Stage> rows;
+  const auto add = [&](DesignMode m, bool radial) {
+    DesignOptions o = options(m);
+    if (radial) o.psf_path = PsfPath::Radial;
+    const auto run = std::make_shared<Run>(*f, o);
+    if (radial) REQUIRE(run->d.uses_radial());
+    run->s = run->d.initial_state(start_params(f->cfg, 5));
+    run->s.step = 6;  // mid-schedule: 0 < alpha < 1
+    run->s.offsets = {0.0, 0.3, -0.2, 0.1};
+    const std::string path = radial ? "radial" : "2-D";
+    const auto tolerances = [](Stage& st, double step) {
+      st.fd_tol = 0;
+      st.fd_step = step;
+      st.dir_rel = st.probe_rel = 1e-5;
+      st.dir_abs = st.probe_abs = 1e-9;
+      st.g0 = {1.0};
+    };
+    Stage w("design " + to_string(m) + ", " + path + " path: weights -> loss", run->s.w.size(), 1);
+    w.forward = [run, obj](const std::vector<double>& x) {
+      DesignState st = run->s;
+      st.w = x;
+      return std::vector<double>{run->d.gradient(st, *obj).report.loss};
+    };
+    w.vjp = [run, obj](const std::vector<double>& x, const std::vector<double>& g) {
+      DesignState st = run->s;
+      st.w = x;
+      std::vector<double> gw = run->d.gradient(st, *obj).g_w;
+      for (double& v : gw) v *= g[0];
+      return gw;
+    };
+    w.x0 = run->s.w;
+    tolerances(w, 1e-7);
+    w.probes = radial ? std::vector<std::size_t>{0, 2, 5, 9, 13} : std::vector<std::size_t>{1, 4, 7, 10, 13};
+    rows.push_back(w);
+    if (m != DesignMode::QDOA) return;
+    Stage a("design " + to_string(m) + ", " + path + " path: offsets a_1..a_3 -> loss", 3, 1);
+    a.forward = [run, obj](const std::vector<double>& x) {
+      DesignState st = run->s;
+      st.offsets = {0.0, x[0], x[1], x[2]};
+      return std::vector<double>{run->d.gradient(st, *obj).report.loss};
+    };
+    a.vjp = [run, obj](const std::vector<double>& x, const std::vector<double>& g) {
+      DesignState st = run->s;
+      st.offsets = {0.0, x[0], x[1], x[2]};
+      const std::vector<double> go = run->d.gradient(st, *obj).g_offsets;
+      return std::vector<double>{go[1] * g[0], go[2] * g[0], go[3] * g[0]};
+    };
+    a.x0 = {0.3, -0.2, 0.1};
+    tolerances(a, 1e-6);
+    a.probes = {0, 1, 2};
+    rows.push_back(a);
+  };
+  for (DesignMode m : {DesignMode::Full, DesignMode::DO, DesignMode::QDO, DesignMode::QDOA}) add(m, false);
+  for (DesignMode m : {DesignMode::Full, DesignMode::QDO, DesignMode::QDOA}) add(m, true);
+  return rows;
+}
+
 TEST_SUITE("design") {
-  TEST_CASE("end-to-end gradients agree with central differences in every mode") {
+  TEST_CASE("STE: the gradient is that of the full-precision chain evaluated at the quantized heights") {
     Fixture f;
-    REQUIRE(f.prec == Precision::F64);  // gradient checks run in double (PoCL has fp64)
     const PsfObjective obj = psf_target_objective(f.target);
-    for (DesignMode m : {DesignMode::Full, DesignMode::DO, DesignMode::QDO, DesignMode::QDOA}) {
-      CAPTURE(to_string(m));
-      Simulator sim(runtime(), f.cfg, f.prec);
-      Designer d(sim, options(m));
-      DesignState s = d.initial_state(start_params(f.cfg, 5));
-      s.step = 6;  // mid-schedule: 0 < alpha < 1
-      s.offsets = {0.0, 0.3, -0.2, 0.1};
-      auto loss_at = [&](const DesignState& st) { return d.gradient(st, obj).report.loss; };
-      const auto g = d.gradient(s, obj);
-      // Central differences on sampled weights. Quantized modes are piecewise smooth; a step of
-      // 1e-7 in w (0.08 pm) crosses a level boundary with negligible probability.
-      for (std::size_t k : {1ul, 4ul, 7ul, 10ul, 13ul}) {
-        DesignState a = s, b = s;
-        a.w[k] += 1e-7;
-        b.w[k] -= 1e-7;
-        const double fd = (loss_at(a) - loss_at(b)) / 2e-7;
-        CAPTURE(k);
-        CHECK(std::fabs(fd - g.g_w[k]) <= 1e-5 * std::fabs(g.g_w[k]) + 1e-9);
-      }
-      if (m == DesignMode::QDOA) {
-        for (std::size_t l = 1; l < 4; ++l) {
-          DesignState a = s, b = s;
-          a.offsets[l] += 1e-6;
-          b.offsets[l] -= 1e-6;
-          const double fd = (loss_at(a) - loss_at(b)) / 2e-6;
-          CAPTURE(l);
-          CHECK(std::fabs(fd - g.g_offsets[l]) <= 1e-5 * std::fabs(g.g_offsets[l]) + 1e-9);
-        }
-      }
-    }
     // STE: the gradient is that of the full-precision chain evaluated at the quantized heights.
     Simulator sim(runtime(), f.cfg, f.prec);
     Designer d(sim, options(DesignMode::STE));
@@ -240,52 +286,28 @@ TEST_SUITE("design") {
     CHECK_THROWS_AS((void)Designer(sim, o).uses_radial(), InputError);
   }
 
-  TEST_CASE("radial PSF path: end-to-end gradients agree with central differences; same chain as the engine") {
+  TEST_CASE("radial PSF path: the full-precision gradient is the engine's ring gradient times h_max / 2") {
     Fixture f;
     REQUIRE(f.prec == Precision::F64);
     const PsfObjective obj = psf_target_objective(f.target);
-    for (DesignMode m : {DesignMode::Full, DesignMode::QDO, DesignMode::QDOA}) {
-      CAPTURE(to_string(m));
-      Simulator sim(runtime(), f.cfg, f.prec);
-      DesignOptions o = options(m);
-      o.psf_path = PsfPath::Radial;
-      Designer d(sim, o);
-      REQUIRE(d.uses_radial());
-      DesignState s = d.initial_state(start_params(f.cfg, 5));
-      s.step = 6;
-      s.offsets = {0.0, 0.3, -0.2, 0.1};
-      auto loss_at = [&](const DesignState& st) { return d.gradient(st, obj).report.loss; };
-      const auto g = d.gradient(s, obj);
-      for (std::size_t k : {0ul, 2ul, 5ul, 9ul, 13ul}) {
-        DesignState a = s, b = s;
-        a.w[k] += 1e-7;
-        b.w[k] -= 1e-7;
-        const double fd = (loss_at(a) - loss_at(b)) / 2e-7;
-        CAPTURE(k);
-        CHECK(std::fabs(fd - g.g_w[k]) <= 1e-5 * std::fabs(g.g_w[k]) + 1e-9);
-      }
-      if (m == DesignMode::QDOA) {
-        for (std::size_t l = 1; l < 4; ++l) {
-          DesignState a = s, b = s;
-          a.offsets[l] += 1e-6;
-          b.offsets[l] -= 1e-6;
-          const double fd = (loss_at(a) - loss_at(b)) / 2e-6;
-          CAPTURE(l);
-          CHECK(std::fabs(fd - g.g_offsets[l]) <= 1e-5 * std::fabs(g.g_offsets[l]) + 1e-9);
-        }
-      }
-      if (m == DesignMode::Full) {
-        // Full precision: dL/dw_k = dL/dh_k (the engine's ring gradient) * h_max / 2 (w inside (-1, 1)).
-        RadialEngine& e = *d.radial_engine();
-        const auto rings = ring_heights_of_map(d.training_heights(s));
-        e.compute_psf(rings);
-        RealStack gp;
-        obj(e.psf_sensor(), gp);
-        std::vector<double> want = e.psf_sensor_vjp(gp);
-        for (double& v : want) v *= f.cfg.h_max_m() / 2;
-        CHECK(diff(g.g_w, want).rel_l2 <= 1e-12);
-      }
-    }
+    Simulator sim(runtime(), f.cfg, f.prec);
+    DesignOptions o = options(DesignMode::Full);
+    o.psf_path = PsfPath::Radial;
+    Designer d(sim, o);
+    REQUIRE(d.uses_radial());
+    DesignState s = d.initial_state(start_params(f.cfg, 5));
+    s.step = 6;
+    s.offsets = {0.0, 0.3, -0.2, 0.1};
+    const auto g = d.gradient(s, obj);
+    // Full precision: dL/dw_k = dL/dh_k (the engine's ring gradient) * h_max / 2 (w inside (-1, 1)).
+    RadialEngine& e = *d.radial_engine();
+    const auto rings = ring_heights_of_map(d.training_heights(s));
+    e.compute_psf(rings);
+    RealStack gp;
+    obj(e.psf_sensor(), gp);
+    std::vector<double> want = e.psf_sensor_vjp(gp);
+    for (double& v : want) v *= f.cfg.h_max_m() / 2;
+    CHECK(diff(g.g_w, want).rel_l2 <= 1e-12);
   }
 
   TEST_CASE("radial PSF path: steps lower the objective, deterministic with per-ring height noise, close to 2-D") {

@@ -1,5 +1,6 @@
 // Other encoders (Table 3): the quantized Fresnel lens focuses at its design wavelength; CASSI's
-// forward operator and adjoint pass dot-product tests; the prior-regularised CG decoder agrees with
+// forward operator and adjoint, and the DOE camera's, are rows of the adjoint table
+// (tests/adjoint_table.hpp, built here, run by the `adjoint` suite); the prior-regularised CG decoder agrees with
 // a dense direct solve, recovers an identity camera exactly, improves as the noise falls and equals
 // the Wiener decoder on a shift-invariant camera; evaluate_encoder matches the `qdo eval` pipeline.
 // Every tolerance is stated next to its check.
@@ -7,8 +8,10 @@
 #include <memory>
 #include <random>
 #include <set>
+#include <string>
 #include <vector>
 
+#include "adjoint_table.hpp"
 #include "common.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/encoders.hpp"
@@ -35,14 +38,7 @@ RealStack normal_stack(Rng& r, std::size_t p, std::size_t h, std::size_t w) {
   return s;
 }
 
-double dot(const RealStack& a, const RealStack& b) {
-  REQUIRE(a.size() == b.size());
-  double s = 0;
-  for (std::size_t i = 0; i < a.size(); ++i) s += a.data[i] * b.data[i];
-  return s;
-}
-
-double norm(const RealStack& a) { return std::sqrt(dot(a, a)); }
+double norm(const RealStack& a) { return std::sqrt(dot(a.data, a.data)); }
 
 double mse(const RealStack& a, const RealStack& b) {
   REQUIRE(a.size() == b.size());
@@ -173,6 +169,57 @@ double encircled(const RealStack& psf, std::size_t b, double cy, double cx, doub
 
 }  // namespace
 
+// Dot-product tests <A x, y> = <x, A^T y> (rounding only: within 1e-13 |x| |y|) for CASSI (mono,
+// RGB, shifts 0..3) and the DOE camera (within 1e-12 |x| |y|; 1e-11 for an OTF that is not the DFT
+// of a real PSF, where the Re of the IDFT is part of A).
+std::vector<Stage> adjoint_rows::encoders() {
+  std::vector<Stage> rows;
+  const auto row = [](const std::string& name, std::shared_ptr<const Encoder> e, const RealStack& x, const RealStack& y,
+                      double tol) {
+    Stage st(name, x.size(), y.size());
+    st.forward = [e, x](const std::vector<double>& v) {
+      RealStack in(x.planes, x.rows, x.cols);
+      in.data = v;
+      return e->measure(in).data;
+    };
+    st.vjp = [e, y](const std::vector<double>&, const std::vector<double>& g) {
+      RealStack out(y.planes, y.rows, y.cols);
+      out.data = g;
+      return e->adjoint(out).data;
+    };
+    st.jvp = [f = st.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    st.d0 = x.data;
+    st.g0 = y.data;
+    st.dot_tol = 0;
+    st.dot_norms = tol;
+    return st;
+  };
+  Rng rng(11);
+  const std::size_t nb = 5, h = 7, w = 9;
+  for (std::size_t shift : {0u, 1u, 3u}) {
+    for (bool rgb : {false, true}) {
+      const auto e = std::make_shared<const CassiEncoder>(random_binary_mask(h, w, 0.5, 100 + shift), nb, shift,
+                                                          rgb ? random_srf(rng, 3, nb) : Eigen::MatrixXd());
+      const RealStack x = normal_stack(rng, nb, h, w), y = normal_stack(rng, e->channels(), h, e->out_cols());
+      rows.push_back(row("CASSI, shift " + std::to_string(shift) + (rgb ? ", RGB" : ", mono"), e, x, y, 1e-13));
+    }
+  }
+  // DOE camera from a random real PSF (folded when S > H).
+  RealStack psf(nb, 11, 11);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (double& v : psf.data) v = u(rng);
+  const auto doe = std::make_shared<const DoeEncoder>(wiener::psf_to_otf(psf, h, w), random_srf(rng, 3, nb));
+  const RealStack x = normal_stack(rng, nb, h, w), y = normal_stack(rng, 3, h, w);
+  rows.push_back(row("DOE camera, PSF folded (RGB)", doe, x, y, 1e-12));
+  // and for an OTF that is not the DFT of a real PSF (the Re of the IDFT is part of A).
+  ComplexStack otf(nb, h, w);
+  for (cdouble& v : otf.data) v = cdouble(normal(rng), normal(rng));
+  const auto doe2 = std::make_shared<const DoeEncoder>(otf, random_srf(rng, 2, nb));
+  const RealStack y2 = normal_stack(rng, 2, h, w);
+  rows.push_back(row("DOE camera, complex OTF (2 channels)", doe2, x, y2, 1e-11));
+  return rows;
+}
+
 TEST_SUITE("encoders") {
   TEST_CASE("fresnel_lens_heights: L = 0 is lens_design; L levels on the lens's own 2 pi relief") {
     const SystemConfig c = tiny_config(32, 3);
@@ -297,35 +344,6 @@ TEST_SUITE("encoders") {
     const RealStack y1 = open.measure(RealStack(nb, h, w, 1.0));
     CHECK(y1(0, 0, nb - 1) == doctest::Approx(1.0).epsilon(1e-15));
     CHECK(y1(0, 0, 0) == doctest::Approx(0.25).epsilon(1e-15));
-  }
-
-  TEST_CASE("dot-product tests: <A x, y> = <x, A^T y> for CASSI (mono, RGB, shifts 0..3) and the DOE camera") {
-    Rng rng(11);
-    const std::size_t nb = 5, h = 7, w = 9;
-    for (std::size_t shift : {0u, 1u, 3u}) {
-      for (bool rgb : {false, true}) {
-        CAPTURE(shift);
-        CAPTURE(rgb);
-        const CassiEncoder e(random_binary_mask(h, w, 0.5, 100 + shift), nb, shift,
-                             rgb ? random_srf(rng, 3, nb) : Eigen::MatrixXd());
-        const RealStack x = normal_stack(rng, nb, h, w), y = normal_stack(rng, e.channels(), h, e.out_cols());
-        const double lhs = dot(e.measure(x), y), rhs = dot(x, e.adjoint(y));
-        CHECK(std::fabs(lhs - rhs) <= 1e-13 * norm(x) * norm(y));  // rounding only
-      }
-    }
-    // DOE camera from a random real PSF (folded when S > H).
-    RealStack psf(nb, 11, 11);
-    std::uniform_real_distribution<double> u(0.0, 1.0);
-    for (double& v : psf.data) v = u(rng);
-    const DoeEncoder doe(wiener::psf_to_otf(psf, h, w), random_srf(rng, 3, nb));
-    const RealStack x = normal_stack(rng, nb, h, w), y = normal_stack(rng, 3, h, w);
-    CHECK(std::fabs(dot(doe.measure(x), y) - dot(x, doe.adjoint(y))) <= 1e-12 * norm(x) * norm(y));
-    // and for an OTF that is not the DFT of a real PSF (the Re of the IDFT is part of A).
-    ComplexStack otf(nb, h, w);
-    for (cdouble& v : otf.data) v = cdouble(normal(rng), normal(rng));
-    const DoeEncoder doe2(otf, random_srf(rng, 2, nb));
-    const RealStack y2 = normal_stack(rng, 2, h, w);
-    CHECK(std::fabs(dot(doe2.measure(x), y2) - dot(x, doe2.adjoint(y2))) <= 1e-11 * norm(x) * norm(y2));
   }
 
   TEST_CASE("apply_prior_power: C against the dense definition; C^1/2 C^1/2 = C; C^-1 C = I") {

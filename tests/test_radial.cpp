@@ -1,12 +1,16 @@
 // The radial PSF engine (qdo/radial.hpp): Bessel routines, the quasi-discrete Hankel transform,
-// the adjoint ladder in double (dot-product tests per stage, directional finite difference,
-// central differences on sampled rings), OpenCL (float32 / float64) against the CPU reference,
-// and accuracy against the 2-D FFT path on the paper physics at a test-sized N.
+// OpenCL (float32 / float64) against the CPU reference, and accuracy against the 2-D FFT path on
+// the paper physics at a test-sized N. Its adjoint ladder in double (dot-product tests per linear
+// stage, directional and central differences of the whole chain) is rows of the adjoint table
+// (tests/adjoint_table.hpp), built here and run by the `adjoint` suite.
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <memory>
 #include <random>
+#include <string>
 
+#include "adjoint_table.hpp"
 #include "common.hpp"
 #include "qdo/adjoint.hpp"
 #include "qdo/cpu_reference.hpp"
@@ -39,7 +43,7 @@ std::vector<cdouble> random_complex(std::size_t n, unsigned seed) {
   return x;
 }
 
-[[maybe_unused]] RealStack random_stack(std::size_t p, std::size_t r, std::size_t c, unsigned seed) {
+RealStack random_stack(std::size_t p, std::size_t r, std::size_t c, unsigned seed) {
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> u;
   RealStack s(p, r, c);
@@ -50,12 +54,6 @@ std::vector<cdouble> random_complex(std::size_t n, unsigned seed) {
 double dot_re(const std::vector<cdouble>& a, const std::vector<cdouble>& b) {
   double s = 0;
   for (std::size_t i = 0; i < a.size(); ++i) s += (std::conj(a[i]) * b[i]).real();
-  return s;
-}
-
-[[maybe_unused]] double dot(const std::vector<double>& a, const std::vector<double>& b) {
-  double s = 0;
-  for (std::size_t i = 0; i < a.size(); ++i) s += a[i] * b[i];
   return s;
 }
 
@@ -79,6 +77,97 @@ SystemConfig paper_scaled(std::size_t n, std::size_t bands = 31) {
 std::vector<double> lens_rings(const SystemConfig& c, double wl_nm) { return ring_heights_of_map(lens_design(c, wl_nm)); }
 
 }  // namespace
+
+std::vector<Stage> adjoint_rows::radial() {
+  std::vector<Stage> rows;
+  const SystemConfig c = tiny_config(32, 3);
+  const auto t = std::make_shared<const RadialTables>(RadialTables::build(c, {}));
+  // The linear stages against their transposes, <A x, y> = <x, A^T y> within 1e-12 (|<A x, y>| + 1),
+  // complex vectors as interleaved reals: Q (rings -> K), B (K -> J).
+  using ComplexMap = std::vector<cdouble> (*)(const RadialTables&, const std::vector<cdouble>&);
+  const auto linear = [&](const std::string& name, ComplexMap fwd, ComplexMap adj, std::size_t n_in, std::size_t n_out,
+                          unsigned seed) {
+    Stage st(name, 2 * n_in, 2 * n_out);
+    st.forward = [t, fwd](const std::vector<double>& x) { return interleave(fwd(*t, deinterleave(x))); };
+    st.vjp = [t, adj](const std::vector<double>&, const std::vector<double>& g) { return interleave(adj(*t, deinterleave(g))); };
+    st.jvp = [f = st.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    st.d0 = interleave(random_complex(n_in, seed));
+    st.g0 = interleave(random_complex(n_out, seed + 1));
+    st.dot_tol = 0;
+    st.dot_rel = st.dot_abs = 1e-12;
+    return st;
+  };
+  rows.push_back(linear("radial spectrum Q: rings -> K (reference)", ref::radial_spectrum, ref::radial_spectrum_adjoint,
+                        t->bands * t->rings, t->bands * t->k, 1));
+  rows.push_back(linear("radial output B: K -> J (reference)", ref::radial_output, ref::radial_output_adjoint, t->bands * t->k,
+                        t->bands * t->j, 3));
+  // Rendering onto the native grid (interpolation) and its adjoint.
+  const RealStack ij = random_stack(t->bands, 1, t->j, 5), gn = random_stack(t->bands, t->n, t->n, 6);
+  {
+    Stage st("radial rendering: J -> native grid (reference)", ij.size(), gn.size());
+    st.forward = [t](const std::vector<double>& x) { return ref::radial_render_native(*t, x).data; };
+    st.vjp = [t](const std::vector<double>&, const std::vector<double>& g) {
+      RealStack gs(t->bands, t->n, t->n);
+      gs.data = g;
+      return ref::radial_render_native_adjoint(*t, gs).data;
+    };
+    st.jvp = [f = st.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    st.d0 = ij.data;
+    st.g0 = gn.data;
+    st.dot_tol = 0;
+    st.dot_rel = st.dot_abs = 1e-12;
+    rows.push_back(st);
+  }
+  {  // The device's sparse render matrix A (unique sensor values) and its stored transpose agree.
+    Stage st("radial render matrix A and its stored transpose (device tables)", t->j, t->unique);
+    st.forward = [t](const std::vector<double>& x) {
+      std::vector<double> y(t->unique, 0.0);
+      for (std::size_t u = 0; u < t->unique; ++u)
+        for (int e = t->a_start[u]; e < t->a_start[u + 1]; ++e) y[u] += t->a_val[std::size_t(e)] * x[std::size_t(t->a_col[std::size_t(e)])];
+      return y;
+    };
+    st.vjp = [t](const std::vector<double>&, const std::vector<double>& g) {
+      std::vector<double> y(t->j, 0.0);
+      for (std::size_t jj = 0; jj < t->j; ++jj)
+        for (int e = t->at_start[jj]; e < t->at_start[jj + 1]; ++e) y[jj] += t->at_val[std::size_t(e)] * g[std::size_t(t->at_col[std::size_t(e)])];
+      return y;
+    };
+    st.jvp = [f = st.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    st.d0.assign(ij.data.begin(), ij.data.begin() + long(t->j));
+    std::mt19937_64 rng(9);
+    std::normal_distribution<double> nd;
+    for (std::size_t u = 0; u < t->unique; ++u) st.g0.push_back(nd(rng));
+    st.dot_tol = 0;
+    st.dot_rel = st.dot_abs = 1e-12;
+    rows.push_back(st);
+  }
+  {  // The whole chain, ring heights -> sensor PSF: differences with Richardson extrapolation
+     // (4 D(e) - D(2e)) / 3, e = 1e-10 m (phase steps ~1e-3 rad): truncation O(e^4), round-off
+     // ~eps |L| / e ~ 1e-6 relative. Directional within 1e-5 of the adjoint; rings 0 (innermost),
+     // 3, 8 and 14 (near the rim) within 1e-5 of the entry plus 1e-8 of the directional derivative.
+    Stage st("radial chain: ring heights -> sensor PSF (reference)", t->rings, t->bands * t->s * t->s);
+    st.forward = [t](const std::vector<double>& x) { return ref::radial_psf_sensor(*t, x).data; };
+    st.vjp = [t](const std::vector<double>& x, const std::vector<double>& g) {
+      RealStack gs(t->bands, t->s, t->s);
+      gs.data = g;
+      return ref::radial_psf_sensor_vjp(*t, x, gs);
+    };
+    st.x0 = random_rings(t->rings, c.h_max_m(), 11);
+    st.g0 = random_stack(t->bands, t->s, t->s, 12).data;
+    std::mt19937_64 rng(13);
+    std::uniform_real_distribution<double> u(-1, 1);
+    for (std::size_t k = 0; k < t->rings; ++k) st.d0.push_back(u(rng));
+    st.richardson = true;
+    st.fd_step = 1e-10;
+    st.fd_tol = 0;
+    st.dir_rel = 1e-5;
+    st.probes = {0, 3, 8, 14};
+    st.probe_rel = 1e-5;
+    st.probe_abs = 1e-8 * std::fabs(dot(st.vjp(st.x0, st.g0), st.d0));
+    rows.push_back(st);
+  }
+  return rows;
+}
 
 TEST_SUITE("radial") {
   TEST_CASE("J0, J1 and the zeros of J0") {
@@ -199,71 +288,6 @@ TEST_SUITE("radial") {
     }
     MESSAGE("mean |B Q c - c| inside rings: " << err / count);
     CHECK(err / count < 0.2);
-  }
-
-  TEST_CASE("dot-product tests of every linear stage (double)") {
-    const SystemConfig c = tiny_config(32, 3);
-    const RadialTables t = RadialTables::build(c, {});
-    // Q: rings -> K, B: K -> J, both against their transposes, <A x, y> = <x, A^T y>.
-    const auto x = random_complex(t.bands * t.rings, 1), y = random_complex(t.bands * t.k, 2);
-    const double l1 = dot_re(ref::radial_spectrum(t, x), y), r1 = dot_re(x, ref::radial_spectrum_adjoint(t, y));
-    CHECK(std::fabs(l1 - r1) <= 1e-12 * (std::fabs(l1) + 1));
-    const auto xk = random_complex(t.bands * t.k, 3), yj = random_complex(t.bands * t.j, 4);
-    const double l2 = dot_re(ref::radial_output(t, xk), yj), r2 = dot_re(xk, ref::radial_output_adjoint(t, yj));
-    CHECK(std::fabs(l2 - r2) <= 1e-12 * (std::fabs(l2) + 1));
-    // Rendering onto the native grid (interpolation) and its adjoint.
-    const RealStack ij = random_stack(t.bands, 1, t.j, 5), gn = random_stack(t.bands, t.n, t.n, 6);
-    const RealStack rn = ref::radial_render_native(t, ij.data), ra = ref::radial_render_native_adjoint(t, gn);
-    const double l3 = dot(rn.data, gn.data), r3 = dot(ij.data, ra.data);
-    CHECK(std::fabs(l3 - r3) <= 1e-12 * (std::fabs(l3) + 1));
-    // The device's sparse render matrix A (unique sensor values) and its stored transpose agree.
-    const std::vector<double> iv(ij.data.begin(), ij.data.begin() + long(t.j));
-    std::vector<double> gu(t.unique);
-    std::mt19937_64 rng(9);
-    std::normal_distribution<double> nd;
-    for (double& v : gu) v = nd(rng);
-    double l4 = 0, r4 = 0;
-    for (std::size_t u = 0; u < t.unique; ++u)
-      for (int e = t.a_start[u]; e < t.a_start[u + 1]; ++e) l4 += gu[u] * t.a_val[std::size_t(e)] * iv[std::size_t(t.a_col[std::size_t(e)])];
-    for (std::size_t jj = 0; jj < t.j; ++jj)
-      for (int e = t.at_start[jj]; e < t.at_start[jj + 1]; ++e) r4 += iv[jj] * t.at_val[std::size_t(e)] * gu[std::size_t(t.at_col[std::size_t(e)])];
-    CHECK(std::fabs(l4 - r4) <= 1e-12 * (std::fabs(l4) + 1));
-  }
-
-  TEST_CASE("adjoint of the whole chain: directional and central differences (double)") {
-    const SystemConfig c = tiny_config(32, 3);
-    const RadialTables t = RadialTables::build(c, {});
-    const auto h = random_rings(t.rings, c.h_max_m(), 11);
-    const RealStack g = random_stack(t.bands, t.s, t.s, 12);
-    const auto gh = ref::radial_psf_sensor_vjp(t, h, g);
-    auto loss = [&](const std::vector<double>& hh) { return dot(ref::radial_psf_sensor(t, hh).data, g.data); };
-    // Directional: d/de L(h + e v) against <dL/dh, v> by central differences with Richardson
-    // extrapolation (4 D(e/2) - D(e)) / 3, e = 2e-10 m (phase steps ~2e-3 rad): truncation O(e^4),
-    // round-off ~eps |L| / e ~ 1e-6 relative.
-    std::mt19937_64 rng(13);
-    std::uniform_real_distribution<double> u(-1, 1);
-    std::vector<double> v(t.rings);
-    for (double& x : v) x = u(rng);
-    auto central = [&](const std::vector<double>& dir, double e) {
-      std::vector<double> hp = h, hm = h;
-      for (std::size_t k = 0; k < t.rings; ++k) {
-        hp[k] += e * dir[k];
-        hm[k] -= e * dir[k];
-      }
-      return (loss(hp) - loss(hm)) / (2 * e);
-    };
-    auto richardson = [&](const std::vector<double>& dir) { return (4 * central(dir, 1e-10) - central(dir, 2e-10)) / 3; };
-    const double fd = richardson(v), an = dot(gh, v);
-    MESSAGE("directional derivative: adjoint " << an << ", differences " << fd << " (relative " << std::fabs(fd - an) / std::fabs(an) << ")");
-    CHECK(std::fabs(fd - an) <= 1e-5 * std::fabs(an));
-    // Central differences on sampled rings (including the innermost and one near the rim).
-    for (std::size_t k : {0ul, 3ul, 8ul, 14ul}) {
-      std::vector<double> ek(t.rings, 0.0);
-      ek[k] = 1;
-      const double fdk = richardson(ek);
-      CAPTURE(k);
-      CHECK(std::fabs(fdk - gh[k]) <= 1e-5 * std::fabs(gh[k]) + 1e-8 * std::fabs(an));
-    }
   }
 
   TEST_CASE("OpenCL float64 and float32 against the CPU reference: forward and adjoint") {

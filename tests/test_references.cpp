@@ -287,6 +287,7 @@ TEST_SUITE("references") {
     SystemConfig cc = c;
     cc.convolution = ConvolutionMode::Circular;
     Simulator simc(runtime(), cc, Precision::F32);
+    Camera camc(simc);
     simc.set_heights(random_heights(cc.n, cc.h_max_m(), 5));
     simc.compute_psf();
     sim.set_heights(random_heights(c.n, c.h_max_m(), 5));
@@ -298,7 +299,7 @@ TEST_SUITE("references") {
       for (std::size_t i = 0; i < hw * hw; ++i) cube.plane(b)[i] = 1.0;
       cubes.push_back(cube);
     }
-    const auto circ = simc.sensor_images(cubes);
+    const auto circ = camc.images(cubes, no_skipping());
     Camera imager(sim);
     SkipOptions exact;
     exact.exact = true;

@@ -158,7 +158,7 @@ TEST_CASE("crop rule: matches the CPU reference of the cropped computation and s
   const Map2D lens = lens_design(cfg, 550);
   const std::vector<RealStack> cubes{textured_cube(31, kSceneRows, kSceneCols, 11), random_cube(31, kSceneRows, kSceneCols, 12)};
   Rig ref64(cfg, Precision::F64, lens);
-  const auto unskipped = ref64.sim->sensor_images(cubes);
+  const auto unskipped = Camera(*ref64.sim).images(cubes, no_skipping());
   const RealStack psf = ref64.sim->psf_sensor();
   SkipOptions o;
   o.band_tolerance = 0;
@@ -208,7 +208,7 @@ TEST_CASE("band rule: zero-response and dark bands are skipped within the bound"
   for (std::size_t b = 27; b < 31; ++b)
     for (std::size_t i = 0; i < cubes[0].plane_size(); ++i) cubes[0].plane(b)[i] *= 1e-5;
   Rig r64(cfg, Precision::F64, h);
-  const auto unskipped = r64.sim->sensor_images(cubes);
+  const auto unskipped = Camera(*r64.sim).images(cubes, no_skipping());
   SkipOptions o;
   o.crop_tolerance = 0;
   o.tile_tolerance = 0;
@@ -255,7 +255,7 @@ TEST_CASE("tile rule: empty tiles skipped by overlap-add within the bound") {
         if (y < 8 && x >= 70) cubes[1](b, y, x) = tex(b, y, x);
       }
   Rig r64(cfg, Precision::F64, lens);
-  const auto unskipped = r64.sim->sensor_images(cubes);
+  const auto unskipped = Camera(*r64.sim).images(cubes, no_skipping());
   SkipOptions o;
   o.band_tolerance = 0;
   o.crop_tolerance = 0;
@@ -293,7 +293,7 @@ TEST_CASE("tile rule: empty tiles skipped by overlap-add within the bound") {
   on.tiles = TileMode::On;
   on.tile_px = 24;
   const std::vector<RealStack> dense{textured_cube(31, 50, 61, 33)};
-  CHECK(max_abs_diff(im.images(dense, on), rig.sim->sensor_images(dense)) <= 1e-12);
+  CHECK(max_abs_diff(im.images(dense, on), Camera(*rig.sim).images(dense, no_skipping())) <= 1e-12);
   CHECK(im.last_report().tiles_skipped == 0);
 }
 
@@ -305,7 +305,7 @@ TEST_CASE("all rules together: total bound within the total tolerance") {
     for (std::size_t y = 0; y < 64; ++y)
       for (std::size_t x = 0; x < 64; ++x) cubes[0](b, y, x) *= (b < 3 ? 1e-4 : 1.0) * (x >= 32 ? 1e-6 : 1.0);
   Rig r64(cfg, Precision::F64, lens);
-  const auto unskipped = r64.sim->sensor_images(cubes);
+  const auto unskipped = Camera(*r64.sim).images(cubes, no_skipping());
   const SkipOptions o = SkipOptions::split(3e-2, TileMode::On, 16);
   Camera im(*r64.sim);
   const auto got = im.images(cubes, o);

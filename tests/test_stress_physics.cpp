@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "stage_probes.hpp"
 #include "stress_common.hpp"
 #include "qdo/adjoint.hpp"
 #include "qdo/cpu_reference.hpp"
@@ -65,8 +66,8 @@ TEST_SUITE("stress") {
             // Energy: the Fresnel transfer function is unitary (Parseval), and the reported
             // energy outside the N x N window equals what the field itself says.
             const SamplingReport rep = s64.sampling(), rep32 = s32.sampling();  // copies: the debug calls below redo the stages
-            const ComplexStack before = s64.debug_field_after_doe();
-            const ComplexStack after = s64.debug_field_after_propagation();
+            const ComplexStack before = field_after_doe(s64);
+            const ComplexStack after = field_after_propagation(s64);
             std::vector<double> crop0, tot0, crop1, tot1;
             window_energies(before, s64.geometry(), crop0, tot0);
             window_energies(after, s64.geometry(), crop1, tot1);
@@ -123,8 +124,8 @@ TEST_SUITE("stress") {
         check_unit_planes(s32.psf_sensor(), 2e-5, "asm f32");
         CHECK(rel_l2(s32.psf_sensor().data, s64.psf_sensor().data) <= 2e-4);
         std::vector<double> c0, t0, c1, t1;
-        window_energies(s64.debug_field_after_doe(), s64.geometry(), c0, t0);
-        window_energies(s64.debug_field_after_propagation(), s64.geometry(), c1, t1);
+        window_energies(field_after_doe(s64), s64.geometry(), c0, t0);
+        window_energies(field_after_propagation(s64), s64.geometry(), c1, t1);
         for (std::size_t b = 0; b < c.bands; ++b) {
           // The band limit and the evanescent cut remove energy; nothing adds it.
           CHECK(t1[b] <= t0[b] * (1 + 1e-10));
@@ -287,6 +288,7 @@ TEST_SUITE("stress") {
         CAPTURE(to_string(p));
         const double tol = p == Precision::F64 ? 1e-12 : 2e-6;
         Simulator sim(runtime(), c, p);
+        Camera cam(sim);
         sim.set_heights(lens_design(c, 500));
         sim.compute_psf();
         const RealStack psf = sim.psf_sensor();
@@ -296,7 +298,7 @@ TEST_SUITE("stress") {
         for (std::size_t b = 0; b < c.bands; ++b) bright(b, H / 2, W / 2) = 1.0;
         const RealStack noisy = random_cube(c.bands, H, W, 3);
         // One bright pixel: the image is the PSF itself (the PSF fits inside the scene).
-        const RealStack blur = sim.convolve(bright);
+        const RealStack blur = cam.blur({bright}).front();
         CHECK(all_finite(blur.data));
         double worst = 0;
         for (std::size_t b = 0; b < c.bands; ++b) {
@@ -311,9 +313,9 @@ TEST_SUITE("stress") {
         CHECK(worst <= tol);
         // All zero stays exactly zero; a constant stays constant where the PSF is inside the
         // scene (everywhere for circular convolution).
-        const RealStack z = sim.convolve(zero);
+        const RealStack z = cam.blur({zero}).front();
         CHECK(std::all_of(z.data.begin(), z.data.end(), [](double v) { return v == 0.0; }));
-        const RealStack k = sim.convolve(constant);
+        const RealStack k = cam.blur({constant}).front();
         double kerr = 0;
         for (std::size_t b = 0; b < c.bands; ++b)
           for (std::size_t y = S; y + S < H; ++y)
@@ -324,11 +326,11 @@ TEST_SUITE("stress") {
         // Batches: each scene's image equals its image alone, for batch sizes 1, 2, 3 and 5.
         const std::vector<RealStack> scenes = {zero, constant, bright, noisy, bright};
         std::vector<RealStack> alone;
-        for (const auto& sc : scenes) alone.push_back(sim.sensor_image(sc));
+        for (const auto& sc : scenes) alone.push_back(cam.images({sc}, no_skipping()).front());
         for (std::size_t batch : {1ul, 2ul, 3ul, 5ul})
           for (std::size_t first = 0; first + batch <= scenes.size(); first += batch) {
             const std::vector<RealStack> in(scenes.begin() + long(first), scenes.begin() + long(first + batch));
-            const std::vector<RealStack> out = sim.sensor_images(in);
+            const std::vector<RealStack> out = cam.images(in, no_skipping());
             for (std::size_t i = 0; i < batch; ++i) {
               CAPTURE(batch);
               CAPTURE(first + i);
@@ -341,8 +343,8 @@ TEST_SUITE("stress") {
         // The sensor adjoint through a batch: finite for every scene type.
         std::vector<RealStack> g;
         for (std::size_t i = 0; i < scenes.size(); ++i) g.push_back(random_stack(3, H, W, unsigned(i)));
-        sim.sensor_images(scenes);
-        CHECK(all_finite(sim.sensor_images_vjp(g).data));
+        cam.images(scenes, no_skipping());
+        CHECK(all_finite(cam.vjp(g, false).psf.data));
       }
     MESSAGE("largest difference between a scene's image in a batch and alone: " << worst_batch);
   }

@@ -17,6 +17,7 @@
 #include <thread>
 #include <vector>
 
+#include "qdo/camera.hpp"
 #include "qdo/resunet.hpp"
 #include "qdo/design.hpp"
 #include "qdo/doe.hpp"
@@ -101,7 +102,10 @@ int main(int argc, char** argv) {
       sim.compute_psf();
       rt.queue().finish();
     };
-    auto camera = [&] { rgb = sim.sensor_images(scenes); };
+    Camera cam(sim);
+    SkipOptions exact;
+    exact.exact = true;
+    auto camera = [&] { rgb = cam.images(scenes, exact); };
     auto network = [&] {
       adam.zero_grad();
       rgb_t = batch_tensor(rgb).requires_grad_(true);
@@ -113,7 +117,7 @@ int main(int argc, char** argv) {
         std::copy(g[std::int64_t(k)].data_ptr<double>(), g[std::int64_t(k)].data_ptr<double>() + 3 * s * s,
                   g_rgb[k].data.begin());
     };
-    auto camera_adjoint = [&] { g_psf = sim.sensor_images_vjp(g_rgb); };
+    auto camera_adjoint = [&] { g_psf = cam.vjp(g_rgb, false).psf; };
     auto psf_adjoint = [&] { (void)sim.psf_sensor_vjp(g_psf); };
     auto adjoints = [&] {
       camera_adjoint();

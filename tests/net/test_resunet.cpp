@@ -100,12 +100,13 @@ TEST_SUITE("net") {
     net->to(torch::kDouble);
     net->eval();  // batch norm with its (initial) running statistics: a fixed function of the image
     Simulator sim(runtime(), c, Precision::F64);
+    Camera cam(sim);
     const torch::Tensor t_target = to_tensor(target);
     // Loss (Eq. 14's data term): mean absolute error of the network's reconstruction.
     auto loss_at = [&](const Map2D& h) {
       sim.set_heights(h);
       sim.compute_psf();
-      const RealStack rgb = sim.sensor_images({scene}).front();
+      const RealStack rgb = cam.images({scene}, no_skipping()).front();
       torch::NoGradGuard ng;
       return (net->forward(to_tensor(rgb)) - t_target).abs().mean().item<double>();
     };
@@ -116,14 +117,14 @@ TEST_SUITE("net") {
     // Analytic: LibTorch's backward to the RGB image, then the camera and PSF adjoints.
     sim.set_heights(h);
     sim.compute_psf();
-    const RealStack rgb = sim.sensor_images({scene}).front();
+    const RealStack rgb = cam.images({scene}, no_skipping()).front();
     torch::Tensor t_rgb = to_tensor(rgb).requires_grad_(true);
     const torch::Tensor loss = (net->forward(t_rgb) - t_target).abs().mean();
     loss.backward();
     const torch::Tensor g = t_rgb.grad().contiguous();
     RealStack g_rgb(3, rgb.rows, rgb.cols);
     std::copy(g.data_ptr<double>(), g.data_ptr<double>() + g.numel(), g_rgb.data.begin());
-    const RealStack g_psf = sim.sensor_images_vjp({g_rgb});
+    const RealStack g_psf = cam.vjp({g_rgb}, false).psf;
     const Map2D g_h = sim.psf_sensor_vjp(g_psf);
     CHECK(loss.item<double>() == doctest::Approx(loss_at(h)).epsilon(1e-12));
     // Directional derivative along a random direction, then central differences on the 6 heights
