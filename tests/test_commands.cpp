@@ -23,6 +23,7 @@
 
 #include "common.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/eval.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/fab.hpp"
 #include "qdo/io.hpp"

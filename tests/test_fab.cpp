@@ -9,6 +9,8 @@
 
 #include "common.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/eval.hpp"
+#include "qdo/gradcheck.hpp"
 #include "qdo/error.hpp"
 #include "qdo/fab.hpp"
 #include "qdo/gds.hpp"

@@ -19,6 +19,8 @@
 #include "common.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/eval.hpp"
+#include "qdo/gradcheck.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/run.hpp"
@@ -70,14 +72,15 @@ TEST_SUITE("runs") {
     o.cfg = preset_config("small");
     o.out = "x";
     for (const char* w : {"device", "cpu"}) {
-      o.wiener_on = w;
-      CHECK(design_run_options_from_json(design_run_options_to_json(o), "test").wiener_on == w);
+      o.wiener_on = wiener_on_from_string(w);
+      CHECK(to_string(design_run_options_from_json(design_run_options_to_json(o), "test").wiener_on) == w);
     }
     auto j = nlohmann::json::parse(design_run_options_to_json(o));
     j["design"].erase("wiener_on");
-    CHECK(design_run_options_from_json(j.dump(), "old").wiener_on == "cpu");
-    o.wiener_on = "gpu";
-    CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("wiener_on"), InputError);
+    CHECK(design_run_options_from_json(j.dump(), "old").wiener_on == WienerOn::Cpu);
+    CHECK_THROWS_WITH_AS(wiener_on_from_string("gpu"), doctest::Contains("wiener_on"), InputError);
+    j["design"]["wiener_on"] = "gpu";
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(j.dump(), "bad"), doctest::Contains("wiener_on"), InputError);
   }
 
   TEST_CASE("a design run with the wiener objective on the device follows the CPU objective's run") {
@@ -87,7 +90,7 @@ TEST_SUITE("runs") {
     std::vector<std::vector<double>> levels;
     for (const char* w : {"device", "cpu"}) {
       DesignRunOptions o = tiny_run((dir / w).string(), DesignMode::QDOA);
-      o.wiener_on = w;
+      o.wiener_on = wiener_on_from_string(w);
       const DesignRunResult r = run_design(runtime(), o, false);
       final_loss.push_back(r.final_loss);
       levels.push_back(r.levels_m);
@@ -432,10 +435,10 @@ TEST_SUITE("runs") {
     e.synthetic_scenes = 2;
     e.renders = 1;
     e.out = (dir / "mismatch").string();
-    e.decoder = "mismatch";
+    e.decoder = DecoderFit::Mismatch;
     const EvalResult mis = evaluate_run(runtime(), e);
     e.out = (dir / "matched").string();
-    e.decoder = "matched";
+    e.decoder = DecoderFit::Matched;
     const EvalResult mat = evaluate_run(runtime(), e);
     REQUIRE(mis.rows.size() == 2);
     // The mean row is the mean of the per-scene rows, and a plausible reconstruction PSNR.
@@ -449,7 +452,7 @@ TEST_SUITE("runs") {
     e.full_precision = true;
     e.out = (dir / "full_matched").string();
     const EvalResult fm = evaluate_run(runtime(), e);
-    e.decoder = "mismatch";
+    e.decoder = DecoderFit::Mismatch;
     e.out = (dir / "full_mismatch").string();
     const EvalResult fmm = evaluate_run(runtime(), e);
     CHECK(fm.mean.psnr == fmm.mean.psnr);
@@ -465,7 +468,7 @@ TEST_SUITE("runs") {
         CAPTURE(objective);
         CAPTURE(to_string(m));
         DesignRunOptions o = tiny_run("(unused)", m);
-        o.objective = objective;
+        o.objective = objective_from_string(objective);
         o.batch = 2;
         const auto rows = gradcheck(runtime(), o, 11);
         CHECK(rows.size() >= 4);
