@@ -114,7 +114,8 @@ TEST_SUITE("decoders") {
     const std::string h5 = e.out + "/reconstructions.h5";
     for (std::size_t k = 0; k < 2; ++k) {
       CAPTURE(k);
-      const H5Dataset rec = h5_read(h5, "/recon_" + std::to_string(k)), truth = h5_read(h5, "/truth_" + std::to_string(k));
+      const H5Dataset rec = h5_read(h5, "/recon_" + std::to_string(k)),
+                      truth = h5_read(h5, "/truth_" + std::to_string(k));
       for (double v : rec.data) REQUIRE(v == 0.375);
       RealStack x(truth.shape[0], truth.shape[1], truth.shape[2]);
       x.data = truth.data;
@@ -157,7 +158,8 @@ TEST_SUITE("decoders") {
     const DecoderFactory f = [](const DecoderInputs&) -> std::unique_ptr<Decoder> { return nullptr; };
     CHECK_THROWS_WITH_AS(register_decoder({"toy", "", false, f}), doctest::Contains("toy"), InputError);
     CHECK_THROWS_WITH_AS(register_decoder({"Bad Name", "", false, f}), doctest::Contains("Bad Name"), InputError);
-    CHECK_THROWS_WITH_AS(register_decoder({"nofactory", "", false, nullptr}), doctest::Contains("nofactory"), InputError);
+    CHECK_THROWS_WITH_AS(register_decoder({"nofactory", "", false, nullptr}), doctest::Contains("nofactory"),
+                         InputError);
     // A design run trains wiener or a network; another registered decoder is refused by name.
     DesignRunOptions o;
     o.cfg = tiny_config(32, 3);
@@ -205,7 +207,9 @@ TEST_SUITE("decoders") {
     CHECK_THROWS_WITH_AS(make_decoder(in), doctest::Contains("resunet"), InputError);
   }
 
-  TEST_CASE("qdo eval --decoder-kind: the run's own decoder by default, wiener the same numbers, cg close, unknown names refused") {
+  TEST_CASE(
+      "qdo eval --decoder-kind: the run's own decoder by default, wiener the same numbers, cg close, unknown names "
+      "refused") {
     const auto dir = temp_dir("decoders_eval");
     const std::string run = tiny_wiener_run(dir);
     const std::string common = " --synthetic-scenes 2 --renders 0 --precision " +

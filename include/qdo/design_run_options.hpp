@@ -1,7 +1,7 @@
 // The options of a `qdo design` run (DesignRunOptions) and their typed parts. Each part is parsed
 // once where it enters: the command line (src/cli) and a run's config.json
 // (design_run_options_from_json), which holds each as the string its to_string() writes (the
-// format of docs/formats.md; run folders of earlier versions read the same).
+// strings the options always had there, so run folders of earlier versions read the same).
 #pragma once
 #include <cstddef>
 #include <string>

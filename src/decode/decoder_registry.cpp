@@ -35,7 +35,8 @@ struct Registry {
 bool valid_name(const std::string& name) {
   if (name.empty() || name.size() > 64) return false;
   for (char ch : name)
-    if (!(std::islower(static_cast<unsigned char>(ch)) || std::isdigit(static_cast<unsigned char>(ch)) || ch == '-' || ch == '_'))
+    if (!(std::islower(static_cast<unsigned char>(ch)) || std::isdigit(static_cast<unsigned char>(ch)) || ch == '-' ||
+          ch == '_'))
       return false;
   return true;
 }
@@ -47,7 +48,8 @@ Registry& registry() {
 
 std::string names_of(const std::vector<DecoderEntry>& entries) {
   std::string s;
-  for (std::size_t i = 0; i < entries.size(); ++i) s += (i == 0 ? "" : i + 1 == entries.size() ? " or " : ", ") + entries[i].name;
+  for (std::size_t i = 0; i < entries.size(); ++i)
+    s += (i == 0 ? "" : i + 1 == entries.size() ? " or " : ", ") + entries[i].name;
   return s;
 }
 
@@ -59,7 +61,8 @@ void register_decoder(DecoderEntry entry) {
   Registry& r = registry();
   const std::lock_guard<std::mutex> lock(r.mutex);
   for (const DecoderEntry& e : r.entries)
-    if (e.name == entry.name) reject("decoder name", entry.name, "a name not registered yet (known: " + names_of(r.entries) + ")");
+    if (e.name == entry.name)
+      reject("decoder name", entry.name, "a name not registered yet (known: " + names_of(r.entries) + ")");
   r.entries.push_back(std::move(entry));
 }
 

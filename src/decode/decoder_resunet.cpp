@@ -15,7 +15,8 @@ DecoderEntry resunet_decoder_entry() {
   e.summary = "the run's Res-UNet, trained with the optics (a network run's; inference mode)";
   e.trained = true;
   e.make = [](const DecoderInputs& in) -> std::unique_ptr<Decoder> {
-    if (!in.run_network) reject("decoder", in.spec.to_string(), "a decoder built from the camera (the network is a run's: qdo eval RUN)");
+    if (!in.run_network)
+      reject("decoder", in.spec.to_string(), "a decoder built from the camera (the network is a run's: qdo eval RUN)");
     return std::make_unique<NetworkImageDecoder>(in.run_network(), in.psf.planes, 8,
                                                  "the run's network (" + in.spec.to_string() + ", inference mode)");
   };

@@ -384,9 +384,12 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     };
     // The decoders of the other encoders come from the registry: wiener for the Fresnel lens's PSF,
     // cg for CASSI (any linear encoder), on the DO run's prior.
-    auto decoder_of = [&](const std::string& name, RealStack psf, std::shared_ptr<const Encoder> enc) {
+    DecoderSpec cg;
+    cg.kind = DecoderSpec::Kind::Named;
+    cg.name = "cg";
+    auto decoder_of = [&](const DecoderSpec& spec, RealStack psf, std::shared_ptr<const Encoder> enc) {
       DecoderInputs in;
-      in.spec = decoder_spec_from_string(name);
+      in.spec = spec;
       in.psf = std::move(psf);
       in.srf = srf;
       in.encoder = std::move(enc);
@@ -415,7 +418,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
           sim.compute_psf();
           const RealStack psf = sim.psf_sensor();
           const DoeEncoder enc(wiener::psf_to_otf(psf, prior.rows, prior.cols), srf);
-          finish(c, evaluate_encoder(enc, *decoder_of("wiener", psf, nullptr), cubes, sigma, base.design.seed + 77));
+          finish(c, evaluate_encoder(enc, *decoder_of(DecoderSpec{}, psf, nullptr), cubes, sigma, base.design.seed + 77));
         }
         if (!g.quiet) std::fprintf(stderr, "[sweep] %-16s PSNR %.2f dB\n", c.name.c_str(), c.mean.psnr);
         cells.push_back(c);
@@ -429,7 +432,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
         if (cubes.empty()) cubes = test_patches(base.cfg, test, g.eval_synthetic_scenes, base.design.seed);
         const std::size_t s = base.cfg.sensor_size_px();
         auto enc = std::make_shared<CassiEncoder>(random_binary_mask(s, s, 0.5, base.design.seed + 5), base.cfg.bands, g.cassi_shift_px);
-        finish(c, evaluate_encoder(*enc, *decoder_of("cg", RealStack(), enc), cubes, sigma, base.design.seed + 77));
+        finish(c, evaluate_encoder(*enc, *decoder_of(cg, RealStack(), enc), cubes, sigma, base.design.seed + 77));
       }
       if (!g.quiet) std::fprintf(stderr, "[sweep] %-16s PSNR %.2f dB\n", c.name.c_str(), c.mean.psnr);
       cells.push_back(c);
