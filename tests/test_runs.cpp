@@ -83,6 +83,40 @@ TEST_SUITE("runs") {
     CHECK_THROWS_WITH_AS(design_run_options_from_json(j.dump(), "bad"), doctest::Contains("wiener_on"), InputError);
   }
 
+  TEST_CASE("typed options read and write the strings config.json holds; bad ones named with the option") {
+    for (const char* v : {"wiener", "wiener-mse", "wiener-mae", "psf-target", "network"}) CHECK(to_string(objective_from_string(v)) == v);
+    CHECK_THROWS_WITH_AS(objective_from_string("mse", "--objective"), doctest::Contains("'--objective' = mse"), InputError);
+    for (const char* v : {"random", "flat", "lens:550", "lens:550.0", "lens:632.8", "lens:5.5e2"}) CHECK(init_spec_from_string(v).to_string() == v);
+    CHECK(init_spec_from_string("lens:5.5e2").wavelength_nm == 550);
+    InitSpec lens;
+    lens.kind = InitSpec::Kind::Lens;
+    lens.wavelength_nm = 632.8;  // made in code: the shortest plain decimal
+    CHECK(lens.to_string() == "lens:632.8");
+    lens.wavelength_nm = 550;
+    CHECK(lens.to_string() == "lens:550");
+    for (const char* bad : {"lens:abc", "lens:", "lens:99", "lens:1e999", "spiral"})
+      CHECK_THROWS_WITH_AS(init_spec_from_string(bad, "--init"), doctest::Contains("'--init'"), InputError);
+    for (const char* v : {"", "lens:500", "some/design.h5"}) CHECK(target_spec_from_string(v).to_string() == v);
+    CHECK(target_spec_from_string("some/design.h5").kind == TargetSpec::Kind::File);
+    CHECK_THROWS_WITH_AS(target_spec_from_string("lens:x"), doctest::Contains("'target'"), InputError);
+    // Through config.json: every typed option as written, and a bad stored one named with the file.
+    DesignRunOptions o;
+    o.cfg = preset_config("small");
+    o.out = "x";
+    o.objective = Objective::PsfTarget;
+    o.target = target_spec_from_string("lens:550.0");
+    o.init = init_spec_from_string("lens:632.8");
+    auto j = nlohmann::json::parse(design_run_options_to_json(o));
+    CHECK(j["design"]["objective"] == "psf-target");
+    CHECK(j["design"]["target"] == "lens:550.0");
+    CHECK(j["design"]["init"] == "lens:632.8");
+    CHECK(j["design"]["decoder"] == "wiener");
+    CHECK(design_run_options_to_json(design_run_options_from_json(j.dump(), "mem")) == design_run_options_to_json(o));
+    j["design"]["init"] = "lens:abc";
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(j.dump(), "RUN/config.json"),
+                         doctest::Contains("file 'RUN/config.json': argument 'init' = lens:abc"), InputError);
+  }
+
   TEST_CASE("a design run with the wiener objective on the device follows the CPU objective's run") {
     if (!skip_unless(runtime().has_fp64(), "the device objective needs float64 for its solve")) return;
     const auto dir = temp_dir("runs_wiener_on");

@@ -35,7 +35,8 @@ std::string to_string(WienerOn w);
 struct InitSpec {
   enum class Kind { Random, Flat, Lens } kind = Kind::Random;
   double wavelength_nm = 0;       // Kind::Lens: finite, 100 ... 20000
-  std::string to_string() const;  // random, flat or lens:NM (NM the shortest decimal that reads back as it)
+  std::string wavelength_text;    // Kind::Lens: NM as written ("550.0"); empty: written from wavelength_nm
+  std::string to_string() const;  // random, flat or lens:NM (NM as written, else the shortest decimal)
 };
 // InputError naming `argument`: "random, flat or lens:NM", or the range of NM.
 InitSpec init_spec_from_string(const std::string& s, const std::string& argument = "init");
@@ -45,8 +46,9 @@ InitSpec init_spec_from_string(const std::string& s, const std::string& argument
 struct TargetSpec {
   enum class Kind { None, Lens, File } kind = Kind::None;
   double wavelength_nm = 0;       // Kind::Lens: finite, 100 ... 20000
+  std::string wavelength_text;    // Kind::Lens: NM as written; empty: written from wavelength_nm
   std::string path;               // Kind::File (checked to exist by DesignRunOptions::validate)
-  std::string to_string() const;  // "", lens:NM or the path
+  std::string to_string() const;  // "", lens:NM (as InitSpec) or the path
 };
 // "" -> None, lens:... -> Lens (InputError naming `argument` for a bad NM), anything else -> File.
 TargetSpec target_spec_from_string(const std::string& s, const std::string& argument = "target");

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <functional>
 #include <limits>
@@ -59,12 +60,14 @@ double lens_nm(const std::string& argument, const std::string& spec) {
   return nm;
 }
 
-// "lens:" + the shortest decimal form of nm that reads back as nm (550 -> lens:550).
-std::string lens_text(double nm) {
-  char b[40];
+// "lens:" + NM as written (`text`), or else the shortest plain decimal that reads back as nm
+// (550 -> lens:550, 632.8 -> lens:632.8).
+std::string lens_text(double nm, const std::string& text) {
+  if (!text.empty()) return "lens:" + text;
+  char b[64];
   for (int p = 1; p <= 17; ++p) {
     std::snprintf(b, sizeof b, "%.*g", p, nm);
-    if (std::strtod(b, nullptr) == nm) break;
+    if (!std::strchr(b, 'e') && std::strtod(b, nullptr) == nm) break;
   }
   return std::string("lens:") + b;
 }
@@ -73,7 +76,7 @@ std::string lens_text(double nm) {
 
 std::string InitSpec::to_string() const {
   if (kind == Kind::Flat) return "flat";
-  if (kind == Kind::Lens) return lens_text(wavelength_nm);
+  if (kind == Kind::Lens) return lens_text(wavelength_nm, wavelength_text);
   return "random";
 }
 
@@ -87,11 +90,12 @@ InitSpec init_spec_from_string(const std::string& s, const std::string& argument
   if (s.rfind("lens:", 0) != 0) reject(argument, s, "random, flat or lens:NM");
   i.kind = InitSpec::Kind::Lens;
   i.wavelength_nm = lens_nm(argument, s);
+  i.wavelength_text = s.substr(5);
   return i;
 }
 
 std::string TargetSpec::to_string() const {
-  if (kind == Kind::Lens) return lens_text(wavelength_nm);
+  if (kind == Kind::Lens) return lens_text(wavelength_nm, wavelength_text);
   return kind == Kind::File ? path : std::string();
 }
 
@@ -101,6 +105,7 @@ TargetSpec target_spec_from_string(const std::string& s, const std::string& argu
   if (s.rfind("lens:", 0) == 0) {
     t.kind = TargetSpec::Kind::Lens;
     t.wavelength_nm = lens_nm(argument, s);
+    t.wavelength_text = s.substr(5);
     return t;
   }
   t.kind = TargetSpec::Kind::File;
