@@ -192,8 +192,8 @@ int main(int argc, char** argv) {
     ro.design.steps_per_epoch = 2;
     ro.design.t0_epochs = 1;
     ro.design.t1_epochs = 2;
-    ro.objective = "psf-target";
-    ro.target = "lens:500";
+    ro.objective = Objective::PsfTarget;
+    ro.target = target_spec_from_string("lens:500");
     ro.epochs = 3;
     ro.checkpoint_every = 3;
     const std::string cfg_json = design_run_options_to_json(ro) + "\n";

@@ -18,6 +18,7 @@
 
 #include "commands_common.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/eval.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/io.hpp"
 #include "qdo/run.hpp"

@@ -10,6 +10,9 @@
 
 #include "common.hpp"
 #include "fab_common.hpp"
+#include "qdo/design_run.hpp"
+#include "qdo/eval.hpp"
+#include "qdo/gradcheck.hpp"
 #include "qdo/error.hpp"
 #include "qdo/fab.hpp"
 #include "qdo/gds.hpp"

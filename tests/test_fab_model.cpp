@@ -11,6 +11,7 @@
 #include "common.hpp"
 #include "fab_common.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/eval.hpp"
 #include "qdo/error.hpp"
 #include "qdo/fab.hpp"
 #include "qdo/io.hpp"

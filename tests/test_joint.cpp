@@ -16,6 +16,7 @@
 
 #include "common.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/eval.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/joint.hpp"
@@ -135,8 +136,8 @@ DesignRunOptions net_run(const std::string& out, DesignMode mode) {
   o.synthetic_scenes = 3;
   o.checkpoint_every = 2;
   o.batch = 2;
-  o.decoder = "resunet:depth=2,root=4";
-  o.objective = "network";
+  o.decoder = decoder_spec_from_string("resunet:depth=2,root=4");
+  o.objective = Objective::Network;
   o.lr_decoder = 0.05;
   o.precision = runtime().has_fp64() ? Precision::F64 : Precision::F32;
   o.out = out;
@@ -337,15 +338,15 @@ TEST_SUITE("joint") {
     const auto dir = temp_dir("joint_eval");
     // Options refused by name.
     DesignRunOptions o = net_run((dir / "x").string(), DesignMode::DO);
-    o.objective = "wiener";
+    o.objective = Objective::Wiener;
     const std::string msg = input_error_of([&] { o.validate(); });
     CHECK(msg.find("objective") != std::string::npos);
     CHECK(msg.find("network") != std::string::npos);
     o = net_run((dir / "x").string(), DesignMode::DO);
-    o.decoder = "resunet:depth=6,root=4";  // 2^5 = 32 does not divide S = 16
+    o.decoder = decoder_spec_from_string("resunet:depth=6,root=4");  // 2^5 = 32 does not divide S = 16
     CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("S = 16"), InputError);
     o = net_run((dir / "x").string(), DesignMode::DO);
-    o.decoder = "wiener";
+    o.decoder = DecoderSpec{};
     CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("decoder"), InputError);
     o = net_run((dir / "x").string(), DesignMode::QDOA);
     o.finetune_from = "somewhere";
@@ -369,12 +370,12 @@ TEST_SUITE("joint") {
     e.renders = 1;
     e.out = (dir / "eval").string();
     CHECK_THROWS_WITH_AS(evaluate_run(runtime(), e), doctest::Contains("mismatch"), InputError);
-    e.decoder = "mismatch";
+    e.decoder = DecoderFit::Mismatch;
     const EvalResult mis = evaluate_run(runtime(), e);
     CHECK(std::isfinite(mis.mean.psnr));
     const auto mj = nlohmann::json::parse(slurp(e.out + "/metrics.json"));
     CHECK(mj.at("decoder_kind") == "resunet:depth=2,root=4");
-    e.decoder = "matched";
+    e.decoder = DecoderFit::Matched;
     e.full_precision = true;
     CHECK(std::isfinite(evaluate_run(runtime(), e).mean.psnr));
     // do-finetune: the do run's optics at 2 levels, frozen; its network trained on.
@@ -414,8 +415,8 @@ TEST_SUITE("joint") {
     DesignRunOptions o = net_run("/tmp/unused", DesignMode::QDOA);
     o.data = {"synthetic:4"};
     CHECK_NOTHROW(o.validate());
-    o.decoder = "wiener";
-    o.objective = "wiener";
+    o.decoder = DecoderSpec{};
+    o.objective = Objective::Wiener;
     CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("synthetic:4"), InputError);
     if (!skip_unless(have_shared(), "../shared/data/hsi (the CAVE scenes)")) return;
     const std::string cave = std::string(shared_dir()) + "/data/hsi/cave";
@@ -437,12 +438,12 @@ TEST_SUITE("joint") {
     CHECK(back.decoder == o.decoder);
     CHECK(back.lr_decoder == 0.002);
     CHECK(back.gamma_decoder == 3e-4);
-    CHECK(back.objective == "network");
+    CHECK(back.objective == Objective::Network);
     auto j = nlohmann::json::parse(design_run_options_to_json(o));
     for (const char* k : {"decoder", "lr_decoder", "gamma_decoder", "finetune_from"}) j["design"].erase(k);
     j["design"]["objective"] = "wiener";
     const DesignRunOptions old = design_run_options_from_json(j.dump(), "old");
-    CHECK(old.decoder == "wiener");
+    CHECK(old.decoder.kind == DecoderSpec::Kind::Wiener);
     CHECK(old.finetune_from.empty());
   }
 
@@ -451,11 +452,11 @@ TEST_SUITE("joint") {
     const auto dir = temp_dir("joint_sweep");
     GridOptions g;
     g.base = net_run("(per run)", DesignMode::DO);
-    g.base.decoder = "wiener";
-    g.base.objective = "wiener";
+    g.base.decoder = DecoderSpec{};
+    g.base.objective = Objective::Wiener;
     g.levels = {2};
     g.modes = {"do", "do-refit", "do-finetune", "qdo"};
-    g.decoders = {"wiener", "resunet:depth=2,root=4"};
+    g.decoders = {DecoderSpec{}, decoder_spec_from_string("resunet:depth=2,root=4")};
     g.finetune_steps = 2;
     g.eval_synthetic_scenes = 2;
     g.out = dir.string();
@@ -469,14 +470,14 @@ TEST_SUITE("joint") {
       CHECK(by.count(n) == 1);
     CHECK(by.count("do-refit_L2_resunet-depth2-root4") == 0);
     CHECK(by["qdo_L2_resunet-depth2-root4"].mode == "qdo@resunet:depth=2,root=4");
-    CHECK(by["qdo_L2_resunet-depth2-root4"].decoder == "resunet:depth=2,root=4");
+    CHECK(by["qdo_L2_resunet-depth2-root4"].decoder.to_string() == "resunet:depth=2,root=4");
     // With the Wiener decoder do-finetune is the closed-form refit: the do-refit cell's numbers.
     CHECK(by["do-finetune_L2"].mean.psnr == by["do-refit_L2"].mean.psnr);
     // The network's do-finetune is a run of its own, from the do run, optics frozen.
     const DesignRunOptions ft = read_run_config((dir / "runs" / "do-finetune_L2_resunet-depth2-root4").string());
     CHECK(ft.finetune_from == (dir / "runs" / "do_resunet-depth2-root4").string());
-    CHECK(ft.decoder == "resunet:depth=2,root=4");
-    CHECK(read_run_config((dir / "runs" / "qdo_L2").string()).decoder == "wiener");
+    CHECK(ft.decoder.to_string() == "resunet:depth=2,root=4");
+    CHECK(read_run_config((dir / "runs" / "qdo_L2").string()).decoder.to_string() == "wiener");
     // A rerun reuses every run and cell.
     const auto again = run_grid(runtime(), g);
     REQUIRE(again.size() == cells.size());

@@ -29,7 +29,7 @@ using namespace qdo::test;
 
 namespace {
 
-// ---- Dispersion, written out independently of src/physics/materials.cpp --------------------------
+// ---- Dispersion, written out independently of src/data/materials.cpp --------------------------
 // Sellmeier n² = 1 + Σ B_i λ² / (λ² - C_i), λ in µm, C_i in µm². Coefficients as published:
 //  OHARA S-K1300: wang-lizhi/QuantizationAwareDeepOptics constants.py
 //    (refractive_index_glass_ohara_sk1300), as listed in shared/data/spectral/sellmeier_coefficients.csv;

@@ -19,6 +19,8 @@
 #include "common.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/eval.hpp"
+#include "qdo/gradcheck.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/run.hpp"
@@ -70,14 +72,49 @@ TEST_SUITE("runs") {
     o.cfg = preset_config("small");
     o.out = "x";
     for (const char* w : {"device", "cpu"}) {
-      o.wiener_on = w;
-      CHECK(design_run_options_from_json(design_run_options_to_json(o), "test").wiener_on == w);
+      o.wiener_on = wiener_on_from_string(w);
+      CHECK(to_string(design_run_options_from_json(design_run_options_to_json(o), "test").wiener_on) == w);
     }
     auto j = nlohmann::json::parse(design_run_options_to_json(o));
     j["design"].erase("wiener_on");
-    CHECK(design_run_options_from_json(j.dump(), "old").wiener_on == "cpu");
-    o.wiener_on = "gpu";
-    CHECK_THROWS_WITH_AS(o.validate(), doctest::Contains("wiener_on"), InputError);
+    CHECK(design_run_options_from_json(j.dump(), "old").wiener_on == WienerOn::Cpu);
+    CHECK_THROWS_WITH_AS(wiener_on_from_string("gpu"), doctest::Contains("wiener_on"), InputError);
+    j["design"]["wiener_on"] = "gpu";
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(j.dump(), "bad"), doctest::Contains("wiener_on"), InputError);
+  }
+
+  TEST_CASE("typed options read and write the strings config.json holds; bad ones named with the option") {
+    for (const char* v : {"wiener", "wiener-mse", "wiener-mae", "psf-target", "network"}) CHECK(to_string(objective_from_string(v)) == v);
+    CHECK_THROWS_WITH_AS(objective_from_string("mse", "--objective"), doctest::Contains("'--objective' = mse"), InputError);
+    for (const char* v : {"random", "flat", "lens:550", "lens:550.0", "lens:632.8", "lens:5.5e2"}) CHECK(init_spec_from_string(v).to_string() == v);
+    CHECK(init_spec_from_string("lens:5.5e2").wavelength_nm == 550);
+    InitSpec lens;
+    lens.kind = InitSpec::Kind::Lens;
+    lens.wavelength_nm = 632.8;  // made in code: the shortest plain decimal
+    CHECK(lens.to_string() == "lens:632.8");
+    lens.wavelength_nm = 550;
+    CHECK(lens.to_string() == "lens:550");
+    for (const char* bad : {"lens:abc", "lens:", "lens:99", "lens:1e999", "spiral"})
+      CHECK_THROWS_WITH_AS(init_spec_from_string(bad, "--init"), doctest::Contains("'--init'"), InputError);
+    for (const char* v : {"", "lens:500", "some/design.h5"}) CHECK(target_spec_from_string(v).to_string() == v);
+    CHECK(target_spec_from_string("some/design.h5").kind == TargetSpec::Kind::File);
+    CHECK_THROWS_WITH_AS(target_spec_from_string("lens:x"), doctest::Contains("'target'"), InputError);
+    // Through config.json: every typed option as written, and a bad stored one named with the file.
+    DesignRunOptions o;
+    o.cfg = preset_config("small");
+    o.out = "x";
+    o.objective = Objective::PsfTarget;
+    o.target = target_spec_from_string("lens:550.0");
+    o.init = init_spec_from_string("lens:632.8");
+    auto j = nlohmann::json::parse(design_run_options_to_json(o));
+    CHECK(j["design"]["objective"] == "psf-target");
+    CHECK(j["design"]["target"] == "lens:550.0");
+    CHECK(j["design"]["init"] == "lens:632.8");
+    CHECK(j["design"]["decoder"] == "wiener");
+    CHECK(design_run_options_to_json(design_run_options_from_json(j.dump(), "mem")) == design_run_options_to_json(o));
+    j["design"]["init"] = "lens:abc";
+    CHECK_THROWS_WITH_AS(design_run_options_from_json(j.dump(), "RUN/config.json"),
+                         doctest::Contains("file 'RUN/config.json': argument 'init' = lens:abc"), InputError);
   }
 
   TEST_CASE("a design run with the wiener objective on the device follows the CPU objective's run") {
@@ -87,7 +124,7 @@ TEST_SUITE("runs") {
     std::vector<std::vector<double>> levels;
     for (const char* w : {"device", "cpu"}) {
       DesignRunOptions o = tiny_run((dir / w).string(), DesignMode::QDOA);
-      o.wiener_on = w;
+      o.wiener_on = wiener_on_from_string(w);
       const DesignRunResult r = run_design(runtime(), o, false);
       final_loss.push_back(r.final_loss);
       levels.push_back(r.levels_m);
@@ -432,10 +469,10 @@ TEST_SUITE("runs") {
     e.synthetic_scenes = 2;
     e.renders = 1;
     e.out = (dir / "mismatch").string();
-    e.decoder = "mismatch";
+    e.decoder = DecoderFit::Mismatch;
     const EvalResult mis = evaluate_run(runtime(), e);
     e.out = (dir / "matched").string();
-    e.decoder = "matched";
+    e.decoder = DecoderFit::Matched;
     const EvalResult mat = evaluate_run(runtime(), e);
     REQUIRE(mis.rows.size() == 2);
     // The mean row is the mean of the per-scene rows, and a plausible reconstruction PSNR.
@@ -449,7 +486,7 @@ TEST_SUITE("runs") {
     e.full_precision = true;
     e.out = (dir / "full_matched").string();
     const EvalResult fm = evaluate_run(runtime(), e);
-    e.decoder = "mismatch";
+    e.decoder = DecoderFit::Mismatch;
     e.out = (dir / "full_mismatch").string();
     const EvalResult fmm = evaluate_run(runtime(), e);
     CHECK(fm.mean.psnr == fmm.mean.psnr);
@@ -465,7 +502,7 @@ TEST_SUITE("runs") {
         CAPTURE(objective);
         CAPTURE(to_string(m));
         DesignRunOptions o = tiny_run("(unused)", m);
-        o.objective = objective;
+        o.objective = objective_from_string(objective);
         o.batch = 2;
         const auto rows = gradcheck(runtime(), o, 11);
         CHECK(rows.size() >= 4);

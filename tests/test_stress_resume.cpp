@@ -59,8 +59,8 @@ TEST_SUITE("stress") {
     const auto dir = temp_dir("stress_logloss");
     DesignRunOptions o;
     o.cfg = tiny_config(32, 3);
-    o.objective = "psf-target";
-    o.target = "lens:500";
+    o.objective = Objective::PsfTarget;
+    o.target = target_spec_from_string("lens:500");
     o.design.steps_per_epoch = 2;
     o.design.t0_epochs = 1;
     o.design.t1_epochs = 3;
@@ -89,8 +89,8 @@ TEST_SUITE("stress") {
     const auto dir = temp_dir("stress_log");
     DesignRunOptions o;
     o.cfg = tiny_config(32, 3);
-    o.objective = "psf-target";
-    o.target = "lens:500";
+    o.objective = Objective::PsfTarget;
+    o.target = target_spec_from_string("lens:500");
     o.design.steps_per_epoch = 2;
     o.design.t0_epochs = 1;
     o.design.t1_epochs = 2;

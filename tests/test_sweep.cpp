@@ -7,6 +7,7 @@
 #include "qdo/io.hpp"
 #include "qdo/run.hpp"
 #include "qdo/simulator.hpp"
+#include "qdo/design_run.hpp"
 #include "qdo/sweep.hpp"
 
 using namespace qdo;

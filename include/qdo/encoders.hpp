@@ -42,9 +42,11 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "qdo/config.hpp"
+#include "qdo/decoder.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/types.hpp"
 #include "qdo/wiener.hpp"
@@ -163,7 +165,7 @@ struct CgResult {
 CgResult solve_map_cg(const Encoder& encoder, const RealStack& y, const wiener::SpectralPrior& prior,
                       double noise_sigma, const CgOptions& options = {});
 
-// solve_map_cg behind the Decoder interface; holds the encoder (shared) and a copy of the prior.
+// solve_map_cg behind the Decoder interface (decoder.hpp); holds the encoder (shared) and a copy of the prior.
 // decode() returns the estimate only (call solve() for iterations and residual); it does not
 // throw when CG stops at max_iterations.
 class CgDecoder final : public Decoder {
@@ -174,6 +176,7 @@ class CgDecoder final : public Decoder {
   CgResult solve(const RealStack& y) const;
   std::size_t bands() const override { return encoder_->bands(); }
   std::size_t channels() const override { return encoder_->channels(); }
+  std::string description() const override { return "conjugate-gradient MAP decoder"; }
   double noise_sigma() const { return noise_sigma_; }
   const CgOptions& options() const { return options_; }
 

@@ -3,8 +3,8 @@
 // camera, adds the sensor noise, hands the noisy images to a NetworkDecoder, and carries the image
 // gradient it returns back through the camera adjoint to the PSF (src/design/joint.cpp). The
 // network itself lives in qdo_net (src/net/, LibTorch), which registers its factory with
-// register_network_factory(); a qdo built without LibTorch has none, and asking for a network is
-// then an InputError that says so.
+// register_network_factory() (the slot and the loader: src/decode/network_decoder.cpp); a qdo built
+// without LibTorch has none, and asking for a network is then an InputError that says so.
 //
 // Shapes: images are RGB sensor images, 3 x S x S each (row-major planes, RealStack); targets and
 // reconstructions are scene cubes, bands x S x S each, values in [0, 1].
@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "qdo/decoder.hpp"
 #include "qdo/decoder_spec.hpp"
 #include "qdo/types.hpp"
 
@@ -69,5 +70,26 @@ std::string network_decoder_unavailable_reason();
 // A fresh network; InputError naming `decoder` when no factory is registered (built without
 // LibTorch, or the plugin failed to load: the reason is in the message).
 std::unique_ptr<NetworkDecoder> make_network_decoder(const NetworkSettings& s);
+
+// A network behind the Decoder interface (decoder.hpp), in inference mode: decode_batch() is one
+// reconstruct() call (images 3 x S x S -> cubes `bands` x S x S), batch() = `batch` images per call.
+// It either owns the network or refers to one the caller keeps alive (the joint trainer's).
+class NetworkImageDecoder final : public Decoder {
+ public:
+  NetworkImageDecoder(std::unique_ptr<NetworkDecoder> net, std::size_t bands, std::size_t batch, std::string description = "");
+  NetworkImageDecoder(NetworkDecoder& net, std::size_t bands, std::size_t batch, std::string description = "");
+  RealStack decode(const RealStack& y) const override;
+  std::vector<RealStack> decode_batch(const std::vector<RealStack>& ys) const override;
+  std::size_t batch() const override { return batch_; }
+  std::size_t bands() const override { return bands_; }
+  std::size_t channels() const override { return 3; }
+  std::string description() const override { return description_; }
+
+ private:
+  std::unique_ptr<NetworkDecoder> owned_;
+  NetworkDecoder* net_;
+  std::size_t bands_, batch_;
+  std::string description_;
+};
 
 }  // namespace qdo

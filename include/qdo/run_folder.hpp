@@ -13,7 +13,8 @@
 #include <string>
 #include <vector>
 
-#include "qdo/design_run.hpp"
+#include "qdo/design.hpp"
+#include "qdo/design_run_options.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/io.hpp"
 #include "qdo/wiener.hpp"

@@ -5,8 +5,10 @@
 #include <string>
 #include <vector>
 
-#include "qdo/design_run.hpp"
+#include "qdo/decoder_spec.hpp"
+#include "qdo/design_run_options.hpp"
 #include "qdo/doe.hpp"
+#include "qdo/eval.hpp"
 #include "qdo/runtime.hpp"
 
 namespace qdo {
@@ -54,7 +56,7 @@ struct GridOptions {
   // do-refit is the Wiener decoder's closed-form refit (skipped for networks); do-finetune is the
   // network's counterpart (the do run's network trained on for finetune_steps steps with the DOE
   // quantized to L levels and frozen), and for the Wiener decoder the same cell as do-refit.
-  std::vector<std::string> decoders;
+  std::vector<DecoderSpec> decoders;
   std::size_t finetune_steps = 100;
   // Training scenes are base.data (empty: synthetic scenes). Test scenes: test_data when given
   // (all of it); else the test part of base.data's scene-level 80/10/10 split by
@@ -74,7 +76,7 @@ struct GridOptions {
 struct GridCell {
   std::string name, mode;              // mode: full, do, do-refit, do-finetune, qdo, qdo+a, ..., fresnel, cassi
                                        // (with @spec for a network decoder)
-  std::string decoder = "wiener";      // the decoder's spec
+  DecoderSpec decoder;                 // the decoder's spec (wiener by default)
   int levels = 0;                      // 0: full precision; -1: not applicable (cassi)
   EvalRow mean;
   double deviation_nm = 0;

@@ -1,5 +1,5 @@
-// The test-set evaluation shared by `qdo eval` (src/decode/eval.cpp) and `qdo tolerance`
-// (src/fab/fab_tolerance.cpp): the test patches, one patch through the camera and the Wiener decoder,
+// The test-set evaluation shared by `qdo eval` (src/design/eval.cpp) and `qdo tolerance`
+// (src/fab/fab_tolerance.cpp): the test patches, one patch through the camera and a decoder,
 // the six metrics, and their averages (per scene over its patches, then over scenes, in that
 // order, so both commands give bit-identical numbers for the same design).
 #pragma once
@@ -13,6 +13,7 @@
 
 #include "qdo/camera.hpp"
 #include "qdo/config.hpp"
+#include "qdo/decoder.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/types.hpp"
 #include "qdo/wiener.hpp"
@@ -65,8 +66,7 @@ class PatchCamera {
 // Patch k's reconstruction from its noiseless image y (3 x S x S): Gaussian noise sigma drawn
 // from (run_seed + 77, k), decoded by `dec` and clamped to [0, 1] (the decoder's output range,
 // as the release's sigmoid).
-RealStack reconstruct(const RealStack& y_noiseless, const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
-                      std::size_t k);
+RealStack reconstruct(const RealStack& y_noiseless, const Decoder& dec, double sigma, std::uint64_t run_seed, std::size_t k);
 
 struct Scores {
   double psnr = 0, psnr_hyper = 0, ssim = 0, rmse = 0, ergas = 0, sam_rad = 0;
@@ -81,24 +81,17 @@ std::vector<std::pair<std::string, Scores>> per_scene_means(const std::vector<st
 Scores mean_of(const std::vector<Scores>& rows);
 
 // The one test-set evaluation of eval, tolerance (and so sweep): every patch measured through
-// psf_actual on `camera`, reconstructed by `dec` with noise (reconstruct(), patch k's draw),
-// scored; per-scene means in order of first appearance, and their mean. `each` (optional) sees
-// every patch's reconstruction in patch order (eval writes some of them).
+// psf_actual on `camera`, its noise drawn as reconstruct() draws it (patch k's), decoded by `dec`
+// (decoder.hpp; dec.batch() images per decode_batch() call, each returning one bands x S x S cube
+// per image), clamped to [0, 1] and scored; per-scene means in order of first appearance, and
+// their mean. `each` (optional) sees every patch's reconstruction in patch order (eval writes
+// some of them).
 struct Evaluation {
   std::vector<std::pair<std::string, Scores>> per_patch;  // (scene, scores), patch order
   std::vector<std::pair<std::string, Scores>> per_scene;  // per_scene_means(per_patch)
   Scores mean;                                            // mean_of(per_scene)
 };
-Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,
-                    const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
-                    const std::function<void(std::size_t k, const RealStack& xh)>& each = {});
-
-// The same with any decoder: `decode` maps a batch of noisy images (3 x S x S each, patch k's noise
-// drawn as reconstruct() draws it) to one cube per image (bands x S x S); the cubes are clamped to
-// [0, 1] and scored as above. For the network decoder (network_decoder.hpp); batches of `batch`.
-using BatchDecoder = std::function<std::vector<RealStack>(const std::vector<RealStack>& noisy)>;
-Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,
-                    const BatchDecoder& decode, double sigma, std::uint64_t run_seed, std::size_t batch = 8,
-                    const std::function<void(std::size_t k, const RealStack& xh)>& each = {});
+Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches, const Decoder& dec,
+                    double sigma, std::uint64_t run_seed, const std::function<void(std::size_t k, const RealStack& xh)>& each = {});
 
 }  // namespace qdo::testset

@@ -30,22 +30,13 @@
 #include <Eigen/Dense>
 
 #include <cstddef>
+#include <string>
 #include <vector>
 
+#include "qdo/decoder.hpp"
 #include "qdo/types.hpp"
 
 namespace qdo {
-
-// ---------------------------------------------------------------------------------------------
-// Decoder interface: a sensor image in, a cube estimate out. A neural decoder can implement it.
-class Decoder {
- public:
-  virtual ~Decoder() = default;
-  // y: channels() x H x W sensor image -> bands() x H x W cube estimate.
-  virtual RealStack decode(const RealStack& y) const = 0;
-  virtual std::size_t bands() const = 0;
-  virtual std::size_t channels() const = 0;
-};
 
 namespace wiener {
 
@@ -142,7 +133,7 @@ PsfObjective objective_psf(Loss loss, const RealStack& psf, const Eigen::MatrixX
 
 }  // namespace wiener
 
-// The Wiener decoder behind the Decoder interface (holds copies of its inputs).
+// The Wiener decoder behind the Decoder interface (decoder.hpp; holds copies of its inputs).
 class WienerDecoder final : public Decoder {
  public:
   // otf B x H x W, srf C x B, prior on H x W, noise_sigma >= 0: validated here (InputError).
@@ -150,6 +141,7 @@ class WienerDecoder final : public Decoder {
   RealStack decode(const RealStack& y) const override;  // C x H x W -> B x H x W
   std::size_t bands() const override { return otf_.planes; }
   std::size_t channels() const override { return static_cast<std::size_t>(srf_.rows()); }
+  std::string description() const override { return "Wiener decoder"; }
   double noise_sigma() const { return noise_sigma_; }
   const ComplexStack& otf() const { return otf_; }
 

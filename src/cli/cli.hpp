@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "qdo/config.hpp"
-#include "qdo/design_run.hpp"
+#include "qdo/design_run_options.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/types.hpp"

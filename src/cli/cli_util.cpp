@@ -159,19 +159,19 @@ DesignRunOptions design_options(const Args& a) {
   o.design.psf_path = psf_path_from_string(a.get("psf-path", "auto"));
   if (o.design.psf_path == PsfPath::Radial && o.design.parameterization != Parameterization::Radial)
     reject("--psf-path", "radial", "auto or 2d unless --parameterization is radial");
-  o.decoder = decoder_spec_from_string(a.get("decoder", "wiener")).to_string();
-  const bool network = o.decoder != "wiener";
-  o.objective = a.has("objective") ? a.get("objective") : network ? "network" : "wiener";
+  o.decoder = decoder_spec_from_string(a.get("decoder", "wiener"));
+  o.objective = a.has("objective") ? objective_from_string(a.get("objective"), "--objective")
+                : o.decoder.network()  ? Objective::Network
+                                       : Objective::Wiener;
   o.lr_decoder = parse_double("--lr-decoder", a.get("lr-decoder", "0.001"));
   o.gamma_decoder = parse_double("--gamma", a.get("gamma", "0.0001"));
-  o.target = a.get("target", "lens:550");
+  o.target = target_spec_from_string(a.get("target", "lens:550"), "--target");
   o.data = split_list(a.get("data", ""));
   o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "12"), 1, 100000));
   o.batch = std::size_t(parse_int("--batch", a.get("batch", "4"), 1, 100000));
   o.decoder_noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma", "0.001"));
-  o.wiener_on = a.get("wiener-on", "device");
-  if (o.wiener_on != "device" && o.wiener_on != "cpu") reject("--wiener-on", o.wiener_on, "device or cpu");
-  o.init = a.get("init", "random");
+  o.wiener_on = wiener_on_from_string(a.get("wiener-on", "device"), "--wiener-on");
+  o.init = init_spec_from_string(a.get("init", "random"), "--init");
   o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));
   o.max_steps = a.has("max-steps") ? parse_int("--max-steps", a.get("max-steps"), 0, 2147483647) : -1;
   o.precision = precision_from_string(a.get("precision", "f32"));

@@ -45,7 +45,7 @@ int cmd_export(const Args& a) {
     d = RunFolder(src).design();
     o.provenance = {{"source", src + "/design.h5"}, {"run", src}, {"mode", to_string(r.design.mode)},
                     {"levels", std::to_string(r.design.quantizer.levels)}, {"placement", to_string(r.design.quantizer.placement)},
-                    {"objective", r.objective}, {"seed", std::to_string(r.design.seed)}};
+                    {"objective", to_string(r.objective)}, {"seed", std::to_string(r.design.seed)}};
   } else {
     if (!fs::exists(src)) reject("RUN", src, "an existing run folder or design .h5 file");
     cfg = load_config(a);

@@ -95,7 +95,8 @@ int cmd_sweep(const Args& a) {
     } else if (axis == "encoder") {
       g.encoders = vals;
     } else if (axis == "decoder") {
-      g.decoders = vals;
+      g.decoders.clear();
+      for (const auto& v : vals) g.decoders.push_back(decoder_spec_from_string(v));
     } else {
       reject("--grid", axis, "levels, mode, encoder or decoder");
     }

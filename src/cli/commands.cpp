@@ -163,6 +163,8 @@ std::vector<CommandSpec> make_table() {
                {data("test scenes (default: synthetic scenes)"),
                 opt("levels", "re-quantize the full-precision design to L levels, an integer in [2, 65536] (default: the run's)"),
                 placement(), opt("decoder", "decoder: matched (refit to the evaluated design) or mismatch (fit to the full-precision design)", "matched"),
+                opt("decoder-kind", "the decoder that reconstructs: wiener, cg[:tolerance=T,max_iterations=N] (conjugate-gradient MAP) or "
+                                    "another registered one (default: the run's own, its Wiener decoder or its trained network)"),
                 noise_sigma("sensor noise std, in units of full scale (>= 0; default: the run's)", ""),
                 opt("pixels", "pixels whose spectra are plotted: y:x pairs, comma-separated"),
                 opt("renders", "number of reconstructions rendered as PNG, an integer in [0, 1000]", "4"), synthetic_scenes("6"),

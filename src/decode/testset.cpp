@@ -110,8 +110,7 @@ RealStack PatchCamera::vjp(const std::vector<RealStack>& g_images) {
   return camera_->vjp(g, false).psf;
 }
 
-RealStack reconstruct(const RealStack& y_noiseless, const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
-                      std::size_t k) {
+RealStack reconstruct(const RealStack& y_noiseless, const Decoder& dec, double sigma, std::uint64_t run_seed, std::size_t k) {
   RealStack y = y_noiseless;
   ref::add_noise(y, sigma, 0, run_seed + 77, k);
   RealStack xh = dec.decode(y);
@@ -164,21 +163,9 @@ Scores mean_of(const std::vector<Scores>& rows) {
   return m;
 }
 
-Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,
-                    const WienerDecoder& dec, double sigma, std::uint64_t run_seed,
-                    const std::function<void(std::size_t k, const RealStack& xh)>& each) {
-  // reconstruct()'s steps: the noise of patch k, the decoder, the clamp (in the batch overload).
-  const BatchDecoder wiener = [&](const std::vector<RealStack>& noisy) {
-    std::vector<RealStack> out;
-    for (const RealStack& y : noisy) out.push_back(dec.decode(y));
-    return out;
-  };
-  return evaluate(camera, psf_actual, patches, wiener, sigma, run_seed, 1, each);
-}
-
-Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches,
-                    const BatchDecoder& decode, double sigma, std::uint64_t run_seed, std::size_t batch,
-                    const std::function<void(std::size_t k, const RealStack& xh)>& each) {
+Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std::vector<Patch>& patches, const Decoder& dec,
+                    double sigma, std::uint64_t run_seed, const std::function<void(std::size_t k, const RealStack& xh)>& each) {
+  const std::size_t batch = dec.batch();
   if (batch < 1) reject("batch", batch, ">= 1");
   const std::vector<RealStack> measured = camera.measure(psf_actual, patches);
   Evaluation ev;
@@ -190,7 +177,7 @@ Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std:
       ref::add_noise(y, sigma, 0, run_seed + 77, k);  // as reconstruct()
       noisy.push_back(std::move(y));
     }
-    std::vector<RealStack> xs = decode(noisy);
+    std::vector<RealStack> xs = dec.decode_batch(noisy);
     if (xs.size() != noisy.size())
       throw Error("internal: the decoder returned " + to_str(xs.size()) + " cubes for " + to_str(noisy.size()) + " images");
     for (std::size_t k = base; k < end; ++k) {

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
-#include <mutex>
 #include <random>
 
 #include "qdo/cpu_reference.hpp"
@@ -12,85 +11,6 @@
 #include "qdo/wiener.hpp"
 
 namespace qdo {
-
-namespace {
-std::mutex& factory_mutex() {
-  static std::mutex m;
-  return m;
-}
-NetworkFactory& factory_slot() {
-  static NetworkFactory f;
-  return f;
-}
-}  // namespace
-
-void register_network_factory(NetworkFactory factory) {
-  const std::lock_guard<std::mutex> lock(factory_mutex());
-  factory_slot() = std::move(factory);
-}
-
-NetworkFactory registered_network_factory() {
-  const std::lock_guard<std::mutex> lock(factory_mutex());
-  return factory_slot();
-}
-
-namespace {
-struct LoaderState {
-  NetworkLoader loader;
-  bool tried = false;
-  std::string error;
-};
-LoaderState& loader_state() {
-  static LoaderState s;
-  return s;
-}
-std::mutex& loader_mutex() {  // held while the loader runs (it takes factory_mutex to register)
-  static std::mutex m;
-  return m;
-}
-// The registered factory, after running the loader once if there is none yet.
-NetworkFactory factory_after_loading() {
-  {
-    const std::lock_guard<std::mutex> lock(factory_mutex());
-    if (factory_slot()) return factory_slot();
-  }
-  {
-    const std::lock_guard<std::mutex> lock(loader_mutex());
-    LoaderState& st = loader_state();
-    if (st.loader && !st.tried) {
-      st.tried = true;
-      try {
-        st.error = st.loader();
-      } catch (const std::exception& e) {
-        st.error = e.what();
-      }
-    }
-  }
-  const std::lock_guard<std::mutex> lock(factory_mutex());
-  return factory_slot();
-}
-}  // namespace
-
-void register_network_loader(NetworkLoader loader) {
-  const std::lock_guard<std::mutex> lock(loader_mutex());
-  loader_state() = LoaderState{std::move(loader), false, ""};
-}
-
-bool network_decoder_available() { return bool(factory_after_loading()); }
-
-std::string network_decoder_unavailable_reason() {
-  if (factory_after_loading()) return "";
-  const std::lock_guard<std::mutex> lock(loader_mutex());
-  if (!loader_state().error.empty()) return "the LibTorch plugin did not load: " + loader_state().error;
-  return "this qdo was built without LibTorch (-DQDO_TORCH=OFF, or the Python extension); the network decoder needs the qdo "
-         "tool built with LibTorch (scripts/install-deps.sh installs libtorch-dev)";
-}
-
-std::unique_ptr<NetworkDecoder> make_network_decoder(const NetworkSettings& s) {
-  const NetworkFactory f = factory_after_loading();
-  if (!f) reject("decoder", s.spec.to_string(), "wiener: " + network_decoder_unavailable_reason());
-  return f(s);
-}
 
 std::size_t synthetic_count(const std::string& entry) {
   const std::string num = entry.rfind("synthetic:", 0) == 0 ? entry.substr(10) : std::string();
@@ -210,9 +130,8 @@ double JointTrainer::step(long step, double lr_net, const RealStack& psf, RealSt
 
 double JointTrainer::validation_psnr_db(const RealStack& psf) {
   if (data_.val.empty()) return NAN;
-  const testset::Evaluation ev = testset::evaluate(
-      camera_, psf, data_.val, [&](const std::vector<RealStack>& noisy) { return net_.reconstruct(noisy); }, sigma_,
-      seed_ + 1, batch_);
+  const NetworkImageDecoder dec(net_, psf.planes, batch_);
+  const testset::Evaluation ev = testset::evaluate(camera_, psf, data_.val, dec, sigma_, seed_ + 1);
   double sum = 0;
   for (const auto& [scene, sc] : ev.per_patch) sum += sc.psnr;
   return sum / double(ev.per_patch.size());

@@ -9,158 +9,27 @@
 #include <cstdint>
 #include <fstream>
 #include <iterator>
+#include <memory>
 #include <set>
 #include <sstream>
+#include <utility>
 
-#include "qdo/run_folder.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/encoders.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/error.hpp"
 #include "data/json_strict.hpp"
+#include "qdo/datasets.hpp"
+#include "qdo/decoder_registry.hpp"
+#include "qdo/design_run.hpp"
+#include "qdo/encoders.hpp"
+#include "qdo/error.hpp"
 #include "qdo/hash.hpp"
 #include "qdo/io.hpp"
+#include "qdo/optics.hpp"
 #include "qdo/run.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/simulator.hpp"
 
 namespace fs = std::filesystem;
 
 namespace qdo {
-
-double encircled_energy_radius(const RealStack& psf, std::size_t plane, double fraction, double pitch_m) {
-  const std::size_t s = psf.rows;
-  std::vector<std::pair<double, double>> rv;  // (radius in pixels, energy)
-  double total = 0;
-  for (std::size_t y = 0; y < s; ++y)
-    for (std::size_t x = 0; x < psf.cols; ++x) {
-      const double dy = double(y) - double(s / 2), dx = double(x) - double(psf.cols / 2);
-      rv.push_back({std::sqrt(dy * dy + dx * dx), psf(plane, y, x)});
-      total += psf(plane, y, x);
-    }
-  if (!(total > 0)) return 0;
-  std::sort(rv.begin(), rv.end());
-  double acc = 0, prev_r = 0, prev_acc = 0;
-  for (const auto& [r, e] : rv) {
-    acc += e / total;
-    if (acc >= fraction) {
-      const double t = acc > prev_acc ? (fraction - prev_acc) / (acc - prev_acc) : 1.0;
-      return (prev_r + t * (r - prev_r)) * pitch_m;
-    }
-    prev_r = r;
-    prev_acc = acc;
-  }
-  return rv.back().first * pitch_m;
-}
-
-std::vector<PsfSweepRow> sweep_psf(Runtime& rt, const PsfSweepOptions& o) {
-  o.cfg.validate();
-  if (o.design_full_m.rows != o.cfg.n || o.design_full_m.cols != o.cfg.n)
-    reject("design", to_str(o.design_full_m.rows) + " x " + to_str(o.design_full_m.cols), "N x N = " + to_str(o.cfg.n));
-  for (const auto& v : o.variants) v.quantizer.validate();
-  const double hmax = o.cfg.h_max_m();
-  // Height maps: the reference first, then every variant.
-  std::vector<Map2D> maps{o.design_full_m};
-  std::vector<std::string> labels{"full"};
-  std::vector<int> levels{0};
-  for (const auto& v : o.variants) {
-    maps.push_back(quantize_heights(o.design_full_m, hmax, v.quantizer));
-    labels.push_back(v.label);
-    levels.push_back(v.quantizer.levels);
-  }
-  // How many designs fit one pass: the field buffer (designs x bands x M x M complex).
-  const auto g = PropagationGeometry::from_config(o.cfg);
-  const std::size_t per_design = o.cfg.bands * g.m * g.m * 2 * real_size(o.precision);
-  std::size_t per_pass = o.max_designs_per_pass;
-  if (per_pass == 0) per_pass = std::max<std::size_t>(1, rt.info().max_alloc_bytes / per_design);
-  per_pass = std::min(per_pass, maps.size());
-  const std::size_t bands = o.cfg.bands;
-  std::vector<RealStack> psfs(maps.size());
-  std::vector<std::vector<double>> outside(maps.size());
-  for (std::size_t first = 0; first < maps.size(); first += per_pass) {
-    const std::size_t count = std::min(per_pass, maps.size() - first);
-    Simulator sim(rt, o.cfg, o.precision, count);
-    sim.set_heights_batch(std::vector<Map2D>(maps.begin() + long(first), maps.begin() + long(first + count)));
-    sim.compute_psf();
-    const RealStack all = sim.psf_sensor();
-    for (std::size_t d = 0; d < count; ++d) {
-      RealStack p(bands, all.rows, all.cols);
-      std::copy(all.plane(d * bands), all.plane(d * bands) + p.size(), p.data.begin());
-      psfs[first + d] = std::move(p);
-      for (std::size_t b = 0; b < bands; ++b) outside[first + d].push_back(sim.sampling().bands[d * bands + b].energy_outside_window);
-    }
-  }
-  std::vector<PsfSweepRow> rows;
-  const RealStack& ref = psfs[0];
-  for (std::size_t k = 0; k < maps.size(); ++k) {
-    PsfSweepRow r;
-    r.label = labels[k];
-    r.levels = levels[k];
-    r.deviation_nm = quantization_deviation_m(maps[k], maps[0]) * 1e9;
-    r.energy_outside = outside[k];
-    for (std::size_t b = 0; b < bands; ++b) {
-      double num = 0, den = 0, pk = 0, pk0 = 0;
-      for (std::size_t i = 0; i < ref.plane_size(); ++i) {
-        const double a = psfs[k].plane(b)[i], c = ref.plane(b)[i];
-        num += (a - c) * (a - c);
-        den += c * c;
-        pk = std::max(pk, a);
-        pk0 = std::max(pk0, c);
-      }
-      r.rel_l2.push_back(den > 0 ? std::sqrt(num / den) : 0.0);
-      r.peak_ratio.push_back(pk0 > 0 ? pk / pk0 : 0.0);
-      r.ee80_um.push_back(encircled_energy_radius(psfs[k], b, 0.8, o.cfg.sensor_pitch_m) * 1e6);
-    }
-    rows.push_back(r);
-  }
-  if (!o.out.empty()) {
-    fs::create_directories(o.out);
-    const auto wl = o.cfg.wavelengths_nm();
-    std::ostringstream csv;
-    csv.precision(8);
-    csv << "variant,levels,deviation_nm,wavelength_nm,rel_l2,peak_ratio,ee80_um,energy_outside_window\n";
-    nlohmann::json j = nlohmann::json::array();
-    std::vector<H5Dataset> h5;
-    auto mean = [](const std::vector<double>& v) {
-      double s = 0;
-      for (double x : v) s += x;
-      return v.empty() ? 0.0 : s / double(v.size());
-    };
-    for (std::size_t k = 0; k < rows.size(); ++k) {
-      const auto& r = rows[k];
-      for (std::size_t b = 0; b < bands; ++b)
-        csv << r.label << "," << r.levels << "," << r.deviation_nm << "," << wl[b] << "," << r.rel_l2[b] << "," << r.peak_ratio[b] << ","
-            << r.ee80_um[b] << "," << r.energy_outside[b] << "\n";
-      j.push_back({{"variant", r.label},
-                   {"levels", r.levels},
-                   {"deviation_nm", r.deviation_nm},
-                   {"mean_rel_l2", mean(r.rel_l2)},
-                   {"mean_peak_ratio", mean(r.peak_ratio)},
-                   {"mean_ee80_um", mean(r.ee80_um)},
-                   {"rel_l2", r.rel_l2},
-                   {"peak_ratio", r.peak_ratio},
-                   {"ee80_um", r.ee80_um},
-                   {"energy_outside_window", r.energy_outside}});
-      h5.push_back({"/psf_" + r.label, {bands, psfs[k].rows, psfs[k].cols}, psfs[k].data, {{"pitch_m", o.cfg.sensor_pitch_m}}, {}});
-      write_montage_png((fs::path(o.out) / ("psf_" + r.label + ".png")).string(), psfs[k], wl, 0.5,
-                        std::min<std::size_t>(psfs[k].rows, 96));
-    }
-    h5.push_back({"/wavelengths_nm", {bands}, wl, {}, {{"units", "nm"}}});
-    h5_write((fs::path(o.out) / "psf.h5").string(), h5, {{"config", config_to_json_text(o.cfg)}});
-    write_text_atomic((fs::path(o.out) / "sweep.csv").string(), csv.str());
-    write_text_atomic((fs::path(o.out) / "sweep.json").string(), j.dump(2) + "\n");
-    // Metric vs variant (in the order given, reference first), mean over bands.
-    std::vector<double> l2, peak, ee;
-    for (const auto& r : rows) {
-      l2.push_back(mean(r.rel_l2));
-      peak.push_back(mean(r.peak_ratio));
-      ee.push_back(mean(r.ee80_um));
-    }
-    write_line_plot_png((fs::path(o.out) / "rel_l2_vs_variant.png").string(), {std::vector<double>(l2.begin() + 1, l2.end())});
-    write_line_plot_png((fs::path(o.out) / "peak_ratio_vs_variant.png").string(), {peak});
-    write_line_plot_png((fs::path(o.out) / "ee80_vs_variant.png").string(), {ee});
-  }
-  return rows;
-}
 
 namespace {
 
@@ -311,26 +180,25 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   for (const auto& m : g.modes)
     if (m != "do" && m != "do-refit" && m != "do-finetune" && m != "qdo" && m != "qdo+a" && m != "ste" && m != "qdo+m")
       reject("grid mode", m, "do, do-refit, do-finetune, qdo, qdo+a, ste or qdo+m");
-  std::vector<std::string> decoders;
-  for (const auto& d : g.decoders.empty() ? std::vector<std::string>{g.base.decoder} : g.decoders) {
-    const std::string spec = decoder_spec_from_string(d).to_string();  // refused by name when bad
-    if (std::find(decoders.begin(), decoders.end(), spec) == decoders.end()) decoders.push_back(spec);
+  std::vector<DecoderSpec> decoders;
+  for (const DecoderSpec& d : g.decoders.empty() ? std::vector<DecoderSpec>{g.base.decoder} : g.decoders) {
+    if (std::find(decoders.begin(), decoders.end(), d) == decoders.end()) decoders.push_back(d);
   }
   if (g.finetune_steps < 1) reject("finetune_steps", g.finetune_steps, ">= 1");
   for (int l : g.levels)
     if (l < 2 || l > 256) reject("grid levels", l, "integers in [2, 256]");
   DesignRunOptions base = g.base;
   base.out = "(set per run)";
-  base.decoder = "wiener";
-  if (base.objective == "network") base.objective = "wiener";
+  base.decoder = DecoderSpec{};
+  if (base.objective == Objective::Network) base.objective = Objective::Wiener;
   base.validate();
   for (const auto& d : decoders) {  // every decoder's runs validated before any work
     DesignRunOptions o = base;
     o.decoder = d;
-    if (d != "wiener") o.objective = "network";
+    if (d.network()) o.objective = Objective::Network;
     o.validate();
-    if (d != "wiener" && !network_decoder_available())
-      reject("grid decoder", d, "wiener: " + network_decoder_unavailable_reason());
+    if (d.network() && !network_decoder_available())
+      reject("grid decoder", d.to_string(), "wiener: " + network_decoder_unavailable_reason());
   }
   // Test scenes.
   std::vector<std::string> test = g.test_data;
@@ -343,19 +211,19 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   fs::create_directories(out / "runs");
   fs::create_directories(out / "cells");
   // Runs of decoder `dec`: Wiener runs keep the names they always had, network runs carry the spec.
-  auto tag_of = [](const std::string& dec) {
-    if (dec == "wiener") return std::string();
+  auto tag_of = [](const DecoderSpec& dec) {
+    if (dec.kind == DecoderSpec::Kind::Wiener) return std::string();
     std::string t = "_";
-    for (char ch : dec) t += ch == ':' || ch == ',' ? '-' : ch == '=' ? '\0' : ch;
+    for (char ch : dec.to_string()) t += ch == ':' || ch == ',' ? '-' : ch == '=' ? '\0' : ch;
     t.erase(std::remove(t.begin(), t.end(), '\0'), t.end());
     return t;
   };
-  auto run_opts = [&](DesignMode mode, int levels, const std::string& name, const std::string& dec) {
+  auto run_opts = [&](DesignMode mode, int levels, const std::string& name, const DecoderSpec& dec) {
     DesignRunOptions o = base;
     o.design.mode = mode;
     o.design.quantizer.levels = levels;
     o.decoder = dec;
-    if (dec != "wiener") o.objective = "network";
+    if (dec.network()) o.objective = Objective::Network;
     o.out = (out / "runs" / (name + tag_of(dec))).string();
     return o;
   };
@@ -428,7 +296,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
                             {"levels", levels},
                             {"eval_levels", e.levels},
                             {"placement", to_string(e.placement)},
-                            {"decoder", e.decoder},
+                            {"decoder", to_string(e.decoder)},
                             {"full_precision", e.full_precision},
                             {"renders", e.renders},
                             {"run", run_outputs(e.run)}});
@@ -443,9 +311,9 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   };
   const bool doe = std::find(g.encoders.begin(), g.encoders.end(), "doe") != g.encoders.end();
   std::string first_do;  // the first decoder's DO run: the prior of the other encoders
-  for (const std::string& dec : decoders) {
-    const bool network = dec != "wiener";
-    const std::string tag = tag_of(dec), label = network ? "@" + dec : "";
+  for (const DecoderSpec& dec : decoders) {
+    const bool network = dec.network();
+    const std::string tag = tag_of(dec), label = network ? "@" + dec.to_string() : "";
     // DO is trained once in full precision; its levels and placement only shape its design.h5,
     // which no cell reads (cells quantize design_full.h5 themselves).
     const DesignRunOptions do_run = run_opts(DesignMode::DO, g.levels.front(), "do", dec);
@@ -471,7 +339,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
           e.run = do_run.out;
           e.levels = L;
           e.placement = base.design.quantizer.placement;
-          e.decoder = m == "do" ? "mismatch" : "matched";
+          e.decoder = m == "do" ? DecoderFit::Mismatch : DecoderFit::Matched;
         } else if (m == "do-finetune") {  // the do run's network trained on, the DOE quantized to L and frozen
           DesignRunOptions r = run_opts(DesignMode::DO, L, "do-finetune_L" + std::to_string(L), dec);
           r.finetune_from = do_run.out;
@@ -514,6 +382,21 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
                               {"prior_run", prior_inputs}});
       return read_cached(out / "cells" / name, c.inputs, c);
     };
+    // The decoders of the other encoders come from the registry: wiener for the Fresnel lens's PSF,
+    // cg for CASSI (any linear encoder), on the DO run's prior.
+    DecoderSpec cg;
+    cg.kind = DecoderSpec::Kind::Named;
+    cg.name = "cg";
+    auto decoder_of = [&](const DecoderSpec& spec, RealStack psf, std::shared_ptr<const Encoder> enc) {
+      DecoderInputs in;
+      in.spec = spec;
+      in.psf = std::move(psf);
+      in.srf = srf;
+      in.encoder = std::move(enc);
+      in.prior = prior;
+      in.noise_sigma = sigma;
+      return make_decoder(in);
+    };
     auto finish = [&](GridCell& c, const EncoderEval& ev) {
       c.mean.psnr = ev.psnr_db;
       c.mean.ssim = ev.ssim;
@@ -533,9 +416,9 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
           Simulator sim(rt, base.cfg, base.precision);
           sim.set_heights(fresnel_lens_heights(base.cfg, g.fresnel_design_nm, L));
           sim.compute_psf();
-          const ComplexStack otf = wiener::psf_to_otf(sim.psf_sensor(), prior.rows, prior.cols);
-          finish(c, evaluate_encoder(DoeEncoder(otf, srf), WienerDecoder(otf, srf, prior, sigma), cubes, sigma,
-                                     base.design.seed + 77));
+          const RealStack psf = sim.psf_sensor();
+          const DoeEncoder enc(wiener::psf_to_otf(psf, prior.rows, prior.cols), srf);
+          finish(c, evaluate_encoder(enc, *decoder_of(DecoderSpec{}, psf, nullptr), cubes, sigma, base.design.seed + 77));
         }
         if (!g.quiet) std::fprintf(stderr, "[sweep] %-16s PSNR %.2f dB\n", c.name.c_str(), c.mean.psnr);
         cells.push_back(c);
@@ -549,7 +432,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
         if (cubes.empty()) cubes = test_patches(base.cfg, test, g.eval_synthetic_scenes, base.design.seed);
         const std::size_t s = base.cfg.sensor_size_px();
         auto enc = std::make_shared<CassiEncoder>(random_binary_mask(s, s, 0.5, base.design.seed + 5), base.cfg.bands, g.cassi_shift_px);
-        finish(c, evaluate_encoder(*enc, CgDecoder(enc, prior, sigma), cubes, sigma, base.design.seed + 77));
+        finish(c, evaluate_encoder(*enc, *decoder_of(cg, RealStack(), enc), cubes, sigma, base.design.seed + 77));
       }
       if (!g.quiet) std::fprintf(stderr, "[sweep] %-16s PSNR %.2f dB\n", c.name.c_str(), c.mean.psnr);
       cells.push_back(c);
@@ -585,7 +468,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   std::vector<std::vector<double>> series;
   for (const auto& dec : decoders)
     for (const auto& m : g.modes) {
-      const std::string label = m + (dec == "wiener" ? "" : "@" + dec);
+      const std::string label = m + (dec.network() ? "@" + dec.to_string() : "");
       std::vector<double> s;
       for (int L : g.levels)
         for (const auto& c : cells)

@@ -8,6 +8,7 @@
 
 #include "torch_common.hpp"  // LibTorch, then doctest's CHECK macros and the common helpers
 #include "qdo/design_run.hpp"
+#include "qdo/eval.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/net.hpp"
@@ -110,8 +111,8 @@ TEST_SUITE("net") {
       o.synthetic_scenes = 3;
       o.checkpoint_every = 1;
       o.batch = 2;
-      o.decoder = "resunet:depth=2,root=4";
-      o.objective = "network";
+      o.decoder = decoder_spec_from_string("resunet:depth=2,root=4");
+      o.objective = Objective::Network;
       o.precision = Precision::F32;
       o.out = out;
       o.quiet = true;

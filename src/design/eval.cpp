@@ -1,4 +1,7 @@
-// `qdo eval`: reconstruction of test scenes through a run's design with the Wiener decoder.
+// `qdo eval`: reconstruction of test scenes through a run's design with a decoder of the registry
+// (eval.hpp).
+#include "qdo/eval.hpp"
+
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -8,8 +11,7 @@
 #include <memory>
 #include <sstream>
 
-#include "qdo/run_folder.hpp"
-#include "qdo/datasets.hpp"
+#include "qdo/decoder_registry.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/embedded.hpp"
@@ -18,9 +20,10 @@
 #include "qdo/network_decoder.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/scenes.hpp"
+#include "qdo/simulator.hpp"
 #include "qdo/testset.hpp"
-#include "qdo/cpu_reference.hpp"
 
 namespace fs = std::filesystem;
 
@@ -65,19 +68,29 @@ RealStack side_by_side(const RealStack& a, const RealStack& b) {
 
 }  // namespace
 
+DecoderFit decoder_fit_from_string(const std::string& s, const std::string& argument) {
+  if (s == "matched") return DecoderFit::Matched;
+  if (s == "mismatch") return DecoderFit::Mismatch;
+  reject(argument, s, "matched or mismatch");
+}
+
+std::string to_string(DecoderFit f) { return f == DecoderFit::Mismatch ? "mismatch" : "matched"; }
+
 EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   const RunFolder folder(e.run);
   const DesignRunOptions o = folder.config();
-  if (e.decoder != "matched" && e.decoder != "mismatch") reject("decoder", e.decoder, "matched or mismatch");
   if (e.out.empty()) reject("out", "(missing)", "an output folder");
   const SystemConfig& cfg = o.cfg;
-  // A network run reconstructs with its network, which cannot be refit in closed form: `matched`
-  // needs the evaluated design to be the one the network was trained with (the run's own design;
+  const DecoderSpec spec = e.decoder_kind ? *e.decoder_kind : o.decoder;
+  const DecoderEntry entry = decoder_entry(spec.kind_name());
+  // A decoder trained with the optics is the run's own, and cannot be refit in closed form:
+  // `matched` needs the evaluated design to be the one it was trained with (the run's own design;
   // H_f for full and for do at full precision; a do-finetune run's quantized DOE); `mismatch`
-  // evaluates the network as trained, measured through the evaluated design (a network do run at
-  // its levels: the paper's DO).
-  const bool network = decoder_spec_from_string(o.decoder).kind == DecoderSpec::Kind::ResUNet;
-  if (network && e.decoder == "matched" && !e.full_precision &&
+  // evaluates it as trained, measured through the evaluated design (a network do run at its
+  // levels: the paper's DO).
+  if (entry.trained && spec != o.decoder)
+    reject("decoder_kind", spec.to_string(), "the run's own decoder (" + o.decoder.to_string() + "): " + entry.name + " is trained with the optics");
+  if (entry.trained && e.decoder == DecoderFit::Matched && !e.full_precision &&
       (e.levels > 0 || (o.design.mode == DesignMode::DO && o.finetune_from.empty())))
     reject("decoder", "matched",
            "mismatch for this network run: its network was trained for " +
@@ -107,17 +120,21 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   sim.compute_psf();
   const RealStack psf_eval = sim.psf_sensor();
   RealStack psf_dec = psf_eval;
-  if (e.decoder == "mismatch") {
+  if (e.decoder == DecoderFit::Mismatch) {
     sim.set_heights(full.height_m);
     sim.compute_psf();
     psf_dec = sim.psf_sensor();
   }
-  const Eigen::MatrixXd srf = sensor_response(cfg);
   testset::PatchCamera camera(rt, cfg);
-  std::unique_ptr<NetworkDecoder> net;
-  if (network) net = load_run_network(e.run);
-  std::unique_ptr<WienerDecoder> dec;
-  if (!network) dec = std::make_unique<WienerDecoder>(wiener::psf_to_otf(psf_dec, s, s), srf, prior, sigma);
+  DecoderInputs in;
+  in.spec = spec;
+  in.psf = psf_dec;
+  in.srf = sensor_response(cfg);
+  in.prior = prior;
+  in.noise_sigma = sigma;
+  in.run_network = [&e] { return load_run_network(e.run); };
+  const std::unique_ptr<Decoder> dec = make_decoder(in);
+  const std::string imaging = dec->description().empty() ? "decoder " + spec.to_string() : dec->description();
 
   EvalResult res;
   res.deviation_nm = quantization_deviation_m(h_eval, full.height_m) * 1e9;
@@ -147,14 +164,11 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
     }
     write_line_plot_png((fs::path(e.out) / ("spectra_" + tag + ".png")).string(), {curves[0], curves[1]});
   };
-  const testset::Evaluation ev =
-      network ? testset::evaluate(camera, psf_eval, patches, [&](const std::vector<RealStack>& y) { return net->reconstruct(y); },
-                                  sigma, o.design.seed, 8, keep)
-              : testset::evaluate(camera, psf_eval, patches, *dec, sigma, o.design.seed, keep);
+  const testset::Evaluation ev = testset::evaluate(camera, psf_eval, patches, *dec, sigma, o.design.seed, keep);
   const auto& per_patch = ev.per_patch;
   recon.push_back({"/wavelengths_nm", {wl.size()}, wl, {}, {{"units", "nm"}}});
   h5_write((fs::path(e.out) / "reconstructions.h5").string(), recon,
-           {{"run", e.run}, {"decoder", e.decoder}, {"decoder_kind", network ? o.decoder : std::string("wiener")}});
+           {{"run", e.run}, {"decoder", to_string(e.decoder)}, {"decoder_kind", spec.to_string()}});
   std::ostringstream csv;
   csv << "scene,patches,psnr_db,psnr_h_db,ssim,rmse,ergas,sam_rad\n";
   csv.precision(6);
@@ -179,8 +193,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   write_text_atomic((fs::path(e.out) / "metrics.csv").string(), csv.str());
   nlohmann::json j;
   j["run"] = e.run;
-  j["decoder"] = e.decoder;
-  j["decoder_kind"] = network ? o.decoder : std::string("wiener");
+  j["decoder"] = to_string(e.decoder);
+  j["decoder_kind"] = spec.to_string();
   j["levels"] = e.full_precision ? 0 : e.levels > 0 ? e.levels : o.design.quantizer.levels;
   j["full_precision"] = e.full_precision;
   j["requantized"] = e.levels > 0;
@@ -197,7 +211,7 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
                       {"ergas", "100 sqrt(mean_b MSE_b / mu_b^2), ratio 1"},
                       {"sam_rad", "mean spectral angle, radians"},
                       {"imaging", std::string("circular per-band convolution on the S x S patch grid, Gaussian noise sigma, ") +
-                                      (network ? "the run's network (" + o.decoder + ", inference mode)" : std::string("Wiener decoder")) +
+                                      imaging +
                                       ", output clipped to [0, 1]"}};
   write_text_atomic((fs::path(e.out) / "metrics.json").string(), j.dump(2) + "\n");
   return res;

@@ -1,0 +1,95 @@
+// The options of a `qdo design` run (DesignRunOptions) and their typed parts. Each part is parsed
+// once where it enters: the command line (src/cli) and a run's config.json
+// (design_run_options_from_json), which holds each as the string its to_string() writes (the
+// strings the options always had there, so run folders of earlier versions read the same).
+#pragma once
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/decoder_spec.hpp"
+#include "qdo/design.hpp"
+#include "qdo/runtime.hpp"
+
+namespace qdo {
+
+// The design objective:
+//   wiener                  the closed-form expected MSE under the scene prior (REFERENCE §3b)
+//   wiener-mse, wiener-mae  empirical, on batches of training scenes
+//   psf-target              match the target's PSF (TargetSpec)
+//   network                 the network decoder's loss (Eq. 14): needs a network decoder, and only it
+enum class Objective { Wiener, WienerMse, WienerMae, PsfTarget, Network };
+// InputError "argument '<argument>' = S: one of wiener, ..." for any other S.
+Objective objective_from_string(const std::string& s, const std::string& argument = "objective");
+std::string to_string(Objective o);
+
+// Where the `wiener` objective runs: device (kernels/wiener.cl, the run's precision; float32 with
+// float64 accumulation where the device has it) or cpu (double, the reference).
+enum class WienerOn { Device, Cpu };
+WienerOn wiener_on_from_string(const std::string& s, const std::string& argument = "wiener_on");
+std::string to_string(WienerOn w);
+
+// The initial design: random heights in [0, h_max] (seeded), flat (all zero), or lens:NM, the
+// diffractive lens for NM nanometres (lens_design).
+struct InitSpec {
+  enum class Kind { Random, Flat, Lens } kind = Kind::Random;
+  double wavelength_nm = 0;       // Kind::Lens: finite, 100 ... 20000
+  std::string wavelength_text;    // Kind::Lens: NM as written ("550.0"); empty: written from wavelength_nm
+  std::string to_string() const;  // random, flat or lens:NM (NM as written, else the shortest decimal)
+};
+// InputError naming `argument`: "random, flat or lens:NM", or the range of NM.
+InitSpec init_spec_from_string(const std::string& s, const std::string& argument = "init");
+
+// The target of the psf-target objective: lens:NM (the PSF of the diffractive lens for NM nm) or
+// a design .h5 file (its PSF); None ("") where the objective has no target.
+struct TargetSpec {
+  enum class Kind { None, Lens, File } kind = Kind::None;
+  double wavelength_nm = 0;       // Kind::Lens: finite, 100 ... 20000
+  std::string wavelength_text;    // Kind::Lens: NM as written; empty: written from wavelength_nm
+  std::string path;               // Kind::File (checked to exist by DesignRunOptions::validate)
+  std::string to_string() const;  // "", lens:NM (as InitSpec) or the path
+};
+// "" -> None, lens:... -> Lens (InputError naming `argument` for a bad NM), anything else -> File.
+TargetSpec target_spec_from_string(const std::string& s, const std::string& argument = "target");
+
+struct DesignRunOptions {
+  SystemConfig cfg;
+  DesignOptions design;
+  Objective objective = Objective::Wiener;
+  // The decoder trained with the optics (decoder_spec.hpp): wiener (closed form, nothing to
+  // train) or a resunet spec, trained jointly (qdo/joint.hpp) at lr_decoder with weight decay
+  // gamma_decoder (Eq. 14's γ), Adam, decayed with the optics' lr_decay_per_epoch.
+  DecoderSpec decoder;
+  double lr_decoder = 1e-3;
+  double gamma_decoder = 1e-4;
+  // do-finetune (issue 13 item 4): the finished network `do` run whose network is trained on for
+  // epochs x steps_per_epoch steps with its DOE quantized to this run's levels and frozen. Mode do.
+  std::string finetune_from;
+  TargetSpec target;                   // psf-target: lens:NM or a design .h5 whose PSF is the target
+  std::vector<std::string> data;       // scene files/folders; empty: synthetic scenes
+  std::string data_format = "auto";
+  std::size_t synthetic_scenes = 12;   // when data is empty
+  std::size_t batch = 4;               // scenes per step (wiener-mse, wiener-mae)
+  std::size_t epochs = 50;
+  double decoder_noise_sigma = 1e-3;   // σ of the Wiener filter (REFERENCE §1 training noise)
+  std::size_t prior_bins = 16;
+  // Run folders written before the device objective existed resume on the CPU.
+  WienerOn wiener_on = WienerOn::Device;
+  InitSpec init;
+  std::size_t checkpoint_every = 10;
+  long max_steps = -1;                 // stop after this many steps in total (-1: epochs * steps_per_epoch)
+  Precision precision = Precision::F32;
+  std::string out;                     // the run folder
+  bool quiet = false;                  // no progress line
+  void validate() const;               // InputError naming the option
+};
+
+// config.json's text: {"system": config_to_json_text(cfg), "design": {every option but cfg, out,
+// max_steps and quiet, each typed part as its to_string()}}. from_json reads it strictly
+// (InputError naming the file `origin` and the key); fields missing from run folders of earlier
+// versions take the values those runs had (psf_path 2d, wiener_on cpu, decoder wiener, ...).
+std::string design_run_options_to_json(const DesignRunOptions& o);
+DesignRunOptions design_run_options_from_json(const std::string& text, const std::string& origin);
+
+}  // namespace qdo

@@ -1,0 +1,47 @@
+// The problem of a design run (private to src/design): what make_problem prepares before any
+// writing, the objective of each step, and the initial parameters.
+#pragma once
+#include <Eigen/Dense>
+
+#include <memory>
+#include <vector>
+
+#include "qdo/design.hpp"
+#include "qdo/design_run_options.hpp"
+#include "qdo/joint.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/types.hpp"
+#include "qdo/wiener.hpp"
+#include "qdo/wiener_device.hpp"
+
+namespace qdo {
+
+struct Problem {
+  Eigen::MatrixXd srf;
+  wiener::SpectralPrior prior;
+  std::vector<RealStack> scenes;
+  RealStack target;
+  JointData joint;  // objective network: the scenes the network trains and validates on
+};
+
+// The run's problem: the sensor response, and per objective the training scenes (S x S patches at
+// the sensor pitch, S = the sensor PSF size, so prior, PSF and scenes share one grid) with their
+// prior (wiener objectives; network: the network's scenes, qdo/joint.hpp, and their patches'
+// prior), or the target's sensor PSF stack (psf-target). Reads data before any writing.
+Problem make_problem(Runtime& rt, const DesignRunOptions& o);
+
+// The Wiener expected-error objective on the device for this run, when it asks for one
+// (objective wiener, wiener_on device) and the device has float64 for the C x C solve; null
+// otherwise (the CPU objective then runs).
+std::unique_ptr<wiener::DeviceObjective> make_device_objective(Runtime& rt, const DesignRunOptions& o, const Problem& pb);
+
+// The step's objective (the training batch of wiener-mse and wiener-mae drawn from the seed and
+// `step`); `dev` (from make_device_objective) evaluates the wiener objective when given.
+PsfObjective make_objective(const DesignRunOptions& o, const Problem& pb, long step, wiener::DeviceObjective* dev = nullptr);
+
+// The initial parameters of the run's parameterization (parameter_count of them, metres): random
+// heights in [0, h_max] drawn with seed + 17, zeros (flat), or the lens's heights sampled as the
+// parameterization reads them (lens:NM).
+std::vector<double> initial_params(const DesignRunOptions& o);
+
+}  // namespace qdo
