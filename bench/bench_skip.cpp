@@ -212,8 +212,6 @@ int main(int argc, char** argv) try {
       s.tiles = tm;
       return s;
     };
-    SkipOptions exact;
-    exact.exact = true;
     const double b = defaults.band_tolerance, c = defaults.crop_tolerance, t = defaults.tile_tolerance;
     const std::vector<Variant> variants{
         {"exact (rules off)", exact},

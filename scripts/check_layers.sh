@@ -23,6 +23,7 @@ cd "${1:-$(dirname "$0")/..}"
 table='
 adjoint physics
 camera physics
+camera_reference physics
 config data
 cpu_reference physics
 datasets data
@@ -33,6 +34,7 @@ design design
 design_run design
 design_run_options design
 doe physics
+doe_adjoint_reference physics
 embedded runtime
 encoders decode
 error runtime
@@ -40,9 +42,12 @@ eval design
 fab fab
 fft runtime
 fftw2 runtime
+field physics
+field_reference physics
 gds fab
 gradcheck design
 hash runtime
+host_propagator runtime
 io data
 joint design
 kernel_cache runtime
@@ -50,6 +55,11 @@ materials data
 net net
 network_decoder decode
 optics physics
+propagate physics
+propagate_reference physics
+psf physics
+psf_reference physics
+psf_source physics
 radial physics
 release physics
 resunet net
@@ -58,6 +68,8 @@ run design
 run_folder design
 runtime runtime
 scenes data
+sensor physics
+sensor_reference physics
 simulator physics
 sweep design
 testset decode

@@ -12,6 +12,7 @@
 #include "fab_common.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/eval.hpp"
+#include "qdo/gradcheck.hpp"
 #include "qdo/error.hpp"
 #include "qdo/fab.hpp"
 #include "qdo/io.hpp"

@@ -210,4 +210,54 @@ TEST_SUITE("psf-source") {
     CHECK(ok.code == 0);
     fs::remove_all(dir);
   }
+
+  TEST_CASE("qdo eval --psf with qdo psf's stack of the run's design gives the run's own metrics; another grid is refused") {
+    const fs::path dir = temp_dir("psf_source_eval");
+    const SystemConfig c = tiny_config(32, 3);
+    const std::string cfg = "--config " + write_config(dir, c, "tiny.json").string();
+    const fs::path run = dir / "run";
+    Run r = qdo_run("design " + cfg + " --mode qdo+a --levels 4 --epochs 5 --steps-per-epoch 2 --t0 1 --t1 4 "
+                    "--synthetic-scenes 3 --seed 3 --max-steps 2 --out " + run.string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    r = qdo_run("psf " + cfg + " --design " + (run / "design.h5").string() + " --out " + (dir / "psf").string());
+    REQUIRE(r.code == 0);
+    r = qdo_run("eval " + run.string() + " --synthetic-scenes 2 --out " + (dir / "own").string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    r = qdo_run("eval " + run.string() + " --synthetic-scenes 2 --psf " + (dir / "psf" / "psf.h5").string() + " --out " +
+                (dir / "file").string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    // The same PSF (qdo psf wrote the device's float32 values), the same measurements and decoder:
+    // the same metrics, to the last digit.
+    CHECK(slurp(dir / "file" / "metrics.csv") == slurp(dir / "own" / "metrics.csv"));
+    CHECK_FALSE(slurp(dir / "own" / "metrics.csv").empty());
+    CHECK(h5_read((dir / "file" / "reconstructions.h5").string(), "/recon_0").data ==
+          h5_read((dir / "own" / "reconstructions.h5").string(), "/recon_0").data);
+    // A stack of other bands, or of another size, is refused naming both; nothing is written.
+    const std::size_t s = c.sensor_size_px();
+    RealStack four(4, s, s), big(3, s + 4, s + 4);
+    for (auto& v : four.data) v = 1.0 / double(s * s);
+    for (auto& v : big.data) v = 1.0 / double((s + 4) * (s + 4));
+    write_psf((dir / "four.h5").string(), four, tiny_config(32, 4).wavelengths_nm(), c.sensor_pitch_m);
+    write_psf((dir / "big.h5").string(), big, c.wavelengths_nm(), c.sensor_pitch_m);
+    for (const auto& [file, found] : std::vector<std::pair<std::string, std::string>>{
+             {"four.h5", "4 x " + to_str(s) + " x " + to_str(s)}, {"big.h5", "3 x " + to_str(s + 4) + " x " + to_str(s + 4)}}) {
+      CAPTURE(file);
+      const fs::path out = dir / ("refused_" + file);
+      const Run bad = qdo_run("eval " + run.string() + " --psf " + (dir / file).string() + " --out " + out.string());
+      CAPTURE(bad.out);
+      CHECK(bad.code == 2);
+      CHECK(bad.out.find(found) != std::string::npos);
+      CHECK(bad.out.find("3 x " + to_str(s) + " x " + to_str(s)) != std::string::npos);
+      CHECK_FALSE(fs::exists(out));
+    }
+    // --psf picks the camera; --levels would pick heights: refused.
+    const Run both = qdo_run("eval " + run.string() + " --levels 2 --psf " + (dir / "psf" / "psf.h5").string() + " --out " +
+                             (dir / "both").string());
+    CHECK(both.code == 2);
+    CHECK_FALSE(fs::exists(dir / "both"));
+    fs::remove_all(dir);
+  }
 }

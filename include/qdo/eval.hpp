@@ -37,6 +37,13 @@ struct EvalOptions {
   // (its config.json "decoder": wiener, or its trained network). A decoder trained with the
   // optics (resunet) must be the run's own.
   std::optional<DecoderSpec> decoder_kind;
+  // A PSF stack file (`qdo psf`'s psf.h5: /psf_sensor, bands x S x S, with /wavelengths_nm; a
+  // measured stack in the same layout) through which the test scenes are measured instead of the
+  // evaluated design's simulated PSF; checked against the run's bands and sensor grid before any
+  // work. Empty: the design's PSF. With it, `levels` and `full_precision` (which pick heights) are
+  // refused; a matched Wiener decoder is built for the file's PSF, a mismatch one for H_f; a
+  // network run needs mismatch (its network as trained, measured through the file's PSF).
+  std::string psf_file;
   double noise_sigma = -1;             // measurement noise; < 0: the run's decoder sigma
   std::vector<std::pair<std::size_t, std::size_t>> pixels;  // spectral curves at (y, x); empty: centre
   std::size_t renders = 4;             // scenes rendered as PNG and stored as HDF5

@@ -165,6 +165,8 @@ std::vector<CommandSpec> make_table() {
                 placement(), opt("decoder", "decoder: matched (refit to the evaluated design) or mismatch (fit to the full-precision design)", "matched"),
                 opt("decoder-kind", "the decoder that reconstructs: wiener, cg[:tolerance=T,max_iterations=N] (conjugate-gradient MAP) or "
                                     "another registered one (default: the run's own, its Wiener decoder or its trained network)"),
+                opt("psf", "PSF stack file through which the scenes are measured in place of the design's PSF: psf.h5 as qdo psf "
+                           "writes it (a measured stack in that layout), for the run's bands and sensor grid (checked); not with --levels"),
                 noise_sigma("sensor noise std, in units of full scale (>= 0; default: the run's)", ""),
                 opt("pixels", "pixels whose spectra are plotted: y:x pairs, comma-separated"),
                 opt("renders", "number of reconstructions rendered as PNG, an integer in [0, 1000]", "4"), synthetic_scenes("6"),

@@ -159,6 +159,8 @@ int cmd_eval(const Args& a) {
   e.placement = placement_from_string(a.get("placement"));
   e.decoder = decoder_fit_from_string(a.get("decoder"), "--decoder");
   if (a.has("decoder-kind")) e.decoder_kind = decoder_spec_from_string(a.get("decoder-kind"));
+  e.psf_file = a.get("psf");
+  if (a.has("psf") && a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --psf (the PSF file is the measured camera)");
   e.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma")) : -1;
   e.renders = std::size_t(parse_int("--renders", a.get("renders"), 0, 1000));
   e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));

@@ -9,6 +9,7 @@
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
+#include "qdo/simulator.hpp"
 #include "qdo/optics.hpp"
 
 namespace qdo {

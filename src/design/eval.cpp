@@ -13,6 +13,7 @@
 
 #include "qdo/decoder_registry.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/psf_source.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
@@ -22,7 +23,6 @@
 #include "qdo/run.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/scenes.hpp"
-#include "qdo/simulator.hpp"
 #include "qdo/testset.hpp"
 
 namespace fs = std::filesystem;
@@ -90,6 +90,13 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   // levels: the paper's DO).
   if (entry.trained && spec != o.decoder)
     reject("decoder_kind", spec.to_string(), "the run's own decoder (" + o.decoder.to_string() + "): " + entry.name + " is trained with the optics");
+  if (!e.psf_file.empty() && (e.levels > 0 || e.full_precision))
+    reject(e.levels > 0 ? "levels" : "full_precision", e.levels > 0 ? to_str(e.levels) : std::string("true"),
+           "not with a PSF file (psf = " + e.psf_file + "): the file's stack is the measured camera, no heights are chosen");
+  if (entry.trained && !e.psf_file.empty() && e.decoder == DecoderFit::Matched)
+    reject("decoder", "matched",
+           "mismatch with a PSF file for this network run: its network cannot be refit for the file's PSF in closed form "
+           "(mismatch evaluates it as trained, measured through the file's PSF)");
   if (entry.trained && e.decoder == DecoderFit::Matched && !e.full_precision &&
       (e.levels > 0 || (o.design.mode == DesignMode::DO && o.finetune_from.empty())))
     reject("decoder", "matched",
@@ -101,6 +108,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   const Design fab = folder.design();
   const std::size_t s = cfg.sensor_size_px();
   const wiener::SpectralPrior prior = folder.prior(s);
+  // A PSF file is read and checked against the run's configuration before any work.
+  const RealStack psf_file = e.psf_file.empty() ? RealStack() : read_psf_stack_for(cfg, e.psf_file, "psf");
   Map2D h_eval = e.full_precision ? full.height_m : fab.height_m;
   if (e.levels > 0 && !e.full_precision) {
     Quantizer q;
@@ -116,9 +125,12 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   make_output_dir(e.out, "out");
 
   Simulator sim(rt, cfg, e.precision);
-  sim.set_heights(h_eval);
-  sim.compute_psf();
-  const RealStack psf_eval = sim.psf_sensor();
+  RealStack psf_eval = psf_file;
+  if (e.psf_file.empty()) {
+    sim.set_heights(h_eval);
+    sim.compute_psf();
+    psf_eval = sim.psf_sensor();
+  }
   RealStack psf_dec = psf_eval;
   if (e.decoder == DecoderFit::Mismatch) {
     sim.set_heights(full.height_m);
@@ -168,7 +180,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   const auto& per_patch = ev.per_patch;
   recon.push_back({"/wavelengths_nm", {wl.size()}, wl, {}, {{"units", "nm"}}});
   h5_write((fs::path(e.out) / "reconstructions.h5").string(), recon,
-           {{"run", e.run}, {"decoder", to_string(e.decoder)}, {"decoder_kind", spec.to_string()}});
+           {{"run", e.run}, {"decoder", to_string(e.decoder)}, {"decoder_kind", spec.to_string()},
+            {"psf", e.psf_file.empty() ? std::string("the evaluated design's (simulated)") : e.psf_file}});
   std::ostringstream csv;
   csv << "scene,patches,psnr_db,psnr_h_db,ssim,rmse,ergas,sam_rad\n";
   csv.precision(6);
