@@ -4,9 +4,10 @@
 //   2. directional FD    (f(x + e d) - f(x - e d)) / 2e . g against <vjp(x, g), d>;
 //   3. central FD        on a few parameters i: (f(x + e e_i) - f(x - e e_i)) / 2e . g
 //                        against vjp(x, g)[i].
-// The table of the PSF chain's, the parameterizations', the quantizer's, the radial engine's, the
-// encoders' and the design loop's stages is tests/test_adjoint.cpp's (suite `adjoint`); the camera's
-// and the Wiener objective's rows are in test_camera.cpp and test_wiener_device.cpp.
+// The table of the rows (the PSF chain, the parameterizations, the quantizer, the radial engine,
+// the encoders, the design loop, the Wiener decoder, joint training) is tests/adjoint_table.hpp,
+// run by the suite `adjoint`; the camera operator's and the device Wiener objective's rows run in
+// test_camera.cpp and test_wiener_device.cpp through this same body.
 //
 // Tolerances are given per stage (derived from its precision and size) as a sum of terms, each
 // off at 0; every comparison is reported with both numbers. Rung 1 needs a jvp (linear stages:

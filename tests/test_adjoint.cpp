@@ -368,10 +368,11 @@ TEST_SUITE("adjoint") {
     const Group table[] = {
         {"PSF chain", adjoint_rows::psf_chain}, {"camera", adjoint_rows::camera},     {"DOE", adjoint_rows::doe},
         {"radial engine", adjoint_rows::radial}, {"encoders", adjoint_rows::encoders}, {"design loop", adjoint_rows::design},
+        {"Wiener decoder", adjoint_rows::wiener}, {"joint training", adjoint_rows::joint},
     };
     std::uint64_t group_seed = 0;
     for (const Group& gr : table) {
-      INFO("group: " << gr.name);
+      INFO("group: " << std::string(gr.name));
       std::uint64_t seed = group_seed += 1000;
       for (const Stage& st : gr.rows()) check_ladder(st, seed += 10);
     }

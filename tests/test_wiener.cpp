@@ -1,11 +1,13 @@
-// Wiener (linear MMSE) decoder: exactness, Monte Carlo agreement of the expected error, finite-
-// difference gradient checks against the OTF and the PSF, adjoint tests, the mismatch decode and
-// the metrics. Every tolerance is stated next to its check.
+// Wiener (linear MMSE) decoder: exactness, Monte Carlo agreement of the expected error, the
+// mismatch decode and the metrics; its adjoints (PSF -> OTF, the objectives' gradients with respect
+// to the OTF and the PSF) are rows of the adjoint table, defined here (adjoint_rows::wiener) and
+// run by the suite `adjoint`. Every tolerance is stated next to its check.
 #include <doctest/doctest.h>
 
 #include <cmath>
 #include <complex>
 #include <functional>
+#include <memory>
 #include <random>
 #include <string>
 #include <vector>
@@ -14,6 +16,8 @@
 #include "qdo/cpu_reference.hpp"
 #include "qdo/error.hpp"
 #include "qdo/wiener.hpp"
+
+#include "adjoint_table.hpp"
 
 using namespace qdo;
 using namespace qdo::wiener;
@@ -130,45 +134,6 @@ double max_abs_diff(const std::vector<double>& a, const std::vector<double>& b) 
   return m;
 }
 
-// Central differences of f over every entry of a complex stack (real and imaginary parts),
-// compared with g: returns max |fd - g| / max |g|.
-double fd_check_otf(const std::function<double(const ComplexStack&)>& f, ComplexStack x, const ComplexStack& g, double h) {
-  double worst = 0, gmax = 0;
-  for (const cdouble& v : g.data) gmax = std::max(gmax, std::abs(v));
-  REQUIRE(gmax > 0);
-  for (std::size_t i = 0; i < x.size(); ++i) {
-    const cdouble x0 = x.data[i];
-    x.data[i] = x0 + h;
-    const double rp = f(x);
-    x.data[i] = x0 - h;
-    const double rm = f(x);
-    x.data[i] = x0 + cdouble(0, h);
-    const double ip = f(x);
-    x.data[i] = x0 - cdouble(0, h);
-    const double im = f(x);
-    x.data[i] = x0;
-    const cdouble fd((rp - rm) / (2 * h), (ip - im) / (2 * h));
-    worst = std::max(worst, std::abs(fd - g.data[i]));
-  }
-  return worst / gmax;
-}
-
-double fd_check_psf(const std::function<double(const RealStack&)>& f, RealStack x, const RealStack& g, double h) {
-  double worst = 0, gmax = 0;
-  for (double v : g.data) gmax = std::max(gmax, std::fabs(v));
-  REQUIRE(gmax > 0);
-  for (std::size_t i = 0; i < x.size(); ++i) {
-    const double x0 = x.data[i];
-    x.data[i] = x0 + h;
-    const double p = f(x);
-    x.data[i] = x0 - h;
-    const double m = f(x);
-    x.data[i] = x0;
-    worst = std::max(worst, std::fabs((p - m) / (2 * h) - g.data[i]));
-  }
-  return worst / gmax;
-}
-
 std::string loss_name(Loss l) {
   return l == Loss::Expected ? "Expected" : (l == Loss::Mse ? "Mse" : "Mae");
 }
@@ -211,6 +176,97 @@ struct Tiny {
 };
 
 }  // namespace
+
+// The Wiener decoder's rows of the adjoint table (suite `adjoint`, tests/adjoint_table.hpp), all
+// on the host in double: the PSF -> OTF chain (wrap/fold onto the grid, then the DFT) against its
+// transpose, and the three objectives' gradients with respect to the OTF (every entry, re and im)
+// and to the PSF (unfolded and folded onto the grid).
+std::vector<qdo::test::Stage> qdo::test::adjoint_rows::wiener() {
+  using qdo::test::Stage;
+  std::vector<Stage> rows;
+  struct Case {
+    std::size_t s, h, w;
+  };
+  // <A x, y> = <x, A^T y> within 1e-12 (|<A x, y>| + |x| |A^T y|): the same sums in another order.
+  for (const Case c : {Case{5, 7, 6}, Case{9, 6, 4}, Case{4, 8, 8}}) {
+    Stage st("Wiener PSF -> OTF, S = " + std::to_string(c.s) + " on " + std::to_string(c.h) + " x " + std::to_string(c.w),
+             3 * c.s * c.s, 2 * 3 * c.h * c.w);
+    st.forward = [c](const std::vector<double>& x) {
+      RealStack psf(3, c.s, c.s);
+      psf.data = x;
+      return interleave(psf_to_otf(psf, c.h, c.w).data);
+    };
+    st.vjp = [c](const std::vector<double>&, const std::vector<double>& g) {
+      ComplexStack y(3, c.h, c.w);
+      y.data = deinterleave(g);
+      return psf_gradient(y, c.s).data;
+    };
+    st.jvp = [f = st.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    rows.push_back(st);
+  }
+  // The objectives: the tiny problem (B = 4, C = 3, 6 x 6, 3 bins, 3 scenes). Smooth losses:
+  // step 1e-5 on an entry (truncation ~h^2, rounding ~1e-16/h), within 1e-7 of the gradient's rms
+  // (observed ~1e-9 of its largest entry); along a direction, step 1e-6, within 1e-7 of the
+  // derivative. MAE is piecewise linear in each error: steps 1e-6 / 1e-7 keep every error's sign
+  // (checked by the seed), within 1e-6 / 1e-5.
+  const auto t = std::make_shared<Tiny>();
+  const RealStack psf5 = random_psf(t->rng, t->bands, 5);
+  const ComplexStack otf = psf_to_otf(psf5, t->rows, t->cols);
+  const RealStack psf8 = random_psf(t->rng, t->bands, 8);  // 8 > 6: folded onto the grid
+  const std::shared_ptr<const Tiny> tc = t;
+  for (Loss loss : {Loss::Expected, Loss::Mse, Loss::Mae}) {
+    const bool mae = loss == Loss::Mae;
+    const auto tolerances = [mae](Stage& st) {
+      st.fd_tol = 0;
+      st.probe_step = mae ? 1e-6 : 1e-5;
+      st.dir_step = mae ? 1e-7 : 1e-6;
+      st.probe_rms = mae ? 1e-6 : 1e-7;
+      st.dir_rel = mae ? 1e-5 : 1e-7;
+      st.g0 = {1.0};
+      for (std::size_t i = 0; i < st.inputs; ++i) st.probes.push_back(i);  // every entry
+    };
+    {
+      Stage st("Wiener objective " + loss_name(loss) + " -> OTF", 2 * otf.size(), 1);
+      st.forward = [tc, loss, otf](const std::vector<double>& x) {
+        ComplexStack o(otf.planes, otf.rows, otf.cols);
+        o.data = deinterleave(x);
+        return std::vector<double>{objective(loss, o, tc->srf, tc->prior, tc->sigma, tc->scenes).value};
+      };
+      st.vjp = [tc, loss, otf](const std::vector<double>& x, const std::vector<double>& g) {
+        ComplexStack o(otf.planes, otf.rows, otf.cols);
+        o.data = deinterleave(x);
+        std::vector<double> r = interleave(objective(loss, o, tc->srf, tc->prior, tc->sigma, tc->scenes).grad_otf.data);
+        for (double& v : r) v *= g[0];
+        return r;
+      };
+      st.x0 = interleave(otf.data);
+      tolerances(st);
+      rows.push_back(st);
+    }
+    for (const RealStack* psf : {&psf5, &psf8}) {
+      Stage st("Wiener objective " + loss_name(loss) + " -> PSF, S = " + std::to_string(psf->rows), psf->size(), 1);
+      const std::size_t b = psf->planes, s = psf->rows;
+      st.forward = [tc, loss, b, s](const std::vector<double>& x) {
+        RealStack p(b, s, s);
+        p.data = x;
+        return std::vector<double>{objective_psf(loss, p, tc->srf, tc->prior, tc->sigma, tc->scenes).value};
+      };
+      st.vjp = [tc, loss, b, s](const std::vector<double>& x, const std::vector<double>& g) {
+        RealStack p(b, s, s);
+        p.data = x;
+        const PsfObjective r = objective_psf(loss, p, tc->srf, tc->prior, tc->sigma, tc->scenes);
+        REQUIRE(r.grad_psf.rows == s);
+        std::vector<double> v = r.grad_psf.data;
+        for (double& e : v) e *= g[0];
+        return v;
+      };
+      st.x0 = psf->data;
+      tolerances(st);
+      rows.push_back(st);
+    }
+  }
+  return rows;
+}
 
 TEST_SUITE("wiener") {
   TEST_CASE("radial bins: DC alone, f and -f share a bin, every bin index in range") {
@@ -277,27 +333,6 @@ TEST_SUITE("wiener") {
       double d = 0;
       for (std::size_t i = 0; i < otf.size(); ++i) d = std::max(d, std::abs(otf.data[i] - otf_ref.data[i]));
       CHECK(d < 1e-13);
-    }
-  }
-
-  TEST_CASE("dot-product test of the PSF -> OTF chain (wrap/fold and DFT): <A x, y> = <x, A^T y>") {
-    Rng rng(3);
-    struct Case {
-      std::size_t s, h, w;
-    };
-    for (const Case c : {Case{5, 7, 6}, Case{9, 6, 4}, Case{4, 8, 8}}) {
-      const RealStack x = random_stack(rng, 3, c.s, c.s, -1, 1);
-      ComplexStack y(3, c.h, c.w);
-      for (cdouble& v : y.data) v = cdouble(normal(rng), normal(rng));
-      const ComplexStack ax = psf_to_otf(x, c.h, c.w);
-      double lhs = 0;
-      for (std::size_t i = 0; i < ax.size(); ++i) lhs += (std::conj(ax.data[i]) * y.data[i]).real();
-      const RealStack aty = psf_gradient(y, c.s);
-      REQUIRE(aty.rows == c.s);
-      double rhs = 0;
-      for (std::size_t i = 0; i < x.size(); ++i) rhs += x.data[i] * aty.data[i];
-      INFO("S = " << c.s << ", grid " << c.h << " x " << c.w);
-      CHECK(std::fabs(lhs - rhs) <= 1e-12 * (std::fabs(lhs) + 1.0));  // relative 1e-12
     }
   }
 
@@ -407,83 +442,6 @@ TEST_SUITE("wiener") {
     CHECK(objective(Loss::Mse, otf, t.srf, t.prior, t.sigma, t.scenes).value == doctest::Approx(mse).epsilon(1e-10));
     CHECK(objective(Loss::Mae, otf, t.srf, t.prior, t.sigma, t.scenes).value == doctest::Approx(mae).epsilon(1e-10));
     CHECK(objective_psf(Loss::Mse, psf, t.srf, t.prior, t.sigma, t.scenes).value == doctest::Approx(mse).epsilon(1e-10));
-  }
-
-  TEST_CASE("gradients with respect to the OTF: central differences on every entry, re and im") {
-    Tiny t;
-    const ComplexStack otf = psf_to_otf(random_psf(t.rng, t.bands, 5), t.rows, t.cols);
-    for (Loss loss : {Loss::Expected, Loss::Mse, Loss::Mae}) {
-      const auto f = [&](const ComplexStack& o) { return objective(loss, o, t.srf, t.prior, t.sigma, t.scenes).value; };
-      const OtfObjective g = objective(loss, otf, t.srf, t.prior, t.sigma, t.scenes);
-      REQUIRE(g.grad_otf.planes == t.bands);
-      // Smooth losses: h = 1e-5, truncation ~h² and rounding ~1e-16/h: 1e-7 of the largest
-      // component (observed ~1e-9). MAE is piecewise linear in each error: h = 1e-6 keeps
-      // every error's sign (checked by the seed), rounding ~1e-8 observed: 1e-6.
-      const double h = loss == Loss::Mae ? 1e-6 : 1e-5, tol = loss == Loss::Mae ? 1e-6 : 1e-7;
-      const double rel = fd_check_otf(f, otf, g.grad_otf, h);
-      INFO(loss_name(loss) << ": max |fd - grad| / max |grad| = " << rel);
-      CHECK(rel < tol);
-    }
-  }
-
-  TEST_CASE("gradients with respect to the PSF: central differences, unfolded and folded PSFs") {
-    Tiny t;
-    for (std::size_t s : {5u, 8u}) {  // 8 > 6: folded onto the grid
-      const RealStack psf = random_psf(t.rng, t.bands, s);
-      for (Loss loss : {Loss::Expected, Loss::Mse, Loss::Mae}) {
-        const auto f = [&](const RealStack& p) { return objective_psf(loss, p, t.srf, t.prior, t.sigma, t.scenes).value; };
-        const PsfObjective g = objective_psf(loss, psf, t.srf, t.prior, t.sigma, t.scenes);
-        REQUIRE(g.grad_psf.rows == s);
-        const double h = loss == Loss::Mae ? 1e-6 : 1e-5, tol = loss == Loss::Mae ? 1e-6 : 1e-7;
-        const double rel = fd_check_psf(f, psf, g.grad_psf, h);
-        INFO(loss_name(loss) << ", S = " << s << ": max |fd - grad| / max |grad| = " << rel);
-        CHECK(rel < tol);
-      }
-    }
-  }
-
-  TEST_CASE("directional derivatives along random directions (OTF and PSF)") {
-    Tiny t;
-    const RealStack psf = random_psf(t.rng, t.bands, 5);
-    const ComplexStack otf = psf_to_otf(psf, t.rows, t.cols);
-    ComplexStack d_otf(t.bands, t.rows, t.cols);
-    for (cdouble& v : d_otf.data) v = cdouble(normal(t.rng), normal(t.rng));
-    RealStack d_psf(t.bands, 5, 5);
-    for (double& v : d_psf.data) v = normal(t.rng);
-    for (Loss loss : {Loss::Expected, Loss::Mse, Loss::Mae}) {
-      // relative tolerances; observed ~1e-9 (smooth) and ~4e-7 (MAE, kinks make it noisier)
-      const double h = loss == Loss::Mae ? 1e-7 : 1e-6, tol = loss == Loss::Mae ? 1e-5 : 1e-7;
-      {
-        const OtfObjective g = objective(loss, otf, t.srf, t.prior, t.sigma, t.scenes);
-        double analytic = 0;
-        for (std::size_t i = 0; i < otf.size(); ++i) analytic += (std::conj(g.grad_otf.data[i]) * d_otf.data[i]).real();
-        ComplexStack p = otf, m = otf;
-        for (std::size_t i = 0; i < otf.size(); ++i) {
-          p.data[i] += h * d_otf.data[i];
-          m.data[i] -= h * d_otf.data[i];
-        }
-        const double fd = (objective(loss, p, t.srf, t.prior, t.sigma, t.scenes).value -
-                           objective(loss, m, t.srf, t.prior, t.sigma, t.scenes).value) /
-                          (2 * h);
-        INFO(loss_name(loss) << " OTF: fd " << fd << ", analytic " << analytic);
-        CHECK(fd == doctest::Approx(analytic).epsilon(tol));
-      }
-      {
-        const PsfObjective g = objective_psf(loss, psf, t.srf, t.prior, t.sigma, t.scenes);
-        double analytic = 0;
-        for (std::size_t i = 0; i < psf.size(); ++i) analytic += g.grad_psf.data[i] * d_psf.data[i];
-        RealStack p = psf, m = psf;
-        for (std::size_t i = 0; i < psf.size(); ++i) {
-          p.data[i] += h * d_psf.data[i];
-          m.data[i] -= h * d_psf.data[i];
-        }
-        const double fd = (objective_psf(loss, p, t.srf, t.prior, t.sigma, t.scenes).value -
-                           objective_psf(loss, m, t.srf, t.prior, t.sigma, t.scenes).value) /
-                          (2 * h);
-        INFO(loss_name(loss) << " PSF: fd " << fd << ", analytic " << analytic);
-        CHECK(fd == doctest::Approx(analytic).epsilon(tol));
-      }
-    }
   }
 
   TEST_CASE("mismatch decode: equal OTFs give the matched decode; different OTFs do worse") {
