@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Builds qdo from source on a machine that has a compiler, CMake and most of qdo's dependencies but
 # not clFFT, matio or VkFFT, and a LibTorch of its own: the lent GPU machines (Ubuntu 24.04, CUDA 13,
-# PyTorch 2.11+cu130 in /opt/torch/.venv). This is how the network decoder was checked with a CUDA
-# LibTorch (README "The network decoder on a GPU"); scripts/bundle.sh instead carries binaries built
-# here, which cannot use another machine's LibTorch.
+# PyTorch 2.11+cu130 in /opt/torch/.venv). This is how the network decoder was checked with a
+# CUDA LibTorch (docs/commands.md, "The network decoder"; BENCHMARKS.md, "GPU"); scripts/bundle.sh
+# instead carries binaries built here, which cannot use another machine's LibTorch.
 #
 #   here:  scripts/device_build.sh pack [N_TRAIN=10]
 #            writes build-devprefix/: clFFT, matio and VkFFT (headers, libraries, a relocatable

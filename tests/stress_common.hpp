@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "adjoint_ladder.hpp"  // dot(): the tests' one inner product
 #include "common.hpp"
 #include "qdo/config.hpp"
 #include "qdo/error.hpp"
@@ -84,11 +85,6 @@ inline bool all_finite(const std::vector<double>& v) {
 }
 
 inline double rel_l2(const std::vector<double>& a, const std::vector<double>& b) { return diff(a, b).rel_l2; }
-
-inline double dot(const std::vector<double>& a, const std::vector<double>& b) {
-  REQUIRE(a.size() == b.size());
-  return std::inner_product(a.begin(), a.end(), b.begin(), 0.0);
-}
 
 inline RealStack random_stack(std::size_t p, std::size_t r, std::size_t c, unsigned seed, double lo = -1,
                               double hi = 1) {

@@ -60,8 +60,8 @@ TileMode tile_mode_from_string(const std::string& s);  // "off", "on", "auto"; I
 std::string to_string(TileMode m);
 
 struct SkipOptions {
-  // true disables every rule (the tolerances are ignored): the result equals
-  // Simulator::sensor_images up to the rounding of the precision.
+  // true disables every rule (the tolerances are ignored): every band of every tile is
+  // computed, the images of the CPU reference camera up to the rounding of the precision.
   bool exact = false;
   // Per-rule budgets in units of full scale; 0 still skips what contributes exactly nothing
   // (bands the camera does not see or that are zero, zero tiles). Defaults: the total 3e-7 stays

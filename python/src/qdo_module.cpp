@@ -23,6 +23,7 @@
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
+#include "qdo/psf_source.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/wiener.hpp"
@@ -96,8 +97,8 @@ std::shared_ptr<Runtime> runtime_for(const std::string& device) {
   return it->second;
 }
 
-// A configuration on a device: the PSF chain (Simulator) and the camera operator (Camera),
-// with their adjoints. Each adjoint is the adjoint of this object's last forward call of the
+// A configuration on a device: a height-map PSF source (psf_source.hpp; the Simulator's 2-D
+// chain) and the camera operator (Camera, fed the PSF stack it is given), with their adjoints. Each adjoint is the adjoint of this object's last forward call of the
 // same kind; `psf_calls` / `camera_calls` count the forwards so that the PyTorch layer can tell
 // whether it must re-run one before a backward.
 class Optics {
@@ -105,7 +106,7 @@ class Optics {
   Optics(const std::string& config_json, const std::string& origin, const std::string& device, const std::string& precision)
       : cfg_(config_from_json_text(config_json, origin)), prec_(precision_from_string(precision)), rt_(runtime_for(device)) {
     cfg_.validate();
-    sim_ = std::make_unique<Simulator>(*rt_, cfg_, prec_);
+    sim_ = std::make_unique<Simulator>(*rt_, cfg_, prec_);  // held as its PsfSource interface
     cam_ = std::make_unique<Camera>(*rt_, cfg_, prec_);
   }
 
@@ -214,7 +215,7 @@ class Optics {
   SystemConfig cfg_;
   Precision prec_;
   std::shared_ptr<Runtime> rt_;
-  std::unique_ptr<Simulator> sim_;
+  std::unique_ptr<HeightMapPsfSource> sim_;
   std::unique_ptr<Camera> cam_;
   std::uint64_t psf_calls_ = 0, camera_calls_ = 0;
 };
