@@ -62,6 +62,7 @@ psf_reference physics
 psf_source physics
 radial physics
 release physics
+release_reference physics
 resunet net
 rng runtime
 run design

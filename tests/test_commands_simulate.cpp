@@ -20,6 +20,7 @@
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/release.hpp"
+#include "qdo/release_reference.hpp"
 #include "qdo/run.hpp"
 #include "qdo/simulator.hpp"
 

@@ -9,6 +9,7 @@
 #include "common.hpp"
 #include "qdo/error.hpp"
 #include "qdo/release.hpp"
+#include "qdo/release_reference.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

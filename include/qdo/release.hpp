@@ -36,16 +36,6 @@ struct ReleaseGeometry {
 // [before : -after] is empty for after = 0).
 ReleaseGeometry release_geometry(std::size_t s, std::size_t n);
 
-namespace ref {
-// Bilinear resize of every plane (planes x rows_in x cols_in) to rows x cols, TF2 convention
-// (half-pixel centres, edge clamp, no antialias), in double.
-RealStack resize_bilinear(const RealStack& x, std::size_t rows, std::size_t cols);
-// The release's per-band image formation above, in double, literally (arrays padded, rolled and
-// transformed with FFTW): cube bands x S x S, psf_native bands x N x N (used as given; the
-// release normalises each band to unit sum) -> bands x S x S.
-RealStack release_blur(const RealStack& cube, const RealStack& psf_native);
-}  // namespace ref
-
 // The same on the OpenCL device (kernels/release.cl, FFTs of G x G per band). float32 or float64.
 class ReleaseImager {
  public:
