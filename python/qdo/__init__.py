@@ -126,6 +126,13 @@ class Optics:
         """Adjoint of the last psf() call: dL/dPSF (bands x S x S) -> dL/dheight (n x n, per metre)."""
         return self._o.psf_vjp(grad_psf)
 
+    def read_psf(self, path):
+        """A PSF stack file as `qdo psf` writes it (psf.h5, /psf_sensor) -> bands x S x S, for
+        camera() in place of psf(height_m): a measured or otherwise computed PSF. Checked against
+        this configuration (bands, sensor size, pitch, non-negative bands summing to 1); a file
+        of other bands or size raises ValueError naming both."""
+        return self._o.read_psf(os.fspath(path))
+
     def sensor_psf(self, height_m):
         """The PSF as the RGB sensor sees it: 3 x S x S, srf · psf (each channel sums to 1)."""
         p = self.psf(height_m)

@@ -161,6 +161,11 @@ class Optics {
     return from_map(out);
   }
 
+  // A PSF stack file as `qdo psf` writes it (/psf_sensor; psf_source.hpp's read_psf_stack_for):
+  // bands x S x S, checked against this configuration's bands, sensor grid and pitch (ValueError
+  // naming both when they differ), for camera() in place of psf(): the file-backed PSF source.
+  Array read_psf(const std::string& path) const { return from_stack(read_psf_stack_for(cfg_, path, "path")); }
+
   // scenes: batch x bands x H x W, psf: bands x S x S -> batch x 3 x H x W sensor images through
   // the device camera operator (cfg.convolution, the sensor response, cfg's noise; exact: no
   // skipping).
@@ -281,6 +286,7 @@ PYBIND11_MODULE(_qdo, m) {
       .def("srf", &Optics::srf)
       .def("psf", &Optics::psf, py::arg("height_m"))
       .def("psf_vjp", &Optics::psf_vjp, py::arg("grad_psf"))
+      .def("read_psf", &Optics::read_psf, py::arg("path"))
       .def("camera", &Optics::camera, py::arg("scene"), py::arg("psf"))
       .def("camera_vjp", &Optics::camera_vjp, py::arg("grad_rgb"));
 
