@@ -34,12 +34,16 @@ class RunLock {
   int fd_ = -1;
 };
 
-// Writes the checkpoint atomically; the one it replaces is kept as checkpoint_prev_path(path)
-// (renamed before the new one is renamed into place), so a checkpoint damaged after writing
-// still leaves the previous good state to resume from.
+// Writes the checkpoint so that at every instant `path` holds a complete checkpoint (a kill -9
+// anywhere leaves the old or the new one): the new one is written whole to
+// checkpoint_next_path(path), the one it replaces is kept as checkpoint_prev_path(path) (a hard
+// link, or a copy, renamed into place), then the new one is renamed onto `path`. A checkpoint
+// damaged after writing thus still leaves the previous good state to resume from.
 void save_checkpoint(const std::string& path, const DesignState& s);
 // ".../checkpoint.h5" -> ".../checkpoint.prev.h5" (any name: ".prev" before the extension).
 std::string checkpoint_prev_path(const std::string& path);
+// ".../checkpoint.h5" -> ".../checkpoint.next.h5": where the next checkpoint is written first.
+std::string checkpoint_next_path(const std::string& path);
 // Throws InputError naming the file and dataset when missing, corrupt or mis-shaped
 // (expected_w and expected_levels are the sizes the run's configuration implies).
 // mask_depths: /offsets holds qdo+m's normalised mask depths (each in [0, 1], sum <= 1) instead of

@@ -3,7 +3,8 @@
 // checkpoint format and the lock):
 //   RUN/config.json          system configuration + design options (written once)
 //   RUN/checkpoint.h5        optimiser state, atomic; RUN/checkpoint.prev.h5 the one it replaced;
-//                            RUN/checkpoint.refused.h5 a checkpoint a resume refused (kept for inspection)
+//                            RUN/checkpoint.refused.h5 a checkpoint a resume refused (kept for inspection);
+//                            RUN/checkpoint.next.h5 the next one, written before the rotation (a kill's leftover)
 //   RUN/log.csv              one row per step
 //   RUN/prior.h5             the scene prior of the Wiener objective
 //   RUN/design.h5            the fabrication-ready design; RUN/design_full.h5 the full-precision H_f

@@ -65,13 +65,15 @@ void save_network_state(const fs::path& dir, const NetworkDecoder& net, DesignSt
 }
 
 // Removes the network states this run wrote (RUN/network/step_*.pt) that no checkpoint of the
-// folder names any more (checkpoint.h5, checkpoint.prev.h5, checkpoint.refused.h5).
+// folder names any more (checkpoint.h5, checkpoint.prev.h5, checkpoint.next.h5,
+// checkpoint.refused.h5).
 void prune_network_states(const fs::path& dir) {
   const fs::path nd = dir / "network";
   std::error_code ec;
   if (!fs::is_directory(nd, ec)) return;
   std::vector<std::string> keep;
-  for (const char* c : {"checkpoint.h5", "checkpoint.prev.h5", "checkpoint.refused.h5"}) keep.push_back(network_file_of(dir / c));
+  for (const char* c : {"checkpoint.h5", "checkpoint.prev.h5", "checkpoint.next.h5", "checkpoint.refused.h5"})
+    keep.push_back(network_file_of(dir / c));
   for (const auto& e : fs::directory_iterator(nd, ec)) {
     const std::string fname = e.path().filename().string();
     if (fname.rfind("step_", 0) != 0 || e.path().extension() != ".pt" || fname.size() != 16) continue;  // not ours

@@ -111,12 +111,37 @@ void save_checkpoint(const std::string& path, const DesignState& s) {
     ds.back().str_attrs["network_checksum"] = s.network_checksum;
   }
   ds.back().str_attrs["checksum"] = checkpoint_checksum(sets, s.network_file, s.network_checksum);
+  // The rotation never leaves `path` missing or partial, whenever a kill -9 lands: the new
+  // checkpoint is first written complete beside it (checkpoint.next.h5, itself written to a
+  // temporary name and renamed); the current one then becomes checkpoint.prev.h5 through a hard
+  // link (a copy where the file system refuses links) renamed over the old previous one; only
+  // then does one rename put the new one in place. A kill leaves at worst checkpoint.next.h5 (a
+  // complete checkpoint that nothing reads; the next save replaces it) and a ".tmp-" file.
+  namespace fs = std::filesystem;
+  const std::string next = checkpoint_next_path(path);
+  h5_write(next, ds, {{"format", "qdo checkpoint 2"}});
   std::error_code ec;
-  if (std::filesystem::is_regular_file(path, ec)) {
-    std::filesystem::rename(path, checkpoint_prev_path(path), ec);
-    if (ec) throw InputError("file '" + path + "': cannot keep it as the previous checkpoint: " + ec.message());
+  if (fs::is_regular_file(path, ec)) {
+    const std::string prev = checkpoint_prev_path(path), prev_tmp = prev + ".tmp-" + std::to_string(long(::getpid()));
+    fs::remove(prev_tmp, ec);
+    fs::create_hard_link(path, prev_tmp, ec);
+    if (ec) {
+      ec.clear();
+      fs::copy_file(path, prev_tmp, fs::copy_options::overwrite_existing, ec);
+    }
+    if (!ec) fs::rename(prev_tmp, prev, ec);
+    if (ec) {
+      fs::remove(prev_tmp);
+      throw InputError("file '" + path + "': cannot keep it as the previous checkpoint " + prev + ": " + ec.message());
+    }
   }
-  h5_write(path, ds, {{"format", "qdo checkpoint 2"}});
+  fs::rename(next, path, ec);
+  if (ec) throw InputError("file '" + next + "': cannot move it onto " + path + ": " + ec.message());
+}
+
+std::string checkpoint_next_path(const std::string& path) {
+  const std::filesystem::path p(path);
+  return (p.parent_path() / (p.stem().string() + ".next" + p.extension().string())).string();
 }
 
 std::string checkpoint_prev_path(const std::string& path) {

@@ -17,10 +17,10 @@ RunFolder::RunFolder(std::string dir) : dir_(std::move(dir)) {}
 std::string RunFolder::path(const std::string& name) const { return (fs::path(dir_) / name).string(); }
 
 const std::vector<std::string>& RunFolder::file_names() {
-  static const std::vector<std::string> names{"config.json", "checkpoint.h5", "checkpoint.prev.h5", "checkpoint.refused.h5",
-                                              "log.csv",     "prior.h5",      "design.h5",          "design_full.h5",
-                                              "psf.h5",      "psf.png",       "design.png",         "loss.png",
-                                              "psnr.png",    "split.json"};
+  static const std::vector<std::string> names{"config.json", "checkpoint.h5", "checkpoint.prev.h5", "checkpoint.next.h5",
+                                              "checkpoint.refused.h5", "log.csv", "prior.h5", "design.h5",
+                                              "design_full.h5", "psf.h5", "psf.png", "design.png",
+                                              "loss.png", "psnr.png", "split.json"};
   return names;
 }
 
