@@ -66,4 +66,44 @@ TEST_SUITE("io") {
     CHECK(contains(msg, "empty.csv"));
     CHECK_THROWS_AS(read_csv("/nonexistent/table.csv"), InputError);
   }
+
+  TEST_CASE("CSV writing quotes what must be quoted; parse_csv reads every cell back") {
+    // Labels qdo writes into tables (decoder specs, scene file names, scenario names) may hold
+    // commas, quotes, line breaks, blanks at either end or a leading '#'.
+    const std::vector<std::string> hostile = {"do@resunet:depth=4,root=16", "a \"quoted\" name", "two\nlines", "cr\r\nlf",
+                                              " padded ", "#not a comment", "plain", "", ",", "\"", "tab\tinside"};
+    CsvText t({"label", "value"});
+    for (std::size_t i = 0; i < hostile.size(); ++i) t.row({hostile[i], csv_number(double(i) + 0.5)});
+    const CsvTable back = parse_csv(t.str(), "written");
+    REQUIRE(back.header == std::vector<std::string>{"label", "value"});
+    REQUIRE(back.raw[0].size() == hostile.size());
+    for (std::size_t i = 0; i < hostile.size(); ++i) {
+      CAPTURE(i);
+      CHECK(back.raw[0][i] == hostile[i]);
+      CHECK(back.columns[1][i] == double(i) + 0.5);
+    }
+    CHECK(csv_field("plain") == "plain");
+    CHECK(csv_field("a,b") == "\"a,b\"");
+    CHECK(csv_field("say \"hi\"") == "\"say \"\"hi\"\"\"");
+    CHECK(csv_number(1.0 / 3.0) == "0.333333");
+    CHECK(csv_number(1.0 / 3.0, 8) == "0.33333333");
+    // A row of the wrong width is a programming error, never a ragged file.
+    CHECK_THROWS_AS(t.row({"only one"}), Error);
+    // Quoted headers (spreadsheet exports) name their columns without the quotes.
+    CHECK(parse_csv("\"wavelength_nm\",\"r\"\n400,0.5\n", "export").column("r") == std::vector<double>{0.5});
+    // Malformed quoting is refused naming the file and the line.
+    std::string msg = input_error_of([] { parse_csv("a,b\n\"open,1\n", "unclosed.csv"); });
+    CHECK(contains(msg, "unclosed.csv"));
+    CHECK(contains(msg, "line 2"));
+    CHECK(contains(msg, "not closed"));
+    msg = input_error_of([] { parse_csv("a,b\n\"x\"y,1\n", "after.csv"); });
+    CHECK(contains(msg, "after.csv"));
+    CHECK(contains(msg, "after a quoted cell"));
+    msg = input_error_of([] { parse_csv("a,b\n5\"in,1\n", "inside.csv"); });
+    CHECK(contains(msg, "line 2"));
+    CHECK(contains(msg, "quote inside an unquoted cell"));
+    // A line count that includes the lines inside quoted cells.
+    msg = input_error_of([] { parse_csv("a,b\n\"x\ny\",1\n1,2,3\n", "count.csv"); });
+    CHECK(contains(msg, "line 4"));
+  }
 }

@@ -547,6 +547,12 @@ TEST_SUITE("joint") {
     std::ifstream t1(dir / "table1.md");
     const std::string text((std::istreambuf_iterator<char>(t1)), std::istreambuf_iterator<char>());
     CHECK(text.find("| 2 | qdo@resunet:depth=2,root=4 |") != std::string::npos);
+    // The CSV tables quote the labels with commas: qdo's own reader takes them back, one row per cell.
+    const CsvTable t1csv = read_csv((dir / "table1.csv").string());
+    REQUIRE(t1csv.raw[1].size() == cells.size());
+    CHECK(std::count(t1csv.raw[1].begin(), t1csv.raw[1].end(), "qdo@resunet:depth=2,root=4") == 1);
+    const CsvTable t2csv = read_csv((dir / "table2.csv").string());
+    CHECK(std::count(t2csv.raw[1].begin(), t2csv.raw[1].end(), "do@resunet:depth=2,root=4") == 1);
     std::filesystem::remove_all(dir);
   }
 }

@@ -166,8 +166,29 @@ struct CsvTable {
   std::string origin;                        // the file (or description) it was parsed from
   const std::vector<double>& column(const std::string& name) const;  // throws InputError naming it and origin
 };
+// RFC 4180 quoting: a cell that starts with '"' runs to its closing quote ("" is a quote inside;
+// commas and line breaks inside belong to the cell). Unquoted cells are trimmed.
 CsvTable parse_csv(const std::string& text, const std::string& origin);
 CsvTable read_csv(const std::string& path);
+
+// Writing. csv_field quotes a cell when it must be (a comma, quote or line break inside, blanks
+// at either end, or a leading '#', which the reader would take for a comment), doubling quotes;
+// parse_csv gives the value back. csv_number formats with %.<digits>g.
+std::string csv_field(const std::string& value);
+std::string csv_number(double value, int significant_digits = 6);
+// A CSV text built row by row: every row has the header's column count (Error otherwise: a
+// programming slip, not input) and every cell goes through csv_field. Every CSV qdo writes
+// (metrics.csv, table1/2.csv, sweep.csv, tolerance.csv) is made with it.
+class CsvText {
+ public:
+  explicit CsvText(std::vector<std::string> header);
+  CsvText& row(const std::vector<std::string>& cells);
+  const std::string& str() const { return text_; }
+
+ private:
+  std::size_t columns_ = 0;
+  std::string text_;
+};
 
 // ---------- PNG figures ----------
 // 8-bit grayscale (channels = 1) or RGB (channels = 3) image, row-major, interleaved.

@@ -1,5 +1,7 @@
-// CSV tables: parsing (header, comments, numeric and raw cells) and reading a file.
+// CSV tables: parsing (RFC 4180 quoting; header, comments, numeric and raw cells), reading a
+// file, and the one writer every CSV qdo writes goes through (CsvText: quotes what needs it).
 #include <cerrno>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -28,37 +30,128 @@ const std::vector<double>& CsvTable::column(const std::string& name) const {
   throw InputError((origin.empty() ? std::string() : "file '" + origin + "': ") + "CSV column '" + name + "' not found (header: " + h + ")");
 }
 
-CsvTable parse_csv(const std::string& text, const std::string& origin) {
-  auto trim = [](const std::string& s) {
-    const std::size_t b = s.find_first_not_of(" \t\r\n");
+namespace {
+// One record of RFC 4180 text from `pos`: cells separated by commas; a cell that starts with a
+// double quote runs to the matching quote ("" inside is one quote, commas and line breaks are
+// part of the cell). Unquoted cells are trimmed of spaces and tabs; quoted ones kept as written.
+// Returns false at the end of the text. `line` counts the text's lines (for messages).
+struct CsvRecord {
+  std::vector<std::string> cells;
+  std::size_t first_line = 0;
+  bool comment = false, blank = false;
+};
+bool next_record(const std::string& text, std::size_t& pos, std::size_t& line, const std::string& origin, CsvRecord& r) {
+  r = CsvRecord{};
+  if (pos >= text.size()) return false;
+  r.first_line = ++line;
+  auto trim = [](const std::string& x) {
+    const std::size_t b = x.find_first_not_of(" \t\r");
     if (b == std::string::npos) return std::string();
-    return s.substr(b, s.find_last_not_of(" \t\r\n") - b + 1);
+    return x.substr(b, x.find_last_not_of(" \t\r") - b + 1);
   };
-  auto split = [&](const std::string& line) {
-    std::vector<std::string> cells;
-    std::size_t start = 0;
-    for (;;) {
-      const std::size_t comma = line.find(',', start);
-      cells.push_back(trim(line.substr(start, comma == std::string::npos ? std::string::npos : comma - start)));
-      if (comma == std::string::npos) return cells;
-      start = comma + 1;
+  // Comments ('#' first on the line, outside any quote) and blank lines.
+  const std::size_t first = text.find_first_not_of(" \t\r", pos);
+  if (first == std::string::npos || text[first] == '\n' || text[first] == '#') {
+    const std::size_t eol = text.find('\n', pos);
+    const std::string body = text.substr(pos, eol == std::string::npos ? std::string::npos : eol - pos);
+    pos = eol == std::string::npos ? text.size() : eol + 1;
+    if (first != std::string::npos && text[first] == '#') {
+      r.comment = true;
+      r.cells.push_back(trim(trim(body).substr(1)));
+    } else {
+      r.blank = true;
     }
-  };
+    return true;
+  }
+  std::string cell;
+  bool quoted = false;
+  for (;;) {
+    // At the start of a cell: skip blanks, then a quoted or a plain cell.
+    while (pos < text.size() && (text[pos] == ' ' || text[pos] == '\t')) ++pos;
+    if (pos < text.size() && text[pos] == '"') {
+      quoted = true;
+      const std::size_t open_line = line;
+      ++pos;
+      for (;;) {
+        if (pos >= text.size())
+          throw InputError(origin + ": line " + std::to_string(open_line) + ": a quoted cell is not closed before the end of the text");
+        const char ch = text[pos++];
+        if (ch == '"') {
+          if (pos < text.size() && text[pos] == '"') {
+            cell += '"';
+            ++pos;
+            continue;
+          }
+          break;
+        }
+        if (ch == '\n') ++line;
+        cell += ch;
+      }
+      while (pos < text.size() && (text[pos] == ' ' || text[pos] == '\t' || text[pos] == '\r')) ++pos;
+      if (pos < text.size() && text[pos] != ',' && text[pos] != '\n')
+        throw InputError(origin + ": line " + std::to_string(line) + ": text after a quoted cell's closing quote (write \"\" for a quote inside one)");
+    } else {
+      const std::size_t end = text.find_first_of(",\n", pos);
+      cell = trim(text.substr(pos, end == std::string::npos ? std::string::npos : end - pos));
+      if (cell.find('"') != std::string::npos)
+        throw InputError(origin + ": line " + std::to_string(line) + ": a quote inside an unquoted cell ('" + cell.substr(0, 40) +
+                         "'); quote the whole cell and double the quote");
+      pos = end == std::string::npos ? text.size() : end;
+    }
+    r.cells.push_back(quoted ? cell : trim(cell));
+    cell.clear();
+    quoted = false;
+    if (pos >= text.size()) return true;
+    if (text[pos++] == '\n') return true;  // else a comma: the next cell
+  }
+}
+}  // namespace
+
+std::string csv_field(const std::string& value) {
+  const bool plain = !value.empty() && value.find_first_of(",\"\r\n") == std::string::npos && value.front() != ' ' &&
+                     value.front() != '\t' && value.back() != ' ' && value.back() != '\t' && value.front() != '#';
+  if (plain || value.empty()) return value;
+  std::string q = "\"";
+  for (char ch : value) {
+    if (ch == '"') q += '"';
+    q += ch;
+  }
+  return q + "\"";
+}
+
+std::string csv_number(double value, int significant_digits) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.*g", significant_digits, value);
+  return buf;
+}
+
+CsvText::CsvText(std::vector<std::string> header) : columns_(header.size()) {
+  if (header.empty()) throw Error("CsvText: a table needs at least one column");
+  row(header);
+}
+
+CsvText& CsvText::row(const std::vector<std::string>& cells) {
+  if (cells.size() != columns_)
+    throw Error("CSV row of " + std::to_string(cells.size()) + " cells for a header of " + std::to_string(columns_) + " columns");
+  for (std::size_t c = 0; c < cells.size(); ++c) text_ += (c ? "," : "") + csv_field(cells[c]);
+  text_ += '\n';
+  return *this;
+}
+
+CsvTable parse_csv(const std::string& text, const std::string& origin) {
   CsvTable t;
   t.origin = origin;
-  std::istringstream in(text);
-  std::string line;
-  std::size_t line_no = 0;
+  std::size_t pos = 0, line = 0;
   bool have_header = false;
-  while (std::getline(in, line)) {
-    ++line_no;
-    const std::string s = trim(line);
-    if (s.empty()) continue;
-    if (s[0] == '#') {
-      t.comments.push_back(trim(s.substr(1)));
+  CsvRecord r;
+  while (next_record(text, pos, line, origin, r)) {
+    if (r.blank) continue;
+    if (r.comment) {
+      t.comments.push_back(r.cells[0]);
       continue;
     }
-    std::vector<std::string> cells = split(s);
+    const std::vector<std::string>& cells = r.cells;
+    const std::size_t line_no = r.first_line;
     if (!have_header) {
       for (std::size_t c = 0; c < cells.size(); ++c) {
         if (cells[c].empty()) throw InputError(origin + ": line " + std::to_string(line_no) + ": empty column name in the header");

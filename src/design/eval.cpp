@@ -182,9 +182,7 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   h5_write((fs::path(e.out) / "reconstructions.h5").string(), recon,
            {{"run", e.run}, {"decoder", to_string(e.decoder)}, {"decoder_kind", spec.to_string()},
             {"psf", e.psf_file.empty() ? std::string("the evaluated design's (simulated)") : e.psf_file}});
-  std::ostringstream csv;
-  csv << "scene,patches,psnr_db,psnr_h_db,ssim,rmse,ergas,sam_rad\n";
-  csv.precision(6);
+  CsvText csv({"scene", "patches", "psnr_db", "psnr_h_db", "ssim", "rmse", "ergas", "sam_rad"});
   auto row_of = [](const std::string& scene, const testset::Scores& m) {
     EvalRow r;
     r.scene = scene;
@@ -199,8 +197,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   for (const auto& [name, m] : ev.per_scene) {
     const auto count = std::count_if(per_patch.begin(), per_patch.end(), [&](const auto& p) { return p.first == name; });
     res.rows.push_back(row_of(name, m));
-    csv << name << "," << count << "," << m.psnr << "," << m.psnr_hyper << "," << m.ssim << "," << m.rmse << "," << m.ergas
-        << "," << m.sam_rad << "\n";
+    csv.row({name, std::to_string(count), csv_number(m.psnr), csv_number(m.psnr_hyper), csv_number(m.ssim), csv_number(m.rmse),
+             csv_number(m.ergas), csv_number(m.sam_rad)});
   }
   res.mean = row_of("mean", ev.mean);
   write_text_atomic((fs::path(e.out) / "metrics.csv").string(), csv.str());

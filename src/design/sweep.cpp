@@ -439,25 +439,22 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     }
   }
   // Tables.
-  std::ostringstream t1, t1csv, t2, t2csv;
+  std::ostringstream t1, t2;
   t1 << "| levels | mode | PSNR [dB] | SSIM | RMSE | ERGAS |\n|---|---|---|---|---|---|\n";
-  t1csv << "levels,mode,psnr_db,ssim,rmse,ergas,psnr_h_db,sam_rad,inputs\n";
+  CsvText t1csv({"levels", "mode", "psnr_db", "ssim", "rmse", "ergas", "psnr_h_db", "sam_rad", "inputs"});
   t2 << "| levels | mode | deviation [nm] |\n|---|---|---|\n";
-  t2csv << "levels,mode,deviation_nm,inputs\n";
-  char buf[256];
+  CsvText t2csv({"levels", "mode", "deviation_nm", "inputs"});
+  char buf[128];
   for (const auto& c : cells) {
     const std::string lv = c.levels == 0 ? "full" : c.levels < 0 ? "n/a" : std::to_string(c.levels);
-    std::snprintf(buf, sizeof buf, "| %s | %s | %.2f | %.4f | %.4f | %.2f |\n", lv.c_str(), c.mode.c_str(), c.mean.psnr, c.mean.ssim,
-                  c.mean.rmse, c.mean.ergas);
-    t1 << buf;
-    std::snprintf(buf, sizeof buf, "%s,%s,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%s\n", lv.c_str(), c.mode.c_str(), c.mean.psnr, c.mean.ssim,
-                  c.mean.rmse, c.mean.ergas, c.mean.psnr_hyper, c.mean.sam_rad, c.inputs.c_str());
-    t1csv << buf;
+    std::snprintf(buf, sizeof buf, " | %.2f | %.4f | %.4f | %.2f |\n", c.mean.psnr, c.mean.ssim, c.mean.rmse, c.mean.ergas);
+    t1 << "| " << lv << " | " << c.mode << buf;
+    t1csv.row({lv, c.mode, csv_number(c.mean.psnr), csv_number(c.mean.ssim), csv_number(c.mean.rmse), csv_number(c.mean.ergas),
+               csv_number(c.mean.psnr_hyper), csv_number(c.mean.sam_rad), c.inputs});
     if (c.levels > 0 && c.mode != "fresnel") {
-      std::snprintf(buf, sizeof buf, "| %d | %s | %.3f |\n", c.levels, c.mode.c_str(), c.deviation_nm);
-      t2 << buf;
-      std::snprintf(buf, sizeof buf, "%d,%s,%.6g,%s\n", c.levels, c.mode.c_str(), c.deviation_nm, c.inputs.c_str());
-      t2csv << buf;
+      std::snprintf(buf, sizeof buf, " | %.3f |\n", c.deviation_nm);
+      t2 << "| " << c.levels << " | " << c.mode << buf;
+      t2csv.row({std::to_string(c.levels), c.mode, csv_number(c.deviation_nm), c.inputs});
     }
   }
   write_text_atomic((out / "table1.md").string(), t1.str());

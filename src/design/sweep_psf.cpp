@@ -107,9 +107,7 @@ std::vector<PsfSweepRow> sweep_psf(Runtime& rt, const PsfSweepOptions& o) {
   if (!o.out.empty()) {
     fs::create_directories(o.out);
     const auto wl = o.cfg.wavelengths_nm();
-    std::ostringstream csv;
-    csv.precision(8);
-    csv << "variant,levels,deviation_nm,wavelength_nm,rel_l2,peak_ratio,ee80_um,energy_outside_window\n";
+    CsvText csv({"variant", "levels", "deviation_nm", "wavelength_nm", "rel_l2", "peak_ratio", "ee80_um", "energy_outside_window"});
     nlohmann::json j = nlohmann::json::array();
     std::vector<H5Dataset> h5;
     auto mean = [](const std::vector<double>& v) {
@@ -120,8 +118,8 @@ std::vector<PsfSweepRow> sweep_psf(Runtime& rt, const PsfSweepOptions& o) {
     for (std::size_t k = 0; k < rows.size(); ++k) {
       const auto& r = rows[k];
       for (std::size_t b = 0; b < bands; ++b)
-        csv << r.label << "," << r.levels << "," << r.deviation_nm << "," << wl[b] << "," << r.rel_l2[b] << "," << r.peak_ratio[b] << ","
-            << r.ee80_um[b] << "," << r.energy_outside[b] << "\n";
+        csv.row({r.label, std::to_string(r.levels), csv_number(r.deviation_nm, 8), csv_number(wl[b], 8), csv_number(r.rel_l2[b], 8),
+                 csv_number(r.peak_ratio[b], 8), csv_number(r.ee80_um[b], 8), csv_number(r.energy_outside[b], 8)});
       j.push_back({{"variant", r.label},
                    {"levels", r.levels},
                    {"deviation_nm", r.deviation_nm},

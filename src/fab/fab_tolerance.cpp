@@ -456,16 +456,17 @@ ToleranceResult tolerance_analysis(Runtime& rt, const ToleranceOptions& t) {
     for (std::size_t i = 0; i < v.size(); ++i) s << (i ? ";" : "") << v[i] * scale;
     return s.str();
   };
-  std::ostringstream csv;
-  csv.precision(8);
-  csv << "scenario,trial,psnr_db,psnr_h_db,ssim,rmse,ergas,sam_rad,nomdec_psnr_db,nomdec_psnr_h_db,nomdec_ssim,nomdec_rmse,"
-         "nomdec_ergas,nomdec_sam_rad,height_rms_change_nm,psf_rel_change,depth_errors_nm,overlay_x_um,overlay_y_um\n";
+  CsvText csv({"scenario", "trial", "psnr_db", "psnr_h_db", "ssim", "rmse", "ergas", "sam_rad", "nomdec_psnr_db", "nomdec_psnr_h_db",
+               "nomdec_ssim", "nomdec_rmse", "nomdec_ergas", "nomdec_sam_rad", "height_rms_change_nm", "psf_rel_change",
+               "depth_errors_nm", "overlay_x_um", "overlay_y_um"});
   for (const auto& tr : res.trials) {
-    csv << tr.scenario << "," << tr.index;
-    for (int mi = 0; mi < 6; ++mi) csv << "," << metric(tr.calibrated, mi);
-    for (int mi = 0; mi < 6; ++mi) csv << "," << metric(tr.nominal_decoder, mi);
-    csv << "," << tr.height_rms_change_m * 1e9 << "," << tr.psf_rel_change << "," << list(tr.depth_error_m, 1e9) << ","
-        << list(tr.shift_x_m, 1e6) << "," << list(tr.shift_y_m, 1e6) << "\n";
+    std::vector<std::string> row{tr.scenario, std::to_string(tr.index)};
+    for (int mi = 0; mi < 6; ++mi) row.push_back(csv_number(metric(tr.calibrated, mi), 8));
+    for (int mi = 0; mi < 6; ++mi) row.push_back(csv_number(metric(tr.nominal_decoder, mi), 8));
+    for (const std::string& v : {csv_number(tr.height_rms_change_m * 1e9, 8), csv_number(tr.psf_rel_change, 8), list(tr.depth_error_m, 1e9),
+                                 list(tr.shift_x_m, 1e6), list(tr.shift_y_m, 1e6)})
+      row.push_back(v);
+    csv.row(row);
   }
   write_text_atomic((dir / "tolerance.csv").string(), csv.str());
   json j;
