@@ -223,9 +223,13 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     }
     if (s.step % long(o.checkpoint_every) == 0 || s.step == stop) {
       write_log();  // the log first: a kill between the two leaves rows the resume redoes, never a gap
-      if (network) save_network_state(dir, *net, s);  // then the network state the checkpoint will name
+      NetworkStateRef dropped;  // the state the rotation drops with the old checkpoint.prev.h5
+      if (network) {
+        save_network_state(dir, *net, s);  // then the network state the checkpoint will name
+        dropped = network_state_of(checkpoint_prev_path(ckpt_path.string()));
+      }
       save_checkpoint(ckpt_path.string(), s);
-      if (network) prune_network_states(dir);
+      if (network) drop_network_state(dir, dropped);
     }
   }
   if (!o.quiet && ::isatty(2)) std::fprintf(stderr, "\n");

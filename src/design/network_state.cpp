@@ -1,5 +1,6 @@
 // The network state files of a network run (design/network_state.hpp): RUN/network/step_*.pt,
-// written beside each checkpoint, verified when read, pruned when no checkpoint names them.
+// written beside each checkpoint, verified when read, deleted when the checkpoint that named them
+// is rotated out (and only then).
 #include "design/network_state.hpp"
 
 #include <algorithm>
@@ -64,22 +65,41 @@ void save_network_state(const fs::path& dir, const NetworkDecoder& net, DesignSt
   s.network_checksum = bytes_checksum(bytes);
 }
 
-// Removes the network states this run wrote (RUN/network/step_*.pt) that no checkpoint of the
-// folder names any more (checkpoint.h5, checkpoint.prev.h5, checkpoint.next.h5,
-// checkpoint.refused.h5).
-void prune_network_states(const fs::path& dir) {
-  const fs::path nd = dir / "network";
+NetworkStateRef network_state_of(const fs::path& ckpt) {
   std::error_code ec;
-  if (!fs::is_directory(nd, ec)) return;
-  std::vector<std::string> keep;
-  for (const char* c : {"checkpoint.h5", "checkpoint.prev.h5", "checkpoint.next.h5", "checkpoint.refused.h5"})
-    keep.push_back(network_file_of(dir / c));
-  for (const auto& e : fs::directory_iterator(nd, ec)) {
-    const std::string fname = e.path().filename().string();
-    if (fname.rfind("step_", 0) != 0 || e.path().extension() != ".pt" || fname.size() != 16) continue;  // not ours
-    if (std::find(keep.begin(), keep.end(), "network/" + fname) != keep.end()) continue;
-    fs::remove(e.path(), ec);
+  if (!fs::is_regular_file(ckpt, ec)) return {};
+  try {
+    const H5Dataset c = h5_read(ckpt.string(), "/counters", 16);
+    const auto f = c.str_attrs.find("network_file"), k = c.str_attrs.find("network_checksum");
+    if (f == c.str_attrs.end() || k == c.str_attrs.end()) return {};
+    return {f->second, k->second};
+  } catch (const InputError&) {
+    return {};
   }
+}
+
+// Deletes only what this run recorded as its own: the state a checkpoint named (with its
+// checksum) that the rotation just dropped. Kept when any checkpoint of the folder still names it,
+// when it is not a regular file (a link, a folder), when RUN/network is not a real folder (a
+// link: the files behind it are someone else's to manage), or when its bytes no longer hash to
+// the recorded checksum (the file was replaced since).
+bool drop_network_state(const fs::path& dir, const NetworkStateRef& dropped) {
+  if (dropped.file.empty()) return false;
+  const fs::path p = dir / dropped.file;
+  if (p.parent_path() != dir / "network" || p.filename().string().rfind("step_", 0) != 0 || p.extension() != ".pt") return false;
+  for (const char* c : {"checkpoint.h5", "checkpoint.prev.h5", "checkpoint.next.h5", "checkpoint.refused.h5"})
+    if (network_file_of(dir / c) == dropped.file) return false;
+  std::error_code ec;
+  const fs::file_status folder = fs::symlink_status(dir / "network", ec);
+  if (ec || !fs::is_directory(folder)) return false;
+  const fs::file_status file = fs::symlink_status(p, ec);
+  if (ec || !fs::is_regular_file(file)) return false;
+  try {
+    if (bytes_checksum(read_file_bytes(p)) != dropped.checksum) return false;
+  } catch (const InputError&) {
+    return false;
+  }
+  return fs::remove(p, ec);
 }
 
 // The network state a checkpoint's state names, its checksum verified.

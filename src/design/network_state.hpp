@@ -14,9 +14,17 @@ namespace qdo {
 // Writes net's state at s.step as RUN/network/step_<8 digits>.pt (atomic) and records its name and
 // checksum in s (save_checkpoint then stores both).
 void save_network_state(const std::filesystem::path& dir, const NetworkDecoder& net, DesignState& s);
-// Removes the network states this run wrote that no checkpoint of the folder names any more
-// (checkpoint.h5, checkpoint.prev.h5, checkpoint.refused.h5).
-void prune_network_states(const std::filesystem::path& dir);
+// A network state as a checkpoint records it: its file (relative to the run folder) and checksum.
+struct NetworkStateRef {
+  std::string file, checksum;
+};
+// The state the checkpoint at `ckpt` names; empty when none or when the file does not read.
+NetworkStateRef network_state_of(const std::filesystem::path& ckpt);
+// After a checkpoint rotation: deletes `dropped` (the state the replaced checkpoint.prev.h5 named)
+// when no checkpoint of the folder names it any more, it is a regular file (not a link) in a real
+// RUN/network folder (not a link) and its bytes still hash to the recorded checksum. Never deletes
+// anything else (a user's step_*.pt, a file the run did not record). Returns whether it deleted.
+bool drop_network_state(const std::filesystem::path& dir, const NetworkStateRef& dropped);
 // The bytes of the network state s names, its checksum verified; InputError naming the file (or
 // the checkpoint `ckpt`, when it names none).
 std::string read_network_state(const std::filesystem::path& dir, const DesignState& s, const std::string& ckpt);
