@@ -186,6 +186,13 @@ TEST_SUITE("commands") {
     const auto dir = temp_dir("cmd_demo_owned");
     fs::create_directories(dir / "do");
     std::ofstream(dir / "do" / "notes.txt") << "mine";
+    // A folder qdo did not make: refused by the rule of every --out (claim_output_dir), naming it.
+    const Run foreign = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --out " + dir.string());
+    CHECK(foreign.code == 2);
+    CHECK(foreign.out.find("qdo did not make, holding do") != std::string::npos);
+    CHECK(foreign.out.find("--into-existing") != std::string::npos);
+    // A folder an earlier demo made: its run folders are still checked, and a user's file in one refused.
+    std::ofstream(dir / ".qdo-out") << "{\"made_by\": \"qdo\", \"command\": \"demo\"}\n";
     const Run r = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --data " + (dir / "no_cave").string() +
                           " --out " + dir.string());
     CAPTURE(r.out);

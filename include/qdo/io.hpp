@@ -233,6 +233,8 @@ class OutputStage {
   bool committed_ = false;
   std::vector<std::pair<std::string, std::string>> files_;  // (temporary name, final name)
   std::vector<std::string> dirs_;                           // created, outermost first
+  std::vector<std::string> markers_;                        // output markers claim_output_dir wrote
+  friend void claim_output_dir(const std::string&, const std::string&, const std::string&, bool);
 };
 // Moves a finished temporary file onto path, or records it in the active deferring stage.
 void commit_output(const std::string& tmp, const std::string& path);
@@ -242,5 +244,16 @@ std::string readable_output(const std::string& path);
 // create_directories(dir), recorded in the active stage; an InputError naming `argument`
 // (e.g. "--out") when it cannot be created.
 void make_output_dir(const std::string& dir, const std::string& argument = "--out");
+
+// The rule every command's output folder follows. A folder that does not exist or is empty is
+// made the command's: created, and marked with the file kOutputMarker naming the command. One
+// whose marker names the same command is the command's own (its rerun, resume and replace
+// rules apply). Anything else that holds an entry (a folder qdo did not make, one another
+// command made, an unreadable marker) is refused with an InputError naming `argument`, the
+// folder, up to five of its entries and the way out, unless into_existing (--into-existing):
+// then the folder is marked and written into. Call before any work. On a failed command the
+// marker goes again when the folder holds nothing else (OutputStage).
+inline constexpr const char* kOutputMarker = ".qdo-out";
+void claim_output_dir(const std::string& dir, const std::string& argument, const std::string& command, bool into_existing);
 
 }  // namespace qdo

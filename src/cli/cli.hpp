@@ -24,6 +24,7 @@ struct Args {
   std::map<std::string, std::string> defaults;            // the command table's defaults
   std::map<std::string, std::vector<std::string>> multi;  // repeatable options, every value in order
   std::string positional;                                 // RUN, RUN|DESIGN.h5 (commands that take one)
+  std::string command;                                    // the command's name ("psf", "design", ...)
   std::string get(const std::string& k, const std::string& def = "") const {
     auto it = opt.find(k);
     if (it != opt.end()) return it->second;
@@ -94,7 +95,11 @@ struct QuantSpec {
 };
 QuantSpec load_quantizer(const Args& a);
 Map2D design_heights(const SystemConfig& cfg, const Args& a, QuantSpec* qs_out = nullptr);
-std::string out_dir(const Args& a, const std::string& def = "");  // creates it (make_output_dir)
+// The command's --out folder under the one rule for output folders (claim_output_dir, io.hpp:
+// new, empty or the same command's; another's or a user's only with --into-existing).
+std::string out_dir(const Args& a, const std::string& def = "");
+// The same rule for a folder the command takes from another option or computes.
+void claim_out(const Args& a, const std::string& dir);
 // "sensor: 0.12 % of values clipped at full scale (max 1.3 before clipping)" or "... none clipped".
 std::string clip_summary(const SensorClip& c);
 double seconds_since(std::chrono::steady_clock::time_point t0);

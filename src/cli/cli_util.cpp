@@ -103,8 +103,13 @@ Map2D design_heights(const SystemConfig& cfg, const Args& a, QuantSpec* qs_out) 
 std::string out_dir(const Args& a, const std::string& def) {
   const std::string d = a.get("out", def);
   if (d.empty()) reject("--out", "(missing)", "an output folder");
-  make_output_dir(d, "--out");
+  claim_out(a, d);
   return d;
+}
+
+void claim_out(const Args& a, const std::string& dir) {
+  if (dir.empty()) reject("--out", "(missing)", "an output folder");
+  claim_output_dir(dir, "--out", a.command, a.has("into-existing"));
 }
 
 std::string clip_summary(const SensorClip& c) {

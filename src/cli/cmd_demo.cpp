@@ -32,7 +32,14 @@ const char* const kDemoMarker = ".qdo-demo";
 // conventional deep optics (DO: full-precision training, quantized afterwards) on held-out
 // synthetic scenes and, when present, the real CAVE scenes; plus the forward-model figures.
 int cmd_demo(const Args& a) {
-  const std::string dir = out_dir(a, "out/demo");
+  const std::string dir = a.get("out", "out/demo");
+  // A demo folder of a qdo from before the output marker (claim_output_dir) is recognised by its
+  // run folders' demo markers, and adopted.
+  bool earlier_demo = !fs::exists(fs::path(dir) / kOutputMarker);
+  bool any_run = false;
+  for (const char* r : {"do", "qdoa", "doft"}) any_run = any_run || fs::exists(fs::path(dir) / r / kDemoMarker);
+  earlier_demo = earlier_demo && any_run;
+  claim_output_dir(dir, "--out", a.command, a.has("into-existing") || earlier_demo);
   DesignRunOptions o;
   o.cfg = preset_config(a.get("preset"));
   o.decoder = decoder_spec_from_string(a.get("decoder", "wiener"));

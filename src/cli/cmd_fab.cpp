@@ -30,7 +30,7 @@ int cmd_export(const Args& a) {
   fab::ExportOptions o;
   o.scheme = fab::scheme_from_string(a.get("scheme"));
   o.out = a.get("out");
-  if (o.out.empty()) reject("--out", "(missing)", "an output folder");
+  claim_out(a, o.out);
   o.constraints.min_feature_um = parse_double("--min-feature-um", a.get("min-feature-um"));
   o.constraints.max_levels = parse_int("--max-levels", a.get("max-levels"), 0, 65536);
   o.constraints.max_height_nm = parse_double("--max-height-nm", a.get("max-height-nm"));
@@ -88,7 +88,7 @@ int cmd_tolerance(const Args& a) {
   t.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma")) : -1;
   t.precision = precision_from_string(a.get("precision"));
   t.out = a.get("out");
-  if (t.out.empty()) reject("--out", "(missing)", "an output folder");
+  claim_out(a, t.out);
   t.quiet = false;
   Runtime rt(a.get("device"));
   const auto t0 = std::chrono::steady_clock::now();

@@ -216,6 +216,13 @@ std::vector<CommandSpec> make_table() {
                 opt("adaptive-from", "also the adaptive levels of this qdo+a run folder"), preset(), config(), precision(), device(),
                 opt("designs-per-pass", "designs per device pass, an integer in [0, 1000] (0: automatic)", "0"), out_dir_opt()},
                cmd_sweep_psf, true});
+  // Every command that writes an output folder takes --into-existing (claim_output_dir, io.hpp).
+  for (CommandSpec& c : t) {
+    const bool folder_out = std::any_of(c.options.begin(), c.options.end(), [](const OptionSpec& o) { return o.name == "out"; });
+    if (folder_out && c.name != "quantize")
+      c.options.push_back(flag("into-existing", "write into an existing --out folder that qdo did not make, or that another qdo "
+                                                "command made (files of the names this command writes are replaced)"));
+  }
   return t;
 }
 
@@ -326,6 +333,7 @@ bool parse_command_line(const CommandSpec& c, int argc, char** argv, Args& out) 
                                 : "one " + c.positional + " and options of the form --name VALUE");
   }
   Args a;
+  a.command = c.name;
   for (const auto& o : c.options) {
     if (!o.def.empty()) a.defaults[o.name] = o.def;
     const CLI::Option* x = p.app.get_option("--" + o.name);

@@ -138,6 +138,7 @@ int cmd_design(const Args& a) {
   const bool resume = a.has("resume");
   if (!resume) o.validate();
   else check_resume_options(a, o);
+  if (!resume) claim_out(a, o.out);  // --resume: the run folder is checked by the resume itself
   Runtime rt(a.get("device"));
   if (a.has("check-gradients")) {
     std::printf("gradient check on this run's configuration (reduced to N <= 64):\n");
@@ -172,6 +173,7 @@ int cmd_eval(const Args& a) {
   }
   e.precision = precision_from_string(a.get("precision"));
   e.out = a.get("out");
+  claim_out(a, e.out);
   Runtime rt(a.get("device"));
   const EvalResult r = evaluate_run(rt, e);
   std::printf("%-28s %8s %8s %7s %8s %8s %8s\n", "scene", "PSNR", "PSNR-H", "SSIM", "RMSE", "ERGAS", "SAM");

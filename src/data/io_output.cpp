@@ -7,6 +7,9 @@
 #include <filesystem>
 #include <fstream>
 #include <mutex>
+#include <string>
+#include <vector>
+#include <algorithm>
 
 #include "data/io_internal.hpp"
 #include "qdo/error.hpp"
@@ -39,6 +42,14 @@ OutputStage::~OutputStage() {
   if (committed_) return;
   std::error_code ec;
   for (const auto& f : files_) fs::remove(f.first, ec);
+  // A marker this command wrote into a folder that holds nothing else goes too: the folder is
+  // then as it was (empty, or removed below when the command created it).
+  for (const std::string& m : markers_) {
+    const fs::path dir = fs::path(m).parent_path();
+    std::size_t entries = 0;
+    for (const auto& e : fs::directory_iterator(dir, ec)) entries += e.path().filename() != kOutputMarker;
+    if (!ec && entries == 0) fs::remove(m, ec);
+  }
   // Folders this command created, deepest first, removed only while empty: never anything
   // else's (a non-empty folder is kept, e.g. a run folder holding a resumable checkpoint).
   for (auto it = dirs_.rbegin(); it != dirs_.rend(); ++it) fs::remove(*it, ec);
@@ -106,6 +117,54 @@ void make_output_dir(const std::string& dir, const std::string& argument) {
   const std::lock_guard<std::mutex> lock(g_stage_mutex);
   if (g_stage)
     for (auto it = missing.rbegin(); it != missing.rend(); ++it) g_stage->dirs_.push_back(it->string());
+}
+
+void claim_output_dir(const std::string& dir, const std::string& argument, const std::string& command, bool into_existing) {
+  if (dir.empty()) reject(argument, "\"\"", "a folder name");
+  if (command.empty()) throw Error("claim_output_dir: no command name");
+  std::error_code ec;
+  const fs::path marker = fs::path(dir) / kOutputMarker;
+  if (fs::exists(dir, ec) && !fs::is_directory(dir, ec)) reject(argument, dir, "a folder (this is a file)");
+  std::vector<std::string> entries;
+  std::string maker;  // the command the folder's marker names, if any
+  if (fs::is_directory(dir, ec)) {
+    for (const auto& e : fs::directory_iterator(dir, ec)) {
+      const std::string name = e.path().filename().string();
+      if (name == ".lock") continue;  // a run folder's lock file (RunLock): qdo's, checked by the run itself
+      if (name == kOutputMarker) {
+        std::ifstream f(marker, std::ios::binary);
+        std::string text(4096, '\0');
+        f.read(&text[0], std::streamsize(text.size()));
+        text.resize(std::size_t(f.gcount()));
+        const std::string key = "\"command\": \"";
+        const std::size_t at = text.find(key), end = at == std::string::npos ? at : text.find('"', at + key.size());
+        if (fs::is_regular_file(e.path(), ec) && end != std::string::npos) maker = text.substr(at + key.size(), end - at - key.size());
+        if (maker.empty()) entries.push_back(name + " (unreadable)");
+      } else {
+        entries.push_back(name);
+      }
+    }
+    if (ec) reject(argument, dir, "a folder that can be listed (" + ec.message() + ")");
+    std::sort(entries.begin(), entries.end());
+  }
+  const bool ours = maker == command;
+  if (!ours && !into_existing && (!entries.empty() || !maker.empty())) {
+    std::string list;
+    const std::size_t shown = std::min<std::size_t>(entries.size(), 5);
+    for (std::size_t i = 0; i < shown; ++i) list += (i ? ", " : "") + entries[i];
+    if (entries.size() > shown) list += ", ... (" + std::to_string(entries.size()) + " entries)";
+    const std::string what = !maker.empty() ? "a folder `qdo " + maker + "` made" + (list.empty() ? "" : " (holding " + list + ")")
+                                            : "a folder qdo did not make, holding " + list;
+    reject(argument, dir,
+           "a new or empty folder, or one an earlier `qdo " + command + "` made; this is " + what +
+               ". Choose another folder, or pass --into-existing to write into it anyway (files of the names qdo " + command +
+               " writes are then replaced)");
+  }
+  make_output_dir(dir, argument);
+  if (ours) return;
+  write_text_atomic(marker.string(), "{\"made_by\": \"qdo\", \"command\": \"" + command + "\"}\n");
+  const std::lock_guard<std::mutex> lock(g_stage_mutex);
+  if (g_stage) g_stage->markers_.push_back(marker.string());
 }
 
 void write_text_atomic(const std::string& path, const std::string& text) {
