@@ -305,7 +305,7 @@ TEST_SUITE("config") {
     CHECK(qdo::decoder_spec_from_string("resunet:depth=3,root=8").to_string() == "resunet:depth=3,root=8");
     CHECK(qdo::decoder_spec_from_string("resunet:root=8").to_string() == "resunet:depth=4,root=8");
     // The canonical form reads back as itself.
-    for (const char* s : {"wiener", "resunet:depth=10,root=1024", "resunet:depth=1,root=1"})
+    for (const char* s : {"wiener", "resunet:depth=10,root=8", "resunet:depth=3,root=1024", "resunet:depth=1,root=1"})
       CHECK(qdo::decoder_spec_from_string(qdo::decoder_spec_from_string(s).to_string()).to_string() == s);
     auto refused = [](const std::string& spec, const char* named) {
       CAPTURE(spec);
@@ -320,5 +320,10 @@ TEST_SUITE("config") {
     refused("resunet:width=3", "width");
     refused("resunet:depth=3,depth=4", "given once");
     refused("resunet:depth", "key=value");
+    // A network too wide to allocate is refused before any work (issue 31, class 12): the widest
+    // layer, root x 2^(depth-1), holds at most 4096 channels (the paper's: 2048).
+    refused("resunet:depth=8,root=1024", "at most 4096 channels (this one: 131072)");
+    refused("resunet:depth=10,root=16", "at most 4096 channels");
+    CHECK_NOTHROW(qdo::decoder_spec_from_string("resunet:depth=8,root=32"));
   }
 }

@@ -86,6 +86,10 @@ SystemConfig load_config(const Args& a);
 RealStack scene_from_args(const SystemConfig& cfg, const Args& a);
 int parse_int(const std::string& name, const std::string& v, int lo, int hi);
 double parse_double(const std::string& name, const std::string& v);
+// A number within [lo, hi] (lo excluded when lo_open), in `unit` (e.g. "nm", "" for none): an
+// InputError naming the option, the value, the unit and the range otherwise.
+double parse_double(const std::string& name, const std::string& v, double lo, double hi, const std::string& unit,
+                    bool lo_open = false);
 std::vector<std::string> split_list(const std::string& s);  // comma-separated
 // lens:NM, flat, or an HDF5 design file matching the configuration's grid.
 Map2D load_design(const SystemConfig& cfg, const std::string& spec);

@@ -133,6 +133,15 @@ double parse_double(const std::string& name, const std::string& v) {
   return x;
 }
 
+double parse_double(const std::string& name, const std::string& v, double lo, double hi, const std::string& unit, bool lo_open) {
+  const double x = parse_double(name, v);
+  if (x < lo || x > hi || (lo_open && x == lo)) {
+    const std::string u = unit.empty() ? "" : " " + unit;
+    reject(name, v + u, "a number in " + std::string(lo_open ? "(" : "[") + to_str(lo) + ", " + to_str(hi) + "]" + u);
+  }
+  return x;
+}
+
 std::vector<std::string> split_list(const std::string& s) {
   std::vector<std::string> out;
   std::stringstream ss(s);
@@ -154,11 +163,11 @@ DesignRunOptions design_options(const Args& a) {
   o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", "50"), 1, 1000000));
   o.design.t0_epochs = parse_double("--t0", a.get("t0", to_str(std::min(5.0, 0.1 * double(o.epochs)))));
   o.design.t1_epochs = parse_double("--t1", a.get("t1", to_str(0.8 * double(o.epochs))));
-  o.design.lr_optics = parse_double("--lr", a.get("lr", "0.01"));
-  o.design.lr_offsets = parse_double("--lr-offsets", a.get("lr-offsets", "0.01"));
-  o.design.lr_decay_per_epoch = parse_double("--decay", a.get("decay", "0.8"));
-  o.design.beta_aq = parse_double("--beta", a.get("beta", "0.01"));
-  o.design.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", "0")) * 1e-9;
+  o.design.lr_optics = parse_double("--lr", a.get("lr", "0.01"), 0, 1, "(Adam step on weights in [-1, 1])");
+  o.design.lr_offsets = parse_double("--lr-offsets", a.get("lr-offsets", "0.01"), 0, 1, "(Adam step on normalised offsets)");
+  o.design.lr_decay_per_epoch = parse_double("--decay", a.get("decay", "0.8"), 0, 1, "(factor per epoch)", true);
+  o.design.beta_aq = parse_double("--beta", a.get("beta", "0.01"), 0, 1e3, "");
+  o.design.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", "0"), 0, 1e4, "nm") * 1e-9;
   o.design.seed = std::uint64_t(parse_int("--seed", a.get("seed", "0"), 0, 2147483647));
   // PSF engine of the optimisation: auto (radial engine for radial designs), 2d or radial.
   o.design.psf_path = psf_path_from_string(a.get("psf-path", "auto"));
@@ -168,13 +177,13 @@ DesignRunOptions design_options(const Args& a) {
   o.objective = a.has("objective") ? objective_from_string(a.get("objective"), "--objective")
                 : o.decoder.network()  ? Objective::Network
                                        : Objective::Wiener;
-  o.lr_decoder = parse_double("--lr-decoder", a.get("lr-decoder", "0.001"));
-  o.gamma_decoder = parse_double("--gamma", a.get("gamma", "0.0001"));
+  o.lr_decoder = parse_double("--lr-decoder", a.get("lr-decoder", "0.001"), 0, 1, "", true);
+  o.gamma_decoder = parse_double("--gamma", a.get("gamma", "0.0001"), 0, 1e3, "");
   o.target = target_spec_from_string(a.get("target", "lens:550"), "--target");
   o.data = split_list(a.get("data", ""));
   o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "12"), 1, 100000));
   o.batch = std::size_t(parse_int("--batch", a.get("batch", "4"), 1, 100000));
-  o.decoder_noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma", "0.001"));
+  o.decoder_noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma", "0.001"), 0, 10, "(units of full scale)");
   o.wiener_on = wiener_on_from_string(a.get("wiener-on", "device"), "--wiener-on");
   o.init = init_spec_from_string(a.get("init", "random"), "--init");
   o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));

@@ -31,10 +31,10 @@ int cmd_export(const Args& a) {
   o.scheme = fab::scheme_from_string(a.get("scheme"));
   o.out = a.get("out");
   claim_out(a, o.out);
-  o.constraints.min_feature_um = parse_double("--min-feature-um", a.get("min-feature-um"));
+  o.constraints.min_feature_um = parse_double("--min-feature-um", a.get("min-feature-um"), 0, 1e4, "um", true);
   o.constraints.max_levels = parse_int("--max-levels", a.get("max-levels"), 0, 65536);
-  o.constraints.max_height_nm = parse_double("--max-height-nm", a.get("max-height-nm"));
-  o.constraints.level_tolerance_nm = parse_double("--tolerance-nm", a.get("tolerance-nm"));
+  o.constraints.max_height_nm = parse_double("--max-height-nm", a.get("max-height-nm"), 0, 1e6, "nm");
+  o.constraints.level_tolerance_nm = parse_double("--tolerance-nm", a.get("tolerance-nm"), 0, 1e3, "nm");
   o.dose_curve_csv = a.get("dose-curve");
   SystemConfig cfg;
   Design d;
@@ -72,10 +72,10 @@ int cmd_export(const Args& a) {
 int cmd_tolerance(const Args& a) {
   fab::ToleranceOptions t;
   t.run = a.positional;
-  t.etch_depth_error_m = parse_double("--etch-depth-error-nm", a.get("etch-depth-error-nm")) * 1e-9;
-  t.overlay_m = parse_double("--overlay-um", a.get("overlay-um")) * 1e-6;
-  t.edge_blur_m = parse_double("--edge-blur-um", a.get("edge-blur-um")) * 1e-6;
-  t.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm")) * 1e-9;
+  t.etch_depth_error_m = parse_double("--etch-depth-error-nm", a.get("etch-depth-error-nm"), 0, 1e4, "nm") * 1e-9;
+  t.overlay_m = parse_double("--overlay-um", a.get("overlay-um"), 0, 1e3, "um") * 1e-6;
+  t.edge_blur_m = parse_double("--edge-blur-um", a.get("edge-blur-um"), 0, 1e3, "um") * 1e-6;
+  t.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm"), 0, 1e4, "nm") * 1e-9;
   t.trials = std::size_t(parse_int("--trials", a.get("trials"), 1, 100000));
   t.seed = std::uint64_t(parse_int("--seed", a.get("seed"), 0, 2147483647));
   t.scheme = a.get("scheme");
@@ -85,7 +85,7 @@ int cmd_tolerance(const Args& a) {
   t.save_psfs = a.has("save-psfs");
   t.data = split_list(a.get("data"));
   t.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));
-  t.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma")) : -1;
+  t.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale)") : -1;
   t.precision = precision_from_string(a.get("precision"));
   t.out = a.get("out");
   claim_out(a, t.out);

@@ -154,7 +154,7 @@ int cmd_simulate(const Args& a) {
 int cmd_image(const Args& a) {
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision"));
-  SkipOptions opt = SkipOptions::split(parse_double("--tolerance", a.get("tolerance")),
+  SkipOptions opt = SkipOptions::split(parse_double("--tolerance", a.get("tolerance"), 0, 1, "(units of full scale)"),
                                        tile_mode_from_string(a.get("tiles")),
                                        std::size_t(parse_int("--tile-px", a.get("tile-px"), 8, 4096)));
   opt.exact = a.has("exact");

@@ -2,6 +2,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <sstream>
 
 #include "cli.hpp"
@@ -34,9 +35,12 @@ int cmd_sweep_psf(const Args& a) {
     o.design_full_m = load_design(o.cfg, design);
   }
   const Placement pl = placement_from_string(a.get("placement"));
+  std::set<int> seen_levels;
   for (const auto& l : split_list(a.get("levels"))) {
     PsfSweepVariant v;
     v.quantizer.levels = parse_int("--levels", l, 2, 65536);
+    if (!seen_levels.insert(v.quantizer.levels).second)
+      reject("--levels", a.get("levels"), "distinct level counts (" + l + " appears twice)");
     v.quantizer.placement = pl;
     v.label = "L" + l;
     o.variants.push_back(v);
@@ -82,11 +86,31 @@ int cmd_sweep(const Args& a) {
   b.opt["mode"] = "do";
   g.base = design_options(b);  // qdo design's options; levels and mode are set per cell
   const auto grids = a.multi.find("grid");
+  std::set<std::string> axes;
   for (const auto& spec : grids == a.multi.end() ? std::vector<std::string>{} : grids->second) {
     const auto eq = spec.find('=');
     if (eq == std::string::npos) reject("--grid", spec, "AXIS=V1,V2,... with AXIS levels, mode, encoder or decoder");
     const std::string axis = spec.substr(0, eq);
-    const auto vals = split_list(spec.substr(eq + 1));
+    if (axis != "levels" && axis != "mode" && axis != "encoder" && axis != "decoder")
+      reject("--grid", axis, "levels, mode, encoder or decoder");
+    if (!axes.insert(axis).second) reject("--grid", spec, "each axis once (" + axis + " is given twice)");
+    std::vector<std::string> vals = split_list(spec.substr(eq + 1));
+    // A decoder spec holds commas of its own (resunet:depth=4,root=16): a key=value item after a
+    // spec with parameters belongs to it.
+    if (axis == "decoder") {
+      std::vector<std::string> joined;
+      for (const auto& v : vals) {
+        if (!joined.empty() && v.find('=') != std::string::npos && v.find(':') == std::string::npos &&
+            joined.back().find(':') != std::string::npos)
+          joined.back() += "," + v;
+        else
+          joined.push_back(v);
+      }
+      vals = joined;
+    }
+    if (vals.empty()) reject("--grid", spec, "at least one value after " + axis + "=");
+    std::set<std::string> distinct(vals.begin(), vals.end());
+    if (distinct.size() != vals.size()) reject("--grid", spec, "distinct values on the " + axis + " axis");
     if (axis == "levels") {
       g.levels.clear();
       for (const auto& v : vals) g.levels.push_back(parse_int("--grid levels", v, 2, 256));

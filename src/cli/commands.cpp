@@ -74,7 +74,7 @@ OptionSpec objective() {
   return opt("objective", "design objective: wiener, wiener-mse, wiener-mae, psf-target or network (default: wiener; network with a network --decoder)");
 }
 OptionSpec target() { return opt("target", "PSF target for --objective psf-target: lens:NM or a design .h5 file", "lens:550"); }
-OptionSpec height_noise() { return opt("height-noise-nm", "fabrication height noise during training, std in nm (>= 0)", "0"); }
+OptionSpec height_noise() { return opt("height-noise-nm", "fabrication height noise during training, std in nm, in [0, 10000]", "0"); }
 
 // The options of the optimisation (qdo design; qdo sweep takes them too).
 std::vector<OptionSpec> training_options() {
@@ -82,12 +82,12 @@ std::vector<OptionSpec> training_options() {
           opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 1000000]", "10"),
           opt("t0", "epoch where the quantization temperature schedule starts (default: min(5, 0.1 x epochs))"),
           opt("t1", "epoch where the quantization temperature schedule ends (> --t0; default: 0.8 x epochs)"),
-          opt("lr", "learning rate of the optics parameters (>= 0)", "0.01"),
-          opt("lr-offsets", "learning rate of the adaptive level offsets (qdo+a, >= 0)", "0.01"),
+          opt("lr", "learning rate of the optics parameters, in [0, 1]", "0.01"),
+          opt("lr-offsets", "learning rate of the adaptive level offsets (qdo+a), in [0, 1]", "0.01"),
           opt("decay", "learning-rate decay factor per epoch, in (0, 1]", "0.8"),
-          opt("beta", "weight of the adaptive-quantization regulariser (qdo+a, >= 0)", "0.01"),
+          opt("beta", "weight of the adaptive-quantization regulariser (qdo+a), in [0, 1000]", "0.01"),
           height_noise(),
-          noise_sigma("sensor noise std of the decoder's training data, in units of full scale (>= 0)", "0.001"),
+          noise_sigma("sensor noise std of the decoder's training data, in units of full scale, in [0, 10]", "0.001"),
           opt("init", "initial design: random, flat or lens:NM", "random"),
           seed(),
           synthetic_scenes("12"),
@@ -97,8 +97,8 @@ std::vector<OptionSpec> training_options() {
               "device"),
           opt("decoder", "decoder trained with the optics: wiener (closed form), resunet (depth 4, root 16), resunet:paper "
                          "(depth 7, root 32) or resunet:depth=D,root=R (needs the qdo tool built with LibTorch)", "wiener"),
-          opt("lr-decoder", "learning rate of the network decoder (> 0; do-finetune: default the do run's last)", "0.001"),
-          opt("gamma", "weight decay gamma of the network's convolution weights (Eq. 14, >= 0)", "0.0001")};
+          opt("lr-decoder", "learning rate of the network decoder, in (0, 1] (do-finetune: default the do run's last)", "0.001"),
+          opt("gamma", "weight decay gamma of the network's convolution weights (Eq. 14), in [0, 1000]", "0.0001")};
 }
 
 std::vector<OptionSpec> concat(std::vector<OptionSpec> a, const std::vector<OptionSpec>& b) {
@@ -167,14 +167,14 @@ std::vector<CommandSpec> make_table() {
                                     "another registered one (default: the run's own, its Wiener decoder or its trained network)"),
                 opt("psf", "PSF stack file through which the scenes are measured in place of the design's PSF: psf.h5 as qdo psf "
                            "writes it (a measured stack in that layout), for the run's bands and sensor grid (checked); not with --levels"),
-                noise_sigma("sensor noise std, in units of full scale (>= 0; default: the run's)", ""),
+                noise_sigma("sensor noise std, in units of full scale, in [0, 10] (default: the run's)", ""),
                 opt("pixels", "pixels whose spectra are plotted: y:x pairs, comma-separated"),
                 opt("renders", "number of reconstructions rendered as PNG, an integer in [0, 1000]", "4"), synthetic_scenes("6"),
                 precision(), device(), out_dir_opt()},
                cmd_eval});
   t.push_back({"image", "the RGB sensor image of one scene with the skipping rules of Camera and a skip report", "", "",
                {preset(), config(), design_spec(), psf_file(), levels_post(), placement(), scene(), key(), resample_bands(), precision(),
-                device(), opt("tolerance", "error bound of the skipped work, in units of full scale (>= 0)", "3e-7"),
+                device(), opt("tolerance", "error bound of the skipped work, in units of full scale, in [0, 1]", "3e-7"),
                 flag("exact", "skip nothing"), opt("tiles", "tiled convolution: off, on or auto", "off"),
                 opt("tile-px", "tile size in sensor pixels, an integer in [8, 4096]", "64"), out_dir_opt()},
                cmd_image});
@@ -183,19 +183,19 @@ std::vector<CommandSpec> make_table() {
                {opt("scheme", "mask scheme: binary, nested or greyscale", "binary"), out_dir_opt(),
                 opt("preset", "system preset for a DESIGN.h5: paper or small (omit with a run folder)", "small"),
                 opt("config", "system configuration JSON file for a DESIGN.h5 (omit with a run folder)"),
-                opt("min-feature-um", "minimum feature size in um (> 0)", "1"),
+                opt("min-feature-um", "minimum feature size in um, in (0, 10000]", "1"),
                 opt("max-levels", "maximum number of height levels, an integer in [0, 65536] (0: no limit)", "0"),
-                opt("max-height-nm", "maximum etch depth in nm (0: no limit)", "0"),
+                opt("max-height-nm", "maximum etch depth in nm, in [0, 1e6] (0: no limit)", "0"),
                 opt("dose-curve", "greyscale dose curve CSV file (default: linear)"),
-                opt("tolerance-nm", "tolerance when matching heights to levels, in nm", "0.001")},
+                opt("tolerance-nm", "tolerance when matching heights to levels, in nm, in [0, 1000]", "0.001")},
                cmd_export});
   t.push_back({"tolerance", "Monte Carlo over fabrication errors of a run's design", "RUN", "run folder written by qdo design",
-               {opt("etch-depth-error-nm", "etch depth error std in nm", "20"), opt("overlay-um", "mask overlay error std in um", "0.5"),
-                opt("edge-blur-um", "edge blur in um", "0"), opt("height-noise-nm", "height noise std in nm", "0"),
+               {opt("etch-depth-error-nm", "etch depth error std in nm, in [0, 10000]", "20"), opt("overlay-um", "mask overlay error std in um, in [0, 1000]", "0.5"),
+                opt("edge-blur-um", "edge blur in um, in [0, 1000]", "0"), opt("height-noise-nm", "height noise std in nm, in [0, 10000]", "0"),
                 opt("trials", "trials per scenario, an integer in [1, 100000]", "16"), seed(),
                 opt("scheme", "mask scheme: auto, binary, nested or greyscale", "auto"),
                 opt("oversample", "mask oversampling, an integer in [1, 16]", "4"), data("test scenes (default: synthetic scenes)"),
-                synthetic_scenes("6"), noise_sigma("sensor noise std, in units of full scale (>= 0; default: the run's)", ""),
+                synthetic_scenes("6"), noise_sigma("sensor noise std, in units of full scale, in [0, 10] (default: the run's)", ""),
                 flag("no-per-source", "skip the scenarios of one error source at a time"),
                 flag("save-psfs", "write every trial's PSF stack to psfs.h5"), precision(), device(), out_dir_opt()},
                cmd_tolerance});
@@ -257,7 +257,7 @@ struct Parser {
       } else {
         std::vector<std::string>& v = values[o.name];
         CLI::Option* x = app.add_option("--" + o.name, v, help)->type_name("VALUE")->expected(1);
-        x->multi_option_policy(o.repeat ? CLI::MultiOptionPolicy::TakeAll : CLI::MultiOptionPolicy::TakeLast);
+        x->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);  // a repeated single option is refused below
         x->allow_extra_args(false);
       }
     }
@@ -344,6 +344,9 @@ bool parse_command_line(const CommandSpec& c, int argc, char** argv, Args& out) 
       a.multi[o.name] = p.values[o.name];
       a.opt[o.name] = p.values[o.name].back();
     } else {
+      // An option given twice is refused rather than silently taking the last value.
+      if (p.values[o.name].size() > 1)
+        reject("--" + o.name, p.values[o.name][0] + " and " + p.values[o.name][1], "given once (it is not repeatable)");
       a.opt[o.name] = p.values[o.name].empty() ? std::string() : p.values[o.name].back();
     }
   }

@@ -117,7 +117,7 @@ DesignRunOptions finetune_options(const Args& a) {
   o.design.t0_epochs = 0;
   o.design.t1_epochs = 1;
   o.design.lr_decay_per_epoch = 1;
-  o.lr_decoder = a.has("lr-decoder") ? parse_double("--lr-decoder", a.get("lr-decoder")) : last_lr;
+  o.lr_decoder = a.has("lr-decoder") ? parse_double("--lr-decoder", a.get("lr-decoder"), 0, 1, "", true) : last_lr;
   o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));
   o.max_steps = a.has("max-steps") ? parse_int("--max-steps", a.get("max-steps"), 0, 2147483647) : -1;
   if (a.has("precision")) o.precision = precision_from_string(a.get("precision"));
@@ -162,7 +162,7 @@ int cmd_eval(const Args& a) {
   if (a.has("decoder-kind")) e.decoder_kind = decoder_spec_from_string(a.get("decoder-kind"));
   e.psf_file = a.get("psf");
   if (a.has("psf") && a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --psf (the PSF file is the measured camera)");
-  e.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma")) : -1;
+  e.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale)") : -1;
   e.renders = std::size_t(parse_int("--renders", a.get("renders"), 0, 1000));
   e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));
   for (const auto& p : split_list(a.get("pixels"))) {

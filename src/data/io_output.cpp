@@ -131,6 +131,12 @@ void claim_output_dir(const std::string& dir, const std::string& argument, const
     for (const auto& e : fs::directory_iterator(dir, ec)) {
       const std::string name = e.path().filename().string();
       if (name == ".lock") continue;  // a run folder's lock file (RunLock): qdo's, checked by the run itself
+      // qdo's temporary files ("<name>.tmp-<pid>", AtomicFile): a write in progress (another qdo
+      // claiming the folder at this moment) or one a kill interrupted. Not a user's.
+      const std::size_t t = name.rfind(".tmp-");
+      if (t != std::string::npos && t + 5 < name.size() &&
+          name.find_first_not_of("0123456789", t + 5) == std::string::npos)
+        continue;
       if (name == kOutputMarker) {
         std::ifstream f(marker, std::ios::binary);
         std::string text(4096, '\0');

@@ -1,6 +1,7 @@
 #include "qdo/decoder_spec.hpp"
 
 #include <cctype>
+#include <cmath>
 
 #include "qdo/decoder_registry.hpp"
 #include "qdo/error.hpp"
@@ -71,6 +72,13 @@ DecoderSpec named_spec(const std::string& spec, const std::string& head) {
     if (comma == std::string::npos) break;
     pos = comma + 1;
   }
+  // The widest layer has root x 2^(depth-1) channels (the paper's depth 7, root 32: 2048). Beyond
+  // 4096 the network's weights alone exceed what any device here holds, and LibTorch fails deep
+  // inside its allocator: refused here, before any work.
+  const double widest = double(d.root) * std::ldexp(1.0, int(d.depth) - 1);
+  if (widest > 4096)
+    reject("--decoder", spec,
+           "a Res-UNet whose widest layer, root x 2^(depth-1), has at most 4096 channels (this one: " + to_str(widest) + ")");
   return d;
 }
 
@@ -117,6 +125,13 @@ DecoderSpec decoder_spec_from_string(const std::string& spec) {
     if (comma == std::string::npos) break;
     pos = comma + 1;
   }
+  // The widest layer has root x 2^(depth-1) channels (the paper's depth 7, root 32: 2048). Beyond
+  // 4096 the network's weights alone exceed what any device here holds, and LibTorch fails deep
+  // inside its allocator: refused here, before any work.
+  const double widest = double(d.root) * std::ldexp(1.0, int(d.depth) - 1);
+  if (widest > 4096)
+    reject("--decoder", spec,
+           "a Res-UNet whose widest layer, root x 2^(depth-1), has at most 4096 channels (this one: " + to_str(widest) + ")");
   return d;
 }
 

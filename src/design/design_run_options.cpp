@@ -146,7 +146,8 @@ void DesignRunOptions::validate() const {
   if (synthetic_scenes < 1) reject("synthetic_scenes", synthetic_scenes, ">= 1");
   if (prior_bins < 2) reject("prior_bins", prior_bins, ">= 2");
   if (checkpoint_every < 1) reject("checkpoint_every", checkpoint_every, ">= 1");
-  if (!(decoder_noise_sigma >= 0) || !std::isfinite(decoder_noise_sigma)) reject("noise_sigma", decoder_noise_sigma, ">= 0");
+  if (!(decoder_noise_sigma >= 0 && decoder_noise_sigma <= 10))
+    reject("noise_sigma", decoder_noise_sigma, "a sensor noise std in [0, 10] (units of full scale)");
   if (out.empty()) reject("out", "(missing)", "a run folder");
   if (double(design.t1_epochs) > double(epochs)) reject("t1", design.t1_epochs, "<= epochs (" + to_str(epochs) + ")");
   for (const auto& d : data) {
