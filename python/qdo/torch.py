@@ -12,6 +12,9 @@ nothing is copied behind the caller's back. Results come back in the input's dty
 Each Function keeps the Optics' counter of its forward calls: when another forward ran between
 a forward and its backward (two graphs alive at once), backward first re-runs its own forward,
 so the adjoint is always that of its own inputs. Double backward is not supported.
+
+Wrong arguments raise ValueError naming them (a non-tensor, a tensor off the CPU, a
+non-floating-point or non-strided tensor, a wrong shape), as the NumPy API does.
 """
 import numpy as np
 import torch
@@ -29,15 +32,23 @@ def to_numpy(name, t):
     if t.device.type != "cpu":
         raise ValueError("%s: tensor on device '%s'; qdo.torch takes CPU tensors (qdo computes on its own "
                          "OpenCL device): pass t.cpu(), and move the result back with .to(device)" % (name, t.device))
+    if t.layout != torch.strided:
+        raise ValueError("%s: layout %s; expected a dense (strided) tensor (use .to_dense())" % (name, t.layout))
     if not t.is_floating_point():
         raise ValueError("%s: dtype %s; expected a floating-point tensor" % (name, t.dtype))
-    return np.ascontiguousarray(t.detach().to(torch.float64).numpy())
+    return np.ascontiguousarray(t.detach().resolve_neg().to(torch.float64).numpy())
+
+
+def _optics(optics):
+    if not isinstance(optics, Optics):
+        raise ValueError("optics: expected a qdo.Optics, got %s" % type(optics).__name__)
+    return optics
 
 
 class PSFFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, height_m, optics):
-        psf = optics.psf(to_numpy("height_m", height_m))
+        psf = _optics(optics).psf(to_numpy("height_m", height_m))
         ctx.optics = optics
         ctx.calls = optics._o.psf_calls
         ctx.save_for_backward(height_m)
@@ -60,7 +71,7 @@ class CameraFunction(torch.autograd.Function):
         s = to_numpy("scene", scene)
         p = to_numpy("psf", psf)
         single = s.ndim == 3
-        rgb = optics.camera(s, p)
+        rgb = _optics(optics).camera(s, p)
         ctx.optics = optics
         ctx.calls = optics._o.camera_calls
         ctx.single = single
@@ -85,7 +96,7 @@ class PSF(torch.nn.Module):
 
     def __init__(self, optics=None, **optics_kwargs):
         super().__init__()
-        self.optics = optics if optics is not None else Optics(**optics_kwargs)
+        self.optics = _optics(optics) if optics is not None else Optics(**optics_kwargs)
 
     def forward(self, height_m):
         return PSFFunction.apply(height_m, self.optics)
@@ -96,7 +107,7 @@ class Camera(torch.nn.Module):
 
     def __init__(self, optics=None, **optics_kwargs):
         super().__init__()
-        self.optics = optics if optics is not None else Optics(**optics_kwargs)
+        self.optics = _optics(optics) if optics is not None else Optics(**optics_kwargs)
 
     def forward(self, scene, psf):
         return CameraFunction.apply(scene, psf, self.optics)
