@@ -18,6 +18,13 @@ dtype, shape, range or a non-finite value raises ValueError naming the argument,
 shape and what is allowed (a short message, never the array's contents), before any allocation
 or device work; an array too large to copy raises MemoryError naming it. Configuration and file
 errors are the same messages as the command line's.
+
+Threads. An Optics may be shared by threads: each call that uses the device (psf, psf_vjp,
+camera, camera_vjp) releases the GIL and holds the lock of the OpenCL device (one per device,
+shared by every Optics on it) for the whole call, so they run one at a time. psf_vjp(grad) and
+camera_vjp(grad) without forward arguments take the adjoint of the last forward call of any
+thread; pass the forward's arguments (psf_vjp(grad, height_m), camera_vjp(grad, scene, psf)) to
+get the adjoint at those inputs in one atomic call. qdo.torch does that itself.
 """
 import json
 import os
@@ -92,6 +99,12 @@ class Optics:
 
     Optics(preset="small") | Optics(config={...} or "config.json"), device="" (default choice:
     QDO_DEVICE, else the first GPU, else the CPU), precision="f32" | "f64".
+
+    Thread-safe: psf, psf_vjp, camera and camera_vjp each release the GIL and hold the device's
+    lock (shared by every Optics on that OpenCL device) for the whole call, so calls from several
+    threads run one at a time, each with the result it would have alone. An adjoint without
+    forward arguments pairs with the last forward call of any thread: from several threads, pass
+    the forward's arguments (psf_vjp(g, height_m), camera_vjp(g, scene, psf)).
     """
 
     def __init__(self, preset=None, config=None, device="", precision="f32"):
@@ -146,9 +159,13 @@ class Optics:
         """height_m (n x n float64, metres) -> the sensor-grid PSF stack (bands x S x S)."""
         return self._o.psf(height_m)
 
-    def psf_vjp(self, grad_psf):
-        """Adjoint of the last psf() call: dL/dPSF (bands x S x S) -> dL/dheight (n x n, per metre)."""
-        return self._o.psf_vjp(grad_psf)
+    def psf_vjp(self, grad_psf, height_m=None):
+        """Adjoint of psf(): dL/dPSF (bands x S x S) -> dL/dheight (n x n, per metre).
+
+        Without height_m: at the last psf() call of any thread (ValueError when there was none).
+        With height_m: at those heights, the forward re-run inside the same locked call, so no
+        other thread's psf() can come in between (one extra forward)."""
+        return self._o.psf_vjp(grad_psf, height_m)
 
     def read_psf(self, path):
         """A PSF stack file as `qdo psf` writes it (psf.h5, /psf_sensor) -> bands x S x S, for
@@ -170,11 +187,16 @@ class Optics:
         out = self._o.camera(batch, psf)
         return out[0] if single else out
 
-    def camera_vjp(self, grad_rgb):
-        """Adjoint of the last camera() call's noiseless camera: dL/dimage -> (dL/dpsf,
-        dL/dscene), shapes as that call's psf and scene."""
+    def camera_vjp(self, grad_rgb, scene=None, psf=None):
+        """Adjoint of camera()'s noiseless camera: dL/dimage (3 x H x W or batch x 3 x H x W)
+        -> (dL/dpsf bands x S x S, dL/dscene shaped as grad_rgb with bands for 3).
+
+        Without scene and psf: of the last camera() call of any thread. With both: of
+        camera(scene, psf), re-run inside the same locked call (atomic across threads)."""
         g, single = _as_batch("grad_rgb", grad_rgb, 3, "3, H, W", 3)
-        g_psf, g_scene = self._o.camera_vjp(g)
+        if scene is not None and single:
+            scene, _ = _as_batch("scene", scene, 3, "bands, H, W", self.bands)
+        g_psf, g_scene = self._o.camera_vjp(g, scene, psf)
         return g_psf, (g_scene[0] if single else g_scene)
 
 

@@ -9,14 +9,21 @@
 // naming it, its value (never an array's contents) and what is allowed; an array that cannot be
 // copied raises MemoryError naming it. qdo::InputError -> ValueError, any other qdo::Error ->
 // RuntimeError.
+//
+// Threads: every call that uses an OpenCL device releases the GIL and then holds the lock of
+// that device (one per device selector, shared by every Optics on it, since they share its
+// Runtime: queue, kernel and FFT-plan caches) for the whole call. Everything else (HDF5, PNG,
+// the CPU Wiener decoder) runs with the GIL held.
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -238,37 +245,66 @@ Array from_map(const Map2D& m) {
 
 // ---------- Devices ----------
 
-// One Runtime per device selector for the whole process (devices are slow to open; kernels and
-// FFT plans are cached per Runtime).
-std::shared_ptr<Runtime> runtime_for(const std::string& device) {
-  static std::map<std::string, std::shared_ptr<Runtime>> runtimes;
-  auto it = runtimes.find(device);
-  if (it == runtimes.end()) it = runtimes.emplace(device, std::make_shared<Runtime>(device)).first;
+// One OpenCL device as the bindings use it: the Runtime (its queue, kernel and FFT-plan caches
+// are not thread-safe) and the lock every Optics on it holds for the whole of each call that
+// touches the device.
+struct Device {
+  explicit Device(const std::string& selector) : rt(selector) {}
+  Runtime rt;
+  std::mutex mu;
+};
+
+// One Device per selector for the whole process (devices are slow to open; kernels and FFT plans
+// are cached per Runtime). Called with the GIL held, which guards the map.
+std::shared_ptr<Device> device_for(const std::string& selector) {
+  static std::map<std::string, std::shared_ptr<Device>> devices;
+  auto it = devices.find(selector);
+  if (it == devices.end()) it = devices.emplace(selector, std::make_shared<Device>(selector)).first;
   return it->second;
 }
 
 // A configuration on a device: a height-map PSF source (psf_source.hpp; the Simulator's 2-D
-// chain) and the camera operator (Camera, fed the PSF stack it is given), with their adjoints. Each adjoint is the adjoint of this object's last forward call of the
-// same kind; `psf_calls` / `camera_calls` count the forwards so that the PyTorch layer can tell
-// whether it must re-run one before a backward.
+// chain) and the camera operator (Camera, fed the PSF stack it is given), with their adjoints.
+//
+// Each call that touches the device (construction, psf, psf_vjp, camera, camera_vjp,
+// destruction) releases the GIL, then holds the device's lock (Device::mu) for the whole call, so
+// each call is atomic with respect to every other call on the same device, from any thread.
+// Without forward arguments, an adjoint is that of this object's last forward call of the same
+// kind, from whichever thread made it; with them (psf_vjp's height_m, camera_vjp's scene and psf)
+// the forward is re-run inside the same locked call unless `forward` names the last forward call
+// (its count), so the pair cannot be split by another thread. `psf_calls` / `camera_calls` count
+// the forwards; psf_counted / camera_counted return the count of their own call, which the
+// PyTorch layer passes back as `forward` (read separately, another thread's call could slip in).
 class Optics {
  public:
   Optics(const std::string& config_json, const std::string& origin, const std::string& device, const std::string& precision)
-      : cfg_(config_from_json_text(config_json, origin)), prec_(precision_from_string(precision)), rt_(runtime_for(device)) {
+      : cfg_(config_from_json_text(config_json, origin)), prec_(precision_from_string(precision)), dev_(device_for(device)) {
     cfg_.validate();
-    sim_ = std::make_unique<Simulator>(*rt_, cfg_, prec_);  // held as its PsfSource interface
-    cam_ = std::make_unique<Camera>(*rt_, cfg_, prec_);
+    py::gil_scoped_release unlocked;
+    std::lock_guard<std::mutex> lock(dev_->mu);
+    sim_ = std::make_unique<Simulator>(dev_->rt, cfg_, prec_);  // held as its PsfSource interface
+    cam_ = std::make_unique<Camera>(dev_->rt, cfg_, prec_);
     s_ = sim_->sensor_size();
   }
+  // Called with the GIL held; no holder of the device lock waits for the GIL, so taking it here
+  // cannot deadlock. The device objects go before another thread's call may use the Runtime.
+  ~Optics() {
+    std::lock_guard<std::mutex> lock(dev_->mu);
+    cam_.reset();
+    sim_.reset();
+  }
+  Optics(const Optics&) = delete;
+  Optics& operator=(const Optics&) = delete;
 
   std::string config_json() const { return config_to_json_text(cfg_); }
-  std::string device_name() const { return rt_->info().name; }
+  std::string device_name() const { return dev_->rt.info().name; }
   std::string precision() const { return to_string(prec_); }
   std::size_t n() const { return cfg_.n; }
   std::size_t bands() const { return cfg_.bands; }
   std::size_t sensor_size() const { return s_; }
   std::vector<double> wavelengths_nm() const { return cfg_.wavelengths_nm(); }
   double h_max_m() const { return cfg_.h_max_m(); }
+  const SystemConfig& config() const { return cfg_; }
   Array srf() const {  // 3 x bands
     const Eigen::MatrixXd s = sensor_response(cfg_);
     Array a({py::ssize_t(s.rows()), py::ssize_t(s.cols())});
@@ -281,84 +317,136 @@ class Optics {
 
   // height_m: N x N (metres) -> the sensor-grid PSF stack, bands x S x S (as `qdo psf` writes
   // to /psf_sensor).
-  Array psf(const py::handle& height_obj) {
+  Array psf(const py::handle& height_obj) { return psf_counted(height_obj)[0].cast<Array>(); }
+  // The same with the count of this forward call (psf_calls right after it, from inside the
+  // locked call): (psf, count), for psf_vjp's `forward`.
+  py::tuple psf_counted(const py::handle& height_obj) {
     const Map2D m = to_map(checked(height_obj, "height_m", {cfg_.n, cfg_.n}));
     RealStack out;
+    std::uint64_t count = 0;
     {
       py::gil_scoped_release unlocked;
-      sim_->set_heights(m);
-      sim_->compute_psf();
-      out = sim_->psf_sensor();
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      out = psf_locked(m);
+      count = psf_calls_;
     }
-    ++psf_calls_;
-    return from_stack(out);
+    return py::make_tuple(from_stack(out), count);
   }
 
-  // grad_psf: bands x S x S, the gradient of a scalar with respect to the last psf() result ->
-  // its gradient with respect to height_m (N x N, per metre).
-  Array psf_vjp(const py::handle& grad_obj) {
-    if (psf_calls_ == 0) value_error("grad_psf: no psf() call to take the adjoint of");
+  // grad_psf: bands x S x S, the gradient of a scalar with respect to a psf() result -> its
+  // gradient with respect to the heights (N x N, per metre). height_m None: the adjoint at the
+  // last psf() call of any thread; height_m given (N x N): at those heights, the forward re-run
+  // in the same locked call unless `forward` equals psf_calls (it was the last one).
+  Array psf_vjp(const py::handle& grad_obj, const py::handle& height_obj, std::uint64_t forward) {
     const RealStack g = to_stack(checked(grad_obj, "grad_psf", {cfg_.bands, s_, s_}));
+    const bool at = !height_obj.is_none();
+    Map2D m;
+    if (at) m = to_map(checked(height_obj, "height_m", {cfg_.n, cfg_.n}));
     Map2D out;
+    bool none_yet = false;
     {
       py::gil_scoped_release unlocked;
-      out = sim_->psf_sensor_vjp(g);
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      if (at && (forward == 0 || forward != psf_calls_)) (void)psf_locked(m);
+      none_yet = psf_calls_ == 0;
+      if (!none_yet) out = sim_->psf_sensor_vjp(g);
     }
+    if (none_yet) value_error("grad_psf: no psf() call to take the adjoint of (call psf() first, or pass height_m)");
     return from_map(out);
   }
 
   // A PSF stack file as `qdo psf` writes it (/psf_sensor; psf_source.hpp's read_psf_stack_for):
   // bands x S x S, checked against this configuration's bands, sensor grid and pitch (ValueError
   // naming both when they differ), for camera() in place of psf(): the file-backed PSF source.
+  // HDF5 with the GIL held; no device work.
   Array read_psf(const py::handle& path) const { return from_stack(read_psf_stack_for(cfg_, path_arg(path, "path"), "path")); }
 
   // scenes: batch x bands x H x W, psf: bands x S x S -> batch x 3 x H x W sensor images through
   // the device camera operator (cfg.convolution, the sensor response, cfg's noise; exact: no
   // skipping).
   Array camera(const py::handle& scene_obj, const py::handle& psf_obj) {
+    return camera_counted(scene_obj, psf_obj)[0].cast<Array>();
+  }
+  // The same with the count of this forward call: (images, count), for camera_vjp's `forward`.
+  py::tuple camera_counted(const py::handle& scene_obj, const py::handle& psf_obj) {
     const Array sc = checked(scene_obj, "scene", {"batch", cfg_.bands, "H", "W"});
     const RealStack ps = to_stack(checked(psf_obj, "psf", {cfg_.bands, s_, s_}));
     const std::vector<RealStack> cubes = to_stacks(sc);
     std::vector<RealStack> rgb;
+    std::uint64_t count = 0;
     {
       py::gil_scoped_release unlocked;
-      cam_->set_psf(ps);
-      SkipOptions exact;
-      exact.exact = true;
-      rgb = cam_->images(cubes, exact);
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      rgb = camera_locked(cubes, ps);
+      count = camera_calls_;
     }
-    last_images_ = {cubes.size(), cubes.front().rows, cubes.front().cols};
-    ++camera_calls_;
-    return from_stacks(rgb, 3, std::size_t(sc.shape(2)), std::size_t(sc.shape(3)));
+    return py::make_tuple(from_stacks(rgb, 3, std::size_t(sc.shape(2)), std::size_t(sc.shape(3))), count);
   }
 
-  // grad_rgb: batch x 3 x H x W, the gradient with respect to the last camera() result ->
-  // (gradient on its psf, bands x S x S; gradient on its scenes, batch x bands x H x W).
-  py::tuple camera_vjp(const py::handle& grad_obj) {
-    if (camera_calls_ == 0) value_error("grad_rgb: no camera() call to take the adjoint of");
+  // grad_rgb: batch x 3 x H x W, the gradient with respect to a camera() result -> (gradient on
+  // its psf, bands x S x S; gradient on its scenes, batch x bands x H x W). scene and psf None:
+  // the adjoint of the last camera() call of any thread; given: of camera(scene, psf), re-run in
+  // the same locked call unless `forward` equals camera_calls.
+  py::tuple camera_vjp(const py::handle& grad_obj, const py::handle& scene_obj, const py::handle& psf_obj,
+                       std::uint64_t forward) {
     const Array ga = checked(grad_obj, "grad_rgb", {"batch", 3, "H", "W"});
-    const std::vector<std::size_t> got{std::size_t(ga.shape(0)), std::size_t(ga.shape(2)), std::size_t(ga.shape(3))};
-    if (last_images_ != got)
-      value_error("grad_rgb: shape " + shape_text(ga) + "; expected (" + std::to_string(last_images_[0]) + ", 3, " +
-                  std::to_string(last_images_[1]) + ", " + std::to_string(last_images_[2]) + "), the images of the last camera() call");
+    if (scene_obj.is_none() != psf_obj.is_none())
+      value_error(std::string(scene_obj.is_none() ? "scene" : "psf") + ": None; give both scene and psf, or neither");
+    const bool at = !scene_obj.is_none();
+    std::vector<RealStack> cubes;
+    RealStack ps;
+    if (at) {
+      cubes = to_stacks(checked(scene_obj, "scene", {std::size_t(ga.shape(0)), cfg_.bands, std::size_t(ga.shape(2)),
+                                                     std::size_t(ga.shape(3))}));
+      ps = to_stack(checked(psf_obj, "psf", {cfg_.bands, s_, s_}));
+    }
     const std::vector<RealStack> gr = to_stacks(ga);
+    const std::vector<std::size_t> got{std::size_t(ga.shape(0)), std::size_t(ga.shape(2)), std::size_t(ga.shape(3))};
     Camera::Gradient res;
+    bool none_yet = false;
+    std::vector<std::size_t> last;  // batch, H, W of the forward call the adjoint is of
     {
       py::gil_scoped_release unlocked;
-      res = cam_->vjp(gr, true);
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      if (at && (forward == 0 || forward != camera_calls_)) (void)camera_locked(cubes, ps);
+      none_yet = camera_calls_ == 0;
+      last = last_images_;
+      if (!none_yet && last == got) res = cam_->vjp(gr, true);
     }
+    if (none_yet) value_error("grad_rgb: no camera() call to take the adjoint of (call camera() first, or pass scene and psf)");
+    if (last != got)
+      value_error("grad_rgb: shape " + shape_text(ga) + "; expected (" + std::to_string(last[0]) + ", 3, " + std::to_string(last[1]) +
+                  ", " + std::to_string(last[2]) + "), the images of the last camera() call");
     return py::make_tuple(from_stack(res.psf), from_stacks(res.scenes, cfg_.bands, std::size_t(ga.shape(2)), std::size_t(ga.shape(3))));
   }
 
  private:
+  // The forwards, with the device lock held (and the GIL released).
+  RealStack psf_locked(const Map2D& m) {
+    sim_->set_heights(m);
+    sim_->compute_psf();
+    ++psf_calls_;
+    return sim_->psf_sensor();
+  }
+  std::vector<RealStack> camera_locked(const std::vector<RealStack>& cubes, const RealStack& ps) {
+    cam_->set_psf(ps);
+    SkipOptions exact;
+    exact.exact = true;
+    std::vector<RealStack> rgb = cam_->images(cubes, exact);
+    last_images_ = {cubes.size(), cubes.front().rows, cubes.front().cols};
+    ++camera_calls_;
+    return rgb;
+  }
+
   SystemConfig cfg_;
   Precision prec_;
-  std::shared_ptr<Runtime> rt_;
+  std::shared_ptr<Device> dev_;  // before the device objects: destroyed after them
   std::unique_ptr<HeightMapPsfSource> sim_;
   std::unique_ptr<Camera> cam_;
-  std::size_t s_ = 0;                     // S, the sensor grid
-  std::vector<std::size_t> last_images_;  // batch, H, W of the last camera() call
-  std::uint64_t psf_calls_ = 0, camera_calls_ = 0;
+  std::size_t s_ = 0;  // S, the sensor grid
+  std::vector<std::size_t> last_images_;  // batch, H, W of the last camera() call (device lock)
+  // Forward counts, written under the device lock, read by Python without it.
+  std::atomic<std::uint64_t> psf_calls_{0}, camera_calls_{0};
 };
 
 Quantizer make_quantizer(long long levels, const std::string& placement) {
@@ -435,10 +523,13 @@ PYBIND11_MODULE(_qdo, m) {
       .def_property_readonly("camera_calls", &Optics::camera_calls)
       .def("srf", &Optics::srf)
       .def("psf", &Optics::psf, py::arg("height_m"))
-      .def("psf_vjp", &Optics::psf_vjp, py::arg("grad_psf"))
+      .def("psf_counted", &Optics::psf_counted, py::arg("height_m"))
+      .def("psf_vjp", &Optics::psf_vjp, py::arg("grad_psf"), py::arg("height_m") = py::none(), py::arg("forward") = 0)
       .def("read_psf", &Optics::read_psf, py::arg("path"))
       .def("camera", &Optics::camera, py::arg("scene"), py::arg("psf"))
-      .def("camera_vjp", &Optics::camera_vjp, py::arg("grad_rgb"));
+      .def("camera_counted", &Optics::camera_counted, py::arg("scene"), py::arg("psf"))
+      .def("camera_vjp", &Optics::camera_vjp, py::arg("grad_rgb"), py::arg("scene") = py::none(), py::arg("psf") = py::none(),
+           py::arg("forward") = 0);
 
   m.def(
       "quantize",
