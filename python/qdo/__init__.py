@@ -36,7 +36,7 @@ from . import _qdo
 __version__ = _qdo.__version__
 
 __all__ = ["__version__", "Optics", "devices", "preset", "quantize", "lens_design", "estimate_prior",
-           "wiener_decode", "read_cube", "read_design", "write_design", "read_h5", "write_rgb_png",
+           "wiener_decode", "read_cube", "write_cube", "read_design", "write_design", "read_h5", "write_rgb_png",
            "write_montage_png", "write_map_png"]
 
 
@@ -226,9 +226,47 @@ def wiener_decode(y, psf, srf, prior, noise_sigma):
     return _qdo.wiener_decode(y, psf, srf, prior, noise_sigma)
 
 
-def read_cube(path, key=""):
-    """A hyperspectral cube (CAVE .mat, PNG folder, HDF5) as bands x H x W in [0, 1]."""
-    return _qdo.read_cube(path, key)
+def read_cube(path, key="", config=None, resample_bands=False):
+    """A hyperspectral scene file as `qdo simulate --scene PATH` reads it: the same library calls
+    in the same order, so the same array, the same notes on stderr and the same refusals.
+
+    path: a cube file (MATLAB .mat v5/v7.3, or HDF5 with /cube) or a folder of PNG bands (CAVE).
+    key: the variable / dataset of the cube ("" = found automatically; --key); must be "" for a
+    folder. config: the configuration the scene is for, whose bands and band centres it must
+    have: an Optics, a configuration dict or the path of a JSON file (--config), or None for the
+    preset "small" (the command's default, --preset small). resample_bands: --resample-bands.
+
+    Returns a new float64 C-order array, bands x H x W, bands = the configuration's, band b at
+    its wavelength b (ascending as configured), values in [0, 1]:
+      1. Layout: the band axis is the axis of length `bands` (for .mat files MATLAB's last axis
+         first, for HDF5 the first axis first).
+      2. Scale: integer data divided by its type's maximum (uint16: 65535), a dataset named
+         `rad` whose maximum is <= 4095 (ICVL) by 4095, floating-point data as stored.
+      3. Band axis: a file that stores its band centres (wavelengths_nm, wavelengths or bands,
+         nm) must match the configured ones within 0.5 nm, else ValueError naming both grids;
+         with resample_bands=True it is interpolated linearly onto the configured grid instead
+         (so a descending axis comes back in ascending order). A file without an axis is taken
+         to be on the configured grid. A PNG folder's files are bands in file-number order.
+      4. Radiance rule (conform_radiance): a non-finite value or one below -0.01 raises
+         ValueError naming the file; values in [-0.01, 0) are set to 0; when the maximum exceeds
+         1 (HDR or unscaled data) the whole cube is divided by it (a maximum within 1e-6 of 1 is
+         clipped to 1). Steps 3 and 4 print the command's notes on stderr.
+    A band count that does not fit the configuration raises ValueError naming the file, the
+    shape found and the bands expected."""
+    if isinstance(config, Optics):
+        text, origin = config._o.config_json, "Optics.config"
+    elif config is None:
+        text, origin = _qdo.preset_json("small"), "preset small"
+    else:
+        text, origin = _config_text(None, config)
+    return _qdo.read_cube(path, key, text, origin, resample_bands)
+
+
+def write_cube(path, cube, wavelengths_nm):
+    """A cube (bands x H x W float64) as qdo's HDF5 scene file: /cube and /wavelengths_nm (one
+    centre per band, nm), atomically. Values are written as given (read_cube applies its rules
+    when reading)."""
+    _qdo.write_cube(path, cube, wavelengths_nm)
 
 
 def read_design(path):

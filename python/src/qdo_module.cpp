@@ -21,6 +21,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <filesystem>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -29,6 +30,7 @@
 
 #include "qdo/camera.hpp"
 #include "qdo/config.hpp"
+#include "qdo/datasets.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -175,6 +177,13 @@ std::string str_arg(const py::handle& o, const char* name) {
   return py::str(o);
 }
 
+bool bool_arg(const py::handle& o, const char* name) {
+  static const py::handle np_bool = python_global("numpy", "bool_");
+  if (!py::isinstance<py::bool_>(o) && !py::isinstance(o, np_bool))
+    value_error(std::string(name) + ": expected True or False, got " + type_name(o));
+  return py::cast<bool>(py::bool_(py::reinterpret_borrow<py::object>(o)));
+}
+
 // A file path: str, bytes or os.PathLike (os.fspath), non-empty.
 std::string path_arg(const py::handle& o, const char* name) {
   static const py::handle os = python_global("os", nullptr);
@@ -261,6 +270,27 @@ std::shared_ptr<Device> device_for(const std::string& selector) {
   auto it = devices.find(selector);
   if (it == devices.end()) it = devices.emplace(selector, std::make_shared<Device>(selector)).first;
   return it->second;
+}
+
+// The scene a cube file or PNG band folder gives `qdo simulate --scene PATH [--key KEY]
+// [--resample-bands]` under configuration cfg (src/cli/cli_util.cpp, scene_from_args, the same
+// library calls in the same order): bands x H x W on cfg's band grid, in [0, 1].
+RealStack read_scene(const SystemConfig& cfg, const std::string& path, const std::string& key, bool resample) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {  // a CAVE folder of PNG bands
+    if (!key.empty()) reject("key", key, "\"\" for a PNG band folder ('" + path + "')");
+    RealStack png = read_png_band_folder(path, cfg.bands);
+    conform_radiance(png, "folder '" + path + "'");
+    return png;
+  }
+  CubeReadOptions o;
+  o.key = key;
+  o.expected_bands = cfg.bands;
+  o.wavelengths_nm = cfg.wavelengths_nm();
+  o.resample_bands = resample;
+  RealStack cube = read_cube(path, o);
+  conform_radiance(cube, "file '" + path + "'");
+  return cube;
 }
 
 // A configuration on a device: a height-map PSF source (psf_source.hpp; the Simulator's 2-D
@@ -457,6 +487,13 @@ Quantizer make_quantizer(long long levels, const std::string& placement) {
   return q;
 }
 
+// The configuration a read_cube call's scene must fit: JSON text as the Python wrapper gives it.
+SystemConfig scene_config(const py::handle& config_json, const py::handle& origin) {
+  SystemConfig c = config_from_json_text(str_arg(config_json, "config"), str_arg(origin, "config"));
+  c.validate();
+  return c;
+}
+
 // estimate_prior's bins: 4096 radial bins already resolve every frequency radius of a
 // 5000-pixel-wide grid; the covariances take bins x bands x bands doubles, at most 2^27 (1 GiB).
 constexpr long long kMaxPriorBins = 4096;
@@ -598,12 +635,21 @@ PYBIND11_MODULE(_qdo, m) {
 
   m.def(
       "read_cube",
-      [](const py::handle& path, const py::handle& key) {
-        CubeReadOptions o;
-        o.key = str_arg(key, "key");
-        return from_stack(read_cube(path_arg(path, "path"), o));
+      [](const py::handle& path, const py::handle& key, const py::handle& config_json, const py::handle& origin,
+         const py::handle& resample) {
+        const std::string p = path_arg(path, "path"), k = str_arg(key, "key");
+        const bool rs = bool_arg(resample, "resample_bands");
+        return from_stack(read_scene(scene_config(config_json, origin), p, k, rs));
       },
-      py::arg("path"), py::arg("key") = "");
+      py::arg("path"), py::arg("key"), py::arg("config_json"), py::arg("origin"), py::arg("resample_bands"));
+  m.def(
+      "write_cube",
+      [](const py::handle& path, const py::handle& cube_obj, const py::handle& wavelengths) {
+        const std::string p = path_arg(path, "path");
+        const RealStack cube = to_stack(checked(cube_obj, "cube", {"bands", "H", "W"}));
+        write_cube(p, cube, reals_arg(wavelengths, "wavelengths_nm"));
+      },
+      py::arg("path"), py::arg("cube"), py::arg("wavelengths_nm"));
   m.def(
       "read_design",
       [](const py::handle& path) {

@@ -68,6 +68,8 @@ def test_non_contiguous_inputs_give_the_results_of_contiguous_copies(optics64, r
                                   qdo.wiener_decode(y, psf, srf, prior, 1e-3))
     qdo.write_design(tmp_path / "d.h5", v, o.config["pitch_m"])
     np.testing.assert_array_equal(qdo.read_design(tmp_path / "d.h5")[0], h)
+    qdo.write_cube(tmp_path / "c.h5", make(scenes[0]), o.wavelengths_nm)
+    np.testing.assert_array_equal(qdo.read_h5(tmp_path / "c.h5", "/cube"), scenes[0])
 
 
 def test_a_broadcast_array_is_copied_with_its_repeated_values(optics64):
