@@ -9,9 +9,14 @@ results back (BENCHMARKS "Python" measures what it costs). qdo runs on its own O
 only CPU tensors are taken; a tensor on another device (CUDA, meta) raises ValueError saying so,
 nothing is copied behind the caller's back. Results come back in the input's dtype on the CPU.
 
-Each Function keeps the Optics' counter of its forward calls: when another forward ran between
-a forward and its backward (two graphs alive at once), backward first re-runs its own forward,
-so the adjoint is always that of its own inputs. Double backward is not supported.
+Each Function keeps the count of its own forward call on the Optics: backward passes it with the
+forward's inputs to the adjoint, which re-runs the forward inside the same locked call when
+another forward ran since (two graphs alive at once, or another thread), so the adjoint is
+always that of its own inputs, also when several threads share one Optics. Double backward is
+not supported.
+
+Wrong arguments raise ValueError naming them (a non-tensor, a tensor off the CPU, a
+non-floating-point or non-strided tensor, a wrong shape), as the NumPy API does.
 """
 import numpy as np
 import torch
@@ -29,28 +34,34 @@ def to_numpy(name, t):
     if t.device.type != "cpu":
         raise ValueError("%s: tensor on device '%s'; qdo.torch takes CPU tensors (qdo computes on its own "
                          "OpenCL device): pass t.cpu(), and move the result back with .to(device)" % (name, t.device))
+    if t.layout != torch.strided:
+        raise ValueError("%s: layout %s; expected a dense (strided) tensor (use .to_dense())" % (name, t.layout))
     if not t.is_floating_point():
         raise ValueError("%s: dtype %s; expected a floating-point tensor" % (name, t.dtype))
-    return np.ascontiguousarray(t.detach().to(torch.float64).numpy())
+    return np.ascontiguousarray(t.detach().resolve_neg().to(torch.float64).numpy())
+
+
+def _optics(optics):
+    if not isinstance(optics, Optics):
+        raise ValueError("optics: expected a qdo.Optics, got %s" % type(optics).__name__)
+    return optics
 
 
 class PSFFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, height_m, optics):
-        psf = optics.psf(to_numpy("height_m", height_m))
+        psf, ctx.calls = _optics(optics)._o.psf_counted(to_numpy("height_m", height_m))
         ctx.optics = optics
-        ctx.calls = optics._o.psf_calls
         ctx.save_for_backward(height_m)
         return torch.from_numpy(psf).to(height_m.dtype)
 
     @staticmethod
     @once_differentiable
     def backward(ctx, grad_psf):
-        optics = ctx.optics
         (height_m,) = ctx.saved_tensors
-        if optics._o.psf_calls != ctx.calls:
-            optics.psf(to_numpy("height_m", height_m))
-        g = optics.psf_vjp(to_numpy("grad_psf", grad_psf))
+        # The adjoint at this forward's heights: re-run inside the same locked call unless this
+        # forward (count ctx.calls) is still the Optics' last one.
+        g = ctx.optics._o.psf_vjp(to_numpy("grad_psf", grad_psf), to_numpy("height_m", height_m), ctx.calls)
         return torch.from_numpy(g).to(height_m.dtype), None
 
 
@@ -59,22 +70,26 @@ class CameraFunction(torch.autograd.Function):
     def forward(ctx, scene, psf, optics):
         s = to_numpy("scene", scene)
         p = to_numpy("psf", psf)
+        if s.ndim not in (3, 4):
+            raise ValueError("scene: %d dimensions; expected 3 (bands, H, W) or 4 (batch, bands, H, W)" % s.ndim)
         single = s.ndim == 3
-        rgb = optics.camera(s, p)
+        rgb, ctx.calls = _optics(optics)._o.camera_counted(s[None] if single else s, p)
         ctx.optics = optics
-        ctx.calls = optics._o.camera_calls
         ctx.single = single
         ctx.save_for_backward(scene, psf)
-        return torch.from_numpy(rgb).to(scene.dtype)
+        return torch.from_numpy(rgb[0] if single else rgb).to(scene.dtype)
 
     @staticmethod
     @once_differentiable
     def backward(ctx, grad_rgb):
-        optics = ctx.optics
         scene, psf = ctx.saved_tensors
-        if optics._o.camera_calls != ctx.calls:
-            optics.camera(to_numpy("scene", scene), to_numpy("psf", psf))
-        g_psf, g_scene = optics.camera_vjp(to_numpy("grad_rgb", grad_rgb))
+        s, g = to_numpy("scene", scene), to_numpy("grad_rgb", grad_rgb)
+        if ctx.single:
+            s, g = s[None], g[None]
+        # The adjoint of this forward's camera (re-run in the same locked call when needed).
+        g_psf, g_scene = ctx.optics._o.camera_vjp(g, s, to_numpy("psf", psf), ctx.calls)
+        if ctx.single:
+            g_scene = g_scene[0]
         gs = torch.from_numpy(g_scene).to(scene.dtype) if ctx.needs_input_grad[0] else None
         gp = torch.from_numpy(g_psf).to(psf.dtype) if ctx.needs_input_grad[1] else None
         return gs, gp, None
@@ -85,7 +100,7 @@ class PSF(torch.nn.Module):
 
     def __init__(self, optics=None, **optics_kwargs):
         super().__init__()
-        self.optics = optics if optics is not None else Optics(**optics_kwargs)
+        self.optics = _optics(optics) if optics is not None else Optics(**optics_kwargs)
 
     def forward(self, height_m):
         return PSFFunction.apply(height_m, self.optics)
@@ -96,7 +111,7 @@ class Camera(torch.nn.Module):
 
     def __init__(self, optics=None, **optics_kwargs):
         super().__init__()
-        self.optics = optics if optics is not None else Optics(**optics_kwargs)
+        self.optics = _optics(optics) if optics is not None else Optics(**optics_kwargs)
 
     def forward(self, scene, psf):
         return CameraFunction.apply(scene, psf, self.optics)

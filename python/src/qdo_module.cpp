@@ -2,23 +2,35 @@
 // uses (qdo_core, linked statically); no physics is implemented here. The Python package
 // (python/qdo/__init__.py, python/qdo/torch.py) wraps it.
 //
-// Arrays: NumPy float64, C order, shapes as documented per function (bands x S x S PSF stacks,
-// bands x H x W scenes, 3 x H x W sensor images, N x N height maps in metres). Every argument is
-// checked (dtype, shape, finiteness) before any device work; a bad one raises ValueError naming
-// it. qdo::InputError -> ValueError, any other qdo::Error -> RuntimeError.
+// Arrays: NumPy float64 of any byte order and memory layout (copied to C order when they are
+// not), shapes as documented per function (bands x S x S PSF stacks, bands x H x W scenes,
+// 3 x H x W sensor images, N x N height maps in metres). Every argument is checked (type, dtype,
+// shape, finiteness, range) before any allocation or device work; a bad one raises ValueError
+// naming it, its value (never an array's contents) and what is allowed; an array that cannot be
+// copied raises MemoryError naming it. qdo::InputError -> ValueError, any other qdo::Error ->
+// RuntimeError.
+//
+// Threads: every call that uses an OpenCL device releases the GIL and then holds the lock of
+// that device (one per device selector, shared by every Optics on it, since they share its
+// Runtime: queue, kernel and FFT-plan caches) for the whole call. Everything else (HDF5, PNG,
+// the CPU Wiener decoder) runs with the GIL held.
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <filesystem>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
 #include "qdo/camera.hpp"
 #include "qdo/config.hpp"
+#include "qdo/datasets.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -35,50 +47,202 @@ namespace {
 
 using Array = py::array_t<double, py::array::c_style>;
 
-// The argument `name` as a C-order float64 array of the given rank (shape checked by the
-// caller); ValueError for another dtype, rank or a non-finite entry.
-Array checked(const py::handle& obj, const char* name, std::size_t rank) {
+// ---------- Arguments ----------
+
+// ValueError / MemoryError as pybind11 exceptions (raised with the GIL held).
+[[noreturn]] void value_error(const std::string& msg) { throw py::value_error(msg); }
+[[noreturn]] void memory_error(const std::string& msg) {
+  PyErr_SetString(PyExc_MemoryError, msg.c_str());
+  throw py::error_already_set();
+}
+
+std::string type_name(const py::handle& o) { return py::str(py::type::of(o).attr("__name__")); }
+
+// A value for a message: its str() cut to 40 characters (a huge int or a long string stays short).
+std::string short_str(const py::handle& o) {
+  std::string s = py::str(o);
+  return s.size() > 40 ? s.substr(0, 37) + "..." : s;
+}
+
+// One dimension of an expected shape: a fixed length, or a label ("H", "batch") for any length >= 1.
+struct Dim {
+  py::ssize_t n = -1;
+  const char* label = nullptr;
+  Dim(std::size_t v) : n(py::ssize_t(v)) {}  // NOLINT(google-explicit-constructor): {n, n} reads as a shape
+  Dim(int v) : n(v) {}                       // NOLINT(google-explicit-constructor)
+  Dim(const char* l) : label(l) {}           // NOLINT(google-explicit-constructor)
+};
+
+std::string shape_text(const py::array& a) {
+  std::string s = "(";
+  for (py::ssize_t k = 0; k < a.ndim(); ++k) s += (k ? ", " : "") + std::to_string(a.shape(k));
+  return s + (a.ndim() == 1 ? ",)" : ")");
+}
+
+std::string shape_text(const std::vector<Dim>& want) {
+  std::string s = "(", any;
+  for (std::size_t k = 0; k < want.size(); ++k) {
+    s += k ? ", " : "";
+    if (want[k].label) {
+      s += want[k].label;
+      any += (any.empty() ? "" : ", ") + std::string(want[k].label);
+    } else {
+      s += std::to_string(want[k].n);
+    }
+  }
+  return s + ")" + (any.empty() ? "" : " with " + any + " >= 1");
+}
+
+// The argument `name` as a C-order float64 array of the shape `want` (its rank = want.size()).
+// The dtype is judged by kind and size (any float64: '<f8', '=f8', '>f8', h5py's descriptors),
+// not by identity with NumPy's own descriptor; a big-endian or non-contiguous array (slices with
+// steps, transposes, Fortran order, broadcasts) is copied. ValueError for another type, dtype,
+// rank or shape (checked before any copy) or a non-finite entry; MemoryError when the copy fails.
+Array checked(const py::handle& obj, const char* name, const std::vector<Dim>& want) {
   if (!py::isinstance<py::array>(obj))
-    throw py::value_error(std::string(name) + ": expected a NumPy float64 array, got " +
-                          std::string(py::str(py::type::of(obj).attr("__name__"))));
+    value_error(std::string(name) + ": expected a NumPy float64 array, got " + type_name(obj));
   const py::array a = py::reinterpret_borrow<py::array>(obj);
-  if (!a.dtype().is(py::dtype::of<double>()))
-    throw py::value_error(std::string(name) + ": dtype " + std::string(py::str(a.dtype())) + "; expected float64");
-  if (static_cast<std::size_t>(a.ndim()) != rank)
-    throw py::value_error(std::string(name) + ": " + std::to_string(a.ndim()) + " dimensions; expected " +
-                          std::to_string(rank));
-  Array c = Array::ensure(a);
+  const py::dtype dt = a.dtype();
+  if (dt.kind() != 'f' || dt.itemsize() != 8)
+    value_error(std::string(name) + ": dtype " + short_str(dt.attr("name")) +
+                "; expected float64 (convert it with .astype(numpy.float64))");
+  const std::string expected = shape_text(want);
+  if (std::size_t(a.ndim()) != want.size())
+    value_error(std::string(name) + ": " + std::to_string(a.ndim()) + " dimensions; expected " + std::to_string(want.size()) +
+                ", shape " + expected);
+  for (std::size_t k = 0; k < want.size(); ++k) {
+    const py::ssize_t got = a.shape(py::ssize_t(k));
+    if (want[k].label ? got < 1 : got != want[k].n)
+      value_error(std::string(name) + ": shape " + shape_text(a) + "; expected " + expected);
+  }
+  Array c = Array::ensure(a);  // no copy for a C-order native float64 array
+  if (!c)
+    memory_error(std::string(name) + ": no memory for a C-order float64 copy of its shape " + shape_text(a) + " (" +
+                 to_str(double(a.size()) * 8.0 / 1048576.0) + " MiB)");
   const double* p = c.data();
   for (py::ssize_t i = 0; i < c.size(); ++i)
-    if (!std::isfinite(p[i])) throw py::value_error(std::string(name) + ": non-finite value at flat index " + std::to_string(i));
+    if (!std::isfinite(p[i])) value_error(std::string(name) + ": non-finite value at flat index " + std::to_string(i));
   return c;
 }
 
-std::string shape_of(const Array& a) {
-  std::string s = "(";
-  for (py::ssize_t k = 0; k < a.ndim(); ++k) s += (k ? ", " : "") + std::to_string(a.shape(k));
-  return s + ")";
+// module.name (or the module when name is null), looked up once and kept for the life of the
+// process: a handle, deliberately never released (a static py::object would be released by the
+// C++ exit handlers after the interpreter is gone).
+py::handle python_global(const char* module, const char* name) {
+  py::object m = py::module_::import(module);
+  return (name ? py::object(m.attr(name)) : m).release();
 }
 
-void require_shape(const Array& a, const char* name, const std::vector<std::size_t>& want) {
-  bool ok = static_cast<std::size_t>(a.ndim()) == want.size();
-  for (std::size_t k = 0; ok && k < want.size(); ++k) ok = static_cast<std::size_t>(a.shape(py::ssize_t(k))) == want[k];
-  if (!ok) {
-    std::string w = "(";
-    for (std::size_t k = 0; k < want.size(); ++k) w += (k ? ", " : "") + std::to_string(want[k]);
-    throw py::value_error(std::string(name) + ": shape " + shape_of(a) + "; expected " + w + ")");
+bool is_real_number(const py::handle& o) {
+  if (py::isinstance<py::array>(o)) {  // a 0-d array of a real kind counts as a number
+    const py::array a = py::reinterpret_borrow<py::array>(o);
+    const char k = a.dtype().kind();
+    return a.ndim() == 0 && (k == 'f' || k == 'i' || k == 'u');
   }
+  static const py::handle real = python_global("numbers", "Real");
+  return py::isinstance(o, real) && !py::isinstance<py::bool_>(o);
 }
 
-RealStack to_stack(const Array& a) {
+// A finite real number (Python or NumPy int or float, a 0-d array); ValueError naming `name` otherwise.
+double real_arg(const py::handle& o, const char* name) {
+  if (!is_real_number(o)) value_error(std::string(name) + ": expected a number, got " + type_name(o));
+  const double v = py::float_(py::reinterpret_borrow<py::object>(o));
+  if (!std::isfinite(v)) value_error(std::string(name) + ": " + short_str(o) + "; expected a finite number");
+  return v;
+}
+
+// A real number > 0 (finite).
+double positive_arg(const py::handle& o, const char* name) {
+  const double v = real_arg(o, name);
+  if (!(v > 0)) value_error(std::string(name) + ": " + short_str(o) + "; expected a finite number > 0");
+  return v;
+}
+
+// An integer (Python or NumPy; not a bool or a float) in [lo, hi]; ValueError naming `name`,
+// the value and the range otherwise, before anything of that size is allocated.
+long long int_arg(const py::handle& o, const char* name, long long lo, long long hi) {
+  static const py::handle integral = python_global("numbers", "Integral");
+  const std::string range = "; expected an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+  if (!py::isinstance(o, integral) || py::isinstance<py::bool_>(o))
+    value_error(std::string(name) + ": " + type_name(o) + " " + short_str(py::repr(o)) + range);
+  const py::int_ i = py::reinterpret_borrow<py::object>(o);
+  int overflow = 0;
+  const long long v = PyLong_AsLongLongAndOverflow(i.ptr(), &overflow);
+  if (overflow || v < lo || v > hi) value_error(std::string(name) + ": " + short_str(o) + range);
+  return v;
+}
+
+std::string str_arg(const py::handle& o, const char* name) {
+  if (!py::isinstance<py::str>(o)) value_error(std::string(name) + ": expected a str, got " + type_name(o));
+  return py::str(o);
+}
+
+bool bool_arg(const py::handle& o, const char* name) {
+  static const py::handle np_bool = python_global("numpy", "bool_");
+  if (!py::isinstance<py::bool_>(o) && !py::isinstance(o, np_bool))
+    value_error(std::string(name) + ": expected True or False, got " + type_name(o));
+  return py::cast<bool>(py::bool_(py::reinterpret_borrow<py::object>(o)));
+}
+
+// A file path: str, bytes or os.PathLike (os.fspath), non-empty.
+std::string path_arg(const py::handle& o, const char* name) {
+  static const py::handle os = python_global("os", nullptr);
+  if (!py::isinstance<py::str>(o) && !py::isinstance<py::bytes>(o) && !py::hasattr(o, "__fspath__"))
+    value_error(std::string(name) + ": expected a path (str or os.PathLike), got " + type_name(o));
+  const py::object s = os.attr("fsdecode")(os.attr("fspath")(o));
+  if (!py::isinstance<py::str>(s)) value_error(std::string(name) + ": expected a path (str or os.PathLike), got " + type_name(o));
+  const std::string p = py::str(s);
+  if (p.empty()) value_error(std::string(name) + ": an empty path; expected a file name");
+  return p;
+}
+
+// A 1-D sequence (list, tuple, array) of finite real numbers, possibly empty.
+std::vector<double> reals_arg(const py::handle& o, const char* name) {
+  if (py::isinstance<py::str>(o) || py::isinstance<py::bytes>(o) || !py::hasattr(o, "__len__"))
+    value_error(std::string(name) + ": expected a sequence of numbers, got " + type_name(o));
+  std::vector<double> v;
+  for (const py::handle item : o) {
+    if (!is_real_number(item))
+      value_error(std::string(name) + ": item " + std::to_string(v.size()) + " is a " + type_name(item) + "; expected a number");
+    const double x = py::float_(py::reinterpret_borrow<py::object>(item));
+    if (!std::isfinite(x)) value_error(std::string(name) + ": item " + std::to_string(v.size()) + " = " + short_str(item) + "; expected a finite number");
+    v.push_back(x);
+  }
+  return v;
+}
+
+// ---------- Conversions (shapes as the callers checked them) ----------
+
+Map2D to_map(const Array& a) {  // rows x cols
+  Map2D m(std::size_t(a.shape(0)), std::size_t(a.shape(1)));
+  std::copy(a.data(), a.data() + a.size(), m.data.begin());
+  return m;
+}
+
+RealStack to_stack(const Array& a) {  // planes x rows x cols
   RealStack s(std::size_t(a.shape(0)), std::size_t(a.shape(1)), std::size_t(a.shape(2)));
   std::copy(a.data(), a.data() + a.size(), s.data.begin());
   return s;
 }
 
+// a: batch x planes x rows x cols -> one planes x rows x cols stack per batch entry.
+std::vector<RealStack> to_stacks(const Array& a) {
+  const std::size_t batch = std::size_t(a.shape(0));
+  std::vector<RealStack> v(batch, RealStack(std::size_t(a.shape(1)), std::size_t(a.shape(2)), std::size_t(a.shape(3))));
+  for (std::size_t i = 0; i < batch; ++i) std::copy(a.data() + i * v[i].size(), a.data() + (i + 1) * v[i].size(), v[i].data.begin());
+  return v;
+}
+
 Array from_stack(const RealStack& s) {
   Array a({py::ssize_t(s.planes), py::ssize_t(s.rows), py::ssize_t(s.cols)});
   std::copy(s.data.begin(), s.data.end(), a.mutable_data());
+  return a;
+}
+
+// Same-shape stacks (planes x rows x cols each) -> batch x planes x rows x cols.
+Array from_stacks(const std::vector<RealStack>& v, std::size_t planes, std::size_t rows, std::size_t cols) {
+  Array a({py::ssize_t(v.size()), py::ssize_t(planes), py::ssize_t(rows), py::ssize_t(cols)});
+  for (std::size_t i = 0; i < v.size(); ++i) std::copy(v[i].data.begin(), v[i].data.end(), a.mutable_data() + i * planes * rows * cols);
   return a;
 }
 
@@ -88,37 +252,90 @@ Array from_map(const Map2D& m) {
   return a;
 }
 
-// One Runtime per device selector for the whole process (devices are slow to open; kernels and
-// FFT plans are cached per Runtime).
-std::shared_ptr<Runtime> runtime_for(const std::string& device) {
-  static std::map<std::string, std::shared_ptr<Runtime>> runtimes;
-  auto it = runtimes.find(device);
-  if (it == runtimes.end()) it = runtimes.emplace(device, std::make_shared<Runtime>(device)).first;
+// ---------- Devices ----------
+
+// One OpenCL device as the bindings use it: the Runtime (its queue, kernel and FFT-plan caches
+// are not thread-safe) and the lock every Optics on it holds for the whole of each call that
+// touches the device.
+struct Device {
+  explicit Device(const std::string& selector) : rt(selector) {}
+  Runtime rt;
+  std::mutex mu;
+};
+
+// One Device per selector for the whole process (devices are slow to open; kernels and FFT plans
+// are cached per Runtime). Called with the GIL held, which guards the map.
+std::shared_ptr<Device> device_for(const std::string& selector) {
+  static std::map<std::string, std::shared_ptr<Device>> devices;
+  auto it = devices.find(selector);
+  if (it == devices.end()) it = devices.emplace(selector, std::make_shared<Device>(selector)).first;
   return it->second;
 }
 
+// The scene a cube file or PNG band folder gives `qdo simulate --scene PATH [--key KEY]
+// [--resample-bands]` under configuration cfg (src/cli/cli_util.cpp, scene_from_args, the same
+// library calls in the same order): bands x H x W on cfg's band grid, in [0, 1].
+RealStack read_scene(const SystemConfig& cfg, const std::string& path, const std::string& key, bool resample) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {  // a CAVE folder of PNG bands
+    if (!key.empty()) reject("key", key, "\"\" for a PNG band folder ('" + path + "')");
+    RealStack png = read_png_band_folder(path, cfg.bands);
+    conform_radiance(png, "folder '" + path + "'");
+    return png;
+  }
+  CubeReadOptions o;
+  o.key = key;
+  o.expected_bands = cfg.bands;
+  o.wavelengths_nm = cfg.wavelengths_nm();
+  o.resample_bands = resample;
+  RealStack cube = read_cube(path, o);
+  conform_radiance(cube, "file '" + path + "'");
+  return cube;
+}
+
 // A configuration on a device: a height-map PSF source (psf_source.hpp; the Simulator's 2-D
-// chain) and the camera operator (Camera, fed the PSF stack it is given), with their adjoints. Each adjoint is the adjoint of this object's last forward call of the
-// same kind; `psf_calls` / `camera_calls` count the forwards so that the PyTorch layer can tell
-// whether it must re-run one before a backward.
+// chain) and the camera operator (Camera, fed the PSF stack it is given), with their adjoints.
+//
+// Each call that touches the device (construction, psf, psf_vjp, camera, camera_vjp,
+// destruction) releases the GIL, then holds the device's lock (Device::mu) for the whole call, so
+// each call is atomic with respect to every other call on the same device, from any thread.
+// Without forward arguments, an adjoint is that of this object's last forward call of the same
+// kind, from whichever thread made it; with them (psf_vjp's height_m, camera_vjp's scene and psf)
+// the forward is re-run inside the same locked call unless `forward` names the last forward call
+// (its count), so the pair cannot be split by another thread. `psf_calls` / `camera_calls` count
+// the forwards; psf_counted / camera_counted return the count of their own call, which the
+// PyTorch layer passes back as `forward` (read separately, another thread's call could slip in).
 class Optics {
  public:
   Optics(const std::string& config_json, const std::string& origin, const std::string& device, const std::string& precision)
-      : cfg_(config_from_json_text(config_json, origin)), prec_(precision_from_string(precision)), rt_(runtime_for(device)) {
+      : cfg_(config_from_json_text(config_json, origin)), prec_(precision_from_string(precision)), dev_(device_for(device)) {
     cfg_.validate();
-    sim_ = std::make_unique<Simulator>(*rt_, cfg_, prec_);  // held as its PsfSource interface
-    cam_ = std::make_unique<Camera>(*rt_, cfg_, prec_);
+    py::gil_scoped_release unlocked;
+    std::lock_guard<std::mutex> lock(dev_->mu);
+    sim_ = std::make_unique<Simulator>(dev_->rt, cfg_, prec_);  // held as its PsfSource interface
+    cam_ = std::make_unique<Camera>(dev_->rt, cfg_, prec_);
+    s_ = sim_->sensor_size();
   }
+  // Called with the GIL held; no holder of the device lock waits for the GIL, so taking it here
+  // cannot deadlock. The device objects go before another thread's call may use the Runtime.
+  ~Optics() {
+    std::lock_guard<std::mutex> lock(dev_->mu);
+    cam_.reset();
+    sim_.reset();
+  }
+  Optics(const Optics&) = delete;
+  Optics& operator=(const Optics&) = delete;
 
   std::string config_json() const { return config_to_json_text(cfg_); }
-  std::string device_name() const { return rt_->info().name; }
+  std::string device_name() const { return dev_->rt.info().name; }
   std::string precision() const { return to_string(prec_); }
   std::size_t n() const { return cfg_.n; }
   std::size_t bands() const { return cfg_.bands; }
-  std::size_t sensor_size() const { return sim_->sensor_size(); }
+  std::size_t sensor_size() const { return s_; }
   std::vector<double> wavelengths_nm() const { return cfg_.wavelengths_nm(); }
   double h_max_m() const { return cfg_.h_max_m(); }
-  Array srf() const {
+  const SystemConfig& config() const { return cfg_; }
+  Array srf() const {  // 3 x bands
     const Eigen::MatrixXd s = sensor_response(cfg_);
     Array a({py::ssize_t(s.rows()), py::ssize_t(s.cols())});
     for (Eigen::Index c = 0; c < s.rows(); ++c)
@@ -130,108 +347,157 @@ class Optics {
 
   // height_m: N x N (metres) -> the sensor-grid PSF stack, bands x S x S (as `qdo psf` writes
   // to /psf_sensor).
-  Array psf(const py::handle& height_obj) {
-    const Array h = checked(height_obj, "height_m", 2);
-    require_shape(h, "height_m", {cfg_.n, cfg_.n});
-    Map2D m(cfg_.n, cfg_.n);
-    std::copy(h.data(), h.data() + h.size(), m.data.begin());
+  Array psf(const py::handle& height_obj) { return psf_counted(height_obj)[0].cast<Array>(); }
+  // The same with the count of this forward call (psf_calls right after it, from inside the
+  // locked call): (psf, count), for psf_vjp's `forward`.
+  py::tuple psf_counted(const py::handle& height_obj) {
+    const Map2D m = to_map(checked(height_obj, "height_m", {cfg_.n, cfg_.n}));
     RealStack out;
+    std::uint64_t count = 0;
     {
       py::gil_scoped_release unlocked;
-      sim_->set_heights(m);
-      sim_->compute_psf();
-      out = sim_->psf_sensor();
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      out = psf_locked(m);
+      count = psf_calls_;
     }
-    ++psf_calls_;
-    return from_stack(out);
+    return py::make_tuple(from_stack(out), count);
   }
 
-  // grad_psf: bands x S x S, the gradient of a scalar with respect to the last psf() result ->
-  // its gradient with respect to height_m (N x N, per metre).
-  Array psf_vjp(const py::handle& grad_obj) {
-    if (psf_calls_ == 0) throw py::value_error("grad_psf: no psf() call to take the adjoint of");
-    const Array g = checked(grad_obj, "grad_psf", 3);
-    require_shape(g, "grad_psf", {cfg_.bands, sensor_size(), sensor_size()});
-    const RealStack gs = to_stack(g);
+  // grad_psf: bands x S x S, the gradient of a scalar with respect to a psf() result -> its
+  // gradient with respect to the heights (N x N, per metre). height_m None: the adjoint at the
+  // last psf() call of any thread; height_m given (N x N): at those heights, the forward re-run
+  // in the same locked call unless `forward` equals psf_calls (it was the last one).
+  Array psf_vjp(const py::handle& grad_obj, const py::handle& height_obj, std::uint64_t forward) {
+    const RealStack g = to_stack(checked(grad_obj, "grad_psf", {cfg_.bands, s_, s_}));
+    const bool at = !height_obj.is_none();
+    Map2D m;
+    if (at) m = to_map(checked(height_obj, "height_m", {cfg_.n, cfg_.n}));
     Map2D out;
+    bool none_yet = false;
     {
       py::gil_scoped_release unlocked;
-      out = sim_->psf_sensor_vjp(gs);
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      if (at && (forward == 0 || forward != psf_calls_)) (void)psf_locked(m);
+      none_yet = psf_calls_ == 0;
+      if (!none_yet) out = sim_->psf_sensor_vjp(g);
     }
+    if (none_yet) value_error("grad_psf: no psf() call to take the adjoint of (call psf() first, or pass height_m)");
     return from_map(out);
   }
 
   // A PSF stack file as `qdo psf` writes it (/psf_sensor; psf_source.hpp's read_psf_stack_for):
   // bands x S x S, checked against this configuration's bands, sensor grid and pitch (ValueError
   // naming both when they differ), for camera() in place of psf(): the file-backed PSF source.
-  Array read_psf(const std::string& path) const { return from_stack(read_psf_stack_for(cfg_, path, "path")); }
+  // HDF5 with the GIL held; no device work.
+  Array read_psf(const py::handle& path) const { return from_stack(read_psf_stack_for(cfg_, path_arg(path, "path"), "path")); }
 
   // scenes: batch x bands x H x W, psf: bands x S x S -> batch x 3 x H x W sensor images through
   // the device camera operator (cfg.convolution, the sensor response, cfg's noise; exact: no
   // skipping).
   Array camera(const py::handle& scene_obj, const py::handle& psf_obj) {
-    const Array sc = checked(scene_obj, "scene", 4);
-    const Array p = checked(psf_obj, "psf", 3);
-    if (std::size_t(sc.shape(1)) != cfg_.bands || sc.shape(0) < 1 || sc.shape(2) < 1 || sc.shape(3) < 1)
-      throw py::value_error("scene: shape " + shape_of(sc) + "; expected (batch, " + std::to_string(cfg_.bands) +
-                            ", H, W) with batch, H, W >= 1");
-    require_shape(p, "psf", {cfg_.bands, sensor_size(), sensor_size()});
-    const std::size_t batch = std::size_t(sc.shape(0)), h = std::size_t(sc.shape(2)), w = std::size_t(sc.shape(3));
-    std::vector<RealStack> cubes(batch, RealStack(cfg_.bands, h, w));
-    for (std::size_t i = 0; i < batch; ++i)
-      std::copy(sc.data() + i * cubes[i].size(), sc.data() + (i + 1) * cubes[i].size(), cubes[i].data.begin());
-    const RealStack ps = to_stack(p);
+    return camera_counted(scene_obj, psf_obj)[0].cast<Array>();
+  }
+  // The same with the count of this forward call: (images, count), for camera_vjp's `forward`.
+  py::tuple camera_counted(const py::handle& scene_obj, const py::handle& psf_obj) {
+    const Array sc = checked(scene_obj, "scene", {"batch", cfg_.bands, "H", "W"});
+    const RealStack ps = to_stack(checked(psf_obj, "psf", {cfg_.bands, s_, s_}));
+    const std::vector<RealStack> cubes = to_stacks(sc);
     std::vector<RealStack> rgb;
+    std::uint64_t count = 0;
     {
       py::gil_scoped_release unlocked;
-      cam_->set_psf(ps);
-      SkipOptions exact;
-      exact.exact = true;
-      rgb = cam_->images(cubes, exact);
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      rgb = camera_locked(cubes, ps);
+      count = camera_calls_;
     }
-    ++camera_calls_;
-    Array out({py::ssize_t(batch), py::ssize_t(3), py::ssize_t(h), py::ssize_t(w)});
-    for (std::size_t i = 0; i < batch; ++i) std::copy(rgb[i].data.begin(), rgb[i].data.end(), out.mutable_data() + i * 3 * h * w);
-    return out;
+    return py::make_tuple(from_stacks(rgb, 3, std::size_t(sc.shape(2)), std::size_t(sc.shape(3))), count);
   }
 
-  // grad_rgb: batch x 3 x H x W, the gradient with respect to the last camera() result ->
-  // (gradient on its psf, bands x S x S; gradient on its scenes, batch x bands x H x W).
-  py::tuple camera_vjp(const py::handle& grad_obj) {
-    if (camera_calls_ == 0) throw py::value_error("grad_rgb: no camera() call to take the adjoint of");
-    const Array g = checked(grad_obj, "grad_rgb", 4);
-    if (g.shape(1) != 3) throw py::value_error("grad_rgb: shape " + shape_of(g) + "; expected (batch, 3, H, W)");
-    const std::size_t batch = std::size_t(g.shape(0)), h = std::size_t(g.shape(2)), w = std::size_t(g.shape(3));
-    std::vector<RealStack> gr(batch, RealStack(3, h, w));
-    for (std::size_t i = 0; i < batch; ++i)
-      std::copy(g.data() + i * 3 * h * w, g.data() + (i + 1) * 3 * h * w, gr[i].data.begin());
+  // grad_rgb: batch x 3 x H x W, the gradient with respect to a camera() result -> (gradient on
+  // its psf, bands x S x S; gradient on its scenes, batch x bands x H x W). scene and psf None:
+  // the adjoint of the last camera() call of any thread; given: of camera(scene, psf), re-run in
+  // the same locked call unless `forward` equals camera_calls.
+  py::tuple camera_vjp(const py::handle& grad_obj, const py::handle& scene_obj, const py::handle& psf_obj,
+                       std::uint64_t forward) {
+    const Array ga = checked(grad_obj, "grad_rgb", {"batch", 3, "H", "W"});
+    if (scene_obj.is_none() != psf_obj.is_none())
+      value_error(std::string(scene_obj.is_none() ? "scene" : "psf") + ": None; give both scene and psf, or neither");
+    const bool at = !scene_obj.is_none();
+    std::vector<RealStack> cubes;
+    RealStack ps;
+    if (at) {
+      cubes = to_stacks(checked(scene_obj, "scene", {std::size_t(ga.shape(0)), cfg_.bands, std::size_t(ga.shape(2)),
+                                                     std::size_t(ga.shape(3))}));
+      ps = to_stack(checked(psf_obj, "psf", {cfg_.bands, s_, s_}));
+    }
+    const std::vector<RealStack> gr = to_stacks(ga);
+    const std::vector<std::size_t> got{std::size_t(ga.shape(0)), std::size_t(ga.shape(2)), std::size_t(ga.shape(3))};
     Camera::Gradient res;
+    bool none_yet = false;
+    std::vector<std::size_t> last;  // batch, H, W of the forward call the adjoint is of
     {
       py::gil_scoped_release unlocked;
-      res = cam_->vjp(gr, true);
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      if (at && (forward == 0 || forward != camera_calls_)) (void)camera_locked(cubes, ps);
+      none_yet = camera_calls_ == 0;
+      last = last_images_;
+      if (!none_yet && last == got) res = cam_->vjp(gr, true);
     }
-    Array gs({py::ssize_t(batch), py::ssize_t(cfg_.bands), py::ssize_t(h), py::ssize_t(w)});
-    for (std::size_t i = 0; i < batch; ++i)
-      std::copy(res.scenes[i].data.begin(), res.scenes[i].data.end(), gs.mutable_data() + i * cfg_.bands * h * w);
-    return py::make_tuple(from_stack(res.psf), gs);
+    if (none_yet) value_error("grad_rgb: no camera() call to take the adjoint of (call camera() first, or pass scene and psf)");
+    if (last != got)
+      value_error("grad_rgb: shape " + shape_text(ga) + "; expected (" + std::to_string(last[0]) + ", 3, " + std::to_string(last[1]) +
+                  ", " + std::to_string(last[2]) + "), the images of the last camera() call");
+    return py::make_tuple(from_stack(res.psf), from_stacks(res.scenes, cfg_.bands, std::size_t(ga.shape(2)), std::size_t(ga.shape(3))));
   }
 
  private:
+  // The forwards, with the device lock held (and the GIL released).
+  RealStack psf_locked(const Map2D& m) {
+    sim_->set_heights(m);
+    sim_->compute_psf();
+    ++psf_calls_;
+    return sim_->psf_sensor();
+  }
+  std::vector<RealStack> camera_locked(const std::vector<RealStack>& cubes, const RealStack& ps) {
+    cam_->set_psf(ps);
+    SkipOptions exact;
+    exact.exact = true;
+    std::vector<RealStack> rgb = cam_->images(cubes, exact);
+    last_images_ = {cubes.size(), cubes.front().rows, cubes.front().cols};
+    ++camera_calls_;
+    return rgb;
+  }
+
   SystemConfig cfg_;
   Precision prec_;
-  std::shared_ptr<Runtime> rt_;
+  std::shared_ptr<Device> dev_;  // before the device objects: destroyed after them
   std::unique_ptr<HeightMapPsfSource> sim_;
   std::unique_ptr<Camera> cam_;
-  std::uint64_t psf_calls_ = 0, camera_calls_ = 0;
+  std::size_t s_ = 0;  // S, the sensor grid
+  std::vector<std::size_t> last_images_;  // batch, H, W of the last camera() call (device lock)
+  // Forward counts, written under the device lock, read by Python without it.
+  std::atomic<std::uint64_t> psf_calls_{0}, camera_calls_{0};
 };
 
-Quantizer make_quantizer(int levels, const std::string& placement) {
+Quantizer make_quantizer(long long levels, const std::string& placement) {
   Quantizer q;
-  q.levels = levels;
+  q.levels = int(levels);
   q.placement = placement_from_string(placement);
   q.validate();
   return q;
 }
+
+// The configuration a read_cube call's scene must fit: JSON text as the Python wrapper gives it.
+SystemConfig scene_config(const py::handle& config_json, const py::handle& origin) {
+  SystemConfig c = config_from_json_text(str_arg(config_json, "config"), str_arg(origin, "config"));
+  c.validate();
+  return c;
+}
+
+// estimate_prior's bins: 4096 radial bins already resolve every frequency radius of a
+// 5000-pixel-wide grid; the covariances take bins x bands x bands doubles, at most 2^27 (1 GiB).
+constexpr long long kMaxPriorBins = 4096;
+constexpr double kMaxPriorValues = double(std::size_t(1) << 27);
 
 }  // namespace
 
@@ -252,8 +518,11 @@ PYBIND11_MODULE(_qdo, m) {
     }
   });
 
-  m.def("preset_json", [](const std::string& name) { return config_to_json_text(preset_config(name)); }, py::arg("name"),
-        "The configuration of a preset (small, paper) as JSON text.");
+  // Every function takes its arguments as Python objects and converts them itself (the helpers
+  // above), so that a wrong one is a short ValueError naming it, never pybind11's TypeError
+  // that prints every argument (whole arrays included).
+  m.def("preset_json", [](const py::handle& name) { return config_to_json_text(preset_config(str_arg(name, "name"))); },
+        py::arg("name"), "The configuration of a preset (small, paper) as JSON text.");
   m.def("devices", [] {
     py::list out;
     for (const DeviceInfo& d : list_devices()) {
@@ -271,8 +540,14 @@ PYBIND11_MODULE(_qdo, m) {
   });
 
   py::class_<Optics>(m, "Optics")
-      .def(py::init<const std::string&, const std::string&, const std::string&, const std::string&>(), py::arg("config_json"),
-           py::arg("origin"), py::arg("device"), py::arg("precision"))
+      .def(py::init([](const py::handle& config_json, const py::handle& origin, const py::handle& device,
+                       const py::handle& precision) {
+             const std::string prec = str_arg(precision, "precision");
+             if (prec != "f32" && prec != "f64") value_error("precision: '" + prec + "'; expected 'f32' or 'f64'");
+             return std::make_unique<Optics>(str_arg(config_json, "config"), str_arg(origin, "config"),
+                                             str_arg(device, "device"), prec);
+           }),
+           py::arg("config_json"), py::arg("origin"), py::arg("device"), py::arg("precision"))
       .def_property_readonly("config_json", &Optics::config_json)
       .def_property_readonly("device_name", &Optics::device_name)
       .def_property_readonly("precision", &Optics::precision)
@@ -285,41 +560,42 @@ PYBIND11_MODULE(_qdo, m) {
       .def_property_readonly("camera_calls", &Optics::camera_calls)
       .def("srf", &Optics::srf)
       .def("psf", &Optics::psf, py::arg("height_m"))
-      .def("psf_vjp", &Optics::psf_vjp, py::arg("grad_psf"))
+      .def("psf_counted", &Optics::psf_counted, py::arg("height_m"))
+      .def("psf_vjp", &Optics::psf_vjp, py::arg("grad_psf"), py::arg("height_m") = py::none(), py::arg("forward") = 0)
       .def("read_psf", &Optics::read_psf, py::arg("path"))
       .def("camera", &Optics::camera, py::arg("scene"), py::arg("psf"))
-      .def("camera_vjp", &Optics::camera_vjp, py::arg("grad_rgb"));
+      .def("camera_counted", &Optics::camera_counted, py::arg("scene"), py::arg("psf"))
+      .def("camera_vjp", &Optics::camera_vjp, py::arg("grad_rgb"), py::arg("scene") = py::none(), py::arg("psf") = py::none(),
+           py::arg("forward") = 0);
 
   m.def(
       "quantize",
-      [](const py::handle& h_obj, double h_max_m, int levels, const std::string& placement) {
-        const Array h = checked(h_obj, "height_m", 2);
-        if (!(h_max_m > 0) || !std::isfinite(h_max_m)) throw py::value_error("h_max_m: " + std::to_string(h_max_m) + "; expected > 0");
-        Map2D mp(std::size_t(h.shape(0)), std::size_t(h.shape(1)));
-        std::copy(h.data(), h.data() + h.size(), mp.data.begin());
-        return from_map(quantize_heights(mp, h_max_m, make_quantizer(levels, placement), 1.0));
+      [](const py::handle& h_obj, const py::handle& h_max_obj, const py::handle& levels, const py::handle& placement) {
+        const Array h = checked(h_obj, "height_m", {"N", "M"});
+        const double h_max_m = positive_arg(h_max_obj, "h_max_m");
+        const Quantizer q = make_quantizer(int_arg(levels, "levels", 2, 65536), str_arg(placement, "placement"));
+        return from_map(quantize_heights(to_map(h), h_max_m, q, 1.0));
       },
       py::arg("height_m"), py::arg("h_max_m"), py::arg("levels"), py::arg("placement") = "inclusive");
   m.def(
       "lens_design",
-      [](const std::string& config_json, double wavelength_nm) {
-        return from_map(lens_design(config_from_json_text(config_json), wavelength_nm));
+      [](const py::handle& config_json, const py::handle& wavelength_nm) {
+        const double nm = positive_arg(wavelength_nm, "wavelength_nm");
+        return from_map(lens_design(config_from_json_text(str_arg(config_json, "config")), nm));
       },
       py::arg("config_json"), py::arg("wavelength_nm"));
 
   m.def(
       "estimate_prior",
-      [](const py::handle& scenes_obj, std::size_t bins) {
-        const Array s = checked(scenes_obj, "scenes", 4);
-        std::vector<RealStack> v;
-        const std::size_t per = std::size_t(s.shape(1) * s.shape(2) * s.shape(3));
-        for (py::ssize_t i = 0; i < s.shape(0); ++i) {
-          RealStack c(std::size_t(s.shape(1)), std::size_t(s.shape(2)), std::size_t(s.shape(3)));
-          std::copy(s.data() + std::size_t(i) * per, s.data() + std::size_t(i + 1) * per, c.data.begin());
-          v.push_back(std::move(c));
-        }
-        const wiener::SpectralPrior p = wiener::estimate_prior(v, bins);
-        Array cov({py::ssize_t(p.bins), py::ssize_t(p.bands), py::ssize_t(p.bands)});
+      [](const py::handle& scenes_obj, const py::handle& bins_obj) {
+        const std::size_t bins = std::size_t(int_arg(bins_obj, "bins", 2, kMaxPriorBins));
+        const Array s = checked(scenes_obj, "scenes", {"count", "bands", "H", "W"});
+        const double values = double(bins) * double(s.shape(1)) * double(s.shape(1));
+        if (values > kMaxPriorValues)
+          value_error("bins: " + std::to_string(bins) + " with " + std::to_string(s.shape(1)) + " bands makes " +
+                      to_str(values) + " covariance values; expected bins x bands x bands <= 2^27");
+        const wiener::SpectralPrior p = wiener::estimate_prior(to_stacks(s), bins);
+        Array cov({py::ssize_t(p.bins), py::ssize_t(p.bands), py::ssize_t(p.bands)});  // bins x bands x bands
         std::copy(p.cov.begin(), p.cov.end(), cov.mutable_data());
         return cov;
       },
@@ -327,77 +603,97 @@ PYBIND11_MODULE(_qdo, m) {
   m.def(
       "wiener_decode",
       [](const py::handle& y_obj, const py::handle& psf_obj, const py::handle& srf_obj, const py::handle& cov_obj,
-         double noise_sigma) {
-        const Array y = checked(y_obj, "y", 3), p = checked(psf_obj, "psf", 3), s = checked(srf_obj, "srf", 2),
-                    c = checked(cov_obj, "prior", 3);
+         const py::handle& sigma_obj) {
+        const Array y = checked(y_obj, "y", {3, "H", "W"});
+        const Array p = checked(psf_obj, "psf", {"bands", "S", "S"});
+        if (p.shape(1) != p.shape(2)) value_error("psf: shape " + shape_text(p) + "; expected (bands, S, S), square planes");
+        const std::size_t bands = std::size_t(p.shape(0));
+        const Array s = checked(srf_obj, "srf", {3, bands});
+        const Array c = checked(cov_obj, "prior", {"bins", bands, bands});
+        const double sigma = real_arg(sigma_obj, "noise_sigma");
+        if (sigma < 0) value_error("noise_sigma: " + short_str(sigma_obj) + "; expected a finite number >= 0");
         wiener::SpectralPrior pr;
         pr.bins = std::size_t(c.shape(0));
-        pr.bands = std::size_t(c.shape(1));
+        pr.bands = bands;
         pr.rows = std::size_t(y.shape(1));
         pr.cols = std::size_t(y.shape(2));
         pr.cov.assign(c.data(), c.data() + c.size());
-        Eigen::MatrixXd srf(s.shape(0), s.shape(1));
+        Eigen::MatrixXd srf(s.shape(0), s.shape(1));  // 3 x bands
         for (py::ssize_t i = 0; i < s.shape(0); ++i)
           for (py::ssize_t j = 0; j < s.shape(1); ++j) srf(i, j) = s.at(i, j);
-        const RealStack psf = to_stack(p);
-        return from_stack(wiener::decode(to_stack(y), wiener::psf_to_otf(psf, pr.rows, pr.cols), srf, pr, noise_sigma));
+        try {
+          return from_stack(wiener::decode(to_stack(y), wiener::psf_to_otf(to_stack(p), pr.rows, pr.cols), srf, pr, sigma));
+        } catch (const InputError&) {
+          throw;
+        } catch (const Error& e) {
+          // With noise_sigma > 0 the filter is never singular: a singular one is noise_sigma = 0's.
+          if (sigma == 0) value_error(std::string("noise_sigma: 0; ") + e.what());
+          throw;
+        }
       },
       py::arg("y"), py::arg("psf"), py::arg("srf"), py::arg("prior"), py::arg("noise_sigma"));
 
   m.def(
       "read_cube",
-      [](const std::string& path, const std::string& key) {
-        CubeReadOptions o;
-        o.key = key;
-        return from_stack(read_cube(path, o));
+      [](const py::handle& path, const py::handle& key, const py::handle& config_json, const py::handle& origin,
+         const py::handle& resample) {
+        const std::string p = path_arg(path, "path"), k = str_arg(key, "key");
+        const bool rs = bool_arg(resample, "resample_bands");
+        return from_stack(read_scene(scene_config(config_json, origin), p, k, rs));
       },
-      py::arg("path"), py::arg("key") = "");
+      py::arg("path"), py::arg("key"), py::arg("config_json"), py::arg("origin"), py::arg("resample_bands"));
+  m.def(
+      "write_cube",
+      [](const py::handle& path, const py::handle& cube_obj, const py::handle& wavelengths) {
+        const std::string p = path_arg(path, "path");
+        const RealStack cube = to_stack(checked(cube_obj, "cube", {"bands", "H", "W"}));
+        write_cube(p, cube, reals_arg(wavelengths, "wavelengths_nm"));
+      },
+      py::arg("path"), py::arg("cube"), py::arg("wavelengths_nm"));
   m.def(
       "read_design",
-      [](const std::string& path) {
-        const Design d = read_design(path);
+      [](const py::handle& path) {
+        const Design d = read_design(path_arg(path, "path"));
         return py::make_tuple(from_map(d.height_m), d.pitch_m, d.levels_m);
       },
       py::arg("path"));
   m.def(
       "write_design",
-      [](const std::string& path, const py::handle& h_obj, double pitch_m, const std::vector<double>& levels_m) {
-        const Array h = checked(h_obj, "height_m", 2);
+      [](const py::handle& path, const py::handle& h_obj, const py::handle& pitch_m, const py::handle& levels_m) {
+        const std::string p = path_arg(path, "path");
         Design d;
-        d.height_m = Map2D(std::size_t(h.shape(0)), std::size_t(h.shape(1)));
-        std::copy(h.data(), h.data() + h.size(), d.height_m.data.begin());
-        d.pitch_m = pitch_m;
-        d.levels_m = levels_m;
-        write_design(path, d, {{"written_by", "qdo python " QDO_VERSION}});
+        d.height_m = to_map(checked(h_obj, "height_m", {"N", "N"}));
+        d.pitch_m = positive_arg(pitch_m, "pitch_m");
+        d.levels_m = reals_arg(levels_m, "levels_m");
+        write_design(p, d, {{"written_by", "qdo python " QDO_VERSION}});
       },
-      py::arg("path"), py::arg("height_m"), py::arg("pitch_m"), py::arg("levels_m") = std::vector<double>{});
+      py::arg("path"), py::arg("height_m"), py::arg("pitch_m"), py::arg("levels_m") = py::tuple());
   m.def(
       "write_rgb_png",
-      [](const std::string& path, const py::handle& rgb_obj) {
-        const Array a = checked(rgb_obj, "rgb", 3);
-        if (a.shape(0) != 3) throw py::value_error("rgb: shape " + shape_of(a) + "; expected (3, H, W)");
-        write_rgb_png(path, to_stack(a));
+      [](const py::handle& path, const py::handle& rgb_obj) {
+        const std::string p = path_arg(path, "path");
+        write_rgb_png(p, to_stack(checked(rgb_obj, "rgb", {3, "H", "W"})));
       },
       py::arg("path"), py::arg("rgb"));
   m.def(
       "write_montage_png",
-      [](const std::string& path, const py::handle& stack_obj, const std::vector<double>& wavelengths_nm, double gamma) {
-        write_montage_png(path, to_stack(checked(stack_obj, "stack", 3)), wavelengths_nm, gamma);
+      [](const py::handle& path, const py::handle& stack_obj, const py::handle& wavelengths, const py::handle& gamma) {
+        const std::string p = path_arg(path, "path");
+        const RealStack st = to_stack(checked(stack_obj, "stack", {"planes", "H", "W"}));
+        write_montage_png(p, st, reals_arg(wavelengths, "wavelengths_nm"), positive_arg(gamma, "gamma"));
       },
-      py::arg("path"), py::arg("stack"), py::arg("wavelengths_nm") = std::vector<double>{}, py::arg("gamma") = 0.5);
+      py::arg("path"), py::arg("stack"), py::arg("wavelengths_nm") = py::tuple(), py::arg("gamma") = 0.5);
   m.def(
       "write_map_png",
-      [](const std::string& path, const py::handle& map_obj) {
-        const Array a = checked(map_obj, "map", 2);
-        Map2D mp(std::size_t(a.shape(0)), std::size_t(a.shape(1)));
-        std::copy(a.data(), a.data() + a.size(), mp.data.begin());
-        write_map_png(path, mp);
+      [](const py::handle& path, const py::handle& map_obj) {
+        const std::string p = path_arg(path, "path");
+        write_map_png(p, to_map(checked(map_obj, "map", {"H", "W"})));
       },
       py::arg("path"), py::arg("map"));
   m.def(
       "read_h5",
-      [](const std::string& path, const std::string& name) {
-        const H5Dataset d = h5_read(path, name);
+      [](const py::handle& path, const py::handle& name) {
+        const H5Dataset d = h5_read(path_arg(path, "path"), str_arg(name, "name"));
         std::vector<py::ssize_t> shape(d.shape.begin(), d.shape.end());
         Array a(shape);
         std::copy(d.data.begin(), d.data.end(), a.mutable_data());

@@ -61,3 +61,41 @@ def test_tensors_off_the_cpu_are_refused_with_the_way_out(optics64):
         qt.PSF(optics64)(h)
     with pytest.raises(ValueError, match="floating-point"):
         qt.PSF(optics64)(torch.zeros(optics64.n, optics64.n, dtype=torch.int64))
+
+
+def test_graphs_on_one_optics_from_several_threads_get_their_own_gradients(optics64):
+    """Each thread's forward and backward through one shared Optics: the backward's adjoint is
+    of its own forward (re-run inside the locked adjoint call when another thread's forward came
+    in between), so every gradient equals the serial one."""
+    import threading
+
+    torch.manual_seed(3)
+    psf_op, cam = qt.PSF(optics64), qt.Camera(optics64)
+    hs = [torch.rand(optics64.n, optics64.n, dtype=torch.float64) * optics64.h_max_m for _ in range(4)]
+    scene = torch.rand(optics64.bands, 6, 5, dtype=torch.float64)
+
+    def grads(h):
+        h = h.clone().requires_grad_()
+        s = scene.clone().requires_grad_()
+        cam(s, psf_op(h)).square().sum().backward()
+        return h.grad, s.grad
+
+    serial = [grads(h) for h in hs]
+    got = [[None] * 6 for _ in hs]
+    barrier = threading.Barrier(len(hs))
+
+    def work(k):
+        barrier.wait()
+        for r in range(6):
+            got[k][r] = grads(hs[k])
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(len(hs))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for k in range(len(hs)):
+        for r in range(6):
+            assert got[k][r] is not None
+            np.testing.assert_array_equal(got[k][r][0].numpy(), serial[k][0].numpy())
+            np.testing.assert_array_equal(got[k][r][1].numpy(), serial[k][1].numpy())
