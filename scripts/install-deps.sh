@@ -19,6 +19,7 @@ pkgs=(
   pybind11-dev           # the Python extension qdo._qdo (pyproject.toml)
   python3-venv python3-pip python3-numpy python3-pytest  # the Python package's build and tests
   python3-torch          # qdo.torch (the PyTorch operators) and its tests
+  python3-h5py           # the Python tests read arrays with h5py (its dtypes must be accepted)
   libtorch-dev           # the Res-UNet decoder in C++ (LibTorch 1.13, find_package(Torch); target qdo_net)
 )
 missing=()
