@@ -90,11 +90,12 @@ class UNet(nn.Module):
         return torch.sigmoid(self.out(z))
 
 
-def load(folder, bands):
+def load(folder, optics):
+    bands = optics.bands
     files = sorted(glob.glob(os.path.join(folder, "*.mat")) + glob.glob(os.path.join(folder, "*.h5")))
     if not files:
         sys.exit("train_decoder: no .mat or .h5 scenes in %s (--data)" % folder)
-    cubes = [qdo.read_cube(f) for f in files]
+    cubes = [qdo.read_cube(f, config=optics) for f in files]  # as `qdo simulate --scene` reads them
     for f, c in zip(files, cubes):
         if c.shape[0] != bands:
             sys.exit("train_decoder: %s has %d bands; the configuration has %d" % (f, c.shape[0], bands))
@@ -145,8 +146,8 @@ def main():
     optics = qdo.Optics(preset="small", device=a.device, precision="f32")
     print("qdo %s on %s; PyTorch %s with %d threads" % (qdo.__version__, optics.device, torch.__version__,
                                                        torch.get_num_threads()))
-    _, train = load(os.path.join(a.data, "cave_train"), optics.bands)
-    test_files, test = load(os.path.join(a.data, "cave"), optics.bands)
+    _, train = load(os.path.join(a.data, "cave_train"), optics)
+    test_files, test = load(os.path.join(a.data, "cave"), optics)
     print("training on %d scenes of %s, testing on %d" % (len(train), os.path.join(a.data, "cave_train"), len(test)))
 
     psf_layer, camera = qt.PSF(optics), qt.Camera(optics)
