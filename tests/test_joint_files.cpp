@@ -1,7 +1,8 @@
 // Joint training's files (suite "joint"): a network run deletes only the network states it
 // recorded as its own (issue 31, class 2): the state a checkpoint named, with its checksum, when
 // the checkpoint rotation drops it. A user's step_*.pt in RUN/network, a state replaced since it
-// was recorded, and everything behind a symlinked RUN/network stay.
+// was recorded, and everything behind a symlinked RUN/network stay. A checkpoint belongs to its
+// run, a resumed log has no gap, and a do-finetune starts only from a finished do run (class 5, 6).
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -10,6 +11,7 @@
 #include "common.hpp"
 #include "joint_common.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/decoder_spec.hpp"
 #include "qdo/run.hpp"
 
 using namespace qdo;
@@ -68,6 +70,64 @@ TEST_SUITE("joint") {
     CHECK(names_in(elsewhere) ==
           std::set<std::string>{"step_00000001.pt", "step_00000002.pt", "step_00000004.pt", "step_00000006.pt"});
     CHECK(fs::is_symlink(c / "network"));
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("a checkpoint belongs to its run, a log has no gap, a do-finetune starts from a finished do run (issue 31, classes 5 and 6)") {
+    const AffineFactory fake;
+    const auto dir = temp_dir("joint_belongs");
+    // A network run's checkpoint copied into a Wiener run folder: --resume refused, nothing written.
+    const fs::path net = dir / "net", wien = dir / "wiener";
+    DesignRunOptions n = net_run(net.string(), DesignMode::QDOA);
+    n.max_steps = 2;
+    REQUIRE(run_design(runtime(), n, false).steps_done == 2);
+    DesignRunOptions w = net_run(wien.string(), DesignMode::QDOA);
+    w.decoder = DecoderSpec{};
+    w.objective = Objective::Wiener;
+    w.max_steps = 2;
+    REQUIRE(run_design(runtime(), w, false).steps_done == 2);
+    fs::copy_file(net / "checkpoint.h5", wien / "checkpoint.h5", fs::copy_options::overwrite_existing);
+    const std::string ckpt_before = slurp((wien / "checkpoint.h5").string()), log_before = slurp((wien / "log.csv").string());
+    std::string msg = input_error_of([&] { run_design(runtime(), w, true); });
+    CHECK(msg.find("a network run's checkpoint") != std::string::npos);
+    CHECK(slurp((wien / "checkpoint.h5").string()) == ckpt_before);
+    CHECK(slurp((wien / "log.csv").string()) == log_before);
+    // A log cut short before --resume: refused naming the missing steps, instead of a log with a gap.
+    const std::string log = slurp((net / "log.csv").string());
+    const std::size_t last_row = log.rfind('\n', log.size() - 2);
+    std::ofstream(net / "log.csv", std::ios::trunc) << log.substr(0, last_row + 1);  // drops step 1's row
+    msg = input_error_of([&] { run_design(runtime(), net_run(net.string(), DesignMode::QDOA), true); });
+    CHECK(msg.find("log.csv") != std::string::npos);
+    CHECK(msg.find("ends at step 0 but the checkpoint is at step 2") != std::string::npos);
+    // A row missing in the middle, or repeated: refused too.
+    std::ofstream(net / "log.csv", std::ios::trunc) << log.substr(0, log.find('\n') + 1) << log.substr(log.find('\n', log.find('\n') + 1) + 1);
+    msg = input_error_of([&] { run_design(runtime(), net_run(net.string(), DesignMode::QDOA), true); });
+    CHECK(msg.find("is step 1 where step 0 was expected") != std::string::npos);
+    std::ofstream(net / "log.csv", std::ios::trunc) << log;  // restored: the resume goes on
+    CHECK(run_design(runtime(), net_run(net.string(), DesignMode::QDOA), true).steps_done == 6);
+
+    // do-finetune from an unfinished do run, or from another do-finetune run: refused, naming why.
+    const fs::path d = dir / "do";
+    DesignRunOptions o = net_run(d.string(), DesignMode::DO);
+    o.max_steps = 3;
+    REQUIRE(run_design(runtime(), o, false).steps_done == 3);
+    DesignRunOptions f = net_run((dir / "ft").string(), DesignMode::DO);
+    f.finetune_from = d.string();
+    f.design.quantizer.levels = 2;
+    f.epochs = 1;
+    f.design.steps_per_epoch = 2;
+    f.design.t0_epochs = 0;
+    f.design.t1_epochs = 1;
+    msg = input_error_of([&] { run_design(runtime(), f, false); });
+    CHECK(msg.find("a finished network do run (its checkpoint is at step 3 of 6") != std::string::npos);
+    CHECK_FALSE(fs::exists(dir / "ft" / "checkpoint.h5"));
+    REQUIRE(run_design(runtime(), net_run(d.string(), DesignMode::DO), true).steps_done == 6);
+    REQUIRE(run_design(runtime(), f, false).steps_done == 2);
+    DesignRunOptions f2 = f;
+    f2.out = (dir / "ft2").string();
+    f2.finetune_from = f.out;
+    msg = input_error_of([&] { run_design(runtime(), f2, false); });
+    CHECK(msg.find("it is itself a do-finetune run") != std::string::npos);
     fs::remove_all(dir);
   }
 }

@@ -73,6 +73,12 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   }
   o.validate();
   const bool network = o.objective == Objective::Network, finetune = !o.finetune_from.empty();
+  // A checkpoint belongs to its run: a network run's checkpoint (it names a network state) in a
+  // Wiener run folder is refused, as a Wiener one in a network run is (read_network_state).
+  if (resume && !network && !resumed.state.network_file.empty())
+    throw InputError("file '" + resumed.checkpoint + "': names a network state (" + resumed.state.network_file +
+                     "): a network run's checkpoint, but this run folder's config.json trains with the " + o.decoder.to_string() +
+                     " decoder; it is not this run's checkpoint");
   // do-finetune: the network `do` run it continues (its state, network and configuration checked
   // here, before any writing).
   ResumeState source;
@@ -85,6 +91,15 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       reject("finetune_from", o.finetune_from,
              "a network do run of this configuration and decoder (it is a " + to_string(so.design.mode) + " run with decoder " +
                  so.decoder.to_string() + ")");
+    // Only a finished do run: an unfinished one would freeze optics still in training, and a
+    // do-finetune run's own network was trained for a quantized DOE it no longer has.
+    if (!so.finetune_from.empty())
+      reject("finetune_from", o.finetune_from, "a network do run (it is itself a do-finetune run, of " + so.finetune_from + ")");
+    const long source_total = long(so.epochs * so.design.steps_per_epoch);
+    if (source.state.step != source_total)
+      reject("finetune_from", o.finetune_from,
+             "a finished network do run (its checkpoint is at step " + std::to_string(source.state.step) + " of " +
+                 std::to_string(source_total) + "; finish it with qdo design --resume --out " + o.finetune_from + ")");
     source_network = read_network_state(o.finetune_from, source.state, source.checkpoint);
   }
   const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing

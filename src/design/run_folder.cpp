@@ -106,10 +106,22 @@ void read_resume_log(const std::string& log_path, long before_step, std::vector<
       throw InputError("file '" + log_path + "': line " + std::to_string(lineno) + " is not a log row (step,loss,...): '" +
                        line.substr(0, 60) + "'");
     if (st < before_step) {  // rows at or after the checkpoint's step are redone
+      // The rows kept are the steps 0, 1, ... in order, each once: a log cut short (or edited)
+      // would leave a gap or a repeat in the resumed log.
+      const long want = long(rows.size());
+      if (st != want)
+        throw InputError("file '" + log_path + "': line " + std::to_string(lineno) + " is step " + std::to_string(st) + " where step " +
+                         std::to_string(want) + " was expected; the checkpoint is at step " + std::to_string(before_step) +
+                         ", so resuming would leave the log with a " + (st > want ? "gap" : "repeated step") +
+                         " (restore the log, or start a new run)");
       rows.push_back(line);
       losses.push_back(loss);
     }
   }
+  if (!rows.empty() && long(rows.size()) != before_step)
+    throw InputError("file '" + log_path + "': ends at step " + std::to_string(long(rows.size()) - 1) + " but the checkpoint is at step " +
+                     std::to_string(before_step) + "; steps " + std::to_string(rows.size()) + " to " + std::to_string(before_step - 1) +
+                     " are missing, so resuming would leave the log with a gap (restore the log, or start a new run)");
 }
 
 ResumeState load_resume_state(const std::string& dir) {
