@@ -38,7 +38,7 @@ TEST_SUITE("commands") {
     const fs::path cfg_file = dir / "strict.json";
     std::ofstream(cfg_file) << config_to_json_text(c) << "\n";
     const std::string cfg = "--config " + cfg_file.string();
-    const RealStack scene = random_cube(c.bands, 14, 14, 5);  // S = 14, N = 32: G = 50
+    const RealStack scene = random_cube(c.bands, 16, 16, 5);  // S = 16 (the sensor size), N = 32: G = 48
     write_cube((dir / "scene.h5").string(), scene, c.wavelengths_nm());
     for (const Precision p : {Precision::F32, Precision::F64}) {
       if (p == Precision::F64 && !runtime().has_fp64()) continue;
@@ -56,7 +56,7 @@ TEST_SUITE("commands") {
       ref::add_noise(want, c.read_noise_sigma, c.full_well_photons, c.noise_seed, 0);
       for (double& v : want.data) v = std::min(v, 1.0);  // the command clips at full scale
       const H5Dataset rgb = h5_read((out / "sensor.h5").string(), "/rgb");
-      REQUIRE(rgb.shape == std::vector<std::size_t>{3, 14, 14});
+      REQUIRE(rgb.shape == std::vector<std::size_t>{3, 16, 16});
       // The PSF itself in float32 (1e-6) dominates the float32 tolerance.
       CHECK(diff(rgb.data, want.data).rel_l2 <= (p == Precision::F64 ? 1e-12 : 2e-5));
     }
@@ -68,10 +68,16 @@ TEST_SUITE("commands") {
     r = qdo_run(base + " --formation release --scene " + (dir / "wide.h5").string());
     CHECK(r.code == 2);
     CHECK(r.out.find("square") != std::string::npos);
-    write_cube((dir / "big.h5").string(), random_cube(c.bands, 31, 31, 7), c.wavelengths_nm());
-    r = qdo_run(base + " --formation release --scene " + (dir / "big.h5").string());
-    CHECK(r.code == 2);
-    CHECK(r.out.find("PSF size N") != std::string::npos);
+    // A scene of another size would be scaled by N / S, not by the pitch ratio (2 here): refused,
+    // for smaller and larger scenes alike (issue 31, class 1).
+    for (std::size_t side : {14u, 20u, 31u}) {
+      CAPTURE(side);
+      write_cube((dir / "other.h5").string(), random_cube(c.bands, side, side, 7), c.wavelengths_nm());
+      r = qdo_run(base + " --formation release --scene " + (dir / "other.h5").string());
+      CHECK(r.code == 2);
+      CHECK(r.out.find("a scene of the configuration's sensor size, 16 x 16") != std::string::npos);
+      CHECK(r.out.find("the physical scale is 2") != std::string::npos);
+    }
     CHECK_FALSE(fs::exists(dir / "x"));
     fs::remove_all(dir);
   }

@@ -87,6 +87,15 @@ int cmd_simulate(const Args& a) {
   if (release) {  // the release's geometry needs a square scene and N >= S + 2; checked before any device work
     if (scene.rows != scene.cols)
       reject("--formation release", "a " + to_str(scene.rows) + " x " + to_str(scene.cols) + " scene", "a square S x S scene");
+    // The release resizes the S x S scene onto the N x N DOE grid, a scale of N / S: the physical
+    // one (sensor pitch over DOE pitch) only when S is the configuration's sensor size. Another S
+    // would blur with a PSF scaled by the wrong factor, silently (issue 31, class 1).
+    if (scene.rows != cfg.sensor_size_px())
+      reject("--formation release", "a " + to_str(scene.rows) + " x " + to_str(scene.cols) + " scene",
+             "a scene of the configuration's sensor size, " + to_str(cfg.sensor_size_px()) + " x " + to_str(cfg.sensor_size_px()) +
+                 " (N x DOE pitch / sensor pitch): the release scales the scene by N / S = " + to_str(double(cfg.n) / double(scene.rows)) +
+                 ", the physical scale is " + to_str(cfg.sensor_pitch_m / cfg.pitch_m) +
+                 " (use --formation qdo for scenes of any size)");
     (void)release_geometry(scene.rows, cfg.n);
     if (cfg.aperture_edge != ApertureEdge::Strict)
       std::fprintf(stderr, "qdo: note: --formation release with \"aperture_edge\": \"inclusive\"; the release's aperture is strict "
