@@ -1,10 +1,11 @@
 // Options checked at parse time (suite "commands"; issue 31, classes 12, 14, 15): every refusal
 // exits 2 naming the option, the value and what is allowed, before any work and with no --out
-// folder made.
+// folder made. And messages that name what is wrong and where (class 16).
 #include <filesystem>
 #include <string>
 
 #include "commands_common.hpp"
+#include "qdo/io.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
@@ -51,6 +52,45 @@ TEST_SUITE("commands") {
     const Run ok = qdo_run("sweep " + cfg_arg() + " --grid decoder=wiener,resunet:depth=2,root=4 --grid levels=2,2 --out " + out);
     CHECK(ok.code == 2);
     CHECK(ok.out.find("distinct values on the levels axis") != std::string::npos);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("messages name the file, the scene or the setting that is wrong, and say what is wrong") {
+    const auto dir = temp_dir("cmd_messages");
+    const SystemConfig c = tiny();
+    // A design file with a height out of range: the file is named (it was height_m[5][5] alone).
+    Design d;
+    d.height_m = Map2D(c.n, c.n, 0.5 * c.h_max_m());
+    d.height_m(5, 5) = 5 * c.h_max_m();
+    d.pitch_m = c.pitch_m;
+    const std::string bad = (dir / "bad_design.h5").string();
+    write_design(bad, d);
+    const Run psf = qdo_run("psf " + cfg_arg() + " --design " + bad + " --out " + (dir / "p").string());
+    CAPTURE(psf.out);
+    CHECK(psf.code == 2);
+    CHECK(psf.out.find("bad_design.h5") != std::string::npos);
+    CHECK(psf.out.find("/height_m[5][5]") != std::string::npos);
+    // A test scene with an all-zero band: eval names the scene (it said "truth band 1 mean = 0").
+    RealStack cube = random_cube(c.bands, 40, 40, 3);
+    for (std::size_t i = 0; i < cube.plane_size(); ++i) cube.plane(1)[i] = 0;
+    write_cube((dir / "dark_band.h5").string(), cube, c.wavelengths_nm());
+    REQUIRE(shared_run().result.code == 0);
+    const Run ev = qdo_run("eval " + shared_run().dir.string() + " --data " + (dir / "dark_band.h5").string() + " --out " +
+                           (dir / "e").string());
+    CAPTURE(ev.out);
+    CHECK(ev.code == 2);
+    CHECK(ev.out.find("test scene 'dark_band") != std::string::npos);
+    CHECK(ev.out.find("truth band 1 mean") != std::string::npos);
+#ifdef QDO_WITH_TORCH
+    // QDO_TORCH_THREADS out of range is the user's setting, not a plugin that did not load.
+    const Run th = qdo_run("design " + cfg_arg() + " --mode do --levels 2 --decoder resunet:depth=2,root=4 --epochs 2 --steps-per-epoch 1 "
+                           "--out " + (dir / "t").string(), "QDO_TORCH_THREADS=0");
+    CAPTURE(th.out);
+    CHECK(th.code == 2);
+    CHECK(th.out.find("QDO_TORCH_THREADS") != std::string::npos);
+    CHECK(th.out.find("an integer from 1 to 1024") != std::string::npos);
+    CHECK(th.out.find("did not load") == std::string::npos);
+#endif
     fs::remove_all(dir);
   }
 }

@@ -76,6 +76,15 @@ Map2D load_design(const SystemConfig& cfg, const std::string& spec) {
                                  " samples (the file has " + std::to_string(d.height_m.rows) + ")");
   if (std::fabs(d.pitch_m - cfg.pitch_m) > 1e-6 * cfg.pitch_m)
     reject("--design", spec, "pitch_m = " + to_str(cfg.pitch_m) + " as configured (the file has " + to_str(d.pitch_m) + ")");
+  // The heights the device will take (DoeStage), checked here so that the message names the file.
+  const double hmax = cfg.h_max_m();
+  for (std::size_t i = 0; i < d.height_m.data.size(); ++i) {
+    const double h = d.height_m.data[i];
+    if (!std::isfinite(h) || h < 0 || h > 2 * hmax)
+      reject("--design", spec,
+             "heights in [0, 2 h_max] = [0, " + to_str(2 * hmax) + "] m for this configuration (the file's /height_m[" +
+                 to_str(i / d.height_m.cols) + "][" + to_str(i % d.height_m.cols) + "] = " + to_str(h) + " m)");
+  }
   return d.height_m;
 }
 

@@ -61,6 +61,11 @@ NetworkFactory factory_after_loading() {
       st.tried = true;
       try {
         st.error = st.loader();
+      } catch (const InputError&) {
+        // The plugin loaded and refused the user's settings (e.g. QDO_TORCH_THREADS=0): that is
+        // the message, not "the plugin did not load". Asked again, it is checked again.
+        st.tried = false;
+        throw;
       } catch (const std::exception& e) {
         st.error = e.what();
       }

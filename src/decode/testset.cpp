@@ -186,7 +186,13 @@ Evaluation evaluate(PatchCamera& camera, const RealStack& psf_actual, const std:
       if (xh.planes != x.planes || xh.rows != x.rows || xh.cols != x.cols)
         throw Error("internal: the decoder returned a " + shape(xh) + " cube for a " + shape(x) + " patch");
       for (double& v : xh.data) v = std::clamp(v, 0.0, 1.0);
-      ev.per_patch.push_back({patches[k].scene, score(xh, x)});
+      Scores sc;
+      try {
+        sc = score(xh, x);
+      } catch (const InputError& e) {  // e.g. a band of the scene that is all zero (ERGAS divides by its mean)
+        throw InputError("test scene '" + patches[k].scene + "': " + e.what());
+      }
+      ev.per_patch.push_back({patches[k].scene, sc});
       if (each) each(k, xh);
     }
   }

@@ -101,7 +101,9 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
       (e.levels > 0 || (o.design.mode == DesignMode::DO && o.finetune_from.empty())))
     reject("decoder", "matched",
            "mismatch for this network run: its network was trained for " +
-               std::string(o.design.mode == DesignMode::DO ? "the full-precision design H_f" : "the run's own design") +
+               std::string(!o.finetune_from.empty()                 ? "the run's quantized DOE (a do-finetune run)"
+                           : o.design.mode == DesignMode::DO ? "the full-precision design H_f"
+                                                             : "the run's own design") +
                ", and a network cannot be refit in closed form (--decoder mismatch evaluates it through the " +
                (e.levels > 0 ? "re-quantized" : "quantized") + " DOE, the paper's DO; a do-finetune run retrains it for that DOE)");
   const Design full = folder.design_full();

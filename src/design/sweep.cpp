@@ -132,7 +132,9 @@ void write_cell_metrics(const fs::path& dir, const GridCell& c) {
 void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, const std::string& sweep_out,
                       const std::set<std::string>& ignore) {
   const fs::path dir(o.out);
-  const std::string what = "a sweep folder whose run '" + dir.filename().string() + "' was made with this call's options";
+  // The message says what is wrong: the folder holds a run made with other options or scenes.
+  const std::string what = "a new sweep folder, or one whose runs were made with this call's options; its run '" +
+                           dir.filename().string() + "' was made with other ones";
   const fs::path cfg = RunFolder(o.out).config_path();
   if (fs::exists(cfg)) {
     const DesignRunOptions stored = read_run_config(dir.string());
@@ -141,7 +143,11 @@ void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, cons
                ignore, diffs);
     if (!diffs.empty()) {
       std::string list;
-      for (const auto& d : diffs) list += (list.empty() ? "" : "; ") + d;
+      for (std::string d : diffs) {
+        // A do-finetune run's steps come from --finetune-steps (its epochs are 1).
+        if (!o.finetune_from.empty() && d.rfind("design.steps_per_epoch", 0) == 0) d = "--finetune-steps (" + d + ")";
+        list += (list.empty() ? "" : "; ") + d;
+      }
       reject("out", sweep_out, what + " (" + cfg.string() + " differs: " + list +
                                    "; choose another --out, or move that run folder and the cells/ folder away to redo them)");
     }

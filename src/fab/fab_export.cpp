@@ -70,7 +70,13 @@ ExportResult export_design(const Design& d, const SystemConfig& cfg, const Expor
     }
   }
   ExportResult res;
-  res.plan = plan_masks(d, cfg, o.scheme, o.constraints, curve);  // every check before any writing
+  try {
+    res.plan = plan_masks(d, cfg, o.scheme, o.constraints, curve);  // every check before any writing
+  } catch (const InputError& e) {  // a pixel or level named: say which design it is in
+    const auto src = o.provenance.find("source");
+    if (src == o.provenance.end() || src->second.empty()) throw;
+    throw InputError("design '" + src->second + "': " + e.what());
+  }
   const MaskPlan& plan = res.plan;
   const std::size_t n = plan.n;
   const std::int64_t p = plan.pitch_nm, org = origin_nm(n, p);
