@@ -1,6 +1,7 @@
 // Options checked at parse time (suite "commands"; issue 31, classes 12, 14, 15): every refusal
-// exits 2 naming the option, the value and what is allowed, before any work and with no --out
-// folder made. And messages that name what is wrong and where (class 16).
+// (a value out of range, an option given twice or doing nothing in the run, a grid that cannot
+// mean anything) exits 2 naming the option, the value and what is allowed, before any work and
+// with no --out folder made. And messages that name what is wrong and where (class 16).
 #include <filesystem>
 #include <string>
 
@@ -28,6 +29,13 @@ TEST_SUITE("commands") {
         {design + " --decay 0", "--decay", "(0, 1]"},
         {design + " --lr 0.01 --lr 0.02", "--lr", "given once"},
         {design + " --decoder resunet:depth=8,root=1024", "--decoder", "at most 4096 channels"},
+        // Options that would do nothing in this run (they were ignored silently).
+        {design + " --beta 0.1", "--beta", "an option of --mode qdo+a or qdo+m"},
+        {design + " --lr-offsets 0.1", "--lr-offsets", "an option of --mode qdo+a or qdo+m"},
+        {design + " --lr-decoder 0.01", "--lr-decoder", "an option of a network --decoder"},
+        {design + " --target lens:500", "--target", "an option of --objective psf-target"},
+        {design + " --finetune-steps 5", "--finetune-steps", "an option of --mode do-finetune"},
+        {design + " --objective psf-target --wiener-on cpu", "--wiener-on", "an option of the Wiener objectives"},
         {"tolerance " + shared_run().dir.string() + " --etch-depth-error-nm 1e9", "--etch-depth-error-nm", "[0, 10000] nm"},
         {"image " + cfg_arg() + " --design flat --tolerance 5", "--tolerance", "[0, 1]"},
         {"sweep-psf " + cfg_arg() + " --design flat --levels 4,4", "--levels", "4 appears twice"},

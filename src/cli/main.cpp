@@ -124,6 +124,35 @@ DesignRunOptions finetune_options(const Args& a) {
   o.out = a.get("out");
   return o;
 }
+// An option given explicitly that does nothing in the run's mode, objective or decoder is
+// refused, naming where it acts (it was ignored silently).
+void check_options_act(const Args& a, const DesignRunOptions& o) {
+  const DesignMode m = o.design.mode;
+  const bool levels_trained = m == DesignMode::QDOA || m == DesignMode::QDOM;
+  const bool network = o.objective == Objective::Network;
+  const bool wiener = o.objective == Objective::Wiener || o.objective == Objective::WienerMse || o.objective == Objective::WienerMae;
+  struct Rule {
+    const char* option;
+    bool acts;
+    const char* where;
+  };
+  const Rule rules[] = {
+      {"beta", levels_trained, "--mode qdo+a or qdo+m (the regulariser of the trained levels)"},
+      {"lr-offsets", levels_trained, "--mode qdo+a or qdo+m (the trained level offsets or mask depths)"},
+      {"lr-decoder", network, "a network --decoder"},
+      {"gamma", network, "a network --decoder"},
+      {"target", o.objective == Objective::PsfTarget, "--objective psf-target"},
+      {"wiener-on", wiener, "the Wiener objectives (--objective wiener, wiener-mse or wiener-mae)"},
+      {"from", false, "--mode do-finetune"},
+      {"finetune-steps", false, "--mode do-finetune"},
+  };
+  for (const Rule& r : rules)
+    if (a.has(r.option) && !r.acts)
+      reject(std::string("--") + r.option, a.get(r.option),
+             std::string("an option of ") + r.where + "; this run (--mode " + to_string(m) + ", --objective " + to_string(o.objective) +
+                 (network ? ", --decoder " + o.decoder.to_string() : std::string()) + ") would ignore it: leave it out");
+}
+
 }  // namespace
 
 int cmd_design(const Args& a) {
@@ -138,6 +167,7 @@ int cmd_design(const Args& a) {
   const bool resume = a.has("resume");
   if (!resume) o.validate();
   else check_resume_options(a, o);
+  if (!resume && !finetune) check_options_act(a, o);
   if (!resume) claim_out(a, o.out);  // --resume: the run folder is checked by the resume itself
   Runtime rt(a.get("device"));
   if (a.has("check-gradients")) {
