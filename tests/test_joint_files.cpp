@@ -3,6 +3,7 @@
 // the checkpoint rotation drops it. A user's step_*.pt in RUN/network, a state replaced since it
 // was recorded, and everything behind a symlinked RUN/network stay. A checkpoint belongs to its
 // run, a resumed log has no gap, and a do-finetune starts only from a finished do run (class 5, 6).
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -11,6 +12,7 @@
 #include "common.hpp"
 #include "joint_common.hpp"
 #include "qdo/design_run.hpp"
+#include "qdo/network_decoder.hpp"
 #include "qdo/decoder_spec.hpp"
 #include "qdo/run.hpp"
 
@@ -128,6 +130,36 @@ TEST_SUITE("joint") {
     f2.finetune_from = f.out;
     msg = input_error_of([&] { run_design(runtime(), f2, false); });
     CHECK(msg.find("it is itself a do-finetune run") != std::string::npos);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("a network run records its thread count; a resume with another count says so (issue 31, class 17)") {
+    const AffineFactory fake;
+    const auto dir = temp_dir("joint_threads");
+    const char* saved = std::getenv("QDO_TORCH_THREADS");
+    const std::string restore = saved ? saved : "";
+    ::setenv("QDO_TORCH_THREADS", "3", 1);
+    DesignRunOptions o = net_run((dir / "run").string(), DesignMode::QDOA);
+    o.max_steps = 2;
+    REQUIRE(run_design(runtime(), o, false).steps_done == 2);
+    CHECK(slurp((dir / "run" / "split.json").string()).find("\"threads\": 3") != std::string::npos);
+    o.max_steps = 4;
+    const DesignRunResult same = run_design(runtime(), o, true);  // the same count: nothing to note
+    CHECK(same.steps_done == 4);
+    CHECK(same.notes.empty());
+    ::setenv("QDO_TORCH_THREADS", "5", 1);
+    o.max_steps = -1;
+    const DesignRunResult other = run_design(runtime(), o, true);
+    CHECK(other.steps_done == 6);
+    REQUIRE(other.notes.size() == 1);
+    CHECK(other.notes[0].find("trained with 3 LibTorch threads and resumes with 5") != std::string::npos);
+    CHECK(other.notes[0].find("QDO_TORCH_THREADS=3") != std::string::npos);
+    ::setenv("QDO_TORCH_THREADS", "0", 1);  // out of range: the setting is named
+    CHECK_THROWS_WITH_AS(network_threads(), doctest::Contains("QDO_TORCH_THREADS"), InputError);
+    if (saved)
+      ::setenv("QDO_TORCH_THREADS", restore.c_str(), 1);
+    else
+      ::unsetenv("QDO_TORCH_THREADS");
     fs::remove_all(dir);
   }
 }

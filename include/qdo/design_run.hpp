@@ -15,6 +15,7 @@ struct DesignRunResult {
   long steps_done = 0;
   double final_loss = 0;
   std::vector<double> levels_m;        // the fabricated design's level heights
+  std::vector<std::string> notes;      // what the run noted on stderr (e.g. a resume with another thread count)
 };
 // Runs (or, with resume, continues from RUN/checkpoint.h5 with RUN/config.json's options, of
 // which only max_steps and quiet are taken from `o`) and writes the run folder (run.hpp). The

@@ -65,6 +65,11 @@ using NetworkLoader = std::function<std::string()>;
 void register_network_loader(NetworkLoader loader);
 // Whether a factory is registered, after running the loader if there is one and no factory yet.
 bool network_decoder_available();
+// The CPU threads a network decoder computes with: QDO_TORCH_THREADS (an integer from 1 to 1024;
+// InputError naming it otherwise), else the machine's hardware threads. LibTorch's reductions sum
+// in an order that depends on it, so a network run records it (split.json) and a resume with
+// another count is noted: the run then continues differently (about 1e-7 in the loss).
+int network_threads();
 // Why network_decoder_available() is false: the loader's message, or that none is built in.
 std::string network_decoder_unavailable_reason();
 // A fresh network; InputError naming `decoder` when no factory is registered (built without

@@ -3,9 +3,12 @@
 // when a network is asked for, and the network behind the Decoder interface.
 #include "qdo/network_decoder.hpp"
 
+#include <algorithm>
+#include <cstdlib>
 #include <memory>
 #include <mutex>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -82,6 +85,16 @@ void register_network_loader(NetworkLoader loader) {
 }
 
 bool network_decoder_available() { return bool(factory_after_loading()); }
+
+int network_threads() {
+  if (const char* t = std::getenv("QDO_TORCH_THREADS")) {
+    char* end = nullptr;
+    const long v = std::strtol(t, &end, 10);
+    if (end == t || *end || v < 1 || v > 1024) reject("QDO_TORCH_THREADS", t, "an integer from 1 to 1024");
+    return int(v);
+  }
+  return int(std::max(1u, std::thread::hardware_concurrency()));
+}
 
 std::string network_decoder_unavailable_reason() {
   if (factory_after_loading()) return "";

@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -22,6 +23,7 @@
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/joint.hpp"
+#include "qdo/network_decoder.hpp"
 #include "qdo/run.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/simulator.hpp"
@@ -106,6 +108,25 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   std::unique_ptr<NetworkDecoder> net;
   if (network) net = make_network_decoder(network_settings(o));  // refused here when built without LibTorch
   if (network && resume) net->load(read_network_state(dir, resumed.state, resumed.checkpoint), (dir / resumed.state.network_file).string());
+  std::vector<std::string> notes;
+  if (network && resume) {  // the thread count the run trained with (split.json; runs before it recorded none)
+    long recorded = 0;
+    try {
+      std::ifstream f(dir / "split.json");
+      const json sp = json::parse(f);
+      if (sp.contains("threads") && sp["threads"].is_number_integer()) recorded = sp["threads"].get<long>();
+    } catch (const std::exception&) {
+      recorded = 0;
+    }
+    const int now = network_threads();
+    if (recorded > 0 && recorded != now) {
+      notes.push_back("this network run trained with " + std::to_string(recorded) + " LibTorch threads and resumes with " +
+                      std::to_string(now) + ": the network's sums run in another order, so the run continues differently from "
+                      "an uninterrupted one (about 1e-7 in the loss); QDO_TORCH_THREADS=" + std::to_string(recorded) +
+                      " continues it bit-identically");
+      std::fprintf(stderr, "qdo: note: %s: %s\n", dir.string().c_str(), notes.back().c_str());
+    }
+  }
   if (finetune && !resume) net->load(source_network, (fs::path(o.finetune_from) / source.state.network_file).string());
   make_output_dir(dir.string(), "out");
   if (!lock) {
@@ -122,6 +143,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     sp["validation_patches"] = pb.joint.val.size();
     sp["patch_px"] = o.cfg.sensor_size_px();
     sp["augmentation"] = "random S x S crops, one of the 8 flips/rotations each (qdo/joint.hpp)";
+    sp["threads"] = network_threads();  // LibTorch's summation order depends on it (network_decoder.hpp)
     if (finetune) sp["finetune_from"] = o.finetune_from;
     write_text_atomic((dir / "split.json").string(), sp.dump(2) + "\n");
   }
@@ -289,6 +311,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     write_line_plot_png((dir / "psnr.png").string(), {tr, va});
   }
   DesignRunResult r;
+  r.notes = std::move(notes);
   r.steps_done = s.step;
   r.final_loss = last_loss;
   r.levels_m = out.levels_m;

@@ -224,14 +224,7 @@ class TorchNetworkDecoder final : public NetworkDecoder {
 }  // namespace
 
 void register_torch_network() {
-  int threads = int(std::max(1u, std::thread::hardware_concurrency()));
-  if (const char* t = std::getenv("QDO_TORCH_THREADS")) {
-    char* end = nullptr;
-    const long v = std::strtol(t, &end, 10);
-    if (end == t || *end || v < 1 || v > 1024) reject("QDO_TORCH_THREADS", t, "an integer from 1 to 1024");
-    threads = int(v);
-  }
-  torch::set_num_threads(threads);
+  torch::set_num_threads(network_threads());  // QDO_TORCH_THREADS, checked, else the hardware threads
   register_network_factory([](const NetworkSettings& s) -> std::unique_ptr<NetworkDecoder> {
     return std::make_unique<TorchNetworkDecoder>(s);
   });
