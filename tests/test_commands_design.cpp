@@ -235,7 +235,7 @@ TEST_SUITE("commands") {
     }
     CHECK(ok_rows == 6);
     for (const char* row : {"PSF chain: OpenCL", "PSF chain: CPU adjoint vs central differences", "weights w (qdo+a, wiener",
-                            "level offsets a (qdo+a)", "objective wiener vs PSF", "objective wiener on the device (f64)"})
+                            "level offsets a (qdo+a, wiener)", "objective wiener vs PSF", "objective wiener on the device (f64)"})
       CHECK_MESSAGE(r.out.find(row) != std::string::npos, row);
     // On a device without float64 (QDO_DISABLE_FP64=1) the check runs in float32 with its looser
     // tolerances and a larger difference step; it passes (it failed falsely with a 1e-5 step,

@@ -226,7 +226,12 @@ TEST_SUITE("decoders") {
     const auto jw = nlohmann::json::parse(slurp(dir / "wiener" / "metrics.json"));
     const auto jc = nlohmann::json::parse(slurp(dir / "cg" / "metrics.json"));
     CHECK(jd.at("decoder_kind") == "wiener");
-    CHECK(jd.at("mean") == jw.at("mean"));
+    // The same decoder in two processes: equal up to the rounding of the FFT plans each process
+    // chose (FFTW_MEASURE picks by timing; under load a plan may differ: ~1e-12 relative seen).
+    for (const auto& [k, v] : jw.at("mean").items()) {
+      CAPTURE(k);
+      CHECK(jd.at("mean").at(k).get<double>() == doctest::Approx(v.get<double>()).epsilon(1e-9));
+    }
     CHECK(jc.at("decoder_kind") == "cg");
     // CG at its default tolerance (1e-6) on this camera: near the Wiener decoder, not equal to it.
     CHECK(std::fabs(jc.at("mean").at("psnr_db").get<double>() - jd.at("mean").at("psnr_db").get<double>()) < 1.0);
