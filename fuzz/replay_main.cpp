@@ -24,6 +24,8 @@ extern "C" int qdo_fuzz_png(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_csv(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_kernel_cache(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_run_folder(const std::uint8_t*, std::size_t);
+extern "C" int qdo_fuzz_sweep_cell(const std::uint8_t*, std::size_t);
+extern "C" int qdo_fuzz_network_state(const std::uint8_t*, std::size_t);
 
 namespace {
 
@@ -35,7 +37,8 @@ const Target kTargets[] = {{"config", qdo_fuzz_config},         {"design_h5", qd
                            {"cube_h5", qdo_fuzz_cube_h5},       {"mat", qdo_fuzz_mat},
                            {"checkpoint", qdo_fuzz_checkpoint}, {"png", qdo_fuzz_png},
                            {"csv", qdo_fuzz_csv},               {"kernel_cache", qdo_fuzz_kernel_cache},
-                           {"run_folder", qdo_fuzz_run_folder}};
+                           {"run_folder", qdo_fuzz_run_folder},   {"sweep_cell", qdo_fuzz_sweep_cell},
+                           {"network_state", qdo_fuzz_network_state}};
 
 }  // namespace
 

@@ -95,4 +95,9 @@ struct GridCell {
 // evaluated again. table1.csv and table2.csv carry each cell's `inputs` hash.
 std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g);
 
+// A finished cell's metrics.json as run_grid reuses it: the mean metrics (psnr_db, ssim, rmse,
+// ergas, sam_rad; psnr_h_db optional) and deviation_nm, every one a finite number. Returns false
+// for a torn, foreign or mistyped file (the cell is then evaluated again); never half-reads.
+bool read_cell_metrics(const std::string& metrics_json_path, EvalRow& mean, double& deviation_nm);
+
 }  // namespace qdo

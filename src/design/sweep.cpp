@@ -181,6 +181,32 @@ void ensure_run(Runtime& rt, const DesignRunOptions& o, const std::string& input
 
 }  // namespace
 
+bool read_cell_metrics(const std::string& path, EvalRow& mean, double& deviation_nm) {
+  try {  // a torn, foreign or mistyped file is evaluated again, never half-read
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec) || fs::file_size(path, ec) > (std::uintmax_t{1} << 20)) return false;
+    const nlohmann::json j = parse_json_strict(read_text(path), "file '" + path + "'");
+    const nlohmann::json& m = j.at("mean");
+    EvalRow r = mean;
+    r.psnr = m.at("psnr_db").get<double>();
+    r.psnr_hyper = m.value("psnr_h_db", 0.0);
+    r.ssim = m.at("ssim").get<double>();
+    r.rmse = m.at("rmse").get<double>();
+    r.ergas = m.at("ergas").get<double>();
+    r.sam_rad = m.at("sam_rad").get<double>();
+    const double dev = j.at("deviation_nm").get<double>();
+    for (double v : {r.psnr, r.psnr_hyper, r.ssim, r.rmse, r.ergas, r.sam_rad, dev})
+      if (!std::isfinite(v)) return false;
+    mean = r;
+    deviation_nm = dev;
+    return true;
+  } catch (const nlohmann::json::exception&) {
+    return false;
+  } catch (const InputError&) {  // not JSON, or JSON qdo refuses (repeated keys, ...)
+    return false;
+  }
+}
+
 std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
   if (g.out.empty()) reject("out", "(missing)", "an output folder");
   for (const auto& m : g.modes)
@@ -263,21 +289,7 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
     while (!held.empty() && (held.back() == '\n' || held.back() == ' ')) held.pop_back();
     bool ok = held == inputs && fs::exists(f);
     if (ok) {
-      try {  // a torn, foreign or mistyped file is evaluated again, never half-read
-        const nlohmann::json j = parse_json_strict(read_text(f), "file '" + f.string() + "'");
-        const nlohmann::json& m = j.at("mean");
-        GridCell r = c;
-        r.mean.psnr = m.at("psnr_db").get<double>();
-        r.mean.psnr_hyper = m.value("psnr_h_db", 0.0);
-        r.mean.ssim = m.at("ssim").get<double>();
-        r.mean.rmse = m.at("rmse").get<double>();
-        r.mean.ergas = m.at("ergas").get<double>();
-        r.mean.sam_rad = m.at("sam_rad").get<double>();
-        r.deviation_nm = j.at("deviation_nm").get<double>();
-        c = r;
-      } catch (const nlohmann::json::exception&) {
-        ok = false;
-      }
+      ok = read_cell_metrics(f.string(), c.mean, c.deviation_nm);
     }
     if (!ok) {
       std::error_code ec;
