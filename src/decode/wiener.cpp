@@ -311,10 +311,14 @@ std::size_t radial_bin(std::size_t ky, std::size_t kx, std::size_t rows, std::si
 }
 
 SpectralPrior estimate_prior(const std::vector<RealStack>& scenes, std::size_t bins) {
-  if (bins < 2) reject("bins", bins, ">= 2 (bin 0 is DC alone)");
+  if (bins < 2 || bins > 4096) reject("bins", bins, "in [2, 4096] (bin 0 is DC alone)");
   if (scenes.empty()) reject("scenes.size()", 0, "at least one scene");
   const RealStack& s0 = scenes.front();
   if (s0.size() == 0) reject("scenes[0]", shape(s0), "a non-empty B x H x W cube");
+  // bins B x B covariances are allocated next: bounded before (2^27 doubles, 1 GiB).
+  if (double(bins) * double(s0.planes) * double(s0.planes) > double(std::size_t(1) << 27))
+    reject("bins", bins, "bins x bands^2 <= 2^27 (" + to_str(s0.planes) + " bands: at most " +
+                             to_str((std::size_t(1) << 27) / (s0.planes * s0.planes)) + " bins)");
   check_scenes(scenes, s0.planes, s0.rows, s0.cols);
   SpectralPrior pr;
   pr.bands = s0.planes;

@@ -144,7 +144,7 @@ void DesignRunOptions::validate() const {
   if (epochs < 1) reject("epochs", epochs, ">= 1");
   if (batch < 1) reject("batch", batch, ">= 1");
   if (synthetic_scenes < 1) reject("synthetic_scenes", synthetic_scenes, ">= 1");
-  if (prior_bins < 2) reject("prior_bins", prior_bins, ">= 2");
+  if (prior_bins < 2 || prior_bins > 4096) reject("prior_bins", prior_bins, "in [2, 4096]");
   if (checkpoint_every < 1) reject("checkpoint_every", checkpoint_every, ">= 1");
   if (!(decoder_noise_sigma >= 0 && decoder_noise_sigma <= 10))
     reject("noise_sigma", decoder_noise_sigma, "a sensor noise std in [0, 10] (units of full scale)");
