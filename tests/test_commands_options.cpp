@@ -27,6 +27,7 @@ TEST_SUITE("commands") {
         {design + " --height-noise-nm 1e30", "--height-noise-nm", "[0, 10000] nm"},
         {design + " --noise-sigma 1e155", "--noise-sigma", "[0, 10]"},
         {design + " --decay 0", "--decay", "(0, 1]"},
+        {design + " --t0 1 --t1 1e300", "--t1", "[0, 1000000] epochs"},
         {design + " --lr 0.01 --lr 0.02", "--lr", "given once"},
         {design + " --decoder resunet:depth=8,root=1024", "--decoder", "at most 4096 channels"},
         // Options that would do nothing in this run (they were ignored silently).

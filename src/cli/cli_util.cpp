@@ -170,8 +170,8 @@ DesignRunOptions design_options(const Args& a) {
   o.design.quantizer.placement = placement_from_string(a.get("placement", "inclusive"));
   o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch", "10"), 1, 1000000));
   o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", "50"), 1, 1000000));
-  o.design.t0_epochs = parse_double("--t0", a.get("t0", to_str(std::min(5.0, 0.1 * double(o.epochs)))));
-  o.design.t1_epochs = parse_double("--t1", a.get("t1", to_str(0.8 * double(o.epochs))));
+  o.design.t0_epochs = parse_double("--t0", a.get("t0", to_str(std::min(5.0, 0.1 * double(o.epochs)))), 0, 1e6, "epochs");
+  o.design.t1_epochs = parse_double("--t1", a.get("t1", to_str(0.8 * double(o.epochs))), 0, 1e6, "epochs");
   o.design.lr_optics = parse_double("--lr", a.get("lr", "0.01"), 0, 1, "(Adam step on weights in [-1, 1])");
   o.design.lr_offsets = parse_double("--lr-offsets", a.get("lr-offsets", "0.01"), 0, 1, "(Adam step on normalised offsets)");
   o.design.lr_decay_per_epoch = parse_double("--decay", a.get("decay", "0.8"), 0, 1, "(factor per epoch)", true);

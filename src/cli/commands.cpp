@@ -80,8 +80,8 @@ OptionSpec height_noise() { return opt("height-noise-nm", "fabrication height no
 std::vector<OptionSpec> training_options() {
   return {opt("epochs", "number of epochs, an integer in [1, 1000000]", "50"),
           opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 1000000]", "10"),
-          opt("t0", "epoch where the quantization temperature schedule starts (default: min(5, 0.1 x epochs))"),
-          opt("t1", "epoch where the quantization temperature schedule ends (> --t0; default: 0.8 x epochs)"),
+          opt("t0", "epoch where the quantization temperature schedule starts, in [0, 1e6] (default: min(5, 0.1 x epochs))"),
+          opt("t1", "epoch where the quantization temperature schedule ends, in [0, 1e6] and > --t0 (default: 0.8 x epochs)"),
           opt("lr", "learning rate of the optics parameters, in [0, 1]", "0.01"),
           opt("lr-offsets", "learning rate of the adaptive level offsets (qdo+a), in [0, 1]", "0.01"),
           opt("decay", "learning-rate decay factor per epoch, in (0, 1]", "0.8"),
