@@ -43,6 +43,8 @@ TEST_SUITE("commands") {
         {"sweep " + cfg_arg() + " --grid levels=", "--grid", "at least one value after levels="},
         {"sweep " + cfg_arg() + " --grid levels=2 --grid levels=4", "--grid", "levels is given twice"},
         {"sweep " + cfg_arg() + " --grid levels=2,2", "--grid", "distinct values"},
+        {"sweep " + cfg_arg() + " --grid levels=2 --grid mode=do,qdo --beta 0.1", "--beta", "no cell of this grid uses it"},
+        {"sweep " + cfg_arg() + " --grid levels=2 --grid mode=do --lr-decoder 0.01", "--lr-decoder", "a grid with a network decoder"},
         // A decoder spec's own commas: two equal specs, so read as two values (not four).
         {"sweep " + cfg_arg() + " --grid decoder=resunet:depth=2,root=4,resunet:depth=2,root=4", "--grid", "distinct values"},
     };

@@ -1,4 +1,5 @@
 // qdo sweep-psf and qdo sweep.
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -128,6 +129,32 @@ int cmd_sweep(const Args& a) {
   g.finetune_steps = std::size_t(parse_int("--finetune-steps", a.get("finetune-steps", "100"), 1, 100000000));
   g.test_data = split_list(a.get("test-data"));
   g.eval_synthetic_scenes = std::size_t(parse_int("--eval-scenes", a.get("eval-scenes"), 1, 10000));
+  // An option no cell of this grid uses is refused, naming where it acts (as qdo design does for
+  // its one run); one that some cells use applies to those.
+  {
+    const bool levels_trained = std::any_of(g.modes.begin(), g.modes.end(), [](const std::string& m) { return m == "qdo+a" || m == "qdo+m"; });
+    const bool network = g.decoders.empty() ? g.base.decoder.network()
+                                            : std::any_of(g.decoders.begin(), g.decoders.end(), [](const DecoderSpec& d) { return d.network(); });
+    const bool finetune_net = network && std::find(g.modes.begin(), g.modes.end(), "do-finetune") != g.modes.end();
+    const bool psf_target = g.base.objective == Objective::PsfTarget;
+    const bool wiener = !psf_target;
+    const struct {
+      const char* option;
+      bool used;
+      const char* where;
+    } rules[] = {
+        {"beta", levels_trained, "a grid with mode qdo+a or qdo+m"},
+        {"lr-offsets", levels_trained, "a grid with mode qdo+a or qdo+m"},
+        {"lr-decoder", network, "a grid with a network decoder"},
+        {"gamma", network, "a grid with a network decoder"},
+        {"finetune-steps", finetune_net, "a grid with mode do-finetune and a network decoder"},
+        {"target", psf_target, "--objective psf-target"},
+        {"wiener-on", wiener, "the Wiener objectives"},
+    };
+    for (const auto& r : rules)
+      if (a.has(r.option) && !r.used)
+        reject(std::string("--") + r.option, a.get(r.option), std::string("an option of ") + r.where + "; no cell of this grid uses it: leave it out");
+  }
   g.out = out_dir(a);
   g.quiet = false;
   Runtime rt(a.get("device"));
