@@ -1,6 +1,8 @@
 // Output staging: the command's files are written to temporary names and renamed into place
 // together (OutputStage, commit_output), its new folders removed on failure
-// (make_output_dir), and write_text_atomic.
+// (make_output_dir), the rule of every command's output folder (claim_output_dir), and
+// write_text_atomic.
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -9,7 +11,6 @@
 #include <mutex>
 #include <string>
 #include <vector>
-#include <algorithm>
 
 #include "data/io_internal.hpp"
 #include "qdo/error.hpp"
@@ -144,7 +145,8 @@ void claim_output_dir(const std::string& dir, const std::string& argument, const
         text.resize(std::size_t(f.gcount()));
         const std::string key = "\"command\": \"";
         const std::size_t at = text.find(key), end = at == std::string::npos ? at : text.find('"', at + key.size());
-        if (fs::is_regular_file(e.path(), ec) && end != std::string::npos) maker = text.substr(at + key.size(), end - at - key.size());
+        std::error_code file_ec;  // kept apart from the listing's error
+        if (fs::is_regular_file(e.path(), file_ec) && end != std::string::npos) maker = text.substr(at + key.size(), end - at - key.size());
         if (maker.empty()) entries.push_back(name + " (unreadable)");
       } else {
         entries.push_back(name);

@@ -131,7 +131,8 @@ void save_checkpoint(const std::string& path, const DesignState& s) {
     }
     if (!ec) fs::rename(prev_tmp, prev, ec);
     if (ec) {
-      fs::remove(prev_tmp);
+      std::error_code ignored;
+      fs::remove(prev_tmp, ignored);
       throw InputError("file '" + path + "': cannot keep it as the previous checkpoint " + prev + ": " + ec.message());
     }
   }
