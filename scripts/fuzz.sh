@@ -5,7 +5,8 @@
 #
 # Targets (fuzz/fuzz_<name>.cpp): config (JSON), design_h5, cube_h5, checkpoint (HDF5), mat
 # (.mat v5 / v7.3), png (PNG band folders), csv (CSV tables and the camera response),
-# kernel_cache (one kernel-cache entry), run_folder (what `qdo design --resume` reads).
+# kernel_cache (one kernel-cache entry), run_folder (what `qdo design --resume` reads),
+# sweep_cell (a sweep cell's metrics.json), network_state (a network run's state file).
 # Builds them into build-fuzz/ with clang and -fsanitize=fuzzer,address,undefined, then runs
 # each from its seed corpus fuzz/corpus/<name>/. New interesting inputs go to
 # build-fuzz/corpus/<name>/ (the repository's corpus stays small); crashes, leaks, timeouts and

@@ -197,7 +197,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
     return r;
   };
   for (const auto& [name, m] : ev.per_scene) {
-    const auto count = std::count_if(per_patch.begin(), per_patch.end(), [&](const auto& p) { return p.first == name; });
+    const std::string& scene = name;  // C++17 lambdas cannot capture a structured binding (clang refuses)
+    const auto count = std::count_if(per_patch.begin(), per_patch.end(), [&scene](const auto& p) { return p.first == scene; });
     res.rows.push_back(row_of(name, m));
     csv.row({name, std::to_string(count), csv_number(m.psnr), csv_number(m.psnr_hyper), csv_number(m.ssim), csv_number(m.rmse),
              csv_number(m.ergas), csv_number(m.sam_rad)});
