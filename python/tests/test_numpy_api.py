@@ -73,29 +73,31 @@ def test_bad_arrays_are_refused_naming_the_argument(optics64, bad, match):
     assert optics64._o.psf_calls == calls  # refused before any device work
 
 
+def qdo_psf_file(qdo_binary, folder, cfg, h, pitch_m):
+    """`qdo psf --precision f64` of the height map h under the configuration cfg, run in `folder`
+    (created): the path of the psf.h5 it writes."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "c.json").write_text(json.dumps(cfg))
+    qdo.write_design(folder / "d.h5", h, pitch_m)
+    run = subprocess.run([qdo_binary, "psf", "--config", str(folder / "c.json"), "--design", str(folder / "d.h5"),
+                          "--precision", "f64", "--out", str(folder / "out")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    return folder / "out" / "psf.h5"
+
+
 def test_psf_equals_the_qdo_command_on_the_same_design(tmp_path, qdo_binary, rng):
     cfg = tiny_config()
-    (tmp_path / "c.json").write_text(json.dumps(cfg))
     o = qdo.Optics(config=cfg, precision="f64")
     h = qdo.quantize(rng.uniform(0, o.h_max_m, (o.n, o.n)), o.h_max_m, 4)
-    qdo.write_design(tmp_path / "d.h5", h, o.config["pitch_m"])
-    run = subprocess.run([qdo_binary, "psf", "--config", str(tmp_path / "c.json"), "--design", str(tmp_path / "d.h5"),
-                          "--precision", "f64", "--out", str(tmp_path / "out")], capture_output=True, text=True)
-    assert run.returncode == 0, run.stderr
-    ref = qdo.read_h5(tmp_path / "out" / "psf.h5", "/psf_sensor")
+    ref = qdo.read_h5(qdo_psf_file(qdo_binary, tmp_path, cfg, h, o.config["pitch_m"]), "/psf_sensor")
     np.testing.assert_allclose(o.psf(h), ref, rtol=0, atol=1e-14)
 
 
 def test_a_psf_file_as_the_camera_s_psf_and_other_grids_refused(tmp_path, qdo_binary, rng):
     cfg = tiny_config()
-    (tmp_path / "c.json").write_text(json.dumps(cfg))
     o = qdo.Optics(config=cfg, precision="f64")
     h = qdo.quantize(rng.uniform(0, o.h_max_m, (o.n, o.n)), o.h_max_m, 4)
-    qdo.write_design(tmp_path / "d.h5", h, o.config["pitch_m"])
-    run = subprocess.run([qdo_binary, "psf", "--config", str(tmp_path / "c.json"), "--design", str(tmp_path / "d.h5"),
-                          "--precision", "f64", "--out", str(tmp_path / "out")], capture_output=True, text=True)
-    assert run.returncode == 0, run.stderr
-    psf = o.read_psf(tmp_path / "out" / "psf.h5")
+    psf = o.read_psf(qdo_psf_file(qdo_binary, tmp_path, cfg, h, o.config["pitch_m"]))
     assert psf.shape == (o.bands, o.sensor_size, o.sensor_size)
     np.testing.assert_allclose(psf, o.psf(h), rtol=0, atol=1e-14)
     scene = rng.uniform(0, 1, (o.bands, 12, 10))
@@ -103,17 +105,12 @@ def test_a_psf_file_as_the_camera_s_psf_and_other_grids_refused(tmp_path, qdo_bi
     # A stack of another band count (4 bands) or sensor grid (n = 24) is refused, naming both.
     for key, value in (("bands", 4), ("n", 24)):
         other = tiny_config(**{key: value})
-        (tmp_path / "o.json").write_text(json.dumps(other))
         oo = qdo.Optics(config=other, precision="f64")
         hh = np.full((oo.n, oo.n), 0.5 * oo.h_max_m)
-        qdo.write_design(tmp_path / "o.h5", hh, oo.config["pitch_m"])
-        out = tmp_path / ("other_" + key)
-        run = subprocess.run([qdo_binary, "psf", "--config", str(tmp_path / "o.json"), "--design", str(tmp_path / "o.h5"),
-                              "--precision", "f64", "--out", str(out)], capture_output=True, text=True)
-        assert run.returncode == 0, run.stderr
+        path = qdo_psf_file(qdo_binary, tmp_path / ("other_" + key), other, hh, oo.config["pitch_m"])
         s_file, s_here = oo.sensor_size, o.sensor_size
         with pytest.raises(ValueError) as e:
-            o.read_psf(out / "psf.h5")
+            o.read_psf(path)
         msg = str(e.value)
         assert "the file holds" in msg and "the configuration's sensor grid" in msg
         assert f"{oo.bands} x {s_file} x {s_file}" in msg and f"{o.bands} x {s_here} x {s_here}" in msg

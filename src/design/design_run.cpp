@@ -115,7 +115,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       std::ifstream f(dir / "split.json");
       const json sp = json::parse(f);
       if (sp.contains("threads") && sp["threads"].is_number_integer()) recorded = sp["threads"].get<long>();
-    } catch (const std::exception&) {
+    } catch (const json::exception&) {  // a torn or edited split.json: nothing recorded to compare
       recorded = 0;
     }
     const int now = network_threads();
