@@ -3,6 +3,8 @@
 // same stack; `qdo simulate --psf` and `qdo image --psf` with a stack written by `qdo psf` give the
 // images of the design that made it; a stack for other bands or another sensor grid is refused
 // naming both, before anything is written.
+#include <algorithm>
+#include <cmath>
 #include <fstream>
 
 #include "common.hpp"
@@ -127,8 +129,14 @@ TEST_SUITE("psf-source") {
       CHECK(r.out.find("PSF file") != std::string::npos);
       const auto want = h5_read((dir / ("design_" + tag) / "sensor.h5").string(), "/rgb").data;
       const auto got = h5_read((dir / ("file_" + tag) / "sensor.h5").string(), "/rgb").data;
-      // qdo psf writes the device's values in the run's precision: the same stack, the same image.
-      CHECK(got == want);
+      // qdo psf writes the device's values in the run's precision: the same stack, the same image,
+      // up to the FFT plans each process chose (FFTW_MEASURE picks by timing; under load a plan
+      // may differ): a few units of the precision's rounding on values <= 1.
+      REQUIRE(got.size() == want.size());
+      double worst = 0;
+      for (std::size_t i = 0; i < got.size(); ++i) worst = std::max(worst, std::fabs(got[i] - want[i]));
+      CAPTURE(worst);
+      CHECK(worst <= (p == Precision::F64 ? 1e-12 : 1e-6));
       // The stack simulate used is written back in the same layout, and reads as the same stack.
       CHECK(read_psf_stack_file((dir / ("file_" + tag) / "psf.h5").string()).psf_sensor.data ==
             read_psf_stack_file(psf_file).psf_sensor.data);
@@ -230,11 +238,25 @@ TEST_SUITE("psf-source") {
     CAPTURE(r.out);
     REQUIRE(r.code == 0);
     // The same PSF (qdo psf wrote the device's float32 values), the same measurements and decoder:
-    // the same metrics, to the last digit.
-    CHECK(slurp(dir / "file" / "metrics.csv") == slurp(dir / "own" / "metrics.csv"));
-    CHECK_FALSE(slurp(dir / "own" / "metrics.csv").empty());
-    CHECK(h5_read((dir / "file" / "reconstructions.h5").string(), "/recon_0").data ==
-          h5_read((dir / "own" / "reconstructions.h5").string(), "/recon_0").data);
+    // the same metrics and reconstructions, up to the FFT plans each process chose (FFTW_MEASURE
+    // picks by timing): within float32 rounding.
+    const CsvTable mf = read_csv((dir / "file" / "metrics.csv").string()), mo = read_csv((dir / "own" / "metrics.csv").string());
+    REQUIRE(mf.header == mo.header);
+    REQUIRE(!mo.columns.empty());
+    REQUIRE(!mo.columns[0].empty());
+    CHECK(mf.raw[0] == mo.raw[0]);  // the same scenes
+    for (std::size_t col = 1; col < mo.columns.size(); ++col)
+      for (std::size_t row = 0; row < mo.columns[col].size(); ++row) {
+        CAPTURE(mo.header[col]);
+        CHECK(mf.columns[col].at(row) == doctest::Approx(mo.columns[col][row]).epsilon(1e-5));
+      }
+    const auto rf = h5_read((dir / "file" / "reconstructions.h5").string(), "/recon_0").data;
+    const auto ro = h5_read((dir / "own" / "reconstructions.h5").string(), "/recon_0").data;
+    REQUIRE(rf.size() == ro.size());
+    double worst = 0;
+    for (std::size_t i = 0; i < rf.size(); ++i) worst = std::max(worst, std::fabs(rf[i] - ro[i]));
+    CAPTURE(worst);
+    CHECK(worst <= 1e-5);
     // A stack of other bands, or of another size, is refused naming both; nothing is written.
     const std::size_t s = c.sensor_size_px();
     RealStack four(4, s, s), big(3, s + 4, s + 4);
