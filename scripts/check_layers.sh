@@ -52,6 +52,7 @@ io data
 joint design
 kernel_cache runtime
 materials data
+mpi runtime
 net net
 network_decoder decode
 optics physics

@@ -20,6 +20,7 @@ pkgs=(
   python3-venv python3-pip python3-numpy python3-pytest  # the Python package's build and tests
   python3-torch          # qdo.torch (the PyTorch operators) and its tests
   python3-h5py           # the Python tests read arrays with h5py (its dtypes must be accepted)
+  libopenmpi-dev openmpi-bin  # qdo sweep / qdo design under mpirun (issue 30); the build without MPI works too
   libtorch-dev           # the Res-UNet decoder in C++ (LibTorch 1.13, find_package(Torch); target qdo_net)
 )
 missing=()

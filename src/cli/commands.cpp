@@ -6,6 +6,7 @@
 #include <fftw3.h>
 
 #include <algorithm>
+#include <memory>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
@@ -13,6 +14,7 @@
 
 #include "cli.hpp"
 #include "qdo/error.hpp"
+#include "qdo/mpi.hpp"
 #include "qdo/io.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/fft.hpp"
@@ -419,15 +421,20 @@ int main(int argc, char** argv) {
     return 2;
   }
   const std::string& cmd = c->name;
+  // Under mpirun every rank runs this; one whose command fails ends the job (MPI_Abort), since the
+  // others may wait on it. Without a launcher the World is inert.
+  std::unique_ptr<qdo::mpi::World> world;
+  const int rc = [&]() -> int {
   try {
+    world = std::make_unique<qdo::mpi::World>();
     Args a;
     if (!parse_command_line(*c, argc, argv, a)) return 0;  // --help
     // Long, resumable commands write their files as they go; the others stage every output and
     // rename them into place together only when the command succeeds (OutputStage, io.hpp).
     OutputStage stage(!c->writes_as_it_goes);
-    const int rc = c->run(a);
-    if (rc == 0) stage.commit();
-    return rc;
+    const int status = c->run(a);
+    if (status == 0) stage.commit();
+    return status;
   } catch (const InputError& e) {
     std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
     return 2;
@@ -450,4 +457,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "qdo %s: internal error (please report): %s\n", cmd.c_str(), e.what());
     return 1;
   }
+  }();
+  if (rc != 0 && world && world->active() && world->size() > 1) world->abort(rc);
+  return rc;
 }
