@@ -74,6 +74,7 @@ sensor physics
 sensor_reference physics
 simulator physics
 sweep design
+sweep_stats design
 testset decode
 types runtime
 wiener decode

@@ -52,6 +52,7 @@ class World {
   // Point to point: one integer with a tag (tags 0..32767).
   void send(int dest, int tag, std::int64_t value) const;
   Message receive_any() const;                 // blocks for the next message from any rank
+  bool poll(Message& m) const;                 // a message if one has arrived (MPI_Iprobe), else false
   // Ends every rank of the job (MPI_Abort); for a rank that cannot go on.
   [[noreturn]] void abort(int code) const;
 

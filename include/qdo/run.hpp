@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "qdo/design.hpp"
+#include "qdo/error.hpp"
 
 namespace qdo {
 
@@ -20,7 +21,12 @@ namespace qdo {
 // the folder and the holder's pid. The kernel drops the lock when the holder dies (even by
 // kill -9), so a stale .lock file never blocks a --resume. The file itself is left in place
 // (unlinking a lock file races with a writer that has just opened it).
-// `what` names the argument in the error (e.g. "out").
+// `what` names the argument in the error (e.g. "out"). A folder held by another writer is a
+// RunBusyError (an InputError), so that a caller may wait for it (the sweep's shared runs).
+class RunBusyError : public InputError {
+ public:
+  using InputError::InputError;
+};
 class RunLock {
  public:
   explicit RunLock(const std::string& dir, const std::string& what = "out");

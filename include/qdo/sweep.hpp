@@ -1,6 +1,7 @@
 // Sweeps across quantization levels: PSF metrics per level (`qdo sweep-psf`) and the experiment
 // grid of the paper's comparisons (`qdo sweep`).
 #pragma once
+#include <cstdint>
 #include <map>
 #include <string>
 #include <vector>
@@ -70,6 +71,11 @@ struct GridOptions {
   std::vector<std::string> encoders{"doe"};
   double fresnel_design_nm = 550;
   std::size_t cassi_shift_px = 1;
+  // Seeds (issue 30): every cell is trained and evaluated once per seed (design.seed). Empty:
+  // base.design.seed alone, with the folder names of a sweep without a seed axis (runs/NAME,
+  // cells/NAME); else runs/NAME_sSEED and cells/NAME_sSEED. The test scenes do not depend on it
+  // (base.design.seed's split), so every seed is measured on the same scenes.
+  std::vector<std::uint64_t> seeds;
   std::string out;
   bool quiet = true;
 };
@@ -78,26 +84,65 @@ struct GridCell {
                                        // (with @spec for a network decoder)
   DecoderSpec decoder;                 // the decoder's spec (wiener by default)
   int levels = 0;                      // 0: full precision; -1: not applicable (cassi)
+  std::uint64_t seed = 0;              // the training seed of the cell's runs
   EvalRow mean;
+  std::vector<EvalRow> scenes;         // per test scene (empty for fresnel and cassi cells)
   double deviation_nm = 0;
   // "fnv1a64:<16 hex digits>": a hash of everything that determines the cell: its evaluation
   // options, the training run's options and output files (bytes), the test scenes' bytes.
   std::string inputs;
 };
+
+// The grid as a list of cells, each with the run folders it trains or reads (a DO run shared by
+// several cells first). The order is the tables' order and never depends on what is finished:
+// `qdo sweep --plan` prints it, `--cell K` and `--shard i/n` index it. No device work.
+struct PlannedCell {
+  std::size_t index = 0;
+  std::string name;                    // cells/NAME (NAME_sSEED with a seed axis)
+  std::string mode;                    // as GridCell::mode
+  DecoderSpec decoder;
+  int levels = 0;
+  std::uint64_t seed = 0;
+  std::vector<std::string> runs;       // run folders (absolute or as given under g.out), in training order
+};
+std::vector<PlannedCell> plan_grid(const GridOptions& g);
+
+// Runs the cells `which` (indices into plan_grid(g)): trains the runs each needs, skipping finished
+// ones and resuming interrupted ones, and evaluates the cell unless its metrics hold the same
+// inputs. A run another process is training (its RUN/.lock) is waited for; a cell another process
+// is running (cells/NAME/.lock) is refused with an InputError naming it. Writes no tables.
+// `progress`: a line per cell on stderr.
+void run_grid_cells(Runtime& rt, const GridOptions& g, const std::vector<std::size_t>& which, bool progress = true);
+
+// The tables from finished cells alone (nothing is trained or evaluated): table1, table2,
+// comparisons and the figures, as run_grid writes them. An InputError listing the cells that are
+// not finished (or whose inputs changed since), and then no table is written.
+std::vector<GridCell> collect_grid(const GridOptions& g);
+
 // Runs every cell (training runs resume from their checkpoints and are skipped when finished;
 // evaluated cells are skipped when their metrics exist), evaluates on the test split, and writes
-// table1.md/.csv (PSNR, SSIM, RMSE, ERGAS per cell), table2.md/.csv (deviation in nm) and
-// psnr_vs_levels.png. DO is trained once at full precision and quantized per level.
+// table1.md/.csv (PSNR, SSIM, RMSE, ERGAS per cell), table2.md/.csv (deviation in nm),
+// comparisons.md/.csv with differences.png (the paper's comparisons as paired differences with
+// 95 % intervals, sweep_stats.hpp) and psnr_vs_levels.png. DO is trained once per seed at full
+// precision and quantized per level. With a seed axis (g.seeds), table1/table2 give mean ± sd over
+// seeds and table1_seeds.csv every seed's row.
 // Reuse is checked, not assumed: a training run folder (runs/NAME) whose config.json differs
 // from the options of this call (other epochs, lr, system, ...) is an InputError naming each
 // difference, and so is one whose training scenes' bytes changed (runs/NAME/sweep_inputs holds
 // their hash); a cell is reused only when metrics.json holds the same `inputs` hash, else it is
 // evaluated again. table1.csv and table2.csv carry each cell's `inputs` hash.
+// Under an MPI world of N > 1 ranks (mpi.hpp): rank 0 hands out cells dynamically to every rank,
+// itself included (a cell whose DO run another rank is training waits for it), and writes the
+// tables once all are done; the other ranks return an empty list. A rank that fails ends the job;
+// a rerun (with or without MPI) resumes where it stopped.
 std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g);
 
 // A finished cell's metrics.json as run_grid reuses it: the mean metrics (psnr_db, ssim, rmse,
 // ergas, sam_rad; psnr_h_db optional) and deviation_nm, every one a finite number. Returns false
 // for a torn, foreign or mistyped file (the cell is then evaluated again); never half-reads.
-bool read_cell_metrics(const std::string& metrics_json_path, EvalRow& mean, double& deviation_nm);
+// With `scenes`, the file must also hold its per-scene rows ("per_scene", as qdo eval writes them),
+// every value finite; a file without them is then not reused (the cell is evaluated again).
+bool read_cell_metrics(const std::string& metrics_json_path, EvalRow& mean, double& deviation_nm,
+                       std::vector<EvalRow>* scenes = nullptr);
 
 }  // namespace qdo

@@ -1,5 +1,6 @@
 // qdo sweep-psf and qdo sweep.
 #include <algorithm>
+#include <cstdlib>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -10,6 +11,7 @@
 #include "qdo/run_folder.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
+#include "qdo/mpi.hpp"
 #include "qdo/run.hpp"
 #include "qdo/sweep.hpp"
 
@@ -20,6 +22,13 @@ using namespace qdo::cli;
 namespace qdo::cli {
 namespace {
 
+void print_cells(const std::vector<GridCell>& cells) {
+  std::printf("%-6s %-7s %-9s %9s %8s %8s %8s %10s\n", "seed", "levels", "mode", "PSNR", "SSIM", "RMSE", "ERGAS", "dev [nm]");
+  for (const auto& c : cells)
+    std::printf("%-6llu %-7s %-9s %9.2f %8.4f %8.4f %8.2f %10.2f\n", (unsigned long long)c.seed,
+                c.levels == 0 ? "full" : c.levels < 0 ? "n/a" : std::to_string(c.levels).c_str(), c.mode.c_str(), c.mean.psnr,
+                c.mean.ssim, c.mean.rmse, c.mean.ergas, c.deviation_nm);
+}
 
 }  // namespace
 
@@ -90,10 +99,10 @@ int cmd_sweep(const Args& a) {
   std::set<std::string> axes;
   for (const auto& spec : grids == a.multi.end() ? std::vector<std::string>{} : grids->second) {
     const auto eq = spec.find('=');
-    if (eq == std::string::npos) reject("--grid", spec, "AXIS=V1,V2,... with AXIS levels, mode, encoder or decoder");
+    if (eq == std::string::npos) reject("--grid", spec, "AXIS=V1,V2,... with AXIS levels, mode, encoder, decoder or seed");
     const std::string axis = spec.substr(0, eq);
-    if (axis != "levels" && axis != "mode" && axis != "encoder" && axis != "decoder")
-      reject("--grid", axis, "levels, mode, encoder or decoder");
+    if (axis != "levels" && axis != "mode" && axis != "encoder" && axis != "decoder" && axis != "seed")
+      reject("--grid", axis, "levels, mode, encoder, decoder or seed");
     if (!axes.insert(axis).second) reject("--grid", spec, "each axis once (" + axis + " is given twice)");
     std::vector<std::string> vals = split_list(spec.substr(eq + 1));
     // A decoder spec holds commas of its own (resunet:depth=4,root=16): a key=value item after a
@@ -122,9 +131,17 @@ int cmd_sweep(const Args& a) {
     } else if (axis == "decoder") {
       g.decoders.clear();
       for (const auto& v : vals) g.decoders.push_back(decoder_spec_from_string(v));
+    } else if (axis == "seed") {
+      for (const auto& v : vals) g.seeds.push_back(std::uint64_t(parse_int("--grid seed", v, 0, 2147483647)));
     } else {
-      reject("--grid", axis, "levels, mode, encoder or decoder");
+      reject("--grid", axis, "levels, mode, encoder, decoder or seed");
     }
+  }
+  if (a.has("seeds")) {
+    if (axes.count("seed")) reject("--seeds", a.get("seeds"), "omitted with --grid seed=... (one seed axis)");
+    const std::uint64_t first = g.base.design.seed;
+    const int n = parse_int("--seeds", a.get("seeds"), 1, 1000);
+    for (int i = 0; i < n; ++i) g.seeds.push_back(first + std::uint64_t(i));
   }
   g.finetune_steps = std::size_t(parse_int("--finetune-steps", a.get("finetune-steps", "100"), 1, 100000000));
   g.test_data = split_list(a.get("test-data"));
@@ -155,18 +172,78 @@ int cmd_sweep(const Args& a) {
       if (a.has(r.option) && !r.used)
         reject(std::string("--") + r.option, a.get(r.option), std::string("an option of ") + r.where + "; no cell of this grid uses it: leave it out");
   }
-  g.out = out_dir(a);
+  // What to do: every cell (the default), the plan, some cells, or the tables of finished cells.
+  const int actions = int(a.has("plan")) + int(a.has("cell")) + int(a.has("shard")) + int(a.has("collect"));
+  if (actions > 1) reject("--plan/--cell/--shard/--collect", "more than one", "one of them at a time");
+  const mpi::World* world = mpi::world();
+  const bool ranks = world && world->active() && world->size() > 1;
+  if (ranks && actions > 0)
+    reject(a.has("plan") ? "--plan" : a.has("cell") ? "--cell" : a.has("shard") ? "--shard" : "--collect", "(given under mpirun)",
+           "a sweep without mpirun (under mpirun, rank 0 hands out the cells itself)");
   g.quiet = false;
-  Runtime rt(a.get("device"));
+  if (a.has("plan")) {  // no device, no files: the cells and the runs each trains or reads
+    g.out = a.get("out");
+    if (g.out.empty()) reject("--out", "(missing)", "the sweep folder the cells will be written to");
+    const auto plan = plan_grid(g);
+    std::printf("# %zu cells of sweep %s (qdo sweep ... --cell K runs cell K; a Slurm job array: --array=0-%zu and --cell "
+                "$SLURM_ARRAY_TASK_ID, or --cell slurm)\n",
+                plan.size(), g.out.c_str(), plan.size() - 1);
+    std::printf("%s\t%s\t%s\t%s\t%s\t%s\n", "cell", "name", "mode", "levels", "seed", "runs");
+    for (const auto& c : plan) {
+      std::string runs;
+      for (const auto& r : c.runs) runs += (runs.empty() ? "" : ",") + fs::path(r).filename().string();
+      std::printf("%zu\t%s\t%s\t%d\t%llu\t%s\n", c.index, c.name.c_str(), c.mode.c_str(), c.levels, (unsigned long long)c.seed,
+                  runs.c_str());
+    }
+    return 0;
+  }
+  if (a.has("collect")) {  // reads the finished cells, trains and evaluates nothing
+    g.out = a.get("out");
+    if (g.out.empty() || !fs::is_directory(g.out)) reject("--out", g.out.empty() ? "(missing)" : g.out, "the folder of a sweep whose cells were run");
+    const auto t0 = std::chrono::steady_clock::now();
+    const auto cells = collect_grid(g);
+    print_cells(cells);
+    std::printf("%.1f s; %zu cells collected; wrote %s/ (table1.md table1.csv table2.md table2.csv comparisons.md comparisons.csv "
+                "differences.png psnr_vs_levels.png)\n", seconds_since(t0), cells.size(), g.out.c_str());
+    return 0;
+  }
+  std::vector<std::size_t> which;
+  if (a.has("cell") || a.has("shard")) {
+    g.out = a.get("out");
+    const auto plan = plan_grid(g);  // validates the options before any folder is made
+    const long n = long(plan.size());
+    if (a.has("cell")) {
+      std::string v = a.get("cell");
+      if (v == "slurm") {
+        const char* id = std::getenv("SLURM_ARRAY_TASK_ID");
+        if (!id || !*id) reject("--cell", v, "a cell index, or slurm inside a Slurm job array (SLURM_ARRAY_TASK_ID is not set here)");
+        v = id;
+      }
+      which.push_back(std::size_t(parse_int("--cell", v, 0, int(std::max(0L, n - 1)))));
+    } else {
+      const std::string v = a.get("shard");
+      const auto slash = v.find('/');
+      if (slash == std::string::npos) reject("--shard", v, "i/n: shard i (from 0) of n, cells i, i + n, i + 2n, ...");
+      const int parts = parse_int("--shard n", v.substr(slash + 1), 1, 1000000);
+      const int i = parse_int("--shard i", v.substr(0, slash), 0, parts - 1);
+      for (long k = i; k < n; k += parts) which.push_back(std::size_t(k));
+    }
+  }
+  g.out = out_dir(a);
+  Runtime rt(rank_device(a.get("device")));
   const auto t0 = std::chrono::steady_clock::now();
+  if (!which.empty() || a.has("shard")) {
+    run_grid_cells(rt, g, which);
+    std::printf("%.0f s; %zu cell(s) run into %s/ (qdo sweep ... --collect writes the tables once every cell is finished)\n",
+                seconds_since(t0), which.size(), g.out.c_str());
+    return 0;
+  }
   const auto cells = run_grid(rt, g);
-  std::printf("%-7s %-9s %9s %8s %8s %8s %10s\n", "levels", "mode", "PSNR", "SSIM", "RMSE", "ERGAS", "dev [nm]");
-  for (const auto& c : cells)
-    std::printf("%-7s %-9s %9.2f %8.4f %8.4f %8.2f %10.2f\n",
-                c.levels == 0 ? "full" : c.levels < 0 ? "n/a" : std::to_string(c.levels).c_str(), c.mode.c_str(),
-                c.mean.psnr, c.mean.ssim, c.mean.rmse, c.mean.ergas, c.deviation_nm);
-  std::printf("%.0f s; wrote %s/ (runs/ cells/ table1.md table1.csv table2.md table2.csv psnr_vs_levels.png)\n", seconds_since(t0),
-              g.out.c_str());
+  if (ranks && world->rank() != 0) return 0;  // rank 0 writes the tables and prints them
+  print_cells(cells);
+  std::printf("%.0f s; wrote %s/ (runs/ cells/ table1.md table1.csv table2.md table2.csv comparisons.md comparisons.csv "
+              "differences.png psnr_vs_levels.png%s)\n",
+              seconds_since(t0), g.out.c_str(), g.seeds.empty() ? "" : " table1_seeds.csv");
   return 0;
 }
 

@@ -203,13 +203,19 @@ std::vector<CommandSpec> make_table() {
                cmd_tolerance});
   t.push_back({"sweep", "a grid of designs (levels x modes x encoders), each designed and evaluated, with summary tables", "", "",
                concat({{"grid", "a grid axis AXIS=V1,V2,...: levels=2,4,8; mode=do,do-refit,do-finetune,qdo,qdo+a; "
-                                "encoder=doe,fresnel,cassi; decoder=wiener,resunet (repeatable)",
+                                "encoder=doe,fresnel,cassi; decoder=wiener,resunet; seed=1,2,3 (repeatable)",
                         "", false, true},
                        opt("finetune-steps", "do-finetune with a network decoder: network steps with the DOE frozen, an integer in [1, 100000000]", "100"),
                        preset(), config(), placement(), parameterization(), objective(),
                        data("training scenes (default: synthetic scenes)"),
                        opt("test-data", "test scenes: CAVE folders, cube files or folders of them, comma-separated (default: synthetic)"),
-                       opt("eval-scenes", "synthetic test scenes, an integer in [1, 10000]", "4")},
+                       opt("eval-scenes", "synthetic test scenes, an integer in [1, 10000]", "4"),
+                       opt("seeds", "N seeds as a grid axis: --seed, --seed + 1, ..., an integer in [1, 1000] (or --grid seed=S1,S2,...)"),
+                       flag("plan", "print the grid's cells (index, name, mode, levels, seed, runs) and exit: nothing is run or written"),
+                       opt("cell", "run cell K of --plan's list only (its runs, then its evaluation), no tables; K = slurm reads "
+                                   "SLURM_ARRAY_TASK_ID"),
+                       opt("shard", "run shard i/n of the cells only (cells i, i + n, ...), no tables"),
+                       flag("collect", "write the tables from the finished cells only, naming any that are not finished")},
                       concat(training_options(), {precision(), device(), out_dir_opt()})),
                cmd_sweep, true});
   t.push_back({"sweep-psf", "PSF quality against the number of levels for one design", "", "",

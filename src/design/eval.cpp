@@ -216,6 +216,11 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   j["scenes"] = res.rows.size();
   j["patches"] = patches.size();
   j["deviation_nm"] = res.deviation_nm;
+  nlohmann::json per_scene = nlohmann::json::array();  // the sweep's paired comparisons read it
+  for (const EvalRow& r : res.rows)
+    per_scene.push_back({{"scene", r.scene}, {"psnr_db", r.psnr}, {"psnr_h_db", r.psnr_hyper}, {"ssim", r.ssim},
+                         {"rmse", r.rmse},   {"ergas", r.ergas},  {"sam_rad", r.sam_rad}});
+  j["per_scene"] = per_scene;
   j["mean"] = {{"psnr_db", res.mean.psnr},       {"psnr_h_db", res.mean.psnr_hyper}, {"ssim", res.mean.ssim},
                {"rmse", res.mean.rmse},          {"ergas", res.mean.ergas},          {"sam_rad", res.mean.sam_rad}};
   j["conventions"] = {{"psnr_db", "whole cube, peak 1 (release psnr_metric)"},

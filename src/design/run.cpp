@@ -77,9 +77,9 @@ RunLock::RunLock(const std::string& dir, const std::string& what) : path_((std::
     ::close(fd_);
     fd_ = -1;
     if (err == EWOULDBLOCK)
-      reject(what, dir,
-             "a run folder no other process is writing (it is locked by pid " + (holder.empty() ? std::string("unknown") : holder) +
-                 " through '" + path_ + "'; wait for it to finish, or stop it, or choose another folder)");
+      throw RunBusyError("argument '" + what + "' = " + dir + ": a run folder no other process is writing (it is locked by pid " +
+                         (holder.empty() ? std::string("unknown") : holder) + " through '" + path_ +
+                         "'; wait for it to finish, or stop it, or choose another folder)");
     reject(what, dir, "a run folder that can be locked (flock on '" + path_ + "': " + std::strerror(err) + ")");
   }
   // The pid over what an earlier holder left, then cut to its length: the file never reads

@@ -139,6 +139,16 @@ Message World::receive_any() const {
   m.tag = st.MPI_TAG;
   return m;
 }
+bool World::poll(Message& m) const {
+  int flag = 0;
+  MPI_Status st;
+  check(MPI_Iprobe(MPI_ANY_SOURCE, MPI_ANY_TAG, MPI_COMM_WORLD, &flag, &st), "MPI_Iprobe");
+  if (!flag) return false;
+  check(MPI_Recv(&m.value, 1, MPI_INT64_T, st.MPI_SOURCE, st.MPI_TAG, MPI_COMM_WORLD, &st), "MPI_Recv");
+  m.source = st.MPI_SOURCE;
+  m.tag = st.MPI_TAG;
+  return true;
+}
 void World::abort(int code) const {
   if (active_) MPI_Abort(MPI_COMM_WORLD, code);
   std::_Exit(code);
@@ -151,6 +161,7 @@ void World::broadcast(std::string&) const {}
 void World::broadcast(std::int64_t&) const {}
 void World::send(int, int, std::int64_t) const { throw std::logic_error("qdo::mpi::World::send without MPI"); }
 Message World::receive_any() const { throw std::logic_error("qdo::mpi::World::receive_any without MPI"); }
+bool World::poll(Message&) const { return false; }
 void World::abort(int code) const { std::_Exit(code); }
 #endif
 

@@ -1,0 +1,41 @@
+// The sweep's private helpers (sweep.cpp), shared by its parts: the grid's plan and execution
+// (sweep_grid.cpp) and its tables (sweep_tables.cpp).
+#pragma once
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "qdo/design_run_options.hpp"
+#include "qdo/hash.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/sweep.hpp"
+
+namespace qdo::sweep_detail {
+
+bool run_finished(const std::filesystem::path& run);  // RUN/DONE exists
+// The bytes of a file, or of every regular file under a folder (sorted by path, each with its
+// relative path and size); "missing" for a path that does not exist.
+void hash_path(Fnv1a64& f, const std::filesystem::path& p);
+std::string hash_paths(const std::vector<std::string>& paths);
+std::string read_text(const std::filesystem::path& p);
+// Test cubes as S x S patches, as evaluate_run cuts them (bands x S x S each).
+std::vector<RealStack> test_patches(const SystemConfig& cfg, const std::vector<std::string>& test, std::size_t synthetic,
+                                    std::uint64_t seed);
+// cells/NAME/metrics.json and inputs of a cell scored outside evaluate_run (fresnel, cassi).
+void write_cell_metrics(const std::filesystem::path& dir, const GridCell& c);
+// A training run of the sweep: refused when its folder holds a run of other options or scenes,
+// skipped when finished (RUN/DONE), else trained or resumed; `ignore`: config fields that do not
+// change what the sweep reads from the run. `inputs`: the hash of the training scenes' bytes.
+void ensure_run(Runtime& rt, const DesignRunOptions& o, const std::string& inputs, bool quiet, const std::string& sweep_out,
+                const std::set<std::string>& ignore = {"design.checkpoint_every"});
+// ensure_run that waits (polling every 2 s) while another process holds the run's lock.
+void ensure_run_waiting(Runtime& rt, const DesignRunOptions& o, const std::string& inputs, bool quiet,
+                        const std::string& sweep_out, const std::set<std::string>& ignore = {"design.checkpoint_every"});
+
+// The tables, figures and comparisons of the cells (sweep_tables.cpp); `seed_axis`: the grid has one.
+void write_grid_tables(const std::filesystem::path& out, const std::vector<GridCell>& cells, bool seed_axis);
+
+}  // namespace qdo::sweep_detail
