@@ -59,8 +59,10 @@ Cflags: -I${includedir}
 EOF
   cp -r ../shared/data/hsi/cave ../shared/data/hsi/README.md "$pre/shared/data/hsi/"
   cp -r ../shared/data/spectral "$pre/shared/data/"
-  find ../shared/data/hsi/cave_train -name '*.mat' | sort | head -n "$n_train" |
-    xargs -I{} cp {} "$pre/shared/data/hsi/cave_train/"
+  if [ "$n_train" -gt 0 ]; then  # (head -n 0 would end the pipe early: a failure under pipefail)
+    find ../shared/data/hsi/cave_train -name '*.mat' | sort | head -n "$n_train" |
+      xargs -I{} cp {} "$pre/shared/data/hsi/cave_train/"
+  fi
   touch "$pre/.qdo-device-prefix"
   echo "device_build: $pre ($(du -sh "$pre" | cut -f1))"
   ;;
@@ -74,13 +76,14 @@ build)
     if [ -n "$lib" ]; then mkdir -p /etc/OpenCL/vendors && echo "$lib" > /etc/OpenCL/vendors/nvidia.icd; fi
   fi
   [ -e ../shared ] || ln -s "$pre/shared" ../shared
-  bdir="${QDO_DEVICE_BUILD:-build}"  # env: QDO_DEVICE_BUILD (folder), QDO_DEVICE_CMAKE_ARGS (more cmake options)
+  bdir="${QDO_DEVICE_BUILD:-build}"  # env: QDO_DEVICE_BUILD (folder), QDO_DEVICE_CMAKE_ARGS (more cmake options), QDO_DEVICE_TARGETS (default: qdo qdo_tests)
   mkdir -p "$bdir"
   # shellcheck disable=SC2086
   cmake -S . -B "$bdir" -G Ninja -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$pre" -DclFFT_DIR="$pre/lib/cmake/clFFT" \
     -DVKFFT_INCLUDE_DIR="$pre/include" -DTorch_DIR="$torch_dir" -DCMAKE_BUILD_RPATH="$pre/lib" ${QDO_DEVICE_CMAKE_ARGS:-} > "$bdir/device-configure.log" 2>&1 ||
     { tail -40 "$bdir/device-configure.log"; exit 1; }
-  cmake --build "$bdir" --target qdo qdo_tests -j "$(nproc)" > "$bdir/device-build.log" 2>&1 || { grep -B2 -A20 -m3 "error" "$bdir/device-build.log" | head -80; exit 1; }
+  # shellcheck disable=SC2086
+  cmake --build "$bdir" --target ${QDO_DEVICE_TARGETS:-qdo qdo_tests} -j "$(nproc)" > "$bdir/device-build.log" 2>&1 || { grep -B2 -A20 -m3 "error" "$bdir/device-build.log" | head -80; exit 1; }
   echo "device_build: built in $bdir with LibTorch from $torch_dir; run with LD_LIBRARY_PATH=$pre/lib and, for a pip LibTorch, LD_PRELOAD=$(g++ -print-file-name=libstdc++.so.6)"
   ;;
 *)
