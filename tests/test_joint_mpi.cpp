@@ -23,6 +23,8 @@
 
 #include "common.hpp"
 #include "qdo/config.hpp"
+#include "qdo/design_run.hpp"
+#include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/mpi.hpp"
 
@@ -169,6 +171,22 @@ TEST_SUITE("joint-mpi") {
     }
     check_logs_close(moved, two, 1e-4, 0.015, 0.3);
     fs::remove_all(dir);
+  }
+
+  TEST_CASE("a rank's device: --device when given, else GPU number (local rank mod the GPU count), else the default") {
+    std::vector<DeviceInfo> devs(3);
+    devs[0].type = "CPU";
+    devs[1].type = "GPU";
+    devs[1].platform_index = 1;
+    devs[2].type = "GPU";
+    devs[2].platform_index = 1;
+    devs[2].device_index = 1;
+    CHECK(device_for_rank("cpu", 1, devs) == "cpu");
+    CHECK(device_for_rank("", 0, devs) == "1:0");
+    CHECK(device_for_rank("", 1, devs) == "1:1");
+    CHECK(device_for_rank("", 2, devs) == "1:0");
+    CHECK(device_for_rank("", 3, {devs[0]}) == "");
+    CHECK_THROWS_WITH_AS(device_for_rank("", -1, devs), "argument 'local_rank' = -1: >= 0", InputError);
   }
 
   TEST_CASE("under mpirun a batch the rank count does not divide is refused before the run folder is written") {
