@@ -22,6 +22,15 @@ struct DesignRunResult {
 // folder is locked (RunLock) while this runs: a second writer gets an InputError naming the pid.
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& o, bool resume);
 
+// The OpenCL device (a Runtime selector) of the process of local rank `local_rank` among
+// `devices`: `given` when not empty; else, when there are GPUs, GPU number (local_rank mod their
+// count) in list_devices() order, as "P:D"; else "" (Runtime's default).
+std::string device_for_rank(const std::string& given, int local_rank, const std::vector<DeviceInfo>& devices);
+// This process's device: `given` (--device), else $QDO_DEVICE, else under mpirun with N > 1 ranks
+// device_for_rank("", local rank, list_devices()) (one GPU per rank on a node while they last),
+// else "" (Runtime's default: the first GPU, else the first CPU).
+std::string process_device(const std::string& given);
+
 // The network of a run that trained one (decoder a resunet spec), in the state of its last
 // checkpoint (a finished run: the final network), checksum verified. InputError naming the run
 // for a Wiener run, a missing or corrupt state, or a qdo built without LibTorch.

@@ -46,16 +46,29 @@ std::size_t synthetic_count(const std::string& entry);
 
 std::vector<RealStack> joint_batch(const JointData& d, std::size_t s, std::size_t batch, std::uint64_t seed, long step);
 
+// Data-parallel training (qdo design under mpirun with N > 1 ranks, qdo/mpi.hpp): every rank
+// draws the step's whole batch from the seed (the one a single process draws) and takes items
+// [r B/N, (r+1) B/N) of it (rank r; B a multiple of N), with the read noise of their places in
+// the batch. It images them, runs the network's forward and backward on them (batch norm
+// synchronised over the ranks) and the camera adjoint, then sums over the ranks, in ONE
+// allreduce, [dL/dPSF, the network's gradients, loss, MAE, MSE], each rank's share weighted by
+// its part of the batch and the γ ||ω||² term on rank 0 alone: the sums are the 1-process
+// step's. Every rank then takes the same network Adam step and returns the same dL/dPSF and loss,
+// from which Designer takes the same optics step (dL/dheights and dL/doffsets are linear in
+// dL/dPSF, and its β L_aq term is added once, after the sum). So the ranks' states stay identical.
 class JointTrainer {
  public:
   // `net` and `data` must outlive the trainer. noise_sigma: the read noise added to each image.
+  // Under mpirun with N > 1 ranks (above): InputError naming `batch` unless N divides it.
   JointTrainer(Runtime& rt, const SystemConfig& cfg, Precision p, NetworkDecoder& net, const JointData& data,
                std::size_t batch, double noise_sigma, std::uint64_t seed);
   // One joint step at the sensor PSF stack psf (bands x S x S): images the step's batch, trains
   // the network one step at learning rate lr_net, and writes dL/dpsf into grad_psf. Returns the
-  // loss (NetworkStep::loss).
+  // loss (NetworkStep::loss). Data-parallel: the global batch's loss and dL/dpsf on every rank.
   double step(long step, double lr_net, const RealStack& psf, RealStack& grad_psf);
+  // The last step's loss, MAE and PSNR (the global batch's), and this rank's image gradients.
   const NetworkStep& last() const { return last_; }
+  std::size_t ranks() const { return ranks_; }
   const RealStack& last_psf() const { return last_psf_; }
   // Mean PSNR (peak 1) over the validation patches through psf, with noise drawn per patch from
   // (seed + 78, k), network in inference mode. Same value for the same state and PSF.
@@ -68,6 +81,7 @@ class JointTrainer {
   std::size_t s_, batch_;
   double sigma_;
   std::uint64_t seed_;
+  std::size_t rank_ = 0, ranks_ = 1;  // this process's MPI rank and the world size
   NetworkStep last_;
   RealStack last_psf_;
 };

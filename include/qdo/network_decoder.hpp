@@ -44,6 +44,29 @@ class NetworkDecoder {
   // bytes that are not such a state or that hold another architecture (both specs named).
   virtual std::string save() const = 0;
   virtual void load(const std::string& bytes, const std::string& origin) = 0;
+
+  // Data-parallel training (qdo design under mpirun, joint.cpp): every rank takes its share of
+  // the global batch; train() is then split in two so that the gradients can be summed over the
+  // ranks in between. A network that has no such split throws InputError from each (the defaults).
+  //
+  // The element-wise sum over the ranks (in place, n values) that training-mode batch norm uses
+  // for its statistics, so that the ranks normalise with the global batch's mean and variance and
+  // keep the same running statistics (synchronised batch norm); an empty function: local batch.
+  using RankSum = std::function<void(double* data, std::size_t n)>;
+  virtual void set_rank_sum(RankSum sum);
+  // Loss and dL/d(images) of this rank's share at the current weights, the network's gradients
+  // kept (not applied): loss = data_weight * MAE(share) + (regularise ? γ ||ω||² : 0), so with
+  // data_weight = share / global batch and the regulariser on one rank the sum over the ranks of
+  // the losses and of the gradients is the global batch's. NetworkStep::mae is the share's MAE
+  // times data_weight; with data_weight < 1, psnr_db holds the share's MSE times data_weight (both
+  // summed over the ranks: the global batch's; data_weight 1 gives train()'s PSNR).
+  virtual NetworkStep backward(const std::vector<RealStack>& images, const std::vector<RealStack>& targets, double data_weight,
+                               bool regularise);
+  // The gradients backward() left, parameter_count() values in the network's parameter order.
+  virtual void read_gradients(double* out) const;
+  // Sets the gradients to `grad` (parameter_count() values, same order) and takes one Adam step
+  // at learning rate lr.
+  virtual void apply_gradients(const double* grad, double lr);
 };
 
 struct NetworkSettings {

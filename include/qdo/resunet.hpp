@@ -18,6 +18,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 
 #include "qdo/decoder_spec.hpp"
 
@@ -33,6 +34,12 @@ struct ResUNetImpl : torch::nn::Module {
   std::size_t depth() const { return depth_; }
   std::size_t root() const { return root_; }
   std::size_t parameter_count() const;  // trainable values (batch-norm running statistics excluded)
+  // Data-parallel training: the element-wise sum over the ranks (in place, n doubles). While one is
+  // set, batch norm in training mode normalises with the statistics of the union of the ranks'
+  // batches (synchronised batch norm: one sum per layer in forward, one in backward; running
+  // statistics updated with the global mean and unbiased variance), so every rank computes what
+  // one process with the whole batch does. Empty (the default): each batch norm on its own batch.
+  void set_rank_sum(std::function<void(double* data, std::size_t n)> sum) { rank_sum_ = std::move(sum); }
 
  private:
   struct Down {
@@ -43,6 +50,8 @@ struct ResUNetImpl : torch::nn::Module {
     torch::nn::Conv2d up_conv{nullptr}, conv1{nullptr}, conv2{nullptr}, identity{nullptr};
     torch::nn::BatchNorm2d bn1{nullptr}, bn2{nullptr};
   };
+  torch::Tensor norm(torch::nn::BatchNorm2d& bn, const torch::Tensor& x);  // bn(x), synchronised under rank_sum_
+  std::function<void(double*, std::size_t)> rank_sum_;
   std::size_t in_, out_, depth_, root_;
   std::vector<Down> down_;
   std::vector<Up> up_;  // up_[i] is level i (i < depth - 1)

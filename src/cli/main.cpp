@@ -24,6 +24,7 @@
 #include "qdo/error.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/io.hpp"
+#include "qdo/mpi.hpp"
 #include "qdo/network_decoder.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
@@ -168,14 +169,18 @@ int cmd_design(const Args& a) {
   if (!resume) o.validate();
   else check_resume_options(a, o);
   if (!resume && !finetune) check_options_act(a, o);
-  if (!resume) claim_out(a, o.out);  // --resume: the run folder is checked by the resume itself
-  Runtime rt(a.get("device"));
+  // Under mpirun rank 0 owns the run folder (run_design); each rank opens its own device.
+  const qdo::mpi::World* world = qdo::mpi::world();
+  const bool writer = !world || world->rank() == 0;
+  if (!resume && writer) claim_out(a, o.out);  // --resume: the run folder is checked by the resume itself
+  Runtime rt(process_device(a.get("device")));
   if (a.has("check-gradients")) {
     std::printf("gradient check on this run's configuration (reduced to N <= 64):\n");
     if (const int rc = print_gradcheck(gradcheck(rt, o, o.design.seed)); rc != 0) return rc;
   }
   const auto t0 = std::chrono::steady_clock::now();
   const DesignRunResult r = run_design(rt, o, resume);
+  if (!writer) return 0;
   std::printf("design: %ld steps, final loss %.6g, %.1f s; levels (nm):", r.steps_done, r.final_loss, seconds_since(t0));
   for (double l : r.levels_m) std::printf(" %.1f", l * 1e9);
   std::printf("\nwrote %s/ (config.json checkpoint.h5 log.csv design.h5 psf.h5 design.png psf.png loss.png)\n", o.out.c_str());

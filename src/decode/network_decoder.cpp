@@ -32,6 +32,19 @@ void register_network_factory(NetworkFactory factory) {
   factory_slot() = std::move(factory);
 }
 
+namespace {
+[[noreturn]] void no_data_parallel(const NetworkDecoder& n) {
+  reject("decoder", n.spec(), "a network with data-parallel training (resunet): this one trains only in one process");
+}
+}  // namespace
+
+void NetworkDecoder::set_rank_sum(RankSum) { no_data_parallel(*this); }
+NetworkStep NetworkDecoder::backward(const std::vector<RealStack>&, const std::vector<RealStack>&, double, bool) {
+  no_data_parallel(*this);
+}
+void NetworkDecoder::read_gradients(double*) const { no_data_parallel(*this); }
+void NetworkDecoder::apply_gradients(const double*, double) { no_data_parallel(*this); }
+
 NetworkFactory registered_network_factory() {
   const std::lock_guard<std::mutex> lock(factory_mutex());
   return factory_slot();

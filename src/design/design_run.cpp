@@ -23,6 +23,7 @@
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/joint.hpp"
+#include "qdo/mpi.hpp"
 #include "qdo/network_decoder.hpp"
 #include "qdo/run.hpp"
 #include "qdo/run_folder.hpp"
@@ -45,15 +46,42 @@ std::string fmt_time(double s) {
 
 }  // namespace
 
+std::string device_for_rank(const std::string& given, int local_rank, const std::vector<DeviceInfo>& devices) {
+  if (!given.empty()) return given;
+  if (local_rank < 0) reject("local_rank", local_rank, ">= 0");
+  std::vector<const DeviceInfo*> gpus;
+  for (const DeviceInfo& d : devices)
+    if (d.type == "GPU") gpus.push_back(&d);
+  if (gpus.empty()) return "";
+  const DeviceInfo& g = *gpus[std::size_t(local_rank) % gpus.size()];
+  return std::to_string(g.platform_index) + ":" + std::to_string(g.device_index);
+}
+
+std::string process_device(const std::string& given) {
+  if (!given.empty()) return given;
+  if (const char* e = std::getenv("QDO_DEVICE"); e && *e) return e;
+  const mpi::World* w = mpi::world();
+  if (!w || !w->active() || w->size() < 2) return "";
+  return device_for_rank("", w->local_rank(), list_devices());
+}
+
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resume) {
   const fs::path dir(given.out);
   const RunFolder folder(given.out);
   const fs::path cfg_path = folder.config_path(), ckpt_path = folder.checkpoint_path(), log_path = folder.log_path();
   DesignRunOptions o = given;
+  // Under mpirun (data-parallel network training, joint.hpp) every rank runs this call in
+  // lock-step, and rank 0 owns the run folder: it alone takes the RunLock, sets a refused
+  // checkpoint aside and writes files. The others read the folder once rank 0 has it (the
+  // barriers below) and write nothing; their states stay rank 0's (joint.hpp), so the checkpoint
+  // holds no per-rank state and a run resumes at any rank count.
+  const mpi::World* world = mpi::world();
+  const bool parallel = world && world->active() && world->size() > 1, writer = !parallel || world->rank() == 0;
   // The folder is ours while this call runs (RunLock): taken first when the folder exists, so
   // its config and checkpoint are read and judged under the lock; else right after creating it.
   std::unique_ptr<RunLock> lock;
-  if (!given.out.empty() && fs::is_directory(dir)) lock = std::make_unique<RunLock>(given.out);
+  if (writer && !given.out.empty() && fs::is_directory(dir)) lock = std::make_unique<RunLock>(given.out);
+  if (parallel && !writer) world->barrier();  // rank 0 holds the folder and has judged its checkpoint
   ResumeState resumed;  // read and checked before any work (no device needed)
   if (resume) {
     resumed = load_resume_state(given.out);
@@ -61,7 +89,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     o.out = given.out;
     o.max_steps = given.max_steps;
     o.quiet = given.quiet;
-    if (!resumed.refused.empty()) {
+    if (!resumed.refused.empty() && writer) {
       // Resume from the previous checkpoint; the refused one is set aside (kept for inspection,
       // never deleted), so the next save does not rotate it into checkpoint.prev.h5.
       const fs::path aside = dir / "checkpoint.refused.h5";
@@ -73,8 +101,13 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   } else if (fs::exists(ckpt_path) || fs::exists(checkpoint_prev_path(ckpt_path.string()))) {
     reject("out", given.out, "a folder without a checkpoint (this one holds one: continue it with --resume)");
   }
+  if (parallel && writer) world->barrier();
+  if (!writer) o.quiet = true;
   o.validate();
   const bool network = o.objective == Objective::Network, finetune = !o.finetune_from.empty();
+  if (parallel && network && o.batch % std::size_t(world->size()) != 0)  // refused before any writing (as JointTrainer does)
+    reject("batch", o.batch, "a multiple of the MPI world size " + std::to_string(world->size()) + " (each rank trains on batch / " +
+                                 std::to_string(world->size()) + " scenes of every step's batch)");
   // A checkpoint belongs to its run: a network run's checkpoint (it names a network state) in a
   // Wiener run folder is refused, as a Wiener one in a network run is (read_network_state).
   if (resume && !network && !resumed.state.network_file.empty())
@@ -119,7 +152,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       recorded = 0;
     }
     const int now = network_threads();
-    if (recorded > 0 && recorded != now) {
+    if (recorded > 0 && recorded != now && writer) {
       notes.push_back("this network run trained with " + std::to_string(recorded) + " LibTorch threads and resumes with " +
                       std::to_string(now) + ": the network's sums run in another order, so the run continues differently from "
                       "an uninterrupted one (about 1e-7 in the loss); QDO_TORCH_THREADS=" + std::to_string(recorded) +
@@ -128,15 +161,15 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     }
   }
   if (finetune && !resume) net->load(source_network, (fs::path(o.finetune_from) / source.state.network_file).string());
-  make_output_dir(dir.string(), "out");
-  if (!lock) {
+  if (writer) make_output_dir(dir.string(), "out");
+  if (writer && !lock) {
     lock = std::make_unique<RunLock>(given.out);
     if (!resume && fs::exists(ckpt_path))  // another writer made it meanwhile and has finished
       reject("out", given.out, "a folder without a checkpoint (this one holds one: continue it with --resume)");
   }
-  if (!resume) write_text_atomic(cfg_path.string(), design_run_options_to_json(o) + "\n");
-  if (o.objective != Objective::PsfTarget) save_prior(folder.prior_path(), pb.prior);
-  if (network && !resume) {  // the scenes the network trains and validates on (issue 13 item 6)
+  if (!resume && writer) write_text_atomic(cfg_path.string(), design_run_options_to_json(o) + "\n");
+  if (o.objective != Objective::PsfTarget && writer) save_prior(folder.prior_path(), pb.prior);
+  if (network && !resume && writer) {  // the scenes the network trains and validates on (issue 13 item 6)
     json sp;
     sp["train"] = pb.joint.train_names;
     sp["validation"] = pb.joint.val_names;
@@ -222,7 +255,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     // uninterrupted one does).
     const bool epoch_end = s.step % long(o.design.steps_per_epoch) == 0;
     double val_psnr = NAN;
-    if (network && epoch_end) val_psnr = joint->validation_psnr_db(joint->last_psf());
+    if (network && epoch_end && writer) val_psnr = joint->validation_psnr_db(joint->last_psf());  // logged by rank 0
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     last_loss = rep.loss;
     losses.push_back(rep.loss);
@@ -258,7 +291,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
                    fmt_time(eta).c_str(), tty && !(network && epoch_end) ? "" : "\n");
       std::fflush(stderr);
     }
-    if (s.step % long(o.checkpoint_every) == 0 || s.step == stop) {
+    if (writer && (s.step % long(o.checkpoint_every) == 0 || s.step == stop)) {
       write_log();  // the log first: a kill between the two leaves rows the resume redoes, never a gap
       NetworkStateRef dropped;  // the state the rotation drops with the old checkpoint.prev.h5
       if (network) {
@@ -270,6 +303,14 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     }
   }
   if (!o.quiet && ::isatty(2)) std::fprintf(stderr, "\n");
+  DesignRunResult r;
+  r.notes = std::move(notes);
+  r.steps_done = s.step;
+  r.final_loss = last_loss;
+  if (!writer) {  // rank 0 writes the outputs
+    if (o.design.mode != DesignMode::Full) r.levels_m = d.quantizer(s).level_heights_m(o.cfg.h_max_m());
+    return r;
+  }
   if (first == s.step) write_log();
 
   // Outputs of the design as it would be fabricated.
@@ -301,19 +342,15 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   if (!losses.empty()) write_line_plot_png((dir / "loss.png").string(), {losses});
   if (network && !rows.empty()) {  // training PSNR per step (blue), validation PSNR per epoch (red)
     std::vector<double> tr, va;
-    for (const auto& r : rows) {
+    for (const auto& row : rows) {
       std::vector<std::string> f;
-      std::stringstream ss(r);
+      std::stringstream ss(row);
       for (std::string x; std::getline(ss, x, ',');) f.push_back(x);
       tr.push_back(f.size() > 8 && !f[8].empty() ? std::strtod(f[8].c_str(), nullptr) : NAN);
       va.push_back(f.size() > 9 && !f[9].empty() ? std::strtod(f[9].c_str(), nullptr) : NAN);
     }
     write_line_plot_png((dir / "psnr.png").string(), {tr, va});
   }
-  DesignRunResult r;
-  r.notes = std::move(notes);
-  r.steps_done = s.step;
-  r.final_loss = last_loss;
   r.levels_m = out.levels_m;
   return r;
 }

@@ -8,6 +8,7 @@
 #include "qdo/cpu_reference.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
+#include "qdo/mpi.hpp"
 #include "qdo/wiener.hpp"
 
 namespace qdo {
@@ -109,21 +110,52 @@ JointTrainer::JointTrainer(Runtime& rt, const SystemConfig& cfg, Precision p, Ne
   if (batch < 1 || batch > testset::PatchCamera::kMaxBatch)
     reject("batch", batch, "1 to " + to_str(testset::PatchCamera::kMaxBatch) + " scenes per step");
   if (!(noise_sigma >= 0) || !std::isfinite(noise_sigma)) reject("noise_sigma", noise_sigma, ">= 0");
+  const mpi::World* w = mpi::world();
+  if (w && w->active() && w->size() > 1) {
+    rank_ = std::size_t(w->rank());
+    ranks_ = std::size_t(w->size());
+    if (batch % ranks_ != 0)
+      reject("batch", batch, "a multiple of the MPI world size " + to_str(ranks_) + " (each rank trains on batch / " + to_str(ranks_) +
+                                 " scenes of every step's batch)");
+    net_.set_rank_sum([w](double* values, std::size_t n) { w->allreduce_sum(values, n); });
+  }
 }
 
 double JointTrainer::step(long step, double lr_net, const RealStack& psf, RealStack& grad_psf) {
-  const std::vector<RealStack> cubes = joint_batch(data_, s_, batch_, seed_, step);
+  // This rank's items [k0, k1) of the step's batch (all of it in one process).
+  const std::vector<RealStack> batch = joint_batch(data_, s_, batch_, seed_, step);
+  const std::size_t k0 = rank_ * batch_ / ranks_, k1 = (rank_ + 1) * batch_ / ranks_;
+  const std::vector<RealStack> cubes(batch.begin() + long(k0), batch.begin() + long(k1));
   std::vector<testset::Patch> patches;
   for (const RealStack& c : cubes) patches.push_back({"", c});
   std::vector<RealStack> images = camera_.measure(psf, patches);
   // Read noise, drawn per step (scene k of the batch: counters of ref::add_noise's scene k).
   const unsigned long long noise_seed = (seed_ + 31) * 1000003ull + std::uint64_t(step);
-  for (std::size_t k = 0; k < images.size(); ++k) ref::add_noise(images[k], sigma_, 0, noise_seed, k);
-  last_ = net_.train(images, cubes, lr_net);
+  for (std::size_t k = 0; k < images.size(); ++k) ref::add_noise(images[k], sigma_, 0, noise_seed, k0 + k);
+  last_ = ranks_ == 1 ? net_.train(images, cubes, lr_net) : net_.backward(images, cubes, double(k1 - k0) / double(batch_), rank_ == 0);
   if (last_.grad_images.size() != images.size() || !std::isfinite(last_.loss))
     throw NumericalError("joint step " + std::to_string(step) + ": the network returned loss " + to_str(last_.loss) + " and " +
                          to_str(last_.grad_images.size()) + " image gradients for " + to_str(images.size()) + " images");
   grad_psf = camera_.vjp(last_.grad_images);
+  if (ranks_ > 1) {
+    // The one sum of the step: [dL/dPSF (bands x S x S, row-major planes), the network's gradients
+    // (parameter order), loss, MAE, MSE], each this rank's weighted part.
+    const std::size_t g = grad_psf.data.size(), p = net_.parameter_count();
+    std::vector<double> sum(g + p + 3);
+    std::copy(grad_psf.data.begin(), grad_psf.data.end(), sum.begin());
+    net_.read_gradients(sum.data() + g);
+    sum[g + p] = last_.loss;
+    sum[g + p + 1] = last_.mae;
+    sum[g + p + 2] = last_.psnr_db;  // the weighted MSE (NetworkDecoder::backward)
+    mpi::world()->allreduce_sum(sum.data(), sum.size());
+    std::copy(sum.begin(), sum.begin() + long(g), grad_psf.data.begin());
+    net_.apply_gradients(sum.data() + g, lr_net);
+    last_.loss = sum[g + p];
+    last_.mae = sum[g + p + 1];
+    last_.psnr_db = sum[g + p + 2] > 0 ? 10 * std::log10(1 / sum[g + p + 2]) : INFINITY;
+    if (!std::isfinite(last_.loss))
+      throw NumericalError("joint step " + std::to_string(step) + ": the loss summed over the ranks is " + to_str(last_.loss));
+  }
   last_psf_ = psf;
   return last_.loss;
 }

@@ -6,11 +6,13 @@
 // parameters; batch-norm scales and biases are not decayed).
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <sstream>
 #include <thread>
 #include <type_traits>
+#include <utility>
 
 #include "qdo/error.hpp"
 #include "qdo/net.hpp"
@@ -102,9 +104,17 @@ class TorchNetworkDecoder final : public NetworkDecoder {
   std::size_t parameter_count() const override { return net_->parameter_count(); }
 
   NetworkStep train(const std::vector<RealStack>& images, const std::vector<RealStack>& targets, double lr) override {
+    check_lr(lr);
+    NetworkStep r = backward(images, targets, 1.0, true);
+    step(lr);
+    return r;
+  }
+
+  NetworkStep backward(const std::vector<RealStack>& images, const std::vector<RealStack>& targets, double data_weight,
+                       bool regularise) override {
     if (images.size() != targets.size())
       reject("targets", std::to_string(targets.size()) + " cubes", "one per image (" + std::to_string(images.size()) + ")");
-    if (!(lr >= 0) || !std::isfinite(lr)) reject("lr_decoder", lr, "a finite learning rate >= 0");
+    if (!(data_weight > 0) || data_weight > 1) reject("data_weight", data_weight, "a share of the batch in (0, 1]");
     net_->train();
     torch::Tensor x = to_tensor(images, "images").to(device_).requires_grad_(true);
     const torch::Tensor target = to_tensor(targets, "targets").to(device_);
@@ -114,19 +124,49 @@ class TorchNetworkDecoder final : public NetworkDecoder {
       reject("targets", shape(targets.front()), "the network's output shape per image");
     const torch::Tensor mae = (out - target).abs().mean();
     torch::Tensor reg = torch::zeros({}, torch::TensorOptions().dtype(torch::kFloat).device(device_));
-    for (const auto& p : net_->parameters())
-      if (p.dim() == 4) reg = reg + p.pow(2).sum();
-    const torch::Tensor loss = mae + settings_.weight_decay_gamma * reg;
+    if (regularise)
+      for (const auto& p : net_->parameters())
+        if (p.dim() == 4) reg = reg + p.pow(2).sum();
+    // data_weight 1 (one process): the loss exactly as before data-parallel training existed.
+    const torch::Tensor loss = (data_weight == 1 ? mae : mae * data_weight) + settings_.weight_decay_gamma * reg;
     loss.backward();
     NetworkStep r;
     r.loss = loss.item<double>();
-    r.mae = mae.item<double>();
+    r.mae = mae.item<double>() * data_weight;
     const double mse = (out.detach() - target).pow(2).mean().item<double>();
-    r.psnr_db = mse > 0 ? 10 * std::log10(1 / mse) : INFINITY;
+    r.psnr_db = data_weight == 1 ? (mse > 0 ? 10 * std::log10(1 / mse) : INFINITY) : mse * data_weight;
     r.grad_images = from_tensor(x.grad());
-    for (auto& g : adam_.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
-    adam_.step();
     return r;
+  }
+
+  void set_rank_sum(RankSum sum) override { net_->set_rank_sum(std::move(sum)); }
+
+  void read_gradients(double* out) const override {
+    for (const auto& p : net_->parameters()) {
+      const std::int64_t n = p.numel();
+      if (p.grad().defined()) {
+        const torch::Tensor g = p.grad().detach().to(torch::kCPU, torch::kDouble).contiguous();
+        std::copy(g.data_ptr<double>(), g.data_ptr<double>() + n, out);
+      } else {
+        std::fill(out, out + n, 0.0);
+      }
+      out += n;
+    }
+  }
+
+  void apply_gradients(const double* grad, double lr) override {
+    check_lr(lr);
+    {
+      torch::NoGradGuard guard;
+      for (auto& p : net_->parameters()) {
+        const std::int64_t n = p.numel();
+        const torch::Tensor g = torch::from_blob(const_cast<double*>(grad), p.sizes(), torch::kDouble).to(p.options());
+        if (p.grad().defined()) p.mutable_grad().copy_(g);
+        else p.mutable_grad() = g.clone();
+        grad += n;
+      }
+    }
+    step(lr);
   }
 
   std::vector<RealStack> reconstruct(const std::vector<RealStack>& images) override {
@@ -215,6 +255,13 @@ class TorchNetworkDecoder final : public NetworkDecoder {
 
  private:
   static std::string first_line(const std::string& s) { return s.substr(0, s.find('\n')); }
+  static void check_lr(double lr) {
+    if (!(lr >= 0) || !std::isfinite(lr)) reject("lr_decoder", lr, "a finite learning rate >= 0");
+  }
+  void step(double lr) {  // one Adam step on the gradients held
+    for (auto& g : adam_.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
+    adam_.step();
+  }
   NetworkSettings settings_;
   torch::Device device_;
   ResUNet net_;

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <string>
+#include <utility>
 
 #include "qdo/error.hpp"
 
@@ -23,7 +24,66 @@ void he_uniform(torch::nn::Conv2d& c, torch::Generator& gen) {
   w.copy_(torch::rand(w.sizes(), gen, w.options()) * (2 * b) - b);
   if (c->options.bias()) c->bias.zero_();
 }
+using RankSum = std::function<void(double*, std::size_t)>;
+
+// A double tensor's values summed over the ranks (on the CPU, where MPI reads them).
+torch::Tensor rank_summed(const torch::Tensor& t, const RankSum& sum) {
+  torch::Tensor c = t.to(torch::kCPU, torch::kDouble).contiguous().clone();
+  sum(c.data_ptr<double>(), std::size_t(c.numel()));
+  return c;
+}
+
+// Synchronised batch norm (training mode) of x (B x C x H x W) with scale `weight` and shift
+// `bias` (C each): statistics over every rank's batch. Forward: one sum of [Σx, Σx², count] per
+// channel (in double); backward: one sum of [Σdy, Σdy·x̂]; dx = w/σ (dy - mean(dy) - x̂ mean(dy·x̂))
+// with the global means. The parameter gradients are this rank's parts (the caller sums them with
+// the others).
+struct SyncBatchNorm : torch::autograd::Function<SyncBatchNorm> {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x, const torch::Tensor& weight,
+                               const torch::Tensor& bias, torch::nn::BatchNorm2dImpl* bn, const RankSum* sum) {
+    const std::int64_t c = x.size(1);
+    const torch::Tensor xd = x.to(torch::kDouble);
+    torch::Tensor stats = torch::cat({xd.sum({0, 2, 3}), (xd * xd).sum({0, 2, 3}),
+                                      torch::full({1}, double(x.numel() / c), torch::kDouble).to(x.device())});
+    stats = rank_summed(stats, *sum);
+    const double n = stats[2 * c].item<double>();
+    const torch::Tensor mean = stats.slice(0, 0, c) / n;
+    const torch::Tensor var = (stats.slice(0, c, 2 * c) / n - mean * mean).clamp_min(0);
+    const torch::Tensor invstd = (var + bn->options.eps()).rsqrt();
+    const auto shape = std::vector<std::int64_t>{1, c, 1, 1};
+    const torch::Tensor xhat = (x - mean.to(x.options()).view(shape)) * invstd.to(x.options()).view(shape);
+    {
+      torch::NoGradGuard guard;
+      const double m = bn->options.momentum().value_or(0.1);
+      bn->running_mean.mul_(1 - m).add_(mean.to(bn->running_mean.options()), m);
+      bn->running_var.mul_(1 - m).add_((var * (n / std::max(n - 1, 1.0))).to(bn->running_var.options()), m);
+      bn->num_batches_tracked.add_(1);
+    }
+    ctx->save_for_backward({xhat, invstd.to(x.options()), weight});
+    ctx->saved_data["n"] = n;
+    ctx->saved_data["sum"] = reinterpret_cast<std::int64_t>(sum);
+    return xhat * weight.view(shape) + bias.view(shape);
+  }
+  static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx, torch::autograd::variable_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const torch::Tensor &xhat = saved[0], &invstd = saved[1], &weight = saved[2], &dy = grads[0];
+    const double n = ctx->saved_data["n"].toDouble();
+    const auto* sum = reinterpret_cast<const RankSum*>(ctx->saved_data["sum"].toInt());
+    const std::int64_t c = xhat.size(1);
+    const torch::Tensor db = dy.sum({0, 2, 3}), dw = (dy * xhat).sum({0, 2, 3});
+    const torch::Tensor g = rank_summed(torch::cat({db, dw}), *sum).to(dy.options());
+    const auto shape = std::vector<std::int64_t>{1, c, 1, 1};
+    const torch::Tensor dx = (weight * invstd).view(shape) *
+                             (dy - (g.slice(0, 0, c) / n).view(shape) - xhat * (g.slice(0, c, 2 * c) / n).view(shape));
+    return {dx, dw, db, torch::Tensor(), torch::Tensor()};
+  }
+};
 }  // namespace
+
+torch::Tensor ResUNetImpl::norm(torch::nn::BatchNorm2d& bn, const torch::Tensor& x) {
+  if (!rank_sum_ || !is_training()) return bn(x);
+  return SyncBatchNorm::apply(x, bn->weight, bn->bias, bn.get(), &rank_sum_);
+}
 
 ResUNetImpl::ResUNetImpl(std::size_t in_channels, std::size_t out_channels, std::size_t depth, std::size_t root,
                          std::uint64_t seed)
@@ -76,8 +136,8 @@ torch::Tensor ResUNetImpl::forward(const torch::Tensor& x) {
   torch::Tensor h = x;
   for (std::size_t i = 0; i < depth_; ++i) {
     Down& d = down_[i];
-    const torch::Tensor a = torch::elu(d.bn1(d.conv1(h)));
-    h = torch::elu(d.identity(h) + d.bn2(d.conv2(a)));
+    const torch::Tensor a = torch::elu(norm(d.bn1, d.conv1(h)));
+    h = torch::elu(d.identity(h) + norm(d.bn2, d.conv2(a)));
     if (i + 1 < depth_) {
       skips.push_back(h);
       h = torch::max_pool2d(h, 2);
@@ -87,8 +147,8 @@ torch::Tensor ResUNetImpl::forward(const torch::Tensor& x) {
     Up& u = up_[k];
     const torch::Tensor up = torch::elu(u.up_conv(torch::upsample_nearest2d(h, {h.size(2) * 2, h.size(3) * 2})));
     const torch::Tensor cat = torch::cat({up, skips[k]}, 1);
-    const torch::Tensor a = torch::elu(u.bn1(u.conv1(cat)));
-    h = torch::elu(u.identity(cat) + u.bn2(u.conv2(a)));
+    const torch::Tensor a = torch::elu(norm(u.bn1, u.conv1(cat)));
+    h = torch::elu(u.identity(cat) + norm(u.bn2, u.conv2(a)));
   }
   return torch::sigmoid(final_(h));
 }
