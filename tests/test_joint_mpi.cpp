@@ -198,4 +198,15 @@ TEST_SUITE("joint-mpi") {
     CHECK(!fs::exists(dir / "run" / "config.json"));
     fs::remove_all(dir);
   }
+
+  TEST_CASE("under mpirun a run without a network is refused (each rank would repeat it whole), before the run folder is written") {
+    if (!prerequisites()) return;
+    const auto dir = temp_dir("joint_mpi_wiener");
+    const Run r = qdo_ranks(2, "design --preset small --epochs 2 --out " + (dir / "run").string());
+    CAPTURE(r.out);
+    CHECK(r.code == 2);
+    CHECK(r.out.find("argument 'objective' = wiener: network (a network --decoder) under mpirun") != std::string::npos);
+    CHECK(!fs::exists(dir / "run" / "config.json"));
+    fs::remove_all(dir);
+  }
 }

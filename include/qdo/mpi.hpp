@@ -61,7 +61,20 @@ class World {
   int rank_ = 0, size_ = 1, local_rank_ = 0, local_size_ = 1;
 };
 
-// The process's World while one exists, else nullptr (library code asks; the tool's main makes it).
+// The process's World while one exists, else nullptr (library code asks; the tool's main makes
+// it). Library code that works together with the other ranks (run_design's data-parallel
+// training) asks here; on a thread inside a Solo it gets nullptr.
 const World* world();
+
+// Work this thread does alone while the other ranks do other work (a sweep's cells, each rank its
+// own): while a Solo lives, world() returns nullptr on this thread, so that a run trains in this
+// process alone. Nests.
+class Solo {
+ public:
+  Solo();
+  ~Solo();
+  Solo(const Solo&) = delete;
+  Solo& operator=(const Solo&) = delete;
+};
 
 }  // namespace qdo::mpi

@@ -107,10 +107,6 @@ void claim_out(const Args& a, const std::string& dir);
 // "sensor: 0.12 % of values clipped at full scale (max 1.3 before clipping)" or "... none clipped".
 std::string clip_summary(const SensorClip& c);
 double seconds_since(std::chrono::steady_clock::time_point t0);
-// The OpenCL device of this process: `given` (--device) when set; under mpirun with N > 1 ranks
-// and neither --device nor QDO_DEVICE set, GPU number (local rank modulo the GPUs) when the
-// machine has GPUs, else the default device ("").
-std::string rank_device(const std::string& given);
 // The options of `qdo design` (also used by gradcheck and sweep); --mode and --out as given.
 // The defaults written in the shared helpers (here, load_config, load_quantizer, scene_from_args)
 // apply only to options a command's table entry does not declare (e.g. --levels in qdo sweep);

@@ -1,6 +1,4 @@
 #include "cli.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/runtime.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -251,19 +249,6 @@ void check_resume_options(const Args& a, const DesignRunOptions& given) {
   reject("--resume", given.out,
          "options that match the run's config.json (a resumed run continues with its stored options; these differ: " + list +
              "; omit them, or start a new run in another --out)");
-}
-
-std::string rank_device(const std::string& given) {
-  if (!given.empty()) return given;
-  const mpi::World* world = mpi::world();
-  const char* env = std::getenv("QDO_DEVICE");
-  if (!world || !world->active() || world->size() < 2 || (env && *env)) return "";
-  std::vector<DeviceInfo> gpus;
-  for (const auto& d : list_devices())
-    if (d.type.find("GPU") != std::string::npos) gpus.push_back(d);
-  if (gpus.empty()) return "";
-  const DeviceInfo& d = gpus[std::size_t(world->local_rank()) % gpus.size()];
-  return std::to_string(d.platform_index) + ":" + std::to_string(d.device_index);
 }
 
 }  // namespace qdo::cli

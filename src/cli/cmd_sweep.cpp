@@ -10,6 +10,7 @@
 #include "cli.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/error.hpp"
+#include "qdo/design_run.hpp"
 #include "qdo/io.hpp"
 #include "qdo/mpi.hpp"
 #include "qdo/run.hpp"
@@ -230,7 +231,7 @@ int cmd_sweep(const Args& a) {
     }
   }
   g.out = out_dir(a);
-  Runtime rt(rank_device(a.get("device")));
+  Runtime rt(process_device(a.get("device")));
   const auto t0 = std::chrono::steady_clock::now();
   if (!which.empty() || a.has("shard")) {
     run_grid_cells(rt, g, which);

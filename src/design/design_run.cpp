@@ -105,6 +105,10 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   if (!writer) o.quiet = true;
   o.validate();
   const bool network = o.objective == Objective::Network, finetune = !o.finetune_from.empty();
+  if (parallel && !network)  // every rank would repeat the whole run
+    reject("objective", to_string(o.objective),
+           "network (a network --decoder) under mpirun: data-parallel training splits a network's batch over the ranks; a " +
+               to_string(o.objective) + " run has no network and would run whole on every rank (run it without mpirun)");
   if (parallel && network && o.batch % std::size_t(world->size()) != 0)  // refused before any writing (as JointTrainer does)
     reject("batch", o.batch, "a multiple of the MPI world size " + std::to_string(world->size()) + " (each rank trains on batch / " +
                                  std::to_string(world->size()) + " scenes of every step's batch)");

@@ -289,9 +289,12 @@ bool Grid::read_cell(std::size_t k, GridCell& c) const {
 }
 
 void Grid::run_cell(Runtime& rt, std::size_t k, bool progress) {
+  const mpi::Solo alone;  // a cell's runs train in this process alone, whatever the other ranks do
   const Job& job = jobs_.at(k);
   const auto t0 = std::chrono::steady_clock::now();
   const fs::path dir = out_ / "cells" / job.plan.name;
+  // Runs of other options or scenes are refused before anything is written (the cell's lock included).
+  for (std::size_t i = 0; i < job.runs.size(); ++i) check_run_inputs(job.runs[i], train_inputs(), g_.out, job.ignores[i]);
   fs::create_directories(dir);
   fs::create_directories(out_ / "runs");
   std::unique_ptr<RunLock> lock;

@@ -26,6 +26,10 @@ std::vector<RealStack> test_patches(const SystemConfig& cfg, const std::vector<s
                                     std::uint64_t seed);
 // cells/NAME/metrics.json and inputs of a cell scored outside evaluate_run (fresnel, cassi).
 void write_cell_metrics(const std::filesystem::path& dir, const GridCell& c);
+// InputError naming the differences when the run folder o.out holds a run made with other options
+// (its config.json, `ignore`d fields aside) or other training scenes (`inputs`, its sweep_inputs).
+void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, const std::string& sweep_out,
+                      const std::set<std::string>& ignore);
 // A training run of the sweep: refused when its folder holds a run of other options or scenes,
 // skipped when finished (RUN/DONE), else trained or resumed; `ignore`: config fields that do not
 // change what the sweep reads from the run. `inputs`: the hash of the training scenes' bytes.

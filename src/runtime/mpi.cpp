@@ -105,7 +105,12 @@ World::~World() {
   g_world = nullptr;
 }
 
-const World* world() { return g_world; }
+namespace {
+thread_local int t_solo = 0;
+}
+const World* world() { return t_solo > 0 ? nullptr : g_world; }
+Solo::Solo() { ++t_solo; }
+Solo::~Solo() { --t_solo; }
 
 #ifdef QDO_HAVE_MPI
 void World::barrier() const {
