@@ -101,9 +101,10 @@ const ReferenceSweep& reference_sweep() {
 
 TEST_SUITE("stress") {
   TEST_CASE("two `qdo sweep` at once on one folder: one writer per run folder; the other is refused naming the holder's pid, or both finish alike") {
-    // What the code guarantees: the sweep takes no lock of its own; run_design holds RUN/.lock
-    // (RunLock) while it writes a run folder, so a run folder has one writer at a time. A sweep
-    // that finds one locked stops, exit 2, naming the holder's pid. One that comes to a run
+    // What the code guarantees: a sweep holds cells/NAME/.lock while it runs a cell, and
+    // run_design holds RUN/.lock (RunLock) while it writes a run folder, so a cell and a run
+    // folder have one writer at a time. A sweep that finds a cell locked stops, exit 2, naming
+    // the holder's pid (a run another process trains is waited for, sweep_grid.cpp). One that comes to a run
     // folder after the other has released it goes on (resuming a finished run does no steps)
     // and finishes with the same values; if the other made the checkpoint between this one's
     // look and its lock, it stops, exit 2, asking for --resume (rerunning the sweep goes on).
