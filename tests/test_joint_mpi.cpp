@@ -1,8 +1,8 @@
 // Data-parallel joint training under mpirun (suite "joint-mpi", CTest entry joint-mpi; issue 30
 // item 3): `mpirun -np 2 qdo design --decoder resunet ... --batch 4` (2 scenes per rank) takes
 // the steps `qdo design ... --batch 4` takes in one process, a 2-rank run stopped with
-// --max-steps and resumed at 2 ranks ends bit-identical to the uninterrupted one, and a 2-rank
-// checkpoint resumes in one process. Runs the qdo tool; needs MPI and LibTorch in the build and
+// --max-steps and resumed at 2 ranks ends bit-identical to the uninterrupted one, as does one
+// whose rank is killed (kill -9) mid-run, and a 2-rank checkpoint resumes in one process. Runs the qdo tool; needs MPI and LibTorch in the build and
 // mpirun on PATH (skipped without, a failure under QDO_REQUIRE_ALL=1).
 //
 // Tolerance. The optics run in float64 (float32 without), the network in float32. Two ranks
@@ -19,9 +19,10 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
-#include "common.hpp"
+#include "stress_common.hpp"  // Child, children_of
 #include "qdo/config.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
@@ -170,6 +171,60 @@ TEST_SUITE("joint-mpi") {
       REQUIRE(r.code == 0);
     }
     check_logs_close(moved, two, 1e-4, 0.015, 0.3);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("kill -9 of one rank of a 2-rank run: mpirun ends the job, and --resume at 2 ranks ends as the uninterrupted run") {
+    if (!prerequisites()) return;
+    const auto dir = temp_dir("joint_mpi_kill");
+    const fs::path cfg = dir / "cfg.json";
+    {
+      std::ofstream f(cfg);
+      f << config_to_json_text(tiny_config(32, 3));
+    }
+    const std::string args = "design --config " + cfg.string() +
+                             " --mode qdo+a --levels 4 --decoder resunet:depth=2,root=4 --batch 4 --epochs 6 --steps-per-epoch 2"
+                             " --synthetic-scenes 3 --checkpoint-every 1 --lr-decoder 0.05 --seed 4";
+    const fs::path whole = dir / "whole", killed = dir / "killed";
+    {
+      const Run r = qdo_ranks(2, args + " --out " + whole.string());
+      INFO(r.out);
+      REQUIRE(r.code == 0);
+    }
+    // mpirun in place of a shell (exec), so that its children are the ranks.
+    int kills = 0;
+    {
+      stress_suite::Child job({"/bin/sh", "-c", "exec env " + kEnv + " mpirun --oversubscribe -np 2 " + QDO_QDO_BINARY + " " + args +
+                                                    " --out " + killed.string()},
+                              (dir / "killed.txt").string());
+      // Once the checkpoint of step 3 or later exists (log.csv has 3 rows), a rank is killed.
+      while (job.running() && !(fs::exists(killed / "checkpoint.h5") && fs::exists(killed / "log.csv") && log_rows(killed).size() >= 3))
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      const std::vector<pid_t> ranks = stress_suite::children_of(job.pid());
+      if (job.running() && !ranks.empty()) {
+        ::kill(ranks.back(), SIGKILL);
+        ++kills;
+        CHECK(job.exit_code() != 0);
+      } else {
+        CHECK(job.exit_code() == 0);  // finished before the kill point: nothing to kill
+      }
+    }
+    MESSAGE("ranks killed: " << kills << "; steps logged before the resume: " << log_rows(killed).size());
+    {
+      const Run r = qdo_ranks(2, "design --resume --out " + killed.string());
+      const std::string logs = slurp(dir / "killed.txt") + r.out;
+      INFO(logs);
+      REQUIRE(r.code == 0);
+    }
+    const auto rk = log_rows(killed), rw = log_rows(whole);
+    REQUIRE(rk.size() == rw.size());
+    for (std::size_t i = 0; i < rk.size(); ++i) {
+      auto a = rk[i], b = rw[i];
+      a[5] = b[5] = "";  // step_s
+      CHECK(a == b);
+    }
+    CHECK(slurp(killed / "network" / "step_00000012.pt") == slurp(whole / "network" / "step_00000012.pt"));
+    CHECK(max_height_diff_nm(killed, whole) == 0.0);
     fs::remove_all(dir);
   }
 
