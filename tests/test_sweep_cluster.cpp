@@ -233,13 +233,22 @@ TEST_SUITE("sweep-cluster") {
     // Options only a process without mpirun takes are refused under it.
     CHECK(run(mpirun(2, grid_args(ref.cfg, (dir / "x").string(), {"--collect"})), log) != 0);
     CHECK(has(slurp(log), "a sweep without mpirun"));
-    // kill -9 of one rank as soon as the first seed's DO run has a checkpoint, then again, under a
-    // second mpirun that resumes, at the second seed's: each time mpirun ends the job.
+    // kill -9 of one rank as soon as the first seed's DO run has a checkpoint, then again under a
+    // second mpirun that resumes, once it has finished a cell: each time mpirun ends the job.
     const fs::path out2 = dir / "killed";
     int killed = 0;
-    for (const char* when : {"do_s5", "do_s6"}) {
+    auto cells_logged = [&] {
+      const std::string text = fs::exists(dir / "killed.txt") ? slurp(dir / "killed.txt") : std::string();
+      std::size_t n = 0;
+      for (std::size_t p = text.find("[sweep] cell #"); p != std::string::npos; p = text.find("[sweep] cell #", p + 1)) ++n;
+      return n;
+    };
+    for (int round = 0; round < 2; ++round) {
+      const std::size_t before = cells_logged();
       Child job(mpirun(2, grid_args(ref.cfg, out2.string())), (dir / "killed.txt").string());
-      while (job.running() && !fs::exists(out2 / "runs" / when / "checkpoint.h5")) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      // First: once the first DO run has a checkpoint; then: once the resuming job has finished a cell.
+      auto due = [&] { return round == 0 ? fs::exists(out2 / "runs" / "do_s5" / "checkpoint.h5") : cells_logged() > before; };
+      while (job.running() && !due()) std::this_thread::sleep_for(std::chrono::milliseconds(1));
       const std::vector<pid_t> ranks = children_of(job.pid());
       if (job.running() && !ranks.empty()) {
         ::kill(ranks.back(), SIGKILL);
