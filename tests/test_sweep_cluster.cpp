@@ -151,6 +151,9 @@ TEST_SUITE("sweep-cluster") {
             cmp.column("dpsnr_db_hi")[r] - cmp.column("dpsnr_db_lo")[r]);
     }
     CHECK(fs::exists(ref.out / "differences.png"));
+    const std::string svg = slurp(ref.out / "differences.svg");  // the labelled figure
+    CHECK(has(svg, "L2  qdo+a − do  (4 pairs, 2 seeds)"));
+    CHECK(has(svg, "ΔPSNR [dB]"));
     CHECK(slurp(ref.out / "table1.md").find(" ± ") != std::string::npos);
   }
 

@@ -205,7 +205,7 @@ int cmd_sweep(const Args& a) {
     const auto cells = collect_grid(g);
     print_cells(cells);
     std::printf("%.1f s; %zu cells collected; wrote %s/ (table1.md table1.csv table2.md table2.csv comparisons.md comparisons.csv "
-                "differences.png psnr_vs_levels.png)\n", seconds_since(t0), cells.size(), g.out.c_str());
+                "differences.png differences.svg psnr_vs_levels.png)\n", seconds_since(t0), cells.size(), g.out.c_str());
     return 0;
   }
   std::vector<std::size_t> which;
@@ -243,7 +243,7 @@ int cmd_sweep(const Args& a) {
   if (ranks && world->rank() != 0) return 0;  // rank 0 writes the tables and prints them
   print_cells(cells);
   std::printf("%.0f s; wrote %s/ (runs/ cells/ table1.md table1.csv table2.md table2.csv comparisons.md comparisons.csv "
-              "differences.png psnr_vs_levels.png%s)\n",
+              "differences.png differences.svg psnr_vs_levels.png%s)\n",
               seconds_since(t0), g.out.c_str(), g.seeds.empty() ? "" : " table1_seeds.csv");
   return 0;
 }

@@ -1,6 +1,8 @@
 #include "qdo/sweep_stats.hpp"
 
 #include <algorithm>
+#include <cstdio>
+#include <string>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -135,6 +137,81 @@ void write_difference_plot_png(const std::string& path, const std::vector<Paired
         if (dx * dx + dy * dy <= 25) put(xm + dx, y + dy, c);
   }
   write_png(path, width, height, 3, px);
+}
+
+namespace {
+std::string xml_escape(const std::string& t) {
+  std::string o;
+  for (char c : t) {
+    if (c == '&') o += "&amp;";
+    else if (c == '<') o += "&lt;";
+    else if (c == '>') o += "&gt;";
+    else if (c == '"') o += "&quot;";
+    else o += c;
+  }
+  return o;
+}
+std::string num(double v, int digits) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.*f", digits, v);
+  return b;
+}
+}  // namespace
+
+void write_difference_plot_svg(const std::string& path, const std::vector<PairedDifference>& diffs) {
+  const double label_w = 260, plot_w = 420, row_h = 26, top = 30, bottom = 50;
+  const double width = label_w + plot_w + 30, height = top + bottom + row_h * double(std::max<std::size_t>(diffs.size(), 1));
+  double lo = 0, hi = 0;
+  for (const auto& d : diffs)
+    for (double v : {d.psnr_db.lo(), d.psnr_db.hi(), d.psnr_db_seeds.lo(), d.psnr_db_seeds.hi(), d.psnr_db.mean})
+      if (std::isfinite(v)) {
+        lo = std::min(lo, v);
+        hi = std::max(hi, v);
+      }
+  // Ticks every 1, 2, 5 x 10^k dB, about 6 of them.
+  double span = std::max(hi - lo, 1e-6), step = std::pow(10.0, std::floor(std::log10(span / 6)));
+  for (double m : {1.0, 2.0, 5.0, 10.0})
+    if (span / (step * m) <= 7) {
+      step *= m;
+      break;
+    }
+  lo = std::floor(lo / step) * step;
+  hi = std::ceil(hi / step) * step;
+  if (hi - lo < step) hi = lo + step;
+  auto x_of = [&](double v) { return label_w + plot_w * (v - lo) / (hi - lo); };
+  std::string svg = "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + num(width, 0) + "\" height=\"" + num(height, 0) +
+                    "\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n";
+  svg += "<text x=\"6\" y=\"18\">ΔPSNR paired by seed and test scene. Dot: mean; thick: 95 % interval over the pairs; thin: over seeds</text>\n";
+  const double y_axis = top + row_h * double(diffs.size()) + 6;
+  svg += "<line x1=\"" + num(label_w, 1) + "\" y1=\"" + num(y_axis, 1) + "\" x2=\"" + num(label_w + plot_w, 1) + "\" y2=\"" + num(y_axis, 1) +
+         "\" stroke=\"black\"/>\n";
+  const int digits = step >= 1 ? 0 : step >= 0.1 ? 1 : 2;
+  for (double t = lo; t <= hi + step * 1e-9; t += step) {
+    const double x = x_of(t);
+    svg += "<line x1=\"" + num(x, 1) + "\" y1=\"" + num(top - 4, 1) + "\" x2=\"" + num(x, 1) + "\" y2=\"" + num(y_axis + 4, 1) + "\" stroke=\"" +
+           (std::fabs(t) < step * 1e-6 ? "#666" : "#ddd") + "\"/>\n";
+    svg += "<text x=\"" + num(x, 1) + "\" y=\"" + num(y_axis + 18, 1) + "\" text-anchor=\"middle\">" + num(std::fabs(t) < step * 1e-6 ? 0.0 : t, digits) +
+           "</text>\n";
+  }
+  svg += "<text x=\"" + num(label_w + plot_w / 2, 1) + "\" y=\"" + num(y_axis + 36, 1) + "\" text-anchor=\"middle\">ΔPSNR [dB]</text>\n";
+  for (std::size_t k = 0; k < diffs.size(); ++k) {
+    const auto& d = diffs[k];
+    const double y = top + row_h * double(k) + row_h / 2;
+    const std::string color = d.psnr_db.lo() > 0 ? "#1f77b4" : d.psnr_db.hi() < 0 ? "#d62728" : "black";
+    const std::string label = (d.levels == 0 ? std::string("full") : "L" + std::to_string(d.levels)) + "  " + d.a + " − " + d.b +
+                              "  (" + std::to_string(d.psnr_db.n) + " pairs, " + std::to_string(d.seeds) + " seeds)";
+    svg += "<text x=\"6\" y=\"" + num(y + 4, 1) + "\">" + xml_escape(label) + "</text>\n";
+    if (std::isfinite(d.psnr_db_seeds.half_width))
+      svg += "<line x1=\"" + num(x_of(d.psnr_db_seeds.lo()), 1) + "\" y1=\"" + num(y, 1) + "\" x2=\"" + num(x_of(d.psnr_db_seeds.hi()), 1) +
+             "\" y2=\"" + num(y, 1) + "\" stroke=\"#999\" stroke-width=\"1.5\"/>\n";
+    if (std::isfinite(d.psnr_db.half_width))
+      svg += "<line x1=\"" + num(x_of(d.psnr_db.lo()), 1) + "\" y1=\"" + num(y, 1) + "\" x2=\"" + num(x_of(d.psnr_db.hi()), 1) + "\" y2=\"" +
+             num(y, 1) + "\" stroke=\"" + color + "\" stroke-width=\"5\"/>\n";
+    svg += "<circle cx=\"" + num(x_of(d.psnr_db.mean), 1) + "\" cy=\"" + num(y, 1) + "\" r=\"5\" fill=\"" + color + "\"/>\n";
+    svg += "<text x=\"" + num(label_w + plot_w + 4, 1) + "\" y=\"" + num(y + 4, 1) + "\" font-size=\"10\">" + num(d.psnr_db.mean, 2) + "</text>\n";
+  }
+  svg += "</svg>\n";
+  write_text_atomic(path, svg);
 }
 
 }  // namespace qdo

@@ -158,11 +158,15 @@ void write_grid_tables(const fs::path& out, const std::vector<GridCell>& cells, 
   }
   cm << "\nDifferences a − b paired by seed and test scene (PSNR and SSIM of each scene, as `qdo eval`'s per_scene rows); "
         "95 % Student t intervals over the (seed, scene) pairs, and over the seeds' mean differences (seeds − 1 degrees of "
-        "freedom: the one to read when the scenes of a seed are correlated). differences.png draws them top to bottom in "
-        "this order: dot the mean, thick bar the pair interval, thin grey bar the seed interval, grey line 0 dB.\n";
+        "freedom: the one to read when the scenes of a seed are correlated). differences.svg draws them with their labels "
+        "and axis (differences.png the same without text, top to bottom in this order: dot the mean, thick bar the pair interval, "
+        "thin grey bar the seed interval, grey line 0 dB).\n";
   write_text_atomic((out / "comparisons.md").string(), cm.str());
   write_text_atomic((out / "comparisons.csv").string(), cmcsv.str());
-  if (!diffs.empty()) write_difference_plot_png((out / "differences.png").string(), diffs);
+  if (!diffs.empty()) {
+    write_difference_plot_png((out / "differences.png").string(), diffs);
+    write_difference_plot_svg((out / "differences.svg").string(), diffs);
+  }
 
   // PSNR vs levels, one series per mode (levels in the order of the rows, mean over seeds).
   std::vector<std::string> series_modes;
