@@ -70,6 +70,8 @@ run design
 run_folder design
 runtime runtime
 scenes data
+raw physics
+raw_reference physics
 sensor physics
 sensor_reference physics
 simulator physics

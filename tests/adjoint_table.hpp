@@ -5,7 +5,7 @@
 // Each group of rows is built next to the fixtures it needs: the PSF chain's, the camera
 // references' and the DOE's in test_adjoint.cpp, the radial engine's in test_radial.cpp, the
 // encoders' in test_encoders.cpp, the design loop's in test_design.cpp, the Wiener decoder's in
-// test_wiener.cpp, joint training's in test_joint.cpp. (The camera operator's
+// test_wiener.cpp, joint training's in test_joint.cpp, the raw stage's in test_raw.cpp. (The camera operator's
 // and the device Wiener objective's rows run in their own suites, test_camera.cpp and
 // test_wiener_device.cpp, through the same body.)
 #pragma once
@@ -26,6 +26,7 @@ std::vector<Stage> encoders();   // CASSI and the DOE camera as linear encoders
 std::vector<Stage> design();     // the design loop's gradient in every mode, 2-D and radial paths
 std::vector<Stage> wiener();     // PSF -> OTF, the Wiener objectives' gradients (OTF and PSF)
 std::vector<Stage> joint();      // the patch camera (PSF -> patch images), the joint step's PSF gradient
+std::vector<Stage> raw();        // the sensor as built: mosaic, gain, black level, clip mask (reference and device)
 }  // namespace adjoint_rows
 
 // A complex vector as interleaved (re, im) reals and back: the ladder's real inner product of two

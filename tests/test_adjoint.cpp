@@ -369,6 +369,7 @@ TEST_SUITE("adjoint") {
         {"PSF chain", adjoint_rows::psf_chain}, {"camera", adjoint_rows::camera},     {"DOE", adjoint_rows::doe},
         {"radial engine", adjoint_rows::radial}, {"encoders", adjoint_rows::encoders}, {"design loop", adjoint_rows::design},
         {"Wiener decoder", adjoint_rows::wiener}, {"joint training", adjoint_rows::joint},
+        {"raw stage", adjoint_rows::raw},
     };
     std::uint64_t group_seed = 0;
     for (const Group& gr : table) {

@@ -41,6 +41,10 @@ void check_same(const SystemConfig& a, const SystemConfig& b) {
   CHECK(a.read_noise_sigma == b.read_noise_sigma);
   CHECK(a.full_well_photons == b.full_well_photons);
   CHECK(a.noise_seed == b.noise_seed);
+  CHECK(a.cfa == b.cfa);
+  CHECK(a.black_level_dn == b.black_level_dn);
+  CHECK(a.gain == b.gain);
+  CHECK(a.bit_depth == b.bit_depth);
 }
 
 SystemConfig from_json(const std::string& text) { return qdo::config_from_json_text(text, "test.json"); }
@@ -70,6 +74,10 @@ TEST_SUITE("config") {
     CHECK(p.padding_px == p.n / 4);
     CHECK(p.read_noise_sigma == 0.001);
     CHECK(p.full_well_photons == 0);
+    CHECK(p.cfa == qdo::Cfa::None);  // the sensor as built: today's sensor by default
+    CHECK(p.black_level_dn == 0);
+    CHECK(p.gain == 1);
+    CHECK(p.bit_depth == 0);
     CHECK(p.convolution == qdo::ConvolutionMode::Linear);
     CHECK(p.propagator == qdo::Propagator::Fresnel);
     CHECK(p.aperture_radius() == doctest::Approx(511 * 4e-6));
@@ -115,7 +123,11 @@ TEST_SUITE("config") {
         "aperture_radius_m": 1.0e-4, "aperture_edge": "strict", "strict_sampling": true, "srf_interpolate": true,
         "sensor_pitch_m": 6.6e-6, "scene_size_px": 1, "camera": "my_srf.csv", "read_noise_sigma": 0.0123,
         "full_well_photons": 10000.5, "noise_seed": 18446744073709551615, "base_plate_m": 0,
-        "base_wavelength_nm": 650, "sensor_distance_m": 0.02})");
+        "base_wavelength_nm": 650, "sensor_distance_m": 0.02, "cfa": "gbrg", "bit_depth": 12,
+        "black_level_dn": 256, "gain": 1.5})");
+    CHECK(custom.cfa == qdo::Cfa::GBRG);
+    CHECK(custom.bit_depth == 12);
+    CHECK(custom.white_level_dn() == 4095);
     CHECK(custom.preset == "small");
     CHECK(custom.aperture_edge == qdo::ApertureEdge::Strict);
     CHECK(custom.n == 128);
@@ -174,6 +186,12 @@ TEST_SUITE("config") {
     check_json_rejected("base_wavelength_nm", "200");
     check_json_rejected("base_plate_m", "-1");
     check_json_rejected("noise_seed", "-1");
+    check_json_rejected("cfa", "\"rgbg\"");
+    check_json_rejected("cfa", "1");
+    check_json_rejected("bit_depth", "4");
+    check_json_rejected("bit_depth", "32");
+    check_json_rejected("gain", "0");
+    check_json_rejected("black_level_dn", "1");
     check_json_rejected("preset", "\"huge\"");
     check_json_rejected("wavelength_step_nm", "0");
     // Wavelength outside the material's range: NOA61 starts at 400 nm.
@@ -218,6 +236,8 @@ TEST_SUITE("config") {
     expect(&SystemConfig::sensor_pitch_m, "sensor_pitch_m");
     expect(&SystemConfig::read_noise_sigma, "read_noise_sigma");
     expect(&SystemConfig::full_well_photons, "full_well_photons");
+    expect(&SystemConfig::gain, "gain");
+    expect(&SystemConfig::black_level_dn, "black_level_dn");
     SystemConfig inf_scene = p;
     inf_scene.scene_distance_m = std::numeric_limits<double>::infinity();
     CHECK_THROWS_WITH_AS(inf_scene.validate(), doctest::Contains("scene_distance_m"), qdo::InputError);

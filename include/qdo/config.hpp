@@ -12,6 +12,11 @@ enum class ConvolutionMode { Linear, Circular };
 // Which DOE samples the circular aperture keeps: r <= R (qdo's default) or r < R (the release's,
 // REFERENCE §1: at N = 1024 the release drops the 12 samples at exactly r = (N/2 - 1) pitch).
 enum class ApertureEdge { Inclusive, Strict };
+// The colour filter mosaic of the built sensor (the raw stage, include/qdo/raw.hpp): None gives
+// three full planes; a Bayer pattern names its 2 x 2 cell row by row from pixel (0, 0), e.g.
+// RGGB: (0, 0) = R, (0, 1) = G, (1, 0) = G, (1, 1) = B. JSON "cfa": "none" | "rggb" | ...
+enum class Cfa { None, RGGB, GRBG, GBRG, BGGR };
+std::string to_string(Cfa c);  // "none", "rggb", "grbg", "gbrg", "bggr"
 
 struct SystemConfig {
   std::string preset = "custom";        // name of the preset it came from, informational
@@ -44,6 +49,16 @@ struct SystemConfig {
   double read_noise_sigma = 0.0;         // Gaussian read noise, in units of full scale
   double full_well_photons = 0.0;        // photons at value 1.0 for shot noise; 0 disables shot noise
   unsigned long long noise_seed = 0;
+  // The sensor as built (raw stage, include/qdo/raw.hpp; not in the design loop). A code value
+  // in DN lies in [0, white_level_dn()]; the linear signal v (1.0 = full well) becomes
+  // black_level_dn + gain * v * (white_level_dn() - black_level_dn) before clipping and rounding.
+  Cfa cfa = Cfa::None;
+  double black_level_dn = 0.0;           // code of a dark pixel, DN; below white_level_dn()
+  double gain = 1.0;                     // dimensionless analog gain: gain 1 puts the full well at the white level
+  std::size_t bit_depth = 0;             // 0: no quantization (DN = full-scale units, white 1); else 8 .. 16 bits
+
+  // The largest code value: 2^bit_depth - 1 DN, or 1 when bit_depth = 0 (continuous codes).
+  double white_level_dn() const;
 
   // Derived quantities.
   std::vector<double> wavelengths_nm() const;

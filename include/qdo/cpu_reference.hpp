@@ -6,11 +6,12 @@
 // transfer function drops it too, so both are directly comparable).
 //
 // One header per stage, named after its kernel file (each stage's reference is
-// src/physics/<stage>_reference.cpp): field, propagate, psf, camera (convolution), sensor. This
+// src/physics/<stage>_reference.cpp): field, propagate, psf, camera (convolution), sensor, raw. This
 // header includes them all.
 #pragma once
 #include "qdo/camera_reference.hpp"
 #include "qdo/field_reference.hpp"
 #include "qdo/propagate_reference.hpp"
 #include "qdo/psf_reference.hpp"
+#include "qdo/raw_reference.hpp"
 #include "qdo/sensor_reference.hpp"

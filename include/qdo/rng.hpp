@@ -1,5 +1,5 @@
 // Counter-based random numbers (Philox4x32-10, Salmon et al. SC'11). The same integer
-// function runs in kernels/sensor.cl, so a (seed, counter) gives the same bits on the host
+// function runs in kernels/sensor.cl and kernels/raw.cl, so a (seed, counter) gives the same bits on the host
 // and on every device: noise is reproducible and independent of work-group or batch size.
 #pragma once
 #include <array>
@@ -27,13 +27,17 @@ inline double uniform_open(std::uint32_t x) { return (double(x) + 0.5) * (1.0 / 
 // Noise draws for element `index` (pixel * 3 + channel) under `seed`: a standard normal for
 // read noise and a Poisson count of mean `mean` (exact inversion below 64, a rounded normal
 // approximation above, clamped at 0) for shot noise.
+// Streams (the third counter word): the sensor stage's noise (kernels/sensor.cl) and the raw
+// stage's (kernels/raw.cl) draw independent numbers for the same (seed, index).
+constexpr std::uint32_t kSensorNoiseStream = 0x51ed27u;
+constexpr std::uint32_t kRawNoiseStream = 0x7a3b5eu;
 struct NoiseDraw {
   double gaussian;
   double uniform_poisson;
   double gaussian_poisson;
 };
-inline NoiseDraw noise_draw(std::uint64_t seed, std::uint64_t index) {
-  const auto r = philox4x32({std::uint32_t(index), std::uint32_t(index >> 32), 0x51ed27u, 0u},
+inline NoiseDraw noise_draw(std::uint64_t seed, std::uint64_t index, std::uint32_t stream = kSensorNoiseStream) {
+  const auto r = philox4x32({std::uint32_t(index), std::uint32_t(index >> 32), stream, 0u},
                             {std::uint32_t(seed), std::uint32_t(seed >> 32)});
   // Box-Muller on (r0, r1) gives two independent normals; r2 drives the Poisson inversion.
   const double u0 = uniform_open(r[0]), u1 = uniform_open(r[1]), u2 = uniform_open(r[2]);

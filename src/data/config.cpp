@@ -48,6 +48,21 @@ std::size_t SystemConfig::sensor_size_px() const {
   return static_cast<std::size_t>(std::llround(static_cast<double>(n) * pitch_m / sensor_pitch_m));
 }
 
+double SystemConfig::white_level_dn() const {
+  return bit_depth == 0 ? 1.0 : std::ldexp(1.0, static_cast<int>(bit_depth)) - 1.0;
+}
+
+std::string to_string(Cfa c) {
+  switch (c) {
+    case Cfa::None: return "none";
+    case Cfa::RGGB: return "rggb";
+    case Cfa::GRBG: return "grbg";
+    case Cfa::GBRG: return "gbrg";
+    case Cfa::BGGR: return "bggr";
+  }
+  return "cfa " + std::to_string(static_cast<int>(c));
+}
+
 // ---------------------------------------------------------------------------------------
 // Validation
 // ---------------------------------------------------------------------------------------
@@ -117,6 +132,14 @@ void SystemConfig::validate() const {
     reject("convolution", static_cast<int>(convolution), "\"linear\" or \"circular\"");
   check_finite_range("read_noise_sigma", read_noise_sigma, 0.0, inf, "a finite sigma >= 0 (units of full scale)");
   check_finite_range("full_well_photons", full_well_photons, 0.0, inf, "a finite count >= 0 (0 disables shot noise)");
+  if (cfa != Cfa::None && cfa != Cfa::RGGB && cfa != Cfa::GRBG && cfa != Cfa::GBRG && cfa != Cfa::BGGR)
+    reject("cfa", static_cast<int>(cfa), "\"none\", \"rggb\", \"grbg\", \"gbrg\" or \"bggr\"");
+  if (bit_depth != 0 && (bit_depth < 8 || bit_depth > 16)) reject("bit_depth", bit_depth, "0 (no quantization) or 8 to 16 bits");
+  check_finite_range("gain", gain, std::numeric_limits<double>::min(), 1e6, "a finite gain > 0 and <= 1e6 (dimensionless)");
+  if (!std::isfinite(black_level_dn) || black_level_dn < 0 || black_level_dn >= white_level_dn())
+    reject("black_level_dn", black_level_dn,
+           "a finite code >= 0 and below the white level " + to_str(white_level_dn()) + " DN (bit_depth = " +
+               std::to_string(bit_depth) + ")");
   // Last, so that the range checks above name their own limits first.
   for (const auto& [key, value] : {std::pair<const char*, double>{"pitch_m", pitch_m},
                                    {"wavelength_start_nm", wavelength_start_nm},
@@ -127,7 +150,9 @@ void SystemConfig::validate() const {
                                    {"base_plate_m", base_plate_m},
                                    {"sensor_pitch_m", sensor_pitch_m},
                                    {"read_noise_sigma", read_noise_sigma},
-                                   {"full_well_photons", full_well_photons}})
+                                   {"full_well_photons", full_well_photons},
+                                   {"black_level_dn", black_level_dn},
+                                   {"gain", gain}})
     check_float32(key, value);
   if (!scene_at_infinity && std::isfinite(scene_distance_m)) check_float32("scene_distance_m", scene_distance_m);
 }
@@ -165,6 +190,10 @@ SystemConfig preset_config(const std::string& name) {
   c.read_noise_sigma = 0.001;  // training noise sigma
   c.full_well_photons = 0;     // no shot noise
   c.noise_seed = 0;
+  c.cfa = Cfa::None;  // the sensor as built: no mosaic, no offset, unit gain, no quantization
+  c.black_level_dn = 0;
+  c.gain = 1;
+  c.bit_depth = 0;
   if (name == "paper") return c;
   if (name == "small") {
     // Paper physics at N = 256: z scales with N (0.05 m * 256/1024), so the numerical
@@ -313,6 +342,20 @@ const std::vector<Field>& fields() {
       number_field("full_well_photons", &SystemConfig::full_well_photons),
       {"noise_seed", [](SystemConfig& c, const std::string& k, const json& v) { c.noise_seed = get_uint(k, v); },
        [](const SystemConfig& c) { return nlohmann::ordered_json(c.noise_seed); }},
+      {"cfa",
+       [](SystemConfig& c, const std::string& k, const json& v) {
+         const std::string s = get_string(k, v);
+         for (Cfa e : {Cfa::None, Cfa::RGGB, Cfa::GRBG, Cfa::GBRG, Cfa::BGGR})
+           if (s == to_string(e)) {
+             c.cfa = e;
+             return;
+           }
+         reject(k, quote(v), "\"none\", \"rggb\", \"grbg\", \"gbrg\" or \"bggr\"");
+       },
+       [](const SystemConfig& c) { return nlohmann::ordered_json(to_string(c.cfa)); }},
+      number_field("black_level_dn", &SystemConfig::black_level_dn),
+      number_field("gain", &SystemConfig::gain),
+      size_field("bit_depth", &SystemConfig::bit_depth),
   };
   return t;
 }
