@@ -62,8 +62,9 @@ std::vector<PairedDifference> paired_differences(const std::vector<SceneScore>& 
 // whiskers, and a grey line at 0 dB. PNG, width x height pixels.
 void write_difference_plot_png(const std::string& path, const std::vector<PairedDifference>& diffs, std::size_t width = 640,
                                std::size_t height = 0);
-// The same figure as SVG, with what the PNG cannot say: each row labelled ("L4  qdo+a − do",
-// n pairs), the ΔPSNR axis with its ticks in dB, and a legend.
+// The same figure as SVG, with what the PNG cannot say: each row labelled ("L4  qdo+a − do
+// (9 pairs, 3 seeds)", a decoder spec both sides share written once), the ΔPSNR axis with its
+// ticks in dB, and a legend.
 void write_difference_plot_svg(const std::string& path, const std::vector<PairedDifference>& diffs);
 
 }  // namespace qdo

@@ -159,7 +159,20 @@ std::string num(double v, int digits) {
 }  // namespace
 
 void write_difference_plot_svg(const std::string& path, const std::vector<PairedDifference>& diffs) {
-  const double label_w = 260, plot_w = 420, row_h = 26, top = 30, bottom = 50;
+  // Row labels: "L4  qdo+a − do  @spec  (9 pairs, 3 seeds)", a decoder spec both sides share written once.
+  std::vector<std::string> labels;
+  std::size_t longest = 0;
+  for (const auto& d : diffs) {
+    const auto at_a = d.a.find('@'), at_b = d.b.find('@');
+    const std::string spec_a = at_a == std::string::npos ? "" : d.a.substr(at_a), spec_b = at_b == std::string::npos ? "" : d.b.substr(at_b);
+    const bool shared = spec_a == spec_b;
+    const std::string a = shared ? d.a.substr(0, at_a) : d.a, b = shared ? d.b.substr(0, at_b) : d.b;
+    labels.push_back((d.levels == 0 ? std::string("full") : "L" + std::to_string(d.levels)) + "  " + a + " − " + b + "  " +
+                     (shared && !spec_a.empty() ? spec_a + "  " : "") + "(" + std::to_string(d.psnr_db.n) + " pairs, " +
+                     std::to_string(d.seeds) + " seeds)");
+    longest = std::max(longest, labels.back().size());
+  }
+  const double label_w = std::max(160.0, 6.8 * double(longest) + 16), plot_w = 420, row_h = 26, top = 30, bottom = 50;
   const double width = label_w + plot_w + 30, height = top + bottom + row_h * double(std::max<std::size_t>(diffs.size(), 1));
   double lo = 0, hi = 0;
   for (const auto& d : diffs)
@@ -198,9 +211,7 @@ void write_difference_plot_svg(const std::string& path, const std::vector<Paired
     const auto& d = diffs[k];
     const double y = top + row_h * double(k) + row_h / 2;
     const std::string color = d.psnr_db.lo() > 0 ? "#1f77b4" : d.psnr_db.hi() < 0 ? "#d62728" : "black";
-    const std::string label = (d.levels == 0 ? std::string("full") : "L" + std::to_string(d.levels)) + "  " + d.a + " − " + d.b +
-                              "  (" + std::to_string(d.psnr_db.n) + " pairs, " + std::to_string(d.seeds) + " seeds)";
-    svg += "<text x=\"6\" y=\"" + num(y + 4, 1) + "\">" + xml_escape(label) + "</text>\n";
+    svg += "<text x=\"6\" y=\"" + num(y + 4, 1) + "\">" + xml_escape(labels[k]) + "</text>\n";
     if (std::isfinite(d.psnr_db_seeds.half_width))
       svg += "<line x1=\"" + num(x_of(d.psnr_db_seeds.lo()), 1) + "\" y1=\"" + num(y, 1) + "\" x2=\"" + num(x_of(d.psnr_db_seeds.hi()), 1) +
              "\" y2=\"" + num(y, 1) + "\" stroke=\"#999\" stroke-width=\"1.5\"/>\n";
