@@ -22,8 +22,25 @@ namespace fs = std::filesystem;
 
 namespace {
 
+// The sensor settings of the sweep; "camera" (a CSV written next to it) is added by config_text.
 constexpr const char* kConfig =
-    R"({"preset": "small", "cfa": "rggb", "black_level_dn": 64, "bit_depth": 12, "read_noise_sigma": 0.0005, "noise_seed": 7})";
+    R"({"preset": "small", "cfa": "rggb", "black_level_dn": 64, "bit_depth": 12, "read_noise_sigma": 0.0005, "noise_seed": 7)";
+std::string config_text(const fs::path& dir, const std::string& cfa = "rggb") {
+  std::string t = kConfig;
+  t.replace(t.find("rggb"), 4, cfa);
+  return t + ", \"camera\": \"" + (dir / "camera.csv").string() + "\"}";
+}
+// A camera whose three colours all respond at 430 .. 670 nm (R rising, B falling, G a hump), so
+// only the defocused end bands (400 .. 420 nm: R; 680 .. 700 nm: B) fill a colour from neighbours.
+std::string camera_csv() {
+  std::string t = "wavelength_nm,R,G,B\n";
+  for (int k = 0; k < 31; ++k) {
+    const double u = k / 30.0, nm = 400 + 10 * k;
+    t += std::to_string(int(nm)) + "," + std::to_string(0.1 + 0.9 * u) + "," +
+         std::to_string(0.5 + 0.5 * std::exp(-std::pow((nm - 550) / 80, 2))) + "," + std::to_string(1 - 0.9 * u) + "\n";
+  }
+  return t;
+}
 constexpr std::size_t kOffY = 13, kOffX = 27, kMargin = 40;
 
 std::string nm_name(double nm) {
@@ -45,7 +62,8 @@ const Sweep& sweep() {
     Sweep s;
     s.dir = temp_dir("calibrate");
     s.cfg_path = s.dir / "cfg.json";
-    write_text_atomic(s.cfg_path.string(), kConfig);
+    write_text_atomic((s.dir / "camera.csv").string(), camera_csv());
+    write_text_atomic(s.cfg_path.string(), config_text(s.dir));
     s.cfg = config_from_json_file(s.cfg_path.string());
     const Run r = qdo_run("psf --config " + s.cfg_path.string() + " --design lens:550 --out " + (s.dir / "known").string(),
                           "QDO_DEVICE=cpu");
@@ -110,33 +128,56 @@ TEST_SUITE("calibrate") {
 
   TEST_CASE("a synthetic sweep is calibrated back to the known stack, and simulate --psf takes it") {
     const Sweep& s = sweep();
-    const Run r = calibrate(s.dir / "frames", "out", std::string("--design lens:550 ") + (std::getenv("CALX") ? std::getenv("CALX") : ""));
+    const Run r = calibrate(s.dir / "frames", "out", "--design lens:550");
     REQUIRE_MESSAGE(r.code == 0, r.out);
     CHECK(r.out.find("hot pixels replaced") != std::string::npos);
     const auto got = read_psf_stack_file((s.dir / "out/psf.h5").string());
     REQUIRE(got.psf_sensor.planes == s.known.planes);
     REQUIRE(got.psf_sensor.rows == s.known.rows);
     const std::size_t S = s.known.rows, n = S * S;
-    // Tolerance from the noise: the per-pixel noise of band b in unit-sum units is
-    // sigma_b = sigma_dn / (w_min * A_b * (white - black)), sigma_dn = read noise (0.0005 of
-    // white - black, ~2 DN) with the 12-bit rounding, w_min = --min-response 0.2 the least
-    // colour weight a used pixel is divided by. A pixel's error is at most its noise (5 sigma
-    // bound), the floor it was cut at (2 sigma) and the share of the renormalisation.
+    // Expected: the known stack through the noise-free part of the steps (the ring's median
+    // subtracted, negatives 0, unit sum: the known PSF has energy out to the crop's edge).
+    // Tolerance from the noise: band b's noise in unit-sum units is sigma_b = sigma_dn /
+    // (w_b * A_b * (white - black)), sigma_dn = read noise 0.0005 of white - black (~2 DN) with
+    // the 12-bit rounding, w_b the band's least used colour weight (>= --min-response 0.2),
+    // A_b the brightest colour's peak. A pixel errs by its noise (<= 5 sigma over S² = 16384
+    // pixels), by a wing the signal mask cut (a pixel whose 5 x 5 mean is below 4 sigma / 5:
+    // up to ~9 sigma on a ring's edge) and by the normalisation (the sum's noise, sqrt(masked
+    // pixels) sigma_b, up to 2 % of the peak): 14 sigma_b + 2 % of the peak. L1 over the band:
+    // mean |noise| (0.8 sigma) per pixel, at most S² sigma_b. Bands where a colour is filled from
+    // its neighbours (400 .. 420 and 680 .. 700 nm, below --min-response) are an interpolation,
+    // exact only where the PSF is smooth at 2 px, which the defocus rings of these bands are
+    // not: only their L1 is checked, with 0.1 more (measured: 0.05 .. 0.11).
     const double span = s.cfg.white_level_dn() - s.cfg.black_level_dn;
     const double sigma_dn = std::hypot(0.0005 * span, 1 / std::sqrt(12.0));
+    const Eigen::MatrixXd srf = sensor_response(s.cfg);
     for (std::size_t b = 0; b < s.cfg.bands; ++b) {
-      const double sigma_b = sigma_dn / (0.2 * s.amp[b] * span);
-      double worst = 0, l1 = 0;
+      std::vector<double> ring, expect(n);
+      for (std::size_t y = 0; y < S; ++y)
+        for (std::size_t x = 0; x < S; ++x)
+          if (y < 2 || x < 2 || y + 2 >= S || x + 2 >= S) ring.push_back(s.known(b, y, x));
+      std::nth_element(ring.begin(), ring.begin() + long(ring.size() / 2), ring.end());
+      double esum = 0;
+      for (std::size_t i = 0; i < n; ++i) esum += expect[i] = std::max(0.0, s.known.data[b * n + i] - ring[ring.size() / 2]);
+      const double top = std::max({srf(0, long(b)), srf(1, long(b)), srf(2, long(b))});
+      double w = 1;
+      bool filled = false;
+      for (long c = 0; c < 3; ++c) {
+        if (srf(c, long(b)) / top >= 0.2) w = std::min(w, srf(c, long(b)) / top);
+        else filled = true;
+      }
+      const double sigma_b = sigma_dn / (w * s.amp[b] * span);
+      double worst = 0, l1 = 0, peak = 0;
       for (std::size_t i = 0; i < n; ++i) {
-        const double d = std::abs(got.psf_sensor.data[b * n + i] - s.known.data[b * n + i]);
+        const double d = std::abs(got.psf_sensor.data[b * n + i] - expect[i] / esum);
         worst = std::max(worst, d);
         l1 += d;
+        peak = std::max(peak, expect[i] / esum);
       }
-      double peak = 0;
-      for (std::size_t i = 0; i < n; ++i) peak = std::max(peak, s.known.data[b * n + i]);
-      INFO("band " << b << ": max error " << worst << " (sigma_b " << sigma_b << ", peak " << peak << "), L1 " << l1);
-      CHECK(worst <= 7 * sigma_b + 0.02 * peak);
-      CHECK(l1 <= 0.25);
+      INFO("band " << b << ": max error " << worst << " (sigma_b " << sigma_b << ", peak " << peak << std::string(filled ? ", a colour filled" : "")
+                   << "), L1 " << l1);
+      if (!filled) CHECK(worst <= 14 * sigma_b + 0.02 * peak);
+      CHECK(l1 <= double(n) * sigma_b + (filled ? 0.1 : 0.0));
     }
     const std::string csv = slurp(s.dir / "out/compare.csv");
     CHECK(csv.find("correlation") != std::string::npos);
@@ -189,9 +230,7 @@ TEST_SUITE("calibrate") {
     }
     {  // a capture whose mosaic is not the configured one
       const fs::path cfg = s.dir / "bggr.json";
-      std::string text = kConfig;
-      text.replace(text.find("rggb"), 4, "bggr");
-      write_text_atomic(cfg.string(), text);
+      write_text_atomic(cfg.string(), config_text(s.dir, "bggr"));
       const Run r = qdo_run("calibrate --config " + cfg.string() + " --frames " + (s.dir / "frames").string() + " --darks " +
                                 (s.dir / "darks").string() + " --out " + (s.dir / "o_cfa").string(),
                             "QDO_DEVICE=cpu");

@@ -31,9 +31,14 @@
 //      each band's unit-sum image with values below 3 sigma set to 0, within the S x S window
 //      around its brightest pixel (then around that centroid once more), rounded to a pixel, or the
 //      given centre; the S x S crop puts it at (S/2, S/2), refused when it leaves the frame;
-//   8. background: the median of the crop's outer ring (2 px wide) is subtracted, values below
-//      floor_sigma x the pixel's noise (sigma over its colour response) are set to 0 (this keeps
-//      the clamped noise of S² pixels from adding up), then each band is divided by its sum.
+//   8. background: the median of the crop's outer ring (2 px wide) is subtracted (unless
+//      ring_background is off: a PSF with energy out to the crop's edge, as a DOE's has, loses
+//      that level times S² with it; the dark has removed the sensor's own offset); then the
+//      signal mask: pixels whose 5 x 5 mean exceeds floor_sigma x its noise (sigma x the pixel's
+//      noise scale / 5), grown by 2 px, keep their value, all others are 0 (faint wings next
+//      to the signal stay); a negative value inside is taken from its positive 8-neighbours
+//      (4 passes; the rest set to 0), so the band's sum stays unbiased (clamping would add
+//      0.4 sigma per masked pixel); each band is divided by its sum.
 #pragma once
 #include <string>
 #include <vector>
@@ -51,7 +56,8 @@ struct CalibrationOptions {
   double hot_sigma = 8;        // hot-pixel threshold, in noise sigmas
   double min_snr = 20;         // least peak SNR of a band
   double min_response = 0.2;   // least relative colour response a mosaic colour must have to be used
-  double floor_sigma = 2;      // background floor, in noise sigmas
+  double floor_sigma = 4;      // signal-mask threshold, in sigmas of a 5 x 5 mean's noise
+  bool ring_background = true; // subtract the median of the crop's outer ring (false: the dark only)
   bool has_centre = false;     // use centre_row/col instead of the centroid
   long centre_row = 0, centre_col = 0;
 };

@@ -22,6 +22,9 @@ int cmd_calibrate(const Args& a) {
   opt.min_snr = parse_double("--min-snr", a.get("min-snr"), 0, 1e12, "", false);
   opt.min_response = parse_double("--min-response", a.get("min-response"), 0, 1, "", true);
   opt.floor_sigma = parse_double("--floor-sigma", a.get("floor-sigma"), 0, 100, "noise sigmas", false);
+  const std::string bg = a.get("background");
+  if (bg != "ring" && bg != "none") reject("--background", bg, "ring (the median of the crop's outer 2-pixel ring) or none");
+  opt.ring_background = bg == "ring";
   if (a.has("centre")) {
     const auto v = split_list(a.get("centre"));
     if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");

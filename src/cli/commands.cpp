@@ -128,7 +128,10 @@ std::vector<CommandSpec> make_table() {
                 opt("min-snr", "least peak SNR (peak above the dark / noise sigma) of a band; a darker frame is refused", "20"),
                 opt("min-response", "least relative response, in (0, 1], of a mosaic colour at a band for its pixels to be used "
                                     "(others are filled from their neighbours)", "0.2"),
-                opt("floor-sigma", "values below this many noise sigmas above the background are set to 0", "2"),
+                opt("floor-sigma", "signal-mask threshold: pixels whose 5 x 5 mean is below this many sigmas of its noise (and not within 2 px of one above) are set to 0", "4"),
+                opt("background", "background removed after the dark: ring (the median of the S x S crop's outer 2-pixel ring) "
+                                  "or none (the dark only; for a PSF with energy out to the crop's edge)",
+                    "ring"),
                 opt("centre", "ROW,COL: the frame pixel of the optical axis (default: the centroid of all bands)"),
                 precision(), device(), out_dir_opt()},
                cmd_calibrate});

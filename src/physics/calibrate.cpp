@@ -333,23 +333,72 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
                                std::to_string(cy) + ", column " + std::to_string(cx) + ") leaves the " + std::to_string(rows) + " x " +
                                std::to_string(cols) + " frame (every frame shares the centre); centre the point source or give --centre");
 
-  // 8. Crop, background, floor, normalise.
+  // 8. Crop, background, signal mask, normalise.
   r.psf = RealStack(bands, s, s);
   for (std::size_t b = 0; b < bands; ++b) {
     std::vector<double> ring;
     for (std::size_t y = 0; y < s; ++y)
       for (std::size_t x = 0; x < s; ++x)
         if (y < 2 || x < 2 || y + 2 >= s || x + 2 >= s) ring.push_back(sig[b](std::size_t(y0) + y, std::size_t(x0) + x));
-    const double bg = median_of(ring);
-    double sum = 0;
+    const double bg = opt.ring_background ? median_of(ring) : 0.0;
+    // The signal mask: the 5 x 5 mean of the crop above floor_sigma of its own noise (sigma x
+    // the pixel's noise scale / 5), grown by 2 px. Inside it values are kept (negatives 0),
+    // outside they are 0: noise is neither clamped into a bias over all S² pixels nor are faint
+    // wings next to the signal cut.
+    Map2D v(s, s), scale(s, s);
     for (std::size_t y = 0; y < s; ++y)
       for (std::size_t x = 0; x < s; ++x) {
-        const std::size_t fy = std::size_t(y0) + y, fx = std::size_t(x0) + x;
-        const double v = sig[b](fy, fx) - bg;
-        const double kept = v > opt.floor_sigma * r.noise_dn[b] * noise_scale[b](fy, fx) ? v : 0;
-        r.psf(b, y, x) = kept;
-        sum += kept;
+        v(y, x) = sig[b](std::size_t(y0) + y, std::size_t(x0) + x) - bg;
+        scale(y, x) = noise_scale[b](std::size_t(y0) + y, std::size_t(x0) + x);
       }
+    auto box = [&](const Map2D& m, std::size_t y, std::size_t x, long rad, bool any) {
+      double acc = 0;
+      int n = 0;
+      for (long dy = -rad; dy <= rad; ++dy)
+        for (long dx = -rad; dx <= rad; ++dx) {
+          const long yy = long(y) + dy, xx = long(x) + dx;
+          if (yy < 0 || xx < 0 || yy >= long(s) || xx >= long(s)) continue;
+          const double e = m(std::size_t(yy), std::size_t(xx));
+          if (any && e > 0) return 1.0;
+          acc += e;
+          ++n;
+        }
+      return any ? 0.0 : acc / n;
+    };
+    Map2D lit(s, s);
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x)
+        lit(y, x) = box(v, y, x, 2, false) > opt.floor_sigma * r.noise_dn[b] * box(scale, y, x, 2, false) / 5 ? 1 : 0;
+    Map2D kept(s, s);
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) kept(y, x) = box(lit, y, x, 2, true) > 0 ? v(y, x) : 0.0;
+    // Negative values (noise) are spread onto their positive 8-neighbours, so the band's sum
+    // stays an unbiased estimate of its energy (clamping them would add 0.4 sigma per masked
+    // pixel); what no positive neighbour takes after 4 passes is set to 0.
+    for (int pass = 0; pass < 4; ++pass)
+      for (std::size_t y = 0; y < s; ++y)
+        for (std::size_t x = 0; x < s; ++x) {
+          if (kept(y, x) >= 0) continue;
+          double pos = 0;
+          for (long dy = -1; dy <= 1; ++dy)
+            for (long dx = -1; dx <= 1; ++dx) {
+              const long yy = long(y) + dy, xx = long(x) + dx;
+              if ((dy || dx) && yy >= 0 && xx >= 0 && yy < long(s) && xx < long(s)) pos += std::max(kept(std::size_t(yy), std::size_t(xx)), 0.0);
+            }
+          if (pos <= 0) continue;
+          const double f = std::max(1 + kept(y, x) / pos, 0.0);  // each positive neighbour keeps this fraction
+          const double taken = std::min(-kept(y, x), pos);
+          for (long dy = -1; dy <= 1; ++dy)
+            for (long dx = -1; dx <= 1; ++dx) {
+              const long yy = long(y) + dy, xx = long(x) + dx;
+              if ((dy || dx) && yy >= 0 && xx >= 0 && yy < long(s) && xx < long(s) && kept(std::size_t(yy), std::size_t(xx)) > 0)
+                kept(std::size_t(yy), std::size_t(xx)) *= f;
+            }
+          kept(y, x) += taken;
+        }
+    double sum = 0;
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) sum += r.psf(b, y, x) = std::max(kept(y, x), 0.0);
     if (!(sum > 0)) refuse(frames[b].path, "no signal above the background in the S x S crop");
     for (std::size_t i = 0; i < s * s; ++i) r.psf.data[b * s * s + i] /= sum;
   }
