@@ -61,6 +61,13 @@ const Sweep& sweep() {
   static Sweep sw = [] {
     Sweep s;
     s.dir = temp_dir("calibrate");
+    static const struct Removed {  // the sweep's folder goes when the test binary ends
+      fs::path dir;
+      ~Removed() {
+        std::error_code ec;
+        fs::remove_all(dir, ec);
+      }
+    } removed{s.dir};
     s.cfg_path = s.dir / "cfg.json";
     write_text_atomic((s.dir / "camera.csv").string(), camera_csv());
     write_text_atomic(s.cfg_path.string(), config_text(s.dir));
@@ -222,6 +229,14 @@ TEST_SUITE("calibrate") {
       const Run r = calibrate(d, "o_size");
       CHECK(r.code == 2);
       CHECK_MESSAGE((r.out.find(nm_name(600)) != std::string::npos && r.out.find("differs") != std::string::npos), r.out);
+    }
+    {  // a frame too dark (a dark frame in place of the 450 nm frame)
+      const fs::path d = frames_copy("dark");
+      fs::remove(d / nm_name(450));
+      fs::copy_file(s.dir / "darks/dark_0.png", d / nm_name(450));
+      const Run r = calibrate(d, "o_dark");
+      CHECK(r.code == 2);
+      CHECK_MESSAGE((r.out.find(nm_name(450)) != std::string::npos && r.out.find("too dark") != std::string::npos), r.out);
     }
     {  // the crop leaves the frame
       const Run r = calibrate(s.dir / "frames", "o_crop", "--centre 10,10");

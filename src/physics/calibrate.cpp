@@ -138,8 +138,8 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     Frame f{p, read_png16_gray(p)};
     for (auto& v : f.dn.data) v *= file_scale;
     if (!frames.empty() && frames[0].dn.rows && (f.dn.rows != frames[0].dn.rows || f.dn.cols != frames[0].dn.cols))
-      refuse(p, "size " + std::to_string(f.dn.rows) + " x " + std::to_string(f.dn.cols) + " differs from " +
-                    in_quotes(frames[0].path) + "'s " + std::to_string(frames[0].dn.rows) + " x " + std::to_string(frames[0].dn.cols) +
+      refuse(p, "size " + std::to_string(f.dn.rows) + " x " + std::to_string(f.dn.cols) + " differs from the " +
+                    std::to_string(frames[0].dn.rows) + " x " + std::to_string(frames[0].dn.cols) + " of " + in_quotes(frames[0].path) +
                     " (rows x columns); every frame and dark must have one size");
     return f;
   };
