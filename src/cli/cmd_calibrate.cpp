@@ -89,7 +89,7 @@ int cmd_calibrate(const Args& a) {
     mean_corr += cmp[b].correlation / double(cfg.bands);
   }
   write_text_atomic(dir + "/compare.csv", csv.str());
-  // compare.png: measured bands (top rows) over the simulated ones (bottom rows), one montage.
+  // compare.png: one montage, the measured bands first, then the simulated ones, each in band order.
   RealStack both(2 * cfg.bands, s, s);
   std::copy(r.psf.data.begin(), r.psf.data.end(), both.data.begin());
   std::copy(simulated.data.begin(), simulated.data.end(), both.data.begin() + long(r.psf.data.size()));
