@@ -24,6 +24,7 @@ table='
 adjoint physics
 camera physics
 camera_reference physics
+calibrate physics
 config data
 cpu_reference physics
 datasets data

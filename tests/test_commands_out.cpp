@@ -42,6 +42,7 @@ TEST_SUITE("commands") {
         "design " + cfg_arg() + " --mode do --levels 2" + small,
         "sweep " + cfg_arg() + " --grid levels=2 --grid mode=do" + small + " --eval-scenes 1",
         "sweep-psf " + cfg_arg() + " --design flat --levels 2,4",
+        "calibrate " + cfg_arg() + " --frames nowhere --darks nowhere",
         "eval " + shared_run().dir.string(),
         "export " + shared_run().dir.string(),
         "tolerance " + shared_run().dir.string() + " --trials 1 --no-per-source --synthetic-scenes 1",

@@ -200,6 +200,12 @@ void write_png(const std::string& path, std::size_t width, std::size_t height, i
 // `crop` x `crop` of each plane (0 = whole).
 void write_montage_png(const std::string& path, const RealStack& stack,
                        const std::vector<double>& wavelengths_nm, double gamma = 0.5, std::size_t crop = 0);
+// A raw frame as a 16-bit grayscale PNG (rows x cols code values in DN, row-major), read and
+// written unchanged (a 16-bit file without gAMA, or with gamma 1, is linear). Reading refuses an
+// 8-bit or colour file, naming it.
+Map2D read_png16_gray(const std::string& path);
+// Values must be integers in [0, 65535] (an InputError naming the file otherwise).
+void write_png16_gray(const std::string& path, const Map2D& dn);
 // An RGB image from a 3 x H x W stack: scaled so the 99.9th percentile maps to 1, sRGB gamma.
 void write_rgb_png(const std::string& path, const RealStack& rgb3);
 // A single map (e.g. a height map) with a perceptual colormap (viridis-like), min..max.

@@ -116,6 +116,25 @@ std::vector<CommandSpec> make_table() {
                {preset(), config(), design_spec(), levels_post(), placement(), precision(), device(), save_opt(), compress(),
                 out_dir_opt()},
                cmd_psf});
+  t.push_back({"calibrate",
+               "measured PSFs from captures: a folder of point-source frames, one per band (16-bit PNG, psf_<nm>nm.png), "
+               "and dark frames -> DIR/psf.h5 (the layout of qdo psf), psf.png; with --design compare.csv, compare.png",
+               "", "",
+               {preset(), config(), opt("frames", "folder of PSF frames: 16-bit grayscale PNG raw frames named <anything>_<nm>nm.png, one "
+                                                  "per configured band (required)"),
+                opt("darks", "folder of dark frames (16-bit grayscale PNG, same exposure; averaged) (required)"),
+                opt("design", "design to compare with: lens:NM, flat, a design .h5 file or a run folder (its design.h5)"),
+                opt("hot-sigma", "hot-pixel threshold, in noise sigmas (> 1)", "8"),
+                opt("min-snr", "least peak SNR (peak above the dark / noise sigma) of a band; a darker frame is refused", "20"),
+                opt("min-response", "least relative response, in (0, 1], of a mosaic colour at a band for its pixels to be used "
+                                    "(others are filled from their neighbours)", "0.2"),
+                opt("floor-sigma", "signal-mask threshold: pixels whose 5 x 5 mean is below this many sigmas of its noise (and not within 2 px of one above) are set to 0", "4"),
+                opt("background", "background removed after the dark: ring (the median of the S x S crop's outer 2-pixel ring) "
+                                  "or none (the dark only; for a PSF with energy out to the crop's edge)",
+                    "ring"),
+                opt("centre", "ROW,COL: the frame pixel of the optical axis (default: the centroid of all bands)"),
+                precision(), device(), out_dir_opt()},
+               cmd_calibrate});
   t.push_back({"quantize", "quantize a design to L levels (post-hoc, uniform) into a design .h5 file", "", "",
                {preset(), config(), design_spec(), opt("levels", "number of height levels L, an integer in [2, 65536] (required)"),
                 placement(), opt("out", "output design .h5 file")},

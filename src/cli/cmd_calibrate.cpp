@@ -1,0 +1,104 @@
+// qdo calibrate: measured PSFs from captures (calibrate.hpp) -> DIR/psf.h5 in the layout of
+// `qdo psf`, psf.png, and with --design the comparison with the design's simulated stack.
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+
+#include "cli.hpp"
+#include "qdo/calibrate.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/simulator.hpp"
+
+namespace qdo::cli {
+
+int cmd_calibrate(const Args& a) {
+  const SystemConfig cfg = load_config(a);
+  if (!a.has("frames")) throw InputError("argument '--frames' is required: the folder of PSF frames (psf_<nm>nm.png)");
+  if (!a.has("darks")) throw InputError("argument '--darks' is required: the folder of dark frames (*.png)");
+  CalibrationOptions opt;
+  opt.hot_sigma = parse_double("--hot-sigma", a.get("hot-sigma"), 1, 1e6, "noise sigmas", false);
+  opt.min_snr = parse_double("--min-snr", a.get("min-snr"), 0, 1e12, "", false);
+  opt.min_response = parse_double("--min-response", a.get("min-response"), 0, 1, "", true);
+  opt.floor_sigma = parse_double("--floor-sigma", a.get("floor-sigma"), 0, 100, "noise sigmas", false);
+  const std::string bg = a.get("background");
+  if (bg != "ring" && bg != "none") reject("--background", bg, "ring (the median of the crop's outer 2-pixel ring) or none");
+  opt.ring_background = bg == "ring";
+  if (a.has("centre")) {
+    const auto v = split_list(a.get("centre"));
+    if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
+    opt.has_centre = true;
+    opt.centre_row = parse_int("--centre", v[0], 0, 1 << 20);
+    opt.centre_col = parse_int("--centre", v[1], 0, 1 << 20);
+  }
+  std::string design = a.get("design");
+  if (!design.empty() && std::filesystem::is_directory(design)) design += "/design.h5";  // a run folder
+  Map2D h;
+  if (!design.empty()) h = load_design(cfg, design);  // checked before any work
+  const Precision p = precision_from_string(a.get("precision"));
+  const std::string dir = out_dir(a);
+
+  const CalibrationResult r = calibrate_psf(cfg, a.get("frames"), a.get("darks"), opt);
+  const std::size_t s = r.psf.rows;
+  std::string files;
+  for (const auto& f : r.files) files += (files.empty() ? "" : ";") + std::filesystem::path(f).filename().string();
+  std::string darks;
+  for (const auto& f : r.darks) darks += (darks.empty() ? "" : ";") + std::filesystem::path(f).filename().string();
+  std::vector<H5Dataset> ds;
+  ds.push_back({"/psf_sensor", {r.psf.planes, s, s}, r.psf.data, {{"pitch_m", cfg.sensor_pitch_m}},
+                {{"units", "fraction of band energy per sensor pixel"}}});
+  ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});
+  ds.push_back({"/frame_wavelengths_nm", {cfg.bands}, r.wavelengths_nm, {}, {{"units", "nm, from the file names"}}});
+  ds.push_back({"/peak_snr", {cfg.bands}, r.peak_snr, {}, {{"units", "peak / noise sigma"}}});
+  ds.push_back({"/noise_dn", {cfg.bands}, r.noise_dn, {}, {{"units", "DN"}}});
+  h5_write(dir + "/psf.h5", ds,
+           {{"config", config_to_json_text(cfg)},
+            {"design", "measured"},
+            {"source", "qdo calibrate"},
+            {"frames_dir", a.get("frames")},
+            {"frames", files},
+            {"darks_dir", a.get("darks")},
+            {"darks", darks},
+            {"dark_count", std::to_string(r.darks.size())},
+            {"hot_pixels_replaced", std::to_string(r.hot_pixels)},
+            {"centre_row_col", std::to_string(r.centre_row) + "," + std::to_string(r.centre_col)},
+            {"frame_rows_cols", std::to_string(r.frame_rows) + "," + std::to_string(r.frame_cols)}});
+  const std::size_t crop = std::min<std::size_t>(96, s);
+  write_montage_png(dir + "/psf.png", r.psf, cfg.wavelengths_nm(), 0.5, crop);
+  std::printf("calibrated %zu bands from %s (%zu dark frames, %zu hot pixels replaced), centre (row %ld, column %ld) of %zu x %zu, "
+              "S = %zu\n",
+              cfg.bands, a.get("frames").c_str(), r.darks.size(), r.hot_pixels, r.centre_row, r.centre_col, r.frame_rows, r.frame_cols, s);
+  if (design.empty()) {
+    std::printf("wrote %s/psf.h5, psf.png\n", dir.c_str());
+    return 0;
+  }
+  Runtime rt(a.get("device"));
+  Simulator sim(rt, cfg, p);
+  sim.set_keep_field(false);
+  sim.set_heights(h);
+  sim.compute_psf();
+  const RealStack simulated = sim.psf_sensor();
+  const auto cmp = compare_psf_stacks(r.psf, simulated);
+  CsvText csv({"wavelength_nm", "correlation", "ee80_measured_px", "ee80_simulated_px", "centroid_offset_px"});
+  const auto wl = cfg.wavelengths_nm();
+  double mean_corr = 0;
+  for (std::size_t b = 0; b < cfg.bands; ++b) {
+    csv.row({to_str(wl[b]), to_str(cmp[b].correlation), to_str(cmp[b].ee80_measured_px), to_str(cmp[b].ee80_simulated_px),
+             to_str(cmp[b].centroid_offset_px)});
+    mean_corr += cmp[b].correlation / double(cfg.bands);
+  }
+  write_text_atomic(dir + "/compare.csv", csv.str());
+  // compare.png: one montage, the measured bands first, then the simulated ones, each in band order.
+  RealStack both(2 * cfg.bands, s, s);
+  std::copy(r.psf.data.begin(), r.psf.data.end(), both.data.begin());
+  std::copy(simulated.data.begin(), simulated.data.end(), both.data.begin() + long(r.psf.data.size()));
+  std::vector<double> wl2 = wl;
+  wl2.insert(wl2.end(), wl.begin(), wl.end());
+  write_montage_png(dir + "/compare.png", both, wl2, 0.5, crop);
+  std::printf("against the design %s: mean correlation %.4f over %zu bands\nwrote %s/psf.h5, psf.png, compare.csv, compare.png\n",
+              design.c_str(), mean_corr, cfg.bands, dir.c_str());
+  return 0;
+}
+
+}  // namespace qdo::cli

@@ -1,0 +1,455 @@
+// Measured PSFs from captures (calibrate.hpp): a monochromator sweep of raw frames -> a PSF stack.
+#include "qdo/calibrate.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <regex>
+
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/raw_reference.hpp"
+
+namespace qdo {
+namespace fs = std::filesystem;
+namespace {
+
+std::string in_quotes(const std::string& p) { return "'" + p + "'"; }
+[[noreturn]] void refuse(const std::string& file, const std::string& what) { throw InputError("file " + in_quotes(file) + ": " + what); }
+
+double median_of(std::vector<double> v) {
+  if (v.empty()) return 0;
+  const std::size_t m = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + long(m), v.end());
+  return v[m];
+}
+// 1.4826 x the median absolute deviation from the median: a Gaussian's sigma, robust to a point.
+double mad_sigma(const std::vector<double>& v) {
+  const double med = median_of(v);
+  std::vector<double> d(v.size());
+  for (std::size_t i = 0; i < v.size(); ++i) d[i] = std::abs(v[i] - med);
+  return 1.4826 * median_of(d);
+}
+
+// The 16-bit PNGs of a folder, sorted; another raw format in it is refused naming the file.
+std::vector<std::string> frame_files(const std::string& dir, const std::string& what) {
+  if (!fs::is_directory(dir)) throw InputError(what + " " + in_quotes(dir) + ": not a folder");
+  std::vector<std::string> out;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (!e.is_regular_file()) continue;
+    std::string ext = e.path().extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    if (ext == ".png") out.push_back(e.path().string());
+    else if (ext == ".tif" || ext == ".tiff" || ext == ".dng" || ext == ".raw")
+      refuse(e.path().string(), "raw frames are read as 16-bit grayscale PNG only (TIFF and DNG are not supported)");
+  }
+  std::sort(out.begin(), out.end());
+  if (out.empty()) throw InputError(what + " " + in_quotes(dir) + ": holds no .png frame");
+  return out;
+}
+
+struct Frame {
+  std::string path;
+  Map2D dn;  // rows x cols code values
+};
+
+// Code values within [0, white]; any pixel at white is saturation (PSF frames only).
+void check_codes(const Frame& f, double white, bool refuse_saturated) {
+  for (std::size_t i = 0; i < f.dn.data.size(); ++i) {
+    const double v = f.dn.data[i];
+    if (v < white && v >= 0) continue;
+    const std::string px = "pixel (row " + std::to_string(i / f.dn.cols) + ", column " + std::to_string(i % f.dn.cols) + ")";
+    if (v > white)
+      refuse(f.path, px + " = " + to_str(v) + " DN is above the white level " + to_str(white) +
+                         " DN of the sensor settings (bit_depth): another bit depth, or a container shifted left");
+    if (refuse_saturated && v >= white)
+      refuse(f.path, "saturated: " + px + " is at the white level " + to_str(white) + " DN; capture a shorter exposure");
+  }
+}
+
+// Same-colour 8-neighbourhood (step 2 in a mosaic, 1 without) median of (y, x), inside the frame.
+double neighbour_median(const Map2D& m, std::size_t y, std::size_t x, long step) {
+  std::vector<double> v;
+  for (long dy = -step; dy <= step; dy += step)
+    for (long dx = -step; dx <= step; dx += step) {
+      if (dy == 0 && dx == 0) continue;
+      const long yy = long(y) + dy, xx = long(x) + dx;
+      if (yy >= 0 && xx >= 0 && yy < long(m.rows) && xx < long(m.cols)) v.push_back(m(std::size_t(yy), std::size_t(xx)));
+    }
+  return median_of(v);
+}
+
+// Predicted share of the signal of each 2 x 2 cell position under a layout at band b.
+std::vector<double> cell_shares(Cfa cfa, const Eigen::MatrixXd& srf, std::size_t b) {
+  std::vector<double> p(4);
+  double sum = 0;
+  for (std::size_t k = 0; k < 4; ++k) sum += p[k] = srf(cfa_channel(cfa, k / 2, k % 2), long(b));
+  for (auto& v : p) v = sum > 0 ? v / sum : 0.25;
+  return p;
+}
+
+}  // namespace
+
+double wavelength_from_file_name(const std::string& path) {
+  static const std::regex re(R"(.*_([0-9]+(\.[0-9]+)?)nm)", std::regex::icase);
+  std::smatch m;
+  const std::string stem = fs::path(path).stem().string();
+  if (!std::regex_match(stem, m, re)) return -1;
+  return std::stod(m[1].str());
+}
+
+CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& frames_dir, const std::string& darks_dir,
+                                const CalibrationOptions& opt) {
+  const std::size_t bands = cfg.bands, s = cfg.sensor_size_px();
+  const std::vector<double> grid = cfg.wavelengths_nm();
+  const double white = cfg.white_level_dn();
+  // bit_depth 0 (continuous codes, white 1): the 16-bit file holds the fraction of 65535.
+  const double file_scale = cfg.bit_depth == 0 ? 1.0 / 65535.0 : 1.0;
+  const bool mosaic = cfg.cfa != Cfa::None;
+
+  // 1. Match the file names to the bands (before reading any pixel).
+  const std::vector<std::string> files = frame_files(frames_dir, "--frames");
+  std::vector<std::string> band_file(bands);
+  std::vector<double> band_nm(bands, 0);
+  for (const auto& f : files) {
+    const double nm = wavelength_from_file_name(f);
+    if (nm < 0) refuse(f, "no wavelength in the file name; name PSF frames <anything>_<wavelength>nm.png (e.g. psf_550nm.png)");
+    std::size_t b = bands;
+    for (std::size_t k = 0; k < bands; ++k)
+      if (std::abs(grid[k] - nm) <= kBandAxisToleranceNm) b = k;
+    if (b == bands)
+      refuse(f, "wavelength " + to_str(nm) + " nm is not a band of the configuration (" + to_str(grid.front()) + " to " +
+                    to_str(grid.back()) + " nm in steps of " + to_str(cfg.wavelength_step_nm) + " nm, within " +
+                    to_str(kBandAxisToleranceNm) + " nm); remove the frame or use a configuration with that band");
+    if (!band_file[b].empty()) refuse(f, "a second frame for band " + to_str(grid[b]) + " nm (the first: " + in_quotes(band_file[b]) + ")");
+    band_file[b] = f;
+    band_nm[b] = nm;
+  }
+  for (std::size_t b = 0; b < bands; ++b)
+    if (band_file[b].empty())
+      throw InputError("--frames " + in_quotes(frames_dir) + ": no frame for the configured band " + to_str(grid[b]) +
+                       " nm (expected a file named like psf_" + to_str(grid[b]) + "nm.png)");
+
+  // 2. Read and check every frame and dark.
+  const std::vector<std::string> dark_files = frame_files(darks_dir, "--darks");
+  std::vector<Frame> frames(bands), darks;
+  auto read = [&](const std::string& p) {
+    Frame f{p, read_png16_gray(p)};
+    for (auto& v : f.dn.data) v *= file_scale;
+    if (!frames.empty() && frames[0].dn.rows && (f.dn.rows != frames[0].dn.rows || f.dn.cols != frames[0].dn.cols))
+      refuse(p, "size " + std::to_string(f.dn.rows) + " x " + std::to_string(f.dn.cols) + " differs from the " +
+                    std::to_string(frames[0].dn.rows) + " x " + std::to_string(frames[0].dn.cols) + " of " + in_quotes(frames[0].path) +
+                    " (rows x columns); every frame and dark must have one size");
+    return f;
+  };
+  for (std::size_t b = 0; b < bands; ++b) {
+    frames[b] = read(band_file[b]);
+    check_codes(frames[b], white, true);
+  }
+  for (const auto& p : dark_files) {
+    darks.push_back(read(p));
+    check_codes(darks.back(), white, false);
+  }
+  const std::size_t rows = frames[0].dn.rows, cols = frames[0].dn.cols;
+  if (rows < s || cols < s)
+    refuse(frames[0].path, "frame " + std::to_string(rows) + " x " + std::to_string(cols) + " is smaller than the sensor grid's S x S = " +
+                               std::to_string(s) + " x " + std::to_string(s));
+  const Eigen::MatrixXd srf = sensor_response(cfg);  // 3 x bands
+
+  // 3. The mean dark, its noise and its hot pixels.
+  Map2D dark(rows, cols);
+  for (const auto& d : darks)
+    for (std::size_t i = 0; i < dark.data.size(); ++i) dark.data[i] += d.dn.data[i] / double(darks.size());
+  const double dark_med = median_of(dark.data), dark_sigma = std::max(mad_sigma(dark.data), 0.5 * file_scale);
+  std::vector<char> hot(rows * cols, 0);
+  for (std::size_t i = 0; i < hot.size(); ++i) hot[i] = dark.data[i] > dark_med + opt.hot_sigma * dark_sigma;
+  const long step = mosaic ? 2 : 1;
+
+  CalibrationResult r;
+  r.files = band_file;
+  r.wavelengths_nm = band_nm;
+  r.darks = dark_files;
+  r.frame_rows = rows;
+  r.frame_cols = cols;
+  r.peak_snr.resize(bands);
+  r.noise_dn.resize(bands);
+  std::vector<Map2D> sig(bands);  // dark-subtracted, hot pixels replaced, DN
+  std::vector<double> cell(4, 0), worst(bands, 0);
+  std::vector<std::vector<double>> cell_b(bands, std::vector<double>(4, 0));
+  for (std::size_t b = 0; b < bands; ++b) {
+    Map2D m(rows, cols);
+    for (std::size_t i = 0; i < m.data.size(); ++i) m.data[i] = frames[b].dn.data[i] - dark.data[i];
+    const double sigma = std::max(mad_sigma(m.data), 0.5 * file_scale);
+    const double med = median_of(m.data);
+    r.noise_dn[b] = sigma;
+    // 4. Hot pixels: the dark's, and isolated spikes of this frame.
+    Map2D fixed = m;
+    for (std::size_t y = 0; y < rows; ++y)
+      for (std::size_t x = 0; x < cols; ++x) {
+        bool is_hot = hot[y * cols + x] != 0;
+        if (!is_hot && m(y, x) - med > opt.hot_sigma * sigma) {
+          double nmax = -1e300;
+          for (long dy = -step; dy <= step; ++dy)
+            for (long dx = -step; dx <= step; ++dx) {
+              const long yy = long(y) + dy, xx = long(x) + dx;
+              const bool ring = std::abs(dy) <= 1 && std::abs(dx) <= 1;
+              const bool same_colour = dy % step == 0 && dx % step == 0;
+              if ((dy || dx) && (ring || same_colour) && yy >= 0 && xx >= 0 && yy < long(rows) && xx < long(cols))
+                nmax = std::max(nmax, m(std::size_t(yy), std::size_t(xx)) - med);
+            }
+          is_hot = nmax < 3 * sigma;
+        }
+        if (is_hot) {
+          fixed(y, x) = neighbour_median(m, y, x, step);
+          ++r.hot_pixels;
+        }
+      }
+    m = std::move(fixed);
+    // 6. Peak SNR.
+    const double peak = *std::max_element(m.data.begin(), m.data.end()) - med;
+    r.peak_snr[b] = peak / sigma;
+    if (r.peak_snr[b] < opt.min_snr)
+      refuse(frames[b].path, "too dark: peak SNR " + to_str(r.peak_snr[b]) + " (peak " + to_str(peak) + " DN above the dark, noise " +
+                                 to_str(sigma) + " DN) is below --min-snr " + to_str(opt.min_snr));
+    if (mosaic)
+      for (std::size_t y = 0; y < rows; ++y)
+        for (std::size_t x = 0; x < cols; ++x)
+          if (m(y, x) - med > 3 * sigma) cell_b[b][(y & 1) * 2 + (x & 1)] += m(y, x) - med;
+    sig[b] = std::move(m);
+  }
+
+  // 5a. The mosaic layout against the configured one.
+  if (mosaic) {
+    const Cfa layouts[4] = {Cfa::RGGB, Cfa::GRBG, Cfa::GBRG, Cfa::BGGR};
+    double err[4] = {0, 0, 0, 0}, err_cfg = 0;
+    for (std::size_t b = 0; b < bands; ++b) {
+      double tot = 0;
+      for (double v : cell_b[b]) tot += v;
+      if (tot <= 0) continue;
+      for (int l = 0; l < 4; ++l) {
+        const auto p = cell_shares(layouts[l], srf, b);
+        for (std::size_t k = 0; k < 4; ++k) err[l] += std::pow(cell_b[b][k] / tot - p[k], 2);
+      }
+      const auto p = cell_shares(cfg.cfa, srf, b);
+      double e = 0;
+      for (std::size_t k = 0; k < 4; ++k) e += std::pow(cell_b[b][k] / tot - p[k], 2);
+      worst[b] = e;
+      err_cfg += e;
+    }
+    const int best = int(std::min_element(err, err + 4) - err);
+    if (layouts[best] != cfg.cfa && err_cfg > 4 * err[best] && err_cfg > 1e-3 * double(bands)) {
+      const std::size_t wb = std::size_t(std::max_element(worst.begin(), worst.end()) - worst.begin());
+      refuse(frames[wb].path, "the capture's colour mosaic does not match the sensor settings: \"cfa\": \"" + to_string(cfg.cfa) +
+                                  "\" fits the 2 x 2 cell signals of the sweep " + to_str(err_cfg / std::max(err[best], 1e-300)) +
+                                  " times worse than \"" + to_string(layouts[best]) + "\" (this frame worst); check the configuration's cfa");
+    }
+  }
+
+  // 5b. Each colour divided by its relative response; unused colours filled from neighbours.
+  // noise_scale[b]: a pixel's noise over the frame's sigma (1 / its weight; a filled pixel the
+  // mean of its neighbours' over the square root of their count).
+  std::vector<Map2D> noise_scale(bands, Map2D(rows, cols, 1.0));
+  for (std::size_t b = 0; b < bands; ++b) {
+    if (!mosaic) continue;
+    Map2D& ns = noise_scale[b];
+    const double top = std::max({srf(0, long(b)), srf(1, long(b)), srf(2, long(b))});
+    Map2D& m = sig[b];
+    Map2D out(rows, cols);
+    std::vector<char> used(rows * cols);
+    for (std::size_t y = 0; y < rows; ++y)
+      for (std::size_t x = 0; x < cols; ++x) {
+        const double w = top > 0 ? srf(cfa_channel(cfg.cfa, y, x), long(b)) / top : 0;
+        used[y * cols + x] = w >= opt.min_response;
+        if (used[y * cols + x]) {
+          out(y, x) = m(y, x) / w;
+          ns(y, x) = 1 / w;
+        }
+      }
+    for (std::size_t y = 0; y < rows; ++y)
+      for (std::size_t x = 0; x < cols; ++x) {
+        if (used[y * cols + x]) continue;
+        for (int ring = 0; ring < 2; ++ring) {
+          double sum = 0, nsum = 0;
+          int n = 0;
+          for (long dy = -1; dy <= 1; ++dy)
+            for (long dx = -1; dx <= 1; ++dx) {
+              if ((dy == 0 && dx == 0) || (ring == 0 && dy != 0 && dx != 0)) continue;
+              const long yy = long(y) + dy, xx = long(x) + dx;
+              if (yy < 0 || xx < 0 || yy >= long(rows) || xx >= long(cols) || !used[std::size_t(yy) * cols + std::size_t(xx)]) continue;
+              sum += out(std::size_t(yy), std::size_t(xx));
+              nsum += ns(std::size_t(yy), std::size_t(xx));
+              ++n;
+            }
+          if (n) {
+            out(y, x) = sum / n;
+            ns(y, x) = nsum / n / std::sqrt(double(n));
+            break;
+          }
+        }
+      }
+    m = std::move(out);
+  }
+
+  // 7. The common centre.
+  long cy = opt.centre_row, cx = opt.centre_col;
+  if (!opt.has_centre) {
+    Map2D acc(rows, cols);
+    for (std::size_t b = 0; b < bands; ++b) {
+      const double med = median_of(sig[b].data), thr = 3 * r.noise_dn[b];
+      std::vector<double> lit(acc.data.size());
+      double tot = 0;
+      for (std::size_t i = 0; i < lit.size(); ++i) {
+        const double v = sig[b].data[i] - med;
+        tot += lit[i] = v > thr * noise_scale[b].data[i] ? v : 0;
+      }
+      if (tot <= 0) continue;
+      for (std::size_t i = 0; i < acc.data.size(); ++i) acc.data[i] += lit[i] / tot;
+    }
+    // Within the S x S window around the brightest pixel of the sum, then around that centroid
+    // once more (noise far from the point stays out).
+    const std::size_t at = std::size_t(std::max_element(acc.data.begin(), acc.data.end()) - acc.data.begin());
+    double py = double(at / cols), px = double(at % cols);
+    for (int pass = 0; pass < 2; ++pass) {
+      double sy = 0, sx = 0, st = 0;
+      const double half = double(s) / 2;
+      for (std::size_t y = 0; y < rows; ++y)
+        for (std::size_t x = 0; x < cols; ++x) {
+          if (std::abs(double(y) - py) > half || std::abs(double(x) - px) > half) continue;
+          sy += acc(y, x) * double(y);
+          sx += acc(y, x) * double(x);
+          st += acc(y, x);
+        }
+      if (st > 0) py = sy / st, px = sx / st;
+    }
+    cy = std::lround(py);
+    cx = std::lround(px);
+  }
+  r.centre_row = cy;
+  r.centre_col = cx;
+  const long y0 = cy - long(s / 2), x0 = cx - long(s / 2);
+  if (y0 < 0 || x0 < 0 || y0 + long(s) > long(rows) || x0 + long(s) > long(cols))
+    refuse(frames[0].path, "the S x S = " + std::to_string(s) + " x " + std::to_string(s) + " crop around the centre (row " +
+                               std::to_string(cy) + ", column " + std::to_string(cx) + ") leaves the " + std::to_string(rows) + " x " +
+                               std::to_string(cols) + " frame (every frame shares the centre); centre the point source or give --centre");
+
+  // 8. Crop, background, signal mask, normalise.
+  r.psf = RealStack(bands, s, s);
+  for (std::size_t b = 0; b < bands; ++b) {
+    std::vector<double> ring;
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x)
+        if (y < 2 || x < 2 || y + 2 >= s || x + 2 >= s) ring.push_back(sig[b](std::size_t(y0) + y, std::size_t(x0) + x));
+    const double bg = opt.ring_background ? median_of(ring) : 0.0;
+    // The signal mask: the 5 x 5 mean of the crop above floor_sigma of its own noise (sigma x
+    // the pixel's noise scale / 5), grown by 2 px. Inside it values are kept (negatives 0),
+    // outside they are 0: noise is neither clamped into a bias over all S² pixels nor are faint
+    // wings next to the signal cut.
+    Map2D v(s, s), scale(s, s);
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) {
+        v(y, x) = sig[b](std::size_t(y0) + y, std::size_t(x0) + x) - bg;
+        scale(y, x) = noise_scale[b](std::size_t(y0) + y, std::size_t(x0) + x);
+      }
+    auto box = [&](const Map2D& m, std::size_t y, std::size_t x, long rad, bool any) {
+      double acc = 0;
+      int n = 0;
+      for (long dy = -rad; dy <= rad; ++dy)
+        for (long dx = -rad; dx <= rad; ++dx) {
+          const long yy = long(y) + dy, xx = long(x) + dx;
+          if (yy < 0 || xx < 0 || yy >= long(s) || xx >= long(s)) continue;
+          const double e = m(std::size_t(yy), std::size_t(xx));
+          if (any && e > 0) return 1.0;
+          acc += e;
+          ++n;
+        }
+      return any ? 0.0 : acc / n;
+    };
+    Map2D lit(s, s);
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x)
+        lit(y, x) = box(v, y, x, 2, false) > opt.floor_sigma * r.noise_dn[b] * box(scale, y, x, 2, false) / 5 ? 1 : 0;
+    Map2D kept(s, s);
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) kept(y, x) = box(lit, y, x, 2, true) > 0 ? v(y, x) : 0.0;
+    // Negative values (noise) are spread onto their positive 8-neighbours, so the band's sum
+    // stays an unbiased estimate of its energy (clamping them would add 0.4 sigma per masked
+    // pixel); what no positive neighbour takes after 4 passes is set to 0.
+    for (int pass = 0; pass < 4; ++pass)
+      for (std::size_t y = 0; y < s; ++y)
+        for (std::size_t x = 0; x < s; ++x) {
+          if (kept(y, x) >= 0) continue;
+          double pos = 0;
+          for (long dy = -1; dy <= 1; ++dy)
+            for (long dx = -1; dx <= 1; ++dx) {
+              const long yy = long(y) + dy, xx = long(x) + dx;
+              if ((dy || dx) && yy >= 0 && xx >= 0 && yy < long(s) && xx < long(s)) pos += std::max(kept(std::size_t(yy), std::size_t(xx)), 0.0);
+            }
+          if (pos <= 0) continue;
+          const double f = std::max(1 + kept(y, x) / pos, 0.0);  // each positive neighbour keeps this fraction
+          const double taken = std::min(-kept(y, x), pos);
+          for (long dy = -1; dy <= 1; ++dy)
+            for (long dx = -1; dx <= 1; ++dx) {
+              const long yy = long(y) + dy, xx = long(x) + dx;
+              if ((dy || dx) && yy >= 0 && xx >= 0 && yy < long(s) && xx < long(s) && kept(std::size_t(yy), std::size_t(xx)) > 0)
+                kept(std::size_t(yy), std::size_t(xx)) *= f;
+            }
+          kept(y, x) += taken;
+        }
+    double sum = 0;
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) sum += r.psf(b, y, x) = std::max(kept(y, x), 0.0);
+    if (!(sum > 0)) refuse(frames[b].path, "no signal above the background in the S x S crop");
+    for (std::size_t i = 0; i < s * s; ++i) r.psf.data[b * s * s + i] /= sum;
+  }
+  return r;
+}
+
+std::vector<PsfBandComparison> compare_psf_stacks(const RealStack& a, const RealStack& b) {
+  if (a.planes != b.planes || a.rows != b.rows || a.cols != b.cols)
+    throw InputError("compare_psf_stacks: stacks of different shapes");
+  const std::size_t n = a.rows * a.cols;
+  std::vector<PsfBandComparison> out(a.planes);
+  auto centroid = [&](const RealStack& st, std::size_t p, double& cy, double& cx) {
+    double t = 0;
+    cy = cx = 0;
+    for (std::size_t y = 0; y < st.rows; ++y)
+      for (std::size_t x = 0; x < st.cols; ++x) {
+        const double v = st(p, y, x);
+        t += v;
+        cy += v * double(y);
+        cx += v * double(x);
+      }
+    if (t > 0) cy /= t, cx /= t;
+    return t;
+  };
+  auto ee80 = [&](const RealStack& st, std::size_t p, double cy, double cx, double tot) {
+    std::vector<std::pair<double, double>> rv;
+    for (std::size_t y = 0; y < st.rows; ++y)
+      for (std::size_t x = 0; x < st.cols; ++x) rv.push_back({std::hypot(double(y) - cy, double(x) - cx), st(p, y, x)});
+    std::sort(rv.begin(), rv.end());
+    double acc = 0;
+    for (const auto& e : rv)
+      if ((acc += e.second) >= 0.8 * tot) return e.first;
+    return rv.empty() ? 0.0 : rv.back().first;
+  };
+  for (std::size_t p = 0; p < a.planes; ++p) {
+    double ma = 0, mb = 0;
+    for (std::size_t i = 0; i < n; ++i) ma += a.data[p * n + i], mb += b.data[p * n + i];
+    ma /= double(n), mb /= double(n);
+    double sab = 0, saa = 0, sbb = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double da = a.data[p * n + i] - ma, db = b.data[p * n + i] - mb;
+      sab += da * db, saa += da * da, sbb += db * db;
+    }
+    out[p].correlation = saa > 0 && sbb > 0 ? sab / std::sqrt(saa * sbb) : 0;
+    double ay, ax, by, bx;
+    const double ta = centroid(a, p, ay, ax), tb = centroid(b, p, by, bx);
+    out[p].ee80_measured_px = ee80(a, p, ay, ax, ta);
+    out[p].ee80_simulated_px = ee80(b, p, by, bx, tb);
+    out[p].centroid_offset_px = std::hypot(ay - by, ax - bx);
+  }
+  return out;
+}
+
+}  // namespace qdo

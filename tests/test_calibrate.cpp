@@ -1,0 +1,270 @@
+// qdo calibrate (suite `calibrate`, include/qdo/calibrate.hpp): a synthetic monochromator sweep
+// made from a known simulated PSF stack through the sensor as built (ref::raw_forward: RGGB
+// mosaic, black level, read noise, 12-bit quantization) with an offset, a fixed hot pixel (in the
+// darks too) and a transient one, is calibrated back to the known stack; every refusal exits 2
+// naming the file; the output is accepted by `qdo simulate --psf`.
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "common.hpp"
+#include "qdo/calibrate.hpp"
+#include "qdo/config.hpp"
+#include "qdo/io.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/raw_reference.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+namespace fs = std::filesystem;
+
+namespace {
+
+// The sensor settings of the sweep; "camera" (a CSV written next to it) is added by config_text.
+constexpr const char* kConfig =
+    R"({"preset": "small", "cfa": "rggb", "black_level_dn": 64, "bit_depth": 12, "read_noise_sigma": 0.0005, "noise_seed": 7)";
+std::string config_text(const fs::path& dir, const std::string& cfa = "rggb") {
+  std::string t = kConfig;
+  t.replace(t.find("rggb"), 4, cfa);
+  return t + ", \"camera\": \"" + (dir / "camera.csv").string() + "\"}";
+}
+// A camera whose three colours all respond at 430 .. 670 nm (R rising, B falling, G a hump), so
+// only the defocused end bands (400 .. 420 nm: R; 680 .. 700 nm: B) fill a colour from neighbours.
+std::string camera_csv() {
+  std::string t = "wavelength_nm,R,G,B\n";
+  for (int k = 0; k < 31; ++k) {
+    const double u = k / 30.0, nm = 400 + 10 * k;
+    t += std::to_string(int(nm)) + "," + std::to_string(0.1 + 0.9 * u) + "," +
+         std::to_string(0.5 + 0.5 * std::exp(-std::pow((nm - 550) / 80, 2))) + "," + std::to_string(1 - 0.9 * u) + "\n";
+  }
+  return t;
+}
+constexpr std::size_t kOffY = 13, kOffX = 27, kMargin = 40;
+
+std::string nm_name(double nm) {
+  char b[64];
+  std::snprintf(b, sizeof b, "psf_%gnm.png", nm);
+  return b;
+}
+
+// The known stack (qdo psf, lens:550) and a sweep of it in DIR/frames and DIR/darks.
+struct Sweep {
+  fs::path dir, cfg_path;
+  SystemConfig cfg;
+  RealStack known;          // bands x S x S
+  std::vector<double> amp;  // per band, peak of the brightest colour in full-scale units
+};
+
+const Sweep& sweep() {
+  static Sweep sw = [] {
+    Sweep s;
+    s.dir = temp_dir("calibrate");
+    static const struct Removed {  // the sweep's folder goes when the test binary ends
+      fs::path dir;
+      ~Removed() {
+        std::error_code ec;
+        fs::remove_all(dir, ec);
+      }
+    } removed{s.dir};
+    s.cfg_path = s.dir / "cfg.json";
+    write_text_atomic((s.dir / "camera.csv").string(), camera_csv());
+    write_text_atomic(s.cfg_path.string(), config_text(s.dir));
+    s.cfg = config_from_json_file(s.cfg_path.string());
+    const Run r = qdo_run("psf --config " + s.cfg_path.string() + " --design lens:550 --out " + (s.dir / "known").string(),
+                          "QDO_DEVICE=cpu");
+    REQUIRE_MESSAGE(r.code == 0, r.out);
+    s.known = read_psf_stack_file((s.dir / "known/psf.h5").string()).psf_sensor;
+    const std::size_t S = s.known.rows, H = S + kMargin, bands = s.cfg.bands;
+    const Eigen::MatrixXd srf = sensor_response(s.cfg);
+    fs::create_directories(s.dir / "frames");
+    fs::create_directories(s.dir / "darks");
+    const double black = s.cfg.black_level_dn;
+    for (std::size_t b = 0; b < bands; ++b) {
+      double peak = 0;
+      for (std::size_t i = 0; i < S * S; ++i) peak = std::max(peak, s.known.data[b * S * S + i]);
+      const double top = std::max({srf(0, long(b)), srf(1, long(b)), srf(2, long(b))});
+      s.amp.push_back(0.6 / peak);
+      RealStack rgb(3, H, H);
+      for (std::size_t c = 0; c < 3; ++c)
+        for (std::size_t y = 0; y < S; ++y)
+          for (std::size_t x = 0; x < S; ++x) rgb(c, y + kOffY, x + kOffX) = s.amp[b] * s.known(b, y, x) * srf(long(c), long(b)) / top;
+      const auto raw = ref::raw_forward(rgb, s.cfg, b);
+      Map2D f(H, H);
+      for (std::size_t i = 0; i < H * H; ++i) f.data[i] = raw.raw.data[i];
+      f(5, H - 6) += 800;                 // fixed hot pixel (also in the darks)
+      if (b == 3) f(H - 8, 9) = 3000;     // transient hot pixel
+      write_png16_gray((s.dir / "frames" / nm_name(s.cfg.wavelengths_nm()[b])).string(), f);
+    }
+    for (std::size_t k = 0; k < 4; ++k) {
+      const auto raw = ref::raw_forward(RealStack(3, H, H), s.cfg, 100 + k);
+      Map2D f(H, H);
+      for (std::size_t i = 0; i < H * H; ++i) f.data[i] = raw.raw.data[i];
+      f(5, H - 6) += 800;
+      write_png16_gray((s.dir / "darks" / ("dark_" + std::to_string(k) + ".png")).string(), f);
+    }
+    (void)black;
+    return s;
+  }();
+  return sw;
+}
+
+// A copy of the sweep's frames folder as DIR/<tag>.
+fs::path frames_copy(const std::string& tag) {
+  const fs::path to = sweep().dir / tag;
+  fs::create_directories(to);
+  for (const auto& e : fs::directory_iterator(sweep().dir / "frames")) fs::copy_file(e.path(), to / e.path().filename());
+  return to;
+}
+
+Run calibrate(const fs::path& frames, const std::string& out, const std::string& extra = "") {
+  return qdo_run("calibrate --config " + sweep().cfg_path.string() + " --frames " + frames.string() + " --darks " +
+                     (sweep().dir / "darks").string() + " --out " + (sweep().dir / out).string() + " " + extra,
+                 "QDO_DEVICE=cpu");
+}
+
+}  // namespace
+
+TEST_SUITE("calibrate") {
+  TEST_CASE("wavelengths from file names") {
+    CHECK(wavelength_from_file_name("a/psf_550nm.png") == 550);
+    CHECK(wavelength_from_file_name("x_y_552.5nm.PNG") == 552.5);
+    CHECK(wavelength_from_file_name("psf550.png") < 0);
+  }
+
+  TEST_CASE("a synthetic sweep is calibrated back to the known stack, and simulate --psf takes it") {
+    const Sweep& s = sweep();
+    const Run r = calibrate(s.dir / "frames", "out", "--design lens:550");
+    REQUIRE_MESSAGE(r.code == 0, r.out);
+    CHECK(r.out.find("hot pixels replaced") != std::string::npos);
+    const auto got = read_psf_stack_file((s.dir / "out/psf.h5").string());
+    REQUIRE(got.psf_sensor.planes == s.known.planes);
+    REQUIRE(got.psf_sensor.rows == s.known.rows);
+    const std::size_t S = s.known.rows, n = S * S;
+    // Expected: the known stack through the noise-free part of the steps (the ring's median
+    // subtracted, negatives 0, unit sum: the known PSF has energy out to the crop's edge).
+    // Tolerance from the noise: band b's noise in unit-sum units is sigma_b = sigma_dn /
+    // (w_b * A_b * (white - black)), sigma_dn = read noise 0.0005 of white - black (~2 DN) with
+    // the 12-bit rounding, w_b the band's least used colour weight (>= --min-response 0.2),
+    // A_b the brightest colour's peak. A pixel errs by its noise (<= 5 sigma over S² = 16384
+    // pixels), by a wing the signal mask cut (a pixel whose 5 x 5 mean is below 4 sigma / 5:
+    // up to ~9 sigma on a ring's edge) and by the normalisation (the sum's noise, sqrt(masked
+    // pixels) sigma_b, up to 2 % of the peak): 14 sigma_b + 2 % of the peak. L1 over the band:
+    // mean |noise| (0.8 sigma) per pixel, at most S² sigma_b. Bands where a colour is filled from
+    // its neighbours (400 .. 420 and 680 .. 700 nm, below --min-response) are an interpolation,
+    // exact only where the PSF is smooth at 2 px, which the defocus rings of these bands are
+    // not: only their L1 is checked, with 0.1 more (measured: 0.05 .. 0.11).
+    const double span = s.cfg.white_level_dn() - s.cfg.black_level_dn;
+    const double sigma_dn = std::hypot(0.0005 * span, 1 / std::sqrt(12.0));
+    const Eigen::MatrixXd srf = sensor_response(s.cfg);
+    for (std::size_t b = 0; b < s.cfg.bands; ++b) {
+      std::vector<double> ring, expect(n);
+      for (std::size_t y = 0; y < S; ++y)
+        for (std::size_t x = 0; x < S; ++x)
+          if (y < 2 || x < 2 || y + 2 >= S || x + 2 >= S) ring.push_back(s.known(b, y, x));
+      std::nth_element(ring.begin(), ring.begin() + long(ring.size() / 2), ring.end());
+      double esum = 0;
+      for (std::size_t i = 0; i < n; ++i) esum += expect[i] = std::max(0.0, s.known.data[b * n + i] - ring[ring.size() / 2]);
+      const double top = std::max({srf(0, long(b)), srf(1, long(b)), srf(2, long(b))});
+      double w = 1;
+      bool filled = false;
+      for (long c = 0; c < 3; ++c) {
+        if (srf(c, long(b)) / top >= 0.2) w = std::min(w, srf(c, long(b)) / top);
+        else filled = true;
+      }
+      const double sigma_b = sigma_dn / (w * s.amp[b] * span);
+      double worst = 0, l1 = 0, peak = 0;
+      for (std::size_t i = 0; i < n; ++i) {
+        const double d = std::abs(got.psf_sensor.data[b * n + i] - expect[i] / esum);
+        worst = std::max(worst, d);
+        l1 += d;
+        peak = std::max(peak, expect[i] / esum);
+      }
+      INFO("band " << b << ": max error " << worst << " (sigma_b " << sigma_b << ", peak " << peak << std::string(filled ? ", a colour filled" : "")
+                   << "), L1 " << l1);
+      if (!filled) CHECK(worst <= 14 * sigma_b + 0.02 * peak);
+      CHECK(l1 <= double(n) * sigma_b + (filled ? 0.1 : 0.0));
+    }
+    const std::string csv = slurp(s.dir / "out/compare.csv");
+    CHECK(csv.find("correlation") != std::string::npos);
+    CHECK(fs::exists(s.dir / "out/compare.png"));
+    // The sweep was made from lens:550 itself: every band correlates with the simulated one.
+    std::istringstream rows(csv);
+    std::string line;
+    std::getline(rows, line);
+    std::size_t count = 0;
+    while (std::getline(rows, line)) {
+      const double corr = std::stod(line.substr(line.find(',') + 1));
+      CHECK_MESSAGE(corr > 0.97, line);
+      ++count;
+    }
+    CHECK(count == s.cfg.bands);
+    CHECK(fs::exists(s.dir / "out/psf.png"));
+    const Run sim = qdo_run("simulate --config " + s.cfg_path.string() + " --psf " + (s.dir / "out/psf.h5").string() + " --out " +
+                                (s.dir / "sim").string(),
+                            "QDO_DEVICE=cpu");
+    CHECK_MESSAGE(sim.code == 0, sim.out);
+  }
+
+  TEST_CASE("refusals exit 2 naming the file") {
+    const Sweep& s = sweep();
+    const std::size_t H = s.known.rows + kMargin;
+    {  // a missing band
+      const fs::path d = frames_copy("missing");
+      fs::remove(d / nm_name(430));
+      const Run r = calibrate(d, "o_missing");
+      CHECK(r.code == 2);
+      CHECK_MESSAGE(r.out.find("no frame for the configured band 430 nm") != std::string::npos, r.out);
+      CHECK(!fs::exists(s.dir / "o_missing/psf.h5"));
+    }
+    {  // a wavelength that is not a band
+      const fs::path d = frames_copy("extra");
+      fs::copy_file(d / nm_name(430), d / nm_name(435));
+      const Run r = calibrate(d, "o_extra");
+      CHECK(r.code == 2);
+      CHECK_MESSAGE(r.out.find(nm_name(435)) != std::string::npos, r.out);
+    }
+    {  // a saturated frame
+      const fs::path d = frames_copy("saturated");
+      Map2D f = read_png16_gray((d / nm_name(550)).string());
+      f(H / 2, H / 2) = s.cfg.white_level_dn();
+      write_png16_gray((d / nm_name(550)).string(), f);
+      const Run r = calibrate(d, "o_sat");
+      CHECK(r.code == 2);
+      CHECK_MESSAGE((r.out.find(nm_name(550)) != std::string::npos && r.out.find("saturated") != std::string::npos), r.out);
+    }
+    {  // frames of different sizes
+      const fs::path d = frames_copy("size");
+      write_png16_gray((d / nm_name(600)).string(), Map2D(H - 2, H, 64));
+      const Run r = calibrate(d, "o_size");
+      CHECK(r.code == 2);
+      CHECK_MESSAGE((r.out.find(nm_name(600)) != std::string::npos && r.out.find("differs") != std::string::npos), r.out);
+    }
+    {  // a frame too dark (a dark frame in place of the 450 nm frame)
+      const fs::path d = frames_copy("dark");
+      fs::remove(d / nm_name(450));
+      fs::copy_file(s.dir / "darks/dark_0.png", d / nm_name(450));
+      const Run r = calibrate(d, "o_dark");
+      CHECK(r.code == 2);
+      CHECK_MESSAGE((r.out.find(nm_name(450)) != std::string::npos && r.out.find("too dark") != std::string::npos), r.out);
+    }
+    {  // the crop leaves the frame
+      const Run r = calibrate(s.dir / "frames", "o_crop", "--centre 10,10");
+      CHECK(r.code == 2);
+      CHECK_MESSAGE((r.out.find("leaves the") != std::string::npos && r.out.find(".png") != std::string::npos), r.out);
+    }
+    {  // a capture whose mosaic is not the configured one
+      const fs::path cfg = s.dir / "bggr.json";
+      write_text_atomic(cfg.string(), config_text(s.dir, "bggr"));
+      const Run r = qdo_run("calibrate --config " + cfg.string() + " --frames " + (s.dir / "frames").string() + " --darks " +
+                                (s.dir / "darks").string() + " --out " + (s.dir / "o_cfa").string(),
+                            "QDO_DEVICE=cpu");
+      CHECK(r.code == 2);
+      CHECK_MESSAGE((r.out.find("mosaic does not match") != std::string::npos && r.out.find("\"rggb\"") != std::string::npos &&
+                     r.out.find(".png") != std::string::npos),
+                    r.out);
+    }
+  }
+}
