@@ -230,7 +230,14 @@ int cmd_sweep(const Args& a) {
       for (long k = i; k < n; k += parts) which.push_back(std::size_t(k));
     }
   }
-  g.out = out_dir(a);
+  // The output folder is claimed once (rank 0 under mpirun; the others go on once it has it).
+  if (ranks && world->rank() != 0) {
+    world->barrier();
+    g.out = a.get("out");
+  } else {
+    g.out = out_dir(a);
+    if (ranks) world->barrier();
+  }
   Runtime rt(process_device(a.get("device")));
   const auto t0 = std::chrono::steady_clock::now();
   if (!which.empty() || a.has("shard")) {
