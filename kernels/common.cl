@@ -44,3 +44,44 @@ inline __attribute__((always_inline)) real2 cexpi(real phase) {
   return (real2)(c, s);
 }
 #endif
+
+// Philox4x32-10: bit-identical to qdo::philox4x32 in include/qdo/rng.hpp.
+inline uint4 philox4x32(uint4 c, uint2 k) {
+  for (int r = 0; r < 10; ++r) {
+    const uint hi0 = mul_hi(0xD2511F53u, c.x), lo0 = 0xD2511F53u * c.x;
+    const uint hi1 = mul_hi(0xCD9E8D57u, c.z), lo1 = 0xCD9E8D57u * c.z;
+    c = (uint4)(hi1 ^ c.y ^ k.x, lo1, hi0 ^ c.w ^ k.y, lo0);
+    k += (uint2)(0x9E3779B9u, 0xBB67AE85u);
+  }
+  return c;
+}
+inline real uniform_open(uint x) { return ((real)x + R(0.5)) * R(2.3283064365386963e-10); }
+
+// A linear sensor value v (1.0 = full well) with reproducible noise: shot noise (Poisson with
+// full_well photons at 1.0, skipped when full_well <= 0; normal approximation from a mean of 64
+// photons), then Gaussian read noise of `sigma`, both from Philox counter (idx, stream) under the
+// key (seed_lo, seed_hi). Bit-identical to the host's noise_draw (rng.hpp) for the same stream:
+// the sensor stage uses 0x51ed27 (kSensorNoiseStream), the raw stage 0x7a3b5e (kRawNoiseStream).
+inline real sensor_noise(real v, ulong idx, uint stream, real sigma, real full_well, uint seed_lo, uint seed_hi) {
+  if (!(sigma > R(0.0) || full_well > R(0.0))) return v;
+  const uint4 r = philox4x32((uint4)((uint)idx, (uint)(idx >> 32), stream, 0u), (uint2)(seed_lo, seed_hi));
+  const real u0 = uniform_open(r.x), u1 = uniform_open(r.y), u2 = uniform_open(r.z);
+  const real rad = sqrt(R(-2.0) * log(u0));
+  const real ang = R(6.283185307179586) * u1;
+  if (full_well > R(0.0)) {
+    const real mean = fmax(v, R(0.0)) * full_well;
+    real cnt = R(0.0);
+    if (mean > R(0.0) && mean < R(64.0)) {
+      real pk = exp(-mean), cdf = pk;
+      while (u2 > cdf && cnt < R(1000.0)) {
+        cnt += R(1.0);
+        pk *= mean / cnt;
+        cdf += pk;
+      }
+    } else if (mean >= R(64.0)) {
+      cnt = fmax(R(0.0), floor(mean + sqrt(mean) * rad * sin(ang) + R(0.5)));
+    }
+    v = cnt / full_well;
+  }
+  return v + sigma * rad * cos(ang);
+}

@@ -1,48 +1,14 @@
 // The sensor as built (include/qdo/raw.hpp): linear RGB -> raw code values in DN, and the
 // adjoint of its differentiable part. CPU reference: ref::raw_forward (raw_reference.hpp).
 
-// Philox4x32-10: bit-identical to qdo::philox4x32 in include/qdo/rng.hpp (and kernels/sensor.cl).
-inline uint4 raw_philox4x32(uint4 c, uint2 k) {
-  for (int r = 0; r < 10; ++r) {
-    const uint hi0 = mul_hi(0xD2511F53u, c.x), lo0 = 0xD2511F53u * c.x;
-    const uint hi1 = mul_hi(0xCD9E8D57u, c.z), lo1 = 0xCD9E8D57u * c.z;
-    c = (uint4)(hi1 ^ c.y ^ k.x, lo1, hi0 ^ c.w ^ k.y, lo0);
-    k += (uint2)(0x9E3779B9u, 0xBB67AE85u);
-  }
-  return c;
-}
-inline real raw_uniform_open(uint x) { return ((real)x + R(0.5)) * R(2.3283064365386963e-10); }
-
 // The colour channel (0 R, 1 G, 2 B) filtered at pixel (y, x): cfa_code holds the 2 x 2 cell,
 // two bits per entry, entry (y & 1) * 2 + (x & 1); -1 means no mosaic.
 inline int raw_channel(int cfa_code, int y, int x) { return (cfa_code >> (2 * ((y & 1) * 2 + (x & 1)))) & 3; }
 
-// The linear signal of element (k, c, p) with noise: shot noise (Poisson with full_well photons
-// at 1.0, skipped when full_well <= 0) then Gaussian read noise of `sigma`, counter
+// The linear signal of element (k, c, p) with noise (common.cl's sensor_noise), counter
 // (k * hw + p) * 3 + c in the raw stream (rng.hpp kRawNoiseStream). Same draws as the host.
 inline real raw_noisy(real v, int k, int c, int p, int hw, real sigma, real full_well, uint seed_lo, uint seed_hi) {
-  if (!(sigma > R(0.0) || full_well > R(0.0))) return v;
-  const ulong idx = ((ulong)k * hw + p) * 3 + c;
-  const uint4 r = raw_philox4x32((uint4)((uint)idx, (uint)(idx >> 32), 0x7a3b5eu, 0u), (uint2)(seed_lo, seed_hi));
-  const real u0 = raw_uniform_open(r.x), u1 = raw_uniform_open(r.y), u2 = raw_uniform_open(r.z);
-  const real rad = sqrt(R(-2.0) * log(u0));
-  const real ang = R(6.283185307179586) * u1;
-  if (full_well > R(0.0)) {
-    const real mean = fmax(v, R(0.0)) * full_well;
-    real cnt = R(0.0);
-    if (mean > R(0.0) && mean < R(64.0)) {
-      real pk = exp(-mean), cdf = pk;
-      while (u2 > cdf && cnt < R(1000.0)) {
-        cnt += R(1.0);
-        pk *= mean / cnt;
-        cdf += pk;
-      }
-    } else if (mean >= R(64.0)) {
-      cnt = fmax(R(0.0), floor(mean + sqrt(mean) * rad * sin(ang) + R(0.5)));
-    }
-    v = cnt / full_well;
-  }
-  return v + sigma * rad * cos(ang);
+  return sensor_noise(v, ((ulong)k * hw + p) * 3 + c, 0x7a3b5eu, sigma, full_well, seed_lo, seed_hi);
 }
 
 // Forward. rgb: scenes x 3 x hw reals (linear, 1.0 = full well), raw: scenes x channels x hw
