@@ -46,6 +46,7 @@ fftw2 runtime
 field physics
 field_reference physics
 gds fab
+fit design
 gradcheck design
 hash runtime
 host_propagator runtime

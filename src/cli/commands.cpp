@@ -135,6 +135,28 @@ std::vector<CommandSpec> make_table() {
                 opt("centre", "ROW,COL: the frame pixel of the optical axis (default: the centroid of all bands)"),
                 precision(), device(), out_dir_opt()},
                cmd_calibrate});
+  t.push_back({"fit",
+               "the as-built DOE: fit a design's level depths (or mask depths, or a height scale), DOE-sensor distance, object "
+               "distance, lateral offset and aperture to a measured PSF stack by Levenberg-Marquardt through the adjoints -> "
+               "DIR/fit.h5, fit.json (values, 1-sigma, correlation, residual per band), design.h5 (as built), config.json, fit.png, "
+               "residual.png",
+               "", "",
+               {preset(), config(),
+                opt("design", "the design that was built: a design .h5 file (its /levels_m defines each pixel's level), a run folder "
+                              "(its design.h5), lens:NM or flat (required)"),
+                opt("psf", "the measured PSF stack: psf.h5 as qdo calibrate (or qdo psf) writes it, for the configuration's bands and "
+                           "sensor grid (checked) (required)"),
+                opt("fit", "parameters, comma-separated: levels (the L-1 depths of levels 1..L-1, m; level 0 held: a piston is "
+                           "invisible), masks (the log2 L mask depths of a qdo+m design, m), scale (one factor on all heights; not with "
+                           "levels or masks), z (DOE-sensor distance, m), d (object distance, m; nearly degenerate with z, so not in the "
+                           "default), offset (dx, dy: the relief against the aperture, m), shift (sx, sy: registration of the measured "
+                           "stack, sensor px; a nuisance), aperture (radius, m, by a half-pixel scan) (default: levels,z,offset for a "
+                           "quantized design, else scale,z,offset)"),
+                opt("iterations", "most Levenberg-Marquardt iterations, an integer in [1, 1000]", "30"),
+                opt("tolerance", "stop when an accepted step lowers the loss by less than this fraction, in [0, 1]", "1e-9"),
+                opt("precision", "floating-point precision on the device: f32 or f64 (the fit's central differences want f64)", "f64"),
+                device(), out_dir_opt()},
+               cmd_fit});
   t.push_back({"quantize", "quantize a design to L levels (post-hoc, uniform) into a design .h5 file", "", "",
                {preset(), config(), design_spec(), opt("levels", "number of height levels L, an integer in [2, 65536] (required)"),
                 placement(), opt("out", "output design .h5 file")},

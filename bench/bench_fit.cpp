@@ -1,0 +1,147 @@
+// bench_fit: one as-built fit (include/qdo/fit.hpp, `qdo fit`) with the time per stage.
+//
+// The case: a 4-level lens for 550 nm on --preset, its level depths off by +15, -20, +10 nm, z off
+// by 1.6 % and the relief offset by (0.3, -0.2) DOE pixels, the PSF stack simulated through it
+// with Gaussian noise of 1 % of each band's peak per pixel; fitted with levels,z,offset in float64.
+// Reports (medians of --repeats after --warmup runs, with half the min-max spread beside each):
+//   simulator build   one Simulator for a new (z, d): what a distance's central difference costs
+//   PSF evaluation    heights -> bands x S x S model stack on the same simulator (the baseline unit)
+//   adjoint gradient  one PSF evaluation + psf_sensor_vjp + the shifts' and levels' chain
+//   Jacobian          2 p central-difference evaluations (the z columns rebuild the simulator)
+//   writing           fit.h5-sized HDF5 (three stacks) + design.h5
+//   whole fit         fit_as_built, once, with its own per-stage split, iterations and counts
+// Speed is never asserted; this program only reports.
+//
+// Usage: bench_fit [--preset small|paper] [--repeats 3] [--warmup 1] [--out FILE.md]
+// Device: QDO_DEVICE (see runtime.hpp); kernel disk cache: QDO_CACHE_DIR.
+#include <cmath>
+#include <cstdio>
+#include <exception>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "qdo/config.hpp"
+#include "qdo/doe.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fit.hpp"
+#include "qdo/io.hpp"
+#include "qdo/runtime.hpp"
+#include "qdo/simulator.hpp"
+
+#include "bench_util.hpp"
+
+using namespace qdo;
+using qdo::bench::fmt;
+using qdo::bench::Timing;
+using qdo::bench::time_it;
+
+namespace {
+
+std::string row(const std::string& stage, const Timing& t, double unit) {
+  return "| " + stage + " | " + fmt("%.3f", t.median) + " +- " + fmt("%.3f", 0.5 * (t.max - t.min)) + " | " + fmt("%.1f", t.median / unit) +
+         " | " + std::to_string(t.runs) + " |\n";
+}
+
+}  // namespace
+
+int main(int argc, char** argv) try {
+  std::string preset = "small", out;
+  int repeats = 3, warmup = 1;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    const auto next = [&]() -> std::string {
+      if (i + 1 >= argc) throw InputError("bench_fit: " + a + " needs a value");
+      return argv[++i];
+    };
+    if (a == "--preset")
+      preset = next();
+    else if (a == "--repeats")
+      repeats = std::stoi(next());
+    else if (a == "--warmup")
+      warmup = std::stoi(next());
+    else if (a == "--out")
+      out = next();
+    else
+      throw InputError("bench_fit: unknown option " + a + " (--preset, --repeats, --warmup, --out)");
+  }
+  if (repeats < 1 || warmup < 0) throw InputError("bench_fit: --repeats >= 1, --warmup >= 0");
+  const SystemConfig cfg = preset_config(preset);
+  Runtime rt;
+  Quantizer q;
+  q.levels = 4;
+  Design d;
+  d.height_m = quantize_heights(lens_design(cfg, 550), cfg.h_max_m(), q);
+  d.pitch_m = cfg.pitch_m;
+  d.levels_m = q.level_heights_m(cfg.h_max_m());
+  const std::vector<std::string> params = {"levels", "z", "offset"};
+  AsBuiltModel model(rt, cfg, Precision::F64, d, params);
+  const std::vector<double> truth = {d.levels_m[1] + 15e-9, d.levels_m[2] - 20e-9, d.levels_m[3] + 10e-9,
+                                     cfg.sensor_distance_m * 1.016, 0.3 * cfg.pitch_m, -0.2 * cfg.pitch_m};
+  RealStack meas = model.evaluate(truth);
+  {
+    std::mt19937_64 rng(1);
+    std::normal_distribution<double> n(0.0, 1.0);
+    const std::size_t plane = meas.rows * meas.cols;
+    for (std::size_t b = 0; b < meas.planes; ++b) {
+      double peak = 0;
+      for (std::size_t i = 0; i < plane; ++i) peak = std::max(peak, meas.data[b * plane + i]);
+      for (std::size_t i = 0; i < plane; ++i) meas.data[b * plane + i] += 0.01 * peak * n(rng);
+    }
+  }
+  const std::vector<double> theta = model.design_values();
+  std::printf("bench_fit: preset %s (N = %zu, %zu bands, S = %zu), device %s, float64, %d repeats after %d warm-up\n", preset.c_str(),
+              cfg.n, cfg.bands, cfg.sensor_size_px(), rt.info().name.c_str(), repeats, warmup);
+  const Timing build = time_it(warmup, repeats, [&] { Simulator s(rt, cfg, Precision::F64); });
+  (void)model.evaluate(theta);  // the model's simulator at the design's z
+  const Timing psf = time_it(warmup, repeats, [&] { (void)model.evaluate(theta); });
+  std::vector<double> g;
+  const Timing grad = time_it(warmup, repeats, [&] { (void)model.adjoint_gradient(theta, meas, g); });
+  const Timing jac = time_it(std::min(warmup, 1), repeats, [&] { (void)model.jacobian(theta); });
+  const std::string dir = (std::filesystem::temp_directory_path() / ("qdo_bench_fit_" + std::to_string(std::random_device{}()))).string();
+  std::filesystem::create_directories(dir);
+  const std::size_t s = cfg.sensor_size_px();
+  const Timing write = time_it(warmup, repeats, [&] {
+    std::vector<H5Dataset> ds;
+    for (const char* n : {"/psf_fit", "/psf_measured", "/psf_design"}) ds.push_back({n, {cfg.bands, s, s}, meas.data, {}, {}});
+    h5_write(dir + "/fit.h5", ds);
+    write_design(dir + "/design.h5", d);
+  });
+  std::filesystem::remove_all(dir);
+  FitOptions opt;
+  opt.parameters = params;
+  const auto t0 = qdo::bench::Clock::now();
+  const FitResult r = fit_as_built(rt, cfg, Precision::F64, d, meas, opt);
+  const double whole = qdo::bench::seconds_since(t0);
+
+  std::ostringstream md;
+  md << "bench_fit: preset " << preset << " (N = " << cfg.n << ", " << cfg.bands << " bands, S = " << s << "), " << rt.info().name
+     << ", float64; fit levels,z,offset (6 parameters)\n\n";
+  md << "| stage | median s (+- half spread) | in PSF evaluations | runs |\n|---|---|---|---|\n";
+  md << row("PSF evaluation (baseline)", psf, psf.median);
+  md << row("simulator build (new z or d)", build, psf.median);
+  md << row("adjoint gradient (PSF + VJP + chain)", grad, psf.median);
+  md << row("Jacobian (12 central differences, 2 simulator builds)", jac, psf.median);
+  md << row("writing fit.h5 stacks + design.h5", write, psf.median);
+  md << "\nwhole fit, once: " << fmt("%.2f", whole) << " s, " << r.iterations << " iterations (" << (r.converged ? "converged" : "limit")
+     << "): PSF " << fmt("%.2f", r.times.psf_s) << " s, adjoint " << fmt("%.2f", r.times.vjp_s) << " s, Jacobian "
+     << fmt("%.2f", r.times.jacobian_s) << " s, solve " << fmt("%.3f", r.times.solve_s) << " s; " << r.times.psf_evaluations
+     << " PSF evaluations, " << r.times.vjps << " adjoints, " << r.times.simulators_built << " simulators\n";
+  md << "recovered:";
+  for (std::size_t k = 0; k < truth.size(); ++k) {
+    const FitValue& v = r.values[k];
+    const double u = v.name == "z" ? 1e3 : v.name == "dx" || v.name == "dy" ? 1e6 : 1e9;
+    md << " " << v.name << " " << fmt("%.3f", v.value * u) << " +- " << fmt("%.3f", v.sigma * u) << " (true " << fmt("%.3f", truth[k] * u)
+       << ")";
+  }
+  md << "  [units: nm, mm, um]\n";
+  std::fputs(md.str().c_str(), stdout);
+  if (!out.empty()) std::ofstream(out) << md.str();
+  return 0;
+} catch (const std::exception& e) {
+  std::fprintf(stderr, "bench_fit: %s\n", e.what());
+  return 2;
+}

@@ -1,0 +1,179 @@
+// qdo fit: the as-built DOE (fit.hpp) from a design and a measured PSF stack -> DIR/fit.h5,
+// fit.json, design.h5 (the as-built relief), config.json (the as-built geometry), fit.png
+// (measured, fitted and design PSF per band) and residual.png (relative residual per band).
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+#include "cli.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fit.hpp"
+#include "qdo/io.hpp"
+#include "qdo/psf_source.hpp"
+#include "qdo/run.hpp"
+#include "qdo/runtime.hpp"
+
+namespace qdo::cli {
+
+namespace {
+
+// --design: a design .h5 file (its level table kept), a run folder (its design.h5), lens:NM or
+// flat (no level table). Checked against the configuration's grid and height range (load_design).
+Design fit_design(const SystemConfig& cfg, const Args& a) {
+  std::string spec = a.get("design");
+  if (spec.empty()) reject("--design", "(missing)", "the design that was built: a design .h5 file, a run folder, lens:NM or flat");
+  if (std::filesystem::is_directory(spec)) spec += "/design.h5";
+  Design d;
+  d.height_m = load_design(cfg, spec);  // the grid and height checks, naming the file
+  d.pitch_m = cfg.pitch_m;
+  if (spec != "flat" && spec.rfind("lens:", 0) != 0) d.levels_m = read_design(spec).levels_m;
+  return d;
+}
+
+// A value and its sigma in the unit a reader wants: nm for heights, mm for distances, um for offsets.
+std::string human(const FitValue& v, double x) {
+  char b[64];
+  if (v.name == "z" || v.name == "d")
+    std::snprintf(b, sizeof b, "%.4f mm", x * 1e3);
+  else if (v.name == "dx" || v.name == "dy" || v.name == "aperture")
+    std::snprintf(b, sizeof b, "%.3f um", x * 1e6);
+  else if (v.unit == "m")
+    std::snprintf(b, sizeof b, "%.2f nm", x * 1e9);
+  else if (v.unit == "px")
+    std::snprintf(b, sizeof b, "%.4f px", x);
+  else
+    std::snprintf(b, sizeof b, "%.6f", x);
+  return b;
+}
+
+}  // namespace
+
+int cmd_fit(const Args& a) {
+  const SystemConfig cfg = load_config(a);
+  if (!a.has("psf")) reject("--psf", "(missing)", "the measured PSF stack: psf.h5 as qdo calibrate or qdo psf writes it");
+  FitOptions opt;
+  opt.parameters = split_list(a.get("fit"));
+  opt.max_iterations = parse_int("--iterations", a.get("iterations"), 1, 1000);
+  opt.tolerance = parse_double("--tolerance", a.get("tolerance"), 0, 1, "", false);
+  const Precision p = precision_from_string(a.get("precision"));
+  const Design design = fit_design(cfg, a);
+  if (opt.parameters.empty()) opt.parameters = default_fit_parameters(design);
+  const RealStack measured = read_psf_stack_for(cfg, a.get("psf"), "--psf");
+  check_fit_parameters(cfg, design, opt.parameters);  // names, levels without a table, degenerate pairs: before any work
+  const std::string dir = out_dir(a);
+  Runtime rt(a.get("device"));
+  opt.progress = [](const std::string& l) {
+    std::printf("%s\n", l.c_str());
+    std::fflush(stdout);
+  };
+  const auto t0 = std::chrono::steady_clock::now();
+  const FitResult r = fit_as_built(rt, cfg, p, design, measured, opt);
+  const double fit_s = seconds_since(t0);
+  const auto t1 = std::chrono::steady_clock::now();
+
+  // fit.json and fit.h5: the same values.
+  const std::size_t np = r.correlation.rows(), nv = r.values.size(), s = cfg.sensor_size_px();
+  nlohmann::json j;
+  j["design"] = a.get("design");
+  j["psf"] = a.get("psf");
+  j["parameters"] = nlohmann::json::array();
+  std::vector<double> vals, sig, des;
+  std::string names;
+  for (const auto& v : r.values) {
+    j["parameters"].push_back({{"name", v.name}, {"unit", v.unit}, {"design", v.design}, {"value", v.value}, {"sigma", v.sigma},
+                               {"gradient", v.gradient}});
+    vals.push_back(v.value);
+    sig.push_back(std::isfinite(v.sigma) ? v.sigma : -1.0);
+    des.push_back(v.design);
+    names += (names.empty() ? "" : ",") + v.name;
+  }
+  std::vector<double> corr(np * np);
+  for (std::size_t x = 0; x < np; ++x)
+    for (std::size_t y = 0; y < np; ++y) corr[x * np + y] = r.correlation(long(x), long(y));
+  j["correlation"] = nlohmann::json::array();
+  for (std::size_t x = 0; x < np; ++x)
+    j["correlation"].push_back(std::vector<double>(corr.begin() + long(x * np), corr.begin() + long((x + 1) * np)));
+  j["degenerate"] = nlohmann::json::array();
+  for (const auto& d : r.degenerate)
+    j["degenerate"].push_back({{"a", r.values[d.first].name}, {"b", r.values[d.second].name},
+                               {"correlation", r.correlation(long(d.first), long(d.second))}});
+  j["condition"] = r.condition;
+  j["loss_design"] = r.loss_design;
+  j["loss_final"] = r.loss_final;
+  j["residual_sigma"] = r.residual_sigma;
+  j["wavelengths_nm"] = cfg.wavelengths_nm();
+  j["residual_rel_design"] = r.residual_rel_design;
+  j["residual_rel_fit"] = r.residual_rel_fit;
+  j["iterations"] = r.iterations;
+  j["converged"] = r.converged;
+  j["loss_history"] = r.loss_history;
+  j["levels_m"] = r.as_built.levels_m;
+  j["seconds"] = {{"psf", r.times.psf_s}, {"vjp", r.times.vjp_s}, {"jacobian", r.times.jacobian_s}, {"solve", r.times.solve_s},
+                  {"aperture_scan", r.times.scan_s}, {"total", fit_s}};
+  j["counts"] = {{"psf_evaluations", r.times.psf_evaluations}, {"vjps", r.times.vjps}, {"simulators_built", r.times.simulators_built}};
+  j["notes"] = "sigma: 1-sigma from the Gauss-Newton curvature, Cov = s^2 (J^T J)^-1 with s^2 = 2 loss / (m - p), equal weights; "
+               "levels: level 0 held at its design value (a common piston is invisible); z and d by central differences; "
+               "aperture by a half-pixel scan";
+  write_text_atomic(dir + "/fit.json", j.dump(2) + "\n");
+
+  std::vector<H5Dataset> ds;
+  ds.push_back({"/value", {nv}, vals, {}, {{"names", names}, {"units", "m, px or 1 per parameter (fit.json)"}}});
+  ds.push_back({"/sigma", {nv}, sig, {}, {{"names", names}, {"note", "-1: not determined"}}});
+  ds.push_back({"/design_value", {nv}, des, {}, {{"names", names}}});
+  if (np > 0) ds.push_back({"/correlation", {np, np}, corr, {}, {{"names", names}}});
+  ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});
+  ds.push_back({"/residual_rel_design", {cfg.bands}, r.residual_rel_design, {}, {{"units", "|design - measured| / |measured| per band"}}});
+  ds.push_back({"/residual_rel_fit", {cfg.bands}, r.residual_rel_fit, {}, {{"units", "|fit - measured| / |measured| per band"}}});
+  ds.push_back({"/loss_history", {r.loss_history.size()}, r.loss_history, {}, {}});
+  ds.push_back({"/psf_fit", {cfg.bands, s, s}, r.model_psf.data, {{"pitch_m", cfg.sensor_pitch_m}}, {{"units", "fraction of band energy per sensor pixel"}}});
+  ds.push_back({"/psf_measured", {cfg.bands, s, s}, measured.data, {{"pitch_m", cfg.sensor_pitch_m}}, {}});
+  ds.push_back({"/psf_design", {cfg.bands, s, s}, r.design_psf.data, {{"pitch_m", cfg.sensor_pitch_m}}, {}});
+  h5_write(dir + "/fit.h5", ds,
+           {{"config", config_to_json_text(cfg)},
+            {"as_built_config", config_to_json_text(r.as_built_config)},
+            {"design", a.get("design")},
+            {"psf", a.get("psf")},
+            {"source", "qdo fit"}});
+  write_design(dir + "/design.h5", r.as_built,
+               {{"source", "qdo fit"}, {"design", a.get("design")}, {"psf", a.get("psf")}, {"fit", names}});
+  write_text_atomic(dir + "/config.json", config_to_json_text(r.as_built_config) + "\n");
+  // fit.png: measured bands, then fitted, then design, each row of tiles in band order.
+  RealStack three(3 * cfg.bands, s, s);
+  std::copy(measured.data.begin(), measured.data.end(), three.data.begin());
+  std::copy(r.model_psf.data.begin(), r.model_psf.data.end(), three.data.begin() + long(measured.data.size()));
+  std::copy(r.design_psf.data.begin(), r.design_psf.data.end(), three.data.begin() + long(2 * measured.data.size()));
+  std::vector<double> wl3;
+  for (int k = 0; k < 3; ++k)
+    for (double w : cfg.wavelengths_nm()) wl3.push_back(w);
+  // Clamp the noise's negative values for the picture only.
+  for (double& v : three.data) v = std::max(v, 0.0);
+  write_montage_png(dir + "/fit.png", three, wl3, 0.5, std::min<std::size_t>(s, 64));
+  write_line_plot_png(dir + "/residual.png", {r.residual_rel_design, r.residual_rel_fit});
+  const double out_s = seconds_since(t1);
+
+  std::printf("fitted %zu parameters in %d iterations (%s) in %.2f s: loss %.4e -> %.4e, residual sigma %.3e per pixel\n", np,
+              r.iterations, r.converged ? "converged" : "iteration limit", fit_s, r.loss_design, r.loss_final, r.residual_sigma);
+  for (const auto& v : r.values)
+    std::printf("  %-9s %s +- %s (design %s; %s)\n", v.name.c_str(), human(v, v.value).c_str(),
+                std::isfinite(v.sigma) ? human(v, v.sigma).c_str() : "undetermined", human(v, v.design).c_str(), v.gradient.c_str());
+  for (const auto& d : r.degenerate)
+    std::printf("  not separable: %s and %s (correlation %+.4f)\n", r.values[d.first].name.c_str(), r.values[d.second].name.c_str(),
+                r.correlation(long(d.first), long(d.second)));
+  double rd = 0, rf = 0;
+  for (std::size_t b = 0; b < cfg.bands; ++b) {
+    rd += r.residual_rel_design[b] / double(cfg.bands);
+    rf += r.residual_rel_fit[b] / double(cfg.bands);
+  }
+  std::printf("mean relative residual per band: design %.4f, fit %.4f\n", rd, rf);
+  std::printf("time: PSF %.2f s, adjoint %.2f s, Jacobian %.2f s, solve %.3f s, aperture scan %.2f s, writing %.2f s "
+              "(%ld PSF evaluations, %ld adjoints, %ld simulators)\n",
+              r.times.psf_s, r.times.vjp_s, r.times.jacobian_s, r.times.solve_s, r.times.scan_s, out_s, r.times.psf_evaluations,
+              r.times.vjps, r.times.simulators_built);
+  std::printf("wrote %s/fit.h5, fit.json, design.h5, config.json, fit.png, residual.png\n", dir.c_str());
+  return 0;
+}
+
+}  // namespace qdo::cli

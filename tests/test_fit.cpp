@@ -1,0 +1,351 @@
+// qdo fit (suite `fit`, include/qdo/fit.hpp): the as-built DOE. A known perturbation of a 4-level
+// lens (level depths off by +15, -20, +20 nm, the DOE-sensor distance z off by 1.6 %, the relief
+// offset by (0.3, -0.2) DOE pixels) is applied through the fit's own model (the same forward
+// model: these tests check the inverse, not the physics, which the psf suite checks), PSFs are
+// simulated through it, and the fit recovers it: tightly without noise; with Gaussian noise of a
+// stated level within 4 reported sigmas, the sigmas below stated bounds. The adjoint gradient is
+// checked against central differences; the degenerate pairs are reported; every refusal names
+// what is wrong; `qdo fit` runs end to end on files the test writes and refuses bad input (exit 2).
+#include <doctest/doctest.h>
+
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "adjoint_ladder.hpp"
+#include "common.hpp"
+#include "qdo/config.hpp"
+#include "qdo/design.hpp"
+#include "qdo/doe.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fit.hpp"
+#include "qdo/io.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+namespace fs = std::filesystem;
+
+namespace {
+
+// The tiny system of the fit tests: N = 64 (S = 32), 8 bands over 450 .. 550 nm, z = 3.125 mm.
+SystemConfig fit_config() { return tiny_config(64, 8); }
+
+// A 4-level lens for 500 nm (uniform wrapped levels 0, h/4, h/2, 3h/4: every level used; with the
+// inclusive placement the lens for 500 nm would leave level 3 = h_max empty).
+Design quantized_lens(const SystemConfig& cfg) {
+  Quantizer q;
+  q.levels = 4;
+  q.placement = Placement::Wrapped;
+  Design d;
+  d.height_m = quantize_heights(lens_design(cfg, 500), cfg.h_max_m(), q);
+  d.pitch_m = cfg.pitch_m;
+  d.levels_m = q.level_heights_m(cfg.h_max_m());
+  return d;
+}
+
+// The truth: theta of levels,z,offset = (level1..3, z, dx, dy).
+std::vector<double> truth(const SystemConfig& cfg, const Design& d) {
+  return {d.levels_m[1] + 15e-9, d.levels_m[2] - 20e-9, d.levels_m[3] + 20e-9, cfg.sensor_distance_m * 1.016, 0.3 * cfg.pitch_m,
+          -0.2 * cfg.pitch_m};
+}
+
+// Additive Gaussian noise of sigma = rel x the band's peak, per pixel (seeded).
+RealStack noisy(const RealStack& p, double rel, unsigned seed) {
+  RealStack out = p;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> n(0.0, 1.0);
+  const std::size_t plane = p.rows * p.cols;
+  for (std::size_t b = 0; b < p.planes; ++b) {
+    double peak = 0;
+    for (std::size_t i = 0; i < plane; ++i) peak = std::max(peak, p.data[b * plane + i]);
+    for (std::size_t i = 0; i < plane; ++i) out.data[b * plane + i] += rel * peak * n(rng);
+  }
+  return out;
+}
+
+const FitValue& value(const FitResult& r, const std::string& name) {
+  for (const auto& v : r.values)
+    if (v.name == name) return v;
+  FAIL("no fitted value " << name);
+  return r.values.front();
+}
+
+double scale_of(const std::string& name, const SystemConfig& cfg) { return name == "dx" || name == "dy" ? cfg.pitch_m : 1.0; }
+
+}  // namespace
+
+TEST_SUITE("fit") {
+  TEST_CASE("shift_bilinear: adjoint (dot product), derivative (central differences), integer shifts exact") {
+    const std::size_t planes = 2, rows = 7, cols = 9;
+    const RealStack x = uniform_stack(planes, rows, cols, 1), g = uniform_stack(planes, rows, cols, 2);
+    for (const auto& s : std::vector<std::pair<double, double>>{{0.3, -0.45}, {-1.7, 2.2}, {0.0, 0.0}, {2.0, -1.0}}) {
+      const auto y = shift_bilinear(x.data, planes, rows, cols, s.first, s.second);
+      const auto xt = shift_bilinear_adjoint(g.data, planes, rows, cols, s.first, s.second);
+      CHECK(dot(y, g.data) == doctest::Approx(dot(x.data, xt)).epsilon(1e-13));
+      double dsx = 0, dsy = 0;
+      shift_bilinear_derivative(x.data, g.data, planes, rows, cols, s.first, s.second, dsx, dsy);
+      if (std::floor(s.first) != s.first) {  // away from the kinks at integer shifts
+        const double h = 1e-6;
+        const double fx = (dot(shift_bilinear(x.data, planes, rows, cols, s.first + h, s.second), g.data) -
+                           dot(shift_bilinear(x.data, planes, rows, cols, s.first - h, s.second), g.data)) /
+                          (2 * h);
+        const double fy = (dot(shift_bilinear(x.data, planes, rows, cols, s.first, s.second + h), g.data) -
+                           dot(shift_bilinear(x.data, planes, rows, cols, s.first, s.second - h), g.data)) /
+                          (2 * h);
+        CHECK(dsx == doctest::Approx(fx).epsilon(1e-7));
+        CHECK(dsy == doctest::Approx(fy).epsilon(1e-7));
+      }
+    }
+    // An integer shift moves samples exactly: out(2, 3) = in(2 + 1, 3 - 2) for (sx, sy) = (2, -1).
+    const auto y = shift_bilinear(x.data, planes, rows, cols, 2.0, -1.0);
+    CHECK(y[2 * cols + 3] == x.data[3 * cols + 1]);
+    CHECK(y[(rows - 1) * cols + 3] == 0.0);  // brought in from outside
+  }
+
+  TEST_CASE("the adjoint gradient of the fit's loss matches central differences (levels, scale, offset, shift; z, d)") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    const RealStack meas = [&] {
+      AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels", "z", "offset"});
+      return noisy(m.evaluate(truth(cfg, d)), 0.01, 5);
+    }();
+    struct Case {
+      std::vector<std::string> params;
+      std::vector<double> at;  // offsets from the design values, in each parameter's unit (pixels for dx, dy)
+    };
+    // Away from integer shifts (the bilinear shift's kinks).
+    const std::vector<Case> cases = {{{"levels", "z", "d", "offset", "shift"}, {7e-9, -4e-9, 3e-9, 2e-5, 0.01, 0.37, -0.21, 0.23, -0.31}},
+                                     {{"masks", "offset"}, {0, 0, 0.41, 0.13}},
+                                     {{"scale", "shift"}, {0.01, -0.27, 0.45}}};
+    for (const auto& c : cases) {
+      CAPTURE(c.params.front());
+      Design dd = d;
+      if (c.params.front() == "scale") dd.levels_m.clear();
+      AsBuiltModel m(runtime(), cfg, Precision::F64, dd, c.params);
+      std::vector<double> th = m.design_values();
+      REQUIRE(th.size() == c.at.size());
+      for (std::size_t k = 0; k < th.size(); ++k) th[k] += c.at[k] * scale_of(m.parameter_names()[k], cfg);
+      std::vector<double> g;
+      m.loss_gradient(th, meas, g);
+      double gnorm = 0;
+      for (double v : g) gnorm += v * v;
+      gnorm = std::sqrt(gnorm);
+      for (std::size_t k = 0; k < th.size(); ++k) {
+        const std::string& name = m.parameter_names()[k];
+        CAPTURE(name);
+        const double h = name == "z" || name == "d" ? 1e-4 * th[k]
+                         : name == "scale"          ? 1e-5
+                         : name == "sx" || name == "sy" ? 1e-4
+                         : name == "dx" || name == "dy" ? 1e-4 * cfg.pitch_m
+                                                        : 2e-11;
+        std::vector<double> a = th, b = th;
+        a[k] += h;
+        b[k] -= h;
+        const double fd = (m.loss(a, meas) - m.loss(b, meas)) / (2 * h);
+        INFO("adjoint " << g[k] << ", central differences " << fd << (m.adjoint_parameter(k) ? " (adjoint)" : " (differences)"));
+        // The adjoint in double against differences whose error is O(h^2) and the loss's rounding.
+        CHECK(std::fabs(g[k] - fd) <= 1e-5 * std::fabs(fd) + 1e-9 * gnorm);
+        CHECK(g[k] != 0.0);
+      }
+    }
+  }
+
+  TEST_CASE("without noise the fit recovers levels, z and offset tightly") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    const auto t = truth(cfg, d);
+    AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels", "z", "offset"});
+    const RealStack meas = m.evaluate(t);
+    FitOptions opt;
+    opt.parameters = {"levels", "z", "offset"};
+    opt.max_iterations = 40;
+    const FitResult r = fit_as_built(runtime(), cfg, Precision::F64, d, meas, opt);
+    REQUIRE(r.values.size() == t.size());
+    CHECK(r.loss_final < 1e-6 * r.loss_design);
+    for (std::size_t k = 0; k < t.size(); ++k) {
+      const FitValue& v = r.values[k];
+      CAPTURE(v.name);
+      INFO("fitted " << v.value << ", true " << v.value << " (design " << v.design << ")");
+      if (v.name == "z")
+        CHECK(std::fabs(v.value - t[k]) < 1e-4 * t[k]);
+      else if (v.name == "dx" || v.name == "dy")
+        CHECK(std::fabs(v.value - t[k]) < 1e-3 * cfg.pitch_m);
+      else
+        CHECK(std::fabs(v.value - t[k]) < 0.1e-9);
+    }
+    // The as-built outputs: the fitted level table and geometry.
+    REQUIRE(r.as_built.levels_m.size() == 4);
+    CHECK(std::fabs(r.as_built.levels_m[2] - t[1]) < 0.1e-9);
+    CHECK(r.as_built.levels_m[0] == d.levels_m[0]);  // held: a piston
+    CHECK(std::fabs(r.as_built_config.sensor_distance_m - t[3]) < 1e-4 * t[3]);
+    CHECK(r.as_built_config.scene_distance_m == cfg.scene_distance_m);
+    CHECK(r.residual_rel_fit.size() == cfg.bands);
+    CHECK(r.loss_history.size() == std::size_t(r.iterations) + (r.converged && r.loss_history.size() == std::size_t(r.iterations) ? 0 : 1));
+  }
+
+  TEST_CASE("with noise (sigma = 0.1 % of each band's peak per pixel) the recovery is within 4 reported sigmas, the sigmas bounded") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    const auto t = truth(cfg, d);
+    AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels", "z", "offset"});
+    const RealStack meas = noisy(m.evaluate(t), 1e-3, 11);
+    FitOptions opt;
+    opt.parameters = {"levels", "z", "offset"};
+    const FitResult r = fit_as_built(runtime(), cfg, Precision::F64, d, meas, opt);
+    // Bounds on the sigmas at this noise (measured on this system: 1.6 .. 2.8 nm on the levels,
+    // 0.18 um on z, 2.6 and 5.0 nm on dx and dy): 4 nm on a level, 2e-4 z, 0.005 DOE pixels.
+    for (std::size_t k = 0; k < t.size(); ++k) {
+      const FitValue& v = r.values[k];
+      CAPTURE(v.name);
+      INFO("fitted " << v.value << " +- " << v.sigma << ", true " << t[k] << ", design " << v.design);
+      CHECK(std::fabs(v.value - t[k]) < 4 * v.sigma);
+      if (v.name == "z")
+        CHECK(v.sigma < 2e-4 * t[k]);
+      else if (v.name == "dx" || v.name == "dy")
+        CHECK(v.sigma < 0.005 * cfg.pitch_m);
+      else
+        CHECK(v.sigma < 4e-9);
+      CHECK(std::fabs(v.design - t[k]) > 4 * v.sigma);  // the perturbation is resolved, not within the noise
+    }
+    // The residual left is the noise: s close to its sigma (the mean of 0.01 x peak over bands).
+    const std::size_t plane = meas.rows * meas.cols;
+    double noise = 0;
+    const RealStack clean = m.evaluate(t);
+    for (std::size_t b = 0; b < cfg.bands; ++b) {
+      double peak = 0;
+      for (std::size_t i = 0; i < plane; ++i) peak = std::max(peak, clean.data[b * plane + i]);
+      noise += 1e-6 * peak * peak / double(cfg.bands);
+    }
+    CHECK(r.residual_sigma == doctest::Approx(std::sqrt(noise)).epsilon(0.05));
+    for (std::size_t b = 0; b < cfg.bands; ++b) CHECK(r.residual_rel_fit[b] < r.residual_rel_design[b]);
+  }
+
+  TEST_CASE("mask depths of a qdo+m design are recovered; z and d together are reported as not separable") {
+    const SystemConfig cfg = fit_config();
+    Design d = quantized_lens(cfg);
+    d.levels_m = subset_sum_levels({cfg.h_max_m() / 4, cfg.h_max_m() / 2}, 4);  // the wrapped levels again, as subset sums
+    REQUIRE(d.levels_m[3] == doctest::Approx(0.75 * cfg.h_max_m()).epsilon(1e-12));
+    {
+      AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"masks"});
+      const std::vector<double> t = {d.levels_m[1] - 12e-9, d.levels_m[2] + 18e-9};
+      FitOptions opt;
+      opt.parameters = {"masks"};
+      const FitResult r = fit_as_built(runtime(), cfg, Precision::F64, d, m.evaluate(t), opt);
+      CHECK(std::fabs(value(r, "mask0").value - t[0]) < 0.1e-9);
+      CHECK(std::fabs(value(r, "mask1").value - t[1]) < 0.1e-9);
+      CHECK(std::fabs(r.as_built.levels_m[3] - (t[0] + t[1])) < 0.2e-9);
+    }
+    {
+      AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"z"});
+      FitOptions opt;
+      opt.parameters = {"z", "d"};
+      opt.max_iterations = 5;
+      const FitResult r = fit_as_built(runtime(), cfg, Precision::F64, d, noisy(m.evaluate({cfg.sensor_distance_m * 1.01}), 0.01, 3), opt);
+      REQUIRE(r.correlation.rows() == 2);
+      INFO("correlation of z and d: " << r.correlation(0, 1));
+      CHECK(std::fabs(r.correlation(0, 1)) > 0.95);
+      REQUIRE(r.degenerate.size() == 1);
+      CHECK(r.values[r.degenerate[0].first].name == "z");
+      CHECK(r.values[r.degenerate[0].second].name == "d");
+    }
+  }
+
+  TEST_CASE("refusals name the parameter and what is allowed, before any device work") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    Design unq = d;
+    unq.levels_m.clear();
+    const auto msg = [&](const Design& dd, const std::vector<std::string>& p) {
+      try {
+        check_fit_parameters(cfg, dd, p);
+      } catch (const InputError& e) {
+        return std::string(e.what());
+      }
+      return std::string("(accepted)");
+    };
+    CHECK(msg(d, {"levels", "tilt"}).find("'--fit' = tilt") != std::string::npos);
+    CHECK(msg(d, {"levels", "levels"}).find("each parameter once") != std::string::npos);
+    CHECK(msg(unq, {"levels"}).find("quantized design") != std::string::npos);
+    CHECK(msg(d, {"levels", "scale"}).find("degenerate") != std::string::npos);
+    CHECK(msg(d, {"masks"}).find("QDO+M") == std::string::npos);  // uniform inclusive 4 levels: 0, h/3, 2h/3, h are subset sums
+    Design odd = d;
+    odd.levels_m[3] += 50e-9;
+    CHECK(msg(odd, {"masks"}).find("QDO+M design") != std::string::npos);
+    CHECK(msg(d, {"aperture"}).find("at least one") != std::string::npos);
+    SystemConfig inf = cfg;
+    inf.scene_at_infinity = true;
+    try {
+      check_fit_parameters(inf, d, {"z", "d"});
+      FAIL("accepted d at infinity");
+    } catch (const InputError& e) {
+      CHECK(std::string(e.what()).find("infinity") != std::string::npos);
+    }
+    CHECK(msg(d, {"levels", "z", "offset", "shift", "aperture"}) == "(accepted)");
+    // A measured stack of the wrong shape.
+    try {
+      fit_as_built(runtime(), cfg, Precision::F64, d, RealStack(cfg.bands - 1, 32, 32), {});
+      FAIL("accepted a 7-band stack");
+    } catch (const InputError& e) {
+      CHECK(std::string(e.what()).find("7 x 32 x 32") != std::string::npos);
+    }
+  }
+
+  TEST_CASE("qdo fit end to end: a perturbed design's PSF file is fitted back; bad input exits 2 naming it") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    const fs::path dir = temp_dir("fit_cli");
+    std::ofstream(dir / "cfg.json") << config_to_json_text(cfg) << "\n";
+    write_design((dir / "design.h5").string(), d);
+    const auto t = truth(cfg, d);
+    {
+      AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels", "z", "offset"});
+      write_psf((dir / "psf.h5").string(), m.evaluate(t), cfg.wavelengths_nm(), cfg.sensor_pitch_m);
+    }
+    const std::string base = "fit --config " + (dir / "cfg.json").string() + " --design " + (dir / "design.h5").string();
+    const Run ok = qdo_run(base + " --psf " + (dir / "psf.h5").string() + " --out " + (dir / "out").string());
+    INFO(ok.out);
+    REQUIRE(ok.code == 0);
+    CHECK(ok.out.find("fit: iteration 1/30") != std::string::npos);
+    for (const char* f : {"fit.h5", "fit.json", "design.h5", "config.json", "fit.png", "residual.png"}) CHECK(fs::exists(dir / "out" / f));
+    const auto j = nlohmann::json::parse(slurp(dir / "out" / "fit.json"));
+    REQUIRE(j["parameters"].size() == 6);
+    CHECK(j["parameters"][0]["name"] == "level1");
+    CHECK(std::fabs(j["parameters"][0]["value"].get<double>() - t[0]) < 0.5e-9);
+    CHECK(std::fabs(j["parameters"][3]["value"].get<double>() - t[3]) < 1e-3 * t[3]);
+    const Design built = read_design((dir / "out" / "design.h5").string());
+    CHECK(std::fabs(built.levels_m[1] - t[0]) < 0.5e-9);
+    const SystemConfig built_cfg = config_from_json_file((dir / "out" / "config.json").string());
+    CHECK(std::fabs(built_cfg.sensor_distance_m - t[3]) < 1e-3 * t[3]);
+    // The as-built design and configuration are taken by the other commands.
+    const Run psf = qdo_run("psf --config " + (dir / "out" / "config.json").string() + " --design " + (dir / "out" / "design.h5").string() +
+                            " --out " + (dir / "psf_built").string());
+    INFO(psf.out);
+    CHECK(psf.code == 0);
+    // Refusals: exit 2, naming the argument and the value.
+    const Run unknown = qdo_run(base + " --psf " + (dir / "psf.h5").string() + " --fit levels,tilt --out " + (dir / "o2").string());
+    CHECK(unknown.code == 2);
+    CHECK(unknown.out.find("tilt") != std::string::npos);
+    CHECK(!fs::exists(dir / "o2"));
+    SystemConfig other = cfg;
+    other.bands = 5;
+    other.wavelength_step_nm = 25;
+    std::ofstream(dir / "other.json") << config_to_json_text(other) << "\n";
+    const Run grid = qdo_run("fit --config " + (dir / "other.json").string() + " --design " + (dir / "design.h5").string() + " --psf " +
+                             (dir / "psf.h5").string() + " --out " + (dir / "o3").string());
+    CHECK(grid.code == 2);
+    CHECK(grid.out.find("psf.h5") != std::string::npos);
+    Design unq = d;
+    unq.levels_m.clear();
+    write_design((dir / "unq.h5").string(), unq);
+    const Run levels = qdo_run("fit --config " + (dir / "cfg.json").string() + " --design " + (dir / "unq.h5").string() + " --psf " +
+                               (dir / "psf.h5").string() + " --fit levels,z --out " + (dir / "o4").string());
+    CHECK(levels.code == 2);
+    CHECK(levels.out.find("quantized design") != std::string::npos);
+    fs::remove_all(dir);
+  }
+}
