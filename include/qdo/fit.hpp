@@ -32,6 +32,10 @@
 //             aperture_inside_px2), piecewise constant in the radius: it is fitted by a scan of
 //             the loss over radii in half-pixel steps (the others held at their fit), its sigma
 //             from a parabola through the scan's minimum; it takes no part in the correlation.
+// Start: the design values, except the lateral ones: shift (when fitted, else offset, divided by
+// the magnification 1 + z/d and in metres) starts at the centroid difference of the measured and
+// design stacks; from zero the fit can fall into the mirror minimum (the blur a sub-pixel offset
+// adds to the sampled relief is even in the offset, only the small image shift is odd).
 // Gradients: the height parameters (levels, masks, scale, offset) and shift through the
 // simulator's adjoint (psf_sensor_vjp) chained through the shifts' adjoints; z and d by central
 // differences in double (they change the configuration, not the heights). The Gauss-Newton matrix
@@ -102,6 +106,9 @@ struct FitResult {
   int iterations = 0;
   bool converged = false;
   std::vector<std::size_t> unused_levels;  // levels held because no pixel takes them
+  // The start of shift (or, without it, offset): the mean centroid difference measured - design,
+  // sensor px (columns, rows), over each band's pixels above 10 % of its peak.
+  std::pair<double, double> centroid_shift_px{0, 0};
   Design as_built;                     // the fitted relief (levels_m = the fitted levels when quantized)
   SystemConfig as_built_config;        // z, d, aperture as fitted
   RealStack model_psf, design_psf;     // bands x S x S: the fitted model, and the design's nominal stack

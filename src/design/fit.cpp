@@ -526,6 +526,39 @@ std::vector<double> band_residuals(const RealStack& model, const RealStack& meas
   return out;
 }
 
+// The mean over bands of the centroid of a minus that of b (sensor px, (columns, rows)), each
+// over the pixels above 10 % of its band's peak (the noise of the dark background left out).
+std::pair<double, double> centroid_difference_px(const RealStack& a, const RealStack& b) {
+  const auto centroid = [](const RealStack& st, std::size_t band, double& cx, double& cy) {
+    const std::size_t plane = st.rows * st.cols;
+    const double* p = st.data.data() + band * plane;
+    const double peak = *std::max_element(p, p + plane);
+    double w = 0;
+    cx = cy = 0;
+    for (std::size_t i = 0; i < plane; ++i)
+      if (p[i] > 0.1 * peak) {
+        w += p[i];
+        cx += p[i] * double(i % st.cols);
+        cy += p[i] * double(i / st.cols);
+      }
+    if (w > 0) {
+      cx /= w;
+      cy /= w;
+    }
+    return w > 0;
+  };
+  double sx = 0, sy = 0;
+  std::size_t used = 0;
+  for (std::size_t band = 0; band < a.planes; ++band) {
+    double ax, ay, bx, by;
+    if (!centroid(a, band, ax, ay) || !centroid(b, band, bx, by)) continue;
+    sx += ax - bx;
+    sy += ay - by;
+    ++used;
+  }
+  return used ? std::make_pair(sx / double(used), sy / double(used)) : std::make_pair(0.0, 0.0);
+}
+
 std::string values_line(const AsBuiltModel& m, const std::vector<double>& theta) {
   std::string s;
   for (std::size_t i = 0; i < theta.size(); ++i) {
@@ -572,7 +605,30 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   res.design_psf = model.evaluate(theta0);
   res.loss_design = 0.5 * (Eigen::Map<const Eigen::VectorXd>(res.design_psf.data.data(), long(m)) - meas).squaredNorm();
   res.residual_rel_design = band_residuals(res.design_psf, measured);
-  double loss = res.loss_design, lambda = opt.lambda0;
+  // The lateral start: a relief offset (dx, dy) moves the image of the on-axis point by
+  // (dx, dy) (1 + z/d), while the blur it adds to the sampled relief is the same for +-dx: from
+  // zero, the fit can fall into the mirror minimum. It starts from the centroid difference of the
+  // measured and design stacks (shift when it is fitted, else offset).
+  {
+    const auto& names = model.parameter_names();
+    const auto find = [&](const char* n) { return std::size_t(std::find(names.begin(), names.end(), n) - names.begin()); };
+    const auto c = centroid_difference_px(measured, res.design_psf);
+    const std::size_t sx = find("sx"), dx = find("dx");
+    if (sx < np) {
+      theta[sx] = c.first;
+      theta[sx + 1] = c.second;
+    } else if (dx < np) {
+      const double mag = cfg.scene_at_infinity ? 1.0 : 1.0 + cfg.sensor_distance_m / cfg.scene_distance_m;
+      theta[dx] = c.first * cfg.sensor_pitch_m / mag;
+      theta[dx + 1] = c.second * cfg.sensor_pitch_m / mag;
+    }
+    if (sx < np || dx < np) {
+      res.centroid_shift_px = {c.first, c.second};
+      say("fit: centroid of the measured stack against the design's: (" + fmt("%+.4f", c.first) + ", " + fmt("%+.4f", c.second) +
+          ") sensor px; the start of " + (sx < np ? "shift" : "offset"));
+    }
+  }
+  double loss = model.loss(theta, measured), lambda = opt.lambda0;
   res.loss_initial = loss;
   res.loss_history.push_back(loss);
   for (std::size_t l : model.unused_levels())
