@@ -255,6 +255,37 @@ TEST_SUITE("fit") {
     }
   }
 
+  TEST_CASE("a level no pixel takes is held; the aperture radius is found by its scan") {
+    const SystemConfig cfg = fit_config();
+    // The inclusive placement's top level (h_max) is taken by no pixel of a lens for 500 nm.
+    Quantizer q;
+    q.levels = 4;
+    Design d;
+    d.height_m = quantize_heights(lens_design(cfg, 500), cfg.h_max_m(), q);
+    d.pitch_m = cfg.pitch_m;
+    d.levels_m = q.level_heights_m(cfg.h_max_m());
+    {
+      AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels"});
+      REQUIRE(m.unused_levels() == std::vector<std::size_t>{3});
+      CHECK(m.parameter_names() == std::vector<std::string>{"level1", "level2"});
+    }
+    // The truth: an aperture of 30 DOE pixels (the configuration's is N/2 - 1 = 31), z off by 1 %.
+    AsBuiltModel truth_model(runtime(), cfg, Precision::F64, quantized_lens(cfg), {"z"});
+    truth_model.set_aperture_radius(30 * cfg.pitch_m);
+    const RealStack meas = truth_model.evaluate({cfg.sensor_distance_m * 1.01});
+    FitOptions opt;
+    opt.parameters = {"z", "aperture"};
+    const FitResult r = fit_as_built(runtime(), cfg, Precision::F64, quantized_lens(cfg), meas, opt);
+    const FitValue& a = value(r, "aperture");
+    INFO("aperture " << a.value / cfg.pitch_m << " px +- " << a.sigma / cfg.pitch_m << " (design " << a.design / cfg.pitch_m << ")");
+    CHECK(a.gradient == "scan");
+    CHECK(a.design == doctest::Approx(31 * cfg.pitch_m));
+    CHECK(std::fabs(a.value - 30 * cfg.pitch_m) < 0.5 * cfg.pitch_m);
+    CHECK(r.as_built_config.aperture_radius_m == a.value);
+    CHECK(r.loss_final < 1e-3 * r.loss_design);
+    CHECK(r.correlation.rows() == 1);  // the aperture takes no part in it
+  }
+
   TEST_CASE("refusals name the parameter and what is allowed, before any device work") {
     const SystemConfig cfg = fit_config();
     const Design d = quantized_lens(cfg);
@@ -317,6 +348,9 @@ TEST_SUITE("fit") {
     CHECK(j["parameters"][0]["name"] == "level1");
     CHECK(std::fabs(j["parameters"][0]["value"].get<double>() - t[0]) < 0.5e-9);
     CHECK(std::fabs(j["parameters"][3]["value"].get<double>() - t[3]) < 1e-3 * t[3]);
+    CHECK(h5_read((dir / "out" / "fit.h5").string(), "/correlation").shape == std::vector<std::size_t>{6, 6});
+    CHECK(h5_read((dir / "out" / "fit.h5").string(), "/psf_fit").shape == std::vector<std::size_t>{cfg.bands, 32, 32});
+    CHECK(h5_read((dir / "out" / "fit.h5").string(), "/residual_rel_fit").data.size() == cfg.bands);
     const Design built = read_design((dir / "out" / "design.h5").string());
     CHECK(std::fabs(built.levels_m[1] - t[0]) < 0.5e-9);
     const SystemConfig built_cfg = config_from_json_file((dir / "out" / "config.json").string());

@@ -637,58 +637,63 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   say("fit: " + std::to_string(np) + " parameters, " + std::to_string(m) + " residuals; design loss " + fmt("%.6e", loss) +
       values_line(model, theta));
   const auto distance = [&](std::size_t k) { return !model.adjoint_parameter(k); };
-  for (int it = 1; it <= opt.max_iterations; ++it) {
-    std::vector<double> grad;
-    RealStack current;
-    loss = model.adjoint_gradient(theta, measured, grad, &current);
-    const Eigen::MatrixXd j = model.jacobian(theta);
-    const auto ts = std::chrono::steady_clock::now();
-    const Eigen::VectorXd r = Eigen::Map<const Eigen::VectorXd>(current.data.data(), long(m)) - meas;
-    Eigen::VectorXd g = Eigen::VectorXd::Zero(long(np));
-    for (std::size_t k = 0; k < np; ++k) g(long(k)) = distance(k) ? j.col(long(k)).dot(r) : grad[k];
-    const Eigen::MatrixXd a = j.transpose() * j;
-    t.solve_s += since(ts);
-    bool accepted = false;
-    double trial_loss = loss;
-    std::vector<double> trial;
-    for (int tries = 0; tries < 16 && !accepted; ++tries) {
-      const auto t1 = std::chrono::steady_clock::now();
-      Eigen::MatrixXd al = a;
-      const double dmax = a.diagonal().maxCoeff();
-      for (long k = 0; k < long(np); ++k) al(k, k) += lambda * std::max(a(k, k), 1e-12 * dmax);
-      const Eigen::VectorXd delta = al.ldlt().solve(-g);
-      t.solve_s += since(t1);
-      trial = theta;
-      for (std::size_t k = 0; k < np; ++k) trial[k] += delta(long(k));
-      try {
-        trial_loss = model.loss(trial, measured);
-      } catch (const InputError&) {  // a step outside the valid heights or geometry
-        trial_loss = std::numeric_limits<double>::infinity();
+  // Levenberg-Marquardt: the adjoint gradient (the distances' entries from the Jacobian's
+  // columns), J^T J from the Jacobian, Marquardt's damping on its diagonal.
+  const auto run_lm = [&]() {
+    for (int it = 1; it <= opt.max_iterations; ++it) {
+      std::vector<double> grad;
+      RealStack current;
+      loss = model.adjoint_gradient(theta, measured, grad, &current);
+      const Eigen::MatrixXd j = model.jacobian(theta);
+      const auto ts = std::chrono::steady_clock::now();
+      const Eigen::VectorXd r = Eigen::Map<const Eigen::VectorXd>(current.data.data(), long(m)) - meas;
+      Eigen::VectorXd g = Eigen::VectorXd::Zero(long(np));
+      for (std::size_t k = 0; k < np; ++k) g(long(k)) = distance(k) ? j.col(long(k)).dot(r) : grad[k];
+      const Eigen::MatrixXd a = j.transpose() * j;
+      t.solve_s += since(ts);
+      bool accepted = false;
+      double trial_loss = loss;
+      std::vector<double> trial;
+      for (int tries = 0; tries < 16 && !accepted; ++tries) {
+        const auto t1 = std::chrono::steady_clock::now();
+        Eigen::MatrixXd al = a;
+        const double dmax = a.diagonal().maxCoeff();
+        for (long k = 0; k < long(np); ++k) al(k, k) += lambda * std::max(a(k, k), 1e-12 * dmax);
+        const Eigen::VectorXd delta = al.ldlt().solve(-g);
+        t.solve_s += since(t1);
+        trial = theta;
+        for (std::size_t k = 0; k < np; ++k) trial[k] += delta(long(k));
+        try {
+          trial_loss = model.loss(trial, measured);
+        } catch (const InputError&) {  // a step outside the valid heights or geometry
+          trial_loss = std::numeric_limits<double>::infinity();
+        }
+        if (std::isfinite(trial_loss) && trial_loss < loss) {
+          accepted = true;
+          lambda = std::max(lambda / 10, 1e-12);
+        } else {
+          lambda *= 10;
+        }
       }
-      if (std::isfinite(trial_loss) && trial_loss < loss) {
-        accepted = true;
-        lambda = std::max(lambda / 10, 1e-12);
-      } else {
-        lambda *= 10;
+      ++res.iterations;
+      if (!accepted) {
+        say("fit: iteration " + std::to_string(it) + ": no step lowers the loss (lambda " + fmt("%.1e", lambda) + "); stopping");
+        res.converged = true;
+        break;
+      }
+      const double drop = (loss - trial_loss) / loss;
+      theta = trial;
+      loss = trial_loss;
+      res.loss_history.push_back(loss);
+      say("fit: iteration " + std::to_string(it) + "/" + std::to_string(opt.max_iterations) + " loss " + fmt("%.6e", loss) + " (-" +
+          fmt("%.2e", drop) + ") lambda " + fmt("%.1e", lambda) + values_line(model, theta) + " [" + fmt("%.1f", since(wall0)) + " s]");
+      if (drop < opt.tolerance) {
+        res.converged = true;
+        break;
       }
     }
-    res.iterations = it;
-    if (!accepted) {
-      say("fit: iteration " + std::to_string(it) + ": no step lowers the loss (lambda " + fmt("%.1e", lambda) + "); stopping");
-      res.converged = true;
-      break;
-    }
-    const double drop = (loss - trial_loss) / loss;
-    theta = trial;
-    loss = trial_loss;
-    res.loss_history.push_back(loss);
-    say("fit: iteration " + std::to_string(it) + "/" + std::to_string(opt.max_iterations) + " loss " + fmt("%.6e", loss) + " (-" +
-        fmt("%.2e", drop) + ") lambda " + fmt("%.1e", lambda) + values_line(model, theta) + " [" + fmt("%.1f", since(wall0)) + " s]");
-    if (drop < opt.tolerance) {
-      res.converged = true;
-      break;
-    }
-  }
+  };
+  run_lm();
   // The aperture: a scan of the loss over radii in half-pixel steps, the rest at their fit.
   FitValue aperture;
   if (scan_aperture) {
@@ -714,6 +719,13 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
     aperture = {"aperture", "m", r0, r_fit, 0, "scan"};
     aperture.sigma = curv > 0 ? std::sqrt(2 * loss / double(m - np) / curv) : std::numeric_limits<double>::infinity();
     t.scan_s += since(t1);
+    if (best != std::size_t(std::find(rs.begin(), rs.end(), r0) - rs.begin())) {
+      // The others were fitted with the design's aperture: fitted again with the scan's.
+      say("fit: aperture radius " + fmt("%.3f", rs[best] / cfg.pitch_m) + " px; the other parameters fitted again with it");
+      lambda = opt.lambda0;
+      res.converged = false;
+      run_lm();
+    }
   }
   // Uncertainties at the fit: Cov = s^2 (J^T J)^-1, in the unit-diagonal scaling.
   const Eigen::MatrixXd j = model.jacobian(theta);
