@@ -29,9 +29,11 @@
 //   shift     sx, sy: registration of the measured stack (sensor pixels; a nuisance, not a
 //             physical parameter, REFERENCE §8; degenerate with offset to first order).
 //   aperture  the aperture radius (metres). The aperture is a set of DOE samples (config.hpp:
-//             aperture_inside_px2), piecewise constant in the radius: it is fitted by a scan of
-//             the loss over radii in half-pixel steps (the others held at their fit), its sigma
-//             from a parabola through the scan's minimum; it takes no part in the correlation.
+//             aperture_inside_px2), piecewise constant in the radius: it is fitted by a walk of
+//             the loss over radii in half-pixel steps, downhill until the loss rises (the others
+//             held at their fit, then fitted again when the radius moved; 3 rounds at most), its
+//             value and sigma from the parabola through the minimum and its neighbours; it takes
+//             no part in the correlation.
 // Start: the design values, except the lateral ones: shift (when fitted, else offset, divided by
 // the magnification 1 + z/d and in metres) starts at the centroid difference of the measured and
 // design stacks; from zero the fit can fall into the mirror minimum (the blur a sub-pixel offset
@@ -64,7 +66,7 @@ std::vector<std::string> default_fit_parameters(const Design& design);
 struct FitOptions {
   std::vector<std::string> parameters;  // names above; empty: default_fit_parameters
   int max_iterations = 30;             // LM iterations, >= 1
-  double tolerance = 1e-9;             // stop when the relative loss decrease of an accepted step is below this
+  double tolerance = 1e-7;             // stop when the relative loss decrease of an accepted step is below this
   double lambda0 = 1e-3;               // initial Marquardt damping (relative to diag(J^T J))
   // Central-difference steps: z and d relative (x value), heights metres, offsets and shifts pixels.
   double fd_rel_distance = 2e-4;

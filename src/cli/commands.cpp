@@ -150,10 +150,10 @@ std::vector<CommandSpec> make_table() {
                            "invisible), masks (the log2 L mask depths of a qdo+m design, m), scale (one factor on all heights; not with "
                            "levels or masks), z (DOE-sensor distance, m), d (object distance, m; nearly degenerate with z, so not in the "
                            "default), offset (dx, dy: the relief against the aperture, m), shift (sx, sy: registration of the measured "
-                           "stack, sensor px; a nuisance), aperture (radius, m, by a half-pixel scan) (default: levels,z,offset for a "
+                           "stack, sensor px; a nuisance), aperture (radius, m, by a walk of the loss in half-pixel steps) (default: levels,z,offset for a "
                            "quantized design, else scale,z,offset)"),
                 opt("iterations", "most Levenberg-Marquardt iterations, an integer in [1, 1000]", "30"),
-                opt("tolerance", "stop when an accepted step lowers the loss by less than this fraction, in [0, 1]", "1e-9"),
+                opt("tolerance", "stop when an accepted step lowers the loss by less than this fraction, in [0, 1]", "1e-7"),
                 opt("precision", "floating-point precision on the device: f32 or f64 (the fit's central differences want f64)", "f64"),
                 device(), out_dir_opt()},
                cmd_fit});

@@ -694,34 +694,57 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
     }
   };
   run_lm();
-  // The aperture: a scan of the loss over radii in half-pixel steps, the rest at their fit.
+  // The aperture: a walk of the loss over radii in half-pixel steps, downhill from the current
+  // radius until the loss rises (at most 40 steps, radii in (0, N/2 pitch]), the rest at their
+  // fit; when the radius moved, the rest are fitted again with it and the walk repeated (3 rounds
+  // at most). The vertex of the parabola through the minimum and its neighbours is the reported
+  // radius, its curvature the sigma; the configuration takes the vertex.
   FitValue aperture;
   if (scan_aperture) {
-    const auto t1 = std::chrono::steady_clock::now();
-    const double r0 = model.aperture_radius(), h = 0.5 * cfg.pitch_m, rmax = 0.5 * double(cfg.n) * cfg.pitch_m;
-    std::vector<double> rs, ls;
-    for (int k = -4; k <= 4; ++k) {
-      const double r = r0 + k * h;
-      if (r <= 0 || r > rmax * (1 + 1e-12)) continue;
+    const double r_design = model.aperture_radius(), h = 0.5 * cfg.pitch_m, rmax = 0.5 * double(cfg.n) * cfg.pitch_m;
+    for (int round = 0; round < 3; ++round) {
+      const auto t1 = std::chrono::steady_clock::now();
+      const double r0 = model.aperture_radius();
+      const auto loss_at = [&](double r) {
+        model.set_aperture_radius(r);
+        const double l = model.loss(theta, measured);
+        say("fit: aperture scan radius " + fmt("%.3f", r / cfg.pitch_m) + " px loss " + fmt("%.6e", l));
+        return l;
+      };
+      const auto valid = [&](double r) { return r > 0 && r <= rmax * (1 + 1e-12); };
+      double l0 = loss, lm = valid(r0 - h) ? loss_at(r0 - h) : std::numeric_limits<double>::infinity(),
+             lp = valid(r0 + h) ? loss_at(r0 + h) : std::numeric_limits<double>::infinity();
+      double r = r0;
+      const double dir = lm < l0 && lm <= lp ? -1.0 : lp < l0 ? 1.0 : 0.0;
+      for (int k = 0; dir != 0 && k < 40; ++k) {
+        // Step: (lm, l0, lp) become the triple around r + dir h.
+        const double next = r + 2 * dir * h;
+        const double l_next = valid(next) ? loss_at(next) : std::numeric_limits<double>::infinity();
+        if (dir < 0) {
+          lp = l0;
+          l0 = lm;
+          lm = l_next;
+        } else {
+          lm = l0;
+          l0 = lp;
+          lp = l_next;
+        }
+        r += dir * h;
+        if ((dir < 0 ? lm : lp) >= l0) break;  // bracketed
+      }
+      double r_fit = r, curv = 0;
+      if (std::isfinite(lm) && std::isfinite(lp)) {
+        curv = (lm + lp - 2 * l0) / (h * h);
+        if (curv > 0) r_fit = r - h * (lp - lm) / (2 * (lp + lm - 2 * l0));
+      }
       model.set_aperture_radius(r);
-      rs.push_back(r);
-      ls.push_back(model.loss(theta, measured));
-      say("fit: aperture scan radius " + fmt("%.3f", r / cfg.pitch_m) + " px loss " + fmt("%.6e", ls.back()));
-    }
-    const std::size_t best = std::size_t(std::min_element(ls.begin(), ls.end()) - ls.begin());
-    double r_fit = rs[best], curv = 0;
-    if (best > 0 && best + 1 < rs.size()) {
-      curv = (ls[best - 1] + ls[best + 1] - 2 * ls[best]) / (h * h);
-      if (curv > 0) r_fit = rs[best] - h * (ls[best + 1] - ls[best - 1]) / (2 * (ls[best + 1] + ls[best - 1] - 2 * ls[best]));
-    }
-    model.set_aperture_radius(rs[best]);
-    loss = ls[best];
-    aperture = {"aperture", "m", r0, r_fit, 0, "scan"};
-    aperture.sigma = curv > 0 ? std::sqrt(2 * loss / double(m - np) / curv) : std::numeric_limits<double>::infinity();
-    t.scan_s += since(t1);
-    if (best != std::size_t(std::find(rs.begin(), rs.end(), r0) - rs.begin())) {
-      // The others were fitted with the design's aperture: fitted again with the scan's.
-      say("fit: aperture radius " + fmt("%.3f", rs[best] / cfg.pitch_m) + " px; the other parameters fitted again with it");
+      loss = l0;
+      aperture = {"aperture", "m", r_design, r_fit, 0, "scan"};
+      aperture.sigma = curv > 0 ? std::sqrt(2 * loss / double(m - np) / curv) : std::numeric_limits<double>::infinity();
+      t.scan_s += since(t1);
+      if (r == r0) break;
+      // The others were fitted with the previous aperture: fitted again with this one.
+      say("fit: aperture radius " + fmt("%.3f", r / cfg.pitch_m) + " px; the other parameters fitted again with it");
       lambda = opt.lambda0;
       res.converged = false;
       run_lm();
