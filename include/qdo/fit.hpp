@@ -33,7 +33,7 @@
 //             the loss over radii in half-pixel steps, downhill until the loss rises (the others
 //             held at their fit, then fitted again when the radius moved; 3 rounds at most), its
 //             value and sigma from the parabola through the minimum and its neighbours; it takes
-//             no part in the correlation.
+//             no part in the correlation. The first walk runs at the start values, before the rest.
 // Start: the design values, except the lateral ones: shift (when fitted, else offset, divided by
 // the magnification 1 + z/d and in metres) starts at the centroid difference of the measured and
 // design stacks; from zero the fit can fall into the mirror minimum (the blur a sub-pixel offset
@@ -67,6 +67,7 @@ struct FitOptions {
   std::vector<std::string> parameters;  // names above; empty: default_fit_parameters
   int max_iterations = 30;             // LM iterations, >= 1
   double tolerance = 1e-7;             // stop when the relative loss decrease of an accepted step is below this
+  double step_sigmas = 1e-3;           // ... or when an accepted step moves no parameter by more than this many sigmas
   double lambda0 = 1e-3;               // initial Marquardt damping (relative to diag(J^T J))
   // Central-difference steps: z and d relative (x value), heights metres, offsets and shifts pixels.
   double fd_rel_distance = 2e-4;

@@ -682,73 +682,85 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
         break;
       }
       const double drop = (loss - trial_loss) / loss;
+      // The step against the current 1-sigma (s^2 diag((J^T J)^-1), s^2 from the loss before it).
+      double step_sigmas = 0;
+      {
+        const Eigen::MatrixXd cov = a.completeOrthogonalDecomposition().pseudoInverse() * (2 * loss / double(m - np));
+        for (std::size_t k = 0; k < np; ++k) {
+          const double sg = std::sqrt(std::max(cov(long(k), long(k)), 0.0));
+          step_sigmas = std::max(step_sigmas, sg > 0 ? std::fabs(trial[k] - theta[k]) / sg : 0.0);
+        }
+      }
       theta = trial;
       loss = trial_loss;
       res.loss_history.push_back(loss);
       say("fit: iteration " + std::to_string(it) + "/" + std::to_string(opt.max_iterations) + " loss " + fmt("%.6e", loss) + " (-" +
-          fmt("%.2e", drop) + ") lambda " + fmt("%.1e", lambda) + values_line(model, theta) + " [" + fmt("%.1f", since(wall0)) + " s]");
-      if (drop < opt.tolerance) {
+          fmt("%.2e", drop) + ") lambda " + fmt("%.1e", lambda) + " step " + fmt("%.2g", step_sigmas) + " sigma" +
+          values_line(model, theta) + " [" + fmt("%.1f", since(wall0)) + " s]");
+      if (drop < opt.tolerance || step_sigmas < opt.step_sigmas) {
         res.converged = true;
         break;
       }
     }
   };
-  run_lm();
   // The aperture: a walk of the loss over radii in half-pixel steps, downhill from the current
   // radius until the loss rises (at most 40 steps, radii in (0, N/2 pitch]), the rest at their
   // fit; when the radius moved, the rest are fitted again with it and the walk repeated (3 rounds
   // at most). The vertex of the parabola through the minimum and its neighbours is the reported
   // radius, its curvature the sigma; the configuration takes the vertex.
   FitValue aperture;
-  if (scan_aperture) {
-    const double r_design = model.aperture_radius(), h = 0.5 * cfg.pitch_m, rmax = 0.5 * double(cfg.n) * cfg.pitch_m;
-    for (int round = 0; round < 3; ++round) {
-      const auto t1 = std::chrono::steady_clock::now();
-      const double r0 = model.aperture_radius();
-      const auto loss_at = [&](double r) {
-        model.set_aperture_radius(r);
-        const double l = model.loss(theta, measured);
-        say("fit: aperture scan radius " + fmt("%.3f", r / cfg.pitch_m) + " px loss " + fmt("%.6e", l));
-        return l;
-      };
-      const auto valid = [&](double r) { return r > 0 && r <= rmax * (1 + 1e-12); };
-      double l0 = loss, lm = valid(r0 - h) ? loss_at(r0 - h) : std::numeric_limits<double>::infinity(),
-             lp = valid(r0 + h) ? loss_at(r0 + h) : std::numeric_limits<double>::infinity();
-      double r = r0;
-      const double dir = lm < l0 && lm <= lp ? -1.0 : lp < l0 ? 1.0 : 0.0;
-      for (int k = 0; dir != 0 && k < 40; ++k) {
-        // Step: (lm, l0, lp) become the triple around r + dir h.
-        const double next = r + 2 * dir * h;
-        const double l_next = valid(next) ? loss_at(next) : std::numeric_limits<double>::infinity();
-        if (dir < 0) {
-          lp = l0;
-          l0 = lm;
-          lm = l_next;
-        } else {
-          lm = l0;
-          l0 = lp;
-          lp = l_next;
-        }
-        r += dir * h;
-        if ((dir < 0 ? lm : lp) >= l0) break;  // bracketed
-      }
-      double r_fit = r, curv = 0;
-      if (std::isfinite(lm) && std::isfinite(lp)) {
-        curv = (lm + lp - 2 * l0) / (h * h);
-        if (curv > 0) r_fit = r - h * (lp - lm) / (2 * (lp + lm - 2 * l0));
-      }
+  const double r_design = model.aperture_radius(), h = 0.5 * cfg.pitch_m, rmax = 0.5 * double(cfg.n) * cfg.pitch_m;
+  // One walk; whether the radius moved.
+  const auto walk = [&]() {
+    const auto t1 = std::chrono::steady_clock::now();
+    const double r0 = model.aperture_radius();
+    const auto loss_at = [&](double r) {
       model.set_aperture_radius(r);
-      loss = l0;
-      aperture = {"aperture", "m", r_design, r_fit, 0, "scan"};
-      aperture.sigma = curv > 0 ? std::sqrt(2 * loss / double(m - np) / curv) : std::numeric_limits<double>::infinity();
-      t.scan_s += since(t1);
-      if (r == r0) break;
-      // The others were fitted with the previous aperture: fitted again with this one.
-      say("fit: aperture radius " + fmt("%.3f", r / cfg.pitch_m) + " px; the other parameters fitted again with it");
-      lambda = opt.lambda0;
-      res.converged = false;
-      run_lm();
+      const double l = model.loss(theta, measured);
+      say("fit: aperture scan radius " + fmt("%.3f", r / cfg.pitch_m) + " px loss " + fmt("%.6e", l));
+      return l;
+    };
+    const auto valid = [&](double r) { return r > 0 && r <= rmax * (1 + 1e-12); };
+    double l0 = loss, lm = valid(r0 - h) ? loss_at(r0 - h) : std::numeric_limits<double>::infinity(),
+           lp = valid(r0 + h) ? loss_at(r0 + h) : std::numeric_limits<double>::infinity();
+    double r = r0;
+    const double dir = lm < l0 && lm <= lp ? -1.0 : lp < l0 ? 1.0 : 0.0;
+    for (int k = 0; dir != 0 && k < 40; ++k) {
+      // Step: (lm, l0, lp) become the triple around r + dir h.
+      const double next = r + 2 * dir * h;
+      const double l_next = valid(next) ? loss_at(next) : std::numeric_limits<double>::infinity();
+      if (dir < 0) {
+        lp = l0;
+        l0 = lm;
+        lm = l_next;
+      } else {
+        lm = l0;
+        l0 = lp;
+        lp = l_next;
+      }
+      r += dir * h;
+      if ((dir < 0 ? lm : lp) >= l0) break;  // bracketed
     }
+    double r_fit = r, curv = 0;
+    if (std::isfinite(lm) && std::isfinite(lp)) {
+      curv = (lm + lp - 2 * l0) / (h * h);
+      if (curv > 0) r_fit = r - h * (lp - lm) / (2 * (lp + lm - 2 * l0));
+    }
+    model.set_aperture_radius(r);
+    loss = l0;
+    aperture = {"aperture", "m", r_design, r_fit, 0, "scan"};
+    aperture.sigma = curv > 0 ? std::sqrt(2 * loss / double(m - np) / curv) : std::numeric_limits<double>::infinity();
+    t.scan_s += since(t1);
+    if (r == r0) return false;
+    say("fit: aperture radius " + fmt("%.3f", r / cfg.pitch_m) + " px; the other parameters fitted (again) with it");
+    return true;
+  };
+  if (scan_aperture) walk();  // first at the start values: a wrong aperture pulls the levels far
+  run_lm();
+  for (int round = 0; scan_aperture && round < 3 && walk(); ++round) {
+    lambda = opt.lambda0;
+    res.converged = false;
+    run_lm();
   }
   // Uncertainties at the fit: Cov = s^2 (J^T J)^-1, in the unit-diagonal scaling.
   const Eigen::MatrixXd j = model.jacobian(theta);
