@@ -140,17 +140,38 @@ int cmd_fit(const Args& a) {
   write_design(dir + "/design.h5", r.as_built,
                {{"source", "qdo fit"}, {"design", a.get("design")}, {"psf", a.get("psf")}, {"fit", names}});
   write_text_atomic(dir + "/config.json", config_to_json_text(r.as_built_config) + "\n");
-  // fit.png: measured bands, then fitted, then design, each row of tiles in band order.
-  RealStack three(3 * cfg.bands, s, s);
-  std::copy(measured.data.begin(), measured.data.end(), three.data.begin());
-  std::copy(r.model_psf.data.begin(), r.model_psf.data.end(), three.data.begin() + long(measured.data.size()));
-  std::copy(r.design_psf.data.begin(), r.design_psf.data.end(), three.data.begin() + long(2 * measured.data.size()));
-  std::vector<double> wl3;
-  for (int k = 0; k < 3; ++k)
-    for (double w : cfg.wavelengths_nm()) wl3.push_back(w);
-  // Clamp the noise's negative values for the picture only.
-  for (double& v : three.data) v = std::max(v, 0.0);
-  write_montage_png(dir + "/fit.png", three, wl3, 0.5, std::min<std::size_t>(s, 64));
+  // fit.png: per band four tiles, measured, fitted, design and |fitted - measured|, each tile
+  // scaled to its own maximum (residual.png holds the residuals' sizes); a band's four tiles
+  // start a row's quarter (the montage's near-square grid is C columns, C a multiple of 4;
+  // blank tiles pad the last row).
+  {
+    std::size_t c = 4, rows = 0;
+    for (;; c += 4) {
+      bool ok = false;
+      for (rows = (4 * cfg.bands + c - 1) / c; rows <= c; ++rows)
+        if (std::size_t(std::ceil(std::sqrt(double(c * rows)))) == c) {
+          ok = true;
+          break;
+        }
+      if (ok) break;
+    }
+    const std::size_t plane = s * s;
+    RealStack tiles(c * rows, s, s);
+    std::vector<double> wl(c * rows, 0.0);
+    const auto w = cfg.wavelengths_nm();
+    for (std::size_t b = 0; b < cfg.bands; ++b) {
+      const RealStack* src[3] = {&measured, &r.model_psf, &r.design_psf};
+      for (std::size_t k = 0; k < 4; ++k) {
+        double* dst = tiles.data.data() + (4 * b + k) * plane;
+        for (std::size_t i = 0; i < plane; ++i)
+          dst[i] = k < 3 ? std::max(src[k]->data[b * plane + i], 0.0)
+                         : std::fabs(r.model_psf.data[b * plane + i] - measured.data[b * plane + i]);
+        wl[4 * b + k] = w[b];
+      }
+    }
+    for (std::size_t t = 4 * cfg.bands; t < c * rows; ++t) wl[t] = w.back();
+    write_montage_png(dir + "/fit.png", tiles, wl, 0.5, std::min<std::size_t>(s, 48));
+  }
   write_line_plot_png(dir + "/residual.png", {r.residual_rel_design, r.residual_rel_fit});
   const double out_s = seconds_since(t1);
 
