@@ -147,11 +147,11 @@ int main(int argc, char** argv) try {
      << "\nrecovered:";
   for (std::size_t k = 0; k < truth.size(); ++k) {
     const FitValue& v = r.values[k];
-    const double u = v.name == "z" ? 1e3 : v.name == "dx" || v.name == "dy" ? 1e6 : 1e9;
+    const double u = v.name == "z" || v.name == "dx" || v.name == "dy" ? 1e6 : 1e9;
     md << " " << v.name << " " << fmt("%.3f", v.value * u) << " +- " << fmt("%.3f", v.sigma * u) << " (true " << fmt("%.3f", truth[k] * u)
        << ")";
   }
-  md << "  [units: nm, mm, um]\n";
+  md << "  [units: nm for levels, um for z, dx, dy]\n";
   std::fputs(md.str().c_str(), stdout);
   if (!out.empty()) std::ofstream(out) << md.str();
   return 0;

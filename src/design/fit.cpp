@@ -259,6 +259,13 @@ struct AsBuiltModel::Impl {
     t.psf_s += since(t0);
     t0 = std::chrono::steady_clock::now();
     grad.assign(ps.size(), 0.0);
+    const bool any_adjoint =
+        std::any_of(ps.begin(), ps.end(), [](const Param& q) { return q.kind != Kind::Z && q.kind != Kind::D; });
+    if (!any_adjoint) {  // z and d only: no adjoint to take
+      t.vjp_s += since(t0);
+      if (fd_distances) fd_distance_gradient(theta, meas, grad);
+      return loss;
+    }
     // d / d registration, then back through it to the PSF.
     double g_sx = 0, g_sy = 0;
     RealStack g_p = r;
@@ -304,19 +311,22 @@ struct AsBuiltModel::Impl {
       }
     }
     t.vjp_s += since(t0);
-    if (fd_distances) {
-      t0 = std::chrono::steady_clock::now();
-      for (std::size_t k = 0; k < ps.size(); ++k) {
-        if (ps[k].kind != Kind::Z && ps[k].kind != Kind::D) continue;
-        const double h = step(k, theta);
-        std::vector<double> a = theta, b = theta;
-        a[k] += h;
-        b[k] -= h;
-        grad[k] = (half_sq(model(state(a)), meas) - half_sq(model(state(b)), meas)) / (2 * h);
-      }
-      t.jacobian_s += since(t0);
-    }
+    if (fd_distances) fd_distance_gradient(theta, meas, grad);
     return loss;
+  }
+
+  // The z and d entries of dL/dtheta by central differences of the loss.
+  void fd_distance_gradient(const std::vector<double>& theta, const RealStack& meas, std::vector<double>& grad) {
+    const auto t0 = std::chrono::steady_clock::now();
+    for (std::size_t k = 0; k < ps.size(); ++k) {
+      if (ps[k].kind != Kind::Z && ps[k].kind != Kind::D) continue;
+      const double h = step(k, theta);
+      std::vector<double> a = theta, b = theta;
+      a[k] += h;
+      b[k] -= h;
+      grad[k] = (half_sq(model(state(a)), meas) - half_sq(model(state(b)), meas)) / (2 * h);
+    }
+    t.jacobian_s += since(t0);
   }
 
   double step(std::size_t k, const std::vector<double>& theta) const {
