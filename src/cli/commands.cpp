@@ -139,7 +139,9 @@ std::vector<CommandSpec> make_table() {
                {preset(), config(), design_spec(), opt("levels", "number of height levels L, an integer in [2, 65536] (required)"),
                 placement(), opt("out", "output design .h5 file")},
                cmd_quantize});
-  t.push_back({"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*", "", "",
+  t.push_back({"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*; with --raw also "
+               "the raw capture (raw.png, raw.h5); with --capture psf-sweep a simulated calibration sweep for qdo calibrate",
+               "", "",
                {preset(), config(), design_spec(), psf_file(), levels_post(), placement(), scene(), key(), resample_bands(),
                 opt("formation",
                     "image formation: qdo (the configuration's convolution on the sensor grid, area-sampled PSF) or release "
