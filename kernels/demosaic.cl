@@ -5,7 +5,8 @@
 // CPU reference: ref::demosaic, ref::demosaic_vjp (demosaic_reference.hpp), which spells the same
 // filters as tap lists from the formulas.
 
-// Filters in sixteenths, [method][filter][(dy + 2) * 5 + dx + 2]; method 0 bilinear, 1 MHC;
+// Filters in sixteenths (the transpose reads them; the forward spells the same sums out),
+// [method][filter][(dy + 2) * 5 + dx + 2]; method 0 bilinear, 1 MHC;
 // filter 0 identity, 1 cross (G at R or B), 2 horizontal (the colour lies left and right),
 // 3 vertical (above and below), 4 diagonal (R at B, B at R). Every filter sums to 16.
 __constant int DEMOSAIC_W16[2][5][25] = {
@@ -42,6 +43,9 @@ inline int demosaic_mirror(int i, int n) {
 
 // Forward. raw: scenes x rows x cols reals (one plane per scene, linear units), rgb: scenes x 3 x
 // rows x cols; one work item per pixel (k, y, x) writes its three channels. method 0 bilinear, 1 MHC.
+// The 13 taps the filters read are loaded once and the four interpolating filters of the table
+// above are evaluated as sums (the same sixteenths), then selected by the site: no branch on the
+// site, so the work-group loop vectorises.
 __kernel void demosaic_forward(__global const real* raw, __global real* rgb, const int rows, const int cols,
                                const int cfa_code, const int method, const int scenes) {
   const size_t gid = get_global_id(0);
@@ -51,19 +55,38 @@ __kernel void demosaic_forward(__global const real* raw, __global real* rgb, con
   const int p = (int)(gid - (size_t)k * hw);
   const int y = p / cols, x = p - (p / cols) * cols;
   __global const real* plane = raw + (size_t)k * hw;
-  real v[25];
-  for (int dy = -2; dy <= 2; ++dy) {
-    const int yy = demosaic_mirror(y + dy, rows);
-    for (int dx = -2; dx <= 2; ++dx) v[(dy + 2) * 5 + dx + 2] = plane[(size_t)yy * cols + demosaic_mirror(x + dx, cols)];
+  const size_t ym2 = (size_t)demosaic_mirror(y - 2, rows) * cols, ym1 = (size_t)demosaic_mirror(y - 1, rows) * cols,
+               y0 = (size_t)y * cols, yp1 = (size_t)demosaic_mirror(y + 1, rows) * cols,
+               yp2 = (size_t)demosaic_mirror(y + 2, rows) * cols;
+  const int xm2 = demosaic_mirror(x - 2, cols), xm1 = demosaic_mirror(x - 1, cols), xp1 = demosaic_mirror(x + 1, cols),
+            xp2 = demosaic_mirror(x + 2, cols);
+  const real c0 = plane[y0 + x];
+  const real n1 = plane[ym1 + x], s1 = plane[yp1 + x], w1 = plane[y0 + xm1], e1 = plane[y0 + xp1];
+  const real n2 = plane[ym2 + x], s2 = plane[yp2 + x], w2 = plane[y0 + xm2], e2 = plane[y0 + xp2];
+  const real dsum = plane[ym1 + xm1] + plane[ym1 + xp1] + plane[yp1 + xm1] + plane[yp1 + xp1];
+  real cross, horiz, vert, diag;
+  if (method == 0) {
+    cross = R(4.0) * (n1 + s1 + w1 + e1);
+    horiz = R(8.0) * (w1 + e1);
+    vert = R(8.0) * (n1 + s1);
+    diag = R(4.0) * dsum;
+  } else {
+    const real ns2 = n2 + s2, we2 = w2 + e2;
+    cross = R(8.0) * c0 + R(4.0) * (n1 + s1 + w1 + e1) - R(2.0) * (ns2 + we2);
+    horiz = R(10.0) * c0 + R(8.0) * (w1 + e1) - R(2.0) * we2 - R(2.0) * dsum + ns2;
+    vert = R(10.0) * c0 + R(8.0) * (n1 + s1) - R(2.0) * ns2 - R(2.0) * dsum + we2;
+    diag = R(12.0) * c0 + R(4.0) * dsum - R(3.0) * (ns2 + we2);
   }
+  const real own = R(16.0) * c0;
   const int cls = demosaic_class(cfa_code, y, x);
-  for (int c = 0; c < 3; ++c) {
-    __constant const int* w = DEMOSAIC_W16[method][DEMOSAIC_SELECT[cls][c]];
-    real s = R(0.0);
-    for (int t = 0; t < 25; ++t)
-      if (w[t] != 0) s += (real)w[t] * v[t];
-    rgb[((size_t)k * 3 + c) * hw + p] = s * R(0.0625);
-  }
+  // DEMOSAIC_SELECT spelled out: R site (own, cross, diag), B site (diag, cross, own), G with R left
+  // and right (horiz, own, vert), G with R above and below (vert, own, horiz).
+  const real r = cls == 0 ? own : cls == 1 ? diag : cls == 2 ? horiz : vert;
+  const real g = cls <= 1 ? cross : own;
+  const real b = cls == 0 ? diag : cls == 1 ? own : cls == 2 ? vert : horiz;
+  rgb[((size_t)k * 3 + 0) * hw + p] = r * R(0.0625);
+  rgb[((size_t)k * 3 + 1) * hw + p] = g * R(0.0625);
+  rgb[((size_t)k * 3 + 2) * hw + p] = b * R(0.0625);
 }
 
 // Transpose. g_rgb: scenes x 3 x rows x cols, g_raw: scenes x rows x cols, written whole; one work
