@@ -25,6 +25,11 @@ __constant int DEMOSAIC_W16[2][5][25] = {
 // 1 a B site, 2 a G site with R left and right, 3 a G site with R above and below.
 __constant int DEMOSAIC_SELECT[4][3] = {{0, 1, 4}, {4, 1, 0}, {2, 0, 3}, {3, 0, 2}};
 
+// The 13 offsets (dy, dx) where some filter has a non-zero tap: the centre, the axes to 2 pixels,
+// the four diagonal neighbours.
+__constant int DEMOSAIC_TAPS[13][2] = {{0, 0},  {-1, 0}, {1, 0},  {0, -1},  {0, 1},  {-2, 0}, {2, 0},
+                                       {0, -2}, {0, 2},  {-1, -1}, {-1, 1}, {1, -1}, {1, 1}};
+
 // The channel filtered at (y, x): cfa_code holds the 2 x 2 cell, two bits per entry (y & 1) * 2 + (x & 1).
 inline int demosaic_channel(int cfa_code, int y, int x) { return (cfa_code >> (2 * ((y & 1) * 2 + (x & 1)))) & 3; }
 
@@ -109,23 +114,20 @@ __kernel void demosaic_adjoint(__global const real* g_rgb, __global real* g_raw,
   if (x > 0 && x <= 2) ex[nx++] = -x;
   if (x < cols - 1 && x >= cols - 3) ex[nx++] = 2 * (cols - 1) - x;
   __global const real* g = g_rgb + (size_t)k * 3 * hw;
+  // The site class of each parity (the mosaic repeats every 2 pixels).
+  int cls_of[4];
+  for (int i = 0; i < 4; ++i) cls_of[i] = demosaic_class(cfa_code, i >> 1, i & 1);
   real s = R(0.0);
   for (int a = 0; a < ny; ++a)
     for (int b = 0; b < nx; ++b)
-      for (int dy = -2; dy <= 2; ++dy) {
-        const int py = ey[a] - dy;
-        if (py < 0 || py >= rows) continue;
-        for (int dx = -2; dx <= 2; ++dx) {
-          const int px = ex[b] - dx;
-          if (px < 0 || px >= cols) continue;
-          const int cls = demosaic_class(cfa_code, py, px);
-          const int t = (dy + 2) * 5 + dx + 2;
-          const size_t pp = (size_t)py * cols + px;
-          for (int c = 0; c < 3; ++c) {
-            const int w = DEMOSAIC_W16[method][DEMOSAIC_SELECT[cls][c]][t];
-            if (w != 0) s += (real)w * g[(size_t)c * hw + pp];
-          }
-        }
+      for (int t = 0; t < 13; ++t) {  // the taps any filter has (the other 12 of the 5 x 5 are 0 in all)
+        const int dy = DEMOSAIC_TAPS[t][0], dx = DEMOSAIC_TAPS[t][1];
+        const int py = ey[a] - dy, px = ex[b] - dx;
+        if (py < 0 || py >= rows || px < 0 || px >= cols) continue;
+        const int cls = cls_of[(py & 1) * 2 + (px & 1)];
+        const int ti = (dy + 2) * 5 + dx + 2;
+        const size_t pp = (size_t)py * cols + px;
+        for (int c = 0; c < 3; ++c) s += (real)DEMOSAIC_W16[method][DEMOSAIC_SELECT[cls][c]][ti] * g[(size_t)c * hw + pp];
       }
   g_raw[gid] = s * R(0.0625);
 }
