@@ -112,7 +112,7 @@ std::string percent(std::size_t n, std::size_t total) {
 // and --darks frames of no light (DIR/darks/dark_<k>.png). Frame k (the bands in order, then the
 // darks) draws its noise as scene k of one batch (counters from the configuration's noise_seed).
 int simulate_psf_sweep(const Args& a, const SystemConfig& cfg, Precision p) {
-  for (const char* o : {"scene", "key", "resample-bands", "formation", "save", "raw", "demosaic"})
+  for (const char* o : {"scene", "key", "resample-bands", "formation", "save", "compress", "raw", "demosaic"})
     if (a.has(o)) reject(std::string("--") + o, a.get(o, "yes"), "not with --capture psf-sweep (the sweep images a point source)");
   check_raw_config(cfg, "--capture psf-sweep");
   const PsfInput in = psf_input(cfg, a);
