@@ -1,0 +1,409 @@
+// `qdo reconstruct` and the camera as built (issue 28 steps 4 and 5; reconstruct.hpp): tiles blend
+// with weights summing to 1 (a pointwise decoder tiles exactly; the Wiener decoder within a stated
+// tolerance of a whole-image one), the command's cube is the run's Wiener decoder's estimate of the
+// capture (the decoder `qdo eval` builds), crops, darks and several frames act as stated, the
+// spectra are the cube's, `qdo eval --psf / --design` evaluates through the camera as built and
+// says so, and bad input is refused (exit 2) naming the file or argument. Doctest suite
+// "reconstruct"; the network's fine-tune for a measured PSF is in tests/net (suite "net").
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <tuple>
+
+#include "commands_common.hpp"
+#include "common.hpp"
+#include "qdo/decoder_registry.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/psf_source.hpp"
+#include "qdo/raw_reference.hpp"
+#include "qdo/reconstruct.hpp"
+#include "qdo/run_folder.hpp"
+#include "qdo/simulator.hpp"
+#include "qdo/wiener.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+using namespace qdo::test::commands_suite;
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+// A pointwise linear decoder (bands x 3 matrix applied to every pixel): any tiling of it must give
+// the untiled estimate exactly, since the blending weights sum to 1.
+class PointwiseDecoder final : public Decoder {
+ public:
+  explicit PointwiseDecoder(std::size_t bands) : bands_(bands) {}
+  RealStack decode(const RealStack& y) const override {
+    RealStack x(bands_, y.rows, y.cols, 0.0);
+    for (std::size_t b = 0; b < bands_; ++b)
+      for (std::size_t c = 0; c < 3; ++c)
+        for (std::size_t i = 0; i < y.plane_size(); ++i) x.plane(b)[i] += (0.1 * double(b + 1) - 0.07 * double(c)) * y.plane(c)[i];
+    return x;
+  }
+  std::size_t batch() const override { return 3; }
+  std::size_t bands() const override { return bands_; }
+  std::size_t channels() const override { return 3; }
+
+ private:
+  std::size_t bands_;
+};
+
+// A smooth scene (bands x rows x cols in [0, 1]): a few cosines per band, as natural images are
+// dominated by low frequencies.
+RealStack smooth_scene(std::size_t bands, std::size_t rows, std::size_t cols, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  RealStack x(bands, rows, cols, 0.0);
+  for (std::size_t b = 0; b < bands; ++b)
+    for (int k = 0; k < 3; ++k) {
+      const double fy = u(rng) * 0.08, fx = u(rng) * 0.08, ph = u(rng) * 6.28, a = 0.1 + 0.1 * u(rng);
+      for (std::size_t y = 0; y < rows; ++y)
+        for (std::size_t xx = 0; xx < cols; ++xx) x(b, y, xx) += a * (1 + std::cos(6.2831853 * (fy * double(y) + fx * double(xx)) + ph));
+    }
+  for (double& v : x.data) v = std::min(1.0, v / 1.3);
+  return x;
+}
+
+// The code values of a linear RGB image (3 x H x W) in a 16-bit container at gain 1, black 0:
+// round(clamp(v, 0, 1) * 65535) plus `offset` DN.
+RealStack to_dn(const RealStack& rgb, double offset = 0) {
+  RealStack dn = rgb;
+  for (double& v : dn.data) v = std::round(std::clamp(v, 0.0, 1.0) * 65535.0) + offset;
+  return dn;
+}
+
+RealStack read_cube_h5(const fs::path& p) {
+  const H5Dataset d = h5_read(p.string(), "/cube");
+  REQUIRE(d.shape.size() == 3);
+  RealStack c(d.shape[0], d.shape[1], d.shape[2]);
+  c.data = d.data;
+  return c;
+}
+
+// The run's sensor image of a scene through its psf.h5, noiseless (the circular camera of the
+// Wiener decoder's model).
+RealStack camera_image(const fs::path& run, const RealStack& scene) {
+  const PsfStackFile f = read_psf_stack_file((run / "psf.h5").string());
+  return wiener::simulate_measurement(scene, wiener::psf_to_otf(f.psf_sensor, scene.rows, scene.cols), sensor_response(tiny()));
+}
+
+// The run's decoder as `qdo eval` builds it (the registry's Wiener decoder for the run's PSF,
+// prior and noise sigma).
+std::unique_ptr<Decoder> run_decoder(const fs::path& run) {
+  const RunFolder folder(run.string());
+  const DesignRunOptions o = folder.config();
+  DecoderInputs in;
+  in.spec = o.decoder;
+  in.psf = read_psf_stack_file((run / "psf.h5").string()).psf_sensor;
+  in.srf = sensor_response(o.cfg);
+  in.prior = folder.prior(o.cfg.sensor_size_px());
+  in.noise_sigma = o.decoder_noise_sigma;
+  return make_decoder(in);
+}
+
+double max_abs_diff(const RealStack& a, const RealStack& b) {
+  REQUIRE(a.data.size() == b.data.size());
+  double m = 0;
+  for (std::size_t i = 0; i < a.data.size(); ++i) m = std::max(m, std::fabs(a.data[i] - b.data[i]));
+  return m;
+}
+
+}  // namespace
+
+TEST_SUITE("reconstruct") {
+  TEST_CASE("tile starts cover the image and the blending weights sum to 1 at every pixel") {
+    for (const auto& [size, tile, overlap] : {std::tuple<std::size_t, std::size_t, std::size_t>{16, 16, 4}, {17, 16, 4}, {100, 16, 4},
+                                             {100, 16, 15}, {64, 16, 1}, {40, 32, 8}}) {
+      CAPTURE(size);
+      CAPTURE(tile);
+      CAPTURE(overlap);
+      const auto st = tile_starts(size, tile, overlap);
+      REQUIRE(!st.empty());
+      CHECK(st.front() == 0);
+      CHECK(st.back() + tile == size);
+      for (std::size_t k = 1; k < st.size(); ++k) {
+        CHECK(st[k] > st[k - 1]);
+        CHECK(st[k - 1] + tile >= st[k] + overlap);  // neighbours overlap by at least `overlap`
+      }
+      const auto w = tile_weights(st, tile, size);
+      std::vector<double> sum(size, 0.0);
+      for (std::size_t k = 0; k < st.size(); ++k)
+        for (std::size_t t = 0; t < tile; ++t) {
+          CHECK(w[k][t] >= 0);
+          sum[st[k] + t] += w[k][t];
+        }
+      for (double s : sum) CHECK(s == doctest::Approx(1.0).epsilon(1e-12));
+    }
+    CHECK(input_error_of([] { (void)tile_starts(15, 16, 4); }).find("16") != std::string::npos);
+    CHECK(input_error_of([] { (void)tile_starts(40, 16, 16); }).find("--overlap") != std::string::npos);
+  }
+
+  TEST_CASE("a pointwise decoder tiles exactly: the blend is a partition of unity") {
+    const PointwiseDecoder dec(4);
+    const RealStack y = uniform_stack(3, 53, 71, 5, 0, 1);
+    const RealStack whole = dec.decode(y);
+    std::size_t calls = 0, last_total = 0;
+    const RealStack tiled = decode_tiled(dec, y, 16, 5, [&](std::size_t done, std::size_t total) {
+      ++calls;
+      CHECK(done <= total);
+      last_total = total;
+    });
+    CHECK(max_abs_diff(tiled, whole) < 1e-13);
+    CHECK(last_total == tile_starts(53, 16, 5).size() * tile_starts(71, 16, 5).size());
+    CHECK(calls == (last_total + 2) / 3);  // one progress call per batch of 3
+  }
+
+  TEST_CASE("the Wiener decoder tiled agrees with a whole-image Wiener decoder in the interior within 2 % of the signal") {
+    // Both built from the same PSF and a prior estimated on the same scenes, one on 32 x 32 tiles,
+    // one on the whole 96 x 96 grid. The tiles see circular wrap-around at their edges, which the
+    // overlap blends down; what remains is the measured bound (RMS over the interior, 16 px from the
+    // border, relative to the cube's RMS).
+    const SystemConfig cfg = tiny();
+    const std::size_t t = 32, n = 96;
+    Simulator sim(runtime(), cfg, Precision::F64);
+    sim.set_heights(smooth_heights(cfg, 3));
+    sim.compute_psf();
+    const RealStack psf = sim.psf_sensor();
+    const Eigen::MatrixXd srf = sensor_response(cfg);
+    std::vector<RealStack> train_big, train_tile;
+    for (unsigned k = 0; k < 6; ++k) {
+      train_big.push_back(smooth_scene(3, n, n, 100 + k));
+      RealStack c(3, t, t);
+      for (std::size_t b = 0; b < 3; ++b)
+        for (std::size_t y = 0; y < t; ++y)
+          for (std::size_t x = 0; x < t; ++x) c(b, y, x) = train_big.back()(b, y + 10, x + 20);
+      train_tile.push_back(c);
+      RealStack c2(3, t, t);
+      for (std::size_t b = 0; b < 3; ++b)
+        for (std::size_t y = 0; y < t; ++y)
+          for (std::size_t x = 0; x < t; ++x) c2(b, y, x) = train_big.back()(b, y + 50, x + 40);
+      train_tile.push_back(c2);
+    }
+    const double sigma = 1e-3;
+    const WienerDecoder whole(wiener::psf_to_otf(psf, n, n), srf, wiener::estimate_prior(train_big, 8), sigma);
+    const WienerDecoder tiles(wiener::psf_to_otf(psf, t, t), srf, wiener::estimate_prior(train_tile, 8), sigma);
+    const RealStack scene = smooth_scene(3, n, n, 7);
+    const RealStack y = wiener::simulate_measurement(scene, wiener::psf_to_otf(psf, n, n), srf);
+    const RealStack a = whole.decode(y), b = decode_tiled(tiles, y, t, 12);
+    double d2 = 0, s2 = 0;
+    std::size_t count = 0;
+    for (std::size_t p = 0; p < 3; ++p)
+      for (std::size_t r = 16; r < n - 16; ++r)
+        for (std::size_t c = 16; c < n - 16; ++c) {
+          d2 += std::pow(a(p, r, c) - b(p, r, c), 2);
+          s2 += std::pow(a(p, r, c), 2);
+          ++count;
+        }
+    const double rel = std::sqrt(d2 / s2);
+    MESSAGE("tiled vs whole-image Wiener, interior relative RMS difference: " << rel);
+    CHECK(rel < 0.02);
+  }
+
+  TEST_CASE("qdo reconstruct of an RGB capture equals the run's Wiener decoder on it; crop, darks, frames and spectra as stated") {
+    const SharedRun& s = shared_run();
+    REQUIRE(s.result.code == 0);
+    const auto dir = temp_dir("recon_cli");
+    const std::size_t S = tiny().sensor_size_px();
+    // One tile: the capture of a scene through the run's PSF, 16-bit.
+    const RealStack scene = smooth_scene(3, S, S, 11);
+    const RealStack dn = to_dn(camera_image(s.dir, scene));
+    write_png16_rgb((dir / "cap.png").string(), dn);
+    const Run r = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cap.png").string() +
+                          " --points '3,4;10,12' --boxes '2,2,5,6' --out " + (dir / "one").string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    const RealStack cube = read_cube_h5(dir / "one" / "cube.h5");
+    REQUIRE(cube.planes == 3);
+    REQUIRE(cube.rows == S);
+    REQUIRE(cube.cols == S);
+    RealStack y = dn;
+    for (double& v : y.data) v /= 65535.0;
+    RealStack expect = run_decoder(s.dir)->decode(y);
+    for (double& v : expect.data) v = std::clamp(v, 0.0, 1.0);
+    CHECK(max_abs_diff(cube, expect) < 1e-6);  // the run's PSF simulated again in float32 against its psf.h5
+    const H5Dataset wl = h5_read((dir / "one" / "cube.h5").string(), "/wavelengths_nm");
+    CHECK(wl.data == tiny().wavelengths_nm());
+    CHECK(fs::exists(dir / "one" / "srgb.png"));
+    CHECK(fs::exists(dir / "one" / "spectra.png"));
+    // spectra.csv: the cube at the points, the mean over the box.
+    const CsvTable sp = read_csv((dir / "one" / "spectra.csv").string());
+    REQUIRE(sp.header.size() == 4);
+    CHECK(sp.header[1] == "point 3,4");
+    CHECK(sp.header[3] == "box 2,2,5,6");
+    for (std::size_t b = 0; b < 3; ++b) {
+      CHECK(sp.columns[1][b] == doctest::Approx(cube(b, 3, 4)).epsilon(1e-7));
+      CHECK(sp.columns[2][b] == doctest::Approx(cube(b, 10, 12)).epsilon(1e-7));
+      double m = 0;
+      for (std::size_t yy = 2; yy < 7; ++yy)
+        for (std::size_t xx = 2; xx < 8; ++xx) m += cube(b, yy, xx) / 30.0;
+      CHECK(sp.columns[3][b] == doctest::Approx(m).epsilon(1e-7));
+    }
+    const json j = read_json(dir / "one" / "reconstruct.json");
+    CHECK(j.at("tiles") == 1);
+    CHECK(j.at("psf").get<std::string>().find("the run's design") != std::string::npos);
+
+    // Larger than a tile: tiled with progress lines; a crop of it equals the cropped capture.
+    const RealStack big = to_dn(camera_image(s.dir, smooth_scene(3, 40, 36, 12)));
+    write_png16_rgb((dir / "big.png").string(), big);
+    const Run rb = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "big.png").string() + " --out " + (dir / "big").string());
+    CAPTURE(rb.out);
+    REQUIRE(rb.code == 0);
+    CHECK(rb.out.find("[reconstruct] tile 1/") != std::string::npos);
+    const RealStack cb = read_cube_h5(dir / "big" / "cube.h5");
+    CHECK(cb.rows == 40);
+    CHECK(cb.cols == 36);
+    CHECK(read_json(dir / "big" / "reconstruct.json").at("tiles").get<int>() == int(tile_starts(40, S, S / 4).size() * tile_starts(36, S, S / 4).size()));
+    RealStack cropped(3, 20, 18);
+    for (std::size_t c = 0; c < 3; ++c)
+      for (std::size_t yy = 0; yy < 20; ++yy)
+        for (std::size_t xx = 0; xx < 18; ++xx) cropped(c, yy, xx) = big(c, 2 + yy, 3 + xx);
+    write_png16_rgb((dir / "cropped.png").string(), cropped);
+    const Run rc = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "big.png").string() +
+                           " --crop 2,3,20,18 --out " + (dir / "crop").string());
+    const Run rc2 = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cropped.png").string() + " --out " +
+                            (dir / "crop2").string());
+    REQUIRE(rc.code == 0);
+    REQUIRE(rc2.code == 0);
+    CHECK(max_abs_diff(read_cube_h5(dir / "crop" / "cube.h5"), read_cube_h5(dir / "crop2" / "cube.h5")) == 0);
+
+    // Darks: captures 1000 DN above the first, two frames of it and a dark folder at 1000 DN give
+    // the first reconstruction exactly.
+    fs::create_directories(dir / "darks");
+    write_png16_rgb((dir / "darks" / "d1.png").string(), RealStack(3, S, S, 999.0));
+    write_png16_rgb((dir / "darks" / "d2.png").string(), RealStack(3, S, S, 1001.0));
+    write_png16_rgb((dir / "cap_a.png").string(), to_dn(camera_image(s.dir, scene), 1000));
+    write_png16_rgb((dir / "cap_b.png").string(), to_dn(camera_image(s.dir, scene), 1000));
+    const Run rd = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cap_a.png").string() + " --capture " +
+                           (dir / "cap_b.png").string() + " --darks " + (dir / "darks").string() + " --out " + (dir / "dark").string());
+    CAPTURE(rd.out);
+    REQUIRE(rd.code == 0);
+    CHECK(max_abs_diff(read_cube_h5(dir / "dark" / "cube.h5"), cube) < 1e-12);
+    CHECK(read_json(dir / "dark" / "reconstruct.json").at("darks").size() == 2);
+
+    // Exposure: percentile:100:0.5 scales the brightest value to 0.5.
+    const Run re = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cap.png").string() +
+                           " --exposure percentile:100:0.5 --out " + (dir / "exp").string());
+    REQUIRE(re.code == 0);
+    const double maxv = *std::max_element(y.data.begin(), y.data.end());
+    CHECK(read_json(dir / "exp" / "reconstruct.json").at("exposure_factor").get<double>() == doctest::Approx(0.5 / maxv).epsilon(1e-12));
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("qdo reconstruct refuses bad input before any work, naming the file or argument (exit 2)") {
+    const SharedRun& s = shared_run();
+    REQUIRE(s.result.code == 0);
+    const auto dir = temp_dir("recon_bad");
+    const std::size_t S = tiny().sensor_size_px();
+    write_png16_rgb((dir / "a.png").string(), RealStack(3, S, S, 100.0));
+    write_png16_rgb((dir / "b.png").string(), RealStack(3, S + 2, S, 100.0));
+    write_png16_rgb((dir / "small.png").string(), RealStack(3, S - 1, S, 100.0));
+    write_png16_gray((dir / "gray.png").string(), Map2D(S, S, 100.0));
+    const std::string base = "reconstruct --run " + s.dir.string() + " ";
+    auto refused = [&](const std::string& args, const std::string& named, const std::string& out) {
+      const Run r = qdo_run(base + args + " --out " + (dir / out).string());
+      CAPTURE(args);
+      CAPTURE(r.out);
+      CHECK(r.code == 2);
+      CHECK(r.out.find(named) != std::string::npos);
+      CHECK(!fs::exists(dir / out / "cube.h5"));
+    };
+    refused("--capture " + (dir / "a.png").string() + " --capture " + (dir / "b.png").string(), "b.png", "o1");
+    refused("--capture " + (dir / "gray.png").string(), "gray.png", "o2");
+    refused("--capture " + (dir / "small.png").string(), "small.png", "o3");
+    refused("--capture " + (dir / "a.png").string() + " --points '3,4;" + std::to_string(S) + ",0'", "--points", "o4");
+    refused("--capture " + (dir / "a.png").string() + " --boxes 10,10,8,2", "--boxes", "o5");
+    refused("--capture " + (dir / "a.png").string() + " --exposure percentile:0:1", "--exposure", "o6");
+    refused("--capture " + (dir / "a.png").string() + " --crop 0,0,8,8", "--crop", "o7");
+    refused("--capture " + (dir / "missing.png").string(), "missing.png", "o8");
+    // A PSF stack for another sensor grid (4 bands) and a design for another N.
+    const SystemConfig other = tiny_config(32, 4);
+    write_psf((dir / "psf4.h5").string(), RealStack(4, S, S, 1.0 / double(S * S)), other.wavelengths_nm(), other.sensor_pitch_m);
+    refused("--capture " + (dir / "a.png").string() + " --psf " + (dir / "psf4.h5").string(), "psf4.h5", "o9");
+    Design d48;
+    d48.height_m = Map2D(48, 48, 0.0);
+    d48.pitch_m = tiny().pitch_m;
+    write_design((dir / "d48.h5").string(), d48);
+    refused("--capture " + (dir / "a.png").string() + " --design " + (dir / "d48.h5").string(), "d48.h5", "o10");
+    // A code value above the white level of a 12-bit sensor is named, with the pixel.
+    SystemConfig c12 = tiny();
+    c12.bit_depth = 12;
+    CHECK(input_error_of([&] {
+            CaptureOptions o;
+            o.captures = {(dir / "hot.png").string()};
+            RealStack img(3, S, S, 100.0);
+            img(1, 2, 3) = 5000;
+            write_png16_rgb(o.captures[0], img);
+            (void)read_captures(c12, o);
+          }).find("hot.png': code value 5000 at row 2, column 3") != std::string::npos);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("a mosaic whose green sites sit on the other diagonal is refused, naming the file; the configured one passes") {
+    // A broadband scene through RGGB: R at (0,0), G at (0,1) and (1,0), B at (1,1).
+    RealStack raw(1, 32, 32);
+    const double level[3] = {0.3, 0.6, 0.2};
+    for (std::size_t y = 0; y < 32; ++y)
+      for (std::size_t x = 0; x < 32; ++x) raw(0, y, x) = level[cfa_channel(Cfa::RGGB, y, x)] * (1 + 0.01 * double((y * 7 + x * 3) % 5));
+    CHECK_NOTHROW(check_mosaic_phase(raw, Cfa::RGGB, "f.png"));
+    CHECK_NOTHROW(check_mosaic_phase(raw, Cfa::BGGR, "f.png"));  // R/B swapped: not visible without the scene
+    const std::string e = input_error_of([&] { check_mosaic_phase(raw, Cfa::GRBG, "f.png"); });
+    CHECK(e.find("f.png") != std::string::npos);
+    CHECK(e.find("rggb or bggr") != std::string::npos);
+  }
+
+  TEST_CASE("qdo eval --psf / --design evaluates the run's Wiener decoder refit for the camera as built and names it in metrics.json") {
+    const SharedRun& s = shared_run();
+    REQUIRE(s.result.code == 0);
+    const auto dir = temp_dir("recon_eval");
+    const std::string base = "eval " + s.dir.string() + " --synthetic-scenes 2 --renders 0 --out ";
+    const Run own = qdo_run(base + (dir / "own").string());
+    REQUIRE(own.code == 0);
+    // A "measured" stack: the design's full-precision PSF written as a file; a "fitted" design:
+    // design_full.h5 itself. Both differ from the run's quantized DOE.
+    {
+      Simulator sim(runtime(), tiny(), Precision::F32);
+      sim.set_heights(read_design((s.dir / "design_full.h5").string()).height_m);
+      sim.compute_psf();
+      write_psf((dir / "measured.h5").string(), sim.psf_sensor(), tiny().wavelengths_nm(), tiny().sensor_pitch_m);
+    }
+    const Run mp = qdo_run(base + (dir / "psf").string() + " --psf " + (dir / "measured.h5").string());
+    CAPTURE(mp.out);
+    REQUIRE(mp.code == 0);
+    const Run md = qdo_run(base + (dir / "design").string() + " --design " + (s.dir / "design_full.h5").string());
+    CAPTURE(md.out);
+    REQUIRE(md.code == 0);
+    const json jo = read_json(dir / "own" / "metrics.json"), jp = read_json(dir / "psf" / "metrics.json"),
+               jd = read_json(dir / "design" / "metrics.json");
+    CHECK(jo.at("psf").get<std::string>().find("the run's design") != std::string::npos);
+    CHECK(jp.at("psf").get<std::string>().find("measured.h5") != std::string::npos);
+    CHECK(jd.at("psf").get<std::string>().find("design_full.h5") != std::string::npos);
+    const double po = jo.at("mean").at("psnr_db").get<double>(), pp = jp.at("mean").at("psnr_db").get<double>(),
+                 pd = jd.at("mean").at("psnr_db").get<double>();
+    CHECK(po != pp);  // another PSF, another refit
+    // The same camera through a file and through the design it was simulated from: equal metrics
+    // (the PSF the same float32 stack).
+    CHECK(pp == doctest::Approx(pd).epsilon(1e-9));
+    // A PSF file for another grid, a design for another N: exit 2 naming the file.
+    write_psf((dir / "psf4.h5").string(), RealStack(4, 16, 16, 1.0 / 256), tiny_config(32, 4).wavelengths_nm(), tiny().sensor_pitch_m);
+    const Run bad = qdo_run(base + (dir / "bad").string() + " --psf " + (dir / "psf4.h5").string());
+    CHECK(bad.code == 2);
+    CHECK(bad.out.find("psf4.h5") != std::string::npos);
+    Design d48;
+    d48.height_m = Map2D(48, 48, 0.0);
+    d48.pitch_m = tiny().pitch_m;
+    write_design((dir / "d48.h5").string(), d48);
+    const Run bad2 = qdo_run(base + (dir / "bad2").string() + " --design " + (dir / "d48.h5").string());
+    CHECK(bad2.code == 2);
+    CHECK(bad2.out.find("d48.h5") != std::string::npos);
+    const Run both = qdo_run(base + (dir / "both").string() + " --design " + (s.dir / "design_full.h5").string() + " --psf " +
+                             (dir / "measured.h5").string());
+    CHECK(both.code == 2);
+    fs::remove_all(dir);
+  }
+}
