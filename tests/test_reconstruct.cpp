@@ -159,50 +159,58 @@ TEST_SUITE("reconstruct") {
     CHECK(calls == (last_total + 2) / 3);  // one progress call per batch of 3
   }
 
-  TEST_CASE("the Wiener decoder tiled agrees with a whole-image Wiener decoder in the interior within 2 % of the signal") {
-    // Both built from the same PSF and a prior estimated on the same scenes, one on 32 x 32 tiles,
-    // one on the whole 96 x 96 grid. The tiles see circular wrap-around at their edges, which the
-    // overlap blends down; what remains is the measured bound (RMS over the interior, 16 px from the
-    // border, relative to the cube's RMS).
+  TEST_CASE("Wiener tiles with the mirror boundary are as close to the scene as a whole-frame decode; circular tiles ring") {
+    // A capture as a camera makes it: the centre n x n of a larger scene blurred by the PSF, so
+    // light from outside the frame lands inside (not circular). Decoded whole (mirror-extended to
+    // 2n x 2n, the Wiener decoder on that grid) and in t x t tiles (each mirror-extended to 2t x 2t,
+    // blended); the prior is the same one, regridded (regrid_prior). They are not equal: a
+    // deconvolution's response to the boundary mismatch spreads over the whole tile (measured here:
+    // about 0.58 relative RMS between the two in the interior, 16 px from the frame's border, with
+    // this random DOE's asymmetric PSF filling its S x S window). The statement: the mirror tiles'
+    // interior error against the scene is within 10 % of the whole-frame decode's, and circular
+    // tiles (the model taken literally) are worse than mirror tiles by more than 3 times.
     const SystemConfig cfg = tiny();
-    const std::size_t t = 32, n = 96;
+    const std::size_t t = 32, n = 96, big = 160, off = 32, ov = 12;
     Simulator sim(runtime(), cfg, Precision::F64);
     sim.set_heights(smooth_heights(cfg, 3));
     sim.compute_psf();
     const RealStack psf = sim.psf_sensor();
     const Eigen::MatrixXd srf = sensor_response(cfg);
-    std::vector<RealStack> train_big, train_tile;
-    for (unsigned k = 0; k < 6; ++k) {
-      train_big.push_back(smooth_scene(3, n, n, 100 + k));
-      RealStack c(3, t, t);
-      for (std::size_t b = 0; b < 3; ++b)
-        for (std::size_t y = 0; y < t; ++y)
-          for (std::size_t x = 0; x < t; ++x) c(b, y, x) = train_big.back()(b, y + 10, x + 20);
-      train_tile.push_back(c);
-      RealStack c2(3, t, t);
-      for (std::size_t b = 0; b < 3; ++b)
-        for (std::size_t y = 0; y < t; ++y)
-          for (std::size_t x = 0; x < t; ++x) c2(b, y, x) = train_big.back()(b, y + 50, x + 40);
-      train_tile.push_back(c2);
-    }
+    std::vector<RealStack> train;
+    for (unsigned k = 0; k < 8; ++k) train.push_back(smooth_scene(3, t, t, 100 + k));
+    const wiener::SpectralPrior prior = wiener::estimate_prior(train, 8);
     const double sigma = 1e-3;
-    const WienerDecoder whole(wiener::psf_to_otf(psf, n, n), srf, wiener::estimate_prior(train_big, 8), sigma);
-    const WienerDecoder tiles(wiener::psf_to_otf(psf, t, t), srf, wiener::estimate_prior(train_tile, 8), sigma);
-    const RealStack scene = smooth_scene(3, n, n, 7);
-    const RealStack y = wiener::simulate_measurement(scene, wiener::psf_to_otf(psf, n, n), srf);
-    const RealStack a = whole.decode(y), b = decode_tiled(tiles, y, t, 12);
-    double d2 = 0, s2 = 0;
-    std::size_t count = 0;
-    for (std::size_t p = 0; p < 3; ++p)
-      for (std::size_t r = 16; r < n - 16; ++r)
-        for (std::size_t c = 16; c < n - 16; ++c) {
-          d2 += std::pow(a(p, r, c) - b(p, r, c), 2);
-          s2 += std::pow(a(p, r, c), 2);
-          ++count;
+    const RealStack wide = smooth_scene(3, big, big, 7);
+    const RealStack y_wide = wiener::simulate_measurement(wide, wiener::psf_to_otf(psf, big, big), srf);
+    RealStack y(3, n, n), scene(3, n, n);
+    for (std::size_t c = 0; c < 3; ++c)
+      for (std::size_t r = 0; r < n; ++r)
+        for (std::size_t x = 0; x < n; ++x) {
+          y(c, r, x) = y_wide(c, r + off, x + off);
+          scene(c, r, x) = wide(c, r + off, x + off);
         }
-    const double rel = std::sqrt(d2 / s2);
-    MESSAGE("tiled vs whole-image Wiener, interior relative RMS difference: " << rel);
-    CHECK(rel < 0.02);
+    const WienerDecoder whole(wiener::psf_to_otf(psf, 2 * n, 2 * n), srf, regrid_prior(prior, 2 * n, 2 * n), sigma);
+    const WienerDecoder tile2(wiener::psf_to_otf(psf, 2 * t, 2 * t), srf, regrid_prior(prior, 2 * t, 2 * t), sigma);
+    const WienerDecoder tile1(wiener::psf_to_otf(psf, t, t), srf, prior, sigma);
+    const RealStack a = decode_tiled(whole, y, n, 0, {}, TileBoundary::Mirror);
+    const RealStack b = decode_tiled(tile2, y, t, ov, {}, TileBoundary::Mirror);
+    const RealStack c = decode_tiled(tile1, y, t, ov, {}, TileBoundary::Circular);
+    auto rel_rms = [&](const RealStack& u, const RealStack& v) {
+      double d2 = 0, s2 = 0;
+      for (std::size_t p = 0; p < 3; ++p)
+        for (std::size_t r = 16; r < n - 16; ++r)
+          for (std::size_t x = 16; x < n - 16; ++x) {
+            d2 += std::pow(u(p, r, x) - v(p, r, x), 2);
+            s2 += std::pow(v(p, r, x), 2);
+          }
+      return std::sqrt(d2 / s2);
+    };
+    const double tiled_vs_whole = rel_rms(b, a), whole_err = rel_rms(a, scene), tiled_err = rel_rms(b, scene), circ_err = rel_rms(c, scene);
+    MESSAGE("interior relative RMS: mirror tiles vs whole " << tiled_vs_whole << "; against the scene: whole " << whole_err
+            << ", mirror tiles " << tiled_err << ", circular tiles " << circ_err);
+    CHECK(tiled_vs_whole > 0);
+    CHECK(tiled_err < 1.1 * whole_err);
+    CHECK(circ_err > 3 * tiled_err);
   }
 
   TEST_CASE("qdo reconstruct of an RGB capture equals the run's Wiener decoder on it; crop, darks, frames and spectra as stated") {
@@ -215,7 +223,7 @@ TEST_SUITE("reconstruct") {
     const RealStack dn = to_dn(camera_image(s.dir, scene));
     write_png16_rgb((dir / "cap.png").string(), dn);
     const Run r = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cap.png").string() +
-                          " --points '3,4;10,12' --boxes '2,2,5,6' --out " + (dir / "one").string());
+                          " --boundary circular --points '3,4;10,12' --boxes '2,2,5,6' --out " + (dir / "one").string());
     CAPTURE(r.out);
     REQUIRE(r.code == 0);
     const RealStack cube = read_cube_h5(dir / "one" / "cube.h5");
@@ -258,6 +266,7 @@ TEST_SUITE("reconstruct") {
     const RealStack cb = read_cube_h5(dir / "big" / "cube.h5");
     CHECK(cb.rows == 40);
     CHECK(cb.cols == 36);
+    CHECK(read_json(dir / "big" / "reconstruct.json").at("boundary") == "mirror");  // the Wiener decoder's default
     CHECK(read_json(dir / "big" / "reconstruct.json").at("tiles").get<int>() == int(tile_starts(40, S, S / 4).size() * tile_starts(36, S, S / 4).size()));
     RealStack cropped(3, 20, 18);
     for (std::size_t c = 0; c < 3; ++c)
@@ -280,7 +289,7 @@ TEST_SUITE("reconstruct") {
     write_png16_rgb((dir / "cap_a.png").string(), to_dn(camera_image(s.dir, scene), 1000));
     write_png16_rgb((dir / "cap_b.png").string(), to_dn(camera_image(s.dir, scene), 1000));
     const Run rd = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cap_a.png").string() + " --capture " +
-                           (dir / "cap_b.png").string() + " --darks " + (dir / "darks").string() + " --out " + (dir / "dark").string());
+                           (dir / "cap_b.png").string() + " --darks " + (dir / "darks").string() + " --boundary circular --out " + (dir / "dark").string());
     CAPTURE(rd.out);
     REQUIRE(rd.code == 0);
     CHECK(max_abs_diff(read_cube_h5(dir / "dark" / "cube.h5"), cube) < 1e-12);
@@ -321,6 +330,7 @@ TEST_SUITE("reconstruct") {
     refused("--capture " + (dir / "a.png").string() + " --exposure percentile:0:1", "--exposure", "o6");
     refused("--capture " + (dir / "a.png").string() + " --crop 0,0,8,8", "--crop", "o7");
     refused("--capture " + (dir / "missing.png").string(), "missing.png", "o8");
+    refused("--capture " + (dir / "a.png").string() + " --boundary wrap", "--boundary", "o11");
     // A PSF stack for another sensor grid (4 bands) and a design for another N.
     const SystemConfig other = tiny_config(32, 4);
     write_psf((dir / "psf4.h5").string(), RealStack(4, S, S, 1.0 / double(S * S)), other.wavelengths_nm(), other.sensor_pitch_m);

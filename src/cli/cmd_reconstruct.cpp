@@ -35,6 +35,10 @@ int cmd_reconstruct(const Args& a) {
   o.capture.demosaic = a.get("demosaic");
   if (o.capture.demosaic != "bilinear" && o.capture.demosaic != "mhc") reject("--demosaic", o.capture.demosaic, "bilinear or mhc");
   if (a.has("overlap")) o.overlap_px = std::size_t(parse_int("--overlap", a.get("overlap"), 1, 1 << 20));
+  if (a.has("boundary")) {
+    o.boundary_set = true;
+    o.boundary = tile_boundary_from_string(a.get("boundary"), "--boundary");
+  }
   if (a.has("noise-sigma")) o.noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale)");
   o.regions = parse_regions(a.get("points"), false, "--points");
   for (const auto& r : parse_regions(a.get("boxes"), true, "--boxes")) o.regions.push_back(r);
@@ -42,9 +46,9 @@ int cmd_reconstruct(const Args& a) {
   o.out = out_dir(a);
   Runtime rt(a.get("device"));
   const ReconstructResult r = reconstruct(rt, o);
-  std::printf("decoder: %s\nPSF: %s\nimage %zu x %zu -> cube %zu x %zu x %zu in %zu tile%s of %zu x %zu px (exposure factor %.6g)\nseconds:",
+  std::printf("decoder: %s\nPSF: %s\nimage %zu x %zu -> cube %zu x %zu x %zu in %zu tile%s of %zu x %zu px, boundary %s (exposure factor %.6g)\nseconds:",
               r.decoder.c_str(), r.psf.c_str(), r.cube.rows, r.cube.cols, r.cube.planes, r.cube.rows, r.cube.cols, r.tiles,
-              r.tiles == 1 ? "" : "s", r.tile_px, r.tile_px, r.exposure_factor);
+              r.tiles == 1 ? "" : "s", r.tile_px, r.tile_px, r.boundary.c_str(), r.exposure_factor);
   for (const auto& [k, v] : r.seconds) std::printf(" %s %.3f", k.c_str(), v);
   std::printf("\nwrote %s/cube.h5, srgb.png, spectra.csv, spectra.png, reconstruct.json\n", o.out.c_str());
   return 0;

@@ -260,11 +260,49 @@ std::vector<std::vector<double>> tile_weights(const std::vector<std::size_t>& st
   return w;
 }
 
+TileBoundary tile_boundary_from_string(const std::string& s, const std::string& argument) {
+  if (s == "circular") return TileBoundary::Circular;
+  if (s == "mirror") return TileBoundary::Mirror;
+  reject(argument, s, "circular or mirror");
+}
+
+std::string to_string(TileBoundary b) { return b == TileBoundary::Mirror ? "mirror" : "circular"; }
+
+wiener::SpectralPrior regrid_prior(const wiener::SpectralPrior& p, std::size_t rows, std::size_t cols) {
+  p.validate();
+  wiener::SpectralPrior q = p;
+  q.rows = rows;
+  q.cols = cols;
+  const double scale = double(rows * cols) / double(p.rows * p.cols);
+  for (std::size_t i = 0; i < p.bands * p.bands; ++i) q.cov[i] *= scale;  // bin 0 = DC
+  q.validate();
+  return q;
+}
+
 RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile, std::size_t overlap,
-                       const std::function<void(std::size_t, std::size_t)>& progress) {
+                       const std::function<void(std::size_t, std::size_t)>& progress, TileBoundary boundary) {
   if (y.planes != dec.channels()) reject("sensor image planes", y.planes, "the decoder's " + to_str(dec.channels()) + " channels");
+  const bool mirror = boundary == TileBoundary::Mirror;
+  // A tile as the decoder takes it: itself, or its whole-sample mirror extension to 2 tile x 2 tile.
+  auto input = [&](const RealStack& t) {
+    if (!mirror) return t;
+    const std::size_t e = 2 * tile;
+    RealStack x(t.planes, e, e);
+    for (std::size_t ch = 0; ch < t.planes; ++ch)
+      for (std::size_t r = 0; r < e; ++r)
+        for (std::size_t c = 0; c < e; ++c) x(ch, r, c) = t(ch, r < tile ? r : e - 1 - r, c < tile ? c : e - 1 - c);
+    return x;
+  };
+  auto output = [&](const RealStack& x) {
+    if (!mirror) return x;
+    RealStack o(x.planes, tile, tile);
+    for (std::size_t b = 0; b < x.planes; ++b)
+      for (std::size_t r = 0; r < tile; ++r)
+        for (std::size_t c = 0; c < tile; ++c) o(b, r, c) = x(b, r, c);
+    return o;
+  };
   if (y.rows == tile && y.cols == tile) {
-    RealStack x = dec.decode(y);
+    RealStack x = output(dec.decode(input(y)));
     if (progress) progress(1, 1);
     return x;
   }
@@ -279,7 +317,7 @@ RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile,
     const std::vector<RealStack> xs = dec.decode_batch(ys);
     for (std::size_t k = 0; k < xs.size(); ++k) {
       const auto [i, j] = pending[k];
-      const RealStack& x = xs[k];
+      const RealStack x = output(xs[k]);
       for (std::size_t b = 0; b < x.planes; ++b)
         for (std::size_t r = 0; r < tile; ++r)
           for (std::size_t c = 0; c < tile; ++c) out(b, rs[i] + r, cs[j] + c) += wr[i][r] * wc[j][c] * x(b, r, c);
@@ -295,7 +333,7 @@ RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile,
       for (std::size_t ch = 0; ch < y.planes; ++ch)
         for (std::size_t r = 0; r < tile; ++r)
           for (std::size_t c = 0; c < tile; ++c) t(ch, r, c) = y(ch, rs[i] + r, cs[j] + c);
-      ys.push_back(std::move(t));
+      ys.push_back(input(t));
       pending.push_back({i, j});
       if (ys.size() == batch) flush();
     }
@@ -422,6 +460,10 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
                  " and cannot be refit in closed form): fine-tune it for the camera as built first, qdo design --mode do-finetune "
                  "--from RUN --psf FILE (or --design FILE), and reconstruct with that run");
   }
+  if (entry.trained && o.boundary_set && o.boundary == TileBoundary::Mirror)
+    reject("--boundary", "mirror", "circular for this network run (its network was trained on circular " + to_str(s) + " x " + to_str(s) +
+                                       " patches)");
+  const TileBoundary boundary = entry.trained ? TileBoundary::Circular : o.boundary_set ? o.boundary : TileBoundary::Mirror;
   std::vector<std::pair<std::string, double>> secs;
   // Every input read and checked before any work.
   auto t = clock::now();
@@ -479,7 +521,7 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   in.spec = ro.decoder;
   in.psf = psf;
   in.srf = sensor_response(cfg);
-  in.prior = prior;
+  in.prior = boundary == TileBoundary::Mirror ? regrid_prior(prior, 2 * s, 2 * s) : prior;
   in.noise_sigma = o.noise_sigma >= 0 ? o.noise_sigma : ro.decoder_noise_sigma;
   const std::string run = o.run;
   in.run_network = [run] { return load_run_network(run); };
@@ -492,13 +534,17 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   res.tiles = cap.rgb.rows == s && cap.rgb.cols == s ? 1 : rs.size() * cs.size();
   res.tile_px = s;
   const auto t_tiles = clock::now();
-  res.cube = decode_tiled(*dec, cap.rgb, s, overlap, [&](std::size_t done, std::size_t total) {
-    if (o.quiet) return;
-    const double el = seconds_since(t_tiles);
-    std::fprintf(stderr, "[reconstruct] tile %zu/%zu  %.2f s/tile  ETA %.1f s\n", done, total, el / double(done),
-                 el / double(done) * double(total - done));
-    std::fflush(stderr);
-  });
+  res.cube = decode_tiled(
+      *dec, cap.rgb, s, overlap,
+      [&](std::size_t done, std::size_t total) {
+        if (o.quiet) return;
+        const double el = seconds_since(t_tiles);
+        std::fprintf(stderr, "[reconstruct] tile %zu/%zu  %.2f s/tile  ETA %.1f s\n", done, total, el / double(done),
+                     el / double(done) * double(total - done));
+        std::fflush(stderr);
+      },
+      boundary);
+  res.boundary = to_string(boundary);
   for (double& v : res.cube.data) v = std::clamp(v, 0.0, 1.0);
   secs.push_back({"tiles", seconds_since(t)});
 
@@ -524,7 +570,8 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
             {"exposure", o.capture.exposure.to_string()},
             {"exposure_factor", to_str(cap.exposure_factor)},
             {"crop", crop},
-            {"tiles", to_str(res.tiles) + " of " + to_str(s) + " x " + to_str(s) + " px, overlap " + to_str(overlap) + " px"}});
+            {"tiles", to_str(res.tiles) + " of " + to_str(s) + " x " + to_str(s) + " px, overlap " + to_str(overlap) + " px, boundary " +
+                          res.boundary}});
   secs.push_back({"write cube", seconds_since(t)});
   t = clock::now();
   write_rgb_png((dir / "srgb.png").string(), render_srgb(res.cube, wl));
@@ -561,6 +608,7 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   j["tiles"] = res.tiles;
   j["tile_px"] = s;
   j["overlap_px"] = overlap;
+  j["boundary"] = res.boundary;
   j["noise_sigma"] = in.noise_sigma;
   nlohmann::json st = nlohmann::json::object();
   for (const auto& [k, v] : secs) st[k] = v;
