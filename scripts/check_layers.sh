@@ -31,6 +31,8 @@ datasets data
 decoder decode
 decoder_registry decode
 decoder_spec decode
+demosaic physics
+demosaic_reference physics
 design design
 design_run design
 design_run_options design

@@ -1,8 +1,14 @@
 // qdo simulate and qdo image: the RGB sensor image of a scene through a PSF source, either a design
 // simulated on the device (--design) or a PSF stack file written by `qdo psf` (--psf FILE; a
 // measured or otherwise computed stack in the same layout), and the camera operator (camera.hpp).
+// With --raw, also the capture as the sensor as built writes it (raw.hpp: mosaic, black level,
+// gain, bit depth, noise) and its demosaic (demosaic.hpp); with --capture psf-sweep, instead of a
+// scene, a simulated monochromator sweep of a point source and dark frames for `qdo calibrate`.
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <memory>
 #include <string>
 
@@ -10,9 +16,13 @@
 #include "psf_outputs.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/cpu_reference.hpp"
+#include "qdo/demosaic.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
+#include "qdo/optics.hpp"
 #include "qdo/psf_source.hpp"
+#include "qdo/raw.hpp"
+#include "qdo/raw_reference.hpp"
 #include "qdo/release.hpp"
 #include "qdo/scenes.hpp"
 #include "qdo/simulator.hpp"
@@ -70,6 +80,135 @@ PsfSourceHolder make_source(Runtime& rt, const SystemConfig& cfg, Precision p, c
   return s;
 }
 
+
+// Raw captures need what a raw file holds: one mosaic plane of integer code values.
+void check_raw_config(const SystemConfig& cfg, const std::string& option) {
+  if (cfg.cfa == Cfa::None)
+    reject(option, "a configuration with \"cfa\": \"none\"",
+           "a colour filter mosaic (\"cfa\": \"rggb\", \"grbg\", \"gbrg\" or \"bggr\"): a raw frame is one plane");
+  if (cfg.bit_depth == 0)
+    reject(option, "a configuration with \"bit_depth\": 0",
+           "a bit depth of 8 .. 16 (\"bit_depth\"): raw frames are written as integer code values in 16-bit PNG");
+}
+
+// A raw plane (1 x H x W, integer DN) as the PNG writer's map.
+Map2D raw_map(const RealStack& raw) {
+  Map2D m(raw.rows, raw.cols);
+  m.data = raw.data;
+  return m;
+}
+
+std::string percent(std::size_t n, std::size_t total) {
+  char b[64];
+  std::snprintf(b, sizeof b, "%.4g %%", total ? 100.0 * double(n) / double(total) : 0.0);
+  return b;
+}
+
+// qdo simulate --capture psf-sweep: for each configured band, the design's sensor PSF (bands x S x S,
+// axis at (S/2, S/2)) placed with its axis at --centre of an F x F frame, scaled so the brightest
+// colour's peak is --peak of full well, each colour c weighted by its response srf(c, b) relative
+// to the band's largest (as a monochromator at that band lights it), through the sensor as built
+// (ref::raw_forward: mosaic, noise, black level, gain, clipping, bit depth): DIR/frames/psf_<nm>nm.png;
+// and --darks frames of no light (DIR/darks/dark_<k>.png). Frame k (the bands in order, then the
+// darks) draws its noise as scene k of one batch (counters from the configuration's noise_seed).
+int simulate_psf_sweep(const Args& a, const SystemConfig& cfg, Precision p) {
+  for (const char* o : {"scene", "key", "resample-bands", "formation", "save", "raw", "demosaic"})
+    if (a.has(o)) reject(std::string("--") + o, a.get(o, "yes"), "not with --capture psf-sweep (the sweep images a point source)");
+  check_raw_config(cfg, "--capture psf-sweep");
+  const PsfInput in = psf_input(cfg, a);
+  const std::size_t S = cfg.sensor_size_px();
+  const std::size_t F = std::size_t(parse_int("--frame-size", a.get("frame-size", to_str(S + 64)), int(S), 8192));
+  const double peak = parse_double("--peak", a.get("peak"), 0, 1, "of full well", true);
+  const std::size_t n_darks = std::size_t(parse_int("--darks", a.get("darks"), 1, 1000));
+  long cy = long(F / 2), cx = long(F / 2);
+  if (a.has("centre")) {
+    const auto v = split_list(a.get("centre"));
+    if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
+    cy = parse_int("--centre", v[0], 0, int(F) - 1);
+    cx = parse_int("--centre", v[1], 0, int(F) - 1);
+  }
+  const long half = long(S / 2);
+  if (cy < half || cx < half || cy - half + long(S) > long(F) || cx - half + long(S) > long(F))
+    reject("--centre", to_str(cy) + "," + to_str(cx),
+           "a centre whose S x S PSF window (S = " + to_str(S) + ") lies inside the " + to_str(F) + " x " + to_str(F) +
+               " frame: rows and columns in [" + to_str(half) + ", " + to_str(long(F) - long(S) + half) + "]");
+  const std::string dir = out_dir(a);
+  Runtime rt(a.get("device"));
+  PsfSourceHolder src = make_source(rt, cfg, p, in);
+  src.compute();
+  const RealStack psf = src.source().psf_sensor();
+  const Eigen::MatrixXd srf = sensor_response(cfg);
+  const std::vector<double> wl = cfg.wavelengths_nm();
+  namespace fs = std::filesystem;
+  fs::create_directories(dir + "/frames");
+  fs::create_directories(dir + "/darks");
+  std::vector<double> amp(cfg.bands), peak_dn(cfg.bands);
+  RawCounts total;
+  std::size_t frames_saturated = 0;
+  RealStack crops(cfg.bands, S, S);  // the frames' S x S windows, black removed (the figure)
+  const auto t0 = std::chrono::steady_clock::now();
+  for (std::size_t b = 0; b < cfg.bands; ++b) {
+    const double top_psf = *std::max_element(psf.plane(b), psf.plane(b) + S * S);
+    const double top_srf = std::max({srf(0, long(b)), srf(1, long(b)), srf(2, long(b))});
+    if (!(top_psf > 0) || !(top_srf > 0))
+      reject("--design", a.get("design", a.get("psf")), "a PSF with light in every band (band " + to_str(wl[b]) + " nm is dark)");
+    amp[b] = peak / top_psf;
+    RealStack rgb(3, F, F);
+    for (std::size_t c = 0; c < 3; ++c)
+      for (std::size_t y = 0; y < S; ++y)
+        for (std::size_t x = 0; x < S; ++x)
+          rgb(c, std::size_t(cy - half) + y, std::size_t(cx - half) + x) = amp[b] * psf(b, y, x) * srf(long(c), long(b)) / top_srf;
+    const ref::RawFrame f = ref::raw_forward(rgb, cfg, b);
+    total.saturated += f.counts.saturated;
+    total.floored += f.counts.floored;
+    total.total += f.counts.total;
+    frames_saturated += f.counts.saturated > 0 ? 1 : 0;
+    peak_dn[b] = *std::max_element(f.raw.data.begin(), f.raw.data.end());
+    for (std::size_t y = 0; y < S; ++y)
+      for (std::size_t x = 0; x < S; ++x)
+        crops(b, y, x) = std::max(0.0, f.raw(0, std::size_t(cy - half) + y, std::size_t(cx - half) + x) - cfg.black_level_dn);
+    char name[64];
+    std::snprintf(name, sizeof name, "/frames/psf_%gnm.png", wl[b]);
+    write_png16_gray(dir + name, raw_map(f.raw));
+    if ((b + 1) % 8 == 0 || b + 1 == cfg.bands)
+      std::fprintf(stderr, "[simulate] psf-sweep frame %zu of %zu (%g nm, %.1f s)\n", b + 1, cfg.bands, wl[b], seconds_since(t0));
+  }
+  RawCounts dark_counts;
+  for (std::size_t k = 0; k < n_darks; ++k) {
+    const ref::RawFrame f = ref::raw_forward(RealStack(3, F, F), cfg, cfg.bands + k);
+    dark_counts.saturated += f.counts.saturated;
+    dark_counts.floored += f.counts.floored;
+    dark_counts.total += f.counts.total;
+    write_png16_gray(dir + "/darks/dark_" + std::to_string(k) + ".png", raw_map(f.raw));
+  }
+  const double secs = seconds_since(t0);
+  write_psf(dir + "/psf.h5", psf, wl, cfg.sensor_pitch_m);
+  h5_write(dir + "/sweep.h5",
+           {{"/wavelengths_nm", {cfg.bands}, wl, {}, {{"units", "nm"}}},
+            {"/amplitude", {cfg.bands}, amp, {}, {{"units", "full well per unit of the unit-sum PSF (brightest colour)"}}},
+            {"/peak_dn", {cfg.bands}, peak_dn, {}, {{"units", "DN, the frame's largest code value"}}}},
+           {{"config", config_to_json_text(cfg)},
+            {"source", "qdo simulate --capture psf-sweep"},
+            {"design", in.from_file ? in.path : a.get("design")},
+            {"frame_size", to_str(F)},
+            {"centre_row_col", to_str(cy) + "," + to_str(cx)},
+            {"peak", to_str(peak)},
+            {"darks", to_str(n_darks)},
+            {"saturated", to_str(total.saturated)},
+            {"floored", to_str(total.floored + dark_counts.floored)}});
+  write_montage_png(dir + "/frames.png", crops, wl, 0.5, std::min<std::size_t>(S, 96));
+  std::printf("device: %s\nPSF: %s\nsweep: %zu frames of %zu x %zu (cfa %s, %zu-bit, black %g DN, gain %g), axis at (%ld, %ld), "
+              "peak %g of full well, and %zu dark frames in %.3f s\n"
+              "raw: %s of frame pixels saturated (%zu of %zu frames hold one: qdo calibrate refuses those), %s floored at 0; "
+              "darks: %s floored\n"
+              "wrote %s/frames/psf_<nm>nm.png, darks/dark_<k>.png, frames.png, psf.h5 (the PSF stack imaged), sweep.h5\n",
+              rt.info().name.c_str(), src.source().describe().c_str(), cfg.bands, F, F, to_string(cfg.cfa).c_str(), cfg.bit_depth,
+              cfg.black_level_dn, cfg.gain, cy, cx, peak, n_darks, secs, percent(total.saturated, total.total).c_str(),
+              frames_saturated, cfg.bands, percent(total.floored, total.total).c_str(),
+              percent(dark_counts.floored, dark_counts.total).c_str(), dir.c_str());
+  return 0;
+}
+
 }  // namespace
 
 int cmd_simulate(const Args& a) {
@@ -79,6 +218,23 @@ int cmd_simulate(const Args& a) {
   const bool release = formation == "release";
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision"));
+  const std::string capture = a.get("capture");
+  if (capture != "scene" && capture != "psf-sweep") reject("--capture", capture, "scene or psf-sweep");
+  if (capture == "psf-sweep") return simulate_psf_sweep(a, cfg, p);
+  for (const char* o : {"frame-size", "peak", "darks", "centre"})
+    if (a.has(o)) reject(std::string("--") + o, a.get(o), "only with --capture psf-sweep");
+  const bool raw = a.has("raw");
+  if (raw) check_raw_config(cfg, "--raw");
+  if (!raw && a.has("demosaic")) reject("--demosaic", a.get("demosaic"), "only with --raw (it demosaics the raw capture)");
+  const DemosaicMethod demosaic = demosaic_method_from_string(a.get("demosaic"), "--demosaic");
+  // With --raw the camera runs without noise: the raw stage draws the sensor's noise itself (its
+  // own stream), and sensor.h5 gets the configuration's noise added on the host (ref::add_noise, the
+  // camera's counters).
+  SystemConfig cam_cfg = cfg;
+  if (raw) {
+    cam_cfg.read_noise_sigma = 0;
+    cam_cfg.full_well_photons = 0;
+  }
   const PsfInput in = psf_input(cfg, a);
   if (in.from_file && release)
     reject("--formation", formation, "qdo with --psf (the release formation needs the native-grid PSF, which a PSF file does not hold)");
@@ -103,13 +259,13 @@ int cmd_simulate(const Args& a) {
   }
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
-  PsfSourceHolder src = make_source(rt, cfg, p, in);
+  PsfSourceHolder src = make_source(rt, cam_cfg, p, in);
   const auto t0 = std::chrono::steady_clock::now();
   src.compute();
   const RealStack psf_s = src.source().psf_sensor();
   const Eigen::MatrixXd srf = sensor_response(cfg);
   const RealStack scene_rgb = ref::sensor_integrate(scene, srf);  // the same camera without the DOE blur
-  RealStack rgb;
+  RealStack rgb, clean;  // clean: the image before noise (--raw)
   SensorClip clip;
   double secs = 0, outputs_s = 0;
   // The figures that need only the PSF, the design and the scene are drawn on a second thread
@@ -126,10 +282,15 @@ int cmd_simulate(const Args& a) {
           ReleaseImager imager(rt, p, cfg.bands, scene.rows, cfg.n);
           imager.set_psf(src.sim->psf_native());
           rgb = ref::sensor_integrate(imager.blur(scene), srf);
+          if (raw) clean = rgb;
           ref::add_noise(rgb, cfg.read_noise_sigma, cfg.full_well_photons, cfg.noise_seed, 0);
         } else {
           Camera camera(src.source());
           rgb = camera.images({scene}, SkipOptions::split(0.0)).front();
+          if (raw) {
+            clean = rgb;
+            ref::add_noise(rgb, cfg.read_noise_sigma, cfg.full_well_photons, cfg.noise_seed, 0);
+          }
         }
         secs = seconds_since(t0);
         clip = clip_to_full_scale(rgb, "sensor image");
@@ -147,14 +308,43 @@ int cmd_simulate(const Args& a) {
         write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
         if (!in.from_file) write_map_png(dir + "/design.png", in.h);
       });
+  std::string raw_line;
+  if (raw) {
+    // The capture as the sensor as built writes it, and its demosaic (in linear units: black
+    // removed, divided by gain (white - black)).
+    RawStage raw_stage(rt, cfg, p);
+    const RawStage::Frames fr = raw_stage.run(std::vector<RealStack>{clean});
+    const RealStack& dn = fr.raw[0];
+    DemosaicStage dm(rt, cfg.cfa, demosaic, p);
+    const RealStack rgb_dm = dm.run(std::vector<RealStack>{raw_to_linear(dn, cfg)})[0];
+    const double sat = double(fr.counts.saturated) / double(fr.counts.total), flo = double(fr.counts.floored) / double(fr.counts.total);
+    write_png16_gray(dir + "/raw.png", raw_map(dn));
+    h5_write(dir + "/raw.h5",
+             {{"/raw", {1, dn.rows, dn.cols}, dn.data,
+               {{"black_level_dn", cfg.black_level_dn}, {"white_level_dn", cfg.white_level_dn()}, {"gain", cfg.gain},
+                {"bit_depth", double(cfg.bit_depth)}, {"saturated_fraction", sat}, {"floored_fraction", flo}},
+               {{"units", "DN"}, {"cfa", to_string(cfg.cfa)}}},
+              {"/rgb_demosaiced", {3, dn.rows, dn.cols}, rgb_dm.data, {},
+               {{"units", "linear, 1 = full well (DN - black) / (gain (white - black))"}, {"method", to_string(demosaic)}}}},
+             {{"config", config_to_json_text(cfg)}, {"source", "qdo simulate --raw"}});
+    write_rgb_png(dir + "/raw_demosaiced.png", rgb_dm);
+    char b[400];
+    std::snprintf(b, sizeof b,
+                  "raw: cfa %s, %zu-bit, black level %g DN, gain %g: %s of pixels saturated, %s floored at 0; demosaic %s\n",
+                  to_string(cfg.cfa).c_str(), cfg.bit_depth, cfg.black_level_dn, cfg.gain,
+                  percent(fr.counts.saturated, fr.counts.total).c_str(), percent(fr.counts.floored, fr.counts.total).c_str(),
+                  to_string(demosaic).c_str());
+    raw_line = b;
+  }
   std::printf("device: %s\nformation: %s\nPSF: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSF + convolution + sensor, %s); "
               "outputs written in %.3f s after it (figures of the PSF, design and scene drawn meanwhile)\n%s\n%s\n"
-              "wrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png%s\n",
+              "%swrote %s/sensor.h5, sensor.png, scene.png, psf.h5, psf.png%s%s\n",
               rt.info().name.c_str(),
               release ? "release (bilinear up, mirror padding, shifted PSF, bilinear down)" : "qdo (camera operator, area-sampled PSF)",
               src.source().describe().c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
               outputs_s, src.sim ? src.sim->sampling().summary().c_str() : "sampling: not known for a PSF read from a file",
-              clip_summary(clip).c_str(), dir.c_str(), in.from_file ? "" : ", design.png");
+              clip_summary(clip).c_str(), raw_line.c_str(), dir.c_str(), in.from_file ? "" : ", design.png",
+              raw ? ", raw.png, raw.h5, raw_demosaiced.png" : "");
   return 0;
 }
 

@@ -139,13 +139,29 @@ std::vector<CommandSpec> make_table() {
                {preset(), config(), design_spec(), opt("levels", "number of height levels L, an integer in [2, 65536] (required)"),
                 placement(), opt("out", "output design .h5 file")},
                cmd_quantize});
-  t.push_back({"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*", "", "",
+  t.push_back({"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*; with --raw also "
+               "the raw capture (raw.png, raw.h5); with --capture psf-sweep a simulated calibration sweep for qdo calibrate",
+               "", "",
                {preset(), config(), design_spec(), psf_file(), levels_post(), placement(), scene(), key(), resample_bands(),
                 opt("formation",
                     "image formation: qdo (the configuration's convolution on the sensor grid, area-sampled PSF) or release "
                     "(the paper release's: bilinear up, mirror padding, PSF one 4 um sample off centre, bilinear down; "
                     "a square scene, N >= S + 2; pair it with \"aperture_edge\": \"strict\")",
                     "qdo"),
+                flag("raw", "also write the capture as the sensor as built records it (the configuration's cfa, black_level_dn, "
+                            "gain, bit_depth 8 .. 16, noise): raw.png (16-bit, DN), raw.h5 (/raw, and /rgb_demosaiced), "
+                            "raw_demosaiced.png; needs a mosaic and a bit depth"),
+                opt("demosaic", "demosaic of the --raw capture: bilinear or mhc (Malvar-He-Cutler 5 x 5)", "mhc"),
+                opt("capture", "what to capture: scene (the --scene image) or psf-sweep (a point source at every configured band "
+                               "through the sensor as built, and dark frames, for qdo calibrate: DIR/frames/psf_<nm>nm.png, "
+                               "darks/dark_<k>.png, psf.h5 the stack imaged, sweep.h5, frames.png)",
+                    "scene"),
+                opt("frame-size", "psf-sweep: frame size F (F x F pixels), an integer in [S, 8192], S the sensor PSF size "
+                                  "(default: S + 64)"),
+                opt("peak", "psf-sweep: peak exposure of each band's brightest colour, a fraction of full well in (0, 1]", "0.6"),
+                opt("darks", "psf-sweep: number of dark frames, an integer in [1, 1000]", "8"),
+                opt("centre", "psf-sweep: ROW,COL, the frame pixel of the optical axis, so that the S x S PSF window lies "
+                              "inside the frame (default: F/2,F/2)"),
                 precision(), device(), save_opt(), compress(), out_dir_opt()},
                cmd_simulate});
   t.push_back({"demo", "QDO+A against conventional deep optics (DO) at L levels, designed and evaluated end to end", "", "",
