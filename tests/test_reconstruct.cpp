@@ -16,6 +16,7 @@
 #include "commands_common.hpp"
 #include "common.hpp"
 #include "qdo/decoder_registry.hpp"
+#include "qdo/demosaic_reference.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
@@ -355,16 +356,21 @@ TEST_SUITE("reconstruct") {
   }
 
   TEST_CASE("a mosaic whose green sites sit on the other diagonal is refused, naming the file; the configured one passes") {
-    // A broadband scene through RGGB: R at (0,0), G at (0,1) and (1,0), B at (1,1).
+    // A colourful scene through RGGB: R at (0,0), G at (0,1) and (1,0), B at (1,1).
+    const RealStack scene = smooth_scene(3, 32, 32, 4);
     RealStack raw(1, 32, 32);
-    const double level[3] = {0.3, 0.6, 0.2};
     for (std::size_t y = 0; y < 32; ++y)
-      for (std::size_t x = 0; x < 32; ++x) raw(0, y, x) = level[cfa_channel(Cfa::RGGB, y, x)] * (1 + 0.01 * double((y * 7 + x * 3) % 5));
+      for (std::size_t x = 0; x < 32; ++x) raw(0, y, x) = scene(std::size_t(cfa_channel(Cfa::RGGB, y, x)), y, x);
     CHECK_NOTHROW(check_mosaic_phase(raw, Cfa::RGGB, "f.png"));
     CHECK_NOTHROW(check_mosaic_phase(raw, Cfa::BGGR, "f.png"));  // R/B swapped: not visible without the scene
     const std::string e = input_error_of([&] { check_mosaic_phase(raw, Cfa::GRBG, "f.png"); });
     CHECK(e.find("f.png") != std::string::npos);
     CHECK(e.find("rggb or bggr") != std::string::npos);
+    // A grey scene decides nothing.
+    RealStack grey(1, 32, 32);
+    for (std::size_t y = 0; y < 32; ++y)
+      for (std::size_t x = 0; x < 32; ++x) grey(0, y, x) = scene(1, y, x);
+    CHECK_NOTHROW(check_mosaic_phase(grey, Cfa::GRBG, "f.png"));
   }
 
   TEST_CASE("qdo eval --psf / --design evaluates the run's Wiener decoder refit for the camera as built and names it in metrics.json") {
@@ -414,6 +420,68 @@ TEST_SUITE("reconstruct") {
     const Run both = qdo_run(base + (dir / "both").string() + " --design " + (s.dir / "design_full.h5").string() + " --psf " +
                              (dir / "measured.h5").string());
     CHECK(both.code == 2);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("raw Bayer captures: black level, scaling and the device demosaic as the reference does them; a wrong mosaic refused") {
+    // A Wiener run whose sensor is a 12-bit RGGB mosaic with black level 64 DN.
+    SystemConfig cfg = tiny();
+    cfg.cfa = Cfa::RGGB;
+    cfg.bit_depth = 12;
+    cfg.black_level_dn = 64;
+    cfg.validate();
+    const auto dir = temp_dir("recon_raw");
+    const std::string cfgf = (dir / "raw.json").string();
+    std::ofstream(cfgf) << config_to_json_text(cfg) << "\n";
+    const Run run = qdo_run("design --config " + cfgf + " --mode qdo+a --epochs 1 --steps-per-epoch 1 --synthetic-scenes 2 --out " +
+                            (dir / "run").string());
+    CAPTURE(run.out);
+    REQUIRE(run.code == 0);
+    const std::size_t S = cfg.sensor_size_px(), H = 24, W = 20;
+    const RealStack rgb = wiener::simulate_measurement(smooth_scene(3, H, W, 21),
+                                                       wiener::psf_to_otf(read_psf_stack_file((dir / "run" / "psf.h5").string()).psf_sensor, H, W),
+                                                       sensor_response(cfg));
+    Map2D dn(H, W);
+    for (std::size_t y = 0; y < H; ++y)
+      for (std::size_t x = 0; x < W; ++x)
+        dn.data[y * W + x] = std::round(64 + std::clamp(rgb(std::size_t(cfa_channel(Cfa::RGGB, y, x)), y, x), 0.0, 1.0) * (4095 - 64));
+    write_png16_gray((dir / "raw.png").string(), dn);
+    // The library chain against the reference: raw_to_linear, then ref::demosaic (MHC).
+    CaptureOptions co;
+    co.captures = {(dir / "raw.png").string()};
+    co.demosaic = "mhc";
+    const CaptureFiles f = read_captures(cfg, co);
+    const PreparedCapture pc = prepare_capture(runtime(), Precision::F32, cfg, co, f);
+    RealStack raw(1, H, W);
+    raw.data = dn.data;
+    const RealStack expect = ref::demosaic(raw_to_linear(raw, cfg), Cfa::RGGB, DemosaicMethod::MHC);
+    REQUIRE(pc.rgb.planes == 3);
+    CHECK(max_abs_diff(pc.rgb, expect) < 1e-5);  // float32 device stage against the double reference
+    // The command: a cube of the frame's size; 3-channel captures and a mosaic on the other
+    // diagonal (the frame shifted by one column) are refused naming the file.
+    const Run ok = qdo_run("reconstruct --run " + (dir / "run").string() + " --capture " + (dir / "raw.png").string() +
+                           " --demosaic mhc --out " + (dir / "out").string());
+    CAPTURE(ok.out);
+    REQUIRE(ok.code == 0);
+    const RealStack cube = read_cube_h5(dir / "out" / "cube.h5");
+    CHECK(cube.rows == H);
+    CHECK(cube.cols == W);
+    CHECK(read_json(dir / "out" / "reconstruct.json").at("demosaic") == "mhc");
+    Map2D shifted(H, W - 1);
+    for (std::size_t y = 0; y < H; ++y)
+      for (std::size_t x = 0; x + 1 < W; ++x) shifted.data[y * (W - 1) + x] = dn.data[y * W + x + 1];
+    write_png16_gray((dir / "shifted.png").string(), shifted);
+    const Run bad = qdo_run("reconstruct --run " + (dir / "run").string() + " --capture " + (dir / "shifted.png").string() + " --out " +
+                            (dir / "bad").string());
+    CAPTURE(bad.out);
+    CHECK(bad.code == 2);
+    CHECK(bad.out.find("shifted.png") != std::string::npos);
+    CHECK(bad.out.find("rggb") != std::string::npos);
+    write_png16_rgb((dir / "rgb.png").string(), RealStack(3, S, S, 100.0));
+    const Run bad2 = qdo_run("reconstruct --run " + (dir / "run").string() + " --capture " + (dir / "rgb.png").string() + " --out " +
+                             (dir / "bad2").string());
+    CHECK(bad2.code == 2);
+    CHECK(bad2.out.find("rgb.png") != std::string::npos);
     fs::remove_all(dir);
   }
 }

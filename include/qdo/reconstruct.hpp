@@ -12,7 +12,8 @@
 //      planes) is subtracted; without darks the configured black level (black_level_dn).
 //   3. signal: v = (DN - dark) / (gain * (white - black_level_dn)): the linear signal, 1.0 = full
 //      well, the inverse of the sensor-as-built stage (raw.hpp).
-//   4. mosaic: the 2 x 2 phase is checked (check_mosaic_phase), then the demosaic (demosaic.hpp).
+//   4. mosaic: the 2 x 2 phase is checked (check_mosaic_phase), then the demosaic (demosaic.hpp:
+//      bilinear or Malvar-He-Cutler, on the device).
 //   5. crop: ROW, COL, H, W of the frame (after the demosaic, so the mosaic phase is kept).
 //   6. exposure (ExposureRule): none, a fixed factor, or the factor that puts a percentile of
 //      the cropped image at a level.
@@ -65,20 +66,27 @@ struct CaptureFiles {
 CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o);
 
 // The mosaic's 2 x 2 phase against cfg.cfa, cheaply: the two green sites of a Bayer cell see the
-// same filter, so on a broadband scene their means agree while R and B differ. When the green
-// pair of the configured layout differs by more than 5 % of the mean and more than 4 times the
-// other diagonal pair, the capture is refused naming `origin` and the layout family that fits
-// (RGGB/BGGR against GRBG/GBRG: an R/B swap within a family cannot be seen without knowing the
-// scene). raw: 1 x H x W signal (dark subtracted).
+// same filter, so diagonal neighbours on the green diagonal differ by the scene's gradient only,
+// while the red-blue pair differs by the colour as well. When the configured layout's green pair
+// differs on average by more than 2 % of the mean level and more than 3 times the other pair, the
+// capture is refused naming `origin` and the layout family that fits (RGGB/BGGR against
+// GRBG/GBRG; an R/B swap within a family cannot be seen without knowing the scene, nor anything
+// on a grey scene). (qdo calibrate's check predicts a monochromatic frame's cell shares from the
+// camera response; a broadband scene has no such prediction, hence this one.)
+// raw: 1 x H x W signal (dark subtracted).
 void check_mosaic_phase(const RealStack& raw, Cfa cfa, const std::string& origin);
+
+// Steps 2 and 3: the linear signal (planes x H x W) of read_captures' result.
+RealStack capture_signal(const SystemConfig& cfg, const CaptureFiles& f);
 
 struct PreparedCapture {
   RealStack rgb;             // 3 x H x W linear signal, cropped, exposure applied
   double exposure_factor = 1;
   double seconds_dark = 0, seconds_demosaic = 0;
 };
-// Steps 2 to 6 on read_captures' result.
-PreparedCapture prepare_capture(const SystemConfig& cfg, const CaptureOptions& o, const CaptureFiles& f);
+// Steps 2 to 6 on read_captures' result; the demosaic on rt's device (DemosaicStage, demosaic.hpp)
+// in precision p.
+PreparedCapture prepare_capture(Runtime& rt, Precision p, const SystemConfig& cfg, const CaptureOptions& o, const CaptureFiles& f);
 
 // Tiles of `tile` x `tile` over an rows x cols image, neighbours overlapping by at least
 // `overlap` pixels: starts 0, tile - overlap, ... and rows - tile last (every pixel covered).

@@ -13,10 +13,7 @@
 #include <sstream>
 
 #include "qdo/decoder_registry.hpp"
-#if __has_include("qdo/demosaic.hpp")
 #include "qdo/demosaic.hpp"
-#define QDO_HAVE_DEMOSAIC 1
-#endif
 #include "qdo/design_run.hpp"
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
@@ -150,46 +147,55 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
 
 void check_mosaic_phase(const RealStack& raw, Cfa cfa, const std::string& origin) {
   if (cfa == Cfa::None || raw.rows < 2 || raw.cols < 2) return;
-  double m[2][2] = {{0, 0}, {0, 0}};
-  double n[2][2] = {{0, 0}, {0, 0}};
-  for (std::size_t y = 0; y < raw.rows; ++y)
-    for (std::size_t x = 0; x < raw.cols; ++x) {
-      m[y % 2][x % 2] += raw.data[y * raw.cols + x];
-      n[y % 2][x % 2] += 1;
+  // Diagonal neighbours within each 2 x 2 cell: (0,1)-(1,0) and (0,0)-(1,1). The same spatial step,
+  // so the pair that shares a filter (green) differs by the scene's gradient only, the other (red
+  // against blue) by the colour as well.
+  double d_anti = 0, d_diag = 0, level = 0;
+  std::size_t n = 0;
+  for (std::size_t y = 0; y + 1 < raw.rows; y += 2)
+    for (std::size_t x = 0; x + 1 < raw.cols; x += 2) {
+      const double a = raw.data[y * raw.cols + x], b = raw.data[y * raw.cols + x + 1], c = raw.data[(y + 1) * raw.cols + x],
+                   d = raw.data[(y + 1) * raw.cols + x + 1];
+      d_anti += std::fabs(b - c);
+      d_diag += std::fabs(a - d);
+      level += std::fabs(a) + std::fabs(b) + std::fabs(c) + std::fabs(d);
+      ++n;
     }
-  for (int i = 0; i < 2; ++i)
-    for (int j = 0; j < 2; ++j) m[i][j] /= n[i][j];
-  const double mean = (m[0][0] + m[0][1] + m[1][0] + m[1][1]) / 4;
-  if (!(mean > 0)) return;  // a dark capture shows nothing
+  if (n == 0 || !(level > 0)) return;  // a dark capture shows nothing
+  level /= 4 * double(n);
+  d_anti /= double(n);
+  d_diag /= double(n);
   // Green on the anti-diagonal (0,1),(1,0) for RGGB and BGGR; on the diagonal for GRBG and GBRG.
   const bool anti = cfa == Cfa::RGGB || cfa == Cfa::BGGR;
-  const double d_anti = std::fabs(m[0][1] - m[1][0]) / mean, d_diag = std::fabs(m[0][0] - m[1][1]) / mean;
   const double d_cfg = anti ? d_anti : d_diag, d_other = anti ? d_diag : d_anti;
-  if (d_cfg > 0.05 && d_cfg > 4 * d_other)
+  if (d_cfg > 0.02 * level && d_cfg > 3 * d_other)
     throw InputError("file '" + origin + "': its 2 x 2 mosaic statistics contradict the configured cfa \"" + to_string(cfa) +
-                     "\": the two green sites of that layout differ by " + to_str(100 * d_cfg) + " % of the mean, the other diagonal by " +
-                     to_str(100 * d_other) + " %; the capture fits " + (anti ? "grbg or gbrg" : "rggb or bggr") +
-                     " (check the configuration's cfa, or a crop of the raw frame by one pixel)");
+                     "\": the two green sites of that layout differ by " + to_str(100 * d_cfg / level) +
+                     " % of the mean level on average, the other diagonal pair by " + to_str(100 * d_other / level) +
+                     " %; the capture fits " + (anti ? "grbg or gbrg" : "rggb or bggr") + " (check the configuration's cfa, or a crop of the raw frame by one pixel)");
 }
 
-PreparedCapture prepare_capture(const SystemConfig& cfg, const CaptureOptions& o, const CaptureFiles& f) {
-  PreparedCapture r;
-  const auto t0 = std::chrono::steady_clock::now();
+RealStack capture_signal(const SystemConfig& cfg, const CaptureFiles& f) {
   const double span = cfg.gain * (f.white_dn - cfg.black_level_dn);
   if (!(span > 0)) reject("gain", cfg.gain, "> 0 with a white level above the black level");
   RealStack v = f.mean_dn;
   for (std::size_t i = 0; i < v.data.size(); ++i)
     v.data[i] = (v.data[i] - (f.dark_dn.data.empty() ? cfg.black_level_dn : f.dark_dn.data[i])) / span;
+  return v;
+}
+
+PreparedCapture prepare_capture(Runtime& rt, Precision p, const SystemConfig& cfg, const CaptureOptions& o, const CaptureFiles& f) {
+  PreparedCapture r;
+  const auto t0 = std::chrono::steady_clock::now();
+  RealStack v = capture_signal(cfg, f);
   r.seconds_dark = seconds_since(t0);
   const auto t1 = std::chrono::steady_clock::now();
   RealStack rgb;
   if (cfg.cfa != Cfa::None) {
     check_mosaic_phase(v, cfg.cfa, o.captures.front());
-#ifdef QDO_HAVE_DEMOSAIC
-    rgb = demosaic(v, cfg.cfa, demosaic_method_from_string(o.demosaic, "--demosaic"));
-#else
-    reject("cfa", to_string(cfg.cfa), "none: raw captures need the demosaic stage, not in this build yet");
-#endif
+    if (v.rows < 3 || v.cols < 3) reject("capture size", shape(v), "at least 3 x 3 for the demosaic");
+    DemosaicStage stage(rt, cfg.cfa, demosaic_method_from_string(o.demosaic, "--demosaic"), p);
+    rgb = stage.run(std::vector<RealStack>{v}).front();
   } else {
     rgb = std::move(v);
   }
@@ -493,13 +499,14 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
     if (r.row + r.rows > img_rows || r.col + r.cols > img_cols)
       reject(r.box ? "--boxes" : "--points", r.label(),
              "inside the reconstructed " + to_str(img_rows) + " x " + to_str(img_cols) + " image (after --crop)");
-#ifdef QDO_HAVE_DEMOSAIC
-  if (cfg.cfa != Cfa::None) (void)demosaic_method_from_string(o.capture.demosaic, "--demosaic");
-#endif
+  if (cfg.cfa != Cfa::None) {
+    (void)demosaic_method_from_string(o.capture.demosaic, "--demosaic");
+    check_mosaic_phase(capture_signal(cfg, files), cfg.cfa, o.capture.captures.front());
+  }
   secs.push_back({"read", seconds_since(t)});
 
   make_output_dir(o.out, "--out");
-  const PreparedCapture cap = prepare_capture(cfg, o.capture, files);
+  const PreparedCapture cap = prepare_capture(rt, o.precision, cfg, o.capture, files);
   secs.push_back({"dark", cap.seconds_dark});
   secs.push_back({"demosaic", cap.seconds_demosaic});
 
