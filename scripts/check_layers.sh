@@ -65,6 +65,7 @@ propagate_reference physics
 psf physics
 psf_reference physics
 psf_source physics
+reconstruct design
 radial physics
 release physics
 release_reference physics

@@ -142,6 +142,8 @@ TEST_SUITE("cli") {
                    "synthetic-scenes", "eval-scenes", "batch", "precision", "device", "out", "psf-path"}},
         {"sweep-psf", {"design", "levels", "placement", "adaptive-from", "preset", "config", "precision", "device", "designs-per-pass",
                        "out"}},
+        {"reconstruct", {"run", "capture", "darks", "psf", "design", "exposure", "crop", "demosaic", "overlap", "boundary", "noise-sigma", "points",
+                         "boxes", "precision", "device", "out"}},
     };
     const Run top = qdo_run("--help");
     CAPTURE(top.out);

@@ -66,6 +66,12 @@ struct DesignRunOptions {
   // do-finetune (issue 13 item 4): the finished network `do` run whose network is trained on for
   // epochs x steps_per_epoch steps with its DOE quantized to this run's levels and frozen. Mode do.
   std::string finetune_from;
+  // do-finetune for the camera as built (issue 28 step 4): the frozen PSF the network is trained
+  // on is a measured stack (finetune_psf: qdo calibrate's or qdo psf's psf.h5, checked against
+  // the configuration's bands and sensor grid) or a fitted as-built design's (finetune_design: a
+  // design .h5, simulated with this configuration), instead of the do run's quantized DOE. At most
+  // one; only with finetune_from. Recorded in config.json, split.json and design.h5's provenance.
+  std::string finetune_psf, finetune_design;
   TargetSpec target;                   // psf-target: lens:NM or a design .h5 whose PSF is the target
   std::vector<std::string> data;       // scene files/folders; empty: synthetic scenes
   std::string data_format = "auto";

@@ -44,6 +44,12 @@ struct EvalOptions {
   // refused; a matched Wiener decoder is built for the file's PSF, a mismatch one for H_f; a
   // network run needs mismatch (its network as trained, measured through the file's PSF).
   std::string psf_file;
+  // A fitted as-built design .h5 (N x N at the run's pitch) whose simulated PSF measures the test
+  // scenes in place of the run's design (a matched Wiener decoder is refit for it); the same rules
+  // as psf_file, and not with it. A run fine-tuned for the camera as built (do-finetune with
+  // finetune_psf or finetune_design) is evaluated through that PSF when neither is given, and its
+  // network counts as matched to it. metrics.json's "psf" names the PSF used.
+  std::string design_file;
   double noise_sigma = -1;             // measurement noise; < 0: the run's decoder sigma
   std::vector<std::pair<std::size_t, std::size_t>> pixels;  // spectral curves at (y, x); empty: centre
   std::size_t renders = 4;             // scenes rendered as PNG and stored as HDF5

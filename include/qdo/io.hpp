@@ -206,6 +206,11 @@ void write_montage_png(const std::string& path, const RealStack& stack,
 Map2D read_png16_gray(const std::string& path);
 // Values must be integers in [0, 65535] (an InputError naming the file otherwise).
 void write_png16_gray(const std::string& path, const Map2D& dn);
+// A capture as a 16-bit PNG: grayscale (a raw mosaic: 1 x H x W) or RGB (3 x H x W, planes R, G,
+// B), code values in DN unchanged. An 8-bit file or one with alpha is refused, naming the file.
+RealStack read_png16(const std::string& path);
+// dn3: 3 x H x W integer code values in [0, 65535] (an InputError naming the file otherwise).
+void write_png16_rgb(const std::string& path, const RealStack& dn3);
 // An RGB image from a 3 x H x W stack: scaled so the 99.9th percentile maps to 1, sRGB gamma.
 void write_rgb_png(const std::string& path, const RealStack& rgb3);
 // A single map (e.g. a height map) with a perceptual colormap (viridis-like), min..max.

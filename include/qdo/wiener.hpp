@@ -30,6 +30,7 @@
 #include <Eigen/Dense>
 
 #include <cstddef>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -143,6 +144,8 @@ class WienerDecoder final : public Decoder {
   std::size_t channels() const override { return static_cast<std::size_t>(srf_.rows()); }
   std::string description() const override { return "Wiener decoder"; }
   double noise_sigma() const { return noise_sigma_; }
+  // The largest filter decode() keeps between calls (bytes; see decode()).
+  static constexpr std::size_t kFilterCacheBytes = std::size_t(256) << 20;
   const ComplexStack& otf() const { return otf_; }
 
  private:
@@ -150,6 +153,10 @@ class WienerDecoder final : public Decoder {
   Eigen::MatrixXd srf_;
   wiener::SpectralPrior prior_;
   double noise_sigma_;
+  // The filter Kh (H·W x C x B), made on the first decode (decode() is const and may run on
+  // several threads: once_flag).
+  mutable std::vector<cdouble> filter_;
+  mutable std::once_flag filter_once_;
 };
 
 // ---------------------------------------------------------------------------------------------

@@ -67,6 +67,7 @@ int cmd_config(const Args& a);
 int cmd_psf(const Args& a);
 int cmd_calibrate(const Args& a);
 int cmd_fit(const Args& a);
+int cmd_reconstruct(const Args& a);
 int cmd_quantize(const Args& a);
 int cmd_simulate(const Args& a);
 int cmd_demo(const Args& a);

@@ -205,7 +205,11 @@ std::vector<CommandSpec> make_table() {
                        opt("levels", "height levels L, an integer in [2, 65536]", "4"), placement(),
                        parameterization(), objective(), target(), data("training scenes (default: synthetic scenes)"),
                        opt("from", "do-finetune: the finished network do run folder to fine-tune"),
-                       opt("finetune-steps", "do-finetune: network steps with the DOE frozen, an integer in [1, 100000000]", "200")},
+                       opt("finetune-steps", "do-finetune: network steps with the DOE frozen, an integer in [1, 100000000]", "200"),
+                       opt("psf", "do-finetune for the camera as built: a measured PSF stack (qdo calibrate's psf.h5, for the run's "
+                                  "bands and sensor grid; checked) frozen in place of the do run's quantized DOE; not with --levels"),
+                       opt("design", "do-finetune for the camera as built: a fitted as-built design .h5 (N x N at the run's pitch), "
+                                     "its simulated PSF frozen in place of the do run's quantized DOE; not with --levels or --psf")},
                       concat(training_options(),
                              {opt("checkpoint-every", "steps between checkpoints, an integer in [1, 100000000]", "10"),
                               opt("max-steps", "stop after N steps in this session, resumable, an integer >= 0 (default: no limit)"),
@@ -226,6 +230,8 @@ std::vector<CommandSpec> make_table() {
                                     "another registered one (default: the run's own, its Wiener decoder or its trained network)"),
                 opt("psf", "PSF stack file through which the scenes are measured in place of the design's PSF: psf.h5 as qdo psf "
                            "writes it (a measured stack in that layout), for the run's bands and sensor grid (checked); not with --levels"),
+                opt("design", "a fitted as-built design .h5 (N x N at the run's pitch) whose simulated PSF measures the scenes in place "
+                              "of the run's design (a matched Wiener decoder is refit for it); not with --psf or --levels"),
                 noise_sigma("sensor noise std, in units of full scale, in [0, 10] (default: the run's)", ""),
                 opt("pixels", "pixels whose spectra are plotted: y:x pairs, comma-separated"),
                 opt("renders", "number of reconstructions rendered as PNG, an integer in [0, 1000]", "4"), synthetic_scenes("6"),
@@ -281,6 +287,35 @@ std::vector<CommandSpec> make_table() {
                 opt("adaptive-from", "also the adaptive levels of this qdo+a run folder"), preset(), config(), precision(), device(),
                 opt("designs-per-pass", "designs per device pass, an integer in [0, 1000] (0: automatic)", "0"), out_dir_opt()},
                cmd_sweep_psf, true});
+  t.push_back({"reconstruct",
+               "captured photos of one scene through the built camera -> the run's decoder (tiled) -> DIR/cube.h5 (bands x H x W with "
+               "/wavelengths_nm), srgb.png, spectra.csv, spectra.png, reconstruct.json",
+               "", "",
+               {opt("run", "the run folder whose decoder reconstructs (its Wiener decoder or its network), its configuration and prior "
+                           "(required)"),
+                {"capture", "a capture: 16-bit PNG, RGB with the run's cfa none, else the raw mosaic (grayscale); repeat for "
+                            "several frames of the scene (averaged, all the same size) (required)",
+                 "", false, true},
+                opt("darks", "folder of dark frames (16-bit PNG, the captures' size and kind; the mean is subtracted) (default: the "
+                             "configuration's black_level_dn)"),
+                opt("psf", "the camera as built: a measured PSF stack (qdo calibrate's psf.h5), for the run's bands and sensor grid "
+                           "(checked) (default: the run's design simulated, or the PSF a do-finetune run was fine-tuned for)"),
+                opt("design", "the camera as built: a fitted design .h5 (N x N at the run's pitch), simulated; not with --psf"),
+                opt("exposure", "exposure normalisation of the signal (DN - dark) / (gain (white - black)): none, scale:K (times K, K in "
+                                "(0, 1e6]) or percentile:P:L (the P-th percentile, P in (0, 100], of the cropped image to L in (0, 1])",
+                    "none"),
+                opt("crop", "ROW,COL,H,W: the part of the frame reconstructed, 0-based pixels, H and W at least the decoder's tile S "
+                            "(default: the whole frame)"),
+                opt("demosaic", "raw captures: bilinear or mhc (Malvar-He-Cutler)", "bilinear"),
+                opt("overlap", "overlap of neighbouring S x S tiles, pixels, an integer in [1, S - 1] (default: S / 4)"),
+                opt("boundary", "how a tile meets the decoder's circular model: mirror (the tile extended by its mirror image to 2S x 2S and "
+                                "decoded there; the Wiener decoder's default: no ringing from light outside the tile) or circular (as "
+                                "the decoder was trained: exact for circularly simulated captures; a network's only choice)"),
+                opt("noise-sigma", "noise std the Wiener decoder assumes, in units of full scale, in [0, 10] (default: the run's)"),
+                opt("points", "spectra at points ROW,COL;ROW,COL;... of the reconstructed image (default: its centre when no --boxes)"),
+                opt("boxes", "mean spectra over boxes ROW,COL,H,W;... of the reconstructed image"), precision(), device(),
+                out_dir_opt()},
+               cmd_reconstruct});
   // Every command that writes an output folder takes --into-existing (claim_output_dir, io.hpp).
   for (CommandSpec& c : t) {
     const bool folder_out = std::any_of(c.options.begin(), c.options.end(), [](const OptionSpec& o) { return o.name == "out"; });

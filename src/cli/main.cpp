@@ -15,6 +15,8 @@
 #include <vector>
 
 #include "qdo/run_folder.hpp"
+#include "qdo/psf_source.hpp"
+#include "qdo/reconstruct.hpp"
 #include "qdo/config.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/design_run.hpp"
@@ -97,11 +99,11 @@ namespace {
 // and placement, frozen optics, finetune-steps network steps in one epoch at the do run's last
 // network learning rate (or --lr-decoder), constant. Options that would be dropped are refused.
 DesignRunOptions finetune_options(const Args& a) {
-  static const std::set<std::string> allowed = {"mode",  "from", "levels", "placement", "finetune-steps", "lr-decoder", "checkpoint-every",
-                                                "max-steps", "device", "out", "precision"};
+  static const std::set<std::string> allowed = {"mode",      "from",      "levels", "placement", "finetune-steps", "lr-decoder",
+                                                "checkpoint-every", "max-steps", "device", "out", "precision", "psf", "design"};
   for (const auto& [k, v] : a.opt)
     if (!allowed.count(k))
-      reject("--" + k, v, "not with --mode do-finetune (it takes the do run's options; allowed: --from --levels --placement "
+      reject("--" + k, v, "not with --mode do-finetune (it takes the do run's options; allowed: --from --levels --placement --psf --design "
                           "--finetune-steps --lr-decoder --checkpoint-every --max-steps --precision --device --out)");
   if (!a.has("from")) reject("--from", "(missing)", "the network do run folder to fine-tune (--mode do-finetune)");
   const std::string from = a.get("from");
@@ -122,6 +124,20 @@ DesignRunOptions finetune_options(const Args& a) {
   o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));
   o.max_steps = a.has("max-steps") ? parse_int("--max-steps", a.get("max-steps"), 0, 2147483647) : -1;
   if (a.has("precision")) o.precision = precision_from_string(a.get("precision"));
+  // The camera as built (issue 28 step 4): the frozen PSF is a measured stack or a fitted design's,
+  // checked against the do run's configuration here, before any work.
+  if (a.has("psf") && a.has("design"))
+    reject("--design", a.get("design"), "either --psf or --design, not both (the frozen PSF comes from one of them)");
+  if (a.has("psf")) {
+    if (a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --psf (the measured stack is used as it is)");
+    o.finetune_psf = a.get("psf");
+    (void)read_psf_stack_for(o.cfg, o.finetune_psf, "--psf");
+  }
+  if (a.has("design")) {
+    if (a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --design (the fitted design is used as it is)");
+    o.finetune_design = a.get("design");
+    (void)read_design_heights_for(o.cfg, o.finetune_design, "--design");
+  }
   o.out = a.get("out");
   return o;
 }
@@ -146,6 +162,8 @@ void check_options_act(const Args& a, const DesignRunOptions& o) {
       {"wiener-on", wiener, "the Wiener objectives (--objective wiener, wiener-mse or wiener-mae)"},
       {"from", false, "--mode do-finetune"},
       {"finetune-steps", false, "--mode do-finetune"},
+      {"psf", false, "--mode do-finetune (the measured PSF the network is fine-tuned for)"},
+      {"design", false, "--mode do-finetune (the fitted design whose PSF the network is fine-tuned for)"},
   };
   for (const Rule& r : rules)
     if (a.has(r.option) && !r.acts)
@@ -162,6 +180,8 @@ int cmd_design(const Args& a) {
     Args b = a;
     b.opt.erase("mode");
     b.opt.erase("from");
+    b.opt.erase("psf");
+    b.opt.erase("design");
     return cmd_design(b);
   }
   DesignRunOptions o = finetune ? finetune_options(a) : design_options(a);
@@ -197,6 +217,10 @@ int cmd_eval(const Args& a) {
   if (a.has("decoder-kind")) e.decoder_kind = decoder_spec_from_string(a.get("decoder-kind"));
   e.psf_file = a.get("psf");
   if (a.has("psf") && a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --psf (the PSF file is the measured camera)");
+  e.design_file = a.get("design");
+  if (a.has("design") && a.has("psf")) reject("--design", e.design_file, "either --psf or --design, not both (the camera as built is one of them)");
+  if (a.has("design") && a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --design (the fitted design is used as it is)");
+  if (a.has("design")) (void)read_design_heights_for(read_run_config(e.run, "RUN").cfg, e.design_file, "--design");
   e.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale)") : -1;
   e.renders = std::size_t(parse_int("--renders", a.get("renders"), 0, 1000));
   e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));

@@ -491,6 +491,35 @@ WienerDecoder::WienerDecoder(ComplexStack otf, Eigen::MatrixXd srf, wiener::Spec
   wiener::check_model(otf_, srf_, prior_, noise_sigma_);
 }
 
-RealStack WienerDecoder::decode(const RealStack& y) const { return wiener::decode(y, otf_, srf_, prior_, noise_sigma_); }
+// The filter Kh(f) (C x B per frequency, the same Filter::build as wiener::decode) is made on the
+// first decode and kept: every later image (a reconstruction's tiles, a test set) costs two FFTs
+// and one C x B product per frequency. Memory: H·W·C·B complex values (16 bytes each); above
+// kFilterCacheBytes (a paper-preset grid: 512² x 3 x 31 is 390 MB) nothing is kept and every
+// decode builds the filter as wiener::decode does.
+RealStack WienerDecoder::decode(const RealStack& y) const {
+  if (y.planes != static_cast<std::size_t>(srf_.rows()) || y.rows != otf_.rows || y.cols != otf_.cols)
+    reject("y", shape(y), "C x H x W = " + shape(static_cast<std::size_t>(srf_.rows()), otf_.rows, otf_.cols));
+  const std::size_t c = static_cast<std::size_t>(srf_.rows()), b = otf_.planes, n = otf_.rows * otf_.cols;
+  if (n * c * b * sizeof(cdouble) > kFilterCacheBytes) return wiener::decode(y, otf_, srf_, prior_, noise_sigma_);
+  std::call_once(filter_once_, [&] {
+    const wiener::Setup s(srf_, prior_, noise_sigma_);
+    wiener::Filter q;
+    filter_.resize(n * c * b);
+    for (std::size_t f = 0; f < n; ++f) {
+      q.build(s, otf_, f);
+      for (std::size_t i = 0; i < c; ++i)
+        for (std::size_t j = 0; j < b; ++j) filter_[(f * c + i) * b + j] = q.kh(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
+    }
+  });
+  const ComplexStack yf = wiener::forward_fft(y);
+  ComplexStack xf(b, otf_.rows, otf_.cols);
+  for (std::size_t f = 0; f < n; ++f)
+    for (std::size_t j = 0; j < b; ++j) {
+      cdouble acc = 0;  // X(j) = Σ_i conj(Kh(i, j)) Y(i): Kh^H Y
+      for (std::size_t i = 0; i < c; ++i) acc += std::conj(filter_[(f * c + i) * b + j]) * yf.data[i * n + f];
+      xf.data[j * n + f] = acc;
+    }
+  return wiener::inverse_fft_real(std::move(xf));
+}
 
 }  // namespace qdo

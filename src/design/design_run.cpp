@@ -25,6 +25,8 @@
 #include "qdo/joint.hpp"
 #include "qdo/mpi.hpp"
 #include "qdo/network_decoder.hpp"
+#include "qdo/psf_source.hpp"
+#include "qdo/reconstruct.hpp"
 #include "qdo/run.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/simulator.hpp"
@@ -141,6 +143,12 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
                  std::to_string(source_total) + "; finish it with qdo design --resume --out " + o.finetune_from + ")");
     source_network = read_network_state(o.finetune_from, source.state, source.checkpoint);
   }
+  // do-finetune for the camera as built: the measured stack or the fitted design, read and checked
+  // against the configuration before any writing (issue 28 step 4).
+  RealStack asbuilt_psf;
+  Map2D asbuilt_heights;
+  if (finetune && !o.finetune_psf.empty()) asbuilt_psf = read_psf_stack_for(o.cfg, o.finetune_psf, "psf");
+  if (finetune && !o.finetune_design.empty()) asbuilt_heights = read_design_heights_for(o.cfg, o.finetune_design, "design");
   const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing
   std::unique_ptr<NetworkDecoder> net;
   if (network) net = make_network_decoder(network_settings(o));  // refused here when built without LibTorch
@@ -182,6 +190,8 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     sp["augmentation"] = "random S x S crops, one of the 8 flips/rotations each (qdo/joint.hpp)";
     sp["threads"] = network_threads();  // LibTorch's summation order depends on it (network_decoder.hpp)
     if (finetune) sp["finetune_from"] = o.finetune_from;
+    if (!o.finetune_psf.empty()) sp["finetune_psf"] = o.finetune_psf;
+    if (!o.finetune_design.empty()) sp["finetune_design"] = o.finetune_design;
     write_text_atomic((dir / "split.json").string(), sp.dump(2) + "\n");
   }
 
@@ -211,10 +221,13 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     s.offsets.assign(d.level_parameter_count(), 0.0);  // do has no trained offsets; the finetune's levels may differ
     s.adam_a = Adam{};
   }
-  // do-finetune: the PSF of the frozen, quantized DOE (the run's levels), computed once.
+  // do-finetune: the PSF of the frozen, quantized DOE (the run's levels), computed once; for the
+  // camera as built, the measured stack or the fitted design's PSF instead.
   RealStack frozen_psf;
-  if (finetune) {
-    sim.set_heights(d.fabricated_heights(s));
+  if (finetune && !o.finetune_psf.empty()) {
+    frozen_psf = asbuilt_psf;
+  } else if (finetune) {
+    sim.set_heights(o.finetune_design.empty() ? d.fabricated_heights(s) : asbuilt_heights);
     sim.compute_psf();
     frozen_psf = sim.psf_sensor();
   }
@@ -326,6 +339,8 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
                                                    {"objective", to_string(o.objective)}, {"steps", std::to_string(s.step)},
                                                    {"run", dir.string()}, {"decoder", o.decoder.to_string()}};
   if (finetune) provenance["finetune_from"] = o.finetune_from;
+  if (!o.finetune_psf.empty()) provenance["finetune_psf"] = o.finetune_psf;
+  if (!o.finetune_design.empty()) provenance["finetune_design"] = o.finetune_design;
   if (o.design.mode == DesignMode::QDOM) {  // the k binary-mask etch depths (level l = sum over the bits of l)
     std::ostringstream md;
     md.precision(12);

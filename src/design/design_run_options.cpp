@@ -139,6 +139,13 @@ void DesignRunOptions::validate() const {
     if (!net) reject("finetune_from", finetune_from, "empty: do-finetune trains a network (a resunet decoder)");
     if (design.mode != DesignMode::DO) reject("mode", to_string(design.mode), "do for a do-finetune run");
   }
+  if (!finetune_psf.empty() && !finetune_design.empty())
+    reject("finetune_design", finetune_design, "empty with finetune_psf = " + finetune_psf + " (the frozen PSF comes from one of them)");
+  for (const auto& [key, path] : {std::pair<const char*, const std::string*>{"finetune_psf", &finetune_psf}, {"finetune_design", &finetune_design}}) {
+    if (path->empty()) continue;
+    if (finetune_from.empty()) reject(key, *path, "empty without finetune_from (a do-finetune run's frozen PSF)");
+    if (!fs::is_regular_file(*path)) reject(key, *path, "an existing file");
+  }
   if (objective == Objective::PsfTarget && target.kind != TargetSpec::Kind::Lens && !fs::exists(target.path))
     reject("target", target.to_string(), "lens:NM or an existing design .h5 file");
   if (epochs < 1) reject("epochs", epochs, ">= 1");
@@ -272,6 +279,15 @@ const std::vector<RunField>& run_fields() {
        [](const DesignRunOptions& o, json& d) { d["gamma_decoder"] = o.gamma_decoder; }},
       {"finetune_from", [](DesignRunOptions& o, const json& d) { o.finetune_from = d.value("finetune_from", std::string()); },
        [](const DesignRunOptions& o, json& d) { d["finetune_from"] = o.finetune_from; }},
+      // Written only when set: the config.json of every other run reads as before.
+      {"finetune_psf", [](DesignRunOptions& o, const json& d) { o.finetune_psf = d.value("finetune_psf", std::string()); },
+       [](const DesignRunOptions& o, json& d) {
+         if (!o.finetune_psf.empty()) d["finetune_psf"] = o.finetune_psf;
+       }},
+      {"finetune_design", [](DesignRunOptions& o, const json& d) { o.finetune_design = d.value("finetune_design", std::string()); },
+       [](const DesignRunOptions& o, json& d) {
+         if (!o.finetune_design.empty()) d["finetune_design"] = o.finetune_design;
+       }},
   };
   return t;
 }

@@ -14,6 +14,7 @@
 #include "qdo/decoder_registry.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/psf_source.hpp"
+#include "qdo/reconstruct.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
@@ -29,30 +30,6 @@ namespace fs = std::filesystem;
 
 namespace qdo {
 namespace {
-
-// Linear sRGB (3 x H x W) of a radiance cube via the CIE 1931 2° observer, normalised so a
-// flat unit spectrum has Y = 1, then the XYZ -> linear sRGB (D65) matrix.
-RealStack render_srgb(const RealStack& cube, const std::vector<double>& wl) {
-  const CsvTable t = parse_csv(embedded_file("cie1931_cmf_400-700nm_10nm.csv"), "built-in CIE 1931 table");
-  const auto xb = interpolate_spectrum(t.column("wavelength_nm"), t.column("xbar"), wl, "CIE 1931");
-  const auto yb = interpolate_spectrum(t.column("wavelength_nm"), t.column("ybar"), wl, "CIE 1931");
-  const auto zb = interpolate_spectrum(t.column("wavelength_nm"), t.column("zbar"), wl, "CIE 1931");
-  double ysum = 0;
-  for (double v : yb) ysum += v;
-  const double m[3][3] = {{3.2406, -1.5372, -0.4986}, {-0.9689, 1.8758, 0.0415}, {0.0557, -0.2040, 1.0570}};
-  RealStack out(3, cube.rows, cube.cols);
-  for (std::size_t p = 0; p < cube.plane_size(); ++p) {
-    double xyz[3] = {0, 0, 0};
-    for (std::size_t b = 0; b < cube.planes; ++b) {
-      const double v = cube.plane(b)[p] / ysum;
-      xyz[0] += v * xb[b];
-      xyz[1] += v * yb[b];
-      xyz[2] += v * zb[b];
-    }
-    for (int c = 0; c < 3; ++c) out.plane(std::size_t(c))[p] = std::max(0.0, m[c][0] * xyz[0] + m[c][1] * xyz[1] + m[c][2] * xyz[2]);
-  }
-  return out;
-}
 
 RealStack side_by_side(const RealStack& a, const RealStack& b) {
   const std::size_t gap = 4;
@@ -76,9 +53,20 @@ DecoderFit decoder_fit_from_string(const std::string& s, const std::string& argu
 
 std::string to_string(DecoderFit f) { return f == DecoderFit::Mismatch ? "mismatch" : "matched"; }
 
-EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
-  const RunFolder folder(e.run);
+EvalResult evaluate_run(Runtime& rt, const EvalOptions& given) {
+  const RunFolder folder(given.run);
   const DesignRunOptions o = folder.config();
+  EvalOptions e = given;
+  if (!e.psf_file.empty() && !e.design_file.empty())
+    reject("design", e.design_file, "either a PSF file or a fitted design, not both (psf = " + e.psf_file + ")");
+  // A run fine-tuned for the camera as built is evaluated through that camera by default.
+  if (e.psf_file.empty() && e.design_file.empty() && e.levels == 0 && !e.full_precision) {
+    e.psf_file = o.finetune_psf;
+    e.design_file = o.finetune_design;
+  }
+  // Its network was trained for that PSF: matched needs it to be the one evaluated.
+  const bool asbuilt_run = !o.finetune_psf.empty() || !o.finetune_design.empty();
+  const bool own_asbuilt = asbuilt_run && e.psf_file == o.finetune_psf && e.design_file == o.finetune_design;
   if (e.out.empty()) reject("out", "(missing)", "an output folder");
   const SystemConfig& cfg = o.cfg;
   const DecoderSpec spec = e.decoder_kind ? *e.decoder_kind : o.decoder;
@@ -90,14 +78,24 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   // levels: the paper's DO).
   if (entry.trained && spec != o.decoder)
     reject("decoder_kind", spec.to_string(), "the run's own decoder (" + o.decoder.to_string() + "): " + entry.name + " is trained with the optics");
-  if (!e.psf_file.empty() && (e.levels > 0 || e.full_precision))
+  if ((!e.psf_file.empty() || !e.design_file.empty()) && (e.levels > 0 || e.full_precision))
     reject(e.levels > 0 ? "levels" : "full_precision", e.levels > 0 ? to_str(e.levels) : std::string("true"),
-           "not with a PSF file (psf = " + e.psf_file + "): the file's stack is the measured camera, no heights are chosen");
-  if (entry.trained && !e.psf_file.empty() && e.decoder == DecoderFit::Matched)
+           "not with a PSF file or a fitted design (" + (e.psf_file.empty() ? "design = " + e.design_file : "psf = " + e.psf_file) +
+               "): it is the camera as built, no heights are chosen");
+  if (entry.trained && asbuilt_run && !own_asbuilt && e.decoder == DecoderFit::Matched)
+    reject("decoder", "matched",
+           "mismatch for this run: its network was fine-tuned for " +
+               (o.finetune_psf.empty() ? "the fitted design " + o.finetune_design : "the PSF file " + o.finetune_psf) +
+               ", not the PSF evaluated");
+  if (entry.trained && !own_asbuilt && !e.design_file.empty() && e.decoder == DecoderFit::Matched)
+    reject("decoder", "matched",
+           "mismatch with a fitted design for this network run: its network cannot be refit for the design's PSF in closed form "
+           "(fine-tune it: qdo design --mode do-finetune --from RUN --design FILE)");
+  if (entry.trained && !own_asbuilt && !e.psf_file.empty() && e.decoder == DecoderFit::Matched)
     reject("decoder", "matched",
            "mismatch with a PSF file for this network run: its network cannot be refit for the file's PSF in closed form "
            "(mismatch evaluates it as trained, measured through the file's PSF)");
-  if (entry.trained && e.decoder == DecoderFit::Matched && !e.full_precision &&
+  if (entry.trained && !own_asbuilt && e.decoder == DecoderFit::Matched && !e.full_precision &&
       (e.levels > 0 || (o.design.mode == DesignMode::DO && o.finetune_from.empty())))
     reject("decoder", "matched",
            "mismatch for this network run: its network was trained for " +
@@ -113,6 +111,7 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   // A PSF file is read and checked against the run's configuration before any work.
   const RealStack psf_file = e.psf_file.empty() ? RealStack() : read_psf_stack_for(cfg, e.psf_file, "psf");
   Map2D h_eval = e.full_precision ? full.height_m : fab.height_m;
+  if (!e.design_file.empty()) h_eval = read_design_heights_for(cfg, e.design_file, "design");
   if (e.levels > 0 && !e.full_precision) {
     Quantizer q;
     q.levels = e.levels;
@@ -149,6 +148,11 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   in.run_network = [&e] { return load_run_network(e.run); };
   const std::unique_ptr<Decoder> dec = make_decoder(in);
   const std::string imaging = dec->description().empty() ? "decoder " + spec.to_string() : dec->description();
+  const std::string psf_used = !e.psf_file.empty()      ? "PSF file " + e.psf_file
+                               : !e.design_file.empty() ? "fitted design " + e.design_file + " (simulated)"
+                               : e.full_precision       ? "the run's full-precision design (simulated)"
+                               : e.levels > 0           ? "the run's design re-quantized to " + to_str(e.levels) + " levels (simulated)"
+                                                        : "the run's design (simulated)";
 
   EvalResult res;
   res.deviation_nm = quantization_deviation_m(h_eval, full.height_m) * 1e9;
@@ -183,7 +187,7 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   recon.push_back({"/wavelengths_nm", {wl.size()}, wl, {}, {{"units", "nm"}}});
   h5_write((fs::path(e.out) / "reconstructions.h5").string(), recon,
            {{"run", e.run}, {"decoder", to_string(e.decoder)}, {"decoder_kind", spec.to_string()},
-            {"psf", e.psf_file.empty() ? std::string("the evaluated design's (simulated)") : e.psf_file}});
+            {"psf", psf_used}});
   CsvText csv({"scene", "patches", "psnr_db", "psnr_h_db", "ssim", "rmse", "ergas", "sam_rad"});
   auto row_of = [](const std::string& scene, const testset::Scores& m) {
     EvalRow r;
@@ -213,6 +217,7 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& e) {
   j["full_precision"] = e.full_precision;
   j["requantized"] = e.levels > 0;
   j["noise_sigma"] = sigma;
+  j["psf"] = psf_used;  // the PSF the scenes were measured through (and a matched Wiener decoder built for)
   j["scenes"] = res.rows.size();
   j["patches"] = patches.size();
   j["deviation_nm"] = res.deviation_nm;

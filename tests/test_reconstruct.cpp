@@ -1,0 +1,487 @@
+// `qdo reconstruct` and the camera as built (issue 28 steps 4 and 5; reconstruct.hpp): tiles blend
+// with weights summing to 1 (a pointwise decoder tiles exactly; the Wiener decoder within a stated
+// tolerance of a whole-image one), the command's cube is the run's Wiener decoder's estimate of the
+// capture (the decoder `qdo eval` builds), crops, darks and several frames act as stated, the
+// spectra are the cube's, `qdo eval --psf / --design` evaluates through the camera as built and
+// says so, and bad input is refused (exit 2) naming the file or argument. Doctest suite
+// "reconstruct"; the network's fine-tune for a measured PSF is in tests/net (suite "net").
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <tuple>
+
+#include "commands_common.hpp"
+#include "common.hpp"
+#include "qdo/decoder_registry.hpp"
+#include "qdo/demosaic_reference.hpp"
+#include "qdo/error.hpp"
+#include "qdo/io.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/psf_source.hpp"
+#include "qdo/raw_reference.hpp"
+#include "qdo/reconstruct.hpp"
+#include "qdo/run_folder.hpp"
+#include "qdo/simulator.hpp"
+#include "qdo/wiener.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+using namespace qdo::test::commands_suite;
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+// A pointwise linear decoder (bands x 3 matrix applied to every pixel): any tiling of it must give
+// the untiled estimate exactly, since the blending weights sum to 1.
+class PointwiseDecoder final : public Decoder {
+ public:
+  explicit PointwiseDecoder(std::size_t bands) : bands_(bands) {}
+  RealStack decode(const RealStack& y) const override {
+    RealStack x(bands_, y.rows, y.cols, 0.0);
+    for (std::size_t b = 0; b < bands_; ++b)
+      for (std::size_t c = 0; c < 3; ++c)
+        for (std::size_t i = 0; i < y.plane_size(); ++i) x.plane(b)[i] += (0.1 * double(b + 1) - 0.07 * double(c)) * y.plane(c)[i];
+    return x;
+  }
+  std::size_t batch() const override { return 3; }
+  std::size_t bands() const override { return bands_; }
+  std::size_t channels() const override { return 3; }
+
+ private:
+  std::size_t bands_;
+};
+
+// A smooth scene (bands x rows x cols in [0, 1]): a few cosines per band, as natural images are
+// dominated by low frequencies.
+RealStack smooth_scene(std::size_t bands, std::size_t rows, std::size_t cols, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  RealStack x(bands, rows, cols, 0.0);
+  for (std::size_t b = 0; b < bands; ++b)
+    for (int k = 0; k < 3; ++k) {
+      const double fy = u(rng) * 0.08, fx = u(rng) * 0.08, ph = u(rng) * 6.28, a = 0.1 + 0.1 * u(rng);
+      for (std::size_t y = 0; y < rows; ++y)
+        for (std::size_t xx = 0; xx < cols; ++xx) x(b, y, xx) += a * (1 + std::cos(6.2831853 * (fy * double(y) + fx * double(xx)) + ph));
+    }
+  for (double& v : x.data) v = std::min(1.0, v / 1.3);
+  return x;
+}
+
+// The code values of a linear RGB image (3 x H x W) in a 16-bit container at gain 1, black 0:
+// round(clamp(v, 0, 1) * 65535) plus `offset` DN.
+RealStack to_dn(const RealStack& rgb, double offset = 0) {
+  RealStack dn = rgb;
+  for (double& v : dn.data) v = std::round(std::clamp(v, 0.0, 1.0) * 65535.0) + offset;
+  return dn;
+}
+
+RealStack read_cube_h5(const fs::path& p) {
+  const H5Dataset d = h5_read(p.string(), "/cube");
+  REQUIRE(d.shape.size() == 3);
+  RealStack c(d.shape[0], d.shape[1], d.shape[2]);
+  c.data = d.data;
+  return c;
+}
+
+// The run's sensor image of a scene through its psf.h5, noiseless (the circular camera of the
+// Wiener decoder's model).
+RealStack camera_image(const fs::path& run, const RealStack& scene) {
+  const PsfStackFile f = read_psf_stack_file((run / "psf.h5").string());
+  return wiener::simulate_measurement(scene, wiener::psf_to_otf(f.psf_sensor, scene.rows, scene.cols), sensor_response(tiny()));
+}
+
+// The run's decoder as `qdo eval` builds it (the registry's Wiener decoder for the run's PSF,
+// prior and noise sigma).
+std::unique_ptr<Decoder> run_decoder(const fs::path& run) {
+  const RunFolder folder(run.string());
+  const DesignRunOptions o = folder.config();
+  DecoderInputs in;
+  in.spec = o.decoder;
+  in.psf = read_psf_stack_file((run / "psf.h5").string()).psf_sensor;
+  in.srf = sensor_response(o.cfg);
+  in.prior = folder.prior(o.cfg.sensor_size_px());
+  in.noise_sigma = o.decoder_noise_sigma;
+  return make_decoder(in);
+}
+
+double max_abs_diff(const RealStack& a, const RealStack& b) {
+  REQUIRE(a.data.size() == b.data.size());
+  double m = 0;
+  for (std::size_t i = 0; i < a.data.size(); ++i) m = std::max(m, std::fabs(a.data[i] - b.data[i]));
+  return m;
+}
+
+}  // namespace
+
+TEST_SUITE("reconstruct") {
+  TEST_CASE("tile starts cover the image and the blending weights sum to 1 at every pixel") {
+    for (const auto& [size, tile, overlap] : {std::tuple<std::size_t, std::size_t, std::size_t>{16, 16, 4}, {17, 16, 4}, {100, 16, 4},
+                                             {100, 16, 15}, {64, 16, 1}, {40, 32, 8}}) {
+      CAPTURE(size);
+      CAPTURE(tile);
+      CAPTURE(overlap);
+      const auto st = tile_starts(size, tile, overlap);
+      REQUIRE(!st.empty());
+      CHECK(st.front() == 0);
+      CHECK(st.back() + tile == size);
+      for (std::size_t k = 1; k < st.size(); ++k) {
+        CHECK(st[k] > st[k - 1]);
+        CHECK(st[k - 1] + tile >= st[k] + overlap);  // neighbours overlap by at least `overlap`
+      }
+      const auto w = tile_weights(st, tile, size);
+      std::vector<double> sum(size, 0.0);
+      for (std::size_t k = 0; k < st.size(); ++k)
+        for (std::size_t t = 0; t < tile; ++t) {
+          CHECK(w[k][t] >= 0);
+          sum[st[k] + t] += w[k][t];
+        }
+      for (double s : sum) CHECK(s == doctest::Approx(1.0).epsilon(1e-12));
+    }
+    CHECK(input_error_of([] { (void)tile_starts(15, 16, 4); }).find("16") != std::string::npos);
+    CHECK(input_error_of([] { (void)tile_starts(40, 16, 16); }).find("--overlap") != std::string::npos);
+  }
+
+  TEST_CASE("a pointwise decoder tiles exactly: the blend is a partition of unity") {
+    const PointwiseDecoder dec(4);
+    const RealStack y = uniform_stack(3, 53, 71, 5, 0, 1);
+    const RealStack whole = dec.decode(y);
+    std::size_t calls = 0, last_total = 0;
+    const RealStack tiled = decode_tiled(dec, y, 16, 5, [&](std::size_t done, std::size_t total) {
+      ++calls;
+      CHECK(done <= total);
+      last_total = total;
+    });
+    CHECK(max_abs_diff(tiled, whole) < 1e-13);
+    CHECK(last_total == tile_starts(53, 16, 5).size() * tile_starts(71, 16, 5).size());
+    CHECK(calls == (last_total + 2) / 3);  // one progress call per batch of 3
+  }
+
+  TEST_CASE("Wiener tiles with the mirror boundary are as close to the scene as a whole-frame decode; circular tiles ring") {
+    // A capture as a camera makes it: the centre n x n of a larger scene blurred by the PSF, so
+    // light from outside the frame lands inside (not circular). Decoded whole (mirror-extended to
+    // 2n x 2n, the Wiener decoder on that grid) and in t x t tiles (each mirror-extended to 2t x 2t,
+    // blended); the prior is the same one, regridded (regrid_prior). They are not equal: a
+    // deconvolution's response to the boundary mismatch spreads over the whole tile (measured here:
+    // about 0.58 relative RMS between the two in the interior, 16 px from the frame's border, with
+    // this random DOE's asymmetric PSF filling its S x S window). The statement: the mirror tiles'
+    // interior error against the scene is within 10 % of the whole-frame decode's, and circular
+    // tiles (the model taken literally) are worse than mirror tiles by more than 3 times.
+    const SystemConfig cfg = tiny();
+    const std::size_t t = 32, n = 96, big = 160, off = 32, ov = 12;
+    Simulator sim(runtime(), cfg, Precision::F64);
+    sim.set_heights(smooth_heights(cfg, 3));
+    sim.compute_psf();
+    const RealStack psf = sim.psf_sensor();
+    const Eigen::MatrixXd srf = sensor_response(cfg);
+    std::vector<RealStack> train;
+    for (unsigned k = 0; k < 8; ++k) train.push_back(smooth_scene(3, t, t, 100 + k));
+    const wiener::SpectralPrior prior = wiener::estimate_prior(train, 8);
+    const double sigma = 1e-3;
+    const RealStack wide = smooth_scene(3, big, big, 7);
+    const RealStack y_wide = wiener::simulate_measurement(wide, wiener::psf_to_otf(psf, big, big), srf);
+    RealStack y(3, n, n), scene(3, n, n);
+    for (std::size_t c = 0; c < 3; ++c)
+      for (std::size_t r = 0; r < n; ++r)
+        for (std::size_t x = 0; x < n; ++x) {
+          y(c, r, x) = y_wide(c, r + off, x + off);
+          scene(c, r, x) = wide(c, r + off, x + off);
+        }
+    const WienerDecoder whole(wiener::psf_to_otf(psf, 2 * n, 2 * n), srf, regrid_prior(prior, 2 * n, 2 * n), sigma);
+    const WienerDecoder tile2(wiener::psf_to_otf(psf, 2 * t, 2 * t), srf, regrid_prior(prior, 2 * t, 2 * t), sigma);
+    const WienerDecoder tile1(wiener::psf_to_otf(psf, t, t), srf, prior, sigma);
+    const RealStack a = decode_tiled(whole, y, n, 0, {}, TileBoundary::Mirror);
+    const RealStack b = decode_tiled(tile2, y, t, ov, {}, TileBoundary::Mirror);
+    const RealStack c = decode_tiled(tile1, y, t, ov, {}, TileBoundary::Circular);
+    auto rel_rms = [&](const RealStack& u, const RealStack& v) {
+      double d2 = 0, s2 = 0;
+      for (std::size_t p = 0; p < 3; ++p)
+        for (std::size_t r = 16; r < n - 16; ++r)
+          for (std::size_t x = 16; x < n - 16; ++x) {
+            d2 += std::pow(u(p, r, x) - v(p, r, x), 2);
+            s2 += std::pow(v(p, r, x), 2);
+          }
+      return std::sqrt(d2 / s2);
+    };
+    const double tiled_vs_whole = rel_rms(b, a), whole_err = rel_rms(a, scene), tiled_err = rel_rms(b, scene), circ_err = rel_rms(c, scene);
+    MESSAGE("interior relative RMS: mirror tiles vs whole " << tiled_vs_whole << "; against the scene: whole " << whole_err
+            << ", mirror tiles " << tiled_err << ", circular tiles " << circ_err);
+    CHECK(tiled_vs_whole > 0);
+    CHECK(tiled_err < 1.1 * whole_err);
+    CHECK(circ_err > 3 * tiled_err);
+  }
+
+  TEST_CASE("qdo reconstruct of an RGB capture equals the run's Wiener decoder on it; crop, darks, frames and spectra as stated") {
+    const SharedRun& s = shared_run();
+    REQUIRE(s.result.code == 0);
+    const auto dir = temp_dir("recon_cli");
+    const std::size_t S = tiny().sensor_size_px();
+    // One tile: the capture of a scene through the run's PSF, 16-bit.
+    const RealStack scene = smooth_scene(3, S, S, 11);
+    const RealStack dn = to_dn(camera_image(s.dir, scene));
+    write_png16_rgb((dir / "cap.png").string(), dn);
+    const Run r = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cap.png").string() +
+                          " --boundary circular --points '3,4;10,12' --boxes '2,2,5,6' --out " + (dir / "one").string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    const RealStack cube = read_cube_h5(dir / "one" / "cube.h5");
+    REQUIRE(cube.planes == 3);
+    REQUIRE(cube.rows == S);
+    REQUIRE(cube.cols == S);
+    RealStack y = dn;
+    for (double& v : y.data) v /= 65535.0;
+    RealStack expect = run_decoder(s.dir)->decode(y);
+    for (double& v : expect.data) v = std::clamp(v, 0.0, 1.0);
+    CHECK(max_abs_diff(cube, expect) < 1e-6);  // the run's PSF simulated again in float32 against its psf.h5
+    const H5Dataset wl = h5_read((dir / "one" / "cube.h5").string(), "/wavelengths_nm");
+    CHECK(wl.data == tiny().wavelengths_nm());
+    CHECK(fs::exists(dir / "one" / "srgb.png"));
+    CHECK(fs::exists(dir / "one" / "spectra.png"));
+    // spectra.csv: the cube at the points, the mean over the box.
+    const CsvTable sp = read_csv((dir / "one" / "spectra.csv").string());
+    REQUIRE(sp.header.size() == 4);
+    CHECK(sp.header[1] == "point 3,4");
+    CHECK(sp.header[3] == "box 2,2,5,6");
+    for (std::size_t b = 0; b < 3; ++b) {
+      CHECK(sp.columns[1][b] == doctest::Approx(cube(b, 3, 4)).epsilon(1e-7));
+      CHECK(sp.columns[2][b] == doctest::Approx(cube(b, 10, 12)).epsilon(1e-7));
+      double m = 0;
+      for (std::size_t yy = 2; yy < 7; ++yy)
+        for (std::size_t xx = 2; xx < 8; ++xx) m += cube(b, yy, xx) / 30.0;
+      CHECK(sp.columns[3][b] == doctest::Approx(m).epsilon(1e-7));
+    }
+    const json j = read_json(dir / "one" / "reconstruct.json");
+    CHECK(j.at("tiles") == 1);
+    CHECK(j.at("psf").get<std::string>().find("the run's design") != std::string::npos);
+
+    // Larger than a tile: tiled with progress lines; a crop of it equals the cropped capture.
+    const RealStack big = to_dn(camera_image(s.dir, smooth_scene(3, 40, 36, 12)));
+    write_png16_rgb((dir / "big.png").string(), big);
+    const Run rb = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "big.png").string() + " --out " + (dir / "big").string());
+    CAPTURE(rb.out);
+    REQUIRE(rb.code == 0);
+    CHECK(rb.out.find("[reconstruct] tile 1/") != std::string::npos);
+    const RealStack cb = read_cube_h5(dir / "big" / "cube.h5");
+    CHECK(cb.rows == 40);
+    CHECK(cb.cols == 36);
+    CHECK(read_json(dir / "big" / "reconstruct.json").at("boundary") == "mirror");  // the Wiener decoder's default
+    CHECK(read_json(dir / "big" / "reconstruct.json").at("tiles").get<int>() == int(tile_starts(40, S, S / 4).size() * tile_starts(36, S, S / 4).size()));
+    RealStack cropped(3, 20, 18);
+    for (std::size_t c = 0; c < 3; ++c)
+      for (std::size_t yy = 0; yy < 20; ++yy)
+        for (std::size_t xx = 0; xx < 18; ++xx) cropped(c, yy, xx) = big(c, 2 + yy, 3 + xx);
+    write_png16_rgb((dir / "cropped.png").string(), cropped);
+    const Run rc = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "big.png").string() +
+                           " --crop 2,3,20,18 --out " + (dir / "crop").string());
+    const Run rc2 = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cropped.png").string() + " --out " +
+                            (dir / "crop2").string());
+    REQUIRE(rc.code == 0);
+    REQUIRE(rc2.code == 0);
+    CHECK(max_abs_diff(read_cube_h5(dir / "crop" / "cube.h5"), read_cube_h5(dir / "crop2" / "cube.h5")) == 0);
+
+    // Darks: captures 1000 DN above the first, two frames of it and a dark folder at 1000 DN give
+    // the first reconstruction exactly.
+    fs::create_directories(dir / "darks");
+    write_png16_rgb((dir / "darks" / "d1.png").string(), RealStack(3, S, S, 999.0));
+    write_png16_rgb((dir / "darks" / "d2.png").string(), RealStack(3, S, S, 1001.0));
+    write_png16_rgb((dir / "cap_a.png").string(), to_dn(camera_image(s.dir, scene), 1000));
+    write_png16_rgb((dir / "cap_b.png").string(), to_dn(camera_image(s.dir, scene), 1000));
+    const Run rd = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cap_a.png").string() + " --capture " +
+                           (dir / "cap_b.png").string() + " --darks " + (dir / "darks").string() + " --boundary circular --out " + (dir / "dark").string());
+    CAPTURE(rd.out);
+    REQUIRE(rd.code == 0);
+    CHECK(max_abs_diff(read_cube_h5(dir / "dark" / "cube.h5"), cube) < 1e-12);
+    CHECK(read_json(dir / "dark" / "reconstruct.json").at("darks").size() == 2);
+
+    // Exposure: percentile:100:0.5 scales the brightest value to 0.5.
+    const Run re = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cap.png").string() +
+                           " --exposure percentile:100:0.5 --out " + (dir / "exp").string());
+    REQUIRE(re.code == 0);
+    const double maxv = *std::max_element(y.data.begin(), y.data.end());
+    CHECK(read_json(dir / "exp" / "reconstruct.json").at("exposure_factor").get<double>() == doctest::Approx(0.5 / maxv).epsilon(1e-12));
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("qdo reconstruct refuses bad input before any work, naming the file or argument (exit 2)") {
+    const SharedRun& s = shared_run();
+    REQUIRE(s.result.code == 0);
+    const auto dir = temp_dir("recon_bad");
+    const std::size_t S = tiny().sensor_size_px();
+    write_png16_rgb((dir / "a.png").string(), RealStack(3, S, S, 100.0));
+    write_png16_rgb((dir / "b.png").string(), RealStack(3, S + 2, S, 100.0));
+    write_png16_rgb((dir / "small.png").string(), RealStack(3, S - 1, S, 100.0));
+    write_png16_gray((dir / "gray.png").string(), Map2D(S, S, 100.0));
+    const std::string base = "reconstruct --run " + s.dir.string() + " ";
+    auto refused = [&](const std::string& args, const std::string& named, const std::string& out) {
+      const Run r = qdo_run(base + args + " --out " + (dir / out).string());
+      CAPTURE(args);
+      CAPTURE(r.out);
+      CHECK(r.code == 2);
+      CHECK(r.out.find(named) != std::string::npos);
+      CHECK(!fs::exists(dir / out / "cube.h5"));
+    };
+    refused("--capture " + (dir / "a.png").string() + " --capture " + (dir / "b.png").string(), "b.png", "o1");
+    refused("--capture " + (dir / "gray.png").string(), "gray.png", "o2");
+    refused("--capture " + (dir / "small.png").string(), "small.png", "o3");
+    refused("--capture " + (dir / "a.png").string() + " --points '3,4;" + std::to_string(S) + ",0'", "--points", "o4");
+    refused("--capture " + (dir / "a.png").string() + " --boxes 10,10,8,2", "--boxes", "o5");
+    refused("--capture " + (dir / "a.png").string() + " --exposure percentile:0:1", "--exposure", "o6");
+    refused("--capture " + (dir / "a.png").string() + " --crop 0,0,8,8", "--crop", "o7");
+    refused("--capture " + (dir / "missing.png").string(), "missing.png", "o8");
+    refused("--capture " + (dir / "a.png").string() + " --boundary wrap", "--boundary", "o11");
+    // A PSF stack for another sensor grid (4 bands) and a design for another N.
+    const SystemConfig other = tiny_config(32, 4);
+    write_psf((dir / "psf4.h5").string(), RealStack(4, S, S, 1.0 / double(S * S)), other.wavelengths_nm(), other.sensor_pitch_m);
+    refused("--capture " + (dir / "a.png").string() + " --psf " + (dir / "psf4.h5").string(), "psf4.h5", "o9");
+    Design d48;
+    d48.height_m = Map2D(48, 48, 0.0);
+    d48.pitch_m = tiny().pitch_m;
+    write_design((dir / "d48.h5").string(), d48);
+    refused("--capture " + (dir / "a.png").string() + " --design " + (dir / "d48.h5").string(), "d48.h5", "o10");
+    // A code value above the white level of a 12-bit sensor is named, with the pixel.
+    SystemConfig c12 = tiny();
+    c12.bit_depth = 12;
+    CHECK(input_error_of([&] {
+            CaptureOptions o;
+            o.captures = {(dir / "hot.png").string()};
+            RealStack img(3, S, S, 100.0);
+            img(1, 2, 3) = 5000;
+            write_png16_rgb(o.captures[0], img);
+            (void)read_captures(c12, o);
+          }).find("hot.png': code value 5000 at row 2, column 3") != std::string::npos);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("a mosaic whose green sites sit on the other diagonal is refused, naming the file; the configured one passes") {
+    // A colourful scene through RGGB: R at (0,0), G at (0,1) and (1,0), B at (1,1).
+    const RealStack scene = smooth_scene(3, 32, 32, 4);
+    RealStack raw(1, 32, 32);
+    for (std::size_t y = 0; y < 32; ++y)
+      for (std::size_t x = 0; x < 32; ++x) raw(0, y, x) = scene(std::size_t(cfa_channel(Cfa::RGGB, y, x)), y, x);
+    CHECK_NOTHROW(check_mosaic_phase(raw, Cfa::RGGB, "f.png"));
+    CHECK_NOTHROW(check_mosaic_phase(raw, Cfa::BGGR, "f.png"));  // R/B swapped: not visible without the scene
+    const std::string e = input_error_of([&] { check_mosaic_phase(raw, Cfa::GRBG, "f.png"); });
+    CHECK(e.find("f.png") != std::string::npos);
+    CHECK(e.find("rggb or bggr") != std::string::npos);
+    // A grey scene decides nothing.
+    RealStack grey(1, 32, 32);
+    for (std::size_t y = 0; y < 32; ++y)
+      for (std::size_t x = 0; x < 32; ++x) grey(0, y, x) = scene(1, y, x);
+    CHECK_NOTHROW(check_mosaic_phase(grey, Cfa::GRBG, "f.png"));
+  }
+
+  TEST_CASE("qdo eval --psf / --design evaluates the run's Wiener decoder refit for the camera as built and names it in metrics.json") {
+    const SharedRun& s = shared_run();
+    REQUIRE(s.result.code == 0);
+    const auto dir = temp_dir("recon_eval");
+    const std::string base = "eval " + s.dir.string() + " --synthetic-scenes 2 --renders 0 --out ";
+    const Run own = qdo_run(base + (dir / "own").string());
+    REQUIRE(own.code == 0);
+    // A "measured" stack: the design's full-precision PSF written as a file; a "fitted" design:
+    // design_full.h5 itself. Both differ from the run's quantized DOE.
+    {
+      Simulator sim(runtime(), tiny(), Precision::F32);
+      sim.set_heights(read_design((s.dir / "design_full.h5").string()).height_m);
+      sim.compute_psf();
+      write_psf((dir / "measured.h5").string(), sim.psf_sensor(), tiny().wavelengths_nm(), tiny().sensor_pitch_m);
+    }
+    const Run mp = qdo_run(base + (dir / "psf").string() + " --psf " + (dir / "measured.h5").string());
+    CAPTURE(mp.out);
+    REQUIRE(mp.code == 0);
+    const Run md = qdo_run(base + (dir / "design").string() + " --design " + (s.dir / "design_full.h5").string());
+    CAPTURE(md.out);
+    REQUIRE(md.code == 0);
+    const json jo = read_json(dir / "own" / "metrics.json"), jp = read_json(dir / "psf" / "metrics.json"),
+               jd = read_json(dir / "design" / "metrics.json");
+    CHECK(jo.at("psf").get<std::string>().find("the run's design") != std::string::npos);
+    CHECK(jp.at("psf").get<std::string>().find("measured.h5") != std::string::npos);
+    CHECK(jd.at("psf").get<std::string>().find("design_full.h5") != std::string::npos);
+    const double po = jo.at("mean").at("psnr_db").get<double>(), pp = jp.at("mean").at("psnr_db").get<double>(),
+                 pd = jd.at("mean").at("psnr_db").get<double>();
+    CHECK(po != pp);  // another PSF, another refit
+    // The same camera through a file and through the design it was simulated from: equal metrics
+    // (the PSF the same float32 stack).
+    CHECK(pp == doctest::Approx(pd).epsilon(1e-9));
+    // A PSF file for another grid, a design for another N: exit 2 naming the file.
+    write_psf((dir / "psf4.h5").string(), RealStack(4, 16, 16, 1.0 / 256), tiny_config(32, 4).wavelengths_nm(), tiny().sensor_pitch_m);
+    const Run bad = qdo_run(base + (dir / "bad").string() + " --psf " + (dir / "psf4.h5").string());
+    CHECK(bad.code == 2);
+    CHECK(bad.out.find("psf4.h5") != std::string::npos);
+    Design d48;
+    d48.height_m = Map2D(48, 48, 0.0);
+    d48.pitch_m = tiny().pitch_m;
+    write_design((dir / "d48.h5").string(), d48);
+    const Run bad2 = qdo_run(base + (dir / "bad2").string() + " --design " + (dir / "d48.h5").string());
+    CHECK(bad2.code == 2);
+    CHECK(bad2.out.find("d48.h5") != std::string::npos);
+    const Run both = qdo_run(base + (dir / "both").string() + " --design " + (s.dir / "design_full.h5").string() + " --psf " +
+                             (dir / "measured.h5").string());
+    CHECK(both.code == 2);
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("raw Bayer captures: black level, scaling and the device demosaic as the reference does them; a wrong mosaic refused") {
+    // A Wiener run whose sensor is a 12-bit RGGB mosaic with black level 64 DN.
+    SystemConfig cfg = tiny();
+    cfg.cfa = Cfa::RGGB;
+    cfg.bit_depth = 12;
+    cfg.black_level_dn = 64;
+    cfg.validate();
+    const auto dir = temp_dir("recon_raw");
+    const std::string cfgf = (dir / "raw.json").string();
+    std::ofstream(cfgf) << config_to_json_text(cfg) << "\n";
+    const Run run = qdo_run("design --config " + cfgf + " --mode qdo+a --epochs 1 --steps-per-epoch 1 --synthetic-scenes 2 --out " +
+                            (dir / "run").string());
+    CAPTURE(run.out);
+    REQUIRE(run.code == 0);
+    const std::size_t S = cfg.sensor_size_px(), H = 24, W = 20;
+    const RealStack rgb = wiener::simulate_measurement(smooth_scene(3, H, W, 21),
+                                                       wiener::psf_to_otf(read_psf_stack_file((dir / "run" / "psf.h5").string()).psf_sensor, H, W),
+                                                       sensor_response(cfg));
+    Map2D dn(H, W);
+    for (std::size_t y = 0; y < H; ++y)
+      for (std::size_t x = 0; x < W; ++x)
+        dn.data[y * W + x] = std::round(64 + std::clamp(rgb(std::size_t(cfa_channel(Cfa::RGGB, y, x)), y, x), 0.0, 1.0) * (4095 - 64));
+    write_png16_gray((dir / "raw.png").string(), dn);
+    // The library chain against the reference: raw_to_linear, then ref::demosaic (MHC).
+    CaptureOptions co;
+    co.captures = {(dir / "raw.png").string()};
+    co.demosaic = "mhc";
+    const CaptureFiles f = read_captures(cfg, co);
+    const PreparedCapture pc = prepare_capture(runtime(), Precision::F32, cfg, co, f);
+    RealStack raw(1, H, W);
+    raw.data = dn.data;
+    const RealStack expect = ref::demosaic(raw_to_linear(raw, cfg), Cfa::RGGB, DemosaicMethod::MHC);
+    REQUIRE(pc.rgb.planes == 3);
+    CHECK(max_abs_diff(pc.rgb, expect) < 1e-5);  // float32 device stage against the double reference
+    // The command: a cube of the frame's size; 3-channel captures and a mosaic on the other
+    // diagonal (the frame shifted by one column) are refused naming the file.
+    const Run ok = qdo_run("reconstruct --run " + (dir / "run").string() + " --capture " + (dir / "raw.png").string() +
+                           " --demosaic mhc --out " + (dir / "out").string());
+    CAPTURE(ok.out);
+    REQUIRE(ok.code == 0);
+    const RealStack cube = read_cube_h5(dir / "out" / "cube.h5");
+    CHECK(cube.rows == H);
+    CHECK(cube.cols == W);
+    CHECK(read_json(dir / "out" / "reconstruct.json").at("demosaic") == "mhc");
+    Map2D shifted(H, W - 1);
+    for (std::size_t y = 0; y < H; ++y)
+      for (std::size_t x = 0; x + 1 < W; ++x) shifted.data[y * (W - 1) + x] = dn.data[y * W + x + 1];
+    write_png16_gray((dir / "shifted.png").string(), shifted);
+    const Run bad = qdo_run("reconstruct --run " + (dir / "run").string() + " --capture " + (dir / "shifted.png").string() + " --out " +
+                            (dir / "bad").string());
+    CAPTURE(bad.out);
+    CHECK(bad.code == 2);
+    CHECK(bad.out.find("shifted.png") != std::string::npos);
+    CHECK(bad.out.find("rggb") != std::string::npos);
+    write_png16_rgb((dir / "rgb.png").string(), RealStack(3, S, S, 100.0));
+    const Run bad2 = qdo_run("reconstruct --run " + (dir / "run").string() + " --capture " + (dir / "rgb.png").string() + " --out " +
+                             (dir / "bad2").string());
+    CHECK(bad2.code == 2);
+    CHECK(bad2.out.find("rgb.png") != std::string::npos);
+    fs::remove_all(dir);
+  }
+}
