@@ -153,6 +153,41 @@ struct Perturbation {
 Map2D perturbed_heights(const MaskPlan& plan, const Map2D& design_height_m, const Perturbation& p,
                         std::size_t oversample = 4);
 
+// --- The camera as built, for a simulation of the built camera ----------------------------------
+
+// One fabricated camera (`qdo fabricate`; EXPERIMENTS "The built camera, in simulation"): the
+// design's masks made with one draw of the tolerance study's errors (trial `trial` of
+// `qdo tolerance` with the same seed, scheme and sizes: per mask an etch depth error uniform in
+// [-etch_depth_error_m, etch_depth_error_m], per mask after the first an overlay shift uniform in
+// [-overlay_m, overlay_m] per axis; perturbed_heights with `oversample`), then the whole relief
+// moved against the aperture by (offset_x_m, offset_y_m) (x = column direction; the model qdo fit
+// fits: fit.hpp's shift_bilinear, zero relief brought in) and the DOE-sensor distance changed by
+// sensor_distance_error_m (an assembly error).
+struct AsBuiltOptions {
+  std::string scheme = "auto";        // binary | nested | greyscale | auto (binary when possible, else nested)
+  double etch_depth_error_m = 20e-9;  // REFERENCE §6
+  double overlay_m = 0.5e-6;
+  double edge_blur_m = 0;
+  std::uint64_t seed = 0;
+  std::size_t trial = 0;
+  std::size_t oversample = 4;
+  double offset_x_m = 0, offset_y_m = 0;
+  double sensor_distance_error_m = 0;
+};
+struct AsBuiltCamera {
+  Design design;                        // the as-built relief (N x N, metres); levels_m empty (edges are not on levels)
+  SystemConfig cfg;                     // the as-built geometry (sensor_distance_m changed)
+  MaskPlan plan;
+  std::string scheme_note;
+  std::vector<double> depth_error_m, shift_x_m, shift_y_m;  // the draws, one per mask
+  // Per design level: the median of the fabricated relief over the level's pixels, before the
+  // lateral offset (a level's realised height; the perturbed map's constant offset included).
+  std::vector<double> level_height_m;
+};
+// InputError (naming the option) for negative sizes, an offset beyond the grid, a distance error
+// that makes z <= 0, a design that is not on cfg's grid or cannot be planned in the scheme.
+AsBuiltCamera fabricate(const Design& d, const SystemConfig& cfg, const AsBuiltOptions& o);
+
 struct ToleranceOptions {
   std::string run;                   // a run folder of qdo design
   std::string scheme = "auto";       // binary | nested | greyscale | auto (binary when possible, else nested)

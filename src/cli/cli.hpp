@@ -77,6 +77,7 @@ int cmd_eval(const Args& a);
 int cmd_image(const Args& a);
 int cmd_export(const Args& a);
 int cmd_tolerance(const Args& a);
+int cmd_fabricate(const Args& a);
 int cmd_sweep(const Args& a);
 int cmd_sweep_psf(const Args& a);
 

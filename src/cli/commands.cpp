@@ -264,6 +264,23 @@ std::vector<CommandSpec> make_table() {
                 flag("no-per-source", "skip the scenarios of one error source at a time"),
                 flag("save-psfs", "write every trial's PSF stack to psfs.h5"), precision(), device(), out_dir_opt()},
                cmd_tolerance});
+  t.push_back({"fabricate",
+               "one camera as built, for simulating it: the design's masks made with one draw of qdo tolerance's errors, the relief "
+               "offset against the aperture, the DOE-sensor distance changed -> DIR/design.h5, config.json, truth.json (the true "
+               "values in qdo fit's names), heights.png, height_error.png",
+               "RUN|DESIGN.h5", "run folder written by qdo design, or a design .h5 file",
+               {opt("preset", "system preset for a DESIGN.h5: paper or small (omit with a run folder)", "small"),
+                opt("config", "system configuration JSON file for a DESIGN.h5 (omit with a run folder)"),
+                opt("scheme", "mask scheme: auto (binary when possible, else nested), binary, nested or greyscale", "auto"),
+                opt("etch-depth-error-nm", "etch depth error bound per mask, uniform in [-S, S], nm, in [0, 10000]", "20"),
+                opt("overlay-um", "overlay error bound per mask after the first and per axis, uniform in [-S, S], um, in [0, 1000]", "0.5"),
+                opt("edge-blur-um", "edge blur (Gaussian sigma) of every mask, um, in [0, 1000]", "0"),
+                seed(), opt("trial", "which draw of the seed's sequence (qdo tolerance's trial index), an integer in [0, 100000]", "0"),
+                opt("oversample", "mask oversampling, an integer in [1, 16]", "4"),
+                opt("offset-um", "DX,DY: the whole relief moved against the aperture after the masks, um (x along columns)", "0,0"),
+                opt("sensor-distance-error-um", "added to the DOE-sensor distance (assembly), um, in [-1e6, 1e6]; z must stay > 0", "0"),
+                out_dir_opt()},
+               cmd_fabricate});
   t.push_back({"sweep", "a grid of designs (levels x modes x encoders), each designed and evaluated, with summary tables", "", "",
                concat({{"grid", "a grid axis AXIS=V1,V2,...: levels=2,4,8; mode=do,do-refit,do-finetune,qdo,qdo+a; "
                                 "encoder=doe,fresnel,cassi; decoder=wiener,resunet; seed=1,2,3 (repeatable)",

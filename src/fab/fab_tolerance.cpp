@@ -23,6 +23,7 @@
 #include "qdo/simulator.hpp"
 #include "qdo/testset.hpp"
 #include "qdo/wiener.hpp"
+#include "fab/fab_internal.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -30,18 +31,6 @@ using nlohmann::json;
 namespace qdo::fab {
 
 namespace {
-
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
-// Uniform in [-1, 1) from (seed, stream, index): portable across standard libraries.
-double sym_uniform(std::uint64_t seed, std::uint64_t stream, std::uint64_t index) {
-  const std::uint64_t r = splitmix64(splitmix64(seed ^ splitmix64(stream)) + index);
-  return double(r >> 11) * (2.0 / 9007199254740992.0) - 1.0;
-}
 
 // 1-D box-cell shift of rows (axis 1) or columns (axis 0) of a size x size map by s cells
 // (continuous): out(x) = (1 - f) in(x - q) + f in(x - q - 1), q = floor(s), f = s - q; zero outside.

@@ -1,0 +1,95 @@
+// The camera as built (fab.hpp: fabricate): a design's masks made with one draw of the tolerance
+// study's errors, the relief moved against the aperture, the DOE-sensor distance changed.
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "fab/fab_internal.hpp"
+#include "qdo/error.hpp"
+#include "qdo/fab.hpp"
+#include "qdo/fit.hpp"
+
+namespace qdo::fab {
+
+AsBuiltCamera fabricate(const Design& d, const SystemConfig& cfg, const AsBuiltOptions& o) {
+  cfg.validate();
+  const auto nonneg = [](const char* name, double v, double limit, const char* unit) {
+    if (!(std::isfinite(v) && v >= 0 && v <= limit))
+      reject(name, v, std::string("a size in [0, ") + std::to_string(limit) + "] " + unit);
+  };
+  nonneg("etch_depth_error_m", o.etch_depth_error_m, 1e-5, "m");
+  nonneg("overlay_m", o.overlay_m, 1e-3, "m");
+  nonneg("edge_blur_m", o.edge_blur_m, 1e-3, "m");
+  if (o.oversample < 1 || o.oversample > 16) reject("oversample", o.oversample, "an integer in [1, 16]");
+  const double half_grid_m = 0.5 * double(cfg.n) * cfg.pitch_m;
+  for (const auto& [name, v] : {std::pair<const char*, double>{"offset_x_m", o.offset_x_m}, {"offset_y_m", o.offset_y_m}})
+    if (!(std::isfinite(v) && std::abs(v) <= half_grid_m))
+      reject(name, v, "a lateral offset within half the DOE grid, |offset| <= " + std::to_string(half_grid_m) + " m");
+  if (!(std::isfinite(o.sensor_distance_error_m) && cfg.sensor_distance_m + o.sensor_distance_error_m > 0))
+    reject("sensor_distance_error_m", o.sensor_distance_error_m,
+           "an error keeping the DOE-sensor distance positive (it is " + std::to_string(cfg.sensor_distance_m) + " m)");
+  if (d.height_m.rows != cfg.n || d.height_m.cols != cfg.n)
+    reject("design", std::to_string(d.height_m.rows) + " x " + std::to_string(d.height_m.cols),
+           "a design on the configuration's " + std::to_string(cfg.n) + " x " + std::to_string(cfg.n) + " grid");
+
+  AsBuiltCamera r;
+  Constraints c;
+  c.min_feature_um = 0;                         // fabricate whatever the design is,
+  c.max_height_nm = 2 * cfg.h_max_m() * 1e9;    // up to the simulator's height range (as qdo tolerance)
+  if (o.scheme == "auto") {
+    try {
+      r.plan = plan_masks(d, cfg, Scheme::Binary, c);
+      r.scheme_note = "auto: binary-coded masks";
+    } catch (const InputError& e) {
+      r.plan = plan_masks(d, cfg, Scheme::Nested, c);
+      r.scheme_note = std::string("auto: nested masks (binary not possible: ") + e.what() + ")";
+    }
+  } else {
+    r.plan = plan_masks(d, cfg, scheme_from_string(o.scheme), c);
+    r.scheme_note = o.scheme;
+  }
+  // The draws of qdo tolerance's trial o.trial (fab_tolerance.cpp: same streams and indices).
+  const std::size_t K = r.plan.masks.size(), k = o.trial;
+  const bool single_write = r.plan.scheme == Scheme::Greyscale;
+  Perturbation pt;
+  pt.depth_error_m.resize(K);
+  pt.shift_x_m.resize(K);
+  pt.shift_y_m.resize(K);
+  for (std::size_t m = 0; m < K; ++m) {
+    pt.depth_error_m[m] = o.etch_depth_error_m * sym_uniform(o.seed, 1, k * K + m);
+    const bool moves = m > 0 && !single_write;  // mask 1 defines the frame (the alignment marks)
+    pt.shift_x_m[m] = moves ? o.overlay_m * sym_uniform(o.seed, 2, k * K + m) : 0.0;
+    pt.shift_y_m[m] = moves ? o.overlay_m * sym_uniform(o.seed, 3, k * K + m) : 0.0;
+  }
+  pt.edge_blur_m = o.edge_blur_m;
+  const Map2D fabricated = perturbed_heights(r.plan, d.height_m, pt, o.oversample);
+  r.depth_error_m = pt.depth_error_m;
+  r.shift_x_m = pt.shift_x_m;
+  r.shift_y_m = pt.shift_y_m;
+
+  // Realised level heights: the median over each level's pixels.
+  r.level_height_m.assign(r.plan.levels.size(), 0.0);
+  for (std::size_t l = 0; l < r.plan.levels.size(); ++l) {
+    std::vector<double> v;
+    for (std::size_t i = 0; i < fabricated.data.size(); ++i)
+      if (r.plan.level_of_pixel[i] == std::int32_t(l)) v.push_back(fabricated.data[i]);
+    if (v.empty()) {
+      r.level_height_m[l] = r.plan.levels[l].height_m;
+      continue;
+    }
+    std::nth_element(v.begin(), v.begin() + std::ptrdiff_t(v.size() / 2), v.end());
+    r.level_height_m[l] = v[v.size() / 2];
+  }
+
+  r.design.pitch_m = d.pitch_m;
+  r.design.height_m = fabricated;
+  if (o.offset_x_m != 0 || o.offset_y_m != 0)
+    r.design.height_m.data = shift_bilinear(fabricated.data, 1, cfg.n, cfg.n, o.offset_x_m / cfg.pitch_m, o.offset_y_m / cfg.pitch_m);
+  r.cfg = cfg;
+  r.cfg.sensor_distance_m = cfg.sensor_distance_m + o.sensor_distance_error_m;
+  r.cfg.validate();
+  return r;
+}
+
+}  // namespace qdo::fab
