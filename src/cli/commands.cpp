@@ -326,8 +326,9 @@ std::vector<CommandSpec> make_table() {
                 opt("demosaic", "raw captures: bilinear or mhc (Malvar-He-Cutler)", "bilinear"),
                 opt("overlap", "overlap of neighbouring S x S tiles, pixels, an integer in [1, S - 1] (default: S / 4)"),
                 opt("boundary", "how a tile meets the decoder's circular model: mirror (the tile extended by its mirror image to 2S x 2S and "
-                                "decoded there; the Wiener decoder's default: no ringing from light outside the tile) or circular (as "
-                                "the decoder was trained: exact for circularly simulated captures; a network's only choice)"),
+                                "decoded there: far less ringing from light that reaches the tile from outside it) or circular (as the "
+                                "decoder was trained: exact for circularly simulated captures; a network's only choice) (default: mirror "
+                                "for the Wiener decoder, circular for a network)"),
                 opt("noise-sigma", "noise std the Wiener decoder assumes, in units of full scale, in [0, 10] (default: the run's)"),
                 opt("points", "spectra at points ROW,COL;ROW,COL;... of the reconstructed image (default: its centre when no --boxes)"),
                 opt("boxes", "mean spectra over boxes ROW,COL,H,W;... of the reconstructed image"), precision(), device(),
