@@ -106,23 +106,25 @@ std::string SamplingReport::summary() const {
   for (const auto& b : bands) src += b.source_undersampled;
   if (src) os << " The point source's spherical wave is under-sampled on the DOE grid in " << src
               << " bands (increase scene_distance_m or use a finer pitch_m).";
+  if (any_inaccurate()) os << " INACCURATE: increase padding_px, reduce sensor_distance_m or pitch_m.";
   // Object points: one line per point (its planes follow each other, bands of one point).
   for (std::size_t i = 0; i < bands.size(); ++i) {
     const auto& b = bands[i];
     if (b.point < 0 || (i > 0 && bands[i - 1].point == b.point)) continue;
-    double worst_f = 0, worst_out = 0, nyq = b.f_nyquist_per_m;
+    double worst_f = 0, worst_out = 0, worst_beyond = 0, nyq = b.f_nyquist_per_m;
     bool aliases = false;
     for (std::size_t j = i; j < bands.size() && bands[j].point == b.point; ++j) {
       worst_f = std::max(worst_f, bands[j].source_frequency_per_m);
+      worst_beyond = std::max(worst_beyond, bands[j].aliased_energy_fraction);
       worst_out = std::max(worst_out, bands[j].energy_outside_window);
       aliases = aliases || bands[j].source_undersampled;
     }
     os << "\n  object point " << b.point << " (d = " << b.point_distance_m << " m, field (" << b.field_x_deg << ", "
        << b.field_y_deg << ") deg): chief ray at (" << b.chief_ray_x_m * 1e3 << ", " << b.chief_ray_y_m * 1e3
        << ") mm on the sensor; source local frequency up to " << worst_f << " 1/m of the grid's Nyquist " << nyq
-       << " 1/m" << (aliases ? " (ALIASES)" : "") << "; energy outside the N x N window up to " << worst_out << ".";
+       << " 1/m" << (aliases ? " (ALIASES)" : "") << "; field energy beyond the transfer function's limit up to "
+       << worst_beyond << "; energy outside the N x N window up to " << worst_out << ".";
   }
-  if (any_inaccurate()) os << " INACCURATE: increase padding_px, reduce sensor_distance_m or pitch_m.";
   return os.str();
 }
 
