@@ -45,8 +45,15 @@ struct BandSampling {
   // r_ap / (λ sqrt(r_ap² + d²)) (0 for a plane wave), and whether it exceeds the grid's Nyquist.
   double source_frequency_per_m = 0;
   bool source_undersampled = false;
+  // With object points (config.hpp; -1 / zeros without): the plane's point index in cfg.points(),
+  // its distance (inf: plane wave), field angles, and where its chief ray meets the sensor
+  // ((-z tan θx, -z tan θy), metres). Its source_frequency_per_m is then the largest per-axis local
+  // frequency of the (tilted) wave over the aperture (object_point_frequency_per_m).
+  int point = -1;
+  double point_distance_m = 0, field_x_deg = 0, field_y_deg = 0, chief_ray_x_m = 0, chief_ray_y_m = 0;
 };
-// Fills the source fields of every band from the configuration (bands repeat per design).
+// Fills the source fields of every plane from the configuration (planes: designs x points x bands,
+// the band grid repeating per design and point).
 void check_source_sampling(const SystemConfig& cfg, std::vector<BandSampling>& bands);
 
 struct SamplingReport {

@@ -4,8 +4,8 @@
 // propagation (HostPropagator, host_propagator.hpp). The CPU reference is ref::propagate
 // (cpu_reference.hpp).
 //
-// Field: planes x M x M complex (interleaved, the precision, row-major; planes = designs x bands,
-// design-major; M = PropagationGeometry::m), in place. Hinted propagations take the FieldStage
+// Field: planes x M x M complex (interleaved, the precision, row-major; planes = designs x points x
+// bands, design-major then point-major, points = cfg.point_count(); M = PropagationGeometry::m), in place. Hinted propagations take the FieldStage
 // layout (field.hpp: samples at [0, N)^2, zero elsewhere) and define only [0, N)^2 of the result;
 // unhinted ones take any field in any layout and define the whole window.
 #pragma once

@@ -3,7 +3,7 @@
 // The CPU references are ref::psf_stack, ref::resample_area (cpu_reference.hpp) and the adjoints
 // of adjoint.hpp.
 //
-// Planes: designs x bands, design-major. Native stack: planes x N x N reals of the precision
+// Planes: designs x points x bands, design-major then point-major (points = cfg.point_count()). Native stack: planes x N x N reals of the precision
 // (row-major); sensor stack: planes x S x S (S = cfg.sensor_size_px()); per-plane sums: planes
 // reals; field: planes x M x M complex in the FieldStage layout (field.hpp: the crop at [0, N)^2).
 #pragma once
@@ -38,7 +38,7 @@ class PsfStage {
   // x /= sums per plane (x: planes x len) where sums > 0.
   void scale(cl::Buffer& x, std::size_t len, const cl::Buffer& sums);
 
-  // Adjoints (one design: planes = bands).
+  // Adjoints (one design: planes = points x bands; "bands" below reads planes).
   // VJP of y = x / Σx per plane, in place on g (bands x len): g <- (g - <g, y>) / Σx (0 where Σx <= 0).
   void normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len, const cl::Buffer& sums);
   // VJP of P = |U|² on the crop: gfield (bands x M x M complex) = 2 g_native U inside [0, N)^2,

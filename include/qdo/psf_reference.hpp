@@ -1,6 +1,9 @@
 // CPU reference of the PSF stage (kernels/psf.cl), in double: |U|² cropped and normalised, area
 // resampling to the sensor pitch, and the adjoints of the whole chain heights -> PSF (the
 // gradient convention and the chain written out in adjoint.hpp).
+// Planes: "bands" below reads points x bands (point-major, plane p * bands + b) when the
+// configuration lists object points (config.hpp): every stack and gradient has cfg.point_count()
+// x cfg.bands planes, and the gradients of all points add up in dL/dH.
 #pragma once
 #include <vector>
 

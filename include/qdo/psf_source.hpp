@@ -4,8 +4,11 @@
 // parameters, takes the vector-Jacobian product back to them.
 //
 //   stack: planes x S x S reals of precision(), row-major, plane p = band p (a batched simulator
-//          has designs x bands planes, design-major), S = config().sensor_size_px(), the optical
-//          axis at (S/2, S/2), each plane summing to 1 (fraction of band energy per sensor pixel).
+//          has designs x points x bands planes, design-major then point-major: plane
+//          (d * points + q) * bands + b, points = config().point_count(), the object points of
+//          config().points()), S = config().sensor_size_px(), the optical axis at (S/2, S/2) for
+//          every point (an off-axis point's PSF lies near its chief-ray image (-z tan θx, -z tan θy)),
+//          each plane summing to 1 (fraction of the band energy reaching the window, per sensor pixel).
 //
 // Implementations: Simulator (the 2-D path: parameters = the N x N height map, metres, row-major;
 // a HeightMapPsfSource),
@@ -34,7 +37,8 @@ class PsfSource {
   virtual Precision precision() const = 0;
   // S: the edge of one plane of the sensor-grid stack.
   virtual std::size_t sensor_size() const = 0;
-  // Planes of the stack: config().bands for every source of one design.
+  // Planes of the stack: config().bands for every source of one design and one object point;
+  // points x bands for a Simulator whose configuration lists object points.
   virtual std::size_t psf_planes() const = 0;
   // Whether psf_sensor_buffer() holds a stack (a simulator before its first compute_psf() has none).
   virtual bool psf_ready() const = 0;

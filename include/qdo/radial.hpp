@@ -120,8 +120,14 @@ Map2D spread_ring_gradient(const std::vector<double>& g_ring, std::size_t n);
 // The OpenCL engine. One per (configuration, precision, options); tables built once and kept on the
 // device. Buffers persist between calls; forward then adjoint reuse the forward state. A PsfSource
 // (psf_source.hpp) whose parameters are the N/2 ring heights (metres, from the centre out).
+// The configuration the radial path computes for cfg: cfg itself without object points; with one
+// on-axis object point, point_config(cfg, 0) (that point's distance as scene_distance_m); an
+// InputError naming object_points for off-axis points or several points (the 2-D path's).
+SystemConfig radial_config(const SystemConfig& cfg);
+
 class RadialEngine final : public PsfSource {
  public:
+  // cfg passes through radial_config (one on-axis object point at any distance is served).
   RadialEngine(Runtime& rt, const SystemConfig& cfg, Precision p, const RadialOptions& opt = {});
   ~RadialEngine();
   RadialEngine(const RadialEngine&) = delete;

@@ -38,7 +38,13 @@ class Simulator final : public HeightMapPsfSource {
   // or loads the kernels, bakes the FFT plan and uploads the per-band tables.
   // designs > 1 batches that many height maps through the PSF chain in one pass (planes =
   // designs x bands, design-major: plane d * bands + b); adjoints, convolution and the sensor
-  // need designs = 1.
+  // need designs = 1. Object points (cfg.object_points, config.hpp) are a second batch axis:
+  // planes = designs x points x bands, design-major then point-major (plane (d * points + p) *
+  // bands + b), all in the same one pass; the adjoints take a gradient on every point's planes
+  // (points x bands x S x S) and sum the points' contributions into dL/dH. Every plane is
+  // reported on the fixed sensor window centred on the optical axis (the off-axis PSF sits near its
+  // chief-ray image point (-z tan θx, -z tan θy), sampling().bands[i].chief_ray_*_m); the camera
+  // takes one point (psf_planes() == bands).
   // phase_fp64 (float32 only; needs cl_khr_fp64): evaluate the DOE phase and its sine/cosine in
   // double before rounding the field to float ("float32 with float64 phase"; the adjoint's
   // phase recomputation stays float32). Ignored for Precision::F64.
@@ -72,7 +78,7 @@ class Simulator final : public HeightMapPsfSource {
   const PropagationGeometry& geometry() const { return geom_; }
   Precision precision() const override { return prec_; }
   std::size_t sensor_size() const override { return s_; }
-  // PsfSource: designs x bands planes; a stack exists after compute_psf() for the current heights.
+  // PsfSource: designs x points x bands planes; a stack exists after compute_psf() for the current heights.
   std::size_t psf_planes() const override { return nb_; }
   bool psf_ready() const override { return psf_valid_; }
   std::string describe() const override;
@@ -93,12 +99,12 @@ class Simulator final : public HeightMapPsfSource {
   // Runs the PSF chain on the device (all bands in one batched pass). The results stay on the
   // device; the accessors below copy them to the host. Honours cfg.strict_sampling.
   void compute_psf() override;
-  RealStack psf_native() const;        // (designs x bands) x N x N, each band sums to 1
-  RealStack psf_sensor() const override;  // (designs x bands) x S x S on the sensor pitch, each band sums to 1
+  RealStack psf_native() const;        // (designs x points x bands) x N x N, each plane sums to 1
+  RealStack psf_sensor() const override;  // (designs x points x bands) x S x S on the sensor pitch, each plane sums to 1
   // Read back from the device on first use after each compute_psf() (a small bands x 4
   // transfer), so the PSF loop itself has no host round trip.
   const SamplingReport& sampling() const;
-  // The device buffer behind psf_sensor(): (designs x bands) x S x S reals of precision(),
+  // The device buffer behind psf_sensor(): (designs x points x bands) x S x S reals of precision(),
   // row-major, valid after compute_psf() until the heights change. For stages that consume
   // the PSF on the device (src/physics/camera.cpp) without a host round trip.
   const cl::Buffer& psf_sensor_buffer() const override { return psf_s_; }
@@ -108,9 +114,9 @@ class Simulator final : public HeightMapPsfSource {
 
   // Adjoints at the current heights (compute_psf() must have run; its field, sums and PSFs are
   // reused, all on the device): dL/dH (N x N, per metre) for a gradient of L with respect to
-  // psf_sensor() (bands x S x S) or psf_native() (bands x N x N). See include/qdo/adjoint.hpp.
+  // psf_sensor() (points x bands x S x S) or psf_native() (points x bands x N x N). See include/qdo/adjoint.hpp.
   Map2D psf_sensor_vjp(const RealStack& g_psf_sensor) override;
-  // The same with the gradient on the device: bands x S x S reals of precision(), row-major (as
+  // The same with the gradient on the device: points x bands x S x S reals of precision(), row-major (as
   // psf_sensor_buffer()); it is copied, not modified. Equal to the host form for the same values.
   Map2D psf_sensor_vjp(const cl::Buffer& g_psf_sensor) override;
   Map2D psf_native_vjp(const RealStack& g_psf);

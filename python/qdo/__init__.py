@@ -155,17 +155,27 @@ class Optics:
         """The sensor response, 3 x bands, rows summing to 1."""
         return self._o.srf()
 
-    def psf(self, height_m):
-        """height_m (n x n float64, metres) -> the sensor-grid PSF stack (bands x S x S)."""
-        return self._o.psf(height_m)
+    def psf(self, height_m, object_points=None):
+        """height_m (n x n float64, metres) -> the sensor-grid PSF stack (bands x S x S).
 
-    def psf_vjp(self, grad_psf, height_m=None):
-        """Adjoint of psf(): dL/dPSF (bands x S x S) -> dL/dheight (n x n, per metre).
+        object_points: a sequence of (distance_m, field_x_deg, field_y_deg) point sources
+        (distance > 0 or float("inf"); the point sits at (d tan θx, d tan θy)), or None for the
+        configuration's own ("object_points" key, default one on-axis point at scene_distance_m).
+        With object points the stack is points x bands x S x S, all computed in one batched pass;
+        every plane lies on the sensor window centred on the optical axis (an off-axis point's PSF
+        near its chief-ray image (-z tan θx, -z tan θy)). Angles beyond what the sampling supports
+        and distances <= 0 raise ValueError naming the point and the limit."""
+        return self._o.psf(height_m, object_points)
 
-        Without height_m: at the last psf() call of any thread (ValueError when there was none).
-        With height_m: at those heights, the forward re-run inside the same locked call, so no
-        other thread's psf() can come in between (one extra forward)."""
-        return self._o.psf_vjp(grad_psf, height_m)
+    def psf_vjp(self, grad_psf, height_m=None, object_points=None):
+        """Adjoint of psf(): dL/dPSF (bands x S x S, or points x bands x S x S with object
+        points) -> dL/dheight (n x n, per metre; the points' contributions summed).
+
+        Without height_m: at the last psf() call of any thread with these object points
+        (ValueError when there was none). With height_m: at those heights, the forward re-run
+        inside the same locked call, so no other thread's psf() can come in between (one extra
+        forward)."""
+        return self._o.psf_vjp(grad_psf, height_m, 0, object_points)
 
     def read_psf(self, path):
         """A PSF stack file as `qdo psf` writes it (psf.h5, /psf_sensor) -> bands x S x S, for

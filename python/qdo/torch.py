@@ -49,9 +49,10 @@ def _optics(optics):
 
 class PSFFunction(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, height_m, optics):
-        psf, ctx.calls = _optics(optics)._o.psf_counted(to_numpy("height_m", height_m))
+    def forward(ctx, height_m, optics, object_points=None):
+        psf, ctx.calls = _optics(optics)._o.psf_counted(to_numpy("height_m", height_m), object_points)
         ctx.optics = optics
+        ctx.object_points = object_points
         ctx.save_for_backward(height_m)
         return torch.from_numpy(psf).to(height_m.dtype)
 
@@ -61,8 +62,9 @@ class PSFFunction(torch.autograd.Function):
         (height_m,) = ctx.saved_tensors
         # The adjoint at this forward's heights: re-run inside the same locked call unless this
         # forward (count ctx.calls) is still the Optics' last one.
-        g = ctx.optics._o.psf_vjp(to_numpy("grad_psf", grad_psf), to_numpy("height_m", height_m), ctx.calls)
-        return torch.from_numpy(g).to(height_m.dtype), None
+        g = ctx.optics._o.psf_vjp(to_numpy("grad_psf", grad_psf), to_numpy("height_m", height_m), ctx.calls,
+                                  ctx.object_points)
+        return torch.from_numpy(g).to(height_m.dtype), None, None
 
 
 class CameraFunction(torch.autograd.Function):
@@ -96,14 +98,19 @@ class CameraFunction(torch.autograd.Function):
 
 
 class PSF(torch.nn.Module):
-    """height map (n x n, metres) -> PSF stack (bands x S x S), differentiable in the heights."""
+    """height map (n x n, metres) -> PSF stack (bands x S x S), differentiable in the heights.
 
-    def __init__(self, optics=None, **optics_kwargs):
+    object_points (here or per call): passed through to Optics.psf: the stack is then
+    points x bands x S x S and the gradient wrt the heights sums over the points."""
+
+    def __init__(self, optics=None, object_points=None, **optics_kwargs):
         super().__init__()
         self.optics = _optics(optics) if optics is not None else Optics(**optics_kwargs)
+        self.object_points = None if object_points is None else [tuple(p) for p in object_points]
 
-    def forward(self, height_m):
-        return PSFFunction.apply(height_m, self.optics)
+    def forward(self, height_m, object_points=None):
+        pts = self.object_points if object_points is None else [tuple(p) for p in object_points]
+        return PSFFunction.apply(height_m, self.optics, pts)
 
 
 class Camera(torch.nn.Module):

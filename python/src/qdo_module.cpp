@@ -24,6 +24,8 @@
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <limits>
+#include <optional>
 #include <mutex>
 #include <string>
 #include <vector>
@@ -116,6 +118,7 @@ class Optics {
   ~Optics() {
     std::lock_guard<std::mutex> lock(dev_->mu);
     cam_.reset();
+    pts_sim_.reset();
     sim_.reset();
   }
   Optics(const Optics&) = delete;
@@ -141,29 +144,46 @@ class Optics {
   std::uint64_t camera_calls() const { return camera_calls_; }
 
   // height_m: N x N (metres) -> the sensor-grid PSF stack, bands x S x S (as `qdo psf` writes
-  // to /psf_sensor).
-  Array psf(const py::handle& height_obj) { return psf_counted(height_obj)[0].cast<Array>(); }
+  // to /psf_sensor). object_points (None: the configuration's): a sequence of (distance_m,
+  // field_x_deg, field_y_deg) triples, distance > 0 or inf (config.hpp ObjectPoint), checked as the
+  // configuration's object_points are (ValueError naming the point and the limit). With object
+  // points (given, or in the configuration) the stack is points x bands x S x S, all points in one
+  // batched device pass.
+  Array psf(const py::handle& height_obj, const py::handle& points_obj) {
+    return psf_counted(height_obj, points_obj)[0].cast<Array>();
+  }
   // The same with the count of this forward call (psf_calls right after it, from inside the
   // locked call): (psf, count), for psf_vjp's `forward`.
-  py::tuple psf_counted(const py::handle& height_obj) {
+  py::tuple psf_counted(const py::handle& height_obj, const py::handle& points_obj) {
     const Map2D m = to_map(checked(height_obj, "height_m", {cfg_.n, cfg_.n}));
+    const Points pts = points_arg(points_obj);
     RealStack out;
     std::uint64_t count = 0;
     {
       py::gil_scoped_release unlocked;
       std::lock_guard<std::mutex> lock(dev_->mu);
-      out = psf_locked(m);
+      out = psf_locked(m, pts);
       count = psf_calls_;
     }
-    return py::make_tuple(from_stack(out), count);
+    return py::make_tuple(stack_out(out, pts), count);
   }
 
-  // grad_psf: bands x S x S, the gradient of a scalar with respect to a psf() result -> its
-  // gradient with respect to the heights (N x N, per metre). height_m None: the adjoint at the
-  // last psf() call of any thread; height_m given (N x N): at those heights, the forward re-run
+  // grad_psf: bands x S x S (points x bands x S x S with object points), the gradient of a scalar
+  // with respect to a psf() result -> its gradient with respect to the heights (N x N, per metre;
+  // the points' contributions summed). height_m None: the adjoint at the last psf() call of any
+  // thread with these object points; height_m given (N x N): at those heights, the forward re-run
   // in the same locked call unless `forward` equals psf_calls (it was the last one).
-  Array psf_vjp(const py::handle& grad_obj, const py::handle& height_obj, std::uint64_t forward) {
-    const RealStack g = to_stack(checked(grad_obj, "grad_psf", {cfg_.bands, s_, s_}));
+  Array psf_vjp(const py::handle& grad_obj, const py::handle& height_obj, std::uint64_t forward, const py::handle& points_obj) {
+    const Points pts = points_arg(points_obj);
+    const std::size_t np = pts ? pts->size() : cfg_.point_count();
+    RealStack g;
+    if (four_d(pts)) {
+      const Array a = checked(grad_obj, "grad_psf", {np, cfg_.bands, s_, s_});
+      g = RealStack(np * cfg_.bands, s_, s_);
+      std::copy(a.data(), a.data() + a.size(), g.data.begin());
+    } else {
+      g = to_stack(checked(grad_obj, "grad_psf", {cfg_.bands, s_, s_}));
+    }
     const bool at = !height_obj.is_none();
     Map2D m;
     if (at) m = to_map(checked(height_obj, "height_m", {cfg_.n, cfg_.n}));
@@ -172,11 +192,13 @@ class Optics {
     {
       py::gil_scoped_release unlocked;
       std::lock_guard<std::mutex> lock(dev_->mu);
-      if (at && (forward == 0 || forward != psf_calls_)) (void)psf_locked(m);
-      none_yet = psf_calls_ == 0;
-      if (!none_yet) out = sim_->psf_sensor_vjp(g);
+      if (at && (forward == 0 || forward != psf_calls_)) (void)psf_locked(m, pts);
+      HeightMapPsfSource& sim = sim_for(pts);
+      none_yet = psf_calls_ == 0 || !sim.psf_ready();
+      if (!none_yet) out = sim.psf_sensor_vjp(g);
     }
-    if (none_yet) value_error("grad_psf: no psf() call to take the adjoint of (call psf() first, or pass height_m)");
+    if (none_yet)
+      value_error("grad_psf: no psf() call with these object points to take the adjoint of (call psf() first, or pass height_m)");
     return from_map(out);
   }
 
@@ -246,12 +268,74 @@ class Optics {
   }
 
  private:
+  // Object points of a call: none (the configuration's own) or a list, checked.
+  using Points = std::optional<std::vector<ObjectPoint>>;
+  // A sequence of (distance_m, field_x_deg, field_y_deg) (distance a number, inf or "inf"),
+  // validated with the configuration (ValueError naming the point, the value and the limit).
+  Points points_arg(const py::handle& o) const {
+    if (o.is_none()) return std::nullopt;
+    if (py::isinstance<py::str>(o) || !py::hasattr(o, "__len__"))
+      value_error("object_points: expected a sequence of (distance_m, field_x_deg, field_y_deg), got " + type_name(o));
+    std::vector<ObjectPoint> v;
+    for (const py::handle item : o) {
+      const std::string name = "object_points[" + std::to_string(v.size()) + "]";
+      if (py::isinstance<py::str>(item) || !py::hasattr(item, "__len__") || py::len(item) != 3)
+        value_error(name + ": expected (distance_m, field_x_deg, field_y_deg), got " + short_str(item));
+      const py::sequence t = py::reinterpret_borrow<py::sequence>(item);
+      ObjectPoint p;
+      if (py::isinstance<py::str>(t[0]) && py::str(t[0]).cast<std::string>() == "inf")
+        p.distance_m = std::numeric_limits<double>::infinity();
+      else if (is_real_number(t[0]))
+        p.distance_m = py::float_(py::reinterpret_borrow<py::object>(t[0]));
+      else
+        value_error(name + " distance: " + short_str(t[0]) + "; expected a number of metres > 0 or inf");
+      p.field_x_deg = real_arg(t[1], (name + " field_x_deg").c_str());
+      p.field_y_deg = real_arg(t[2], (name + " field_y_deg").c_str());
+      v.push_back(p);
+    }
+    if (v.empty()) value_error("object_points: an empty sequence; give at least one point, or None for the configuration's");
+    SystemConfig c = cfg_;
+    c.object_points = v;
+    c.validate();  // InputError -> ValueError, naming the point and the limit
+    return v;
+  }
+  // Whether a call's stack has the points axis: points given, or in the configuration.
+  bool four_d(const Points& pts) const { return pts.has_value() || !cfg_.object_points.empty(); }
+  Array stack_out(const RealStack& s, const Points& pts) const {
+    if (!four_d(pts)) return from_stack(s);
+    const std::size_t np = s.planes / cfg_.bands;
+    Array a({py::ssize_t(np), py::ssize_t(cfg_.bands), py::ssize_t(s.rows), py::ssize_t(s.cols)});
+    std::copy(s.data.begin(), s.data.end(), a.mutable_data());
+    return a;
+  }
+  // The simulator of a call (device lock held): the configuration's, or the one of the given
+  // points, made when a call names points other than the last call with points did.
+  HeightMapPsfSource& sim_for(const Points& pts) {
+    if (!pts) return *sim_;
+    const auto same = [&](const std::vector<ObjectPoint>& a) {
+      if (a.size() != pts->size()) return false;
+      for (std::size_t i = 0; i < a.size(); ++i)
+        if (a[i].distance_m != (*pts)[i].distance_m || a[i].field_x_deg != (*pts)[i].field_x_deg ||
+            a[i].field_y_deg != (*pts)[i].field_y_deg)
+          return false;
+      return true;
+    };
+    if (!pts_sim_ || !same(pts_sim_->config().object_points)) {
+      pts_sim_.reset();
+      SystemConfig c = cfg_;
+      c.object_points = *pts;
+      pts_sim_ = std::make_unique<Simulator>(dev_->rt, c, prec_);
+    }
+    return *pts_sim_;
+  }
+
   // The forwards, with the device lock held (and the GIL released).
-  RealStack psf_locked(const Map2D& m) {
-    sim_->set_heights(m);
-    sim_->compute_psf();
+  RealStack psf_locked(const Map2D& m, const Points& pts = std::nullopt) {
+    HeightMapPsfSource& sim = sim_for(pts);
+    sim.set_heights(m);
+    sim.compute_psf();
     ++psf_calls_;
-    return sim_->psf_sensor();
+    return sim.psf_sensor();
   }
   std::vector<RealStack> camera_locked(const std::vector<RealStack>& cubes, const RealStack& ps) {
     cam_->set_psf(ps);
@@ -267,6 +351,7 @@ class Optics {
   Precision prec_;
   std::shared_ptr<Device> dev_;  // before the device objects: destroyed after them
   std::unique_ptr<HeightMapPsfSource> sim_;
+  std::unique_ptr<HeightMapPsfSource> pts_sim_;  // the last object points given to psf()/psf_vjp()
   std::unique_ptr<Camera> cam_;
   std::size_t s_ = 0;  // S, the sensor grid
   std::vector<std::size_t> last_images_;  // batch, H, W of the last camera() call (device lock)
@@ -354,9 +439,10 @@ PYBIND11_MODULE(_qdo, m) {
       .def_property_readonly("psf_calls", &Optics::psf_calls)
       .def_property_readonly("camera_calls", &Optics::camera_calls)
       .def("srf", &Optics::srf)
-      .def("psf", &Optics::psf, py::arg("height_m"))
-      .def("psf_counted", &Optics::psf_counted, py::arg("height_m"))
-      .def("psf_vjp", &Optics::psf_vjp, py::arg("grad_psf"), py::arg("height_m") = py::none(), py::arg("forward") = 0)
+      .def("psf", &Optics::psf, py::arg("height_m"), py::arg("object_points") = py::none())
+      .def("psf_counted", &Optics::psf_counted, py::arg("height_m"), py::arg("object_points") = py::none())
+      .def("psf_vjp", &Optics::psf_vjp, py::arg("grad_psf"), py::arg("height_m") = py::none(), py::arg("forward") = 0,
+           py::arg("object_points") = py::none())
       .def("read_psf", &Optics::read_psf, py::arg("path"))
       .def("camera", &Optics::camera, py::arg("scene"), py::arg("psf"))
       .def("camera_counted", &Optics::camera_counted, py::arg("scene"), py::arg("psf"))

@@ -49,6 +49,12 @@ SystemConfig load_config(const Args& a) {
   } else {
     c = preset_config(a.get("preset", "small"));
   }
+  // The commands image, design and write one PSF stack of bands planes: a stack of several object
+  // points (config.hpp) is the library's and the Python package's for now (issue 29 step 1).
+  if (c.point_count() > 1)
+    reject("object_points", to_str(c.point_count()) + " points",
+           "at most one point in the commands (stacks of several object points: the library's Simulator and "
+           "qdo.Optics.psf(height_m, object_points=...))");
   sensor_response(c);
   return c;
 }

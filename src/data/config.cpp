@@ -48,6 +48,101 @@ std::size_t SystemConfig::sensor_size_px() const {
   return static_cast<std::size_t>(std::llround(static_cast<double>(n) * pitch_m / sensor_pitch_m));
 }
 
+bool ObjectPoint::at_infinity() const { return std::isinf(distance_m) && distance_m > 0; }
+
+std::vector<ObjectPoint> object_point_grid(const std::vector<double>& distances_m,
+                                           const std::vector<std::pair<double, double>>& angles_deg) {
+  std::vector<ObjectPoint> out;
+  out.reserve(distances_m.size() * angles_deg.size());
+  for (double d : distances_m)
+    for (const auto& a : angles_deg) out.push_back(ObjectPoint{d, a.first, a.second});
+  return out;
+}
+
+std::vector<ObjectPoint> SystemConfig::points() const {
+  if (!object_points.empty()) return object_points;
+  ObjectPoint p;
+  p.distance_m = scene_at_infinity ? std::numeric_limits<double>::infinity() : scene_distance_m;
+  return {p};
+}
+
+namespace {
+constexpr double kPi = 3.14159265358979323846;
+double tan_deg(double a) { return std::tan(a * kPi / 180.0); }
+}  // namespace
+
+double object_point_frequency_per_m(const SystemConfig& c, const ObjectPoint& p, double wavelength_nm) {
+  const double lambda = wavelength_nm * 1e-9, tx = tan_deg(p.field_x_deg), ty = tan_deg(p.field_y_deg);
+  if (p.at_infinity()) {
+    const double g = std::sqrt(1.0 + tx * tx + ty * ty);
+    return std::max(std::fabs(tx), std::fabs(ty)) / g / lambda;
+  }
+  // |x - x0| / R grows with |x - x0| and falls with |y - y0|: its maximum over the disc is on the rim.
+  const double d = p.distance_m, x0 = d * tx, y0 = d * ty, r = c.aperture_radius();
+  double best = 0;
+  constexpr int kRim = 2048;
+  for (int k = 0; k < kRim; ++k) {
+    const double phi = 2.0 * kPi * k / kRim, dx = r * std::cos(phi) - x0, dy = r * std::sin(phi) - y0;
+    const double rr = std::sqrt(dx * dx + dy * dy + d * d);
+    best = std::max(best, std::max(std::fabs(dx), std::fabs(dy)) / rr);
+  }
+  return best / lambda;
+}
+
+std::pair<double, double> chief_ray_image_m(const SystemConfig& c, const ObjectPoint& p) {
+  return {-c.sensor_distance_m * tan_deg(p.field_x_deg), -c.sensor_distance_m * tan_deg(p.field_y_deg)};
+}
+
+std::string object_point_limit(const SystemConfig& c, const ObjectPoint& p) {
+  if (p.on_axis()) return "";
+  const auto wl = c.wavelengths_nm();
+  const double shortest = *std::min_element(wl.begin(), wl.end());
+  const double f = object_point_frequency_per_m(c, p, shortest), nyq = 0.5 / c.pitch_m;
+  if (f > nyq)
+    return "its field at the DOE reaches a local frequency of " + to_str(f) + " 1/m at " + to_str(shortest) +
+           " nm, above the DOE grid's Nyquist 1/(2 pitch_m) = " + to_str(nyq) + " 1/m (it would alias)";
+  const auto img = chief_ray_image_m(c, p);
+  const double half = static_cast<double>(c.n) / 2.0 * c.pitch_m;
+  if (std::fabs(img.first) > half || std::fabs(img.second) > half)
+    return "its chief ray meets the sensor at (" + to_str(img.first) + ", " + to_str(img.second) +
+           ") m, outside the N x N window of half-width " + to_str(half) + " m";
+  if (c.propagator == Propagator::Fresnel) {
+    const double t = std::hypot(tan_deg(p.field_x_deg), tan_deg(p.field_y_deg)), sn = t / std::sqrt(1.0 + t * t);
+    const double err = c.sensor_distance_m * (t - sn);
+    if (err > 0.1 * c.sensor_pitch_m)
+      return "the Fresnel transfer function would move its image by z (tan - sin) = " + to_str(err) +
+             " m, more than a tenth of a sensor pixel (" + to_str(0.1 * c.sensor_pitch_m) +
+             " m); use \"propagator\": \"asm\" (the band-limited angular spectrum)";
+  }
+  return "";
+}
+
+double max_field_angle_deg(const SystemConfig& c, double distance_m) {
+  const auto ok = [&](double a) { return object_point_limit(c, ObjectPoint{distance_m, a, 0}).empty(); };
+  double lo = 0, hi = 89.0;
+  if (!ok(1e-9)) return 0;
+  if (ok(hi)) return hi;
+  for (int it = 0; it < 50; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (ok(mid) ? lo : hi) = mid;
+  }
+  return lo;
+}
+
+SystemConfig point_config(const SystemConfig& c, std::size_t p) {
+  if (p >= c.point_count()) reject("object point", p, "an index below the configuration's " + to_str(c.point_count()) + " points");
+  const ObjectPoint pt = c.points()[p];
+  SystemConfig out = c;
+  out.object_points.clear();
+  if (!pt.on_axis()) {
+    out.object_points.push_back(pt);
+    return out;
+  }
+  out.scene_at_infinity = pt.at_infinity();
+  out.scene_distance_m = pt.distance_m;
+  return out;
+}
+
 double SystemConfig::white_level_dn() const {
   return bit_depth == 0 ? 1.0 : std::ldexp(1.0, static_cast<int>(bit_depth)) - 1.0;
 }
@@ -140,6 +235,22 @@ void SystemConfig::validate() const {
     reject("black_level_dn", black_level_dn,
            "a finite code >= 0 and below the white level " + to_str(white_level_dn()) + " DN (bit_depth = " +
                std::to_string(bit_depth) + ")");
+  for (std::size_t i = 0; i < object_points.size(); ++i) {
+    const ObjectPoint& p = object_points[i];
+    const std::string key = "object_points[" + std::to_string(i) + "]";
+    if (std::isnan(p.distance_m) || !(p.distance_m > 0) || (std::isfinite(p.distance_m) && p.distance_m < 1e-6))
+      reject(key + " distance", p.distance_m, "a distance > 0 m (at least 1e-6 m), or \"inf\" for a point at infinity");
+    if (std::isfinite(p.distance_m)) check_float32((key + " distance").c_str(), p.distance_m);
+    for (const auto& [axis, a] : {std::pair<const char*, double>{" field_x_deg", p.field_x_deg}, {" field_y_deg", p.field_y_deg}})
+      check_finite_range((key + axis).c_str(), a, -89.0, 89.0, "a field angle from -89 to 89 degrees");
+    const std::string why = object_point_limit(*this, p);
+    if (!why.empty())
+      reject(key, "(" + to_str(p.distance_m) + " m, " + to_str(p.field_x_deg) + " deg, " + to_str(p.field_y_deg) + " deg)",
+             "a field angle within the sampling: " + why + ". At " + to_str(p.distance_m) +
+                 " m this configuration supports field angles up to " + to_str(max_field_angle_deg(*this, p.distance_m)) +
+                 " deg on one axis");
+  }
+  if (object_points.size() > 4096) reject("object_points", object_points.size(), "at most 4096 points");
   // Last, so that the range checks above name their own limits first.
   for (const auto& [key, value] : {std::pair<const char*, double>{"pitch_m", pitch_m},
                                    {"wavelength_start_nm", wavelength_start_nm},
@@ -317,6 +428,35 @@ const std::vector<Field>& fields() {
          }
        },
        [](const SystemConfig& c) { return c.scene_at_infinity ? nlohmann::ordered_json("inf") : nlohmann::ordered_json(c.scene_distance_m); }},
+      {"object_points",
+       [](SystemConfig& c, const std::string& k, const json& v) {
+         const std::string allowed = "an array of [distance_m or \"inf\", field_x_deg, field_y_deg] triples";
+         if (!v.is_array()) reject(k, quote(v), allowed);
+         if (v.size() > 4096) reject(k, quote(v), "at most 4096 points");
+         c.object_points.clear();
+         for (std::size_t i = 0; i < v.size(); ++i) {
+           const json& e = v[i];
+           const std::string ki = k + "[" + std::to_string(i) + "]";
+           if (!e.is_array() || e.size() != 3) reject(ki, quote(e), allowed);
+           ObjectPoint p;
+           if (e[0].is_string() && e[0].get<std::string>() == "inf") p.distance_m = std::numeric_limits<double>::infinity();
+           else if (e[0].is_number()) p.distance_m = e[0].get<double>();
+           else reject(ki + " distance", quote(e[0]), "a distance > 0 m (a number) or the string \"inf\"");
+           p.field_x_deg = get_number(ki + " field_x_deg", e[1]);
+           p.field_y_deg = get_number(ki + " field_y_deg", e[2]);
+           c.object_points.push_back(p);
+         }
+       },
+       // Omitted when empty (the default single on-axis point): configurations without object
+       // points write the same JSON as before.
+       [](const SystemConfig& c) {
+         if (c.object_points.empty()) return nlohmann::ordered_json();
+         nlohmann::ordered_json a = nlohmann::ordered_json::array();
+         for (const ObjectPoint& p : c.object_points)
+           a.push_back({p.at_infinity() ? nlohmann::ordered_json("inf") : nlohmann::ordered_json(p.distance_m), p.field_x_deg,
+                        p.field_y_deg});
+         return a;
+       }},
       number_field("sensor_distance_m", &SystemConfig::sensor_distance_m),
       number_field("aperture_radius_m", &SystemConfig::aperture_radius_m),
       choice_field("aperture_edge", &SystemConfig::aperture_edge, "inclusive", ApertureEdge::Inclusive, "strict",
@@ -435,7 +575,10 @@ std::string config_to_json_text(const SystemConfig& c) {
   // "preset" only names the starting point; every key follows, so it matters only for the
   // informational SystemConfig::preset field (omitted when not a known preset, e.g. "custom").
   if (std::find(presets.begin(), presets.end(), c.preset) != presets.end()) j["preset"] = c.preset;
-  for (const Field& f : fields()) j[f.key] = f.write(c);
+  for (const Field& f : fields()) {
+    nlohmann::ordered_json v = f.write(c);
+    if (!v.is_null()) j[f.key] = std::move(v);  // null: a key left out at its default (object_points)
+  }
   return j.dump(2) + "\n";
 }
 

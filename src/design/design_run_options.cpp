@@ -308,6 +308,10 @@ DesignRunOptions design_run_options_from_json(const std::string& text, const std
   try {
     const json j = parse_json_strict(text, "file '" + origin + "'");
     o.cfg = config_from_json_text(j.at("system").dump(), origin + " (system)");
+    // Design runs image through one PSF stack of bands planes (the camera's): one object point.
+    if (o.cfg.point_count() > 1)
+      reject("system object_points", to_str(o.cfg.point_count()) + " points",
+             "at most one point in a design run (designing over several object points is later work, issue 29)");
     const json& d = j.at("design");
     for (const RunField& f : run_fields()) f.read(o, d);
   } catch (const json::exception& e) {

@@ -2,14 +2,35 @@
 #include "qdo/field.hpp"
 
 #include <algorithm>
+#include <cmath>
 
 #include "physics/device_buffers.hpp"
 #include "qdo/error.hpp"
 
 namespace qdo {
 
+namespace {
+constexpr double kPi = 3.14159265358979323846;
+}  // namespace
+
+std::vector<double> FieldStage::point_table(const SystemConfig& cfg) {
+  std::vector<double> t;
+  for (const ObjectPoint& pt : cfg.points()) {
+    const double tx = std::tan(pt.field_x_deg * kPi / 180.0), ty = std::tan(pt.field_y_deg * kPi / 180.0);
+    if (pt.at_infinity()) {
+      // Direction cosines of (tan θx, tan θy, 1); exactly 0 on axis.
+      const double g = std::sqrt(1.0 + tx * tx + ty * ty);
+      t.insert(t.end(), {tx / g, ty / g, -1.0, 0.0});
+    } else {
+      const double d = pt.distance_m, x0 = d * tx, y0 = d * ty;
+      t.insert(t.end(), {x0, y0, d, std::sqrt(x0 * x0 + y0 * y0 + d * d)});
+    }
+  }
+  return t;
+}
+
 FieldStage::FieldStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs, bool phase_fp64)
-    : rt_(rt), cfg_(cfg), prec_(p), designs_(designs), nb_(cfg.bands * designs),
+    : rt_(rt), cfg_(cfg), prec_(p), designs_(designs), points_(cfg.point_count()), nb_(cfg.bands * designs * points_),
       phase_fp64_(phase_fp64 && p == Precision::F32), geom_(PropagationGeometry::from_config(cfg)) {
   if (designs_ < 1) reject("designs", designs_, ">= 1");
   if (phase_fp64_ && !rt_.has_fp64())
@@ -17,18 +38,21 @@ FieldStage::FieldStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::s
   k_field_ = phase_fp64_ ? rt_.kernel("field.cl", "doe_field_p64", p, "-DQDO_PHASE_FP64=1")
                          : rt_.kernel("field.cl", "doe_field", p);
   k_phase_vjp_ = rt_.kernel("field.cl", "phase_vjp", p);
-  // Per-plane tables: the band grid repeats for every design.
+  // Per-plane tables: the band grid repeats for every (design, point) group.
   std::vector<double> kk, dd;
-  for (std::size_t d = 0; d < designs_; ++d) {
+  for (std::size_t d = 0; d < designs_ * points_; ++d) {
     const auto k1 = wavenumber_per_band(cfg_), d1 = delta_n_per_band(cfg_);
     kk.insert(kk.end(), k1.begin(), k1.end());
     dd.insert(dd.end(), d1.begin(), d1.end());
   }
   k_ = detail::upload_real(rt_, kk, prec_);
   dn_ = detail::upload_real(rt_, dd, prec_);
+  const std::vector<double> pts = point_table(cfg_);
+  pt_ = detail::upload_real(rt_, pts, prec_);
   if (phase_fp64_) {
     k64_ = detail::upload(rt_, kk);
     dn64_ = detail::upload(rt_, dd);
+    pt64_ = detail::upload(rt_, pts);
   }
 }
 
@@ -36,14 +60,14 @@ template <typename A3, typename A4>
 void FieldStage::set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& heights, const cl::Buffer& k_tab,
                                 const cl::Buffer& dn_tab, const A3& a3, const A4& a4, std::size_t planes) {
   const double r_ap2_px = cfg_.aperture_inside_px2();  // as ref::doe_field: half an integer, exact in float
-  const double d = cfg_.scene_at_infinity ? -1.0 : cfg_.scene_distance_m;
+  const cl::Buffer& pt = p == Precision::F64 && phase_fp64_ ? pt64_ : pt_;
   set_args(k, p, heights, k_tab, dn_tab, a3, a4, int(cfg_.n), int(geom_.m), int(kOffset), int(planes ? planes : nb_),
-           Real{cfg_.pitch_m}, Real{d}, Real{r_ap2_px});
+           Real{cfg_.pitch_m}, pt, int(points_), Real{r_ap2_px});
 }
 
 void FieldStage::run(const cl::Buffer& heights, cl::Buffer& field, bool crop_rows) {
-  // Argument 4: planes per design (plane b uses height map b / bands). doe_field_p64 takes the
-  // tables and scalars in double.
+  // Argument 4: planes per (design, point) group (plane b belongs to group b / bands).
+  // doe_field_p64 takes the tables and scalars in double.
   if (phase_fp64_)
     set_phase_args(k_field_, Precision::F64, heights, k64_, dn64_, field, int(cfg_.bands));
   else
@@ -52,12 +76,13 @@ void FieldStage::run(const cl::Buffer& heights, cl::Buffer& field, bool crop_row
   // and the columns up to N rounded to the work-group size (the rest of the window is not read).
   const std::size_t m = geom_.m, n = cfg_.n, rows = crop_rows ? n : m;
   const std::size_t cols = crop_rows ? std::min(Runtime::global_for(n), Runtime::global_for(m)) : Runtime::global_for(m);
-  rt_.queue().enqueueNDRangeKernel(k_field_, cl::NullRange, cl::NDRange(cols, rows, designs_),
+  rt_.queue().enqueueNDRangeKernel(k_field_, cl::NullRange, cl::NDRange(cols, rows, designs_ * points_),
                                    cl::NDRange(Runtime::kLocalSize, 1, 1));
 }
 
 void FieldStage::run_chunk(const cl::Buffer& heights, cl::Buffer& field, std::size_t chunk, std::size_t i) {
   if (designs_ != 1) reject("designs", designs_, "1 for a chunk of planes");
+  if (points_ != 1) reject("object points", points_, "1 for a chunk of planes");
   const std::size_t bands = nb_, n = cfg_.n, m = geom_.m;
   if (chunk < 1) reject("chunk", chunk, ">= 1 planes");
   const std::size_t chunks = (bands + chunk - 1) / chunk;

@@ -3,8 +3,16 @@
 #include <cmath>
 
 #include "qdo/error.hpp"
+#include "qdo/field.hpp"
 
 namespace qdo::ref {
+
+double point_source_m(const std::vector<double>& pt, std::size_t p, double x, double y) {
+  const double x0 = pt[4 * p], y0 = pt[4 * p + 1], d = pt[4 * p + 2], r0 = pt[4 * p + 3], r2 = x * x + y * y;
+  if (x0 == 0 && y0 == 0) return d > 0 ? r2 / (std::sqrt(r2 + d * d) + d) : 0.0;
+  if (d > 0) return (r2 - 2.0 * (x * x0 + y * y0)) / (std::sqrt((x - x0) * (x - x0) + (y - y0) * (y - y0) + d * d) + r0);
+  return -(x * x0 + y * y0);
+}
 
 ComplexStack doe_field(const SystemConfig& cfg, const Map2D& height_m, const PropagationGeometry& g) {
   if (height_m.rows != cfg.n || height_m.cols != cfg.n)
@@ -13,18 +21,19 @@ ComplexStack doe_field(const SystemConfig& cfg, const Map2D& height_m, const Pro
   const auto dn = delta_n_per_band(cfg);
   // Aperture: integer pixel radius² against cfg.aperture_inside_px2() (aperture_edge), as kernels/field.cl.
   const double r_ap2_px = cfg.aperture_inside_px2();
-  const double d = cfg.scene_distance_m;
-  ComplexStack f(cfg.bands, g.m, g.m, cdouble(0, 0));
-  for (std::size_t b = 0; b < cfg.bands; ++b) {
+  const std::vector<double> pt = FieldStage::point_table(cfg);
+  const std::size_t points = cfg.point_count(), bands = cfg.bands;
+  ComplexStack f(points * bands, g.m, g.m, cdouble(0, 0));
+  for (std::size_t pl = 0; pl < points * bands; ++pl) {
+    const std::size_t b = pl % bands, p = pl / bands;
     for (std::size_t i = 0; i < g.n; ++i) {
       for (std::size_t j = 0; j < g.n; ++j) {
         const double y = (double(i) - double(g.n / 2)) * g.pitch_m, x = (double(j) - double(g.n / 2)) * g.pitch_m;
-        const double r2 = x * x + y * y;
         const double di = double(i) - double(g.n / 2), dj = double(j) - double(g.n / 2);
         if (di * di + dj * dj > r_ap2_px) continue;
-        const double src = cfg.scene_at_infinity ? 0.0 : r2 / (std::sqrt(r2 + d * d) + d);
+        const double src = point_source_m(pt, p, x, y);
         const double phase = k[b] * (src + dn[b] * height_m(i, j));
-        f(b, g.offset + i, g.offset + j) = std::polar(1.0, phase);
+        f(pl, g.offset + i, g.offset + j) = std::polar(1.0, phase);
       }
     }
   }
@@ -36,11 +45,11 @@ Map2D doe_phase_vjp(const SystemConfig& cfg, const PropagationGeometry& geo, con
   const auto k = wavenumber_per_band(cfg);
   const auto dn = delta_n_per_band(cfg);
   Map2D dh(cfg.n, cfg.n);
-  for (std::size_t b = 0; b < cfg.bands; ++b)
+  for (std::size_t pl = 0; pl < cfg.point_count() * cfg.bands; ++pl)
     for (std::size_t i = 0; i < cfg.n; ++i)
       for (std::size_t j = 0; j < cfg.n; ++j) {
-        const std::size_t y = geo.offset + i, x = geo.offset + j;
-        const cdouble v = std::conj(g(b, y, x)) * cdouble(0, 1) * u1(b, y, x);
+        const std::size_t y = geo.offset + i, x = geo.offset + j, b = pl % cfg.bands;
+        const cdouble v = std::conj(g(pl, y, x)) * cdouble(0, 1) * u1(pl, y, x);
         dh(i, j) += k[b] * dn[b] * v.real();
       }
   return dh;
@@ -50,12 +59,12 @@ ComplexStack doe_phase_jvp(const SystemConfig& cfg, const PropagationGeometry& g
                            const Map2D& d_height_m) {
   const auto k = wavenumber_per_band(cfg);
   const auto dn = delta_n_per_band(cfg);
-  ComplexStack du(cfg.bands, geo.m, geo.m, cdouble(0, 0));
-  for (std::size_t b = 0; b < cfg.bands; ++b)
+  ComplexStack du(cfg.point_count() * cfg.bands, geo.m, geo.m, cdouble(0, 0));
+  for (std::size_t pl = 0; pl < cfg.point_count() * cfg.bands; ++pl)
     for (std::size_t i = 0; i < cfg.n; ++i)
       for (std::size_t j = 0; j < cfg.n; ++j) {
-        const std::size_t y = geo.offset + i, x = geo.offset + j;
-        du(b, y, x) = cdouble(0, 1) * (k[b] * dn[b] * d_height_m(i, j)) * u1(b, y, x);
+        const std::size_t y = geo.offset + i, x = geo.offset + j, b = pl % cfg.bands;
+        du(pl, y, x) = cdouble(0, 1) * (k[b] * dn[b] * d_height_m(i, j)) * u1(pl, y, x);
       }
   return du;
 }

@@ -43,9 +43,30 @@ double transfer_function_limit_per_m(Propagator p, double wavelength_nm, double 
 
 void check_source_sampling(const SystemConfig& cfg, std::vector<BandSampling>& bands) {
   const double r = cfg.aperture_radius(), d = cfg.scene_distance_m;
-  for (auto& b : bands) {
-    b.source_frequency_per_m =
-        cfg.scene_at_infinity ? 0.0 : r / (b.wavelength_nm * 1e-9 * std::sqrt(r * r + d * d));
+  if (cfg.object_points.empty()) {
+    for (auto& b : bands) {
+      b.source_frequency_per_m =
+          cfg.scene_at_infinity ? 0.0 : r / (b.wavelength_nm * 1e-9 * std::sqrt(r * r + d * d));
+      b.source_undersampled = b.source_frequency_per_m > 0.5 / cfg.pitch_m;
+    }
+    return;
+  }
+  // Object points: planes are (designs x) points x bands; plane i is point (i / bands) % points.
+  const std::vector<ObjectPoint> pts = cfg.points();
+  for (std::size_t i = 0; i < bands.size(); ++i) {
+    BandSampling& b = bands[i];
+    const std::size_t p = (i / cfg.bands) % pts.size();
+    b.point = static_cast<int>(p);
+    b.point_distance_m = pts[p].distance_m;
+    b.field_x_deg = pts[p].field_x_deg;
+    b.field_y_deg = pts[p].field_y_deg;
+    const auto img = chief_ray_image_m(cfg, pts[p]);
+    b.chief_ray_x_m = img.first;
+    b.chief_ray_y_m = img.second;
+    const ObjectPoint& pt = pts[p];
+    b.source_frequency_per_m = pt.on_axis() && pt.at_infinity() ? 0.0
+                               : pt.on_axis() ? r / (b.wavelength_nm * 1e-9 * std::sqrt(r * r + pt.distance_m * pt.distance_m))
+                                              : object_point_frequency_per_m(cfg, pt, b.wavelength_nm);
     b.source_undersampled = b.source_frequency_per_m > 0.5 / cfg.pitch_m;
   }
 }
@@ -86,6 +107,24 @@ std::string SamplingReport::summary() const {
   if (src) os << " The point source's spherical wave is under-sampled on the DOE grid in " << src
               << " bands (increase scene_distance_m or use a finer pitch_m).";
   if (any_inaccurate()) os << " INACCURATE: increase padding_px, reduce sensor_distance_m or pitch_m.";
+  // Object points: one line per point (its planes follow each other, bands of one point).
+  for (std::size_t i = 0; i < bands.size(); ++i) {
+    const auto& b = bands[i];
+    if (b.point < 0 || (i > 0 && bands[i - 1].point == b.point)) continue;
+    double worst_f = 0, worst_out = 0, worst_beyond = 0, nyq = b.f_nyquist_per_m;
+    bool aliases = false;
+    for (std::size_t j = i; j < bands.size() && bands[j].point == b.point; ++j) {
+      worst_f = std::max(worst_f, bands[j].source_frequency_per_m);
+      worst_beyond = std::max(worst_beyond, bands[j].aliased_energy_fraction);
+      worst_out = std::max(worst_out, bands[j].energy_outside_window);
+      aliases = aliases || bands[j].source_undersampled;
+    }
+    os << "\n  object point " << b.point << " (d = " << b.point_distance_m << " m, field (" << b.field_x_deg << ", "
+       << b.field_y_deg << ") deg): chief ray at (" << b.chief_ray_x_m * 1e3 << ", " << b.chief_ray_y_m * 1e3
+       << ") mm on the sensor; source local frequency up to " << worst_f << " 1/m of the grid's Nyquist " << nyq
+       << " 1/m" << (aliases ? " (ALIASES)" : "") << "; field energy beyond the transfer function's limit up to "
+       << worst_beyond << "; energy outside the N x N window up to " << worst_out << ".";
+  }
   return os.str();
 }
 

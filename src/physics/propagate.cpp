@@ -14,10 +14,10 @@ namespace qdo {
 PropagationStage::~PropagationStage() = default;
 
 PropagationStage::PropagationStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs)
-    : rt_(rt), cfg_(cfg), prec_(p), nb_(cfg.bands * designs), rsz_(real_size(p)),
+    : rt_(rt), cfg_(cfg), prec_(p), nb_(cfg.bands * designs * cfg.point_count()), rsz_(real_size(p)),
       geom_(PropagationGeometry::from_config(cfg)) {
   if (designs < 1) reject("designs", designs, ">= 1");
-  for (std::size_t d = 0; d < designs; ++d)
+  for (std::size_t d = 0; d < designs * cfg_.point_count(); ++d)
     for (double w : cfg_.wavelengths_nm()) wavelengths_nm_.push_back(w);
   const bool fresnel = cfg_.propagator == Propagator::Fresnel;
   k_tf_ = rt_.kernel("propagate.cl", fresnel ? "tf_separable" : "tf_table", p);

@@ -10,7 +10,7 @@
 namespace qdo {
 
 PsfStage::PsfStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs)
-    : rt_(rt), cfg_(cfg), prec_(p), nb_(cfg.bands * designs), s_(cfg.sensor_size_px()),
+    : rt_(rt), cfg_(cfg), prec_(p), nb_(cfg.bands * designs * cfg.point_count()), s_(cfg.sensor_size_px()),
       m_(PropagationGeometry::from_config(cfg).m), rsz_(real_size(p)) {
   if (designs < 1) reject("designs", designs, ">= 1");
   weights_ = AreaWeights::make(cfg_.n, cfg_.pitch_m, s_, cfg_.sensor_pitch_m);
@@ -70,7 +70,7 @@ void PsfStage::scale(cl::Buffer& x, std::size_t len, const cl::Buffer& sums) {
 }
 
 void PsfStage::normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len, const cl::Buffer& sums) {
-  const std::size_t bands = cfg_.bands;
+  const std::size_t bands = nb_;  // one design: points x bands planes
   if (!dots_()) dots_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * rsz_);
   set_args(k_dot_, prec_, g, y, int(len), partial_, int(kGroupsPerBand), cl::Local(Runtime::kLocalSize * rsz_));
   rt_.queue().enqueueNDRangeKernel(k_dot_, cl::NullRange, cl::NDRange(kGroupsPerBand * Runtime::kLocalSize, bands),
@@ -80,7 +80,7 @@ void PsfStage::normalize_vjp(cl::Buffer& g, const cl::Buffer& y, std::size_t len
 }
 
 void PsfStage::intensity_vjp(const cl::Buffer& g_native, const cl::Buffer& field, cl::Buffer& gfield, bool crop_rows) {
-  const std::size_t n = cfg_.n, m = m_, bands = cfg_.bands;
+  const std::size_t n = cfg_.n, m = m_, bands = nb_;  // one design: points x bands planes
   set_args(k_int_vjp_, prec_, g_native, field, gfield, int(n), int(m), int(FieldStage::kOffset), int(bands));
   const std::size_t rows = crop_rows ? n : m;
   const std::size_t cols = crop_rows ? std::min(Runtime::global_for(n), Runtime::global_for(m)) : Runtime::global_for(m);

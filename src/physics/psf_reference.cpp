@@ -21,14 +21,23 @@ void check_shape(const RealStack& g, std::size_t planes, std::size_t rows, const
            "shape " + to_str(planes) + " x " + to_str(rows) + " x " + to_str(rows));
 }
 
-// Forward state of the chain kept for the backward pass.
+// The wavelength of every plane of the stack (points x bands, point-major).
+std::vector<double> plane_wavelengths(const SystemConfig& cfg) {
+  const auto wl = cfg.wavelengths_nm();
+  std::vector<double> out;
+  for (std::size_t p = 0; p < cfg.point_count(); ++p) out.insert(out.end(), wl.begin(), wl.end());
+  return out;
+}
+std::size_t plane_count(const SystemConfig& cfg) { return cfg.point_count() * cfg.bands; }
+
+// Forward state of the chain kept for the backward pass (planes = points x bands).
 struct Forward {
   PropagationGeometry g;
-  ComplexStack u1, u2;        // bands x M x M
-  RealStack p;                // bands x N x N, normalised
+  ComplexStack u1, u2;        // planes x M x M
+  RealStack p;                // planes x N x N, normalised
   std::vector<double> p_sums; // raw crop sums
   AreaWeights w;
-  RealStack s;                // bands x S x S, normalised
+  RealStack s;                // planes x S x S, normalised
   std::vector<double> s_sums;
 };
 
@@ -38,30 +47,31 @@ Forward forward(const SystemConfig& cfg, const Map2D& h) {
   f.g = PropagationGeometry::from_config(cfg);
   f.u1 = doe_field(cfg, h, f.g);
   f.u2 = f.u1;
-  propagate(f.u2, cfg.wavelengths_nm(), cfg.pitch_m, cfg.sensor_distance_m, cfg.propagator);
-  f.p = RealStack(cfg.bands, cfg.n, cfg.n);
-  for (std::size_t b = 0; b < cfg.bands; ++b)
+  propagate(f.u2, plane_wavelengths(cfg), cfg.pitch_m, cfg.sensor_distance_m, cfg.propagator);
+  const std::size_t planes = plane_count(cfg);
+  f.p = RealStack(planes, cfg.n, cfg.n);
+  for (std::size_t b = 0; b < planes; ++b)
     for (std::size_t i = 0; i < cfg.n; ++i)
       for (std::size_t j = 0; j < cfg.n; ++j) f.p(b, i, j) = std::norm(f.u2(b, f.g.offset + i, f.g.offset + j));
-  for (std::size_t b = 0; b < cfg.bands; ++b) f.p_sums.push_back(plane_sum(f.p, b));
+  for (std::size_t b = 0; b < planes; ++b) f.p_sums.push_back(plane_sum(f.p, b));
   normalize_planes(f.p);
   f.w = AreaWeights::make(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m);
   f.s = resample_area(f.p, f.w);
-  for (std::size_t b = 0; b < cfg.bands; ++b) f.s_sums.push_back(plane_sum(f.s, b));
+  for (std::size_t b = 0; b < planes; ++b) f.s_sums.push_back(plane_sum(f.s, b));
   normalize_planes(f.s);
   return f;
 }
 
 // From a gradient on the raw crop intensities to dL/dH.
 Map2D backward_from_intensity(const SystemConfig& cfg, const Forward& f, const RealStack& g_raw) {
-  ComplexStack g(cfg.bands, f.g.m, f.g.m, cdouble(0, 0));
-  for (std::size_t b = 0; b < cfg.bands; ++b)
+  ComplexStack g(plane_count(cfg), f.g.m, f.g.m, cdouble(0, 0));
+  for (std::size_t b = 0; b < plane_count(cfg); ++b)
     for (std::size_t i = 0; i < cfg.n; ++i)
       for (std::size_t j = 0; j < cfg.n; ++j) {
         const std::size_t y = f.g.offset + i, x = f.g.offset + j;
         g(b, y, x) = 2.0 * g_raw(b, i, j) * f.u2(b, y, x);
       }
-  propagate(g, cfg.wavelengths_nm(), cfg.pitch_m, -cfg.sensor_distance_m, cfg.propagator);
+  propagate(g, plane_wavelengths(cfg), cfg.pitch_m, -cfg.sensor_distance_m, cfg.propagator);
   return doe_phase_vjp(cfg, f.g, f.u1, g);
 }
 
@@ -74,9 +84,9 @@ PsfResult psf_stack(const SystemConfig& cfg, const Map2D& height_m) {
     if (!std::isfinite(h)) reject("height_m", h, "finite heights");
   ComplexStack f = doe_field(cfg, height_m, g);
   PsfResult out;
-  propagate(f, cfg.wavelengths_nm(), cfg.pitch_m, cfg.sensor_distance_m, cfg.propagator, &out.sampling.bands);
-  out.psf = RealStack(cfg.bands, g.n, g.n);
-  for (std::size_t b = 0; b < cfg.bands; ++b) {
+  propagate(f, plane_wavelengths(cfg), cfg.pitch_m, cfg.sensor_distance_m, cfg.propagator, &out.sampling.bands);
+  out.psf = RealStack(plane_count(cfg), g.n, g.n);
+  for (std::size_t b = 0; b < plane_count(cfg); ++b) {
     double total = 0, inside = 0;
     for (std::size_t i = 0; i < g.m * g.m; ++i) total += std::norm(f.plane(b)[i]);
     for (std::size_t i = 0; i < g.n; ++i)
@@ -166,13 +176,13 @@ RealStack normalize_jvp(const RealStack& dx, const RealStack& y, const std::vect
 }
 
 Map2D psf_native_vjp(const SystemConfig& cfg, const Map2D& height_m, const RealStack& g_psf) {
-  check_shape(g_psf, cfg.bands, cfg.n, "g_psf");
+  check_shape(g_psf, plane_count(cfg), cfg.n, "g_psf");
   const Forward f = forward(cfg, height_m);
   return backward_from_intensity(cfg, f, normalize_vjp(g_psf, f.p, f.p_sums));
 }
 
 Map2D psf_sensor_vjp(const SystemConfig& cfg, const Map2D& height_m, const RealStack& g_psf_sensor) {
-  check_shape(g_psf_sensor, cfg.bands, cfg.sensor_size_px(), "g_psf_sensor");
+  check_shape(g_psf_sensor, plane_count(cfg), cfg.sensor_size_px(), "g_psf_sensor");
   const Forward f = forward(cfg, height_m);
   const RealStack g_p = resample_area_adjoint(normalize_vjp(g_psf_sensor, f.s, f.s_sums), f.w);
   return backward_from_intensity(cfg, f, normalize_vjp(g_p, f.p, f.p_sums));
@@ -184,9 +194,9 @@ RealStack psf_sensor_jvp(const SystemConfig& cfg, const Map2D& height_m, const M
   const Forward f = forward(cfg, height_m);
   // dU1 = i dtheta U1, dU2 = propagate(dU1), dP = 2 Re(conj(U2) dU2).
   ComplexStack du = doe_phase_jvp(cfg, f.g, f.u1, d_height_m);
-  propagate(du, cfg.wavelengths_nm(), cfg.pitch_m, cfg.sensor_distance_m, cfg.propagator);
-  RealStack dp(cfg.bands, cfg.n, cfg.n);
-  for (std::size_t b = 0; b < cfg.bands; ++b)
+  propagate(du, plane_wavelengths(cfg), cfg.pitch_m, cfg.sensor_distance_m, cfg.propagator);
+  RealStack dp(plane_count(cfg), cfg.n, cfg.n);
+  for (std::size_t b = 0; b < plane_count(cfg); ++b)
     for (std::size_t i = 0; i < cfg.n; ++i)
       for (std::size_t j = 0; j < cfg.n; ++j) {
         const std::size_t y = f.g.offset + i, x = f.g.offset + j;

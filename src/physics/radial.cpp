@@ -103,6 +103,7 @@ void check_ring_heights(const RadialTables& t, const std::vector<double>& h, dou
 RadialTables RadialTables::build(const SystemConfig& cfg, const RadialOptions& opt) {
   cfg.validate();
   opt.validate();
+  if (!cfg.object_points.empty()) return build(radial_config(cfg), opt);
   const PropagationGeometry g = PropagationGeometry::from_config(cfg);
   RadialTables t;
   t.n = cfg.n;
@@ -332,8 +333,16 @@ struct RadialEngine::Impl {
       k_phase_ring;
 };
 
+SystemConfig radial_config(const SystemConfig& cfg) {
+  if (cfg.object_points.empty()) return cfg;
+  if (cfg.object_points.size() == 1 && cfg.object_points[0].on_axis()) return point_config(cfg, 0);
+  reject("object_points", to_str(cfg.object_points.size()) + " points" + (cfg.object_points.size() == 1 ? " (off-axis)" : ""),
+         "at most one on-axis point for the radial path (it serves on-axis points at any distance: one engine per point, "
+         "e.g. with point_config(cfg, p)); off-axis points and stacks of points need the 2-D path");
+}
+
 RadialEngine::RadialEngine(Runtime& rt, const SystemConfig& cfg, Precision p, const RadialOptions& opt)
-    : rt_(rt), cfg_(cfg), prec_(p) {
+    : rt_(rt), cfg_(radial_config(cfg)), prec_(p) {
   cfg_.validate();
   opt.validate();
   rt_.require(p);

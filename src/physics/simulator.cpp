@@ -45,7 +45,8 @@ class StageTimer {
 Simulator::~Simulator() = default;
 
 std::string Simulator::describe() const {
-  return "simulated (2-D, N = " + to_str(cfg_.n) + (designs_ > 1 ? ", " + to_str(designs_) + " designs" : "") + ", " +
+  return "simulated (2-D, N = " + to_str(cfg_.n) + (designs_ > 1 ? ", " + to_str(designs_) + " designs" : "") +
+         (cfg_.object_points.empty() ? std::string() : ", " + to_str(cfg_.point_count()) + " object points") + ", " +
          to_string(prec_) + ")";
 }
 
@@ -56,13 +57,13 @@ SystemConfig Simulator::checked(Runtime& rt, const SystemConfig& cfg, Precision 
   if (phase_fp64 && p == Precision::F32 && !rt.has_fp64())
     reject("phase_fp64", "true", "false on this device (" + rt.info().name + " has no cl_khr_fp64)");
   if (designs < 1) reject("designs", designs, ">= 1");
-  const std::size_t bands = c.bands * designs, m = PropagationGeometry::from_config(c).m;
+  const std::size_t bands = c.bands * designs * c.point_count(), m = PropagationGeometry::from_config(c).m;
   const std::size_t field_bytes = bands * m * m * 2 * real_size(p);
   if (field_bytes > rt.info().max_alloc_bytes)
     reject("n", c.n,
            "a size whose padded field (" + to_str(bands) + " bands x " + to_str(m) + " x " + to_str(m) + " complex " +
                to_string(p) + " = " + to_str(double(field_bytes) / 1048576.0) + " MiB) fits the device's largest allocation (" +
-               to_str(double(rt.info().max_alloc_bytes) / 1048576.0) + " MiB); reduce n, padding_px or bands");
+               to_str(double(rt.info().max_alloc_bytes) / 1048576.0) + " MiB); reduce n, padding_px, bands or object points");
   return c;
 }
 
@@ -72,7 +73,7 @@ Simulator::Simulator(Runtime& rt, const SystemConfig& cfg, Precision p, std::siz
       prec_(p),
       designs_(designs),
       phase_fp64_(phase_fp64 && p == Precision::F32),
-      nb_(cfg_.bands * designs),
+      nb_(cfg_.bands * designs * cfg_.point_count()),
       geom_(PropagationGeometry::from_config(cfg_)),
       s_(cfg_.sensor_size_px()),
       rsz_(real_size(p)),
@@ -126,7 +127,7 @@ void Simulator::require_heights() const {
 void Simulator::compute_psf() {
   StageTimer stage(rt_.queue(), "compute_psf");
   const bool host = propagation_.host(true);
-  const bool streamed = host && !keep_field_ && designs_ == 1;
+  const bool streamed = host && !keep_field_ && designs_ == 1 && cfg_.point_count() == 1;
   // Intensity of the N x N crop and its per-band sums (fused into the host propagation, else one
   // kernel pass). The native stack stays unnormalised (normalising it before the linear area
   // resampling would not change the normalised sensor stack); psf_native() and the adjoints
@@ -224,7 +225,7 @@ void Simulator::require_single_design(const char* what) const {
 }
 
 Map2D Simulator::backward_from_native(const cl::Buffer& g_native) {
-  const std::size_t n = cfg_.n, m = geom_.m, bands = cfg_.bands;
+  const std::size_t n = cfg_.n, m = geom_.m, bands = nb_;  // one design: points x bands planes
   StageTimer stage(rt_.queue(), "adjoint");
   if (!gfield_()) gfield_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, bands * m * m * 2 * rsz_);
   if (!dh_()) dh_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, n * n * rsz_);
@@ -251,9 +252,9 @@ Map2D Simulator::phase_vjp_gradient(Stage& stage) {
 Map2D Simulator::psf_native_vjp(const RealStack& g_psf) {
   require_single_design("psf_native_vjp");
   require_adjoint_state();
-  if (g_psf.planes != cfg_.bands || g_psf.rows != cfg_.n || g_psf.cols != cfg_.n)
+  if (g_psf.planes != nb_ || g_psf.rows != cfg_.n || g_psf.cols != cfg_.n)
     reject("g_psf", to_str(g_psf.planes) + " x " + to_str(g_psf.rows) + " x " + to_str(g_psf.cols),
-           "bands x N x N = " + to_str(cfg_.bands) + " x " + to_str(cfg_.n) + " x " + to_str(cfg_.n));
+           "planes x N x N = " + to_str(nb_) + " x " + to_str(cfg_.n) + " x " + to_str(cfg_.n) + " (planes = object points x bands)");
   cl::Buffer& g = write_scratch(g_native_, g_psf.data);
   ensure_native_normalized();
   psf_stage_.normalize_vjp(g, psf_, cfg_.n * cfg_.n, sums_crop_);
@@ -263,19 +264,19 @@ Map2D Simulator::psf_native_vjp(const RealStack& g_psf) {
 Map2D Simulator::psf_sensor_vjp(const RealStack& g_psf_sensor) {
   require_single_design("psf_sensor_vjp");
   require_adjoint_state();
-  if (g_psf_sensor.planes != cfg_.bands || g_psf_sensor.rows != s_ || g_psf_sensor.cols != s_)
+  if (g_psf_sensor.planes != nb_ || g_psf_sensor.rows != s_ || g_psf_sensor.cols != s_)
     reject("g_psf_sensor", to_str(g_psf_sensor.planes) + " x " + to_str(g_psf_sensor.rows) + " x " + to_str(g_psf_sensor.cols),
-           "bands x S x S = " + to_str(cfg_.bands) + " x " + to_str(s_) + " x " + to_str(s_));
+           "planes x S x S = " + to_str(nb_) + " x " + to_str(s_) + " x " + to_str(s_) + " (planes = object points x bands)");
   return sensor_vjp_in_scratch(write_scratch(g_sensor_, g_psf_sensor.data));
 }
 
 Map2D Simulator::psf_sensor_vjp(const cl::Buffer& g_psf_sensor) {
   require_single_design("psf_sensor_vjp");
   require_adjoint_state();
-  const std::size_t bytes = cfg_.bands * s_ * s_ * rsz_;
+  const std::size_t bytes = nb_ * s_ * s_ * rsz_;
   if (g_psf_sensor.getInfo<CL_MEM_SIZE>() < bytes)
     reject("g_psf_sensor buffer", to_str(g_psf_sensor.getInfo<CL_MEM_SIZE>()) + " bytes",
-           ">= " + to_str(bytes) + " (bands x S x S reals of the simulator's precision)");
+           ">= " + to_str(bytes) + " (points x bands x S x S reals of the simulator's precision)");
   // The host path only reads its input; the kernel path works in place on it: a copy into the
   // scratch buffer first (device to device).
   if (propagation_.host(true)) {
@@ -288,7 +289,7 @@ Map2D Simulator::psf_sensor_vjp(const cl::Buffer& g_psf_sensor) {
 }
 
 Map2D Simulator::sensor_vjp_in_scratch(cl::Buffer& g_sensor) {
-  const std::size_t n = cfg_.n, bands = cfg_.bands;
+  const std::size_t n = cfg_.n, bands = nb_;  // one design: points x bands planes
   const AreaWeights& wt = psf_stage_.weights_transposed();
   StageTimer stage(rt_.queue(), "adjoint");
   if (propagation_.host(true)) {
