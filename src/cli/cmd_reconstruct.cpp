@@ -3,10 +3,15 @@
 #include <cstdio>
 #include <string>
 
+#include <nlohmann/json.hpp>
+
 #include "cli.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/error.hpp"
+#include "qdo/io.hpp"
 #include "qdo/reconstruct.hpp"
 #include "qdo/runtime.hpp"
+#include "qdo/testset.hpp"
 
 namespace qdo::cli {
 
@@ -43,14 +48,61 @@ int cmd_reconstruct(const Args& a) {
   o.regions = parse_regions(a.get("points"), false, "--points");
   for (const auto& r : parse_regions(a.get("boxes"), true, "--boxes")) o.regions.push_back(r);
   o.precision = precision_from_string(a.get("precision"));
+  // --truth: the scene the capture shows (a simulation's cube), scored against the cube over the
+  // interior (--truth-border px from each edge) with qdo eval's metrics. Read and checked against
+  // the captures' size (after --crop) before any work.
+  RealStack truth;
+  std::size_t border = 0;
+  if (a.has("truth")) {
+    const SystemConfig cfg = read_run_config(o.run, "--run", "a run folder written by qdo design").cfg;
+    truth = scene_from_path(cfg, a.get("truth"), a.get("truth-key"), false, "--truth-key");
+    const CaptureFiles f = read_captures(cfg, o.capture);
+    if (truth.rows != f.mean_dn.rows || truth.cols != f.mean_dn.cols)
+      reject("--truth", a.get("truth"),
+             "a scene of the captures' size, " + std::to_string(f.mean_dn.rows) + " x " + std::to_string(f.mean_dn.cols) + " (it is " +
+                 std::to_string(truth.rows) + " x " + std::to_string(truth.cols) + ")");
+    if (o.capture.crop) {
+      RealStack c(truth.planes, o.capture.crop_rows, o.capture.crop_cols);
+      for (std::size_t b = 0; b < truth.planes; ++b)
+        for (std::size_t y = 0; y < c.rows; ++y)
+          for (std::size_t x = 0; x < c.cols; ++x) c(b, y, x) = truth(b, o.capture.crop_row + y, o.capture.crop_col + x);
+      truth = std::move(c);
+    }
+    border = std::size_t(parse_int("--truth-border", a.get("truth-border", "0"), 0, 1 << 20));
+    if (2 * border >= std::min(truth.rows, truth.cols))
+      reject("--truth-border", std::to_string(border), "fewer than half the image's smaller side (" +
+                                                           std::to_string(std::min(truth.rows, truth.cols)) + " px)");
+  } else if (a.has("truth-key") || a.has("truth-border")) {
+    reject(a.has("truth-key") ? "--truth-key" : "--truth-border", "(given)", "only with --truth");
+  }
   o.out = out_dir(a);
   Runtime rt(a.get("device"));
   const ReconstructResult r = reconstruct(rt, o);
+  if (!truth.data.empty()) {
+    const auto interior = [&](const RealStack& s) {
+      RealStack c(s.planes, s.rows - 2 * border, s.cols - 2 * border);
+      for (std::size_t b = 0; b < s.planes; ++b)
+        for (std::size_t y = 0; y < c.rows; ++y)
+          for (std::size_t x = 0; x < c.cols; ++x) c(b, y, x) = s(b, border + y, border + x);
+      return c;
+    };
+    if (truth.planes != r.cube.planes) reject("--truth", a.get("truth"), "a cube of the run's " + std::to_string(r.cube.planes) + " bands");
+    const testset::Scores sc = testset::score(interior(r.cube), interior(truth));
+    nlohmann::json m;
+    m["truth"] = a.get("truth");
+    m["border_px"] = border;
+    m["psf"] = r.psf;
+    m["decoder"] = r.decoder;
+    m["mean"] = {{"psnr", sc.psnr}, {"psnr_hyper", sc.psnr_hyper}, {"ssim", sc.ssim}, {"rmse", sc.rmse}, {"ergas", sc.ergas}, {"sam_rad", sc.sam_rad}};
+    write_text_atomic(o.out + "/metrics.json", m.dump(2) + "\n");
+    std::printf("against %s (interior, %zu px border): PSNR %.3f dB, SSIM %.4f, RMSE %.5f, ERGAS %.3f, SAM %.4f rad\n",
+                a.get("truth").c_str(), border, sc.psnr, sc.ssim, sc.rmse, sc.ergas, sc.sam_rad);
+  }
   std::printf("decoder: %s\nPSF: %s\nimage %zu x %zu -> cube %zu x %zu x %zu in %zu tile%s of %zu x %zu px, boundary %s (exposure factor %.6g)\nseconds:",
               r.decoder.c_str(), r.psf.c_str(), r.cube.rows, r.cube.cols, r.cube.planes, r.cube.rows, r.cube.cols, r.tiles,
               r.tiles == 1 ? "" : "s", r.tile_px, r.tile_px, r.boundary.c_str(), r.exposure_factor);
   for (const auto& [k, v] : r.seconds) std::printf(" %s %.3f", k.c_str(), v);
-  std::printf("\nwrote %s/cube.h5, srgb.png, spectra.csv, spectra.png, reconstruct.json\n", o.out.c_str());
+  std::printf("\nwrote %s/cube.h5, srgb.png, spectra.csv, spectra.png, reconstruct.json%s\n", o.out.c_str(), truth.data.empty() ? "" : ", metrics.json");
   return 0;
 }
 

@@ -331,7 +331,14 @@ std::vector<CommandSpec> make_table() {
                                 "for the Wiener decoder, circular for a network)"),
                 opt("noise-sigma", "noise std the Wiener decoder assumes, in units of full scale, in [0, 10] (default: the run's)"),
                 opt("points", "spectra at points ROW,COL;ROW,COL;... of the reconstructed image (default: its centre when no --boxes)"),
-                opt("boxes", "mean spectra over boxes ROW,COL,H,W;... of the reconstructed image"), precision(), device(),
+                opt("boxes", "mean spectra over boxes ROW,COL,H,W;... of the reconstructed image"),
+                opt("truth", "the scene the captures show (a cube file or PNG band folder of the captures' size, e.g. the --scene of "
+                             "qdo simulate --raw): the cube is scored against it (cropped as --crop) with qdo eval's metrics -> "
+                             "metrics.json"),
+                opt("truth-key", "variable / dataset name of the --truth cube (default: found automatically)"),
+                opt("truth-border", "pixels left out of the score at each edge (light from outside the frame is missing there), "
+                                    "an integer >= 0 below half the image's smaller side", "0"),
+                precision(), device(),
                 out_dir_opt()},
                cmd_reconstruct});
   // Every command that writes an output folder takes --into-existing (claim_output_dir, io.hpp).
