@@ -7,8 +7,12 @@
 # Res-UNets trained on the CAVE training scenes for NET_STEPS steps on each of NET_INPUTS
 # (none, mhc, zeros: the network that reads the mosaic directly), the same noise seeds for all.
 #
-# Usage: scripts/experiments_mosaic.sh [OUT]   (parameters below, each overridable from the environment)
-# Writes OUT/table.md, OUT/table.csv (per variant) and OUT/cells.csv (per scene and seed).
+# Usage: scripts/experiments_mosaic.sh [OUT]   (parameters below, each overridable from the environment;
+#        TABLE_ONLY=1 only rewrites OUT/table_scenes.md from an earlier run's OUT/cells.csv)
+# Writes OUT/table.md, OUT/table.csv (per variant, intervals over the (scene, seed) cells), OUT/cells.csv
+# (per scene and seed) and OUT/table_scenes.md: the seeds averaged per scene first, intervals over the
+# scenes (the noise seeds move PSNR by ~0.01 dB, so the cells are not independent draws: the scenes are
+# the sample), and each scene's difference against the same decoder on mhc.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/experiments_mosaic}
@@ -36,8 +40,40 @@ if [ ! -f "$RUN/design.h5" ]; then
   "$QDO" design --preset small --mode qdo+a --levels "$LEVELS" --epochs "$EPOCHS" --steps-per-epoch "$STEPS_PER_EPOCH" --seed 0 \
     --out "$RUN" > "$OUT/design.log"
 fi
+if [ "${TABLE_ONLY:-0}" != 1 ]; then
 echo "[mosaic] $COMPARE --run $RUN --seeds $SEEDS --net-steps $NET_STEPS ..."
 "$COMPARE" --run "$RUN" --data "$TEST" --train-data "$TRAIN" --seeds "$SEEDS" --cfa "$CFA" --bit-depth "$BIT_DEPTH" \
   --black-level "$BLACK" --net-steps "$NET_STEPS" --net-batch "$NET_BATCH" --net-spec "$NET_SPEC" --net-lr "$NET_LR" \
   --net-inputs "$NET_INPUTS" --out "$OUT"
+fi
+python3 - "$OUT" <<'PY'
+import collections, csv, math, os, sys
+out = sys.argv[1]
+cells = collections.defaultdict(lambda: collections.defaultdict(list))  # variant -> scene -> [psnr per seed]
+order = []
+for r in csv.DictReader(open(os.path.join(out, "cells.csv"))):
+    if r["variant"] not in order: order.append(r["variant"])
+    cells[r["variant"]][r["scene"]].append(float(r["psnr"]))
+T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571}
+def ci(v):
+    n = len(v); m = sum(v) / n
+    if n < 2: return m, float("nan")
+    sd = math.sqrt(sum((x - m) ** 2 for x in v) / (n - 1))
+    return m, T975.get(n - 1, 1.96) * sd / math.sqrt(n)
+scenes = sorted(next(iter(cells.values())).keys())
+lines = ["| decoder / input | PSNR dB, mean over scenes (95 %% CI, n = %d scenes) | " % len(scenes)
+         + " | ".join(s.replace("_256", "") for s in scenes) + " | difference to same decoder on mhc, per scene (dB) |",
+         "|---|---|" + "---|" * len(scenes) + "---|"]
+for v in order:
+    per = [sum(cells[v][s]) / len(cells[v][s]) for s in scenes]
+    m, h = ci(per)
+    base = v.split("/")[0] + "/mhc"
+    diff = ""
+    if base in cells and base != v:
+        d = [p - sum(cells[base][s]) / len(cells[base][s]) for p, s in zip(per, scenes)]
+        diff = ", ".join("%+.2f" % x for x in d) + " (mean %+.2f)" % (sum(d) / len(d))
+    lines.append("| %s | %.2f (+-%.2f) | %s | %s |" % (v, m, h, " | ".join("%.2f" % p for p in per), diff))
+open(os.path.join(out, "table_scenes.md"), "w").write("\n".join(lines) + "\n")
+print("\n".join(lines))
+PY
 echo "[mosaic] finished in $(( $(date +%s) - start )) s: $OUT/table.md"
