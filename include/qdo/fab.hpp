@@ -180,8 +180,9 @@ struct AsBuiltCamera {
   MaskPlan plan;
   std::string scheme_note;
   std::vector<double> depth_error_m, shift_x_m, shift_y_m;  // the draws, one per mask
-  // Per design level: the median of the fabricated relief over the level's pixels, before the
-  // lateral offset (a level's realised height; the perturbed map's constant offset included).
+  // Per design level: its design height less the depth errors of the masks open over it (the
+  // constant perturbed_heights may add to keep the relief >= 0 left out: a piston; edges blurred
+  // by overlay are not levels).
   std::vector<double> level_height_m;
 };
 // InputError (naming the option) for negative sizes, an offset beyond the grid, a distance error

@@ -68,18 +68,14 @@ AsBuiltCamera fabricate(const Design& d, const SystemConfig& cfg, const AsBuiltO
   r.shift_x_m = pt.shift_x_m;
   r.shift_y_m = pt.shift_y_m;
 
-  // Realised level heights: the median over each level's pixels.
+  // Realised level heights: each level's design height less the depth errors of the masks open
+  // over it (the constant perturbed_heights may add to keep the relief >= 0 is left out: a piston,
+  // invisible in a PSF; level differences are what qdo fit sees).
   r.level_height_m.assign(r.plan.levels.size(), 0.0);
   for (std::size_t l = 0; l < r.plan.levels.size(); ++l) {
-    std::vector<double> v;
-    for (std::size_t i = 0; i < fabricated.data.size(); ++i)
-      if (r.plan.level_of_pixel[i] == std::int32_t(l)) v.push_back(fabricated.data[i]);
-    if (v.empty()) {
-      r.level_height_m[l] = r.plan.levels[l].height_m;
-      continue;
-    }
-    std::nth_element(v.begin(), v.begin() + std::ptrdiff_t(v.size() / 2), v.end());
-    r.level_height_m[l] = v[v.size() / 2];
+    double h = r.plan.levels[l].height_m;
+    for (int m : r.plan.levels[l].masks) h -= pt.depth_error_m[std::size_t(m)];
+    r.level_height_m[l] = h;
   }
 
   r.design.pitch_m = d.pitch_m;
