@@ -41,6 +41,7 @@
 //      0.4 sigma per masked pixel); each band is divided by its sum.
 #pragma once
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "qdo/config.hpp"
@@ -72,6 +73,9 @@ struct CalibrationResult {
   std::size_t hot_pixels = 0;         // replaced, over all frames
   long centre_row = 0, centre_col = 0;  // frame pixel put at (S/2, S/2)
   std::size_t frame_rows = 0, frame_cols = 0;
+  // Seconds per step, in order: match, read, dark, hot pixels and SNR, mosaic, centre, crop,
+  // background and normalise.
+  std::vector<std::pair<std::string, double>> seconds;
 };
 
 // The whole calibration (steps above) of frames_dir against darks_dir for cfg. Every refusal is

@@ -69,6 +69,9 @@ int cmd_calibrate(const Args& a) {
   std::printf("calibrated %zu bands from %s (%zu dark frames, %zu hot pixels replaced), centre (row %ld, column %ld) of %zu x %zu, "
               "S = %zu\n",
               cfg.bands, a.get("frames").c_str(), r.darks.size(), r.hot_pixels, r.centre_row, r.centre_col, r.frame_rows, r.frame_cols, s);
+  std::printf("seconds:");
+  for (const auto& [step, sec] : r.seconds) std::printf(" [%s] %.4f", step.c_str(), sec);
+  std::printf("\n");
   if (design.empty()) {
     std::printf("wrote %s/psf.h5, psf.png\n", dir.c_str());
     return 0;

@@ -2,6 +2,7 @@
 #include "qdo/calibrate.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <regex>
@@ -107,6 +108,14 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   // bit_depth 0 (continuous codes, white 1): the 16-bit file holds the fraction of 65535.
   const double file_scale = cfg.bit_depth == 0 ? 1.0 / 65535.0 : 1.0;
   const bool mosaic = cfg.cfa != Cfa::None;
+  // Seconds per step (CalibrationResult::seconds), each lap the time since the previous one.
+  std::vector<std::pair<std::string, double>> seconds;
+  auto last = std::chrono::steady_clock::now();
+  const auto lap = [&](const char* name) {
+    const auto now = std::chrono::steady_clock::now();
+    seconds.push_back({name, std::chrono::duration<double>(now - last).count()});
+    last = now;
+  };
 
   // 1. Match the file names to the bands (before reading any pixel).
   const std::vector<std::string> files = frame_files(frames_dir, "--frames");
@@ -131,6 +140,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
       throw InputError("--frames " + in_quotes(frames_dir) + ": no frame for the configured band " + to_str(grid[b]) +
                        " nm (expected a file named like psf_" + to_str(grid[b]) + "nm.png)");
 
+  lap("match");
   // 2. Read and check every frame and dark.
   const std::vector<std::string> dark_files = frame_files(darks_dir, "--darks");
   std::vector<Frame> frames(bands), darks;
@@ -157,6 +167,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
                                std::to_string(s) + " x " + std::to_string(s));
   const Eigen::MatrixXd srf = sensor_response(cfg);  // 3 x bands
 
+  lap("read");
   // 3. The mean dark, its noise and its hot pixels.
   Map2D dark(rows, cols);
   for (const auto& d : darks)
@@ -174,6 +185,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   r.frame_cols = cols;
   r.peak_snr.resize(bands);
   r.noise_dn.resize(bands);
+  lap("dark");
   std::vector<Map2D> sig(bands);  // dark-subtracted, hot pixels replaced, DN
   std::vector<double> cell(4, 0), worst(bands, 0);
   std::vector<std::vector<double>> cell_b(bands, std::vector<double>(4, 0));
@@ -219,6 +231,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     sig[b] = std::move(m);
   }
 
+  lap("hot pixels and SNR");
   // 5a. The mosaic layout against the configured one.
   if (mosaic) {
     const Cfa layouts[4] = {Cfa::RGGB, Cfa::GRBG, Cfa::GBRG, Cfa::BGGR};
@@ -291,6 +304,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     m = std::move(out);
   }
 
+  lap("mosaic");
   // 7. The common centre.
   long cy = opt.centre_row, cx = opt.centre_col;
   if (!opt.has_centre) {
@@ -325,6 +339,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     cy = std::lround(py);
     cx = std::lround(px);
   }
+  lap("centre");
   r.centre_row = cy;
   r.centre_col = cx;
   const long y0 = cy - long(s / 2), x0 = cx - long(s / 2);
@@ -402,6 +417,8 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     if (!(sum > 0)) refuse(frames[b].path, "no signal above the background in the S x S crop");
     for (std::size_t i = 0; i < s * s; ++i) r.psf.data[b * s * s + i] /= sum;
   }
+  lap("crop, background and normalise");
+  r.seconds = seconds;
   return r;
 }
 
