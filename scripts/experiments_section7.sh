@@ -5,7 +5,10 @@
 # (qdo fabricate), a monochromator sweep and the CAVE test scenes are captured through that camera
 # as raw 12-bit RGGB frames with black level, read and shot noise (qdo simulate --capture psf-sweep,
 # qdo simulate --raw), then calibrate -> fit -> adapt -> reconstruct, each reconstruction scored
-# against the scene (qdo reconstruct --truth). Writes OUT/table.md and OUT/table.csv.
+# against the scene (qdo reconstruct --truth). Two fabrications of the same design: "depth" (each
+# mask's etch depth error, a relief offset, a DOE-sensor distance error: all inside qdo fit's
+# model) and "full" (the same plus each mask's own overlay shift, as qdo tolerance draws it: outside
+# the model). Writes OUT/table.md and OUT/table.csv.
 # Usage: bash scripts/experiments_section7.sh [OUT]   (QDO: the qdo binary, default build/qdo)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,6 +23,7 @@ ETCH_NM=${ETCH_NM:-20}     # per-mask etch depth error bound (REFERENCE §6)
 OVERLAY_UM=${OVERLAY_UM:-0.5}
 OFFSET_UM=${OFFSET_UM:-1.5,-1.0}      # relief against the aperture (assembly of the aperture stop)
 DZ_UM=${DZ_UM:-150}                   # DOE-sensor distance error (1.2 % of z = 12.5 mm)
+LATERAL_STARTS=${LATERAL_STARTS:-9}   # qdo fit --lateral-starts
 BORDER=${BORDER:-16}                  # pixels left out of each score at every edge
 export QDO_DEVICE=${QDO_DEVICE:-cpu}
 export QDO_CACHE_DIR=${QDO_CACHE_DIR:-$PWD/build/kernel-cache}
@@ -42,69 +46,82 @@ if [ ! -f "$OUT/design/design.h5" ]; then
     --data "$SHARED/data/hsi/cave_train" --out "$OUT/design"
 fi
 
-log "2. fabricate: one draw of the tolerance study's mask errors, a relief offset, a z error"
-rm -rf "$OUT/asbuilt"
-"$QDO" fabricate "$OUT/design" --seed "$FAB_SEED" --etch-depth-error-nm "$ETCH_NM" --overlay-um "$OVERLAY_UM" \
-  --offset-um="$OFFSET_UM" --sensor-distance-error-um "$DZ_UM" --out "$OUT/asbuilt"
+log "2. the camera as built, twice: inside qdo fit's model (depth) and with per-mask overlay (full)"
+for sc in depth full; do
+  ov=$([ $sc = depth ] && echo 0 || echo "$OVERLAY_UM")
+  rm -rf "$OUT/$sc"
+  mkdir -p "$OUT/$sc"
+  "$QDO" fabricate "$OUT/design" --seed "$FAB_SEED" --etch-depth-error-nm "$ETCH_NM" --overlay-um "$ov" \
+    --offset-um="$OFFSET_UM" --sensor-distance-error-um "$DZ_UM" --out "$OUT/$sc/asbuilt"
+  "$QDO" psf --config "$OUT/$sc/asbuilt/config.json" --design "$OUT/$sc/asbuilt/design.h5" --out "$OUT/$sc/true_psf" > /dev/null
 
-log "3. calibration sweep through the camera as built (point source per band, dark frames)"
-rm -rf "$OUT/sweep"
-"$QDO" simulate --config "$OUT/asbuilt/config.json" --design "$OUT/asbuilt/design.h5" --capture psf-sweep --peak 0.6 \
-  --darks 8 --out "$OUT/sweep"
+  log "3. [$sc] calibration sweep through the camera as built (a point source per band, dark frames)"
+  "$QDO" simulate --config "$OUT/$sc/asbuilt/config.json" --design "$OUT/$sc/asbuilt/design.h5" --capture psf-sweep --peak 0.6 \
+    --darks 8 --out "$OUT/$sc/sweep"
 
-log "4. calibrate: measured PSF stack"
-rm -rf "$OUT/measured"
-"$QDO" calibrate --config "$CAM" --frames "$OUT/sweep/frames" --darks "$OUT/sweep/darks" --design "$OUT/design/design.h5" \
-  --out "$OUT/measured"
+  log "4. [$sc] calibrate (--background none: the DOE's PSF has energy out to the crop's edge)"
+  "$QDO" calibrate --config "$CAM" --frames "$OUT/$sc/sweep/frames" --darks "$OUT/$sc/sweep/darks" --background none \
+    --design "$OUT/design/design.h5" --out "$OUT/$sc/measured"
 
-log "5. fit: the as-built levels, z and offset, with the registration of the measured stack (calibrate centres it on its centroid)"
-rm -rf "$OUT/fitted"
-"$QDO" fit --config "$CAM" --design "$OUT/design/design.h5" --psf "$OUT/measured/psf.h5" --fit levels,z,offset,shift --iterations 60 --out "$OUT/fitted"
-# The fitted camera's PSF with its fitted geometry (qdo reconstruct --design simulates with the run's).
-rm -rf "$OUT/fitted_psf"
-"$QDO" psf --config "$OUT/fitted/config.json" --design "$OUT/fitted/design.h5" --out "$OUT/fitted_psf"
-rm -rf "$OUT/true_psf"
-"$QDO" psf --config "$OUT/asbuilt/config.json" --design "$OUT/asbuilt/design.h5" --out "$OUT/true_psf"
-# A diagnostic: the same fit on the true as-built stack (no calibration: no noise, no centring,
-# no mosaic), to tell the calibration's share of the fit's error from the model's (per-mask overlay
-# shifts are not in qdo fit's model).
-rm -rf "$OUT/fitted_true"
-"$QDO" fit --config "$CAM" --design "$OUT/design/design.h5" --psf "$OUT/true_psf/psf.h5" --fit levels,z,offset --iterations 60 \
-  --out "$OUT/fitted_true"
-
-log "6. captures of the CAVE test scenes: through the design (as simulated) and through the camera as built"
-for f in "$SHARED"/data/hsi/cave/*.mat; do
-  s=$(basename "$f" .mat)
-  for cam in design asbuilt; do
-    d=$OUT/captures/$cam/$s
-    rm -rf "$d"
-    mkdir -p "$(dirname "$d")"
-    if [ $cam = design ]; then
-      "$QDO" simulate --config "$CAM" --design "$OUT/design/design.h5" --scene "$f" --raw --out "$d" > "$d.log"
-    else
-      "$QDO" simulate --config "$OUT/asbuilt/config.json" --design "$OUT/asbuilt/design.h5" --scene "$f" --raw --out "$d" > "$d.log"
-    fi
-  done
+  log "5. [$sc] fit: levels, z, offset, and the registration of the measured stack (calibrate centres it on its centroid)"
+  "$QDO" fit --config "$CAM" --design "$OUT/design/design.h5" --psf "$OUT/$sc/measured/psf.h5" --fit levels,z,offset,shift \
+    --lateral-starts "$LATERAL_STARTS" --iterations 60 --out "$OUT/$sc/fitted"
+  # The fitted camera's PSF with its fitted geometry (qdo reconstruct --design simulates with the run's).
+  "$QDO" psf --config "$OUT/$sc/fitted/config.json" --design "$OUT/$sc/fitted/design.h5" --out "$OUT/$sc/fitted_psf" > /dev/null
+  # A diagnostic: the same fit on the true as-built stack (no calibration: no noise, no centring, no
+  # mosaic), to tell the calibration's share of the fit's error from the model's.
+  "$QDO" fit --config "$CAM" --design "$OUT/design/design.h5" --psf "$OUT/$sc/true_psf/psf.h5" --fit levels,z,offset \
+    --lateral-starts "$LATERAL_STARTS" --iterations 60 --out "$OUT/$sc/fitted_true"
 done
 
+log "6. captures of the CAVE test scenes: through the design (as simulated) and through each camera as built"
+capture() {  # SET CONFIG DESIGN
+  local set=$1 cfg=$2 design=$3
+  for f in "$SHARED"/data/hsi/cave/*.mat; do
+    s=$(basename "$f" .mat)
+    d=$OUT/captures/$set/$s
+    rm -rf "$d"
+    mkdir -p "$(dirname "$d")"
+    "$QDO" simulate --config "$cfg" --design "$design" --scene "$f" --raw --out "$d" > "$d.log"
+  done
+}
+capture design "$CAM" "$OUT/design/design.h5"
+for sc in depth full; do capture "$sc" "$OUT/$sc/asbuilt/config.json" "$OUT/$sc/asbuilt/design.h5"; done
+
 log "7. adapt + reconstruct: the run's Wiener decoder refit in closed form for each PSF, scored against the scene"
+# The noise sigma the decoder assumes: the run's (1e-3, what the design was trained with) and the
+# sensor's noise model at each capture's mean signal v: sqrt(read_noise^2 + v / full_well).
+sigma_model() {  # RAW.h5 -> sigma
+  /usr/bin/python3 - "$1" "$CAM" <<'PY'
+import json, sys, h5py
+r = h5py.File(sys.argv[1], "r")["raw"]
+c = json.load(open(sys.argv[2]))
+v = (r[()].mean() - r.attrs["black_level_dn"]) / (c["gain"] * (r.attrs["white_level_dn"] - r.attrs["black_level_dn"]))
+print("%.6g" % ((c["read_noise_sigma"] ** 2 + max(v, 0) / c["full_well_photons"]) ** 0.5))
+PY
+}
 run_rec() {  # NAME CAPTURE_SET PSF_ARGS...
   local name=$1 set=$2; shift 2
   for f in "$SHARED"/data/hsi/cave/*.mat; do
     s=$(basename "$f" .mat)
-    d=$OUT/recon/$name/$s
-    rm -rf "$d"
-    mkdir -p "$(dirname "$d")"
-    "$QDO" reconstruct --run "$OUT/design" --capture "$OUT/captures/$set/$s/raw.png" --demosaic mhc "$@" \
-      --truth "$f" --truth-border "$BORDER" --out "$d" > "$d.log"
+    for sig in run model; do
+      d=$OUT/recon/$sig/$name/$s
+      rm -rf "$d"
+      mkdir -p "$(dirname "$d")"
+      ns=0.001
+      [ $sig = model ] && ns=$(sigma_model "$OUT/captures/$set/$s/raw.h5")
+      "$QDO" reconstruct --run "$OUT/design" --capture "$OUT/captures/$set/$s/raw.png" --demosaic mhc --noise-sigma "$ns" "$@" \
+        --truth "$f" --truth-border "$BORDER" --out "$d" > "$d.log"
+    done
   done
 }
-mkdir -p "$OUT/recon"
-run_rec design design                                   # the design as simulated (same sensor chain)
-run_rec asbuilt_design_decoder asbuilt                  # the camera as built, the decoder made for the design
-run_rec asbuilt_measured asbuilt --psf "$OUT/measured/psf.h5"   # decoder adapted to the measured PSF
-run_rec asbuilt_fitted asbuilt --psf "$OUT/fitted_psf/psf.h5"   # decoder adapted to the fitted model
-run_rec asbuilt_oracle asbuilt --psf "$OUT/true_psf/psf.h5"     # decoder for the true as-built PSF (the bound)
+run_rec design design                                                 # the design as simulated (same sensor chain)
+for sc in depth full; do
+  run_rec "$sc/design_decoder" "$sc"                                  # the camera as built, the decoder made for the design
+  run_rec "$sc/measured" "$sc" --psf "$OUT/$sc/measured/psf.h5"       # decoder adapted to the measured PSF
+  run_rec "$sc/fitted" "$sc" --psf "$OUT/$sc/fitted_psf/psf.h5"       # decoder adapted to the fitted model
+  run_rec "$sc/oracle" "$sc" --psf "$OUT/$sc/true_psf/psf.h5"         # decoder for the true as-built PSF (a bound)
+done
 
 log "8. table"
 python3 scripts/section7_table.py "$OUT"

@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
-"""The table of scripts/experiments_section7.sh: OUT/recon/<row>/<scene>/metrics.json (qdo reconstruct
---truth) -> per-row means over the CAVE test scenes with a 95 % t interval, the fitted parameters against
-the true ones (OUT/fitted/fit.json, OUT/asbuilt/truth.json) -> OUT/table.md, OUT/table.csv.
+"""The tables of scripts/experiments_section7.sh -> OUT/table.md, OUT/table.csv:
+1. reconstruction: OUT/recon/<sigma>/<row>/<scene>/metrics.json (qdo reconstruct --truth), per row the
+   per-scene PSNR, the mean over the CAVE test scenes with a 95 % t interval, SSIM and SAM means, for
+   both noise sigmas the decoder assumed (run: the run's; model: the sensor's noise at the capture's level);
+2. parameters: OUT/<scenario>/fitted/fit.json (and fitted_true, the diagnostic) against
+   OUT/<scenario>/asbuilt/truth.json.
 Usage: section7_table.py OUT"""
 import csv
 import json
@@ -10,13 +13,14 @@ import os
 import sys
 
 T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262, 10: 2.228}
-ROWS = [
-    ("design", "the design as simulated (same sensor chain: RGGB 12-bit, noise, MHC demosaic)"),
-    ("asbuilt_design_decoder", "the camera as built, the decoder made for the design"),
-    ("asbuilt_measured", "the camera as built, the decoder adapted to the measured PSF (qdo calibrate)"),
-    ("asbuilt_fitted", "the camera as built, the decoder adapted to the fitted model (qdo fit)"),
-    ("asbuilt_oracle", "the camera as built, the decoder for its true PSF (a bound, not reachable in a lab)"),
-]
+SCENARIOS = [("depth", "depth errors + offset + z (inside qdo fit's model)"),
+             ("full", "the same + per-mask overlay (as qdo tolerance draws it; outside the model)")]
+ROWS = [("design", "the design as simulated (RGGB 12-bit, noise, MHC)")]
+for sc, _ in SCENARIOS:
+    ROWS += [(f"{sc}/design_decoder", f"{sc}: as built, decoder made for the design"),
+             (f"{sc}/measured", f"{sc}: as built, decoder adapted to the measured PSF"),
+             (f"{sc}/fitted", f"{sc}: as built, decoder adapted to the fitted model"),
+             (f"{sc}/oracle", f"{sc}: as built, decoder for its true PSF (bound)")]
 METRICS = ["psnr", "ssim", "sam_rad"]
 
 
@@ -29,48 +33,59 @@ def mean_ci(v):
     return m, T975.get(n - 1, 1.96) * sd / math.sqrt(n)
 
 
-def main(out):
+def recon_table(out, rows_csv):
     rec = os.path.join(out, "recon")
-    scenes = sorted(d for d in os.listdir(os.path.join(rec, "design")) if os.path.isdir(os.path.join(rec, "design", d)))
-    lines = ["| camera / decoder | " + " | ".join(s.replace("_256", "") for s in scenes) + " | PSNR mean ± 95 % CI (dB) | SSIM | SAM (rad) |",
-             "|---|" + "---:|" * (len(scenes) + 3)]
-    rows_csv = []
+    base = os.path.join(rec, "run", "design")
+    scenes = sorted(d for d in os.listdir(base) if os.path.isdir(os.path.join(base, d)))
+    names = [s.replace("_256", "") for s in scenes]
+    lines = ["| camera / decoder | σ assumed | " + " | ".join(names) + " | PSNR mean ± 95 % CI (dB) | SSIM | SAM (rad) |",
+             "|---|---|" + "---:|" * (len(scenes) + 3)]
     for key, label in ROWS:
-        per = {m: [] for m in METRICS}
-        for s in scenes:
-            j = json.load(open(os.path.join(rec, key, s, "metrics.json")))["mean"]
-            for m in METRICS:
-                per[m].append(j[m])
-            rows_csv.append({"row": key, "scene": s, **{m: j[m] for m in METRICS}})
-        p, pci = mean_ci(per["psnr"])
-        ss, _ = mean_ci(per["ssim"])
-        sa, _ = mean_ci(per["sam_rad"])
-        lines.append(f"| {label} | " + " | ".join(f"{v:.2f}" for v in per["psnr"]) + f" | {p:.2f} ± {pci:.2f} | {ss:.4f} | {sa:.4f} |")
+        for sig, sig_label in (("run", "run's 1e-3"), ("model", "noise model")):
+            per = {m: [] for m in METRICS}
+            for s in scenes:
+                j = json.load(open(os.path.join(rec, sig, key, s, "metrics.json")))["mean"]
+                for m in METRICS:
+                    per[m].append(j[m])
+                rows_csv.append({"row": key, "sigma": sig, "scene": s, **{m: j[m] for m in METRICS}})
+            p, pci = mean_ci(per["psnr"])
+            lines.append(f"| {label} | {sig_label} | " + " | ".join(f"{v:.2f}" for v in per["psnr"]) +
+                         f" | {p:.2f} ± {pci:.2f} | {mean_ci(per['ssim'])[0]:.4f} | {mean_ci(per['sam_rad'])[0]:.4f} |")
+    return lines
+
+
+def parameter_table(out, sc, folder, title):
+    truth = json.load(open(os.path.join(out, sc, "asbuilt", "truth.json")))["fit_parameters"]
+    fit = json.load(open(os.path.join(out, sc, folder, "fit.json")))
+    res_fit = sum(fit["residual_rel_fit"]) / len(fit["residual_rel_fit"])
+    res_des = sum(fit["residual_rel_design"]) / len(fit["residual_rel_design"])
+    lines = ["", f"**{sc}, {title}**: mean relative residual per band {res_fit:.3f} (design: {res_des:.3f}), "
+             f"{fit['iterations']} iterations", "",
+             "| parameter | design | true | fitted ± 1 σ | fitted − true | in σ |", "|---|---:|---:|---:|---:|---:|"]
+    for v in fit["parameters"]:
+        name = v["name"]
+        if name not in truth:
+            lines.append(f"| {name} (px, registration) | {v['design']:.4g} | — | {v['value']:.4f} ± {v['sigma']:.4f} | — | — |")
+            continue
+        scale, unit = (1e9, "nm") if name.startswith("level") else (1e3, "mm") if name == "z" else (1e6, "µm")
+        t, f, s, d = truth[name] * scale, v["value"] * scale, v["sigma"] * scale, v["design"] * scale
+        ins = abs(f - t) / s if s > 0 else float("inf")
+        lines.append(f"| {name} ({unit}) | {d:.4f} | {t:.4f} | {f:.4f} ± {s:.4f} | {f - t:+.4f} | {ins:.1f} |")
+    return lines
+
+
+def main(out):
+    rows_csv = []
+    lines = recon_table(out, rows_csv)
+    for sc, label in SCENARIOS:
+        lines += ["", f"### {sc}: {label}"]
+        lines += parameter_table(out, sc, "fitted", "fit to the measured stack")
+        lines += parameter_table(out, sc, "fitted_true", "diagnostic: fit to the true as-built stack (no calibration)")
     with open(os.path.join(out, "table.csv"), "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["row", "scene"] + METRICS)
+        w = csv.DictWriter(f, fieldnames=["row", "sigma", "scene"] + METRICS)
         w.writeheader()
         w.writerows(rows_csv)
-
-    truth = json.load(open(os.path.join(out, "asbuilt", "truth.json")))["fit_parameters"]
-    plines = []
-    for folder, title in (("fitted", "fit to the measured stack (qdo calibrate of the simulated sweep)"),
-                          ("fitted_true", "diagnostic: fit to the true as-built stack (no calibration)")):
-        fit = json.load(open(os.path.join(out, folder, "fit.json")))
-        plines += ["", f"{title}: mean relative residual per band {sum(fit['residual_rel_fit']) / len(fit['residual_rel_fit']):.3f} "
-                   f"(design {sum(fit['residual_rel_design']) / len(fit['residual_rel_design']):.3f})", "",
-                   "| parameter | design | true (as built) | fitted ± 1 σ | fitted − true | in σ |", "|---|---:|---:|---:|---:|---:|"]
-        for v in fit["parameters"]:
-            name = v["name"]
-            if name not in truth:
-                plines.append(f"| {name} (px, registration) | {v['design']:.4g} | — | {v['value']:.4f} ± {v['sigma']:.4f} | — | — |")
-                continue
-            scale, unit = (1e9, "nm") if name.startswith("level") else (1e3, "mm") if name == "z" else (1e6, "µm")
-            t = truth[name] * scale
-            f = v["value"] * scale
-            s = v["sigma"] * scale
-            d = v["design"] * scale
-            plines.append(f"| {name} ({unit}) | {d:.4f} | {t:.4f} | {f:.4f} ± {s:.4f} | {f - t:+.4f} | {abs(f - t) / s if s > 0 else float('inf'):.1f} |")
-    text = "\n".join(lines) + "\n\n" + "\n".join(plines) + "\n"
+    text = "\n".join(lines) + "\n"
     with open(os.path.join(out, "table.md"), "w") as f:
         f.write(text)
     print(text)

@@ -65,6 +65,20 @@ std::vector<std::string> default_fit_parameters(const Design& design);
 
 struct FitOptions {
   std::vector<std::string> parameters;  // names above; empty: default_fit_parameters
+  // Start values by the fitted names ("level1", "z", "dx", "sx", ... in their units: metres or
+  // sensor px) in place of the design's (and the centroid start); a name not fitted is an
+  // InputError. For a start from an earlier fit, or a known assembly. With lateral_starts > 1 a
+  // lateral start given here is one candidate of the grid.
+  std::vector<std::pair<std::string, double>> start;
+  // Lateral starts tried (when offset or shift is fitted): 1 = the centroid difference only; K > 1
+  // = the loss evaluated at K x K starts of the offset (else the shift) on a grid spanning
+  // +-(|centroid| + lateral_span_px) sensor px around zero (offset: divided by the magnification,
+  // in metres; with shift fitted too, +-lateral_span_px, each start with its best whole-pixel
+  // registration within +-3 px of the centroid's), the centroid start among them, and the fit started from the
+  // lowest (the blur a relief offset adds is even in the offset: a DOE's speckled PSF has mirror
+  // minima the centroid does not tell apart).
+  int lateral_starts = 1;
+  double lateral_span_px = 1.0;
   int max_iterations = 30;             // LM iterations, >= 1
   double tolerance = 1e-7;             // stop when the relative loss decrease of an accepted step is below this
   double step_sigmas = 1e-3;           // ... or when an accepted step moves no parameter by more than this many sigmas

@@ -5,6 +5,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 
@@ -63,6 +64,34 @@ int cmd_fit(const Args& a) {
   if (opt.parameters.empty()) opt.parameters = default_fit_parameters(design);
   const RealStack measured = read_psf_stack_for(cfg, a.get("psf"), "--psf");
   check_fit_parameters(cfg, design, opt.parameters);  // names, levels without a table, degenerate pairs: before any work
+  opt.lateral_starts = parse_int("--lateral-starts", a.get("lateral-starts"), 1, 15);
+  if (a.has("start")) {
+    // NAME=VALUE,...: the names the fit prints, in metres (levels, masks, z, d, dx, dy) or sensor
+    // px (sx, sy) or none (scale); checked against the fitted set before any work.
+    std::vector<std::string> allowed;
+    for (const auto& pname : opt.parameters) {
+      if (pname == "levels")
+        for (std::size_t l = 1; l < design.levels_m.size(); ++l) allowed.push_back("level" + std::to_string(l));
+      else if (pname == "masks")
+        for (int k = 0; (std::size_t(1) << k) < design.levels_m.size(); ++k) allowed.push_back("mask" + std::to_string(k));
+      else if (pname == "offset")
+        allowed.insert(allowed.end(), {"dx", "dy"});
+      else if (pname == "shift")
+        allowed.insert(allowed.end(), {"sx", "sy"});
+      else if (pname != "aperture")
+        allowed.push_back(pname);
+    }
+    for (const auto& item : split_list(a.get("start"))) {
+      const auto eq = item.find('=');
+      const std::string name = item.substr(0, eq);
+      if (eq == std::string::npos || std::find(allowed.begin(), allowed.end(), name) == allowed.end()) {
+        std::string all;
+        for (const auto& n : allowed) all += (all.empty() ? "" : ", ") + n;
+        reject("--start", item, "NAME=VALUE with NAME a fitted parameter (" + all + "), VALUE in metres, sensor px (sx, sy) or none (scale)");
+      }
+      opt.start.push_back({name, parse_double("--start", item.substr(eq + 1), -1e3, 1e3, "", false)});
+    }
+  }
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
   opt.progress = [](const std::string& l) {

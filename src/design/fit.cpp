@@ -637,6 +637,73 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
       say("fit: centroid of the measured stack against the design's: (" + fmt("%+.4f", c.first) + ", " + fmt("%+.4f", c.second) +
           ") sensor px; the start of " + (sx < np ? "shift" : "offset"));
     }
+    for (const auto& [name, value] : opt.start) {
+      const std::size_t k = find(name.c_str());
+      if (k >= np) reject("start", name, "a fitted parameter's name (" + [&] {
+                            std::string all;
+                            for (const auto& n : names) all += (all.empty() ? "" : ", ") + n;
+                            return all;
+                          }() + ")");
+      if (!std::isfinite(value)) reject("start", name + "=" + fmt("%g", value), "a finite value");
+      theta[k] = value;
+    }
+    // A grid of lateral starts: the lowest loss wins (the centroid start among them).
+    // The grid is over the offset when it is fitted (with shift fitted too, each offset's shift
+    // start keeps the image where the centroid says: c - offset x magnification / sensor pitch),
+    // else over the shift.
+    const std::size_t lat = dx < np ? dx : sx;
+    if (lat < np && opt.lateral_starts > 1) {
+      const double mag = cfg.scene_at_infinity ? 1.0 : 1.0 + cfg.sensor_distance_m / cfg.scene_distance_m;
+      const double unit = lat == sx ? 1.0 : cfg.sensor_pitch_m / mag;  // sensor px -> the parameter's unit
+      const double span = sx < np && dx < np ? 0.5 * opt.lateral_span_px : std::max(std::fabs(c.first), std::fabs(c.second)) + opt.lateral_span_px;
+      const int k = opt.lateral_starts;
+      double best = model.loss(theta, measured);
+      std::vector<double> best_theta = theta;
+      for (int iy = 0; iy < k; ++iy)
+        for (int ix = 0; ix < k; ++ix) {
+          std::vector<double> trial = theta;
+          const double ox = -span + 2 * span * ix / (k - 1), oy = -span + 2 * span * iy / (k - 1);  // sensor px
+          trial[lat] = ox * unit;
+          trial[lat + 1] = oy * unit;
+          if (lat == dx && sx < np) {
+            trial[sx] = c.first - ox;
+            trial[sx + 1] = c.second - oy;
+          }
+          double l = std::numeric_limits<double>::infinity();
+          try {
+            if (lat == dx && sx < np) {
+              // The registration too: the model at zero shift once, then every whole-pixel shift
+              // within +-3 px of the centroid's on the host (a whole-pixel shift is exact).
+              trial[sx] = trial[sx + 1] = 0;
+              const RealStack p0 = model.evaluate(trial);
+              const long cx = std::lround(c.first - ox), cy = std::lround(c.second - oy);
+              for (long jy = cy - 3; jy <= cy + 3; ++jy)
+                for (long jx = cx - 3; jx <= cx + 3; ++jx) {
+                  const std::vector<double> sh = shift_bilinear(p0.data, p0.planes, p0.rows, p0.cols, double(jx), double(jy));
+                  double ls = 0;
+                  for (std::size_t i = 0; i < sh.size(); ++i) ls += (sh[i] - measured.data[i]) * (sh[i] - measured.data[i]);
+                  ls *= 0.5;
+                  if (ls < l) {
+                    l = ls;
+                    trial[sx] = double(jx);
+                    trial[sx + 1] = double(jy);
+                  }
+                }
+            } else {
+              l = model.loss(trial, measured);
+            }
+          } catch (const InputError&) {
+          }
+          if (l < best) {
+            best = l;
+            best_theta = trial;
+          }
+        }
+      theta = best_theta;
+      say("fit: " + std::to_string(k * k) + " lateral starts of " + names[lat] + ", " + names[lat + 1] + " within +-" + fmt("%.3g", span) +
+          " sensor px: the lowest loss " + fmt("%.6e", best) + " at " + names[lat] + " = " + fmt("%.4g", theta[lat]) + ", " +
+          names[lat + 1] + " = " + fmt("%.4g", theta[lat + 1]));
+    }
   }
   double loss = model.loss(theta, measured), lambda = opt.lambda0;
   res.loss_initial = loss;
