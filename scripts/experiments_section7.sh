@@ -24,6 +24,8 @@ OVERLAY_UM=${OVERLAY_UM:-0.5}
 OFFSET_UM=${OFFSET_UM:-1.5,-1.0}      # relief against the aperture (assembly of the aperture stop)
 DZ_UM=${DZ_UM:-150}                   # DOE-sensor distance error (1.2 % of z = 12.5 mm)
 LATERAL_STARTS=${LATERAL_STARTS:-9}   # qdo fit --lateral-starts
+SIGMAS=${SIGMAS:-"run model 0.01 0.03"}  # noise sigmas the decoder assumes: run (the run's), model (the sensor's at the capture's level), or values
+RECON_ONLY=${RECON_ONLY:-0}           # 1: only steps 7-8 (reconstruct and tables) on an earlier run's files
 BORDER=${BORDER:-16}                  # pixels left out of each score at every edge
 export QDO_DEVICE=${QDO_DEVICE:-cpu}
 export QDO_CACHE_DIR=${QDO_CACHE_DIR:-$PWD/build/kernel-cache}
@@ -46,6 +48,7 @@ if [ ! -f "$OUT/design/design.h5" ]; then
     --data "$SHARED/data/hsi/cave_train" --out "$OUT/design"
 fi
 
+if [ "$RECON_ONLY" != 1 ]; then
 log "2. the camera as built, twice: inside qdo fit's model (depth) and with per-mask overlay (full)"
 for sc in depth full; do
   ov=$([ $sc = depth ] && echo 0 || echo "$OVERLAY_UM")
@@ -87,10 +90,12 @@ capture() {  # SET CONFIG DESIGN
 }
 capture design "$CAM" "$OUT/design/design.h5"
 for sc in depth full; do capture "$sc" "$OUT/$sc/asbuilt/config.json" "$OUT/$sc/asbuilt/design.h5"; done
+fi
 
 log "7. adapt + reconstruct: the run's Wiener decoder refit in closed form for each PSF, scored against the scene"
-# The noise sigma the decoder assumes: the run's (1e-3, what the design was trained with) and the
-# sensor's noise model at each capture's mean signal v: sqrt(read_noise^2 + v / full_well).
+# The noise sigma the decoder assumes: the run's (1e-3, what the design was trained with), the
+# sensor's noise model at each capture's mean signal v: sqrt(read_noise^2 + v / full_well), and
+# fixed larger values (a sensitivity: the same for every row, not tuned per row).
 sigma_model() {  # RAW.h5 -> sigma
   /usr/bin/python3 - "$1" "$CAM" <<'PY'
 import json, sys, h5py
@@ -104,12 +109,15 @@ run_rec() {  # NAME CAPTURE_SET PSF_ARGS...
   local name=$1 set=$2; shift 2
   for f in "$SHARED"/data/hsi/cave/*.mat; do
     s=$(basename "$f" .mat)
-    for sig in run model; do
+    for sig in $SIGMAS; do
       d=$OUT/recon/$sig/$name/$s
       rm -rf "$d"
       mkdir -p "$(dirname "$d")"
-      ns=0.001
-      [ $sig = model ] && ns=$(sigma_model "$OUT/captures/$set/$s/raw.h5")
+      case $sig in
+        run) ns=0.001 ;;
+        model) ns=$(sigma_model "$OUT/captures/$set/$s/raw.h5") ;;
+        *) ns=$sig ;;
+      esac
       "$QDO" reconstruct --run "$OUT/design" --capture "$OUT/captures/$set/$s/raw.png" --demosaic mhc --noise-sigma "$ns" "$@" \
         --truth "$f" --truth-border "$BORDER" --out "$d" > "$d.log"
     done
@@ -124,4 +132,4 @@ for sc in depth full; do
 done
 
 log "8. table"
-python3 scripts/section7_table.py "$OUT"
+python3 scripts/section7_table.py "$OUT" $SIGMAS

@@ -5,7 +5,7 @@
    both noise sigmas the decoder assumed (run: the run's; model: the sensor's noise at the capture's level);
 2. parameters: OUT/<scenario>/fitted/fit.json (and fitted_true, the diagnostic) against
    OUT/<scenario>/asbuilt/truth.json.
-Usage: section7_table.py OUT"""
+Usage: section7_table.py OUT [SIGMA ...]   (the sigma folders of OUT/recon, default: run model)"""
 import csv
 import json
 import math
@@ -41,7 +41,8 @@ def recon_table(out, rows_csv):
     lines = ["| camera / decoder | σ assumed | " + " | ".join(names) + " | PSNR mean ± 95 % CI (dB) | SSIM | SAM (rad) |",
              "|---|---|" + "---:|" * (len(scenes) + 3)]
     for key, label in ROWS:
-        for sig, sig_label in (("run", "run's 1e-3"), ("model", "noise model")):
+        for sig in SIGMAS:
+            sig_label = {"run": "run's 1e-3", "model": "noise model"}.get(sig, sig)
             per = {m: [] for m in METRICS}
             for s in scenes:
                 j = json.load(open(os.path.join(rec, sig, key, s, "metrics.json")))["mean"]
@@ -69,9 +70,12 @@ def parameter_table(out, sc, folder, title):
             continue
         scale, unit = (1e9, "nm") if name.startswith("level") else (1e3, "mm") if name == "z" else (1e6, "µm")
         t, f, s, d = truth[name] * scale, v["value"] * scale, v["sigma"] * scale, v["design"] * scale
-        ins = abs(f - t) / s if s > 0 else float("inf")
-        lines.append(f"| {name} ({unit}) | {d:.4f} | {t:.4f} | {f:.4f} ± {s:.4f} | {f - t:+.4f} | {ins:.1f} |")
+        ins = f"{abs(f - t) / s:.1f}" if s > 1e-9 * max(abs(t), 1e-12) else "— (σ ≈ 0: exact fit)"
+        lines.append(f"| {name} ({unit}) | {d:.4f} | {t:.4f} | {f:.4f} ± {s:.4f} | {f - t:+.4f} | {ins} |")
     return lines
+
+
+SIGMAS = ["run", "model"]
 
 
 def main(out):
@@ -92,4 +96,6 @@ def main(out):
 
 
 if __name__ == "__main__":
+    if len(sys.argv) > 2:
+        SIGMAS[:] = sys.argv[2:]
     main(sys.argv[1] if len(sys.argv) > 1 else "out/section7")
