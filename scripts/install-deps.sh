@@ -12,7 +12,8 @@ pkgs=(
   libhdf5-dev            # result files and HDF5 / .mat v7.3 cubes
   libmatio-dev           # MATLAB .mat v5 / v7.3 reader
   nlohmann-json3-dev     # configuration files
-  libpng-dev             # figures
+  libpng-dev             # figures, 16-bit PNG captures
+  libtiff-dev            # 16-bit TIFF captures (qdo calibrate, qdo reconstruct)
   doctest-dev            # tests
   libcli11-dev           # the command line (header-only CLI11)
   klayout                # tests: an independent GDSII reader for the mask round trip (issue 7)

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -206,6 +207,51 @@ TEST_SUITE("calibrate") {
                                 (s.dir / "sim").string(),
                             "QDO_DEVICE=cpu");
     CHECK_MESSAGE(sim.code == 0, sim.out);
+  }
+
+  TEST_CASE("16-bit TIFF frames and darks calibrate exactly as the PNG ones; RGB TIFF frames and DNG files are refused") {
+    const Sweep& s = sweep();
+    // The io round trip: grayscale and RGB code values unchanged.
+    RealStack rgb(3, 5, 7);
+    for (std::size_t i = 0; i < rgb.data.size(); ++i) rgb.data[i] = double((i * 2654435761u) % 65536);
+    write_tiff16((s.dir / "rgb.tif").string(), rgb);
+    CHECK(read_tiff16((s.dir / "rgb.tif").string()).data == rgb.data);
+    CHECK(read_capture16((s.dir / "rgb.tif").string()).planes == 3);
+    CHECK_THROWS_WITH_AS(read_tiff16((s.dir / "darks" / "dark_0.png").string()), doctest::Contains("not a readable TIFF"), InputError);
+    CHECK_THROWS_WITH_AS(read_capture16((s.dir / "x.bmp").string()), doctest::Contains("x.bmp"), InputError);
+
+    const fs::path tf = s.dir / "tiff_frames", td = s.dir / "tiff_darks";
+    fs::create_directories(tf);
+    fs::create_directories(td);
+    const auto to_tiff = [](const fs::path& from, const fs::path& to) {
+      const Map2D g = read_png16_gray(from.string());
+      RealStack t(1, g.rows, g.cols);
+      t.data = g.data;
+      write_tiff16(to.string(), t);
+    };
+    for (const auto& e : fs::directory_iterator(s.dir / "frames")) to_tiff(e.path(), tf / e.path().filename().replace_extension(".tif"));
+    for (const auto& e : fs::directory_iterator(s.dir / "darks")) to_tiff(e.path(), td / e.path().filename().replace_extension(".tiff"));
+    const Run png = calibrate(s.dir / "frames", "o_png");
+    REQUIRE_MESSAGE(png.code == 0, png.out);
+    const Run tif = qdo_run("calibrate --config " + s.cfg_path.string() + " --frames " + tf.string() + " --darks " + td.string() +
+                                " --out " + (s.dir / "o_tif").string(),
+                            "QDO_DEVICE=cpu");
+    REQUIRE_MESSAGE(tif.code == 0, tif.out);
+    CHECK(read_psf_stack_file((s.dir / "o_tif/psf.h5").string()).psf_sensor.data ==
+          read_psf_stack_file((s.dir / "o_png/psf.h5").string()).psf_sensor.data);
+
+    const fs::path bad = s.dir / "tiff_rgb";
+    fs::create_directories(bad);
+    for (const auto& e : fs::directory_iterator(tf)) fs::copy_file(e.path(), bad / e.path().filename());
+    write_tiff16((bad / nm_name(550)).replace_extension(".tif").string(), RealStack(3, s.known.rows + kMargin, s.known.rows + kMargin, 64));
+    const Run r = calibrate(bad, "o_tiff_rgb");
+    CHECK(r.code == 2);
+    CHECK_MESSAGE(r.out.find("this one is RGB") != std::string::npos, r.out);
+    const fs::path dng = frames_copy("dng");
+    std::ofstream(dng / "psf_550nm.dng") << "not a frame";
+    const Run rd = calibrate(dng, "o_dng");
+    CHECK(rd.code == 2);
+    CHECK_MESSAGE(rd.out.find("psf_550nm.dng") != std::string::npos, rd.out);
   }
 
   TEST_CASE("refusals exit 2 naming the file") {

@@ -256,6 +256,13 @@ TEST_SUITE("reconstruct") {
     const json j = read_json(dir / "one" / "reconstruct.json");
     CHECK(j.at("tiles") == 1);
     CHECK(j.at("psf").get<std::string>().find("the run's design") != std::string::npos);
+    // The same capture as a 16-bit TIFF gives the same cube.
+    write_tiff16((dir / "cap.tif").string(), dn);
+    const Run rt = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "cap.tif").string() +
+                           " --boundary circular --out " + (dir / "one_tif").string());
+    CAPTURE(rt.out);
+    REQUIRE(rt.code == 0);
+    CHECK(read_cube_h5(dir / "one_tif" / "cube.h5").data == cube.data);
 
     // Larger than a tile: tiled with progress lines; a crop of it equals the cropped capture.
     const RealStack big = to_dn(camera_image(s.dir, smooth_scene(3, 40, 36, 12)));

@@ -211,6 +211,17 @@ void write_png16_gray(const std::string& path, const Map2D& dn);
 RealStack read_png16(const std::string& path);
 // dn3: 3 x H x W integer code values in [0, 65535] (an InputError naming the file otherwise).
 void write_png16_rgb(const std::string& path, const RealStack& dn3);
+// A capture as a 16-bit TIFF (libtiff): 1 (grayscale, a raw mosaic) or 3 (RGB) unsigned 16-bit
+// samples per pixel, interleaved or in separate planes, strips or tiles, any compression libtiff
+// reads; code values unchanged. Another bit depth, signed or float samples, alpha, a palette or a
+// file that is no TIFF is refused, naming the file. write_tiff16: 1 or 3 planes of integer code
+// values in [0, 65535], uncompressed strips (written, then renamed).
+RealStack read_tiff16(const std::string& path);
+void write_tiff16(const std::string& path, const RealStack& dn);
+bool is_tiff_path(const std::string& path);  // extension .tif or .tiff (any case)
+// A 16-bit capture by its extension: .png (read_png16) or .tif / .tiff (read_tiff16); any other
+// extension is refused, naming the file. planes x H x W code values in DN.
+RealStack read_capture16(const std::string& path);
 // An RGB image from a 3 x H x W stack: scaled so the 99.9th percentile maps to 1, sRGB gamma.
 void write_rgb_png(const std::string& path, const RealStack& rgb3);
 // A single map (e.g. a height map) with a perceptual colormap (viridis-like), min..max.

@@ -4,11 +4,11 @@
 //
 // The capture chain, in order (every file is read and checked before any is processed; each
 // refusal is an InputError naming the file or the argument):
-//   1. read: 16-bit PNG captures (read_png16, io.hpp), one scene, all the same size; RGB (3
+//   1. read: 16-bit PNG or TIFF captures (read_capture16, io.hpp), one scene, all the same size; RGB (3
 //      planes) when the configuration's cfa is none, a raw mosaic (1 plane) otherwise. Several
 //      captures are averaged. A code value above the white level (cfg.white_level_dn(); 65535
 //      when bit_depth is 0: the container's) is refused (wrong bit depth or a shifted container).
-//   2. dark: the mean of the dark frames (a folder of 16-bit PNGs of the captures' size and
+//   2. dark: the mean of the dark frames (a folder of 16-bit PNG or TIFF files of the captures' size and
 //      planes) is subtracted; without darks the configured black level (black_level_dn).
 //   3. signal: v = (DN - dark) / (gain * (white - black_level_dn)): the linear signal, 1.0 = full
 //      well, the inverse of the sensor-as-built stage (raw.hpp).
@@ -47,7 +47,7 @@ struct ExposureRule {
 ExposureRule exposure_rule_from_string(const std::string& s, const std::string& argument = "--exposure");
 
 struct CaptureOptions {
-  std::vector<std::string> captures;  // 16-bit PNG files of one scene (averaged)
+  std::vector<std::string> captures;  // 16-bit PNG or TIFF files of one scene (averaged)
   std::string darks_dir;              // folder of dark frames (*.png); empty: the black level
   ExposureRule exposure;
   bool crop = false;                  // crop_* below: rows and columns of the frame, 0-based

@@ -117,12 +117,12 @@ std::vector<CommandSpec> make_table() {
                 out_dir_opt()},
                cmd_psf});
   t.push_back({"calibrate",
-               "measured PSFs from captures: a folder of point-source frames, one per band (16-bit PNG, psf_<nm>nm.png), "
+               "measured PSFs from captures: a folder of point-source frames, one per band (16-bit PNG or TIFF, psf_<nm>nm.png), "
                "and dark frames -> DIR/psf.h5 (the layout of qdo psf), psf.png; with --design compare.csv, compare.png",
                "", "",
-               {preset(), config(), opt("frames", "folder of PSF frames: 16-bit grayscale PNG raw frames named <anything>_<nm>nm.png, one "
+               {preset(), config(), opt("frames", "folder of PSF frames: 16-bit grayscale PNG or TIFF raw frames named <anything>_<nm>nm.png|.tif, one "
                                                   "per configured band (required)"),
-                opt("darks", "folder of dark frames (16-bit grayscale PNG, same exposure; averaged) (required)"),
+                opt("darks", "folder of dark frames (16-bit grayscale PNG or TIFF, same exposure; averaged) (required)"),
                 opt("design", "design to compare with: lens:NM, flat, a design .h5 file or a run folder (its design.h5)"),
                 opt("hot-sigma", "hot-pixel threshold, in noise sigmas (> 1)", "8"),
                 opt("min-snr", "least peak SNR (peak above the dark / noise sigma) of a band; a darker frame is refused", "20"),
@@ -315,10 +315,10 @@ std::vector<CommandSpec> make_table() {
                "", "",
                {opt("run", "the run folder whose decoder reconstructs (its Wiener decoder or its network), its configuration and prior "
                            "(required)"),
-                {"capture", "a capture: 16-bit PNG, RGB with the run's cfa none, else the raw mosaic (grayscale); repeat for "
+                {"capture", "a capture: 16-bit PNG or TIFF, RGB with the run's cfa none, else the raw mosaic (grayscale); repeat for "
                             "several frames of the scene (averaged, all the same size) (required)",
                  "", false, true},
-                opt("darks", "folder of dark frames (16-bit PNG, the captures' size and kind; the mean is subtracted) (default: the "
+                opt("darks", "folder of dark frames (16-bit PNG or TIFF, the captures' size and kind; the mean is subtracted) (default: the "
                              "configuration's black_level_dn)"),
                 opt("psf", "the camera as built: a measured PSF stack (qdo calibrate's psf.h5), for the run's bands and sensor grid "
                            "(checked) (default: the run's design simulated, or the PSF a do-finetune run was fine-tuned for)"),

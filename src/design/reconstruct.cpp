@@ -56,12 +56,12 @@ std::vector<std::string> split(const std::string& s, char sep) {
 // The *.png files of a folder, sorted; an InputError naming `argument` when it is not a folder
 // holding at least one.
 std::vector<std::string> png_files(const std::string& dir, const std::string& argument) {
-  if (!fs::is_directory(dir)) reject(argument, dir, "a folder of 16-bit PNG frames");
+  if (!fs::is_directory(dir)) reject(argument, dir, "a folder of 16-bit PNG or TIFF frames");
   std::vector<std::string> v;
   for (const auto& e : fs::directory_iterator(dir))
-    if (e.is_regular_file() && e.path().extension() == ".png") v.push_back(e.path().string());
+    if (e.is_regular_file() && (e.path().extension() == ".png" || is_tiff_path(e.path().string()))) v.push_back(e.path().string());
   std::sort(v.begin(), v.end());
-  if (v.empty()) reject(argument, dir, "a folder holding at least one .png frame (it holds none)");
+  if (v.empty()) reject(argument, dir, "a folder holding at least one .png or .tif frame (it holds none)");
   return v;
 }
 
@@ -122,13 +122,13 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
   // Every file read and checked before any is processed.
   std::vector<RealStack> caps;
   for (const std::string& path : o.captures) {
-    caps.push_back(read_png16(path));
+    caps.push_back(read_capture16(path));
     check(caps.back(), path, caps.size() > 1 ? &caps.front() : nullptr, o.captures.front());
   }
   if (!o.darks_dir.empty()) f.darks = png_files(o.darks_dir, "--darks");
   std::vector<RealStack> darks;
   for (const std::string& path : f.darks) {
-    darks.push_back(read_png16(path));
+    darks.push_back(read_capture16(path));
     check(darks.back(), path, &caps.front(), o.captures.front());
   }
   f.mean_dn = RealStack(caps.front().planes, caps.front().rows, caps.front().cols, 0.0);

@@ -41,12 +41,13 @@ std::vector<std::string> frame_files(const std::string& dir, const std::string& 
     if (!e.is_regular_file()) continue;
     std::string ext = e.path().extension().string();
     std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-    if (ext == ".png") out.push_back(e.path().string());
-    else if (ext == ".tif" || ext == ".tiff" || ext == ".dng" || ext == ".raw")
-      refuse(e.path().string(), "raw frames are read as 16-bit grayscale PNG only (TIFF and DNG are not supported)");
+    if (ext == ".png" || ext == ".tif" || ext == ".tiff") out.push_back(e.path().string());
+    else if (ext == ".dng" || ext == ".raw" || ext == ".nef" || ext == ".cr2")
+      refuse(e.path().string(), "raw frames are read as 16-bit grayscale PNG or TIFF (DNG and camera raw files are not supported: "
+                                "export them as 16-bit TIFF without demosaicking)");
   }
   std::sort(out.begin(), out.end());
-  if (out.empty()) throw InputError(what + " " + in_quotes(dir) + ": holds no .png frame");
+  if (out.empty()) throw InputError(what + " " + in_quotes(dir) + ": holds no .png or .tif frame");
   return out;
 }
 
@@ -145,7 +146,15 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   const std::vector<std::string> dark_files = frame_files(darks_dir, "--darks");
   std::vector<Frame> frames(bands), darks;
   auto read = [&](const std::string& p) {
-    Frame f{p, read_png16_gray(p)};
+    Frame f{p, {}};
+    if (is_tiff_path(p)) {
+      const RealStack t = read_tiff16(p);
+      if (t.planes != 1) refuse(p, "a raw frame must be a 16-bit grayscale (one sample per pixel) TIFF; this one is RGB");
+      f.dn = Map2D(t.rows, t.cols);
+      f.dn.data = t.data;
+    } else {
+      f.dn = read_png16_gray(p);
+    }
     for (auto& v : f.dn.data) v *= file_scale;
     if (!frames.empty() && frames[0].dn.rows && (f.dn.rows != frames[0].dn.rows || f.dn.cols != frames[0].dn.cols))
       refuse(p, "size " + std::to_string(f.dn.rows) + " x " + std::to_string(f.dn.cols) + " differs from the " +
