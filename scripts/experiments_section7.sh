@@ -29,7 +29,14 @@ RECON_ONLY=${RECON_ONLY:-0}           # 1: only steps 7-8 (reconstruct and table
 BORDER=${BORDER:-16}                  # pixels left out of each score at every edge
 export QDO_DEVICE=${QDO_DEVICE:-cpu}
 export QDO_CACHE_DIR=${QDO_CACHE_DIR:-$PWD/build/kernel-cache}
+# The script deletes and rewrites only the folders it makes under OUT; an OUT it did not make
+# (no marker) is refused, so a user's folder is never touched.
+if [ -e "$OUT" ] && [ ! -f "$OUT/.experiments_section7" ]; then
+  echo "experiments_section7: $OUT exists and was not made by this script (no $OUT/.experiments_section7); choose another OUT" >&2
+  exit 2
+fi
 mkdir -p "$OUT"
+touch "$OUT/.experiments_section7"
 log() { printf '\n== %s\n' "$*"; }
 
 # The camera: small preset physics, the sensor as built (RGGB, 12 bits, black level 64 DN,

@@ -53,25 +53,36 @@ Map2D read_png16_gray(const std::string& path) {
   return m;
 }
 
-void write_png16_gray(const std::string& path, const Map2D& dn) {
-  for (double v : dn.data)
+namespace {
+
+// planes (1 or 3) x rows x cols integer code values -> a 16-bit PNG (grayscale or RGB), written then
+// renamed; a value that is not an integer in [0, 65535] is refused naming the file.
+void write_png16_planes(const std::string& path, const std::vector<double>& data, std::size_t planes, std::size_t rows,
+                        std::size_t cols) {
+  for (double v : data)
     if (!(v >= 0 && v <= 65535 && v == std::floor(v)))
       reject("16-bit PNG value", v, "integer code values in [0, 65535] (file '" + path + "')");
-  std::vector<png_uint_16> buf(dn.data.size());
-  for (std::size_t i = 0; i < buf.size(); ++i) buf[i] = static_cast<png_uint_16>(dn.data[i]);
+  const std::size_t n = rows * cols;
+  std::vector<png_uint_16> buf(n * planes);
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t c = 0; c < planes; ++c) buf[i * planes + c] = static_cast<png_uint_16>(data[c * n + i]);
   AtomicFile out(path);
   png_image img;
   std::memset(&img, 0, sizeof img);
   img.version = PNG_IMAGE_VERSION;
-  img.width = static_cast<png_uint_32>(dn.cols);
-  img.height = static_cast<png_uint_32>(dn.rows);
-  img.format = PNG_FORMAT_LINEAR_Y;
+  img.width = static_cast<png_uint_32>(cols);
+  img.height = static_cast<png_uint_32>(rows);
+  img.format = planes == 3 ? PNG_FORMAT_LINEAR_RGB : PNG_FORMAT_LINEAR_Y;
   const int ok = png_image_write_to_file(&img, out.tmp().c_str(), 0, buf.data(), 0, nullptr);
   const std::string msg = img.message;
   png_image_free(&img);
   if (!ok) fail(path, "", "PNG write failed: " + msg);
   out.commit();
 }
+
+}  // namespace
+
+void write_png16_gray(const std::string& path, const Map2D& dn) { write_png16_planes(path, dn.data, 1, dn.rows, dn.cols); }
 
 // A capture: 16-bit grayscale (1 plane) or RGB (3 planes), code values unchanged. libpng's
 // simplified API gives a 16-bit file (without gAMA, or gamma 1) as linear values; an 8-bit file
@@ -117,25 +128,7 @@ RealStack read_png16(const std::string& path) {
 
 void write_png16_rgb(const std::string& path, const RealStack& dn3) {
   if (dn3.planes != 3) reject("16-bit RGB PNG planes", dn3.planes, "3 (file '" + path + "')");
-  for (double v : dn3.data)
-    if (!(v >= 0 && v <= 65535 && v == std::floor(v)))
-      reject("16-bit PNG value", v, "integer code values in [0, 65535] (file '" + path + "')");
-  const std::size_t n = dn3.plane_size();
-  std::vector<png_uint_16> buf(n * 3);
-  for (std::size_t i = 0; i < n; ++i)
-    for (std::size_t c = 0; c < 3; ++c) buf[i * 3 + c] = static_cast<png_uint_16>(dn3.data[c * n + i]);
-  AtomicFile out(path);
-  png_image img;
-  std::memset(&img, 0, sizeof img);
-  img.version = PNG_IMAGE_VERSION;
-  img.width = static_cast<png_uint_32>(dn3.cols);
-  img.height = static_cast<png_uint_32>(dn3.rows);
-  img.format = PNG_FORMAT_LINEAR_RGB;
-  const int ok = png_image_write_to_file(&img, out.tmp().c_str(), 0, buf.data(), 0, nullptr);
-  const std::string msg = img.message;
-  png_image_free(&img);
-  if (!ok) fail(path, "", "PNG write failed: " + msg);
-  out.commit();
+  write_png16_planes(path, dn3.data, 3, dn3.rows, dn3.cols);
 }
 
 }  // namespace qdo

@@ -37,31 +37,10 @@ AsBuiltCamera fabricate(const Design& d, const SystemConfig& cfg, const AsBuiltO
   Constraints c;
   c.min_feature_um = 0;                         // fabricate whatever the design is,
   c.max_height_nm = 2 * cfg.h_max_m() * 1e9;    // up to the simulator's height range (as qdo tolerance)
-  if (o.scheme == "auto") {
-    try {
-      r.plan = plan_masks(d, cfg, Scheme::Binary, c);
-      r.scheme_note = "auto: binary-coded masks";
-    } catch (const InputError& e) {
-      r.plan = plan_masks(d, cfg, Scheme::Nested, c);
-      r.scheme_note = std::string("auto: nested masks (binary not possible: ") + e.what() + ")";
-    }
-  } else {
-    r.plan = plan_masks(d, cfg, scheme_from_string(o.scheme), c);
-    r.scheme_note = o.scheme;
-  }
-  // The draws of qdo tolerance's trial o.trial (fab_tolerance.cpp: same streams and indices).
-  const std::size_t K = r.plan.masks.size(), k = o.trial;
-  const bool single_write = r.plan.scheme == Scheme::Greyscale;
+  r.plan = plan_masks_named(d, cfg, o.scheme, c, r.scheme_note);
+  // The draws of qdo tolerance's trial o.trial (same streams and indices).
   Perturbation pt;
-  pt.depth_error_m.resize(K);
-  pt.shift_x_m.resize(K);
-  pt.shift_y_m.resize(K);
-  for (std::size_t m = 0; m < K; ++m) {
-    pt.depth_error_m[m] = o.etch_depth_error_m * sym_uniform(o.seed, 1, k * K + m);
-    const bool moves = m > 0 && !single_write;  // mask 1 defines the frame (the alignment marks)
-    pt.shift_x_m[m] = moves ? o.overlay_m * sym_uniform(o.seed, 2, k * K + m) : 0.0;
-    pt.shift_y_m[m] = moves ? o.overlay_m * sym_uniform(o.seed, 3, k * K + m) : 0.0;
-  }
+  draw_trial_errors(o.seed, o.trial, r.plan, o.etch_depth_error_m, o.overlay_m, pt.depth_error_m, pt.shift_x_m, pt.shift_y_m);
   pt.edge_blur_m = o.edge_blur_m;
   const Map2D fabricated = perturbed_heights(r.plan, d.height_m, pt, o.oversample);
   r.depth_error_m = pt.depth_error_m;

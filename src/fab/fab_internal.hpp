@@ -6,7 +6,9 @@
 #include <cstdint>
 #include <cstdio>
 #include <string>
+#include <vector>
 
+#include "qdo/error.hpp"
 #include "qdo/fab.hpp"
 
 namespace qdo::fab {
@@ -32,6 +34,43 @@ inline std::uint64_t splitmix64(std::uint64_t x) {
 inline double sym_uniform(std::uint64_t seed, std::uint64_t stream, std::uint64_t index) {
   const std::uint64_t r = splitmix64(splitmix64(seed ^ splitmix64(stream)) + index);
   return double(r >> 11) * (2.0 / 9007199254740992.0) - 1.0;
+}
+
+// The mask plan of a scheme name as qdo tolerance and qdo fabricate take it: binary, nested,
+// greyscale, or auto (binary when the levels allow it, else nested); `note` says which and why.
+inline MaskPlan plan_masks_named(const Design& d, const SystemConfig& cfg, const std::string& scheme, const Constraints& c,
+                                 std::string& note) {
+  if (scheme != "auto") {
+    note = scheme;
+    return plan_masks(d, cfg, scheme_from_string(scheme), c);
+  }
+  try {
+    MaskPlan p = plan_masks(d, cfg, Scheme::Binary, c);
+    note = "auto: binary-coded masks";
+    return p;
+  } catch (const InputError& e) {
+    note = std::string("auto: nested masks (binary not possible: ") + e.what() + ")";
+    return plan_masks(d, cfg, Scheme::Nested, c);
+  }
+}
+
+// The errors of trial k of the tolerance study (seed): per mask an etch depth error uniform in
+// [-depth_m, depth_m] (stream 1), and per mask after the first (which defines the alignment
+// marks; none for one greyscale write) an overlay shift per axis uniform in [-overlay_m,
+// overlay_m] (streams 2, 3). One draw sequence for qdo tolerance and qdo fabricate.
+inline void draw_trial_errors(std::uint64_t seed, std::size_t k, const MaskPlan& plan, double depth_m, double overlay_m,
+                              std::vector<double>& depth_error_m, std::vector<double>& shift_x_m, std::vector<double>& shift_y_m) {
+  const std::size_t K = plan.masks.size();
+  const bool single_write = plan.scheme == Scheme::Greyscale;
+  depth_error_m.assign(K, 0.0);
+  shift_x_m.assign(K, 0.0);
+  shift_y_m.assign(K, 0.0);
+  for (std::size_t m = 0; m < K; ++m) {
+    depth_error_m[m] = depth_m * sym_uniform(seed, 1, k * K + m);
+    const bool moves = m > 0 && !single_write;
+    shift_x_m[m] = moves ? overlay_m * sym_uniform(seed, 2, k * K + m) : 0.0;
+    shift_y_m[m] = moves ? overlay_m * sym_uniform(seed, 3, k * K + m) : 0.0;
+  }
 }
 
 inline int scheme_max_levels(Scheme s) { return s == Scheme::Greyscale ? kMaxMaskLayers : 16; }

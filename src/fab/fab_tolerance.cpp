@@ -314,18 +314,7 @@ ToleranceResult tolerance_analysis(Runtime& rt, const ToleranceOptions& t) {
   c.max_height_nm = 2 * o.cfg.h_max_m() * 1e9;  // up to the simulator's height range
   ToleranceResult res;
   std::string scheme_note;
-  if (t.scheme == "auto") {
-    try {
-      res.plan = plan_masks(fab, o.cfg, Scheme::Binary, c);
-      scheme_note = "auto: binary-coded masks";
-    } catch (const InputError& e) {
-      res.plan = plan_masks(fab, o.cfg, Scheme::Nested, c);
-      scheme_note = std::string("auto: nested masks (binary not possible: ") + e.what() + ")";
-    }
-  } else {
-    res.plan = plan_masks(fab, o.cfg, scheme_from_string(t.scheme), c);
-    scheme_note = t.scheme;
-  }
+  res.plan = plan_masks_named(fab, o.cfg, t.scheme, c, scheme_note);
   const MaskPlan& plan = res.plan;
   const std::size_t K = plan.masks.size();
   const bool single_write = plan.scheme == Scheme::Greyscale;  // one exposure: no overlay between layers
@@ -361,13 +350,8 @@ ToleranceResult tolerance_analysis(Runtime& rt, const ToleranceOptions& t) {
   std::size_t done = 0;
   for (std::size_t k = 0; k < t.trials; ++k) {
     // Draws of trial k (independent of the scenario).
-    std::vector<double> dep(K), sx(K), sy(K);
-    for (std::size_t m = 0; m < K; ++m) {
-      dep[m] = t.etch_depth_error_m * sym_uniform(t.seed, 1, k * K + m);
-      const bool moves = m > 0 && !single_write;  // mask 1 defines the frame (the alignment marks)
-      sx[m] = moves ? t.overlay_m * sym_uniform(t.seed, 2, k * K + m) : 0.0;
-      sy[m] = moves ? t.overlay_m * sym_uniform(t.seed, 3, k * K + m) : 0.0;
-    }
+    std::vector<double> dep, sx, sy;
+    draw_trial_errors(t.seed, k, plan, t.etch_depth_error_m, t.overlay_m, dep, sx, sy);
     const std::uint64_t noise_seed = splitmix64(t.seed ^ splitmix64(k + 0x51ED));
     for (const auto& sc : scenarios) {
       Perturbation pt;
