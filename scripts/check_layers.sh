@@ -65,6 +65,7 @@ propagate_reference physics
 psf physics
 psf_reference physics
 psf_source physics
+point_psf physics
 reconstruct design
 radial physics
 release physics

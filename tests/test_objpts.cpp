@@ -11,6 +11,7 @@
 #include "common.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/doe.hpp"
+#include "qdo/point_psf.hpp"
 #include "qdo/radial.hpp"
 #include "qdo/simulator.hpp"
 
@@ -365,6 +366,41 @@ TEST_SUITE("objpts") {
       CHECK(rep.find("object point 4") != std::string::npos);
       CHECK(!sim.sampling().any_inaccurate());
     }
+  }
+
+  TEST_CASE("point_planes and recentre_on_chief_ray: an off-axis lens image moved onto the axis to half a pixel") {
+    const Precision p = runtime().has_fp64() ? Precision::F64 : Precision::F32;
+    SystemConfig c = lens_config();
+    const double z = c.sensor_distance_m;
+    const std::vector<std::pair<double, double>> angles = {{0, 0}, {1.0, 0}, {-1.2, 0.6}};
+    c.object_points = object_point_grid({kInf}, angles);
+    Simulator sim(runtime(), c, p);
+    sim.set_heights(lens_heights(c, z));
+    sim.compute_psf();
+    const RealStack s = sim.psf_sensor();
+    const double centre = double(s.rows / 2);
+    for (std::size_t q = 0; q < angles.size(); ++q) {
+      CAPTURE(q);
+      const RealStack planes = point_planes(s, q, c.bands);
+      REQUIRE(planes.planes == c.bands);
+      CHECK(planes(c.bands - 1, 5, 7) == s(q * c.bands + c.bands - 1, 5, 7));
+      double lost = -1;
+      const RealStack moved = recentre_on_chief_ray(planes, c, c.points()[q], &lost);
+      CHECK(lost >= 0);
+      CHECK(lost < 0.05);
+      const Spot got = centroid(moved, 0, 3);
+      CAPTURE(got.row);
+      CAPTURE(got.col);
+      CHECK(std::fabs(got.row - centre) <= 0.7);
+      CHECK(std::fabs(got.col - centre) <= 0.7);
+    }
+    // A whole-pixel shift moves every value and fills with zeros.
+    const RealStack a = point_planes(s, 1, c.bands), b = shift_planes(a, 2, -3);
+    CHECK(b(0, 10, 10) == a(0, 12, 7));
+    CHECK(a(0, 12, 7) != 0.0);
+    CHECK(b(0, b.rows - 1, 0) == 0.0);
+    CHECK_THROWS_AS(point_planes(s, angles.size(), c.bands), InputError);
+    CHECK_THROWS_AS(point_planes(s, 0, c.bands + 1), InputError);
   }
 
   TEST_CASE("closed form: an on-axis point at d' focuses where 1/z' = 1/f - 1/d' (the sharpest PSF of a distance sweep)") {
