@@ -85,6 +85,8 @@ sweep design
 sweep_stats design
 testset decode
 types runtime
+varying physics
+varying_reference physics
 wiener decode
 wiener_device decode
 '
