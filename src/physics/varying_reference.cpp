@@ -18,13 +18,14 @@ void check(const RealStack& scene, const RealStack& psfs, const RealStack& weigh
   if (weights.rows != scene.rows || weights.cols != scene.cols) reject("weights", shape(weights), "K x H x W with the scene's H x W");
 }
 
+// Component k's planes (bands x S x S) of psfs ((K * bands) x S x S, component-major).
 RealStack component(const RealStack& psfs, std::size_t k, std::size_t bands) {
   RealStack out(bands, psfs.rows, psfs.cols);
   std::copy(psfs.plane(k * bands), psfs.plane(k * bands) + bands * psfs.plane_size(), out.data.begin());
   return out;
 }
 
-// a ⊙ w_k over every plane of a.
+// a ⊙ w_k over every plane of a (planes x H x W; weights K x H x W).
 RealStack weighted(const RealStack& a, const RealStack& weights, std::size_t k) {
   RealStack out = a;
   const std::size_t hw = a.plane_size();
@@ -33,6 +34,7 @@ RealStack weighted(const RealStack& a, const RealStack& weights, std::size_t k) 
   return out;
 }
 
+// acc += a, element by element (same shape).
 void add(RealStack& acc, const RealStack& a) {
   for (std::size_t i = 0; i < acc.size(); ++i) acc.data[i] += a.data[i];
 }
