@@ -188,3 +188,22 @@ __kernel void component_vjp_spectra(__global const real2* gspec, __global const 
     gpsf[gid] = v_pack(cmul(v_conj(xa), ga), cmul(v_conj(xb), gbb));
   }
 }
+
+// Gradient on component comp's weight map: gw(comp, y, x) = sum_j img(j, y, x) * (Re (j even) or
+// Im (j odd) of buf[j / 2](y, x)), with buf the inverse transforms of what multiplies the weight
+// (source placement: the back-projected band gradients, img = the scene; output placement: the
+// component's unweighted RGB image, img = the RGB gradient). buf: P x GY x GX complex; img: planes x
+// H x W; gw: K x H x W real (plane comp written).
+__kernel void weight_gradient(__global const real2* buf, __global const real* img, __global real* gw, const int h,
+                              const int w, const int planes, const int gy, const int gx, const int comp) {
+  const size_t gid = get_global_id(0);
+  const size_t hw = (size_t)h * w;
+  if (gid >= hw) return;
+  const int y = (int)(gid / w), x = (int)(gid - (size_t)y * w);
+  real acc = R(0.0);
+  for (int j = 0; j < planes; ++j) {
+    const real2 z = buf[(size_t)(j / 2) * gy * gx + (size_t)y * gx + x];
+    acc += img[(size_t)j * hw + gid] * ((j & 1) ? z.y : z.x);
+  }
+  gw[(size_t)comp * hw + gid] = acc;
+}

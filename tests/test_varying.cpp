@@ -117,7 +117,7 @@ std::string refusal(F&& f) {
 
 TEST_SUITE("varying") {
 
-TEST_CASE("device operator, scene and PSF adjoints against the CPU reference (float32, float64; source, output; shifted PSFs)") {
+TEST_CASE("device operator, scene, PSF and weight adjoints against the CPU reference (float32, float64; source, output; shifted PSFs; a skipped component)") {
   const SystemConfig cfg = varying_config();
   const std::size_t nb = cfg.bands, s = cfg.sensor_size_px(), kk = 3, h = 24, w = 20;
   const RealStack psfs = random_psfs(kk, cfg, 21);
@@ -125,6 +125,7 @@ TEST_CASE("device operator, scene and PSF adjoints against the CPU reference (fl
   const RealStack eff = shifted(psfs, nb, sh);
   const RealStack scene = random_cube(nb, h, w, 22);
   RealStack wts = random_cube(kk, h, w, 23);
+  std::fill(wts.plane(2), wts.plane(2) + h * w, 0.0);  // component 2 is skipped (its weight gradient is not)
   RealStack g = uniform_stack(3, h, w, 24);
   for (Precision p : device_precisions(runtime()))
     for (PsfPlacement pl : {PsfPlacement::Source, PsfPlacement::Output}) {
@@ -138,7 +139,7 @@ TEST_CASE("device operator, scene and PSF adjoints against the CPU reference (fl
       // FFT convolution rounding of O(1) values on a grid of ~1000 points, summed over K components.
       const double tol = 64.0 * eps(p) * std::log2(double(4 * h * w)) * double(kk);
       const double e_img = max_abs_diff(img.data, want.data);
-      const VaryingCamera::Gradient gr = cam.vjp(g, true, true);
+      const VaryingCamera::Gradient gr = cam.vjp(g, true, true, true);
       const ref::VaryingGradient wg = ref::varying_vjp(scene, eff, wts, cam.srf(), pl, g);
       const RealStack want_psf = shifted(wg.psfs, nb, [&] {
         std::vector<std::pair<long, long>> neg;
@@ -146,30 +147,35 @@ TEST_CASE("device operator, scene and PSF adjoints against the CPU reference (fl
         return neg;
       }());
       const double e_scene = max_abs_diff(gr.scene.data, wg.scene.data), e_psf = max_abs_diff(gr.psfs.data, want_psf.data);
+      const double e_w = max_abs_diff(gr.weights.data, wg.weights.data);
       MESSAGE(to_string(p) << " " << to_string(pl) << ": |img - ref| = " << e_img << ", |vjp_scene - ref| = " << e_scene
-                           << ", |vjp_psf - ref| = " << e_psf);
+                           << ", |vjp_psf - ref| = " << e_psf << ", |vjp_weights - ref| = " << e_w);
       CHECK(e_img <= tol * max_abs(want.data));
       CHECK(e_scene <= tol * max_abs(wg.scene.data));
       CHECK(e_psf <= tol * max_abs(want_psf.data));
+      CHECK(e_w <= tol * max_abs(wg.weights.data));
       CHECK(max_abs(want.data) > 0.1);
+      // The skipped component: no PSF gradient, but a weight gradient.
+      CHECK(max_abs(point_planes(gr.psfs, 2, nb).data) == 0.0);
+      CHECK(max_abs(point_planes(gr.weights, 2, 1).data) > 1e-3);
       const VaryingReport& rep = cam.last_report();
-      CHECK(rep.kept.size() == kk);
-      CHECK(rep.skipped.empty());
+      CHECK(rep.kept == std::vector<std::size_t>{0, 1});
+      CHECK(rep.skipped == std::vector<std::size_t>{2});
       CHECK(rep.grid_rows >= h + s / 2);
       CHECK(rep.grid_cols >= w + s / 2);
       const std::size_t pairs = (nb + 1) / 2;
       // Source: Pb forward per component, accumulated in frequency: 2 inverse for the image.
       // Output: Pb forward once, 2 inverse per component.
-      CHECK(rep.forward_ffts == (pl == PsfPlacement::Source ? kk * pairs : pairs));
-      CHECK(rep.inverse_ffts == (pl == PsfPlacement::Source ? 2 : 2 * kk));
-      CHECK(rep.otf_builds == kk);
+      CHECK(rep.forward_ffts == (pl == PsfPlacement::Source ? 2 * pairs : pairs));
+      CHECK(rep.inverse_ffts == (pl == PsfPlacement::Source ? 2 : 2 * 2));
+      CHECK(cam.otf_builds() == kk);  // 2 by images(), the skipped one's by the weight gradient
       cam.images(scene, wts, pl);
       CHECK(cam.last_report().otf_builds == 0);  // reused
       CHECK(cam.otf_builds() == kk);
     }
 }
 
-TEST_CASE("adjoint ladder: scene and PSF adjoints, both placements (device float64 and CPU reference)") {
+TEST_CASE("adjoint ladder: scene, PSF and weight adjoints, both placements (device float64 and CPU reference)") {
   const SystemConfig cfg = varying_config(4);
   const std::size_t nb = cfg.bands, s = cfg.sensor_size_px(), kk = 3, h = 20, w = 18;
   const RealStack psf0 = random_psfs(kk, cfg, 31);
@@ -177,7 +183,7 @@ TEST_CASE("adjoint ladder: scene and PSF adjoints, both placements (device float
   const RealStack wts = random_cube(kk, h, w, 33);
   const std::vector<std::pair<long, long>> sh{{1, 0}, {0, 0}, {-2, 3}};
   const Eigen::MatrixXd srf = sensor_response(cfg);
-  const std::size_t n_psf = psf0.size(), n_scene = scene0.size(), n_img = 3 * h * w;
+  const std::size_t n_psf = psf0.size(), n_scene = scene0.size(), n_w = wts.size(), n_img = 3 * h * w;
   const bool f64 = runtime().has_fp64();
   std::unique_ptr<VaryingCamera> cam;
   if (skip_unless(f64, "device float64 varying ladder: the device has no float64")) {
@@ -202,6 +208,13 @@ TEST_CASE("adjoint ladder: scene and PSF adjoints, both placements (device float
     };
     rs.jvp = [f = rs.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
     stages.push_back(rs);
+    Stage rw("reference " + m + ": weights -> image", n_w, n_img);
+    rw.forward = [&](const std::vector<double>& x) { return ref::varying_images(scene0, psf0, as_stack(x, kk, h, w), srf, pl).data; };
+    rw.vjp = [&](const std::vector<double>& x, const std::vector<double>& g) {
+      return ref::varying_vjp(scene0, psf0, as_stack(x, kk, h, w), srf, pl, as_stack(g, 3, h, w)).weights.data;
+    };
+    rw.jvp = [f = rw.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+    stages.push_back(rw);
     if (cam) {
       VaryingCamera* cp = cam.get();
       Stage dp("device f64 " + m + ": PSFs -> image", n_psf, n_img);
@@ -232,6 +245,20 @@ TEST_CASE("adjoint ladder: scene and PSF adjoints, both placements (device float
       };
       ds.jvp = [f = ds.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
       stages.push_back(ds);
+      Stage dw("device f64 " + m + ": weights -> image", n_w, n_img);
+      dw.forward = [&, cp](const std::vector<double>& x) {
+        cp->set_psfs(psf0);
+        return cp->images(scene0, as_stack(x, kk, h, w), pl).data;
+      };
+      dw.vjp = [&, cp](const std::vector<double>& x, const std::vector<double>& g) {
+        cp->set_psfs(psf0);
+        cp->images(scene0, as_stack(x, kk, h, w), pl);
+        const auto gr = cp->vjp(as_stack(g, 3, h, w), false, false, true);
+        CHECK(gr.scene.size() == 0);
+        return gr.weights.data;
+      };
+      dw.jvp = [f = dw.forward](const std::vector<double>&, const std::vector<double>& d) { return f(d); };
+      stages.push_back(dw);
     }
     for (Stage& st : stages) {
       st.dot_tol = 1e-12;

@@ -87,16 +87,19 @@ class VaryingCamera {
   RealStack images(const RealStack& scene, const RealStack& weights, PsfPlacement placement);
   const VaryingReport& last_report() const { return report_; }
 
-  // Adjoint of the last images() call (a linear map of the scene and of the PSFs): the RGB
-  // gradient g_rgb (3 x H x W, finite) -> the gradient on the scene (bands x H x W, when
-  // want_scene) and on the stored PSFs ((K * bands) x S x S, when want_psfs; skipped components
-  // get zeros, as they contribute nothing). Refused without a preceding images() call; Error when
-  // the PSF changed since.
+  // Adjoint of the last images() call (linear in the scene, in the PSFs and in the weights, each
+  // alone): the RGB gradient g_rgb (3 x H x W, finite) -> the gradient on the scene (bands x H x W,
+  // when want_scene), on the stored PSFs ((K * bands) x S x S, when want_psfs; skipped components
+  // get zeros, as they contribute nothing) and on the weight maps (K x H x W, when want_weights;
+  // computed for every component, skipped ones included: a zero weight map still has a
+  // gradient, so this costs the skipped components' transforms). Refused without a preceding
+  // images() call; Error when the PSF changed since.
   struct Gradient {
-    RealStack scene;  // bands x H x W (empty unless want_scene)
-    RealStack psfs;   // (K * bands) x S x S (empty unless want_psfs)
+    RealStack scene;    // bands x H x W (empty unless want_scene)
+    RealStack psfs;     // (K * bands) x S x S (empty unless want_psfs)
+    RealStack weights;  // K x H x W (empty unless want_weights)
   };
-  Gradient vjp(const RealStack& g_rgb, bool want_scene = true, bool want_psfs = true);
+  Gradient vjp(const RealStack& g_rgb, bool want_scene = true, bool want_psfs = true, bool want_weights = false);
 
   std::size_t components() const { return k_; }
   const SystemConfig& config() const { return cfg_; }
@@ -135,11 +138,11 @@ class VaryingCamera {
   std::size_t otf_builds_ = 0;
 
   cl::Buffer otf_, otf_tmp_, scene_, weights_, wts_, spec_, rgbspec_, rgb_, grgb_, gspec_, gscene_spec_, gpsf_spec_,
-      gscene_, gpsf_;
-  std::size_t otf_cap_ = 0, otf_tmp_cap_ = 0, scene_cap_ = 0, weights_cap_ = 0, wts_cap_ = 0, spec_cap_ = 0,
+      gscene_, gpsf_, gw_;
+  std::size_t gw_cap_ = 0, otf_cap_ = 0, otf_tmp_cap_ = 0, scene_cap_ = 0, weights_cap_ = 0, wts_cap_ = 0, spec_cap_ = 0,
               rgbspec_cap_ = 0, rgb_cap_ = 0, grgb_cap_ = 0, gspec_cap_ = 0, gscene_spec_cap_ = 0, gpsf_spec_cap_ = 0,
               gscene_cap_ = 0, gpsf_cap_ = 0;
-  cl::Kernel k_place_psf_, k_gather_psf_, k_place_, k_gather_, k_combine_, k_vjp_;
+  cl::Kernel k_place_psf_, k_gather_psf_, k_place_, k_gather_, k_combine_, k_vjp_, k_wgrad_;
 };
 
 // ---- Weight builders (host) ----

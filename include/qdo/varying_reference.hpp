@@ -19,10 +19,10 @@ namespace qdo::ref {
 RealStack varying_images(const RealStack& scene, const RealStack& psfs, const RealStack& weights,
                          const Eigen::MatrixXd& srf, PsfPlacement placement);
 
-// Adjoint of varying_images to the scene (bands x H x W) and to the PSFs ((K * bands) x S x S) for
-// an image gradient g_rgb (3 x H x W).
+// Adjoint of varying_images to the scene (bands x H x W), to the PSFs ((K * bands) x S x S) and to
+// the weight maps (K x H x W) for an image gradient g_rgb (3 x H x W).
 struct VaryingGradient {
-  RealStack scene, psfs;
+  RealStack scene, psfs, weights;
 };
 VaryingGradient varying_vjp(const RealStack& scene, const RealStack& psfs, const RealStack& weights,
                             const Eigen::MatrixXd& srf, PsfPlacement placement, const RealStack& g_rgb);

@@ -69,6 +69,7 @@ void VaryingCamera::init() {
   k_gather_ = rt_.kernel("varying.cl", "gather_weighted", prec_);
   k_combine_ = rt_.kernel("varying.cl", "combine_component", prec_);
   k_vjp_ = rt_.kernel("varying.cl", "component_vjp_spectra", prec_);
+  k_wgrad_ = rt_.kernel("varying.cl", "weight_gradient", prec_);
   // Sensor response of each band, 3 x 2Pb, zero-padded.
   const std::size_t pairs = (cfg_.bands + 1) / 2;
   std::vector<double> wt(3 * 2 * pairs, 0.0);
@@ -223,7 +224,7 @@ RealStack VaryingCamera::images(const RealStack& scene, const RealStack& weights
   return out;
 }
 
-VaryingCamera::Gradient VaryingCamera::vjp(const RealStack& g_rgb, bool want_scene, bool want_psfs) {
+VaryingCamera::Gradient VaryingCamera::vjp(const RealStack& g_rgb, bool want_scene, bool want_psfs, bool want_weights) {
   if (!vjp_ready_)
     reject("vjp", "without a preceding images() call", "images() on this camera first (set_psfs / set_shifts in between discard it)");
   const VaryingReport& rep = report_;
@@ -236,6 +237,7 @@ VaryingCamera::Gradient VaryingCamera::vjp(const RealStack& g_rgb, bool want_sce
   Gradient out;
   if (want_scene) out.scene = RealStack(bands, h, w);
   if (want_psfs) out.psfs = RealStack(k_ * bands, s_, s_);
+  if (want_weights) out.weights = RealStack(k_, h, w);
   const std::size_t gy = rep.grid_rows, gx = rep.grid_cols, g = gy * gx, ss = s_ * s_;
   auto& q = rt_.queue();
   grow(grgb_, grgb_cap_, 3 * hw * rsz_);
@@ -245,35 +247,50 @@ VaryingCamera::Gradient VaryingCamera::vjp(const RealStack& g_rgb, bool want_sce
   grow(gpsf_spec_, gpsf_spec_cap_, pairs * g * 2 * rsz_);
   grow(gscene_, gscene_cap_, bands * hw * rsz_);
   grow(gpsf_, gpsf_cap_, k_ * bands * ss * rsz_);
+  grow(gw_, gw_cap_, k_ * hw * rsz_);
   q.enqueueFillBuffer(gscene_, cl_uint(0), 0, bands * hw * rsz_);
   q.enqueueFillBuffer(gpsf_, cl_uint(0), 0, k_ * bands * ss * rsz_);
   FftPlan& fwdp = rt_.fft(gy, gx, pairs, prec_);
   FftPlan& fwd2 = rt_.fft(gy, gx, 2, prec_);
   const int ws = want_scene ? 1 : 0, wp = want_psfs ? 1 : 0;
-  for (std::size_t k : rep.kept) ensure_otf(k);  // cached unless the grid changed
+  // Components visited: the kept ones, or all of them for the weight gradient.
+  std::vector<std::uint8_t> is_kept(k_, 0);
+  for (std::size_t k : rep.kept) is_kept[k] = 1;
+  std::vector<std::size_t> visit = rep.kept;
+  if (want_weights) {
+    visit.resize(k_);
+    std::iota(visit.begin(), visit.end(), std::size_t(0));
+  }
+  for (std::size_t k : visit) ensure_otf(k);  // cached unless the grid changed or a skipped one is new
   auto gather_psf = [&](std::size_t k) {
     fwdp.inverse(gpsf_spec_);
     rt_.launch_1d(k_gather_psf_, bands * ss, prec_, gpsf_spec_, gpsf_, int(s_), int(gy), int(gx), int(k * bands),
                   int(bands), int(shifts_[k].first), int(shifts_[k].second));
   };
-  if (!rep.kept.empty()) {
+  if (!visit.empty()) {
     if (rep.placement == PsfPlacement::Source) {
-      // G = F(g); per component: X_k = F(w_k x), scene gradient w_k ⊙ F^-1(conj(OTF_k) G), PSF
-      // gradient F^-1(conj(X_k) G).
+      // G = F(g); per component: X_k = F(w_k x), B_k = F^-1(conj(OTF_k) G) (the back-projected
+      // band gradients), scene gradient w_k ⊙ B_k, PSF gradient F^-1(conj(X_k) G), weight
+      // gradient sum_b x_b ⊙ B_k,b.
       rt_.launch_1d(k_place_, 2 * g, prec_, grgb_, weights_, gspec_, int(h), int(w), 3, int(gy), int(gx), 0, 0);
       fwd2.forward(gspec_);
-      for (std::size_t k : rep.kept) {
-        rt_.launch_1d(k_place_, pairs * g, prec_, scene_, weights_, spec_, int(h), int(w), int(bands), int(gy), int(gx),
-                      int(k), 1);
-        fwdp.forward(spec_);
+      for (std::size_t k : visit) {
+        const bool kept = is_kept[k] != 0;
+        const int wpk = kept ? wp : 0, wsk = (kept && want_scene) || want_weights ? 1 : 0;
+        if (wpk) {
+          rt_.launch_1d(k_place_, pairs * g, prec_, scene_, weights_, spec_, int(h), int(w), int(bands), int(gy), int(gx),
+                        int(k), 1);
+          fwdp.forward(spec_);
+        }
         rt_.launch_1d(k_vjp_, pairs * g, prec_, gspec_, spec_, otf_, wts_, gscene_spec_, gpsf_spec_, int(gy), int(gx),
-                      int(bands), int(k), ws, 0, wp);
-        if (want_scene) {
-          fwdp.inverse(gscene_spec_);
+                      int(bands), int(k), wsk, 0, wpk);
+        if (wsk) fwdp.inverse(gscene_spec_);
+        if (kept && want_scene)
           rt_.launch_1d(k_gather_, bands * hw, prec_, gscene_spec_, weights_, gscene_, int(h), int(w), int(bands), int(gy),
                         int(gx), int(k), 1, 1);
-        }
-        if (want_psfs) gather_psf(k);
+        if (want_weights)
+          rt_.launch_1d(k_wgrad_, hw, prec_, gscene_spec_, scene_, gw_, int(h), int(w), int(bands), int(gy), int(gx), int(k));
+        if (wpk) gather_psf(k);
       }
     } else {
       // X = F(x); per component: G_k = F(w_k ⊙ g), scene gradient spectra conj(OTF_k) G_k summed
@@ -289,7 +306,14 @@ VaryingCamera::Gradient VaryingCamera::vjp(const RealStack& g_rgb, bool want_sce
                       int(bands), int(k), ws, int(i > 0 ? 1 : 0), wp);
         if (want_psfs) gather_psf(k);
       }
-      if (want_scene) {
+      // Weight gradient: sum_c g_c ⊙ (component k's unweighted RGB image), for every component.
+      if (want_weights)
+        for (std::size_t k : visit) {
+          rt_.launch_1d(k_combine_, g, prec_, spec_, otf_, wts_, rgbspec_, int(gy), int(gx), int(bands), int(k), 0);
+          fwd2.inverse(rgbspec_);
+          rt_.launch_1d(k_wgrad_, hw, prec_, rgbspec_, grgb_, gw_, int(h), int(w), 3, int(gy), int(gx), int(k));
+        }
+      if (want_scene && !rep.kept.empty()) {
         fwdp.inverse(gscene_spec_);
         rt_.launch_1d(k_gather_, bands * hw, prec_, gscene_spec_, weights_, gscene_, int(h), int(w), int(bands), int(gy),
                       int(gx), 0, 0, 0);
@@ -298,6 +322,7 @@ VaryingCamera::Gradient VaryingCamera::vjp(const RealStack& g_rgb, bool want_sce
   }
   if (want_scene) rt_.read_reals(gscene_, out.scene.data.data(), out.scene.size(), prec_);
   if (want_psfs) rt_.read_reals(gpsf_, out.psfs.data.data(), out.psfs.size(), prec_);
+  if (want_weights) rt_.read_reals(gw_, out.weights.data.data(), out.weights.size(), prec_);
   return out;
 }
 

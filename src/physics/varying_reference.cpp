@@ -59,16 +59,25 @@ VaryingGradient varying_vjp(const RealStack& scene, const RealStack& psfs, const
   check(scene, psfs, weights, srf);
   const std::size_t bands = scene.planes, s = psfs.rows;
   const RealStack gb = sensor_integrate_vjp(g_rgb, srf);  // bands x H x W
-  VaryingGradient out{RealStack(bands, scene.rows, scene.cols), RealStack(psfs.planes, s, s)};
+  VaryingGradient out{RealStack(bands, scene.rows, scene.cols), RealStack(psfs.planes, s, s), RealStack(weights.planes, scene.rows, scene.cols)};
+  const std::size_t hw = scene.plane_size();
+  // gw_k(q) = sum_j a(j, q) b(j, q).
+  auto weight_grad = [&](std::size_t k, const RealStack& a, const RealStack& b) {
+    for (std::size_t j = 0; j < a.planes; ++j)
+      for (std::size_t i = 0; i < hw; ++i) out.weights.plane(k)[i] += a.plane(j)[i] * b.plane(j)[i];
+  };
   for (std::size_t k = 0; k < weights.planes; ++k) {
     const RealStack pk = component(psfs, k, bands);
     RealStack gpk;
     if (placement == PsfPlacement::Source) {
-      add(out.scene, weighted(convolve_vjp_scene(pk, gb, ConvolutionMode::Linear), weights, k));
+      const RealStack back = convolve_vjp_scene(pk, gb, ConvolutionMode::Linear);
+      add(out.scene, weighted(back, weights, k));
+      weight_grad(k, scene, back);
       gpk = convolve_vjp_psf(weighted(scene, weights, k), gb, s, ConvolutionMode::Linear);
     } else {
       const RealStack gw = weighted(gb, weights, k);
       add(out.scene, convolve_vjp_scene(pk, gw, ConvolutionMode::Linear));
+      weight_grad(k, g_rgb, sensor_integrate(convolve(scene, pk, ConvolutionMode::Linear), srf));
       gpk = convolve_vjp_psf(scene, gw, s, ConvolutionMode::Linear);
     }
     std::copy(gpk.data.begin(), gpk.data.end(), out.psfs.plane(k * bands));
