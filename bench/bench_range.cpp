@@ -3,7 +3,8 @@
 // preset (or --preset), qdo+a, radial parameterization (the radial engine, one per point), the
 // Wiener expected-error objective on the device. Rows: one point at 1 m; P = 4 distances
 // (0.5, 1, 2, 5 m) with points_per_step K = 1, 2 and 4. Median of --repeats steps after one
-// warm-up step, min and max beside it; kernel build time reported apart. Speed is never asserted.
+// warm-up step (and one gradient at every point, which builds each point's radial engine), min
+// and max beside it; kernel build time reported apart. Speed is never asserted.
 //
 // Usage: bench_range [--preset small] [--repeats 5] [--precision f32] [--out FILE.md]
 #include <cstdio>
@@ -73,7 +74,10 @@ int main(int argc, char** argv) {
     for (std::size_t i = 0; i < p0.size(); ++i) p0[i] = cfg.h_max_m() * (0.2 + 0.6 * double(i % 7) / 7.0);
     DesignState st = d.initial_state(p0);
     const double b0 = rt.build_seconds();
-    d.range_step(st, unused, &device);  // warm-up: radial engines built, kernels compiled
+    std::vector<std::size_t> all(cfg.point_count());
+    for (std::size_t i = 0; i < all.size(); ++i) all[i] = i;
+    d.range_gradient(st, all, unused, &device);  // warm-up: every point's radial engine built, kernels compiled
+    d.range_step(st, unused, &device);
     std::printf("%s: setup (first step) kernels %.2f s\n", name.c_str(), rt.build_seconds() - b0);
     const qdo::bench::Timing t = qdo::bench::summarize(qdo::bench::sorted_seconds(0, repeats, [&] { d.range_step(st, unused, &device); }));
     if (baseline == 0) baseline = t.median;
