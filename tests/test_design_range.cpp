@@ -467,10 +467,19 @@ TEST_SUITE("design-range") {
     const Run ev = qdo_run("eval " + run.string() + " --out " + (dir / "eval").string());
     CHECK(ev.code == 2);
     CHECK(ev.out.find("4 object points") != std::string::npos);
-    // --resume with other points is refused, naming them.
+    // --resume with other points or another --points-per-step is refused, naming them; with the
+    // run's own it goes on (the run is complete: nothing to add).
     const Run other = qdo_run("design --object-distances 0.004,0.008 --resume --out " + run.string());
     CHECK(other.code == 2);
     CHECK(other.out.find("object_points") != std::string::npos);
+    const Run k3 = qdo_run("design --points-per-step 3 --resume --out " + run.string());
+    CHECK(k3.code == 2);
+    CHECK(k3.out.find("--points-per-step: stored 2, given 3") != std::string::npos);
+    const Run same = qdo_run("design " + cfg_arg() + " --object-distances 0.004,0.008,0.016,inf --points-per-step 2 --resume --out " +
+                             run.string());
+    CAPTURE(same.out);
+    CHECK(same.code == 0);
+    CHECK(log_rows(run / "log.csv").size() == 16);
     fs::remove_all(dir);
   }
 

@@ -226,7 +226,9 @@ void range_options(const Args& a, DesignRunOptions& o) {
     if (c.object_points.size() > 4096)
       reject("--object-distances", a.get("object-distances"), "at most 4096 object points (distances x angles)");
   }
-  const std::size_t points = c.point_count();
+  // With --resume the run's points are in its config.json, not here: check_resume_options compares
+  // the value with the stored one.
+  const std::size_t points = a.has("resume") ? 4096 : c.point_count();
   o.design.points_per_step = std::size_t(parse_int("--points-per-step", a.get("points-per-step", "1"), 1, int(std::min<std::size_t>(points, 4096))));
 }
 
