@@ -31,7 +31,8 @@ std::string to_string(DesignMode m);
 
 // Which PSF engine Designer::gradient uses. twod: the 2-D source (the Simulator's FFT path) on the N x N pixel map.
 // radial: the rotationally symmetric engine (qdo/radial.hpp) on the N/2 ring heights, no 2-D FFT;
-// only for Parameterization::Radial. auto: radial when the parameterization is radial, else 2-D.
+// only for Parameterization::Radial and on-axis object points. auto: radial when the
+// parameterization is radial and every object point of the design is on the axis, else 2-D.
 // The radial path feeds the engine the per-ring values of the same blended/quantized N x N map and
 // spreads its per-ring gradient back over the ring's pixels, so the quantizer, blend, L_aq and
 // parameterization adjoints are exactly those of the 2-D path. Per-pixel height noise cannot be
@@ -65,8 +66,13 @@ struct DesignOptions {
   std::uint64_t seed = 0;
   PsfPath psf_path = PsfPath::Auto;    // PSF engine of gradient() (see PsfPath)
   RadialOptions radial;                // sampling of the radial engine (qdo/radial.hpp)
+  // Designs over a range of object points (Designer's list of PSF sources, one per point): how many
+  // of the P points each step trains on, 1 .. P (P: all of them every step). Drawn without
+  // replacement from a generator seeded with (seed, step) (Designer::step_points), so a resumed
+  // run draws what an uninterrupted one does. A one-point design takes 1.
+  std::size_t points_per_step = 1;
   // InputError naming the field, the value and what is allowed: levels and placement, steps
-  // >= 1, 0 <= t0 < t1, learning rates, beta and height noise finite and >= 0, decay in (0, 1],
+  // >= 1, 0 <= t0 < t1, points_per_step >= 1, learning rates, beta and height noise finite and >= 0, decay in (0, 1],
   // qdo+m levels a power of two, the radial PSF path only for radial designs.
   void validate() const;
 };
@@ -100,13 +106,32 @@ using DevicePsfObjective = std::function<double(const cl::Buffer& psf_sensor, cl
 struct StepReport {
   long step = 0;
   double loss = 0, loss_aq = 0, alpha = 0, lr = 0;
+  // The object points the step trained on (indices into the Designer's sources, ascending) and the
+  // objective at each (without beta L_aq): loss = mean(point_loss) + beta L_aq.
+  std::vector<std::size_t> points;
+  std::vector<double> point_loss;
 };
+
+// The objective of a design over object points: point p's sensor PSF stack (bands x S x S) ->
+// the loss, dL/dpsf written into grad (same shape). Called once per sampled point and step.
+using PointObjective = std::function<double(std::size_t point, const RealStack& psf_sensor, RealStack& grad)>;
 
 class Designer {
  public:
   // `psf` (the 2-D path; its runtime, configuration and precision also build the radial engine) must
   // outlive the designer.
   Designer(HeightMapPsfSource& psf, const DesignOptions& opt);
+  // A design over a range of object points (issue 29 step 4): one source per point (each one
+  // point's configuration, e.g. point_config(cfg, p): same grid, bands and sensor, one object
+  // point; each yields bands planes), all driven by the one height map. Each must outlive the
+  // designer. InputError when the list is empty, the sources' grids, bands or sensor sizes differ,
+  // a source holds several points, points_per_step is not in 1 .. P, or psf_path is radial while
+  // a point is off the axis.
+  Designer(const std::vector<HeightMapPsfSource*>& points, const DesignOptions& opt);
+  std::size_t point_count() const { return srcs_.size(); }
+  // The points step `step` trains on: all of them (0 .. P-1) when points_per_step = P, else
+  // points_per_step distinct indices drawn from a generator seeded with (seed, step), ascending.
+  std::vector<std::size_t> step_points(long step) const;
   // A fresh state: w from an initial height map's parameters (metres), offsets zero.
   DesignState initial_state(const std::vector<double>& params_m) const;
   // Loss and gradients at the state (forward on the device, adjoint on the device, host adjoints
@@ -118,9 +143,21 @@ class Designer {
   // With `device` given, it is evaluated on the PSF where it lies, on the 2-D and the radial path
   // (no host copy of the PSF or its gradient; the same numbers as `objective` would give on the
   // downloaded PSF when both compute the same loss), and `objective` is not called.
+  // On a design over points: point 0's (the first source's).
   Gradient gradient(const DesignState& s, const PsfObjective& objective, const DevicePsfObjective* device = nullptr);
+  // The range objective at the state: the mean over `points` (indices of the sources, distinct) of
+  // the objective on each point's PSF stack, its gradient the mean of the per-point gradients
+  // (plus beta L_aq and its gradient once, as in gradient()). The heights, the blend and the height
+  // noise draw are the step's, shared by every point. `device`, when given, evaluates every
+  // point's stack on the device and `objective` is not called. With points = {0} on one source
+  // it is gradient() exactly.
+  Gradient range_gradient(const DesignState& s, const std::vector<std::size_t>& points, const PointObjective& objective,
+                          const DevicePsfObjective* device = nullptr);
   // One optimiser step (gradient, then Adam on each group); returns the loss before the update.
   StepReport step(DesignState& s, const PsfObjective& objective, const DevicePsfObjective* device = nullptr);
+  // One optimiser step on the points step_points(s.step) (range_gradient, then Adam): on one
+  // source, step() exactly.
+  StepReport range_step(DesignState& s, const PointObjective& objective, const DevicePsfObjective* device = nullptr);
   // The heights the current state means at step s (blended, noise-free) and the design as it
   // would be fabricated (hard-quantized unless mode is full).
   Map2D training_heights(const DesignState& s) const;
@@ -131,17 +168,21 @@ class Designer {
   // Size of DesignState::offsets: L (qdo+a and the others), k = log2(L) (qdo+m).
   std::size_t level_parameter_count() const;
   double alpha_at(long step) const;
-  // Whether gradient() runs the radial engine (psf_path radial, or auto with a radial parameterization).
+  // Whether gradient() runs the radial engine (psf_path radial, or auto with a radial
+  // parameterization and every point on the axis).
   bool uses_radial() const;
-  // The radial engine (built on first use, on the 2-D source's runtime and precision); nullptr on the
-  // 2-D path.
-  RadialEngine* radial_engine();
+  // Point p's radial engine (built on first use, on that source's runtime, configuration and
+  // precision); nullptr on the 2-D path.
+  RadialEngine* radial_engine(std::size_t point = 0);
 
  private:
-  HeightMapPsfSource& sim_;
+  StepReport update(DesignState& s, Gradient g);  // Adam on each group with the step's gradient; ++s.step
+  std::vector<HeightMapPsfSource*> srcs_;
+  HeightMapPsfSource& sim_;  // srcs_[0]: the grid, runtime and precision of every point
   DesignOptions opt_;
   double h_max_;
-  std::unique_ptr<RadialEngine> radial_;
+  bool all_on_axis_ = true;
+  std::vector<std::unique_ptr<RadialEngine>> radial_;  // one per point, built on first use
   cl::Buffer device_grad_;  // dL/dpsf_sensor of the device objective (bands x S x S reals)
 };
 

@@ -5,7 +5,9 @@
 #include <string>
 #include <vector>
 
+#include "qdo/config.hpp"
 #include "qdo/design_run_options.hpp"
+#include "qdo/types.hpp"
 #include "qdo/network_decoder.hpp"
 #include "qdo/runtime.hpp"
 
@@ -16,11 +18,31 @@ struct DesignRunResult {
   double final_loss = 0;
   std::vector<double> levels_m;        // the fabricated design's level heights
   std::vector<std::string> notes;      // what the run noted on stderr (e.g. a resume with another thread count)
+  // A design over a range of object points (config object_points, P > 1): the points and the
+  // fabricated design's objective at each (what RUN/range.csv holds). Empty for a one-point run.
+  std::vector<ObjectPoint> points;
+  std::vector<double> point_losses;
 };
 // Runs (or, with resume, continues from RUN/checkpoint.h5 with RUN/config.json's options, of
 // which only max_steps and quiet are taken from `o`) and writes the run folder (run.hpp). The
 // folder is locked (RunLock) while this runs: a second writer gets an InputError naming the pid.
+//
+// A run whose configuration lists P > 1 object points is a design over that range (issue 29 step
+// 4): each step trains on design.points_per_step of them (Designer::range_step: the mean of the
+// objective over their PSF stacks, one 2-D or radial source per point, point_config(cfg, p)).
+// log.csv then has two more columns, points (the indices trained on, ';'-separated) and
+// point_losses (the objective at each); at the end RUN/range.csv holds, per point, its distance,
+// field angles, the fabricated design's objective there (design_point_losses) and the number of
+// steps that trained on it, and range.png plots that loss against the point index. psf.h5 and
+// psf.png hold the PSF at point 0.
 DesignRunResult run_design(Runtime& rt, const DesignRunOptions& o, bool resume);
+
+// The objective (without beta L_aq) of the design `height_m` (N x N, metres, row-major) at every
+// object point of o.cfg (one value for a one-point configuration), each point's PSF computed on the
+// 2-D path; the problem (scenes, prior, targets) built as run_design builds it, wiener-mse and
+// wiener-mae on the batch of step epochs x steps_per_epoch. What a range run writes to range.csv,
+// for any design: designs trained on different points compare on the same points.
+std::vector<double> design_point_losses(Runtime& rt, const DesignRunOptions& o, const Map2D& height_m);
 
 // The OpenCL device (a Runtime selector) of the process of local rank `local_rank` among
 // `devices`: `given` when not empty; else, when there are GPUs, GPU number (local_rank mod their

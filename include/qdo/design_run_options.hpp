@@ -54,6 +54,11 @@ struct TargetSpec {
 TargetSpec target_spec_from_string(const std::string& s, const std::string& argument = "target");
 
 struct DesignRunOptions {
+  // The system. With object_points of P > 1 points the run is a design over a range (issue 29
+  // step 4): the points are training conditions, design.points_per_step of them per step, the
+  // step's loss the mean of the objective over those points' PSF stacks (run_design). Objectives
+  // wiener, wiener-mse, wiener-mae and psf-target (its target at each point: the target's PSF at
+  // that point, lens:NM focused for that point's distance); a network decoder is refused.
   SystemConfig cfg;
   DesignOptions design;
   Objective objective = Objective::Wiener;

@@ -34,8 +34,12 @@ DesignRunOptions read_run_options(const std::string& config_path);
 // parsed strictly (design_run_options_from_json) but not validated against this machine, whose
 // copy of the training data may have moved. A missing file is an InputError
 // "argument '<argument>' = RUN: <allowed>". out is set to RUN.
+// A run designed over several object points (a range run, design_run.hpp) is refused unless
+// allow_range ("argument '<argument>' = RUN: a run of one object point ..."): the commands that
+// consume a run image through one point's PSF stack; qdo design's own --resume check allows it.
 DesignRunOptions read_run_config(const std::string& run, const std::string& argument = "run",
-                                 const std::string& allowed = "a run folder written by qdo design (config.json missing)");
+                                 const std::string& allowed = "a run folder written by qdo design (config.json missing)",
+                                 bool allow_range = false);
 // RUN/log.csv after its header: every row must start "step,loss,"; the rows with step <
 // before_step (and their losses) are appended, the others are redone by the resume.
 void read_resume_log(const std::string& log_path, long before_step, std::vector<std::string>& rows,

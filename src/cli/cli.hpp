@@ -82,7 +82,9 @@ int cmd_sweep(const Args& a);
 int cmd_sweep_psf(const Args& a);
 
 // The configuration from --config or --preset (default small), the camera response checked too.
-SystemConfig load_config(const Args& a);
+// A configuration of several object points is refused unless allow_points (qdo design: a design
+// over a range of points).
+SystemConfig load_config(const Args& a, bool allow_points = false);
 // --scene builtin (the configuration's chart scene, the default), a cube file (.mat / .h5,
 // read_cube with --key) or a folder of PNG bands, checked to have cfg.bands bands: bands x H x W.
 // A band axis stored in the file must match cfg's (refused naming both grids; interpolated
@@ -119,7 +121,16 @@ double seconds_since(std::chrono::steady_clock::time_point t0);
 // The defaults written in the shared helpers (here, load_config, load_quantizer, scene_from_args)
 // apply only to options a command's table entry does not declare (e.g. --levels in qdo sweep);
 // otherwise the table's default is what a.get() returns.
-DesignRunOptions design_options(const Args& a);
+// With `range` (qdo design): a configuration of several object points is taken, and
+// --object-distances (metres or inf), --field-angles (degrees: A or X:Y, comma-separated) and
+// --points-per-step build and sample them (range_options).
+DesignRunOptions design_options(const Args& a, bool range = false);
+// qdo design's object-point options on o.cfg and o.design.points_per_step: --object-distances and
+// --field-angles replace the configuration's points by object_point_grid(distances, angles)
+// (distances default to the configuration's one distance, angles to 0); each distance > 0 m or
+// inf, each angle within max_field_angle_deg at every distance (the refusal names the limit),
+// --points-per-step in 1 .. P. InputError naming the option otherwise, before any work.
+void range_options(const Args& a, DesignRunOptions& o);
 // With --resume: every option given explicitly that differs from RUN/config.json is an
 // InputError listing "--option: stored X, given Y" (--max-steps, --device, --out,
 // --check-gradients may differ).

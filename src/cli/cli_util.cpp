@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <cstdlib>
+#include <limits>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -45,7 +46,7 @@ RealStack scene_from_args(const SystemConfig& cfg, const Args& a) {
   return scene_from_path(cfg, a.get("scene", "builtin"), a.get("key"), a.has("resample-bands"), "--key");
 }
 
-SystemConfig load_config(const Args& a) {
+SystemConfig load_config(const Args& a, bool allow_points) {
   SystemConfig c;
   if (a.has("config")) {
     if (a.has("preset")) reject("--preset", a.get("preset"), "omitted when --config is given (put \"preset\" in the file)");
@@ -55,10 +56,10 @@ SystemConfig load_config(const Args& a) {
   }
   // The commands image, design and write one PSF stack of bands planes: a stack of several object
   // points (config.hpp) is the library's and the Python package's for now (issue 29 step 1).
-  if (c.point_count() > 1)
+  if (c.point_count() > 1 && !allow_points)
     reject("object_points", to_str(c.point_count()) + " points",
-           "at most one point in the commands (stacks of several object points: the library's Simulator and "
-           "qdo.Optics.psf(height_m, object_points=...))");
+           "at most one point in the commands but qdo design (stacks of several object points: the library's Simulator and "
+           "qdo.Optics.psf(height_m, object_points=...); designs over several points: qdo design)");
   sensor_response(c);
   return c;
 }
@@ -171,9 +172,70 @@ std::vector<std::string> split_list(const std::string& s) {
 }
 
 // Options shared by design and gradcheck.
-DesignRunOptions design_options(const Args& a) {
+namespace {
+
+// A distance of --object-distances: metres > 0 (at least 1e-6, as the configuration takes) or inf.
+double object_distance(const std::string& v) {
+  if (v == "inf") return std::numeric_limits<double>::infinity();
+  char* end = nullptr;
+  const double d = std::strtod(v.c_str(), &end);
+  if (v.empty() || *end || !std::isfinite(d) || d < 1e-6)
+    reject("--object-distances", v, "distances in metres > 0 (at least 1e-6 m) or inf, comma-separated, e.g. 0.5,1,2,5");
+  return d;
+}
+
+}  // namespace
+
+void range_options(const Args& a, DesignRunOptions& o) {
+  SystemConfig& c = o.cfg;
+  if ((a.has("object-distances") || a.has("field-angles")) && !c.object_points.empty())
+    reject(a.has("object-distances") ? "--object-distances" : "--field-angles",
+           a.get(a.has("object-distances") ? "object-distances" : "field-angles"),
+           "omitted when the configuration lists object_points (" + to_str(c.object_points.size()) +
+               " points in --config): give the points one way");
+  if (a.has("object-distances") || a.has("field-angles")) {
+    std::vector<double> distances;
+    for (const std::string& v : split_list(a.get("object-distances"))) distances.push_back(object_distance(v));
+    if (a.has("object-distances") && distances.empty())
+      reject("--object-distances", a.get("object-distances"), "one or more distances in metres or inf, comma-separated");
+    if (distances.empty()) distances.push_back(c.points()[0].distance_m);
+    std::vector<std::pair<double, double>> angles;
+    for (const std::string& v : split_list(a.get("field-angles"))) {
+      const auto colon = v.find(':');
+      const double x = parse_double("--field-angles", colon == std::string::npos ? v : v.substr(0, colon), -89, 89, "deg");
+      const double y = colon == std::string::npos ? 0.0 : parse_double("--field-angles", v.substr(colon + 1), -89, 89, "deg");
+      angles.push_back({x, y});
+    }
+    if (a.has("field-angles") && angles.empty())
+      reject("--field-angles", a.get("field-angles"), "one or more angles in degrees (A on the x axis, or X:Y), comma-separated");
+    if (angles.empty()) angles.push_back({0.0, 0.0});
+    // Each off-axis angle within the sampling at each distance, named with the limit there.
+    for (const auto& ang : angles) {
+      if (ang.first == 0 && ang.second == 0) continue;
+      for (double d : distances) {
+        const std::string why = object_point_limit(c, ObjectPoint{d, ang.first, ang.second});
+        if (why.empty()) continue;
+        const std::string text = ang.second == 0 ? to_str(ang.first) : to_str(ang.first) + ":" + to_str(ang.second);
+        reject("--field-angles", text + " deg",
+               "angles within the sampling at every distance: at " + (std::isinf(d) ? std::string("inf") : to_str(d) + " m") +
+                   " this configuration supports field angles up to " + to_str(max_field_angle_deg(c, d)) +
+                   " deg on one axis (" + why + ")");
+      }
+    }
+    c.object_points = object_point_grid(distances, angles);
+    if (c.object_points.size() > 4096)
+      reject("--object-distances", a.get("object-distances"), "at most 4096 object points (distances x angles)");
+  }
+  // With --resume the run's points are in its config.json, not here: check_resume_options compares
+  // the value with the stored one.
+  const std::size_t points = a.has("resume") ? 4096 : c.point_count();
+  o.design.points_per_step = std::size_t(parse_int("--points-per-step", a.get("points-per-step", "1"), 1, int(std::min<std::size_t>(points, 4096))));
+}
+
+DesignRunOptions design_options(const Args& a, bool range) {
   DesignRunOptions o;
-  o.cfg = load_config(a);
+  o.cfg = load_config(a, range);
+  if (range) range_options(a, o);
   o.design.mode = design_mode_from_string(a.get("mode", "qdo+a"));
   o.design.parameterization = parameterization_from_string(a.get("parameterization", "radial"));
   o.design.quantizer.levels = parse_int("--levels", a.get("levels", "4"), 2, 65536);
@@ -221,7 +283,7 @@ void check_resume_options(const Args& a, const DesignRunOptions& given) {
   if (given.out.empty() || !fs::exists(cfg)) return;  // run_design names the missing file
   // Both sides through the same reader and writer, so defaults of old run folders (psf_path)
   // and number formatting compare equal.
-  const DesignRunOptions stored = read_run_config(given.out, "out");
+  const DesignRunOptions stored = read_run_config(given.out, "out", "a run folder written by qdo design (config.json missing)", true);
   const nlohmann::json s = nlohmann::json::parse(design_run_options_to_json(stored));
   const nlohmann::json g = nlohmann::json::parse(design_run_options_to_json(given));
   static const std::vector<std::pair<std::string, std::string>> fields = {
@@ -232,7 +294,7 @@ void check_resume_options(const Args& a, const DesignRunOptions& given) {
       {"height-noise-nm", "height_noise_m"}, {"noise-sigma", "decoder_noise_sigma"}, {"init", "init"}, {"seed", "seed"},
       {"checkpoint-every", "checkpoint_every"}, {"precision", "precision"}, {"synthetic-scenes", "synthetic_scenes"},
       {"batch", "batch"}, {"wiener-on", "wiener_on"}, {"decoder", "decoder"}, {"lr-decoder", "lr_decoder"},
-      {"gamma", "gamma_decoder"}};
+      {"gamma", "gamma_decoder"}, {"points-per-step", "points_per_step"}};
   std::vector<std::string> diffs;
   for (const auto& [opt, key] : fields) {
     if (!a.has(opt)) continue;
@@ -240,7 +302,7 @@ void check_resume_options(const Args& a, const DesignRunOptions& given) {
     const nlohmann::json& gv = g.at("design").at(key);
     if (sv != gv) diffs.push_back("--" + opt + ": stored " + sv.dump() + ", given " + gv.dump());
   }
-  for (const char* opt : {"preset", "config"}) {
+  for (const char* opt : {"preset", "config", "object-distances", "field-angles"}) {
     if (!a.has(opt)) continue;
     const nlohmann::json& ss_ = s.at("system");
     const nlohmann::json& gs = g.at("system");

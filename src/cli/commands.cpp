@@ -214,7 +214,16 @@ std::vector<CommandSpec> make_table() {
                        opt("psf", "do-finetune for the camera as built: a measured PSF stack (qdo calibrate's psf.h5, for the run's "
                                   "bands and sensor grid; checked) frozen in place of the do run's quantized DOE; not with --levels"),
                        opt("design", "do-finetune for the camera as built: a fitted as-built design .h5 (N x N at the run's pitch), "
-                                     "its simulated PSF frozen in place of the do run's quantized DOE; not with --levels or --psf")},
+                                     "its simulated PSF frozen in place of the do run's quantized DOE; not with --levels or --psf"),
+                       opt("object-distances", "design over a range: object distances in metres, each > 0 (at least 1e-6) or inf, "
+                                               "comma-separated, e.g. 0.5,1,2,5; the object points are every distance under every "
+                                               "--field-angles angle, the training conditions of the run (default: the configuration's "
+                                               "object_points, else its one scene distance); not with a --config that lists object_points"),
+                       opt("field-angles", "design over a range: field angles in degrees, comma-separated, A (on the x axis) or X:Y, each "
+                                           "within the sampling at every distance (the refusal names the largest, max_field_angle_deg) "
+                                           "(default: 0, on the axis)"),
+                       opt("points-per-step", "object points each optimiser step trains on, drawn anew each step (seeded), an integer "
+                                              "in [1, P] for P object points (P: every point every step)", "1")},
                       concat(training_options(),
                              {opt("checkpoint-every", "steps between checkpoints, an integer in [1, 100000000]", "10"),
                               opt("max-steps", "stop after N steps in this session, resumable, an integer >= 0 (default: no limit)"),

@@ -184,7 +184,7 @@ int cmd_design(const Args& a) {
     b.opt.erase("design");
     return cmd_design(b);
   }
-  DesignRunOptions o = finetune ? finetune_options(a) : design_options(a);
+  DesignRunOptions o = finetune ? finetune_options(a) : design_options(a, true);
   const bool resume = a.has("resume");
   if (!resume) o.validate();
   else check_resume_options(a, o);
@@ -195,15 +195,38 @@ int cmd_design(const Args& a) {
   if (!resume && writer) claim_out(a, o.out);  // --resume: the run folder is checked by the resume itself
   Runtime rt(process_device(a.get("device")));
   if (a.has("check-gradients")) {
-    std::printf("gradient check on this run's configuration (reduced to N <= 64):\n");
-    if (const int rc = print_gradcheck(gradcheck(rt, o, o.design.seed)); rc != 0) return rc;
+    // A design over several points: each point's chain is the one-point chain of point_config(cfg, p)
+    // (the range objective is their mean); checked at the first point.
+    DesignRunOptions g = o;
+    if (o.cfg.point_count() > 1) {
+      g.cfg = point_config(o.cfg, 0);
+      g.design.points_per_step = 1;
+    }
+    std::printf("gradient check on this run's configuration (reduced to N <= 64)%s:\n",
+                o.cfg.point_count() > 1 ? ", at object point 0" : "");
+    if (const int rc = print_gradcheck(gradcheck(rt, g, g.design.seed)); rc != 0) return rc;
   }
   const auto t0 = std::chrono::steady_clock::now();
   const DesignRunResult r = run_design(rt, o, resume);
   if (!writer) return 0;
   std::printf("design: %ld steps, final loss %.6g, %.1f s; levels (nm):", r.steps_done, r.final_loss, seconds_since(t0));
   for (double l : r.levels_m) std::printf(" %.1f", l * 1e9);
-  std::printf("\nwrote %s/ (config.json checkpoint.h5 log.csv design.h5 psf.h5 design.png psf.png loss.png)\n", o.out.c_str());
+  std::printf("\n");
+  if (!r.point_losses.empty()) {  // a design over a range of object points: its spread over the range
+    std::printf("%-6s %12s %12s %12s %14s\n", "point", "distance_m", "field_x_deg", "field_y_deg", "loss");
+    double worst = r.point_losses[0], sum = 0;
+    for (std::size_t p = 0; p < r.point_losses.size(); ++p) {
+      const ObjectPoint& pt = r.points[p];
+      std::printf("%-6zu %12s %12.4g %12.4g %14.6g\n", p, pt.at_infinity() ? "inf" : to_str(pt.distance_m).c_str(), pt.field_x_deg,
+                  pt.field_y_deg, r.point_losses[p]);
+      worst = std::max(worst, r.point_losses[p]);
+      sum += r.point_losses[p];
+    }
+    std::printf("range: mean loss %.6g, worst %.6g over %zu points\n", sum / double(r.point_losses.size()), worst,
+                r.point_losses.size());
+  }
+  std::printf("wrote %s/ (config.json checkpoint.h5 log.csv design.h5 psf.h5 design.png psf.png loss.png%s)\n", o.out.c_str(),
+              r.point_losses.empty() ? "" : " range.csv range.png");
   return 0;
 }
 

@@ -1,5 +1,6 @@
 #include "qdo/design.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -94,6 +95,7 @@ void DesignOptions::validate() const {
   q.offsets.clear();
   q.validate();
   if (steps_per_epoch < 1) reject("steps_per_epoch", steps_per_epoch, ">= 1");
+  if (points_per_step < 1) reject("points_per_step", points_per_step, ">= 1 (object points per step, at most their number)");
   if (!(t0_epochs >= 0) || !std::isfinite(t0_epochs)) reject("t0_epochs", t0_epochs, "finite and >= 0");
   if (!(t1_epochs > t0_epochs) || !std::isfinite(t1_epochs))
     reject("t1_epochs", t1_epochs, "finite and > t0_epochs = " + to_str(t0_epochs));
@@ -108,20 +110,65 @@ void DesignOptions::validate() const {
   radial.validate();
 }
 
-Designer::Designer(HeightMapPsfSource& sim, const DesignOptions& opt) : sim_(sim), opt_(opt), h_max_(sim.config().h_max_m()) {
+Designer::Designer(HeightMapPsfSource& sim, const DesignOptions& opt) : Designer(std::vector<HeightMapPsfSource*>{&sim}, opt) {}
+
+namespace {
+HeightMapPsfSource& first_source(const std::vector<HeightMapPsfSource*>& points) {
+  if (points.empty() || !points[0]) reject("object points", 0, "at least one PSF source (one per object point)");
+  return *points[0];
+}
+}  // namespace
+
+Designer::Designer(const std::vector<HeightMapPsfSource*>& points, const DesignOptions& opt)
+    : srcs_(points), sim_(first_source(points)), opt_(opt), h_max_(sim_.config().h_max_m()), radial_(points.size()) {
   opt_.quantizer.offsets.clear();
   opt_.validate();
+  const SystemConfig& c0 = sim_.config();
+  for (std::size_t p = 0; p < srcs_.size(); ++p) {
+    if (!srcs_[p]) reject("object point " + to_str(p), "(no source)", "a PSF source");
+    const SystemConfig& c = srcs_[p]->config();
+    if (srcs_.size() > 1 && c.point_count() != 1)
+      reject("object point " + to_str(p), to_str(c.point_count()) + " points",
+             "a source of one object point (point_config(cfg, p)) in a design over several points");
+    if (c.n != c0.n || c.pitch_m != c0.pitch_m || c.bands != c0.bands || c.sensor_size_px() != c0.sensor_size_px() ||
+        srcs_[p]->precision() != sim_.precision() || c.h_max_m() != h_max_)
+      reject("object point " + to_str(p), srcs_[p]->describe(),
+             "a source on the first one's grid, bands, sensor, material and precision (one DOE seen from every point)");
+    for (const ObjectPoint& pt : c.points()) all_on_axis_ = all_on_axis_ && pt.on_axis();
+  }
+  if (opt_.points_per_step > srcs_.size())
+    reject("points_per_step", opt_.points_per_step, "1 to the number of object points P = " + to_str(srcs_.size()));
+  if (opt_.psf_path == PsfPath::Radial && !all_on_axis_)
+    reject("psf_path", "radial", "auto or 2d when an object point is off the axis (the radial engine serves on-axis points)");
 }
 
 bool Designer::uses_radial() const {
   return opt_.psf_path == PsfPath::Radial ||
-         (opt_.psf_path == PsfPath::Auto && opt_.parameterization == Parameterization::Radial);
+         (opt_.psf_path == PsfPath::Auto && opt_.parameterization == Parameterization::Radial && all_on_axis_);
 }
 
-RadialEngine* Designer::radial_engine() {
+RadialEngine* Designer::radial_engine(std::size_t point) {
   if (!uses_radial()) return nullptr;
-  if (!radial_) radial_ = std::make_unique<RadialEngine>(sim_.runtime(), sim_.config(), sim_.precision(), opt_.radial);
-  return radial_.get();
+  if (point >= srcs_.size()) reject("object point", point, "an index below " + to_str(srcs_.size()));
+  std::unique_ptr<RadialEngine>& e = radial_[point];
+  if (!e) e = std::make_unique<RadialEngine>(srcs_[point]->runtime(), srcs_[point]->config(), srcs_[point]->precision(), opt_.radial);
+  return e.get();
+}
+
+std::vector<std::size_t> Designer::step_points(long step) const {
+  const std::size_t n = srcs_.size(), k = std::max<std::size_t>(1, opt_.points_per_step);
+  std::vector<std::size_t> all(n);
+  for (std::size_t i = 0; i < n; ++i) all[i] = i;
+  if (k >= n) return all;
+  // A partial Fisher-Yates shuffle with its own stream (seed, step): not the height-noise draws.
+  std::mt19937_64 rng((opt_.seed + 0x5DEECE66Dull) * 0xBF58476D1CE4E5B9ull + std::uint64_t(step));
+  for (std::size_t i = 0; i < k; ++i) {
+    const std::size_t j = i + std::size_t(rng() % std::uint64_t(n - i));
+    std::swap(all[i], all[j]);
+  }
+  all.resize(k);
+  std::sort(all.begin(), all.end());
+  return all;
 }
 
 std::size_t Designer::level_parameter_count() const {
@@ -181,6 +228,18 @@ Map2D Designer::fabricated_heights(const DesignState& s) const {
 
 Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& objective,
                                       const DevicePsfObjective* device) {
+  const PointObjective one = [&objective](std::size_t, const RealStack& psf, RealStack& grad) { return objective(psf, grad); };
+  return range_gradient(s, {0}, one, device);
+}
+
+Designer::Gradient Designer::range_gradient(const DesignState& s, const std::vector<std::size_t>& points,
+                                            const PointObjective& objective, const DevicePsfObjective* device) {
+  if (points.empty()) reject("points", "(none)", "at least one object point per step");
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    if (points[i] >= srcs_.size()) reject("points", points[i], "indices below the number of object points " + to_str(srcs_.size()));
+    for (std::size_t j = 0; j < i; ++j)
+      if (points[j] == points[i]) reject("points", points[i], "distinct indices (each point once per step)");
+  }
   const SystemConfig& cfg = sim_.config();
   const std::size_t n = cfg.n;
   const std::vector<double> p = params_m(s);
@@ -193,55 +252,64 @@ Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& 
   Map2D h = training_heights(s);
   std::mt19937_64 rng(opt_.seed * 0x9E3779B97F4A7C15ull + std::uint64_t(s.step));
   std::uniform_real_distribution<double> noise(-opt_.height_noise_m, opt_.height_noise_m);
-  RadialEngine* radial = radial_engine();
+  const bool radial = uses_radial();
   StepReport rep;
   rep.step = s.step;
   rep.alpha = alpha;
-  Map2D gh;
-  if (device) {
-    // PSF, objective and the PSF adjoint on the device: only the heights go up and dL/dH comes
-    // back. The PSF and the noise draws are those of the host path below.
-    std::vector<double> rings;
-    if (radial) {
-      rings = ring_heights_of_map(h);
-      if (opt_.height_noise_m > 0)
-        for (double& v : rings) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
-      radial->compute_psf(rings);
-    } else {
-      if (opt_.height_noise_m > 0)
-        for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
-      sim_.set_heights(h);
-      sim_.compute_psf();
-    }
-    const cl::Buffer& psf_dev = radial ? radial->psf_sensor_buffer() : sim_.psf_sensor_buffer();
-    const std::size_t bytes = cfg.bands * cfg.sensor_size_px() * cfg.sensor_size_px() *
-                              (sim_.precision() == Precision::F64 ? sizeof(double) : sizeof(float));
-    if (!device_grad_() || device_grad_.getInfo<CL_MEM_SIZE>() != bytes)
-      device_grad_ = cl::Buffer(sim_.runtime().context(), CL_MEM_READ_WRITE, bytes);
-    rep.loss = (*device)(psf_dev, device_grad_);
-    gh = radial ? spread_ring_gradient(radial->psf_sensor_vjp(device_grad_), n) : sim_.psf_sensor_vjp(device_grad_);
-  } else {
-    RealStack psf;
-    if (radial) {
-      // Ring heights of the same blended/quantized map; noise drawn per ring (it cannot be per pixel).
-      std::vector<double> rings = ring_heights_of_map(h);
-      if (opt_.height_noise_m > 0)
-        for (double& v : rings) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
-      radial->compute_psf(rings);
-      psf = radial->psf_sensor();
-    } else {
-      if (opt_.height_noise_m > 0)
-        for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
-      sim_.set_heights(h);
-      sim_.compute_psf();
-      psf = sim_.psf_sensor();
-    }
-    RealStack g(psf.planes, psf.rows, psf.cols);
-    rep.loss = objective(psf, g);
-    // dL/dH on the N x N map; on the radial path the per-ring gradient spread evenly over each ring's
-    // pixels, so the per-pixel quantizer adjoint and expand_parameters_vjp below give it back per ring.
-    gh = radial ? spread_ring_gradient(radial->psf_sensor_vjp(g), n) : sim_.psf_sensor_vjp(g);
+  rep.points = points;
+  // The step's heights, drawn once and seen from every point: the ring heights of the same
+  // blended/quantized map on the radial path (noise drawn per ring: it cannot be per pixel), the
+  // pixel map on the 2-D path.
+  std::vector<double> rings;
+  if (radial) {
+    rings = ring_heights_of_map(h);
+    if (opt_.height_noise_m > 0)
+      for (double& v : rings) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
+  } else if (opt_.height_noise_m > 0) {
+    for (double& v : h.data) v = std::min(2 * h_max_, std::max(0.0, v + noise(rng)));
   }
+  const double share = 1.0 / double(points.size());
+  Map2D gh;
+  double loss_sum = 0;
+  for (std::size_t point : points) {
+    HeightMapPsfSource& src = *srcs_[point];
+    RadialEngine* engine = radial ? radial_engine(point) : nullptr;
+    if (engine) {
+      engine->compute_psf(rings);
+    } else {
+      src.set_heights(h);
+      src.compute_psf();
+    }
+    double loss = 0;
+    Map2D gp;
+    if (device) {
+      // PSF, objective and the PSF adjoint on the device: only the heights go up and dL/dH comes back.
+      const cl::Buffer& psf_dev = engine ? engine->psf_sensor_buffer() : src.psf_sensor_buffer();
+      const std::size_t bytes = cfg.bands * cfg.sensor_size_px() * cfg.sensor_size_px() *
+                                (sim_.precision() == Precision::F64 ? sizeof(double) : sizeof(float));
+      if (!device_grad_() || device_grad_.getInfo<CL_MEM_SIZE>() != bytes)
+        device_grad_ = cl::Buffer(sim_.runtime().context(), CL_MEM_READ_WRITE, bytes);
+      loss = (*device)(psf_dev, device_grad_);
+      gp = engine ? spread_ring_gradient(engine->psf_sensor_vjp(device_grad_), n) : src.psf_sensor_vjp(device_grad_);
+    } else {
+      const RealStack psf = engine ? engine->psf_sensor() : src.psf_sensor();
+      RealStack g(psf.planes, psf.rows, psf.cols);
+      loss = objective(point, psf, g);
+      // dL/dH on the N x N map; on the radial path the per-ring gradient spread evenly over each ring's
+      // pixels, so the per-pixel quantizer adjoint and expand_parameters_vjp below give it back per ring.
+      gp = engine ? spread_ring_gradient(engine->psf_sensor_vjp(g), n) : src.psf_sensor_vjp(g);
+    }
+    rep.point_loss.push_back(loss);
+    if (points.size() == 1) {  // one point: its loss and gradient as they are (bit-identical to a one-point design)
+      loss_sum = loss;
+      gh = std::move(gp);
+      continue;
+    }
+    loss_sum += loss;
+    if (gh.data.empty()) gh = Map2D(gp.rows, gp.cols, 0.0);
+    for (std::size_t i = 0; i < gh.data.size(); ++i) gh.data[i] += share * gp.data[i];
+  }
+  rep.loss = points.size() == 1 ? loss_sum : loss_sum / double(points.size());
 
   Map2D ghf = gh;
   std::vector<double> ga(static_cast<std::size_t>(q.levels), 0.0);
@@ -297,7 +365,15 @@ Designer::Gradient Designer::gradient(const DesignState& s, const PsfObjective& 
 }
 
 StepReport Designer::step(DesignState& s, const PsfObjective& objective, const DevicePsfObjective* device) {
-  Gradient g = gradient(s, objective, device);
+  const PointObjective one = [&objective](std::size_t, const RealStack& psf, RealStack& grad) { return objective(psf, grad); };
+  return update(s, range_gradient(s, {0}, one, device));
+}
+
+StepReport Designer::range_step(DesignState& s, const PointObjective& objective, const DevicePsfObjective* device) {
+  return update(s, range_gradient(s, step_points(s.step), objective, device));
+}
+
+StepReport Designer::update(DesignState& s, Gradient g) {
   const double epoch = std::floor(double(s.step) / double(opt_.steps_per_epoch));
   g.report.lr = opt_.lr_optics * std::pow(opt_.lr_decay_per_epoch, epoch);
   s.adam_w.step(s.w, g.g_w, g.report.lr, -1.0, 1.0);

@@ -82,17 +82,42 @@ PsfObjective make_objective(const DesignRunOptions& o, const Problem& pb, long s
   };
 }
 
+PointObjective make_point_objective(const DesignRunOptions& o, const Problem& pb, long step, wiener::DeviceObjective* dev) {
+  if (o.objective == Objective::PsfTarget) {
+    const Problem* p = &pb;
+    return [p](std::size_t point, const RealStack& psf, RealStack& grad) {
+      if (point >= p->point_targets.size())
+        reject("object point", point, "an index below the run's " + to_str(p->point_targets.size()) + " points");
+      return p->point_targets[point](psf, grad);
+    };
+  }
+  PsfObjective one = make_objective(o, pb, step, dev);
+  return [one](std::size_t, const RealStack& psf, RealStack& grad) { return one(psf, grad); };
+}
+
 Problem make_problem(Runtime& rt, const DesignRunOptions& o) {
   Problem pb;
   pb.srf = sensor_response(o.cfg);
   if (o.objective == Objective::PsfTarget) {
-    Simulator sim(rt, o.cfg, o.precision);
-    Map2D h;
-    if (o.target.kind == TargetSpec::Kind::Lens) h = lens_design(o.cfg, o.target.wavelength_nm);
-    else h = read_design(o.target.path).height_m;
-    sim.set_heights(h);
-    sim.compute_psf();
-    pb.target = sim.psf_sensor();
+    const std::size_t points = o.cfg.point_count();
+    const Map2D file_h = o.target.kind == TargetSpec::Kind::File ? read_design(o.target.path).height_m : Map2D();
+    for (std::size_t p = 0; p < points; ++p) {
+      // One point: the configuration as it is (as before object points); several: point p's.
+      const SystemConfig pc = points == 1 ? o.cfg : point_config(o.cfg, p);
+      SystemConfig lens_cfg = pc;  // the lens focused for the point's distance
+      if (points > 1 && !pc.object_points.empty()) {
+        const ObjectPoint pt = pc.object_points[0];
+        lens_cfg.object_points.clear();
+        lens_cfg.scene_at_infinity = pt.at_infinity();
+        if (!pt.at_infinity()) lens_cfg.scene_distance_m = pt.distance_m;
+      }
+      Simulator sim(rt, pc, o.precision);
+      sim.set_heights(o.target.kind == TargetSpec::Kind::Lens ? lens_design(lens_cfg, o.target.wavelength_nm) : file_h);
+      sim.compute_psf();
+      RealStack t = sim.psf_sensor();
+      if (p == 0) pb.target = t;
+      pb.point_targets.push_back(psf_target_objective(t));
+    }
     return pb;
   }
   if (o.objective == Objective::Network) {  // the network's training scenes; the prior (for Wiener evaluations) from their patches

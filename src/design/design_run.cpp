@@ -48,6 +48,55 @@ std::string fmt_time(double s) {
 
 }  // namespace
 
+namespace {
+
+// The objective (without beta L_aq) of `height_m` at every object point of the run: each point's
+// PSF through its 2-D source (the evaluation path), wiener-mse and wiener-mae on the batch of step
+// `step`.
+std::vector<double> point_losses(const DesignRunOptions& o, const Problem& pb, const std::vector<std::unique_ptr<Simulator>>& sims,
+                                 wiener::DeviceObjective* dev, const Map2D& height_m, long step) {
+  const PointObjective obj = make_point_objective(o, pb, step, dev);
+  std::vector<double> out;
+  for (std::size_t p = 0; p < sims.size(); ++p) {
+    sims[p]->set_heights(height_m);
+    sims[p]->compute_psf();
+    const RealStack psf = sims[p]->psf_sensor();
+    RealStack g(psf.planes, psf.rows, psf.cols);
+    out.push_back(obj(p, psf, g));
+  }
+  return out;
+}
+
+// One 2-D source per object point of the run: the configuration itself for a one-point run (as
+// before object points), point_config(cfg, p) for each point of a range.
+std::vector<std::unique_ptr<Simulator>> point_sources(Runtime& rt, const DesignRunOptions& o) {
+  std::vector<std::unique_ptr<Simulator>> sims;
+  const std::size_t points = o.cfg.point_count();
+  for (std::size_t p = 0; p < points; ++p)
+    sims.push_back(std::make_unique<Simulator>(rt, points == 1 ? o.cfg : point_config(o.cfg, p), o.precision));
+  return sims;
+}
+
+std::string join_points(const std::vector<std::size_t>& v) {
+  std::string t;
+  for (std::size_t i = 0; i < v.size(); ++i) t += (i ? ";" : "") + std::to_string(v[i]);
+  return t;
+}
+
+}  // namespace
+
+std::vector<double> design_point_losses(Runtime& rt, const DesignRunOptions& given, const Map2D& height_m) {
+  DesignRunOptions o = given;
+  o.quiet = true;
+  o.validate();
+  if (o.objective == Objective::Network)
+    reject("objective", "network", "wiener, wiener-mse, wiener-mae or psf-target (the point losses of a fixed design)");
+  const Problem pb = make_problem(rt, o);
+  const auto sims = point_sources(rt, o);
+  const std::unique_ptr<wiener::DeviceObjective> dev = make_device_objective(rt, o, pb);
+  return point_losses(o, pb, sims, dev.get(), height_m, long(o.epochs * o.design.steps_per_epoch));
+}
+
 std::string device_for_rank(const std::string& given, int local_rank, const std::vector<DeviceInfo>& devices) {
   if (!given.empty()) return given;
   if (local_rank < 0) reject("local_rank", local_rank, ">= 0");
@@ -195,8 +244,14 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     write_text_atomic((dir / "split.json").string(), sp.dump(2) + "\n");
   }
 
-  Simulator sim(rt, o.cfg, o.precision);
-  Designer d(sim, o.design);
+  // One PSF source per object point (a range design's training conditions), heights shared.
+  const std::size_t npoints = o.cfg.point_count();
+  const bool range = npoints > 1;
+  const std::vector<std::unique_ptr<Simulator>> sims = point_sources(rt, o);
+  std::vector<HeightMapPsfSource*> sources;
+  for (const auto& sp : sims) sources.push_back(sp.get());
+  Simulator& sim = *sims[0];
+  Designer d(sources, o.design);
   const std::unique_ptr<wiener::DeviceObjective> dev = network ? nullptr : make_device_objective(rt, o, pb);
   // The device objective evaluated where the PSF lies (Designer::gradient's device path): the same
   // numbers as through the host (float32 survives the double round trip exactly), no PSF copies.
@@ -238,6 +293,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   auto write_log = [&]() {
     std::string text = "step,loss,loss_aq,alpha,lr,step_s,level_heights_nm";
     if (network) text += ",mae,train_psnr_db,val_psnr_db,lr_decoder";
+    if (range) text += ",points,point_losses";  // the object points the step trained on, the objective at each
     text += "\n";
     for (const auto& r : rows) text += r + "\n";
     write_text_atomic(log_path.string(), text);
@@ -261,7 +317,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       const PsfObjective obj = [&](const RealStack& psf, RealStack& grad) { return joint->step(cur, lr_net, psf, grad); };
       rep = d.step(s, obj, nullptr);
     } else {
-      rep = d.step(s, make_objective(o, pb, s.step, dev.get()), dev ? &dev_resident : nullptr);
+      rep = d.range_step(s, make_point_objective(o, pb, s.step, dev.get()), dev ? &dev_resident : nullptr);
     }
     if (!std::isfinite(rep.loss) || !std::isfinite(rep.loss_aq))
       throw NumericalError("design step " + std::to_string(rep.step) + ": the loss is " + to_str(rep.loss) +
@@ -286,6 +342,10 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       if (std::isfinite(val_psnr)) row << val_psnr;
       row << "," << lr_net;
     }
+    if (range) {
+      row << "," << join_points(rep.points) << ",";
+      for (std::size_t i = 0; i < rep.point_loss.size(); ++i) row << (i ? ";" : "") << rep.point_loss[i];
+    }
     rows.push_back(row.str());
     const bool tty = ::isatty(2) != 0;
     const long every = std::max<long>(1, (stop - first) / 20);
@@ -302,6 +362,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
           extra += b;
         }
       }
+      if (range) extra += "  points " + join_points(rep.points) + " of " + std::to_string(npoints);
       std::fprintf(stderr, "%s[design %s%s] step %ld/%ld  loss %.5g%s  alpha %.3f  lr %.4g  %.2f s/step  ETA %s   %s",
                    tty ? "\r" : "", finetune ? "do-finetune" : to_string(o.design.mode).c_str(),
                    network ? (", " + o.decoder.to_string()).c_str() : "", s.step, total, rep.loss, extra.c_str(), rep.alpha, rep.lr, dt,
@@ -352,6 +413,26 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   full.height_m = expand_parameters(o.design.parameterization, d.params_m(s), o.cfg.n, o.cfg.h_max_m());
   full.pitch_m = o.cfg.pitch_m;
   write_design(folder.design_full_path(), full, {{"mode", to_string(o.design.mode)}, {"note", "full-precision H_f"}});
+  if (range) {
+    // The fabricated design's objective at every training point (range.csv, range.png), with how
+    // often each point was trained on (steps_point_list redrawn: the same draws as the steps).
+    r.points = o.cfg.points();
+    r.point_losses = point_losses(o, pb, sims, dev.get(), out.height_m, total);
+    std::vector<long> sampled(npoints, 0);
+    for (long k = 0; k < s.step; ++k)
+      for (std::size_t p : d.step_points(k)) ++sampled[p];
+    std::ostringstream csv;
+    csv.precision(10);
+    csv << "point,distance_m,field_x_deg,field_y_deg,loss,steps_trained\n";
+    for (std::size_t p = 0; p < npoints; ++p) {
+      const ObjectPoint& pt = r.points[p];
+      csv << p << "," << (pt.at_infinity() ? std::string("inf") : to_str(pt.distance_m)) << "," << pt.field_x_deg << ","
+          << pt.field_y_deg << "," << r.point_losses[p] << "," << sampled[p] << "\n";
+    }
+    write_text_atomic(folder.path("range.csv"), csv.str());
+    write_line_plot_png(folder.path("range.png"), {r.point_losses});
+  }
+  // psf.h5 and psf.png: the PSF at the first object point (the run's one point when it has one).
   sim.set_heights(out.height_m);
   sim.compute_psf();
   const RealStack psf = sim.psf_sensor();

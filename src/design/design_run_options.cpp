@@ -148,6 +148,15 @@ void DesignRunOptions::validate() const {
   }
   if (objective == Objective::PsfTarget && target.kind != TargetSpec::Kind::Lens && !fs::exists(target.path))
     reject("target", target.to_string(), "lens:NM or an existing design .h5 file");
+  // A design over object points (issue 29 step 4): points_per_step of the P points per step.
+  const std::size_t points = cfg.point_count();
+  if (design.points_per_step < 1 || design.points_per_step > points)
+    reject("points_per_step", design.points_per_step,
+           "1 to the number of object points P = " + to_str(points) + " (P: every point every step)");
+  if (points > 1 && (net || objective == Objective::Network || !finetune_from.empty()))
+    reject("objective", to_string(objective),
+           "wiener, wiener-mse, wiener-mae or psf-target for a design over " + to_str(points) +
+               " object points (a network decoder trained over a range of points is later work, issue 29)");
   if (epochs < 1) reject("epochs", epochs, ">= 1");
   if (batch < 1) reject("batch", batch, ">= 1");
   if (synthetic_scenes < 1) reject("synthetic_scenes", synthetic_scenes, ">= 1");
@@ -250,6 +259,12 @@ const std::vector<RunField>& run_fields() {
       real_field("beta_aq", [](auto& o) -> auto& { return o.design.beta_aq; }),
       real_field("height_noise_m", [](auto& o) -> auto& { return o.design.height_noise_m; }),
       integer_field_of<std::uint64_t>("seed", [](auto& o) -> auto& { return o.design.seed; }),
+      // Run folders written before designs over object points trained on their one point.
+      {"points_per_step",
+       [](DesignRunOptions& o, const json& d) {
+         o.design.points_per_step = d.contains("points_per_step") ? integer_field<std::size_t>(d, "points_per_step") : 1;
+       },
+       [](const DesignRunOptions& o, json& d) { d["points_per_step"] = o.design.points_per_step; }},
       named_field("objective", [](auto& o) -> auto& { return o.objective; }, from_key(objective_from_string, "objective"),
                   [](Objective v) { return to_string(v); }),
       named_field("target", [](auto& o) -> auto& { return o.target; }, from_key(target_spec_from_string, "target"),
@@ -308,10 +323,6 @@ DesignRunOptions design_run_options_from_json(const std::string& text, const std
   try {
     const json j = parse_json_strict(text, "file '" + origin + "'");
     o.cfg = config_from_json_text(j.at("system").dump(), origin + " (system)");
-    // Design runs image through one PSF stack of bands planes (the camera's): one object point.
-    if (o.cfg.point_count() > 1)
-      reject("system object_points", to_str(o.cfg.point_count()) + " points",
-             "at most one point in a design run (designing over several object points is later work, issue 29)");
     const json& d = j.at("design");
     for (const RunField& f : run_fields()) f.read(o, d);
   } catch (const json::exception& e) {

@@ -20,7 +20,8 @@ const std::vector<std::string>& RunFolder::file_names() {
   static const std::vector<std::string> names{"config.json", "checkpoint.h5", "checkpoint.prev.h5", "checkpoint.next.h5",
                                               "checkpoint.refused.h5", "log.csv", "prior.h5", "design.h5",
                                               "design_full.h5", "psf.h5", "psf.png", "design.png",
-                                              "loss.png", "psnr.png", "split.json"};
+                                              "loss.png", "psnr.png", "split.json",
+                                              "range.csv", "range.png"};
   return names;
 }
 
@@ -72,7 +73,8 @@ DesignRunOptions read_run_options(const std::string& config_path) {
   return o;
 }
 
-DesignRunOptions read_run_config(const std::string& run, const std::string& argument, const std::string& allowed) {
+DesignRunOptions read_run_config(const std::string& run, const std::string& argument, const std::string& allowed,
+                                 bool allow_range) {
   const fs::path p = RunFolder(run).config_path();
   if (!fs::is_regular_file(p)) reject(argument, run, allowed);
   std::ifstream f(p, std::ios::binary);
@@ -80,6 +82,11 @@ DesignRunOptions read_run_config(const std::string& run, const std::string& argu
   std::stringstream ss;
   ss << f.rdbuf();
   DesignRunOptions o = design_run_options_from_json(ss.str(), p.string());
+  if (!allow_range && o.cfg.point_count() > 1)
+    reject(argument, run,
+           "a run designed for one object point (this one was trained over " + to_str(o.cfg.point_count()) +
+               " object points, see its range.csv; commands over a range of points are later work, issue 29: pass its "
+               "design.h5 where the command takes a design file)");
   o.out = run;
   return o;
 }
