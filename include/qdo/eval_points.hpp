@@ -23,6 +23,7 @@
 // Stacks: every PSF here is bands x S x S (S = cfg.sensor_size_px(), axis at (S/2, S/2)), row-major.
 #pragma once
 #include <cstddef>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -37,6 +38,11 @@ namespace qdo {
 struct EvalPointsOptions {
   std::string run;                    // the run folder (config.json, prior.h5, design.h5)
   std::string design_file;            // a design .h5 (N x N at the run's pitch) in place of RUN/design.h5
+  // The nominal distance (metres, > 0 or +infinity): the decoder of the mismatch rows is built for
+  // the PSF there, and the field angles are evaluated there. NaN (the default): the run's one object
+  // point's distance when its configuration lists exactly one, else its scene_distance_m (or
+  // infinity with scene_at_infinity); a run over several points has its scene distance.
+  double nominal_m = std::numeric_limits<double>::quiet_NaN();
   std::vector<double> distances_m;    // > 0 or +infinity; empty: default_distances_m()
   std::vector<double> angles_deg;     // in [0, the sampling limit]; empty: 0 .. the field edge in angle_steps steps
   std::size_t angle_steps = 8;        // default angle grid: angle_steps + 1 angles, 1 .. 1000
@@ -73,7 +79,7 @@ struct AngleRow {
   PointQuality on_axis_decoder;
 };
 struct EvalPointsResult {
-  double nominal_distance_m = 1;  // the configuration's scene distance (+infinity: at infinity)
+  double nominal_distance_m = 1;  // EvalPointsOptions::nominal_m as resolved (+infinity: at infinity)
   std::vector<DistanceRow> distances;  // ascending, +infinity last; includes the nominal
   std::size_t nominal_index = 0;
   double nominal_psnr_db = 0;          // mismatch (= matched) PSNR at the nominal distance

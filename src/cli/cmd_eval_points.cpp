@@ -41,6 +41,11 @@ int cmd_eval_points(const Args& a) {
     }
     if (o.angles_deg.empty()) reject("--angles", a.get("angles"), "a comma-separated list of angles in degrees");
   }
+  if (a.has("nominal")) {
+    const std::string v = a.get("nominal");
+    o.nominal_m = v == "inf" ? std::numeric_limits<double>::infinity() : parse_double("--nominal", v);
+    if (!(o.nominal_m > 0)) reject("--nominal", v + " m", "a distance in metres > 0, or inf");
+  }
   o.angle_steps = std::size_t(parse_int("--angle-steps", a.get("angle-steps"), 1, 1000));
   o.data = split_list(a.get("data"));
   o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));

@@ -245,8 +245,11 @@ std::vector<CommandSpec> make_table() {
   t.push_back({"eval-points", "a run's design against object distance and field angle: quality, depth of field and valid field of view",
                "RUN", "run folder written by qdo design",
                {opt("design", "a design .h5 (N x N at the run's pitch) evaluated in place of RUN/design.h5"),
-                opt("distances", "object distances in metres, comma-separated, each > 0 or inf (a point at infinity); the run's "
-                                 "scene distance (the nominal) is always added", "0.3,0.5,0.7,1,1.5,2,3,5,10,inf"),
+                opt("distances", "object distances in metres, comma-separated, each > 0 or inf (a point at infinity); the "
+                                 "nominal distance (--nominal) is always added", "0.3,0.5,0.7,1,1.5,2,3,5,10,inf"),
+                opt("nominal", "the distance the camera is focused at, metres > 0 or inf: the mismatch decoder is built for "
+                               "the PSF there and the field angles are evaluated there (default: the run's one object point, "
+                               "else its scene_distance_m)"),
                 opt("angles", "field angles along x in degrees, comma-separated, each in [0, the sampling limit at the nominal "
                               "distance] (default: 0 to the field edge, min(atan(half the sensor window / z), that limit), in "
                               "--angle-steps steps); 0 is always added"),

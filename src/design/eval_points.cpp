@@ -36,13 +36,21 @@ std::string metres(double d) { return std::isinf(d) ? std::string("inf") : to_st
 nlohmann::json metres_json(double d) { return std::isinf(d) ? nlohmann::json("inf") : nlohmann::json(d); }
 
 // The configuration the points are evaluated with: the run's system with its object points
-// dropped (the nominal is its scene distance).
+// dropped (each evaluated point is its own).
 SystemConfig base_config(const SystemConfig& run_cfg) {
   SystemConfig c = run_cfg;
   c.object_points.clear();
   return c;
 }
-double nominal_of(const SystemConfig& c) { return c.scene_at_infinity ? kInf : c.scene_distance_m; }
+// The nominal distance (EvalPointsOptions::nominal_m's rule).
+double nominal_of(const SystemConfig& run_cfg, double given) {
+  if (!std::isnan(given)) {
+    if (!(given > 0)) reject("nominal", metres(given), "a distance in metres > 0, or inf");
+    return given;
+  }
+  if (run_cfg.object_points.size() == 1) return run_cfg.object_points[0].distance_m;
+  return run_cfg.scene_at_infinity ? kInf : run_cfg.scene_distance_m;
+}
 SystemConfig asm_config(const SystemConfig& c) {
   SystemConfig a = c;
   a.propagator = Propagator::AngularSpectrum;
@@ -62,7 +70,7 @@ Resolved resolve(const EvalPointsOptions& o, const SystemConfig& run_cfg) {
   Resolved r;
   r.cfg = base_config(run_cfg);
   r.cfg_asm = asm_config(r.cfg);
-  r.nominal = nominal_of(r.cfg);
+  r.nominal = nominal_of(run_cfg, o.nominal_m);
   if (!(o.fov_tolerance > 0 && o.fov_tolerance <= 10)) reject("fov-tolerance", o.fov_tolerance, "a number in (0, 10] (relative image error)");
   if (!(o.dof_margin_db > 0 && o.dof_margin_db <= 100)) reject("dof-margin-db", o.dof_margin_db, "a number in (0, 100] dB");
   if (o.angle_steps < 1 || o.angle_steps > 1000) reject("angle-steps", o.angle_steps, "an integer in [1, 1000]");
