@@ -127,7 +127,7 @@ TEST_SUITE("eval-points") {
     CHECK(b.far_m == doctest::Approx(1.0 / (1.0 - 0.5 / 3.0)).epsilon(1e-12));
   }
 
-  TEST_CASE("a thin lens focused at 1 m: matched best at 1 m, mismatch falling on both sides; e(0) = 0; the FOV brackets") {
+  TEST_CASE("a thin lens focused at 1 m: matched best at 1 m, mismatch falling on both sides; e(0) = 0; the outputs parse") {
     const auto dir = temp_dir("eval_points_lens");
     EvalPointsOptions o = base_options();
     o.design_file = lens_file(dir);

@@ -96,6 +96,7 @@ Resolved resolve(const EvalPointsOptions& o, const SystemConfig& run_cfg) {
   std::vector<double> a = o.angles_deg;
   if (a.empty()) {
     for (std::size_t k = 0; k <= o.angle_steps; ++k) a.push_back(r.edge_deg * double(k) / double(o.angle_steps));
+    if (!why(a.back()).empty()) a.back() = r.sampling_deg;  // the window's angle rounded past the limit: the limit itself
   } else {
     if (a.size() > 1000) reject("angles", to_str(a.size()) + " values", "at most 1000 angles");
     for (double v : a) {
