@@ -42,6 +42,7 @@ embedded runtime
 encoders decode
 error runtime
 eval design
+eval_points design
 fab fab
 fft runtime
 fftw2 runtime

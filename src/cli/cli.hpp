@@ -74,6 +74,7 @@ int cmd_demo(const Args& a);
 int cmd_design(const Args& a);
 int cmd_gradcheck(const Args& a);
 int cmd_eval(const Args& a);
+int cmd_eval_points(const Args& a);
 int cmd_image(const Args& a);
 int cmd_export(const Args& a);
 int cmd_tolerance(const Args& a);
