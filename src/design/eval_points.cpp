@@ -292,8 +292,8 @@ DepthOfField depth_of_field(const std::vector<double>& d, const std::vector<doub
 }
 
 void check_eval_points(const EvalPointsOptions& o) {
-  const RunFolder folder(o.run);
-  const DesignRunOptions ro = folder.config("run");
+  // A run trained over a range of object points (qdo design --object-distances) is evaluated like any other.
+  const DesignRunOptions ro = read_run_config(o.run, "run", "a run folder written by qdo design (config.json missing)", true);
   (void)resolve(o, ro.cfg);
   const SystemConfig cfg = base_config(ro.cfg);
   if (!o.design_file.empty()) (void)read_design_heights_for(cfg, o.design_file, "design");
@@ -305,7 +305,8 @@ void check_eval_points(const EvalPointsOptions& o) {
 EvalPointsResult evaluate_points(Runtime& rt, const EvalPointsOptions& o) {
   check_eval_points(o);
   const RunFolder folder(o.run);
-  const DesignRunOptions ro = folder.config("run");
+  // A run trained over a range of object points (qdo design --object-distances) is evaluated like any other.
+  const DesignRunOptions ro = read_run_config(o.run, "run", "a run folder written by qdo design (config.json missing)", true);
   const Resolved rs = resolve(o, ro.cfg);
   const SystemConfig& cfg = rs.cfg;
   const Map2D h = o.design_file.empty() ? folder.design().height_m : read_design_heights_for(cfg, o.design_file, "design");
