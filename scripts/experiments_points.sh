@@ -14,6 +14,7 @@
 #                       at small: cave)
 #   RANGE_ONLY=1        only the depth-range design and its evaluation (step 2, then 3 for it)
 #   SKIP_RANGE=1        leave the depth-range design out (steps 1 and 3 for the 1 m design)
+#   RANGE               the depth-range design's object distances, metres (default 0.5,1,2,5)
 #   DISTANCES, ANGLE_STEPS, FOV_TOLERANCE  passed to qdo eval-points
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -27,6 +28,8 @@ STEPS=${STEPS:-10}
 RANGE_ONLY=${RANGE_ONLY:-0}
 SKIP_RANGE=${SKIP_RANGE:-0}
 DISTANCES=${DISTANCES:-0.3,0.5,0.7,1,1.5,2,3,5,10,inf}
+RANGE=${RANGE:-0.5,1,2,5}
+export RANGE
 ANGLE_STEPS=${ANGLE_STEPS:-8}
 FOV_TOLERANCE=${FOV_TOLERANCE:-0.05}
 if [ "$PRESET" = paper ]; then
@@ -52,11 +55,11 @@ TEST_ARGS=()
 [ -n "$TEST_DATA" ] && TEST_ARGS=(--data "$TEST_DATA")
 
 "$QDO" config --preset "$PRESET" > "$OUT/$PRESET.json"
-# The depth-range configuration: the same system, on-axis object points at 0.5, 1, 2 and 5 m.
-python3 - "$OUT/$PRESET.json" "$OUT/range.json" <<'PY'
+# The depth-range configuration: the same system, on-axis object points at the RANGE distances.
+python3 - "$OUT/$PRESET.json" "$OUT/range.json" "$RANGE" <<'PY'
 import json, sys
 c = json.load(open(sys.argv[1]))
-c["object_points"] = [[0.5, 0, 0], [1, 0, 0], [2, 0, 0], [5, 0, 0]]
+c["object_points"] = [["inf" if d == "inf" else float(d), 0, 0] for d in sys.argv[3].split(",")]
 json.dump(c, open(sys.argv[2], "w"), indent=2)
 PY
 
@@ -81,7 +84,7 @@ if [ "$RANGE_ONLY" != 1 ]; then
   evaluate design_1m
 fi
 if [ "$SKIP_RANGE" != 1 ]; then
-  log "2. the same trained over a depth range (object points 0.5, 1, 2, 5 m)"
+  log "2. the same trained over a depth range (on-axis object points at $RANGE m)"
   design design_range "$OUT/range.json"
   log "3b. eval-points: the depth-range design"
   evaluate design_range
@@ -91,7 +94,7 @@ log "table"
 python3 - "$OUT" <<'PY'
 import csv, json, os, sys
 out = sys.argv[1]
-runs = [(n, label) for n, label in [("design_1m", "trained at 1 m"), ("design_range", "trained over 0.5-5 m")]
+runs = [(n, label) for n, label in [("design_1m", "trained at 1 m"), ("design_range", "trained over " + os.environ.get("RANGE", "0.5,1,2,5") + " m")]
         if os.path.exists(os.path.join(out, "eval_" + n, "points.json"))]
 P = {n: json.load(open(os.path.join(out, "eval_" + n, "points.json"))) for n, _ in runs}
 def f(v, d=2):
