@@ -337,6 +337,19 @@ TEST_SUITE("simulate-varying") {
     CHECK(vc.at("points").at(0).at("computed") == false);
     CHECK(vc.at("points").at(12).at("computed") == true);
     CHECK(read_json(dir / "crop" / "varying.json").at("report").at("components") == 9);
+    // The small preset (Fresnel, N = 256): its Fresnel refuses the grid's corners, asm computes them, the output says so.
+    const SystemConfig small = preset_config("small");
+    SystemConfig small_asm = small;
+    small_asm.propagator = Propagator::AngularSpectrum;
+    const double e = 0.99 * max_field_angle_deg(small_asm, small.scene_distance_m);
+    CHECK(!object_point_limit(small, ObjectPoint{small.scene_distance_m, e, e}).empty());
+    write_cube((dir / "small.h5").string(), random_cube(31, 24, 24, 19), small.wavelengths_nm());
+    r = qdo_run("simulate --preset small --design lens:550 --scene " + (dir / "small.h5").string() + " --field-grid 3 --field-edge-deg " +
+                    to_str(e) + " --out " + (dir / "small").string(),
+                "QDO_DEVICE=cpu");
+    REQUIRE_MESSAGE(r.code == 0, r.out);
+    CHECK(r.out.find("propagator: \"asm\" (band-limited angular spectrum) instead of the configuration's Fresnel") != std::string::npos);
+    CHECK(read_json(dir / "small" / "varying.json").at("propagator") == "asm");
     // A Fresnel configuration whose Fresnel error stays below a tenth of a pixel at these angles
     // (z (tan - sin) ~ 0.1 um here): computed with Fresnel, no switch to asm.
     SystemConfig fresnel = cfg;

@@ -498,13 +498,13 @@ int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
   std::printf("device: %s\nformation: qdo, spatially varying (%s placement)\n%s\n%s%s"
               "scene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSFs + varying convolution + sensor, %s); "
               "%zu forward and %zu inverse FFTs of %zu x %zu, %zu components kept, %zu skipped in the operator\n"
-              "noise: %s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf_points.h5, psf.png, design.png%s, varying.json\n",
+              "noise: %s\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf_points.h5, psf.png, design.png%s, varying.json\n",
               rt.info().name.c_str(), to_string(placement).c_str(), summary.c_str(), note.empty() ? "" : note.c_str(),
               note.empty() ? "" : "\n", scene.planes, rows, cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(), report.forward_ffts,
               report.inverse_ffts, report.grid_rows, report.grid_cols, report.kept.size(), report.skipped.size(),
               cfg.read_noise_sigma > 0 || cfg.full_well_photons > 0 ? "the configuration's (read noise and shot noise as the camera adds them)"
                                                                     : "none (the configuration's noise is zero)",
-              clip_summary(clip).c_str(), dir.c_str(), depth_mode ? ", depth.png, depth.h5" : "");
+              sim.sampling().summary().c_str(), clip_summary(clip).c_str(), dir.c_str(), depth_mode ? ", depth.png, depth.h5" : "");
   return 0;
 }
 
