@@ -191,8 +191,10 @@ std::vector<CommandSpec> make_table() {
                               "inside the frame (default: F/2,F/2)"),
                 opt("depth", "FILE[:KEY]: a depth map of the scene, H x W metres, for a depth-layered image: an HDF5 dataset "
                              "(KEY, default /depth_m; values > 0, or inf for infinitely far) or a 16-bit PNG (codes times "
-                             "--depth-scale; code 0 = infinitely far); every pixel takes the PSF of its nearest layer in diopters; "
-                             "writes also depth.png, psf_points.h5, varying.json; not with --psf, --raw, --field-grid"),
+                             "--depth-scale; code 0 = infinitely far), or builtin (the built-in chart's: patch rows at 4z, 8z, 16z, "
+                             "32z, z the DOE-sensor distance, the rest at infinity); every pixel takes the PSF of its nearest layer "
+                             "in diopters; writes also depth.png, depth.h5, psf_points.h5, varying.json; not with --psf, --raw, "
+                             "--field-grid"),
                 opt("depth-scale", "--depth FILE.png: metres per PNG code, a number > 0", "0.001"),
                 opt("depth-layers", "--depth: the layers D1,D2,... in metres > 0 or inf (default: the map's distinct values when "
                                     "at most 8, else 8 layers evenly spaced in diopters between its nearest and farthest); "
