@@ -248,6 +248,19 @@ TEST_SUITE("simulate-varying") {
     REQUIRE_MESSAGE(r.code == 0, r.out);
     CHECK(r.out.find("the depth map's 2 distinct values") != std::string::npos);
     CHECK(read_rgb(dir / "default").data == img[0].data);
+    // Many distinct values (a ramp from 0.01 m to 0.1 m): 8 layers evenly spaced in diopters, near to far.
+    Map2D ramp(h, w);
+    for (std::size_t y = 0; y < h; ++y)
+      for (std::size_t x = 0; x < w; ++x) ramp(y, x) = 0.01 + 0.09 * double(x) / double(w - 1);
+    const Run rr = qdo_run("simulate --config " + cfg_file + " --design lens:550 --scene " + scene + " --depth " +
+                               write_depth(dir, "ramp.h5", ramp) + " --out " + (dir / "ramp").string(),
+                           "QDO_DEVICE=cpu");
+    REQUIRE_MESSAGE(rr.code == 0, rr.out);
+    CHECK(rr.out.find("8 layers evenly spaced in diopters between the map's nearest (0.01 m) and farthest (0.1 m)") != std::string::npos);
+    const nlohmann::json vr = read_json(dir / "ramp" / "varying.json");
+    REQUIRE(vr.at("layers").size() == 8);
+    for (std::size_t k = 0; k < 8; ++k)
+      CHECK(vr.at("layers").at(k).at("diopters").get<double>() == doctest::Approx(100.0 - 90.0 * double(k) / 7.0));
   }
 
   TEST_CASE("--depth builtin: the built-in chart's layered depth (patch rows at 4z .. 32z, background at infinity); depth.h5 read back") {
