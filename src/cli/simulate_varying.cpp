@@ -422,6 +422,7 @@ int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
   sim.set_heights(h);
   sim.compute_psf();
   const RealStack psfs = sim.psf_sensor();  // (used * bands) x S x S, point-major
+  const double psf_s = seconds_since(t0);
   std::fprintf(stderr, "[simulate] %zu PSF stack%s of %zu bands computed (%.1f s); imaging %zu x %zu\n", used.size(),
                used.size() == 1 ? "" : "s", cfg.bands, seconds_since(t0), rows, cols);
   RealStack rgb;
@@ -454,6 +455,7 @@ int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
   const double secs = seconds_since(t0);
   info["report"] = nlohmann::json::parse(report.to_json());
   info["seconds"] = secs;
+  info["psf_seconds"] = psf_s;
   const SensorClip clip = clip_to_full_scale(rgb, "sensor image");
   info["clipped_fraction"] = clip.fraction();
 
@@ -496,11 +498,11 @@ int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
   }
   write_text_atomic(dir + "/varying.json", info.dump(2) + "\n");
   std::printf("device: %s\nformation: qdo, spatially varying (%s placement)\n%s\n%s%s"
-              "scene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSFs + varying convolution + sensor, %s); "
+              "scene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSFs %.3f s + varying convolution + sensor, %s); "
               "%zu forward and %zu inverse FFTs of %zu x %zu, %zu components kept, %zu skipped in the operator\n"
               "noise: %s\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf_points.h5, psf.png, design.png%s, varying.json\n",
               rt.info().name.c_str(), to_string(placement).c_str(), summary.c_str(), note.empty() ? "" : note.c_str(),
-              note.empty() ? "" : "\n", scene.planes, rows, cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(), report.forward_ffts,
+              note.empty() ? "" : "\n", scene.planes, rows, cols, rgb.rows, rgb.cols, secs, psf_s, to_string(p).c_str(), report.forward_ffts,
               report.inverse_ffts, report.grid_rows, report.grid_cols, report.kept.size(), report.skipped.size(),
               cfg.read_noise_sigma > 0 || cfg.full_well_photons > 0 ? "the configuration's (read noise and shot noise as the camera adds them)"
                                                                     : "none (the configuration's noise is zero)",
