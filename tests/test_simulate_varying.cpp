@@ -318,7 +318,11 @@ TEST_SUITE("simulate-varying") {
     const RealStack g3 = read_rgb(dir / "g3");
     const double limit = max_field_angle_deg(cfg, kInf);
     const nlohmann::json v = read_json(dir / "g3" / "varying.json");
-    CHECK(v.at("edge_deg").at(0).get<double>() == doctest::Approx(limit));  // the scene (16 px) reaches beyond the window (8 px)
+    // The scene (16 px from the axis) reaches beyond half the window's half-width (4 px): the default edge stops there.
+    const double half_window = std::atan(0.25 * double(cfg.n) * cfg.pitch_m / cfg.sensor_distance_m) * 180.0 / M_PI;
+    REQUIRE(half_window < limit);
+    CHECK(v.at("edge_deg").at(0).get<double>() == doctest::Approx(half_window));
+    CHECK(v.at("points").at(0).at("image_col_px").get<double>() == doctest::Approx(4.0));
     CHECK(v.at("points").size() == 9);
     CHECK(v.at("points").at(0).at("shift_px").at(0).get<long>() != 0);
     // 7 x 7 windows around the dots: the centre dot weighs the on-axis PSF alone.

@@ -206,7 +206,9 @@ std::vector<CommandSpec> make_table() {
                                   "to the field edge, the image interpolated bilinearly between neighbouring points' recentred "
                                   "PSFs; points whose hats miss the scene are not computed; 1 = the on-axis PSF"),
                 opt("field-edge-deg", "--field-grid: the outermost field angle in degrees, in (0, the sampling limit] "
-                                      "(default: min(atan(half the scene's extent on the sensor / z), the sampling limit))"),
+                                      "(default: min(atan(half the scene's extent on the sensor / z), atan(a quarter of the N x N window / z), the "
+                                      "sampling limit); beyond the default, PSFs near the window's edge lose energy (the "
+                                      "sampling line says how much)"),
                 opt("field-rank", "--field-grid: use the R leading components of the field PSFs (low-rank form), an integer in "
                                   "[1, computed points] (default: all points, no low-rank form)"),
                 precision(), device(), save_opt(), compress(), out_dir_opt()},

@@ -342,8 +342,13 @@ int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
     const double z = cfg.sensor_distance_m, rad = 180.0 / 3.14159265358979323846;
     const double geom_x = std::atan(0.5 * double(cols) * cfg.sensor_pitch_m / z) * rad;
     const double geom_y = std::atan(0.5 * double(rows) * cfg.sensor_pitch_m / z) * rad;
-    double ex = std::min(geom_x, limit), ey = std::min(geom_y, limit);
-    std::string edge_rule = "min(atan(half the scene's extent on the sensor / z), the sampling limit " + to_str(limit) + " deg)";
+    // A point whose chief ray lands near the edge of the N x N window loses much of its PSF outside
+    // the window (the sampling report's "energy outside the N x N window"): the default stops where
+    // the chief ray is halfway to that edge, so PSFs up to a quarter of the window wide fit.
+    const double half_window = std::atan(0.25 * double(cfg.n) * cfg.pitch_m / z) * rad;
+    double ex = std::min({geom_x, half_window, limit}), ey = std::min({geom_y, half_window, limit});
+    std::string edge_rule = "min(atan(half the scene's extent on the sensor / z), atan(a quarter of the N x N window / z) = " +
+                            to_str(half_window) + " deg, the sampling limit " + to_str(limit) + " deg)";
     if (a.has("field-edge-deg")) {
       const double e = parse_double("--field-edge-deg", a.get("field-edge-deg"), 0, 89, "deg", true);
       if (e > limit)
@@ -481,11 +486,15 @@ int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
               {"/field_x_deg", {np}, fx, {}, {{"units", "deg"}}},
               {"/field_y_deg", {np}, fy, {}, {{"units", "deg"}}}},
              {{"config", config_to_json_text(psf_cfg)}, {"source", "qdo simulate " + what}});
-    // Figure: each computed point's PSF at the middle band.
+    // Figure: each computed point's PSF at the middle band (field points recentred on the axis, as imaged).
     const std::size_t mid = cfg.bands / 2;
     RealStack fig(np, psfs.rows, psfs.cols);
-    for (std::size_t k = 0; k < np; ++k)
-      std::copy(psfs.plane(k * cfg.bands + mid), psfs.plane(k * cfg.bands + mid) + psfs.plane_size(), fig.plane(k));
+    for (std::size_t k = 0; k < np; ++k) {
+      RealStack one(1, psfs.rows, psfs.cols);
+      std::copy(psfs.plane(k * cfg.bands + mid), psfs.plane(k * cfg.bands + mid) + psfs.plane_size(), one.plane(0));
+      if (!shifts.empty()) one = shift_planes(one, shifts[k].first, shifts[k].second);
+      std::copy(one.data.begin(), one.data.end(), fig.plane(k));
+    }
     write_montage_png(dir + "/psf.png", fig, std::vector<double>(np, wl[mid]), 0.5, std::min<std::size_t>(psfs.rows, 96));
   }
   write_map_png(dir + "/design.png", h);
