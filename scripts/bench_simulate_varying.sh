@@ -33,3 +33,4 @@ run depth_builtin_1used --preset small --design lens:550 --depth builtin --depth
 run field_3x3 --preset small --design lens:550 --field-grid 3
 run field_5x5 --preset small --design lens:550 --field-grid 5
 run field_5x5_rank3 --preset small --design lens:550 --field-grid 5 --field-rank 3
+run field_3x3_asm_edge2.3 --preset small --design lens:550 --field-grid 3 --field-edge-deg 2.3
