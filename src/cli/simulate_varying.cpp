@@ -327,7 +327,7 @@ int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
     std::string used_s, skipped_s;
     for (std::size_t k = 0; k < layers.size(); ++k) {
       std::string& s = std::find(used.begin(), used.end(), k) != used.end() ? used_s : skipped_s;
-      s += (s.empty() ? "" : ", ") + metres(layers[k]) + " m";
+      s += (s.empty() ? "" : ", ") + (std::isinf(layers[k]) ? std::string("infinity") : metres(layers[k]) + " m");
     }
     summary = "depth layers (" + rule + "): " + to_str(used.size()) + " of " + to_str(layers.size()) + " used, PSFs computed at " +
               used_s + (skipped_s.empty() ? std::string("; none skipped") : "; skipped (no pixel at that depth): " + skipped_s);
