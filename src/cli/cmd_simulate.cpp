@@ -14,6 +14,7 @@
 
 #include "cli.hpp"
 #include "psf_outputs.hpp"
+#include "simulate_varying.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/demosaic.hpp"
@@ -220,6 +221,9 @@ int cmd_simulate(const Args& a) {
   const Precision p = precision_from_string(a.get("precision"));
   const std::string capture = a.get("capture");
   if (capture != "scene" && capture != "psf-sweep") reject("--capture", capture, "scene or psf-sweep");
+  // A depth map or a field grid: the spatially varying image (simulate_varying.cpp).
+  if (varying_requested(a)) return simulate_varying(a, cfg, p);
+  check_no_orphan_varying_options(a);
   if (capture == "psf-sweep") return simulate_psf_sweep(a, cfg, p);
   for (const char* o : {"frame-size", "peak", "darks", "centre"})
     if (a.has(o)) reject(std::string("--") + o, a.get(o), "only with --capture psf-sweep");

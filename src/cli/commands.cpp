@@ -189,6 +189,28 @@ std::vector<CommandSpec> make_table() {
                 opt("darks", "psf-sweep: number of dark frames, an integer in [1, 1000]", "8"),
                 opt("centre", "psf-sweep: ROW,COL, the frame pixel of the optical axis, so that the S x S PSF window lies "
                               "inside the frame (default: F/2,F/2)"),
+                opt("depth", "FILE[:KEY]: a depth map of the scene, H x W metres, for a depth-layered image: an HDF5 dataset "
+                             "(KEY, default /depth_m; values > 0, or inf for infinitely far) or a 16-bit PNG (codes times "
+                             "--depth-scale; code 0 = infinitely far), or builtin (the built-in chart's: patch rows at 4z, 8z, 16z, "
+                             "32z, z the DOE-sensor distance, the rest at infinity); every pixel takes the PSF of its nearest layer "
+                             "in diopters; writes also depth.png, depth.h5, psf_points.h5, varying.json; not with --psf, --raw, "
+                             "--field-grid"),
+                opt("depth-scale", "--depth FILE.png: metres per PNG code, a number > 0", "0.001"),
+                opt("depth-layers", "--depth: the layers D1,D2,... in metres > 0 or inf (default: the map's distinct values when "
+                                    "at most 8, else 8 layers evenly spaced in diopters between its nearest and farthest); "
+                                    "PSFs are computed at the layers some pixel uses only"),
+                opt("psf-placement", "--depth / --field-grid: source (each scene pixel emits through its own PSF) or output "
+                                     "(each sensor pixel takes the image blurred with its own PSF: the release's per-depth rule)",
+                    "source"),
+                opt("field-grid", "NX[xNY]: a field-dependent PSF from an NX x NY grid of field angles (integers in [1, 31]) up "
+                                  "to the field edge, the image interpolated bilinearly between neighbouring points' recentred "
+                                  "PSFs; points whose hats miss the scene are not computed; 1 = the on-axis PSF"),
+                opt("field-edge-deg", "--field-grid: the outermost field angle in degrees, in (0, the sampling limit] "
+                                      "(default: min(atan(half the scene's extent on the sensor / z), atan(a quarter of the N x N window / z), the "
+                                      "sampling limit); beyond the default, PSFs near the window's edge lose energy (the "
+                                      "sampling line says how much)"),
+                opt("field-rank", "--field-grid: use the R leading components of the field PSFs (low-rank form), an integer in "
+                                  "[1, computed points] (default: all points, no low-rank form)"),
                 precision(), device(), save_opt(), compress(), out_dir_opt()},
                cmd_simulate});
   t.push_back({"demo", "QDO+A against conventional deep optics (DO) at L levels, designed and evaluated end to end", "", "",
