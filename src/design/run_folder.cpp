@@ -85,7 +85,7 @@ DesignRunOptions read_run_config(const std::string& run, const std::string& argu
   if (!allow_range && o.cfg.point_count() > 1)
     reject(argument, run,
            "a run designed for one object point (this one was trained over " + to_str(o.cfg.point_count()) +
-               " object points, see its range.csv; commands over a range of points are later work, issue 29: pass its "
+               " object points, see its range.csv; qdo eval-points evaluates such a run; here pass its "
                "design.h5 where the command takes a design file)");
   o.out = run;
   return o;
