@@ -347,4 +347,28 @@ TEST_SUITE("design") {
     MESSAGE("cosine(radial gradient, 2-D gradient) = " << ab / std::sqrt(aa * bb));
     CHECK(ab / std::sqrt(aa * bb) > 0.8);
   }
+
+  TEST_CASE("height noise on the 2-D path: each step sees its own seeded draw, the same for the same seed and step") {
+    Fixture f;
+    const PsfObjective obj = psf_target_objective(f.target);
+    DesignOptions o = options(DesignMode::QDOA);
+    o.psf_path = PsfPath::TwoD;
+    o.height_noise_m = 20e-9;
+    DesignOptions quiet = o;
+    quiet.height_noise_m = 0;
+    Simulator sa(runtime(), f.cfg, f.prec), sb(runtime(), f.cfg, f.prec), sc(runtime(), f.cfg, f.prec);
+    Designer noisy(sa, o), again(sb, o), clean(sc, quiet);
+    const DesignState st = noisy.initial_state(start_params(f.cfg, 9));
+    const Designer::Gradient gn = noisy.gradient(st, obj), ga = again.gradient(st, obj), gc = clean.gradient(st, obj);
+    // The same seed and step draw the same noise; without noise the loss is another number.
+    CHECK(gn.report.loss == ga.report.loss);
+    CHECK(gn.g_w == ga.g_w);
+    CAPTURE(gn.report.loss);
+    CAPTURE(gc.report.loss);
+    CHECK(std::fabs(gn.report.loss - gc.report.loss) > 1e-9 * std::fabs(gc.report.loss));
+    // Another step draws another sample.
+    DesignState st2 = st;
+    st2.step = st.step + 1;
+    CHECK(noisy.gradient(st2, obj).report.loss != gn.report.loss);
+  }
 }
