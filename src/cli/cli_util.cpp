@@ -54,12 +54,14 @@ SystemConfig load_config(const Args& a, bool allow_points) {
   } else {
     c = preset_config(a.get("preset", "small"));
   }
-  // The commands image, design and write one PSF stack of bands planes: a stack of several object
-  // points (config.hpp) is the library's and the Python package's for now (issue 29 step 1).
+  // The commands image and write one PSF stack of bands planes: a configuration with several object
+  // points (config.hpp) is qdo design's training conditions (allow_points); qdo simulate builds its
+  // depth layers and field points from its own options (--depth, --field-grid).
   if (c.point_count() > 1 && !allow_points)
     reject("object_points", to_str(c.point_count()) + " points",
            "at most one point in the commands but qdo design (stacks of several object points: the library's Simulator and "
-           "qdo.Optics.psf(height_m, object_points=...); designs over several points: qdo design)");
+           "qdo.Optics.psf(height_m, object_points=...); designs over several points: qdo design; images of "
+           "layered scenes and field-dependent images: qdo simulate --depth / --field-grid)");
   sensor_response(c);
   return c;
 }
