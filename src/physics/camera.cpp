@@ -184,12 +184,18 @@ Camera::Plan Camera::plan_images(const std::vector<RealStack>& cubes, const Skip
   for (std::size_t k = 0; k < scenes; ++k)
     for (std::size_t b = 0; b < bands; ++b) {
       const double* p = cubes[k].plane(b);
-      double* tm = may_tile ? tmax.data() + (k * bands + b) * ntiles : nullptr;
+      if (!may_tile) {  // the band maxima alone: one contiguous pass
+        double m = bmax[b];
+        for (std::size_t i = 0; i < h * w; ++i) m = std::max(m, std::fabs(p[i]));
+        bmax[b] = m;
+        continue;
+      }
+      double* tm = tmax.data() + (k * bands + b) * ntiles;
       for (std::size_t y = 0; y < h; ++y)
         for (std::size_t x = 0; x < w; ++x) {
           const double v = std::fabs(p[y * w + x]);
           bmax[b] = std::max(bmax[b], v);
-          if (tm) tm[(y / tpx) * ntx + x / tpx] = std::max(tm[(y / tpx) * ntx + x / tpx], v);
+          tm[(y / tpx) * ntx + x / tpx] = std::max(tm[(y / tpx) * ntx + x / tpx], v);
         }
     }
 
@@ -413,15 +419,13 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
     std::vector<double> wt(3 * 2 * pairs, 0.0);
     for (std::size_t ch = 0; ch < 3; ++ch)
       for (std::size_t i = 0; i < nk; ++i) wt[ch * 2 * pairs + i] = srf_(Eigen::Index(ch), Eigen::Index(kept[i]));
-    // Compacted kept bands of every scene: scenes x K x H x W.
-    std::vector<double> host(scenes * nk * hw);
-    for (std::size_t k = 0; k < scenes; ++k)
-      for (std::size_t i = 0; i < nk; ++i)
-        std::copy(cubes[k].plane(kept[i]), cubes[k].plane(kept[i]) + hw, host.begin() + long((k * nk + i) * hw));
+    // Compacted kept bands of every scene on the device: scenes x K x H x W, written plane by plane
+    // from the scenes (no host copy of the whole batch).
     grow(wts_, wts_cap_, wt.size() * rsz_, CL_MEM_READ_ONLY);
-    grow(cube_, cube_cap_, host.size() * rsz_, CL_MEM_READ_ONLY);
+    grow(cube_, cube_cap_, scenes * nk * hw * rsz_, CL_MEM_READ_ONLY);
     rt_.write_reals(wts_, wt.data(), wt.size(), prec_);
-    rt_.write_reals(cube_, host.data(), host.size(), prec_);
+    for (std::size_t k = 0; k < scenes; ++k)
+      for (std::size_t i = 0; i < nk; ++i) rt_.write_reals(cube_, cubes[k].plane(kept[i]), hw, prec_, (k * nk + i) * hw);
     if (nslots > 0) {
       const std::size_t per_slot = pairs * g * 2 * rsz_;
       const std::size_t chunk = std::max<std::size_t>(1, std::min(nslots, kMaxChunkBytes / per_slot));
