@@ -18,7 +18,6 @@
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
-#include <fstream>
 #include <iostream>
 #include <memory>
 #include <sstream>
@@ -28,6 +27,7 @@
 #include "qdo/config.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
+#include "qdo/io.hpp"
 #include "qdo/fft.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/runtime.hpp"
@@ -158,10 +158,7 @@ int main(int argc, char** argv) {
     if (opt.out.empty()) {
       std::cout << md.str();
     } else {
-      std::ofstream f(opt.out + ".tmp");
-      f << md.str();
-      f.close();
-      if (std::rename((opt.out + ".tmp").c_str(), opt.out.c_str()) != 0) throw qdo::Error("cannot write " + opt.out);
+      qdo::write_text_atomic(opt.out, md.str());
     }
     return 0;
   } catch (const qdo::InputError& e) {

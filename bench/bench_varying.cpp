@@ -22,7 +22,6 @@
 #include <cmath>
 #include <cstdio>
 #include <exception>
-#include <fstream>
 #include <iostream>
 #include <limits>
 #include <random>
@@ -34,6 +33,7 @@
 #include "qdo/config.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
+#include "qdo/io.hpp"
 #include "qdo/point_psf.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/simulator.hpp"
@@ -240,10 +240,7 @@ int main(int argc, char** argv) {
     if (opt.out.empty()) {
       std::cout << md.str();
     } else {
-      std::ofstream f(opt.out + ".tmp");
-      f << md.str();
-      f.close();
-      if (std::rename((opt.out + ".tmp").c_str(), opt.out.c_str()) != 0) throw qdo::Error("cannot write " + opt.out);
+      qdo::write_text_atomic(opt.out, md.str());
     }
     return 0;
   } catch (const qdo::InputError& e) {

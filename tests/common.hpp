@@ -3,6 +3,7 @@
 #include "qdo/error.hpp"
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <complex>
 #include <cstdlib>
@@ -55,6 +56,29 @@ Diff<T> diff(const std::vector<T>& a, const std::vector<T>& b) {
   }
   d.rel_l2 = den > 0 ? std::sqrt(num / den) : std::sqrt(num);
   return d;
+}
+
+// The largest |v_i|, and the largest |a_i - b_i| (same sizes required).
+inline double max_abs(const std::vector<double>& v) {
+  double m = 0;
+  for (double e : v) m = std::max(m, std::fabs(e));
+  return m;
+}
+inline double max_abs_diff(const std::vector<double>& a, const std::vector<double>& b) {
+  REQUIRE(a.size() == b.size());
+  double m = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) m = std::max(m, std::fabs(a[i] - b[i]));
+  return m;
+}
+
+// Seeded radial starting parameters for design tests: N/2 ring heights, uniform in
+// [0.15, 0.85] h_max (metres).
+inline std::vector<double> start_params(const SystemConfig& c, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.15, 0.85);
+  std::vector<double> p(c.n / 2);
+  for (double& v : p) v = u(rng) * c.h_max_m();
+  return p;
 }
 
 // A small configuration for kernel-vs-reference tests: N x N grid, few bands.

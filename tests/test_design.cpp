@@ -48,13 +48,6 @@ DesignOptions options(DesignMode m) {
   return o;
 }
 
-std::vector<double> start_params(const SystemConfig& c, unsigned seed) {
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(0.15, 0.85);
-  std::vector<double> p(c.n / 2);
-  for (double& v : p) v = u(rng) * c.h_max_m();
-  return p;
-}
 
 }  // namespace
 

@@ -85,13 +85,6 @@ DesignOptions ladder_options(DesignMode m, PsfPath path) {
   return o;
 }
 
-std::vector<double> start_params(const SystemConfig& c, unsigned seed) {
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(0.15, 0.85);
-  std::vector<double> p(c.n / 2);
-  for (double& v : p) v = u(rng) * c.h_max_m();
-  return p;
-}
 
 // One 2-D source per object point of c (point_config), and the list the Designer takes.
 struct PointSources {

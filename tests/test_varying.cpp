@@ -59,17 +59,6 @@ RealStack shifted(const RealStack& psfs, std::size_t bands, const std::vector<st
   return out;
 }
 
-double max_abs(const std::vector<double>& v) {
-  double m = 0;
-  for (double e : v) m = std::max(m, std::fabs(e));
-  return m;
-}
-double max_abs_diff(const std::vector<double>& a, const std::vector<double>& b) {
-  REQUIRE(a.size() == b.size());
-  double m = 0;
-  for (std::size_t i = 0; i < a.size(); ++i) m = std::max(m, std::fabs(a[i] - b[i]));
-  return m;
-}
 RealStack as_stack(const std::vector<double>& x, std::size_t p, std::size_t r, std::size_t c) {
   RealStack s(p, r, c);
   REQUIRE(x.size() == s.size());

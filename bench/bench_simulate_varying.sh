@@ -1,17 +1,20 @@
 #!/bin/bash
 # Timings of qdo simulate --depth / --field-grid on the small preset (CPU device), against plain qdo simulate.
-# Usage: scripts/bench_simulate_varying.sh   (BUILD_DIR: the build folder, default build)
+# Usage: bench/bench_simulate_varying.sh   (BUILD_DIR: the build folder, default build)
 # qdo simulate's own timing ("in X s": PSF + image + sensor), median of 5 runs after 1 warm-up;
 # for the varying runs also the PSF part (varying.json psf_seconds).
 cd "$(dirname "$0")/../${BUILD_DIR:-build}"
 export QDO_DEVICE=cpu QDO_CACHE_DIR=$PWD/kernel-cache
+# A work folder of its own, removed on exit: nothing else is deleted.
+work=$(mktemp -d "${TMPDIR:-/tmp}/qdo_bench_simvar.XXXXXX")
+trap 'rm -rf "$work"' EXIT
 run() {
   name=$1; shift
   tot=(); psf=()
   for i in 0 1 2 3 4 5; do
-    rm -rf ${TMPDIR:-/tmp}/qdo_bench_simvar/$name
-    t=$(./qdo simulate "$@" --out ${TMPDIR:-/tmp}/qdo_bench_simvar/$name 2>/dev/null | grep -o "in [0-9.]* s (PSF" | head -1 | awk '{print $2}')
-    p=$(python3 -c "import json;print(json.load(open('${TMPDIR:-/tmp}/qdo_bench_simvar/$name/varying.json'))['psf_seconds'])" 2>/dev/null || echo 0)
+    rm -rf "$work/$name"
+    t=$(./qdo simulate "$@" --out "$work/$name" 2>/dev/null | grep -o "in [0-9.]* s (PSF" | head -1 | awk '{print $2}')
+    p=$(python3 -c "import json;print(json.load(open('$work/$name/varying.json'))['psf_seconds'])" 2>/dev/null || echo 0)
     [ $i -gt 0 ] && tot+=($t) && psf+=($p)
   done
   python3 - "$name" "${tot[*]}" "${psf[*]}" <<'PY'
@@ -25,7 +28,6 @@ else:
     print(f"{name}: total {f(tot)}; PSFs {f(psf)}; image = total - PSFs ~ {s.median(tot)-s.median(psf):.3f} s  (5 runs)")
 PY
 }
-mkdir -p ${TMPDIR:-/tmp}/qdo_bench_simvar
 run plain --preset small --design lens:550
 run depth_builtin_5layers --preset small --design lens:550 --depth builtin
 run depth_builtin_output --preset small --design lens:550 --depth builtin --psf-placement output
