@@ -115,7 +115,7 @@ TEST_SUITE("cli") {
   }
 
   TEST_CASE("qdo --help, qdo <command> --help and qdo --version; an unknown option of any command is exit 2") {
-    // Every command with every option it takes (the command table in src/cli/commands.cpp must
+    // Every command with every option it takes (the command table in src/cli/command_table.cpp must
     // declare each of them, and its help must show each).
     const std::map<std::string, std::vector<std::string>> commands = {
         {"devices", {}},

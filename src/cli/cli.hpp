@@ -34,7 +34,7 @@ struct Args {
   bool has(const std::string& k) const { return opt.count(k) > 0; }
 };
 
-// --- The command table (src/cli/commands.cpp) ---------------------------------------------
+// --- The command table (src/cli/command_table.cpp) ----------------------------------------
 // Every command declares each option once: name (without --), a one-line description with
 // units and allowed values, the default ("" = none, or computed by the command as described),
 // and whether it is a flag (--name alone) or repeatable (--name V1 --name V2).
