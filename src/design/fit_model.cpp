@@ -1,0 +1,514 @@
+// The as-built model of the fit (fit.hpp): the bilinear registration shift and its adjoints, the
+// fit's parameters, and AsBuiltModel (a measured PSF stack's model from a design, its adjoint
+// gradient and Jacobian). The fit itself is fit.cpp.
+#include "qdo/fit.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <set>
+
+#include "qdo/design.hpp"
+#include "qdo/error.hpp"
+#include "qdo/simulator.hpp"
+
+#include "fit_internal.hpp"
+
+namespace qdo {
+
+using fit_detail::fmt;
+using fit_detail::since;
+
+namespace {
+
+// The bilinear weights of a shift s: s = i + f, i = floor(s), f in [0, 1); out(x) = (1 - f) in(x - i) + f in(x - i - 1).
+struct ShiftSplit {
+  long i = 0;
+  double f = 0;
+  explicit ShiftSplit(double s) {
+    const double fl = std::floor(s);
+    i = long(fl);
+    f = s - fl;
+  }
+};
+
+// Visits every (output index, input index, weight, d weight / d sx, d weight / d sy) of the shift.
+template <typename F>
+void for_each_tap(std::size_t planes, std::size_t rows, std::size_t cols, double sx, double sy, F&& f) {
+  const ShiftSplit x(sx), y(sy);
+  const double wx[2] = {1 - x.f, x.f}, wy[2] = {1 - y.f, y.f}, dw[2] = {-1, 1};
+  const long r = long(rows), c = long(cols);
+  for (std::size_t p = 0; p < planes; ++p) {
+    const std::size_t base = p * rows * cols;
+    for (long yy = 0; yy < r; ++yy)
+      for (int a = 0; a < 2; ++a) {
+        const long ys = yy - y.i - a;
+        if (ys < 0 || ys >= r) continue;
+        for (long xx = 0; xx < c; ++xx)
+          for (int b = 0; b < 2; ++b) {
+            const long xs = xx - x.i - b;
+            if (xs < 0 || xs >= c) continue;
+            f(base + std::size_t(yy * c + xx), base + std::size_t(ys * c + xs), wy[a] * wx[b], wy[a] * dw[b], dw[a] * wx[b]);
+          }
+      }
+  }
+}
+
+void require_size(const std::vector<double>& v, std::size_t planes, std::size_t rows, std::size_t cols, const char* what) {
+  if (v.size() != planes * rows * cols)
+    throw Error(std::string("shift_bilinear: ") + what + " holds " + std::to_string(v.size()) + " values, expected " +
+                shape(planes, rows, cols));
+}
+
+enum class Kind { Level, Mask, Scale, Z, D, DX, DY, SX, SY };
+
+}  // namespace
+
+std::vector<double> shift_bilinear(const std::vector<double>& in, std::size_t planes, std::size_t rows, std::size_t cols, double sx,
+                                   double sy) {
+  require_size(in, planes, rows, cols, "the input");
+  std::vector<double> out(in.size(), 0.0);
+  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double w, double, double) { out[o] += w * in[i]; });
+  return out;
+}
+
+std::vector<double> shift_bilinear_adjoint(const std::vector<double>& g_out, std::size_t planes, std::size_t rows, std::size_t cols,
+                                           double sx, double sy) {
+  require_size(g_out, planes, rows, cols, "the gradient");
+  std::vector<double> g(g_out.size(), 0.0);
+  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double w, double, double) { g[i] += w * g_out[o]; });
+  return g;
+}
+
+void shift_bilinear_derivative(const std::vector<double>& in, const std::vector<double>& g_out, std::size_t planes, std::size_t rows,
+                               std::size_t cols, double sx, double sy, double& d_sx, double& d_sy) {
+  require_size(in, planes, rows, cols, "the input");
+  require_size(g_out, planes, rows, cols, "the gradient");
+  d_sx = d_sy = 0;
+  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double, double dx, double dy) {
+    d_sx += g_out[o] * dx * in[i];
+    d_sy += g_out[o] * dy * in[i];
+  });
+}
+
+std::vector<std::string> fit_parameter_names() { return {"levels", "masks", "scale", "z", "d", "offset", "shift", "aperture"}; }
+
+std::vector<std::string> default_fit_parameters(const Design& design) {
+  if (design.levels_m.size() >= 2) return {"levels", "z", "offset"};
+  return {"scale", "z", "offset"};
+}
+
+// ---------------------------------------------------------------------------------------------
+// The model
+// ---------------------------------------------------------------------------------------------
+
+struct AsBuiltModel::Impl {
+  Impl(Runtime& rt_, const SystemConfig& cfg_, Precision p_, const Design& design_, const FitOptions& opt_)
+      : rt(rt_), cfg(cfg_), prec(p_), design(design_), opt(opt_) {}
+  Runtime& rt;
+  SystemConfig cfg;
+  Precision prec;
+  Design design;
+  FitOptions opt;
+  std::size_t n = 0, s = 0;
+  bool quantized = false, use_masks = false;
+  std::vector<int> level_of;           // N x N: each pixel's level index (quantized designs)
+  std::vector<double> masks0;          // the design's mask depths (use_masks)
+  std::vector<std::size_t> unused_levels;  // levels no pixel takes (held, not fitted)
+  struct Param {
+    Kind kind;
+    int index;
+    std::string name, unit;
+    double nominal;
+  };
+  std::vector<Param> ps;
+  std::vector<std::string> names, units;
+  double aperture_r = 0;
+  std::unique_ptr<Simulator> sim;
+  double sim_z = 0, sim_d = 0, sim_r = 0;
+  FitTimes t;
+
+  // The complete state at theta: every quantity the model uses, nominal where theta has none.
+  struct State {
+    std::vector<double> lev, masks;
+    double scale = 1, z = 0, d = 0, dx_m = 0, dy_m = 0, sx = 0, sy = 0;
+  };
+
+  State state(const std::vector<double>& theta) const {
+    if (theta.size() != ps.size())
+      throw Error("AsBuiltModel: " + std::to_string(theta.size()) + " parameters given, the model has " + std::to_string(ps.size()));
+    State st;
+    st.lev = design.levels_m;
+    st.masks = masks0;
+    st.z = cfg.sensor_distance_m;
+    st.d = cfg.scene_distance_m;
+    for (std::size_t i = 0; i < ps.size(); ++i) {
+      const double v = theta[i];
+      switch (ps[i].kind) {
+        case Kind::Level: st.lev[std::size_t(ps[i].index)] = v; break;
+        case Kind::Mask: st.masks[std::size_t(ps[i].index)] = v; break;
+        case Kind::Scale: st.scale = v; break;
+        case Kind::Z: st.z = v; break;
+        case Kind::D: st.d = v; break;
+        case Kind::DX: st.dx_m = v; break;
+        case Kind::DY: st.dy_m = v; break;
+        case Kind::SX: st.sx = v; break;
+        case Kind::SY: st.sy = v; break;
+      }
+    }
+    if (use_masks) st.lev = subset_sums(st.masks);
+    return st;
+  }
+
+  std::vector<double> subset_sums(const std::vector<double>& m) const {
+    std::vector<double> lev(design.levels_m.size(), 0.0);
+    for (std::size_t l = 0; l < lev.size(); ++l)
+      for (std::size_t j = 0; j < m.size(); ++j)
+        if (l & (std::size_t(1) << j)) lev[l] += m[j];
+    return lev;
+  }
+
+  // H0 (unshifted, scaled) of a state, N x N.
+  std::vector<double> unshifted(const State& st) const {
+    std::vector<double> h(n * n);
+    for (std::size_t i = 0; i < h.size(); ++i)
+      h[i] = st.scale * (quantized ? st.lev[std::size_t(level_of[i])] : design.height_m.data[i]);
+    return h;
+  }
+
+  Map2D heights(const State& st) const {
+    Map2D m(n, n);
+    m.data = shift_bilinear(unshifted(st), 1, n, n, st.dx_m / cfg.pitch_m, st.dy_m / cfg.pitch_m);
+    return m;
+  }
+
+  SystemConfig config_of(const State& st) const {
+    SystemConfig c = cfg;
+    c.sensor_distance_m = st.z;
+    c.scene_distance_m = st.d;
+    c.aperture_radius_m = aperture_r;
+    return c;
+  }
+
+  Simulator& simulator(const State& st) {
+    if (!sim || sim_z != st.z || sim_d != st.d || sim_r != aperture_r) {
+      sim.reset();
+      sim = std::make_unique<Simulator>(rt, config_of(st), prec);
+      sim_z = st.z;
+      sim_d = st.d;
+      sim_r = aperture_r;
+      ++t.simulators_built;
+    }
+    return *sim;
+  }
+
+  // The PSF stack (unshifted by the registration) at a state; the simulator keeps it for the adjoint.
+  RealStack psf(const State& st) {
+    Simulator& s_ = simulator(st);
+    s_.set_heights(heights(st));
+    s_.compute_psf();
+    ++t.psf_evaluations;
+    return s_.psf_sensor();
+  }
+
+  RealStack model(const State& st) {
+    RealStack p = psf(st);
+    if (st.sx != 0 || st.sy != 0) p.data = shift_bilinear(p.data, p.planes, p.rows, p.cols, st.sx, st.sy);
+    return p;
+  }
+
+  double half_sq(const RealStack& m, const RealStack& meas) const {
+    double l = 0;
+    for (std::size_t i = 0; i < m.data.size(); ++i) {
+      const double r = m.data[i] - meas.data[i];
+      l += r * r;
+    }
+    return 0.5 * l;
+  }
+
+  void check_measured(const RealStack& meas) const {
+    if (meas.planes != cfg.bands || meas.rows != s || meas.cols != s)
+      throw InputError("the measured PSF stack is " + shape(meas) + "; the configuration needs bands x S x S = " +
+                       shape(cfg.bands, s, s));
+  }
+
+  // Loss and gradient; the gradient entries of z and d only when fd_distances (else left 0).
+  double loss_gradient(const std::vector<double>& theta, const RealStack& meas, std::vector<double>& grad, bool fd_distances,
+                       RealStack* model_out) {
+    check_measured(meas);
+    const State st = state(theta);
+    auto t0 = std::chrono::steady_clock::now();
+    const RealStack p = psf(st);
+    RealStack m = p;
+    const bool shifted = st.sx != 0 || st.sy != 0;
+    if (shifted) m.data = shift_bilinear(p.data, p.planes, p.rows, p.cols, st.sx, st.sy);
+    RealStack r = m;
+    double loss = 0;
+    for (std::size_t i = 0; i < r.data.size(); ++i) {
+      r.data[i] -= meas.data[i];
+      loss += r.data[i] * r.data[i];
+    }
+    loss *= 0.5;
+    if (model_out) *model_out = m;
+    t.psf_s += since(t0);
+    t0 = std::chrono::steady_clock::now();
+    grad.assign(ps.size(), 0.0);
+    const bool any_adjoint =
+        std::any_of(ps.begin(), ps.end(), [](const Param& q) { return q.kind != Kind::Z && q.kind != Kind::D; });
+    if (!any_adjoint) {  // z and d only: no adjoint to take
+      t.vjp_s += since(t0);
+      if (fd_distances) fd_distance_gradient(theta, meas, grad);
+      return loss;
+    }
+    // d / d registration, then back through it to the PSF.
+    double g_sx = 0, g_sy = 0;
+    RealStack g_p = r;
+    if (shifted) {
+      shift_bilinear_derivative(p.data, r.data, p.planes, p.rows, p.cols, st.sx, st.sy, g_sx, g_sy);
+      g_p.data = shift_bilinear_adjoint(r.data, p.planes, p.rows, p.cols, st.sx, st.sy);
+    } else {
+      // At exactly zero shift, d/ds is one-sided (the bilinear shift has a kink at integers):
+      // the right derivative, as the weights at s = 0+ give it.
+      shift_bilinear_derivative(p.data, r.data, p.planes, p.rows, p.cols, 0, 0, g_sx, g_sy);
+    }
+    const Map2D g_h = sim->psf_sensor_vjp(g_p);
+    ++t.vjps;
+    const double px = cfg.pitch_m;
+    const std::vector<double> h0 = unshifted(st);
+    std::vector<double> g_h0 = shift_bilinear_adjoint(g_h.data, 1, n, n, st.dx_m / px, st.dy_m / px);
+    double g_dx = 0, g_dy = 0;
+    shift_bilinear_derivative(h0, g_h.data, 1, n, n, st.dx_m / px, st.dy_m / px, g_dx, g_dy);
+    std::vector<double> g_lev(design.levels_m.size(), 0.0);
+    double g_scale = 0;
+    for (std::size_t i = 0; i < n * n; ++i) {
+      const double base = quantized ? st.lev[std::size_t(level_of[i])] : design.height_m.data[i];
+      g_scale += g_h0[i] * base;
+      if (quantized) g_lev[std::size_t(level_of[i])] += st.scale * g_h0[i];
+    }
+    for (std::size_t k = 0; k < ps.size(); ++k) {
+      switch (ps[k].kind) {
+        case Kind::Level: grad[k] = g_lev[std::size_t(ps[k].index)]; break;
+        case Kind::Mask: {
+          double g = 0;
+          for (std::size_t l = 0; l < g_lev.size(); ++l)
+            if (l & (std::size_t(1) << ps[k].index)) g += g_lev[l];
+          grad[k] = g;
+          break;
+        }
+        case Kind::Scale: grad[k] = g_scale; break;
+        case Kind::DX: grad[k] = g_dx / px; break;
+        case Kind::DY: grad[k] = g_dy / px; break;
+        case Kind::SX: grad[k] = g_sx; break;
+        case Kind::SY: grad[k] = g_sy; break;
+        case Kind::Z:
+        case Kind::D: break;
+      }
+    }
+    t.vjp_s += since(t0);
+    if (fd_distances) fd_distance_gradient(theta, meas, grad);
+    return loss;
+  }
+
+  // The z and d entries of dL/dtheta by central differences of the loss.
+  void fd_distance_gradient(const std::vector<double>& theta, const RealStack& meas, std::vector<double>& grad) {
+    const auto t0 = std::chrono::steady_clock::now();
+    for (std::size_t k = 0; k < ps.size(); ++k) {
+      if (ps[k].kind != Kind::Z && ps[k].kind != Kind::D) continue;
+      const double h = step(k, theta);
+      std::vector<double> a = theta, b = theta;
+      a[k] += h;
+      b[k] -= h;
+      grad[k] = (half_sq(model(state(a)), meas) - half_sq(model(state(b)), meas)) / (2 * h);
+    }
+    t.jacobian_s += since(t0);
+  }
+
+  double step(std::size_t k, const std::vector<double>& theta) const {
+    switch (ps[k].kind) {
+      case Kind::Level:
+      case Kind::Mask: return opt.fd_height_m;
+      case Kind::Scale: return 1e-4;
+      case Kind::Z:
+      case Kind::D: return opt.fd_rel_distance * std::fabs(theta[k]);
+      case Kind::DX:
+      case Kind::DY: return opt.fd_px * cfg.pitch_m;
+      case Kind::SX:
+      case Kind::SY: return opt.fd_px;
+    }
+    return 0;
+  }
+
+  // J (m x p): columns by central differences of the model; the distance columns last, so
+  // the simulator of theta's (z, d) serves every other column.
+  Eigen::MatrixXd jacobian(const std::vector<double>& theta) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::size_t m = cfg.bands * s * s;
+    Eigen::MatrixXd j(m, ps.size());
+    std::vector<std::size_t> order;
+    for (std::size_t k = 0; k < ps.size(); ++k)
+      if (ps[k].kind != Kind::Z && ps[k].kind != Kind::D) order.push_back(k);
+    for (std::size_t k = 0; k < ps.size(); ++k)
+      if (ps[k].kind == Kind::Z || ps[k].kind == Kind::D) order.push_back(k);
+    for (std::size_t k : order) {
+      const double h = step(k, theta);
+      std::vector<double> a = theta, b = theta;
+      a[k] += h;
+      b[k] -= h;
+      const RealStack fa = model(state(a)), fb = model(state(b));
+      for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - fb.data[i]) / (2 * h);
+    }
+    t.jacobian_s += since(t0);
+    return j;
+  }
+};
+
+void check_fit_parameters(const SystemConfig& cfg, const Design& design, const std::vector<std::string>& parameters) {
+  cfg.validate();
+  if (design.height_m.rows != cfg.n || design.height_m.cols != cfg.n)
+    throw InputError("the design is " + std::to_string(design.height_m.rows) + " x " + std::to_string(design.height_m.cols) +
+                     "; the configuration's DOE grid is N x N = " + std::to_string(cfg.n) + " x " + std::to_string(cfg.n));
+  if (std::fabs(design.pitch_m - cfg.pitch_m) > 1e-6 * cfg.pitch_m)
+    throw InputError("the design's pitch_m is " + fmt("%g", design.pitch_m) + "; the configuration's is " + fmt("%g", cfg.pitch_m));
+  std::set<std::string> given;
+  const auto known = fit_parameter_names();
+  for (const auto& name : parameters) {
+    if (std::find(known.begin(), known.end(), name) == known.end())
+      reject("--fit", name, "a comma-separated list of levels, masks, scale, z, d, offset, shift, aperture");
+    if (!given.insert(name).second) reject("--fit", name, "each parameter once");
+  }
+  given.erase("aperture");  // not a continuous parameter (fit_as_built scans it)
+  if (given.empty()) reject("--fit", "aperture alone", "at least one of levels, masks, scale, z, d, offset, shift");
+  const auto has = [&](const char* s) { return given.count(s) > 0; };
+  const std::size_t levels = design.levels_m.size();
+  if ((has("levels") || has("masks")) && levels < 2)
+    reject("--fit", has("levels") ? "levels" : "masks",
+           "levels or masks only for a quantized design (a design file with /levels_m); this design has no level table: fit scale instead");
+  if (has("levels") && has("masks")) reject("--fit", "levels,masks", "one of levels (every level free) and masks (subset sums)");
+  if (has("scale") && (has("levels") || has("masks")))
+    reject("--fit", "scale with " + std::string(has("levels") ? "levels" : "masks"),
+           "scale or free level depths, not both: a global scale of the heights is exactly a scale of every level depth (a "
+           "degenerate pair)");
+  if (has("d") && cfg.scene_at_infinity)
+    reject("--fit", "d", "d only for a finite object distance (the configuration's scene is at infinity)");
+  for (double l : design.levels_m)
+    if (!std::isfinite(l)) throw InputError("the design's level table holds a non-finite value");
+  if (has("masks")) {
+    const int k = mask_count(int(levels));  // InputError unless a power of two
+    for (std::size_t l = 0; l < levels; ++l) {
+      double sum = 0;
+      for (int j = 0; j < k; ++j)
+        if (l & (std::size_t(1) << j)) sum += design.levels_m[std::size_t(1) << j];
+      if (std::fabs(sum - design.levels_m[l]) > 1e-9 || std::fabs(design.levels_m[0]) > 1e-9)
+        reject("--fit", "masks",
+               "masks only for a QDO+M design: level 0 at 0 and every level the subset sum of the log2(L) mask depths (level " +
+                   std::to_string(l) + " is " + fmt("%.2f", design.levels_m[l] * 1e9) + " nm, the subset sum " + fmt("%.2f", sum * 1e9) +
+                   " nm, level 0 " + fmt("%.2f", design.levels_m[0] * 1e9) + " nm); fit levels instead");
+    }
+  }
+}
+
+AsBuiltModel::AsBuiltModel(Runtime& rt, const SystemConfig& cfg, Precision p, const Design& design,
+                           const std::vector<std::string>& parameters, const FitOptions& opt)
+    : impl_(std::make_unique<Impl>(rt, cfg, p, design, opt)) {
+  Impl& m = *impl_;
+  cfg.validate();
+  m.n = cfg.n;
+  m.s = cfg.sensor_size_px();
+  m.aperture_r = cfg.aperture_radius();
+  check_fit_parameters(cfg, design, parameters);
+  std::set<std::string> given(parameters.begin(), parameters.end());
+  const auto has = [&](const char* s_) { return given.count(s_) > 0; };
+  const std::size_t levels = design.levels_m.size();
+  m.quantized = levels >= 2;
+  if (m.quantized) {
+    m.level_of.resize(m.n * m.n);
+    for (std::size_t i = 0; i < m.level_of.size(); ++i) {
+      const double h = design.height_m.data[i];
+      std::size_t best = 0;
+      for (std::size_t l = 1; l < levels; ++l)
+        if (std::fabs(design.levels_m[l] - h) < std::fabs(design.levels_m[best] - h)) best = l;
+      m.level_of[i] = int(best);
+    }
+  }
+  if (has("masks")) {
+    const int k = mask_count(int(levels));  // InputError unless a power of two
+    m.use_masks = true;
+    m.masks0.resize(std::size_t(k));
+    for (int j = 0; j < k; ++j) m.masks0[std::size_t(j)] = design.levels_m[std::size_t(1) << j];
+  }
+  // The layout: in the order of fit_parameter_names().
+  const auto add = [&](Kind kind, int index, std::string name, std::string unit, double nominal) {
+    m.ps.push_back({kind, index, name, unit, nominal});
+    m.names.push_back(name);
+    m.units.push_back(unit);
+  };
+  if (has("levels")) {
+    // A level no pixel uses leaves the PSF unchanged: held at its design value (not a parameter).
+    std::vector<std::size_t> count(levels, 0);
+    for (int l : m.level_of) ++count[std::size_t(l)];
+    for (std::size_t l = 1; l < levels; ++l)
+      if (count[l] > 0)
+        add(Kind::Level, int(l), "level" + std::to_string(l), "m", design.levels_m[l]);
+      else
+        m.unused_levels.push_back(l);
+  }
+  if (has("masks"))
+    for (std::size_t j = 0; j < m.masks0.size(); ++j) add(Kind::Mask, int(j), "mask" + std::to_string(j), "m", m.masks0[j]);
+  if (has("scale")) add(Kind::Scale, 0, "scale", "", 1.0);
+  if (has("z")) add(Kind::Z, 0, "z", "m", cfg.sensor_distance_m);
+  if (has("d")) add(Kind::D, 0, "d", "m", cfg.scene_distance_m);
+  if (has("offset")) {
+    add(Kind::DX, 0, "dx", "m", 0.0);
+    add(Kind::DY, 0, "dy", "m", 0.0);
+  }
+  if (has("shift")) {
+    add(Kind::SX, 0, "sx", "px", 0.0);
+    add(Kind::SY, 0, "sy", "px", 0.0);
+  }
+}
+
+AsBuiltModel::~AsBuiltModel() = default;
+
+const std::vector<std::string>& AsBuiltModel::parameter_names() const { return impl_->names; }
+const std::vector<std::string>& AsBuiltModel::parameter_units() const { return impl_->units; }
+std::vector<double> AsBuiltModel::design_values() const {
+  std::vector<double> v;
+  for (const auto& p : impl_->ps) v.push_back(p.nominal);
+  return v;
+}
+bool AsBuiltModel::adjoint_parameter(std::size_t i) const { return impl_->ps.at(i).kind != Kind::Z && impl_->ps.at(i).kind != Kind::D; }
+RealStack AsBuiltModel::evaluate(const std::vector<double>& theta) {
+  const auto t0 = std::chrono::steady_clock::now();
+  RealStack r = impl_->model(impl_->state(theta));
+  impl_->t.psf_s += since(t0);
+  return r;
+}
+double AsBuiltModel::loss_gradient(const std::vector<double>& theta, const RealStack& measured, std::vector<double>& grad) {
+  return impl_->loss_gradient(theta, measured, grad, true, nullptr);
+}
+double AsBuiltModel::loss(const std::vector<double>& theta, const RealStack& measured) {
+  impl_->check_measured(measured);
+  return impl_->half_sq(evaluate(theta), measured);
+}
+Map2D AsBuiltModel::heights(const std::vector<double>& theta) const { return impl_->heights(impl_->state(theta)); }
+SystemConfig AsBuiltModel::config(const std::vector<double>& theta) const { return impl_->config_of(impl_->state(theta)); }
+void AsBuiltModel::set_aperture_radius(double r_m) { impl_->aperture_r = r_m; }
+double AsBuiltModel::aperture_radius() const { return impl_->aperture_r; }
+std::vector<double> AsBuiltModel::levels(const std::vector<double>& theta) const {
+  if (!impl_->quantized) return {};
+  const auto st = impl_->state(theta);
+  std::vector<double> l = st.lev;
+  for (double& v : l) v *= st.scale;
+  return l;
+}
+FitTimes& AsBuiltModel::times() { return impl_->t; }
+const std::vector<std::size_t>& AsBuiltModel::unused_levels() const { return impl_->unused_levels; }
+double AsBuiltModel::adjoint_gradient(const std::vector<double>& theta, const RealStack& measured, std::vector<double>& grad,
+                                      RealStack* model_out) {
+  return impl_->loss_gradient(theta, measured, grad, false, model_out);
+}
+Eigen::MatrixXd AsBuiltModel::jacobian(const std::vector<double>& theta) { return impl_->jacobian(theta); }
+
+}  // namespace qdo
