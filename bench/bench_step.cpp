@@ -21,6 +21,7 @@
 #include "qdo/design.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/optics.hpp"
+#include "qdo/recipe.hpp"
 #include "qdo/wiener.hpp"
 #include "qdo/wiener_device.hpp"
 
@@ -169,6 +170,21 @@ int main(int argc, char** argv) {
                 step_res[step_res.size() / 2] / step_dev[step_dev.size() / 2]);
     md << "| " << pname << " | " << cfg.n << " | ratio (device-resident step) / (CPU-Wiener step), same run | "
        << step_res[step_res.size() / 2] / step_cpu[step_cpu.size() / 2] << " | | | | |\n";
+    // The same step under the release's recipe (qdo/recipe.hpp): ring-profile L_aq, Keras' Adam,
+    // +-20 nm height noise drawn per pixel on the 2-D path (the recipe's), or per ring on the radial one.
+    for (const char* path : {"2d", "radial"}) {
+      DesignRunOptions ro;
+      ro.cfg = cfg;
+      apply_recipe("release", ro);
+      ro.design.mode = DesignMode::QDOA;
+      ro.design.psf_path = psf_path_from_string(path);
+      Designer dr(sim, ro.design);
+      DesignState sr = dr.initial_state(p0);
+      const auto t = timed(repeats, [&] { dr.step(sr, obj_dev, &resident); });
+      row(pname, cfg.n, std::string("complete qdo+a step, recipe release, ") + path + " path (device-resident; as qdo design)", t);
+      md << "| " << pname << " | " << cfg.n << " | ratio (recipe release, " << path << ") / (the device-resident step above), same run | "
+         << t[t.size() / 2] / step_res[step_res.size() / 2] << " | | | | |\n";
+    }
     if (cpu_repeats > 0)
       row(pname, cfg.n, "CPU reference PSF forward + adjoint (double, FFTW)",
           timed(cpu_repeats, [&] { ref::psf_sensor_vjp(cfg, h, g); }));

@@ -69,6 +69,7 @@ psf_source physics
 point_psf physics
 reconstruct design
 radial physics
+recipe design
 release physics
 release_reference physics
 resunet net

@@ -64,7 +64,9 @@ inline std::string cfg_arg() { return "--config " + tiny_config_file().string();
 constexpr int kSteps = 2;   // --max-steps of the shared run
 constexpr int kLevels = 4;
 
-// The shared qdo+a run: `qdo design --max-steps 2` on the tiny configuration, made once.
+// The shared qdo+a run: `qdo design --max-steps 2` on the tiny configuration, made once. Recipe qdo
+// (random initial heights, no height noise): the commands' tests need a design that uses every
+// level and a noiseless evaluation; the release recipe has its own suite (recipe).
 struct SharedRun {
   std::filesystem::path dir;
   Run result;
@@ -74,7 +76,7 @@ inline const SharedRun& shared_run() {
   static const SharedRun r = [] {
     SharedRun s;
     s.dir = d.dir / "run";
-    s.result = qdo_run("design " + cfg_arg() + " --mode qdo+a --levels " + std::to_string(kLevels) +
+    s.result = qdo_run("design " + cfg_arg() + " --recipe qdo --mode qdo+a --levels " + std::to_string(kLevels) +
                        " --epochs 5 --steps-per-epoch 2 --t0 1 --t1 4 --synthetic-scenes 3 --seed 3 --max-steps " +
                        std::to_string(kSteps) + " --out " + s.dir.string());
     return s;

@@ -102,7 +102,8 @@ TEST_SUITE("commands") {
     CHECK(st.offsets.size() == std::size_t(kLevels));
     // log.csv: one row per step, finite losses, alpha in [0, 1], L ascending level heights in [0, h_max].
     const CsvTable log = read_csv((run / "log.csv").string());
-    REQUIRE(log.header.size() == 7);
+    REQUIRE(log.header.size() == 8);
+    CHECK(log.header[7] == "deviation_nm");
     CHECK(log.header[0] == "step");
     CHECK(log.header[1] == "loss");
     CHECK(log.header[6] == "level_heights_nm");

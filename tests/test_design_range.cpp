@@ -409,14 +409,15 @@ TEST_SUITE("design-range") {
     std::vector<std::string> header;
     const auto rows = log_rows(run / "log.csv", &header);
     REQUIRE(rows.size() == 16);
-    REQUIRE(header.size() == 9);
+    REQUIRE(header.size() == 10);
     CHECK(header[7] == "points");
     CHECK(header[8] == "point_losses");
+    CHECK(header[9] == "deviation_nm");
     std::set<std::string> draws;
     std::vector<int> trained(4, 0);
     std::vector<double> loss;
     for (const auto& row : rows) {
-      REQUIRE(row.size() == 9);
+      REQUIRE(row.size() == 10);
       const auto pts = split(row[7], ';'), pl = split(row[8], ';');
       REQUIRE(pts.size() == 2);
       REQUIRE(pl.size() == 2);

@@ -78,14 +78,14 @@ double num(const std::string& s) { return s.empty() ? NAN : std::strtod(s.c_str(
 
 // The rows of two runs agree: step and schedule exactly, loss and MAE to rel_loss (relative),
 // the level heights to levels_nm, the PSNRs to psnr_db (columns of log.csv: step, loss, loss_aq,
-// alpha, lr, step_s, level_heights_nm, mae, train_psnr_db, val_psnr_db, lr_decoder).
+// alpha, lr, step_s, level_heights_nm, mae, train_psnr_db, val_psnr_db, lr_decoder, deviation_nm).
 void check_logs_close(const fs::path& a, const fs::path& b, double rel_loss, double levels_nm, double psnr_db) {
   const auto ra = log_rows(a), rb = log_rows(b);
   REQUIRE(ra.size() == rb.size());
   for (std::size_t i = 0; i < ra.size(); ++i) {
     INFO("step " << i << " of " << a.string() << " and " << b.string());
-    REQUIRE(ra[i].size() == 11);
-    REQUIRE(rb[i].size() == 11);
+    REQUIRE(ra[i].size() == 12);
+    REQUIRE(rb[i].size() == 12);
     for (int c : {0, 3, 4, 10}) CHECK(ra[i][c] == rb[i][c]);
     for (int c : {1, 2, 7}) CHECK(std::abs(num(ra[i][c]) - num(rb[i][c])) <= rel_loss * std::abs(num(ra[i][c])));
     std::stringstream la(ra[i][6]), lb(rb[i][6]);
@@ -122,9 +122,12 @@ TEST_SUITE("joint-mpi") {
       f << config_to_json_text(tiny_config(32, 3));  // S = 16
     }
     const std::string precision = runtime().has_fp64() ? "f64" : "f32";
+    // Recipe qdo, on which these tolerances were set: the step-0 loss below agrees to 1e-9 there;
+    // under the release recipe (no weight decay, a flat start) the float32 network's sums differ
+    // between 1 and 2 ranks by ~3e-8 of the loss.
     const std::string args = "design --config " + cfg.string() +
                              " --mode qdo+a --levels 4 --decoder resunet:depth=2,root=4 --batch 4 --epochs 2 --steps-per-epoch 2"
-                             " --synthetic-scenes 3 --checkpoint-every 1 --lr-decoder 0.05 --seed 3 --precision " + precision;
+                             " --synthetic-scenes 3 --checkpoint-every 1 --lr-decoder 0.05 --seed 3 --recipe qdo --precision " + precision;
     auto run = [&](int ranks, const std::string& extra) {
       const Run r = qdo_ranks(ranks, args + " " + extra);
       INFO(r.out);
@@ -184,7 +187,7 @@ TEST_SUITE("joint-mpi") {
     }
     const std::string args = "design --config " + cfg.string() +
                              " --mode qdo+a --levels 4 --decoder resunet:depth=2,root=4 --batch 4 --epochs 6 --steps-per-epoch 2"
-                             " --synthetic-scenes 3 --checkpoint-every 1 --lr-decoder 0.05 --seed 4";
+                             " --synthetic-scenes 3 --checkpoint-every 1 --lr-decoder 0.05 --seed 4 --recipe qdo";
     const fs::path whole = dir / "whole", killed = dir / "killed";
     {
       const Run r = qdo_ranks(2, args + " --out " + whole.string());

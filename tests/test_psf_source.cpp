@@ -224,7 +224,8 @@ TEST_SUITE("psf-source") {
     const SystemConfig c = tiny_config(32, 3);
     const std::string cfg = "--config " + write_config(dir, c, "tiny.json").string();
     const fs::path run = dir / "run";
-    Run r = qdo_run("design " + cfg + " --mode qdo+a --levels 4 --epochs 5 --steps-per-epoch 2 --t0 1 --t1 4 "
+    // No height noise at evaluation: the run's own metrics must come from the noiseless design's PSF.
+    Run r = qdo_run("design " + cfg + " --noise-at-test off --mode qdo+a --levels 4 --epochs 5 --steps-per-epoch 2 --t0 1 --t1 4 "
                     "--synthetic-scenes 3 --seed 3 --max-steps 2 --out " + run.string());
     CAPTURE(r.out);
     REQUIRE(r.code == 0);

@@ -46,21 +46,41 @@ std::string to_string(PsfPath p);
 // Adam (Kingma & Ba) with bias correction; one instance per parameter group.
 struct Adam {
   double lr = 0.01, beta1 = 0.9, beta2 = 0.999, epsilon = 1e-8;
+  // The form of epsilon: false, the paper's params -= lr * mhat / (sqrt(vhat) + eps); true, TF/Keras'
+  // ("epsilon hat"): params -= lr * sqrt(1 - beta2^t) / (1 - beta1^t) * m / (sqrt(v) + eps).
+  bool keras_form = false;
   std::vector<double> m, v;
   long t = 0;
-  // params -= lr_now * mhat / (sqrt(vhat) + eps), then clip to [lo, hi].
+  // One update at learning rate lr_now (the form above), then clip to [lo, hi].
   void step(std::vector<double>& params, const std::vector<double>& grad, double lr_now, double lo, double hi);
 };
+
+// What L_aq (qdo+a, qdo+m) averages over: the N x N pixel map (each ring weighted by its pixel
+// count, the corners outside the aperture included) or the parameterization's own values (the
+// release: its 1-D ring profile of N/2 values for a radial design, each ring once; the quarter
+// for quad; the pixels for 2d).
+enum class AqDomain { Pixels, Parameters };
+AqDomain aq_domain_from_string(const std::string& s, const std::string& argument = "aq_domain");
+std::string to_string(AqDomain d);
 
 struct DesignOptions {
   DesignMode mode = DesignMode::QDOA;
   Parameterization parameterization = Parameterization::Radial;
-  Quantizer quantizer;                 // levels, placement (offsets are trained in qdo+a)
+  Quantizer quantizer;                 // levels, placement, pin_top (offsets are trained in qdo+a)
   std::size_t steps_per_epoch = 10;
   double t0_epochs = 5, t1_epochs = 40;  // alpha schedule (REFERENCE §2)
   double lr_optics = 0.01;             // on the normalised weights w in [-1, 1]
   double lr_offsets = 0.01;
+  // Learning-rate decay: lr(t) = lr * lr_decay_per_epoch^(t / D), D = lr_decay_steps steps (0: one
+  // epoch, steps_per_epoch), the exponent floored when lr_staircase (qdo's per-epoch decay) or not
+  // (continuous: the release's ExponentialDecay(decay_steps=500, decay_rate=0.8)). The factor is
+  // per D steps; the name is kept for config.json. Both Adams (and a network decoder's) follow it.
   double lr_decay_per_epoch = 0.8;
+  double lr_decay_steps = 0;
+  bool lr_staircase = true;
+  double adam_epsilon = 1e-8;          // Adam's epsilon (Keras' default 1e-7 in the release)
+  bool adam_keras_form = false;        // Adam::keras_form
+  AqDomain aq_domain = AqDomain::Pixels;
   double beta_aq = 0.01;               // weight of L_aq (qdo+a)
   double height_noise_m = 0;           // uniform fabrication noise +-height_noise_m per step (0: off)
   std::uint64_t seed = 0;
@@ -75,6 +95,8 @@ struct DesignOptions {
   // >= 1, 0 <= t0 < t1, points_per_step >= 1, learning rates, beta and height noise finite and >= 0, decay in (0, 1],
   // qdo+m levels a power of two, the radial PSF path only for radial designs.
   void validate() const;
+  // The learning-rate factor at step t (lr_decay_per_epoch^(t / D), floored when lr_staircase).
+  double lr_factor(long step) const;
 };
 
 // Optimisation state: everything a checkpoint needs to resume bit-identically.
@@ -106,6 +128,10 @@ using DevicePsfObjective = std::function<double(const cl::Buffer& psf_sensor, cl
 struct StepReport {
   long step = 0;
   double loss = 0, loss_aq = 0, alpha = 0, lr = 0;
+  // The quantization deviation of the step's state: mean |H_q - H_f| in metres over the
+  // parameterization's values (the release's ring profile for a radial design), H_q hard-quantized
+  // with the step's levels. 0 in modes full and do.
+  double deviation_m = 0;
   // The object points the step trained on (indices into the Designer's sources, ascending) and the
   // objective at each (without beta L_aq): loss = mean(point_loss) + beta L_aq.
   std::vector<std::size_t> points;
@@ -185,6 +211,11 @@ class Designer {
   std::vector<std::unique_ptr<RadialEngine>> radial_;  // one per point, built on first use
   cl::Buffer device_grad_;  // dL/dpsf_sensor of the device objective (bands x S x S reals)
 };
+
+// Quantization deviation over the parameterization's values (Table 2 as the release logs it): the
+// mean over params (metres) of |h_max Q(p / h_max) - p| with the quantizer's levels (offsets
+// included). For a radial design the N/2 rings, each once.
+double parameter_deviation_m(const std::vector<double>& params_m, double h_max_m, const Quantizer& q);
 
 // Loss of matching a target PSF stack: mean over bands x S x S of (psf - target)^2, scaled by
 // S^2 so it is O(1) for PSFs that sum to 1.

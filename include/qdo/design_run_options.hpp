@@ -32,13 +32,16 @@ std::string to_string(WienerOn w);
 
 // The initial design: random heights in [0, h_max] (seeded), flat (all zero), or lens:NM, the
 // diffractive lens for NM nanometres (lens_design).
+// half: every parameter at w = -1e-4, i.e. u = 0.5 - 5e-5: the release's initial design (w = 1e-4
+// on its etch-depth axis, u_release = 1 - u), half the quantization height, just off the
+// quantizer's decision threshold for even L.
 struct InitSpec {
-  enum class Kind { Random, Flat, Lens } kind = Kind::Random;
+  enum class Kind { Random, Flat, Lens, Half } kind = Kind::Random;
   double wavelength_nm = 0;       // Kind::Lens: finite, 100 ... 20000
   std::string wavelength_text;    // Kind::Lens: NM as written ("550.0"); empty: written from wavelength_nm
   std::string to_string() const;  // random, flat or lens:NM (NM as written, else the shortest decimal)
 };
-// InputError naming `argument`: "random, flat or lens:NM", or the range of NM.
+// InputError naming `argument`: "random, flat, half or lens:NM", or the range of NM.
 InitSpec init_spec_from_string(const std::string& s, const std::string& argument = "init");
 
 // The target of the psf-target objective: lens:NM (the PSF of the diffractive lens for NM nm) or
@@ -68,6 +71,12 @@ struct DesignRunOptions {
   DecoderSpec decoder;
   double lr_decoder = 1e-3;
   double gamma_decoder = 1e-4;
+  // The training recipe these options were filled from (recipe.hpp: "release" or "qdo"); a name
+  // only: every item it sets is its own field here and in config.json. "custom" when unknown.
+  std::string recipe = "qdo";
+  // Fabrication height noise (design.height_noise_m) also on the PSF a run's evaluation measures
+  // through (the release draws it on every forward pass, test included): one draw per test scene.
+  bool height_noise_at_test = false;
   // do-finetune (issue 13 item 4): the finished network `do` run whose network is trained on for
   // epochs x steps_per_epoch steps with its DOE quantized to this run's levels and frozen. Mode do.
   std::string finetune_from;
@@ -95,6 +104,12 @@ struct DesignRunOptions {
   bool quiet = false;                  // no progress line
   void validate() const;               // InputError naming the option
 };
+
+// The initial parameters of the run's parameterization (parameter_count of them, metres): random
+// heights in [0, h_max] drawn with seed + 17, zeros (flat), half (every one at h_max (1 - 1e-4) / 2),
+// or the lens's heights sampled as the parameterization reads them (lens:NM). Defined in
+// src/design/design_problem.cpp.
+std::vector<double> initial_params(const DesignRunOptions& o);
 
 // config.json's text: {"system": config_to_json_text(cfg), "design": {every option but cfg, out,
 // max_steps and quiet, each typed part as its to_string()}}. from_json reads it strictly

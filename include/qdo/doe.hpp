@@ -39,7 +39,13 @@ struct Quantizer {
   // Adaptive per-level offsets a_l (QDO+A, release convention): level l sits at
   // (l + 0.5 a_l) / (L - 1) [Inclusive] or (l + 0.5 a_l) / L [Wrapped]; a_0 is fixed at 0.
   // Empty means all zero. Size L when given; a_l must lie in [-1, 1] ([-0.2, 0.2] when L = 2).
+  // The pinned level's offset is 0 (pinned_level()).
   std::vector<double> offsets;
+  // Which end of the ladder is fixed: level 0 (H = 0, qdo's convention) or, with pin_top, level
+  // L - 1 (H = h_max). The release's u is an etch depth (u_release = 1 - u) and it fixes its level
+  // 0, the unetched surface: on qdo's relief axis that is the top level.
+  bool pin_top = false;
+  int pinned_level() const { return pin_top ? levels - 1 : 0; }
   // Explicit normalised level heights u_l (size L), overriding placement values and offsets
   // for the level *values* (the index still comes from the uniform grid of `placement`): for
   // level sets that are not uniform plus offsets, e.g. subset sums of binary-mask etch depths.

@@ -63,7 +63,8 @@ struct EvalRow {
 struct EvalResult {
   std::vector<EvalRow> rows;
   EvalRow mean;
-  double deviation_nm = 0;             // mean |H_eval - H_f| (Table 2)
+  double deviation_nm = 0;             // mean |H_eval - H_f| over the N x N map (Table 2)
+  double deviation_rings_nm = 0;       // the same over the ring profile (ring_heights_of_map): the release's Table 2
 };
 // Writes OUT/metrics.csv, metrics.json, reconstructions.h5, render_K.png and spectra_K.png. A
 // decoder trained with the optics cannot be refit in closed form: for it, matched needs the

@@ -53,9 +53,10 @@ std::string checkpoint_next_path(const std::string& path);
 // Throws InputError naming the file and dataset when missing, corrupt or mis-shaped
 // (expected_w and expected_levels are the sizes the run's configuration implies).
 // mask_depths: /offsets holds qdo+m's normalised mask depths (each in [0, 1], sum <= 1) instead of
-// the adaptive offsets of the other modes (a_0 = 0, |a_l| <= 1, or 0.2 at L = 2).
+// the adaptive offsets of the other modes (the pinned level's 0: level 0, or level L - 1 with
+// pin_top; |a_l| <= 1, or 0.2 at L = 2).
 DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std::size_t expected_levels,
-                            bool mask_depths = false);
+                            bool mask_depths = false, bool pin_top = false);
 
 // A line plot (PNG, width x height) of one or more series against their index, log-scaled y
 // when every value is positive. For loss curves.

@@ -1,6 +1,7 @@
 // Sweeps across quantization levels: PSF metrics per level (`qdo sweep-psf`) and the experiment
 // grid of the paper's comparisons (`qdo sweep`).
 #pragma once
+#include <cmath>
 #include <cstdint>
 #include <map>
 #include <string>
@@ -87,7 +88,8 @@ struct GridCell {
   std::uint64_t seed = 0;              // the training seed of the cell's runs
   EvalRow mean;
   std::vector<EvalRow> scenes;         // per test scene (empty for fresnel and cassi cells)
-  double deviation_nm = 0;
+  double deviation_nm = 0;             // mean |H_q - H_f| over the N x N map
+  double deviation_rings_nm = NAN;     // over the ring profile (the release's Table 2); NaN where not recorded
   // "fnv1a64:<16 hex digits>": a hash of everything that determines the cell: its evaluation
   // options, the training run's options and output files (bytes), the test scenes' bytes.
   std::string inputs;
@@ -142,7 +144,8 @@ std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g);
 // for a torn, foreign or mistyped file (the cell is then evaluated again); never half-reads.
 // With `scenes`, the file must also hold its per-scene rows ("per_scene", as qdo eval writes them),
 // every value finite; a file without them is then not reused (the cell is evaluated again).
+// With `deviation_rings_nm`, the file's deviation_rings_nm when it holds a finite one (else NaN).
 bool read_cell_metrics(const std::string& metrics_json_path, EvalRow& mean, double& deviation_nm,
-                       std::vector<EvalRow>* scenes = nullptr);
+                       std::vector<EvalRow>* scenes = nullptr, double* deviation_rings_nm = nullptr);
 
 }  // namespace qdo

@@ -102,6 +102,7 @@ double parse_double(const std::string& name, const std::string& v);
 double parse_double(const std::string& name, const std::string& v, double lo, double hi, const std::string& unit,
                     bool lo_open = false);
 std::vector<std::string> split_list(const std::string& s);  // comma-separated
+bool parse_on_off(const std::string& name, const std::string& v);  // "on" or "off", else an InputError naming the option
 // lens:NM, flat, or an HDF5 design file matching the configuration's grid.
 Map2D load_design(const SystemConfig& cfg, const std::string& spec);
 struct QuantSpec {

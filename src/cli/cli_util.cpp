@@ -14,6 +14,7 @@
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
+#include "qdo/recipe.hpp"
 #include "qdo/scenes.hpp"
 
 namespace fs = std::filesystem;
@@ -234,6 +235,12 @@ void range_options(const Args& a, DesignRunOptions& o) {
   o.design.points_per_step = std::size_t(parse_int("--points-per-step", a.get("points-per-step", "1"), 1, int(std::min<std::size_t>(points, 4096))));
 }
 
+bool parse_on_off(const std::string& name, const std::string& v) {
+  if (v == "on") return true;
+  if (v == "off") return false;
+  reject(name, v, "on or off");
+}
+
 DesignRunOptions design_options(const Args& a, bool range) {
   DesignRunOptions o;
   o.cfg = load_config(a, range);
@@ -242,33 +249,51 @@ DesignRunOptions design_options(const Args& a, bool range) {
   o.design.parameterization = parameterization_from_string(a.get("parameterization", "radial"));
   o.design.quantizer.levels = parse_int("--levels", a.get("levels", "4"), 2, 65536);
   o.design.quantizer.placement = placement_from_string(a.get("placement", "inclusive"));
-  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch", "10"), 1, 1000000));
-  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", "50"), 1, 1000000));
-  o.design.t0_epochs = parse_double("--t0", a.get("t0", to_str(std::min(5.0, 0.1 * double(o.epochs)))), 0, 1e6, "epochs");
-  o.design.t1_epochs = parse_double("--t1", a.get("t1", to_str(0.8 * double(o.epochs))), 0, 1e6, "epochs");
-  o.design.lr_optics = parse_double("--lr", a.get("lr", "0.01"), 0, 1, "(Adam step on weights in [-1, 1])");
-  o.design.lr_offsets = parse_double("--lr-offsets", a.get("lr-offsets", "0.01"), 0, 1, "(Adam step on normalised offsets)");
-  o.design.lr_decay_per_epoch = parse_double("--decay", a.get("decay", "0.8"), 0, 1, "(factor per epoch)", true);
-  o.design.beta_aq = parse_double("--beta", a.get("beta", "0.01"), 0, 1e3, "");
-  o.design.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", "0"), 0, 1e4, "nm") * 1e-9;
+  // The training recipe (qdo/recipe.hpp) gives every default below that it names; an option given
+  // explicitly wins over it, and config.json records each value.
+  const std::string recipe = a.get("recipe", "release");
+  const auto rv = [&](const char* option) { return recipe_value(recipe, option, "--recipe"); };
+  o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch", rv("steps-per-epoch")), 1, 1000000));
+  o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", rv("epochs")), 1, 1000000));
+  const double e = double(o.epochs);
+  o.design.t0_epochs = parse_double("--t0", a.get("t0", to_str(recipe == "release" ? 0.1 * e : std::min(5.0, 0.1 * e))), 0, 1e6, "epochs");
+  o.design.t1_epochs = parse_double("--t1", a.get("t1", to_str(0.8 * e)), 0, 1e6, "epochs");
+  o.design.lr_optics = parse_double("--lr", a.get("lr", rv("lr")), 0, 1, "(Adam step on weights in [-1, 1])");
+  o.design.lr_offsets = parse_double("--lr-offsets", a.get("lr-offsets", rv("lr-offsets")), 0, 1, "(Adam step on normalised offsets)");
+  o.design.lr_decay_per_epoch = parse_double("--decay", a.get("decay", rv("decay")), 0, 1, "(factor per decay period)", true);
+  const std::string decay_steps = a.get("decay-steps", rv("decay-steps"));
+  o.design.lr_decay_steps = decay_steps == "epoch" ? 0.0 : parse_double("--decay-steps", decay_steps, 1, 1e9, "steps, or epoch", false);
+  o.design.lr_staircase = parse_on_off("--decay-staircase", a.get("decay-staircase", rv("decay-staircase")));
+  o.design.adam_epsilon = parse_double("--adam-eps", a.get("adam-eps", rv("adam-eps")), 0, 1, "", true);
+  const std::string form = a.get("adam-form", rv("adam-form"));
+  if (form != "keras" && form != "textbook") reject("--adam-form", form, "keras or textbook");
+  o.design.adam_keras_form = form == "keras";
+  o.design.aq_domain = aq_domain_from_string(a.get("aq-domain", rv("aq-domain")), "--aq-domain");
+  const std::string pinned = a.get("pinned-level", rv("pinned-level"));
+  if (pinned != "top" && pinned != "bottom") reject("--pinned-level", pinned, "top or bottom");
+  o.design.quantizer.pin_top = pinned == "top";
+  o.design.beta_aq = parse_double("--beta", a.get("beta", rv("beta")), 0, 1e3, "");
+  o.design.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", rv("height-noise-nm")), 0, 1e4, "nm") * 1e-9;
+  o.height_noise_at_test = parse_on_off("--noise-at-test", a.get("noise-at-test", rv("noise-at-test")));
   o.design.seed = std::uint64_t(parse_int("--seed", a.get("seed", "0"), 0, 2147483647));
   // PSF engine of the optimisation: auto (radial engine for radial designs), 2d or radial.
-  o.design.psf_path = psf_path_from_string(a.get("psf-path", "auto"));
+  o.design.psf_path = psf_path_from_string(a.get("psf-path", rv("psf-path")));
   if (o.design.psf_path == PsfPath::Radial && o.design.parameterization != Parameterization::Radial)
     reject("--psf-path", "radial", "auto or 2d unless --parameterization is radial");
   o.decoder = decoder_spec_from_string(a.get("decoder", "wiener"));
   o.objective = a.has("objective") ? objective_from_string(a.get("objective"), "--objective")
                 : o.decoder.network()  ? Objective::Network
                                        : Objective::Wiener;
-  o.lr_decoder = parse_double("--lr-decoder", a.get("lr-decoder", "0.001"), 0, 1, "", true);
-  o.gamma_decoder = parse_double("--gamma", a.get("gamma", "0.0001"), 0, 1e3, "");
+  o.lr_decoder = parse_double("--lr-decoder", a.get("lr-decoder", rv("lr-decoder")), 0, 1, "", true);
+  o.gamma_decoder = parse_double("--gamma", a.get("gamma", rv("gamma")), 0, 1e3, "");
   o.target = target_spec_from_string(a.get("target", "lens:550"), "--target");
   o.data = split_list(a.get("data", ""));
   o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "12"), 1, 100000));
   o.batch = std::size_t(parse_int("--batch", a.get("batch", "4"), 1, 100000));
-  o.decoder_noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma", "0.001"), 0, 10, "(units of full scale)");
+  o.decoder_noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma", rv("noise-sigma")), 0, 10, "(units of full scale)");
   o.wiener_on = wiener_on_from_string(a.get("wiener-on", "device"), "--wiener-on");
-  o.init = init_spec_from_string(a.get("init", "random"), "--init");
+  o.init = init_spec_from_string(a.get("init", rv("init")), "--init");
+  o.recipe = recipe;
   o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));
   o.max_steps = a.has("max-steps") ? parse_int("--max-steps", a.get("max-steps"), 0, 2147483647) : -1;
   o.precision = precision_from_string(a.get("precision", "f32"));
@@ -296,7 +321,10 @@ void check_resume_options(const Args& a, const DesignRunOptions& given) {
       {"height-noise-nm", "height_noise_m"}, {"noise-sigma", "decoder_noise_sigma"}, {"init", "init"}, {"seed", "seed"},
       {"checkpoint-every", "checkpoint_every"}, {"precision", "precision"}, {"synthetic-scenes", "synthetic_scenes"},
       {"batch", "batch"}, {"wiener-on", "wiener_on"}, {"decoder", "decoder"}, {"lr-decoder", "lr_decoder"},
-      {"gamma", "gamma_decoder"}, {"points-per-step", "points_per_step"}};
+      {"gamma", "gamma_decoder"}, {"points-per-step", "points_per_step"}, {"recipe", "recipe"},
+      {"decay-steps", "lr_decay_steps"}, {"decay-staircase", "lr_staircase"}, {"adam-eps", "adam_epsilon"},
+      {"adam-form", "adam_keras_form"}, {"aq-domain", "aq_domain"}, {"pinned-level", "pin_top"},
+      {"noise-at-test", "height_noise_at_test"}};
   std::vector<std::string> diffs;
   for (const auto& [opt, key] : fields) {
     if (!a.has(opt)) continue;

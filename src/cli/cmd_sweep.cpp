@@ -62,7 +62,8 @@ int cmd_sweep_psf(const Args& a) {
     if (ro.design.mode != DesignMode::QDOA) reject("--adaptive-from", run, "a qdo+a run (it is " + to_string(ro.design.mode) + ")");
     const std::size_t L = std::size_t(ro.design.quantizer.levels);
     const DesignState st = load_checkpoint(RunFolder(run).checkpoint_path(),
-                                           parameter_count(ro.design.parameterization, ro.cfg.n), L);
+                                           parameter_count(ro.design.parameterization, ro.cfg.n), L, false,
+                                           ro.design.quantizer.pin_top);
     PsfSweepVariant v;
     v.quantizer = ro.design.quantizer;
     v.quantizer.offsets = st.offsets;

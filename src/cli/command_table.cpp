@@ -55,31 +55,45 @@ OptionSpec objective() {
   return opt("objective", "design objective: wiener, wiener-mse, wiener-mae, psf-target or network (default: wiener; network with a network --decoder)");
 }
 OptionSpec target() { return opt("target", "PSF target for --objective psf-target: lens:NM or a design .h5 file", "lens:550"); }
-OptionSpec height_noise() { return opt("height-noise-nm", "fabrication height noise during training, std in nm, in [0, 10000]", "0"); }
 
 // The options of the optimisation (qdo design; qdo sweep takes them too).
 std::vector<OptionSpec> training_options() {
-  return {opt("epochs", "number of epochs, an integer in [1, 1000000]", "50"),
-          opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 1000000]", "10"),
-          opt("t0", "epoch where the quantization temperature schedule starts, in [0, 1e6] (default: min(5, 0.1 x epochs))"),
+  const std::string r = "default from --recipe: ";
+  return {opt("recipe", "training recipe that gives every default marked 'recipe': release (the authors' release as it trains: "
+                        "lr x0.8 per 500 steps continuously, 50 x 418 steps, u = 0.5 start, L_aq over rings, +-20 nm height noise, "
+                        "Keras' Adam) or qdo (qdo's earlier defaults); docs/recipes.md", "release"),
+          opt("epochs", "number of epochs, an integer in [1, 1000000] (" + r + "release 50, qdo 50)"),
+          opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 1000000] (" + r + "release 418, qdo 10)"),
+          opt("t0", "epoch where the quantization temperature schedule starts, in [0, 1e6] (default: 0.1 x epochs; recipe qdo: min(5, 0.1 x epochs))"),
           opt("t1", "epoch where the quantization temperature schedule ends, in [0, 1e6] and > --t0 (default: 0.8 x epochs)"),
-          opt("lr", "learning rate of the optics parameters, in [0, 1]", "0.01"),
-          opt("lr-offsets", "learning rate of the adaptive level offsets (qdo+a), in [0, 1]", "0.01"),
-          opt("decay", "learning-rate decay factor per epoch, in (0, 1]", "0.8"),
-          opt("beta", "weight of the adaptive-quantization regulariser (qdo+a), in [0, 1000]", "0.01"),
-          height_noise(),
-          noise_sigma("sensor noise std of the decoder's training data, in units of full scale, in [0, 10]", "0.001"),
-          opt("init", "initial design: random, flat or lens:NM", "random"),
+          opt("lr", "learning rate of the optics parameters, in [0, 1] (" + r + "0.01)"),
+          opt("lr-offsets", "learning rate of the adaptive level offsets (qdo+a), in [0, 1] (" + r + "0.01)"),
+          opt("decay", "learning-rate decay factor per decay period, in (0, 1] (" + r + "0.8)"),
+          opt("decay-steps", "decay period: a number of steps >= 1, or epoch (" + r + "release 500, qdo epoch)"),
+          opt("decay-staircase", "on: decay in whole periods; off: continuously (" + r + "release off, qdo on)"),
+          opt("adam-eps", "Adam's epsilon, in (0, 1] (" + r + "release 1e-7, qdo 1e-8)"),
+          opt("adam-form", "Adam's epsilon form: keras (TF's epsilon hat) or textbook (" + r + "release keras, qdo textbook)"),
+          opt("beta", "weight of the adaptive-quantization regulariser (qdo+a), in [0, 1000] (" + r + "0.01)"),
+          opt("aq-domain", "what the adaptive-quantization regulariser averages over: parameters (a radial design's rings) or "
+                           "pixels (" + r + "release parameters, qdo pixels)"),
+          opt("pinned-level", "which level's offset is fixed in qdo+a: top (the release's unetched level) or bottom (" + r +
+                              "release top, qdo bottom)"),
+          opt("height-noise-nm", "half-width of the uniform fabrication height noise on every training step, nm, in [0, 10000] (" + r +
+                                 "release 20, qdo 0)"),
+          opt("noise-at-test", "on: the height noise also on the PSF the evaluation measures through (" + r + "release on, qdo off)"),
+          noise_sigma("sensor noise std of the decoder's training data, in units of full scale, in [0, 10] (" + r + "0.001)", ""),
+          opt("init", "initial design: random, flat, half (u = 0.5, the release's) or lens:NM (" + r + "release half, qdo random)"),
           seed(),
           synthetic_scenes("12"),
           opt("batch", "scenes per optimiser step, an integer in [1, 100000]", "4"),
-          psf_path(),
+          opt("psf-path", "PSF engine of the optimisation: auto (radial for radial designs), 2d or radial (radial designs only; its "
+                          "height noise is drawn per ring) (" + r + "release 2d, qdo auto)"),
           opt("wiener-on", "where the wiener objective runs: device (OpenCL, the run's precision) or cpu (double, the reference)",
               "device"),
           opt("decoder", "decoder trained with the optics: wiener (closed form), resunet (depth 4, root 16), resunet:paper "
                          "(depth 7, root 32) or resunet:depth=D,root=R (needs the qdo tool built with LibTorch)", "wiener"),
-          opt("lr-decoder", "learning rate of the network decoder, in (0, 1] (do-finetune: default the do run's last)", "0.001"),
-          opt("gamma", "weight decay gamma of the network's convolution weights (Eq. 14), in [0, 1000]", "0.0001")};
+          opt("lr-decoder", "learning rate of the network decoder, in (0, 1] (do-finetune: default the do run's last) (" + r + "0.001)"),
+          opt("gamma", "weight decay gamma of the network's convolution weights (Eq. 14), in [0, 1000] (" + r + "release 0, qdo 0.0001)")};
 }
 
 std::vector<OptionSpec> concat(std::vector<OptionSpec> a, const std::vector<OptionSpec>& b) {

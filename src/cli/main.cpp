@@ -273,6 +273,10 @@ int cmd_gradcheck(const Args& a) {
   Args b = a;
   b.opt["out"] = "(unused)";
   b.opt["epochs"] = "10";
+  // A generic state whatever the training recipe: qdo's (random heights away from the quantizer's
+  // thresholds, 10 steps an epoch so the checked step 6 lies inside the alpha window). The release
+  // recipe's own terms (L_aq over the rings, the pinned top level) are checked by suite recipe.
+  b.opt["recipe"] = "qdo";
   DesignRunOptions o = design_options(b);
   o.validate();  // every option checked before the device is opened
   Runtime rt(a.get("device"));

@@ -47,6 +47,21 @@ std::string to_string(PsfPath p) {
   return "?";
 }
 
+AqDomain aq_domain_from_string(const std::string& s, const std::string& argument) {
+  if (s == "pixels") return AqDomain::Pixels;
+  if (s == "parameters" || s == "rings") return AqDomain::Parameters;
+  reject(argument, s, "pixels (the N x N map) or parameters (the parameterization's values: the ring profile of a radial design, the release's)");
+}
+
+std::string to_string(AqDomain d) { return d == AqDomain::Pixels ? "pixels" : "parameters"; }
+
+double parameter_deviation_m(const std::vector<double>& params_m, double h_max_m, const Quantizer& q) {
+  if (params_m.empty()) return 0;
+  double sum = 0;
+  for (double p : params_m) sum += std::fabs(h_max_m * q.quantize(p / h_max_m) - p);
+  return sum / double(params_m.size());
+}
+
 int mask_count(int levels) {
   int k = 0;
   while ((1 << k) < levels && k < 30) ++k;
@@ -82,10 +97,12 @@ void Adam::step(std::vector<double>& params, const std::vector<double>& grad, do
   }
   ++t;
   const double c1 = 1.0 - std::pow(beta1, double(t)), c2 = 1.0 - std::pow(beta2, double(t));
+  const double lr_t = lr_now * std::sqrt(c2) / c1;  // keras_form
   for (std::size_t i = 0; i < params.size(); ++i) {
     m[i] = beta1 * m[i] + (1 - beta1) * grad[i];
     v[i] = beta2 * v[i] + (1 - beta2) * grad[i] * grad[i];
-    params[i] -= lr_now * (m[i] / c1) / (std::sqrt(v[i] / c2) + epsilon);
+    if (keras_form) params[i] -= lr_t * m[i] / (std::sqrt(v[i]) + epsilon);
+    else params[i] -= lr_now * (m[i] / c1) / (std::sqrt(v[i] / c2) + epsilon);
     params[i] = std::min(hi, std::max(lo, params[i]));
   }
 }
@@ -103,11 +120,20 @@ void DesignOptions::validate() const {
                                 {"beta_aq", beta_aq}, {"height_noise_m", height_noise_m}})
     if (!(v >= 0) || !std::isfinite(v)) reject(name, v, "finite and >= 0");
   if (!(lr_decay_per_epoch > 0 && lr_decay_per_epoch <= 1))
-    reject("lr_decay_per_epoch", lr_decay_per_epoch, "a factor per epoch in (0, 1] (1: no decay)");
+    reject("lr_decay_per_epoch", lr_decay_per_epoch, "a factor per decay period in (0, 1] (1: no decay)");
+  if (!(lr_decay_steps >= 0) || !std::isfinite(lr_decay_steps))
+    reject("lr_decay_steps", lr_decay_steps, "finite and >= 0 (steps per decay period; 0: one epoch)");
+  if (!(adam_epsilon > 0) || !std::isfinite(adam_epsilon) || adam_epsilon > 1) reject("adam_epsilon", adam_epsilon, "in (0, 1]");
   if (mode == DesignMode::QDOM) mask_count(quantizer.levels);
   if (psf_path == PsfPath::Radial && parameterization != Parameterization::Radial)
     reject("psf_path", "radial", "auto or 2d unless the parameterization is radial (the radial engine needs ring heights)");
   radial.validate();
+}
+
+double DesignOptions::lr_factor(long step) const {
+  const double period = lr_decay_steps > 0 ? lr_decay_steps : double(steps_per_epoch);
+  const double x = double(step) / period;
+  return std::pow(lr_decay_per_epoch, lr_staircase ? std::floor(x) : x);
 }
 
 Designer::Designer(HeightMapPsfSource& sim, const DesignOptions& opt) : Designer(std::vector<HeightMapPsfSource*>{&sim}, opt) {}
@@ -320,36 +346,33 @@ Designer::Gradient Designer::range_gradient(const DesignState& s, const std::vec
     ga = qv.g_offsets;
     gu = qv.g_levels;
   }
-  if (qdom && opt_.beta_aq > 0) {
-    // L_aq = mean((u_l(i) - u_i)^2) with the level values u_l = subset sums of the depths.
-    const double np = double(hf.data.size());
-    double laq = 0;
-    for (std::size_t i = 0; i < hf.data.size(); ++i) {
-      const double u = hf.data[i] / h_max_;
-      const int l = q.level_index(u);
-      const double r = q.level_value(l) - u;
-      laq += r * r / np;
-      ghf.data[i] += opt_.beta_aq * (-2.0 * r / np) / h_max_;
-      gu[static_cast<std::size_t>(l)] += opt_.beta_aq * 2.0 * r / np;
-    }
-    rep.loss_aq = laq;
-  }
-  if (opt_.mode == DesignMode::QDOA && opt_.beta_aq > 0) {
-    // L_aq = mean((F(Q(u)) - u)^2) on normalised heights u = H_f / h_max; Q(u) is held constant.
+  // L_aq = mean((F(Q(u)) - u)^2) on normalised heights u = H_f / h_max, Q(u)'s index held constant
+  // (round has no gradient), over the N x N pixels or the parameterization's values (aq_domain).
+  // Its gradient reaches u and the level values: the offsets (qdo+a, the pinned one excepted) or
+  // the subset-sum levels (qdo+m).
+  std::vector<double> gp_aq;  // dL/dparams (metres) of the parameters domain
+  if ((opt_.mode == DesignMode::QDOA || qdom) && opt_.beta_aq > 0) {
+    const bool on_params = opt_.aq_domain == AqDomain::Parameters;
+    const std::vector<double>& samples = on_params ? p : hf.data;
+    if (on_params) gp_aq.assign(p.size(), 0.0);
     const double denom = q.placement == Placement::Inclusive ? double(q.levels - 1) : double(q.levels);
-    const double np = double(hf.data.size());
+    const double np = double(samples.size());
+    const int pinned = q.pinned_level();
     double laq = 0;
-    for (std::size_t i = 0; i < hf.data.size(); ++i) {
-      const double u = hf.data[i] / h_max_;
+    for (std::size_t i = 0; i < samples.size(); ++i) {
+      const double u = samples[i] / h_max_;
       const int l = q.level_index(u);
       const double r = q.level_value(l) - u;
       laq += r * r / np;
-      ghf.data[i] += opt_.beta_aq * (-2.0 * r / np) / h_max_;
-      if (l > 0) ga[static_cast<std::size_t>(l)] += opt_.beta_aq * 2.0 * r / np * 0.5 / denom;
+      (on_params ? gp_aq[i] : ghf.data[i]) += opt_.beta_aq * (-2.0 * r / np) / h_max_;
+      if (qdom) gu[static_cast<std::size_t>(l)] += opt_.beta_aq * 2.0 * r / np;
+      else if (l != pinned) ga[static_cast<std::size_t>(l)] += opt_.beta_aq * 2.0 * r / np * 0.5 / denom;
     }
     rep.loss_aq = laq;
   }
+  if (opt_.mode != DesignMode::Full) rep.deviation_m = parameter_deviation_m(p, h_max_, q);
   std::vector<double> gw = ref::expand_parameters_vjp(opt_.parameterization, p, n, h_max_, ghf);
+  for (std::size_t i = 0; i < gp_aq.size(); ++i) gw[i] += gp_aq[i];
   for (double& v : gw) v *= h_max_ / 2.0;
   if (qdom) {  // chain dL/du_l to the mask depths: du_l/ddelta_j = bit j of l
     const std::size_t k = static_cast<std::size_t>(mask_count(q.levels));
@@ -358,7 +381,7 @@ Designer::Gradient Designer::range_gradient(const DesignState& s, const std::vec
       for (std::size_t j = 0; j < k; ++j)
         if (l & (std::size_t(1) << j)) ga[j] += gu[l];
   } else {
-    ga[0] = 0.0;  // level 0 is fixed
+    ga[static_cast<std::size_t>(q.pinned_level())] = 0.0;  // the pinned level is fixed
   }
   rep.loss += opt_.mode == DesignMode::QDOA || qdom ? opt_.beta_aq * rep.loss_aq : 0.0;
   return {rep, gw, ga};
@@ -374,17 +397,24 @@ StepReport Designer::range_step(DesignState& s, const PointObjective& objective,
 }
 
 StepReport Designer::update(DesignState& s, Gradient g) {
-  const double epoch = std::floor(double(s.step) / double(opt_.steps_per_epoch));
-  g.report.lr = opt_.lr_optics * std::pow(opt_.lr_decay_per_epoch, epoch);
+  const double factor = opt_.lr_factor(s.step);
+  g.report.lr = opt_.lr_optics * factor;
+  for (Adam* a : {&s.adam_w, &s.adam_a}) {  // the run's form (not stored in checkpoints)
+    a->epsilon = opt_.adam_epsilon;
+    a->keras_form = opt_.adam_keras_form;
+  }
   s.adam_w.step(s.w, g.g_w, g.report.lr, -1.0, 1.0);
   if (opt_.mode == DesignMode::QDOA) {
     const double lim = opt_.quantizer.levels == 2 ? 0.2 : 1.0;
-    s.adam_a.step(s.offsets, g.g_offsets, opt_.lr_offsets * std::pow(opt_.lr_decay_per_epoch, epoch), -lim, lim);
-    s.offsets[0] = 0.0;
+    s.adam_a.step(s.offsets, g.g_offsets, opt_.lr_offsets * factor, -lim, lim);
+    s.offsets[static_cast<std::size_t>(opt_.quantizer.pinned_level())] = 0.0;
+    // With the top pinned, level 0 stays at or above H = 0 (a relief below the base plate has no
+    // height in qdo; the release's deepest etch may pass h_max by up to 0.5 / (L - 1) instead).
+    if (opt_.quantizer.pin_top) s.offsets[0] = std::max(0.0, s.offsets[0]);
   }
   if (opt_.mode == DesignMode::QDOM) {
     // Depths stay >= 0 and their sum (the deepest etch) within h_max: scale down when above.
-    s.adam_a.step(s.offsets, g.g_offsets, opt_.lr_offsets * std::pow(opt_.lr_decay_per_epoch, epoch), 0.0, 1.0);
+    s.adam_a.step(s.offsets, g.g_offsets, opt_.lr_offsets * factor, 0.0, 1.0);
     double sum = 0;
     for (double v : s.offsets) sum += v;
     if (sum > 1.0)

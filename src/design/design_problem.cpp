@@ -138,6 +138,10 @@ std::vector<double> initial_params(const DesignRunOptions& o) {
   const std::size_t count = parameter_count(kind, c.n);
   std::vector<double> p(count, 0.0);
   if (o.init.kind == InitSpec::Kind::Flat) return p;
+  if (o.init.kind == InitSpec::Kind::Half) {  // w = -1e-4: H = h_max (w + 1) / 2
+    for (double& v : p) v = c.h_max_m() * (1.0 - 1e-4) / 2.0;
+    return p;
+  }
   if (o.init.kind == InitSpec::Kind::Random) {
     std::mt19937_64 rng(o.design.seed + 17);
     std::uniform_real_distribution<double> u(0.0, c.h_max_m());

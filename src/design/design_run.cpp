@@ -294,7 +294,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     std::string text = "step,loss,loss_aq,alpha,lr,step_s,level_heights_nm";
     if (network) text += ",mae,train_psnr_db,val_psnr_db,lr_decoder";
     if (range) text += ",points,point_losses";  // the object points the step trained on, the objective at each
-    text += "\n";
+    text += ",deviation_nm\n";  // mean |H_q - H_f| over the parameterization's values (the release's ring profile)
     for (const auto& r : rows) text += r + "\n";
     write_text_atomic(log_path.string(), text);
   };
@@ -346,6 +346,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       row << "," << join_points(rep.points) << ",";
       for (std::size_t i = 0; i < rep.point_loss.size(); ++i) row << (i ? ";" : "") << rep.point_loss[i];
     }
+    row << "," << rep.deviation_m * 1e9;
     rows.push_back(row.str());
     const bool tty = ::isatty(2) != 0;
     const long every = std::max<long>(1, (stop - first) / 20);

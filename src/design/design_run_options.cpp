@@ -76,6 +76,7 @@ std::string lens_text(double nm, const std::string& text) {
 
 std::string InitSpec::to_string() const {
   if (kind == Kind::Flat) return "flat";
+  if (kind == Kind::Half) return "half";
   if (kind == Kind::Lens) return lens_text(wavelength_nm, wavelength_text);
   return "random";
 }
@@ -87,7 +88,11 @@ InitSpec init_spec_from_string(const std::string& s, const std::string& argument
     i.kind = InitSpec::Kind::Flat;
     return i;
   }
-  if (s.rfind("lens:", 0) != 0) reject(argument, s, "random, flat or lens:NM");
+  if (s == "half") {
+    i.kind = InitSpec::Kind::Half;
+    return i;
+  }
+  if (s.rfind("lens:", 0) != 0) reject(argument, s, "random, flat, half or lens:NM");
   i.kind = InitSpec::Kind::Lens;
   i.wavelength_nm = lens_nm(argument, s);
   i.wavelength_text = s.substr(5);
@@ -223,6 +228,22 @@ RunField text_field(const char* key, Acc acc) {
   return {key, [=](DesignRunOptions& o, const json& d) { acc(o) = d.at(key).get<std::string>(); },
           [=](const DesignRunOptions& o, json& d) { d[key] = acc(o); }};
 }
+// Fields that run folders of earlier versions lack: read as `def` when absent.
+template <typename Acc>
+RunField real_field_or(const char* key, Acc acc, double def) {
+  return {key, [=](DesignRunOptions& o, const json& d) { acc(o) = d.contains(key) ? d.at(key).get<double>() : def; },
+          [=](const DesignRunOptions& o, json& d) { d[key] = acc(o); }};
+}
+template <typename Acc>
+RunField bool_field_or(const char* key, Acc acc, bool def) {
+  return {key, [=](DesignRunOptions& o, const json& d) { acc(o) = d.contains(key) ? d.at(key).get<bool>() : def; },
+          [=](const DesignRunOptions& o, json& d) { d[key] = acc(o); }};
+}
+template <typename Acc>
+RunField text_field_or(const char* key, Acc acc, const char* def) {
+  return {key, [=](DesignRunOptions& o, const json& d) { acc(o) = d.contains(key) ? d.at(key).get<std::string>() : std::string(def); },
+          [=](const DesignRunOptions& o, json& d) { d[key] = acc(o); }};
+}
 // An enum written by its name (to_name) and read back through its parser (from_name).
 template <typename Acc, typename From, typename To>
 RunField named_field(const char* key, Acc acc, From from_name, To to_name) {
@@ -294,6 +315,19 @@ const std::vector<RunField>& run_fields() {
        [](const DesignRunOptions& o, json& d) { d["gamma_decoder"] = o.gamma_decoder; }},
       {"finetune_from", [](DesignRunOptions& o, const json& d) { o.finetune_from = d.value("finetune_from", std::string()); },
        [](const DesignRunOptions& o, json& d) { d["finetune_from"] = o.finetune_from; }},
+      // The training recipe and its items beyond the fields above (recipe.hpp). Run folders written
+      // before recipes existed trained with qdo's: per-epoch staircase decay, Adam's textbook form
+      // with eps 1e-8, L_aq over the pixels, level 0 pinned, no height noise at evaluation.
+      text_field_or("recipe", [](auto& o) -> auto& { return o.recipe; }, "qdo"),
+      real_field_or("lr_decay_steps", [](auto& o) -> auto& { return o.design.lr_decay_steps; }, 0.0),
+      bool_field_or("lr_staircase", [](auto& o) -> auto& { return o.design.lr_staircase; }, true),
+      real_field_or("adam_epsilon", [](auto& o) -> auto& { return o.design.adam_epsilon; }, 1e-8),
+      bool_field_or("adam_keras_form", [](auto& o) -> auto& { return o.design.adam_keras_form; }, false),
+      {"aq_domain",
+       [](DesignRunOptions& o, const json& d) { o.design.aq_domain = aq_domain_from_string(d.value("aq_domain", std::string("pixels"))); },
+       [](const DesignRunOptions& o, json& d) { d["aq_domain"] = to_string(o.design.aq_domain); }},
+      bool_field_or("pin_top", [](auto& o) -> auto& { return o.design.quantizer.pin_top; }, false),
+      bool_field_or("height_noise_at_test", [](auto& o) -> auto& { return o.height_noise_at_test; }, false),
       // Written only when set: the config.json of every other run reads as before.
       {"finetune_psf", [](DesignRunOptions& o, const json& d) { o.finetune_psf = d.value("finetune_psf", std::string()); },
        [](const DesignRunOptions& o, json& d) {

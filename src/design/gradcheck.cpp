@@ -95,7 +95,9 @@ std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& given, 
   Designer d(sim, o.design);
   DesignState st = d.initial_state(initial_params(o));
   st.step = 6;  // mid-schedule
-  for (std::size_t l = 1; l < st.offsets.size(); ++l) st.offsets[l] = 0.1 * double(l % 3) - 0.1;
+  const std::size_t pinned = std::size_t(o.design.quantizer.pinned_level());
+  for (std::size_t l = 0; l < st.offsets.size(); ++l)  // the pinned level's stays 0; level 0 above H = 0 when the top is pinned
+    st.offsets[l] = l == pinned ? 0.0 : l == 0 ? 0.1 : 0.1 * double(l % 3) - 0.1;
   if (o.design.mode == DesignMode::QDOM)  // mask depths: uniform, moved by +-10 % so levels are not uniform
     for (std::size_t j = 0; j < st.offsets.size(); ++j)
       st.offsets[j] = uniform_mask_depths(o.design.quantizer)[j] * (j % 2 ? 0.9 : 1.1);
@@ -125,10 +127,11 @@ std::vector<GradcheckRow> gradcheck(Runtime& rt, const DesignRunOptions& given, 
     rows.push_back({"weights w (" + to_string(o.design.mode) + ", " + obj_name + ", end to end, 5 samples)", worst, tol_e2e});
   }
   if (o.design.mode == DesignMode::QDOA || o.design.mode == DesignMode::QDOM) {
-    // qdo+a: the level offsets a_1.. (a_0 is fixed at 0); qdo+m: every mask depth.
+    // qdo+a: the level offsets but the pinned level's; qdo+m: every mask depth.
     const bool masks = o.design.mode == DesignMode::QDOM;
     worst = 0;
-    for (std::size_t l = masks ? 0 : 1; l < st.offsets.size(); ++l) {
+    for (std::size_t l = 0; l < st.offsets.size(); ++l) {
+      if (!masks && l == pinned) continue;
       DesignState a = st, b = st;
       a.offsets[l] += h_fd;
       b.offsets[l] -= h_fd;

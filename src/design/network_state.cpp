@@ -128,7 +128,7 @@ NetworkSettings network_settings(const DesignRunOptions& o) {
 }
 
 double network_lr(const DesignRunOptions& o, long step) {
-  return o.lr_decoder * std::pow(o.design.lr_decay_per_epoch, std::floor(double(step) / double(o.design.steps_per_epoch)));
+  return o.lr_decoder * o.design.lr_factor(step);
 }
 
 std::unique_ptr<NetworkDecoder> load_run_network(const std::string& run) {

@@ -30,7 +30,7 @@ bool drop_network_state(const std::filesystem::path& dir, const NetworkStateRef&
 std::string read_network_state(const std::filesystem::path& dir, const DesignState& s, const std::string& ckpt);
 // The network of the run's options: its spec, 3 input channels, cfg.bands outputs, seed, gamma.
 NetworkSettings network_settings(const DesignRunOptions& o);
-// The network's learning rate at `step`: lr_decoder decayed per epoch by lr_decay_per_epoch.
+// The network's learning rate at `step`: lr_decoder times the optics' decay factor (DesignOptions::lr_factor).
 double network_lr(const DesignRunOptions& o, long step);
 
 }  // namespace qdo

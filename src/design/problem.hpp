@@ -46,9 +46,6 @@ PsfObjective make_objective(const DesignRunOptions& o, const Problem& pb, long s
 // target; the Wiener objectives are the same at every point (the step's batch shared).
 PointObjective make_point_objective(const DesignRunOptions& o, const Problem& pb, long step, wiener::DeviceObjective* dev = nullptr);
 
-// The initial parameters of the run's parameterization (parameter_count of them, metres): random
-// heights in [0, h_max] drawn with seed + 17, zeros (flat), or the lens's heights sampled as the
-// parameterization reads them (lens:NM).
-std::vector<double> initial_params(const DesignRunOptions& o);
+// initial_params (the run's initial design): qdo/design_run_options.hpp.
 
 }  // namespace qdo

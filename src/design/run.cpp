@@ -150,7 +150,8 @@ std::string checkpoint_prev_path(const std::string& path) {
   return (p.parent_path() / (p.stem().string() + ".prev" + p.extension().string())).string();
 }
 
-DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std::size_t expected_levels, bool mask_depths) {
+DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std::size_t expected_levels, bool mask_depths,
+                            bool pin_top) {
   // Every dataset is read first, then the checksum (on /counters, written since format 2) is
   // checked before any value is trusted: a flipped byte in a dataset would otherwise resume a
   // different optimisation silently. Checkpoints without the attribute (older qdo) are read as before.
@@ -214,10 +215,12 @@ DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std
     if (sum > 1 + 1e-12)
       throw InputError("file '" + path + "': dataset '/offsets' holds mask depths summing to " + to_str(sum) + " > 1 (h_max)");
   }
+  const std::size_t pinned = pin_top && !s.offsets.empty() ? s.offsets.size() - 1 : 0;
   for (std::size_t l = 0; l < s.offsets.size() && !mask_depths; ++l)
-    if ((l == 0 && s.offsets[l] != 0) || std::fabs(s.offsets[l]) > lim)
+    if ((l == pinned && s.offsets[l] != 0) || std::fabs(s.offsets[l]) > lim)
       throw InputError("file '" + path + "': dataset '/offsets' holds " + to_str(s.offsets[l]) + " at level " + to_str(l) +
-                       (l == 0 ? " (level 0 is fixed at 0)" : " outside [-" + to_str(lim) + ", " + to_str(lim) + "]"));
+                       (l == pinned ? " (level " + to_str(l) + " is the pinned one, fixed at 0)"
+                                    : " outside [-" + to_str(lim) + ", " + to_str(lim) + "]"));
   s.network_file = network_file;
   s.network_checksum = network_checksum;
   s.step = long(c[0]);

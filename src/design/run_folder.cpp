@@ -144,7 +144,8 @@ ResumeState load_resume_state(const std::string& dir) {
   const std::size_t levels =
       o.mode == DesignMode::QDOM ? std::size_t(mask_count(o.quantizer.levels)) : std::size_t(o.quantizer.levels);
   auto load = [&](const fs::path& p) {
-    return load_checkpoint(p.string(), parameter_count(o.parameterization, r.options.cfg.n), levels, o.mode == DesignMode::QDOM);
+    return load_checkpoint(p.string(), parameter_count(o.parameterization, r.options.cfg.n), levels, o.mode == DesignMode::QDOM,
+                           o.quantizer.pin_top);
   };
   r.checkpoint = ckpt_path.string();
   try {

@@ -120,6 +120,7 @@ void write_cell_metrics(const fs::path& dir, const GridCell& c) {
   j["mode"] = c.mode;
   j["levels"] = c.levels;
   j["deviation_nm"] = c.deviation_nm;
+  if (std::isfinite(c.deviation_rings_nm)) j["deviation_rings_nm"] = c.deviation_rings_nm;
   j["inputs"] = c.inputs;
   j["mean"] = {{"psnr_db", c.mean.psnr}, {"psnr_h_db", c.mean.psnr_hyper}, {"ssim", c.mean.ssim},
                {"rmse", c.mean.rmse},    {"ergas", c.mean.ergas},          {"sam_rad", c.mean.sam_rad}};
@@ -203,7 +204,8 @@ namespace qdo {
 
 using namespace sweep_detail;
 
-bool read_cell_metrics(const std::string& path, EvalRow& mean, double& deviation_nm, std::vector<EvalRow>* scenes) {
+bool read_cell_metrics(const std::string& path, EvalRow& mean, double& deviation_nm, std::vector<EvalRow>* scenes,
+                       double* deviation_rings_nm) {
   try {  // a torn, foreign or mistyped file is evaluated again, never half-read
     std::error_code ec;
     if (!fs::is_regular_file(path, ec) || fs::file_size(path, ec) > (std::uintmax_t{1} << 20)) return false;
@@ -234,6 +236,10 @@ bool read_cell_metrics(const std::string& path, EvalRow& mean, double& deviation
     }
     mean = r;
     deviation_nm = dev;
+    if (deviation_rings_nm) {
+      const auto it = j.find("deviation_rings_nm");
+      *deviation_rings_nm = it != j.end() && it->is_number() && std::isfinite(it->get<double>()) ? it->get<double>() : NAN;
+    }
     if (scenes) *scenes = std::move(rows);
     return true;
   } catch (const nlohmann::json::exception&) {

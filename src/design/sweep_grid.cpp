@@ -280,7 +280,8 @@ bool Grid::read_cell(std::size_t k, GridCell& c) const {
   std::string held = fs::exists(stamp) ? read_text(stamp) : std::string();
   while (!held.empty() && (held.back() == '\n' || held.back() == ' ')) held.pop_back();
   bool ok = held == c.inputs && fs::exists(f) &&
-            read_cell_metrics(f.string(), c.mean, c.deviation_nm, job.kind == CellKind::Eval ? &c.scenes : nullptr);
+            read_cell_metrics(f.string(), c.mean, c.deviation_nm, job.kind == CellKind::Eval ? &c.scenes : nullptr,
+                              &c.deviation_rings_nm);
   if (!ok) {
     std::error_code ec;
     if (fs::exists(stamp, ec)) fs::remove(stamp, ec);

@@ -2,6 +2,7 @@
 // table2 (quantization deviation), comparisons (the paper's comparisons as paired differences
 // with 95 % intervals, sweep_stats.hpp) and the figures. With a seed axis, table1 and table2 give
 // mean ± sd over seeds, and table1_seeds.csv every seed's row.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -52,16 +53,17 @@ void write_grid_tables(const fs::path& out, const std::vector<GridCell>& cells, 
   std::ostringstream t1, t2;
   if (!seed_axis) {
     t1 << "| levels | mode | PSNR [dB] | SSIM | RMSE | ERGAS |\n|---|---|---|---|---|---|\n";
-    t2 << "| levels | mode | deviation [nm] |\n|---|---|---|\n";
+    t2 << "| levels | mode | deviation [nm] | ring deviation [nm] |\n|---|---|---|---|\n";
   } else {
     t1 << "| levels | mode | seeds | PSNR [dB] | SSIM | RMSE | ERGAS |\n|---|---|---|---|---|---|---|\n";
-    t2 << "| levels | mode | seeds | deviation [nm] |\n|---|---|---|---|\n";
+    t2 << "| levels | mode | seeds | deviation [nm] | ring deviation [nm] |\n|---|---|---|---|---|\n";
   }
   CsvText t1csv(seed_axis ? std::vector<std::string>{"levels", "mode", "seeds", "psnr_db", "psnr_db_sd", "ssim", "ssim_sd", "rmse", "rmse_sd",
                                                      "ergas", "ergas_sd", "psnr_h_db", "sam_rad", "inputs"}
                           : std::vector<std::string>{"levels", "mode", "psnr_db", "ssim", "rmse", "ergas", "psnr_h_db", "sam_rad", "inputs"});
-  CsvText t2csv(seed_axis ? std::vector<std::string>{"levels", "mode", "seeds", "deviation_nm", "deviation_nm_sd", "inputs"}
-                          : std::vector<std::string>{"levels", "mode", "deviation_nm", "inputs"});
+  CsvText t2csv(seed_axis ? std::vector<std::string>{"levels", "mode", "seeds", "deviation_nm", "deviation_nm_sd", "deviation_rings_nm",
+                                                     "deviation_rings_nm_sd", "inputs"}
+                          : std::vector<std::string>{"levels", "mode", "deviation_nm", "deviation_rings_nm", "inputs"});
   CsvText seeds_csv({"seed", "levels", "mode", "psnr_db", "ssim", "rmse", "ergas", "psnr_h_db", "sam_rad", "deviation_nm", "inputs"});
   for (const auto& key : rows) {
     const auto& cs = by_row[key];
@@ -74,12 +76,13 @@ void write_grid_tables(const fs::path& out, const std::vector<GridCell>& cells, 
       t1csv.row({lv, c.mode, csv_number(c.mean.psnr), csv_number(c.mean.ssim), csv_number(c.mean.rmse), csv_number(c.mean.ergas),
                  csv_number(c.mean.psnr_hyper), csv_number(c.mean.sam_rad), c.inputs});
       if (deviation) {
-        t2 << "| " << c.levels << " | " << c.mode << " | " << fmt("%.3f", c.deviation_nm) << " |\n";
-        t2csv.row({std::to_string(c.levels), c.mode, csv_number(c.deviation_nm), c.inputs});
+        t2 << "| " << c.levels << " | " << c.mode << " | " << fmt("%.3f", c.deviation_nm) << " | "
+           << (std::isfinite(c.deviation_rings_nm) ? fmt("%.3f", c.deviation_rings_nm) : std::string("–")) << " |\n";
+        t2csv.row({std::to_string(c.levels), c.mode, csv_number(c.deviation_nm), csv_number(c.deviation_rings_nm), c.inputs});
       }
       continue;
     }
-    std::vector<double> psnr, ssim, rmse, ergas, psnr_h, sam, dev;
+    std::vector<double> psnr, ssim, rmse, ergas, psnr_h, sam, dev, dev_rings;
     Fnv1a64 h;  // the row's inputs: its cells' inputs, in seed order
     for (const GridCell* c : cs) {
       psnr.push_back(c->mean.psnr);
@@ -89,6 +92,7 @@ void write_grid_tables(const fs::path& out, const std::vector<GridCell>& cells, 
       psnr_h.push_back(c->mean.psnr_hyper);
       sam.push_back(c->mean.sam_rad);
       dev.push_back(c->deviation_nm);
+      dev_rings.push_back(c->deviation_rings_nm);
       h.add(c->inputs);
       seeds_csv.row({std::to_string(c->seed), lv, c->mode, csv_number(c->mean.psnr), csv_number(c->mean.ssim), csv_number(c->mean.rmse),
                      csv_number(c->mean.ergas), csv_number(c->mean.psnr_hyper), csv_number(c->mean.sam_rad), csv_number(c->deviation_nm),
@@ -104,8 +108,14 @@ void write_grid_tables(const fs::path& out, const std::vector<GridCell>& cells, 
                csv_number(R.sd), csv_number(E.mean), csv_number(E.sd), csv_number(mean_interval(psnr_h).mean),
                csv_number(mean_interval(sam).mean), h.hex()});
     if (deviation) {
-      t2 << "| " << key.first << " | " << key.second << " | " << n << " | " << pm(D, "%.3f") << " |\n";
-      t2csv.row({std::to_string(key.first), key.second, n, csv_number(D.mean), csv_number(D.sd), h.hex()});
+      const bool rings = std::all_of(dev_rings.begin(), dev_rings.end(), [](double v) { return std::isfinite(v); });
+      MeanInterval DR;
+      DR.mean = DR.sd = NAN;
+      if (rings) DR = mean_interval(dev_rings);
+      t2 << "| " << key.first << " | " << key.second << " | " << n << " | " << pm(D, "%.3f") << " | "
+         << (rings ? pm(DR, "%.3f") : std::string("–")) << " |\n";
+      t2csv.row({std::to_string(key.first), key.second, n, csv_number(D.mean), csv_number(D.sd), csv_number(DR.mean), csv_number(DR.sd),
+                 h.hex()});
     }
   }
   if (seed_axis) t1 << "\nmean ± sample standard deviation over seeds (each seed's value: its cell's mean over the test scenes)\n";

@@ -50,7 +50,7 @@ QuantizeVjp quantize_vjp(const Map2D& h_full_m, double h_max_m, const Quantizer&
     r.g_full.data[i] = through * g_out.data[i];
     const int l = q.level_index(h_full_m.data[i] / h_max_m);
     r.g_levels[static_cast<std::size_t>(l)] += alpha * h_max_m * g_out.data[i];
-    if (l > 0) r.g_offsets[static_cast<std::size_t>(l)] += alpha * h_max_m * 0.5 / denom * g_out.data[i];
+    if (l != q.pinned_level()) r.g_offsets[static_cast<std::size_t>(l)] += alpha * h_max_m * 0.5 / denom * g_out.data[i];
   }
   return r;
 }

@@ -77,7 +77,9 @@ void Quantizer::validate() const {
     if (offsets.size() != static_cast<std::size_t>(levels))
       reject("offsets.size()", offsets.size(), "one offset per level (" + to_str(levels) + ")");
     const double lim = levels == 2 ? 0.2 : 1.0;
-    if (offsets[0] != 0.0) reject("offsets[0]", offsets[0], "0 (level 0 is fixed)");
+    const std::size_t pin = static_cast<std::size_t>(pinned_level());
+    if (offsets[pin] != 0.0)
+      reject("offsets[" + to_str(pin) + "]", offsets[pin], "0 (level " + to_str(pin) + " is the pinned one)");
     for (std::size_t l = 0; l < offsets.size(); ++l)
       if (!(std::fabs(offsets[l]) <= lim))
         reject("offsets[" + to_str(l) + "]", offsets[l], "within [-" + to_str(lim) + ", " + to_str(lim) + "]");

@@ -1,0 +1,140 @@
+#!/usr/bin/env python3
+"""Tables of scripts/experiments_recipe.sh (EXPERIMENTS.md "The release's recipe").
+
+Reads the sweeps' cell metrics (cells/<mode>_L<levels>_s<seed>/metrics.json, as qdo eval writes
+them) and prints Markdown:
+  - the sums of learning rates of the release and of the run's schedule;
+  - the paper's comparisons on the grid, paired by seed and test scene: QDO+A - DO, QDO - DO,
+    QDO+A - QDO, QDO+A - DO-refit per level count (mean PSNR difference and its 95 % t interval
+    over seeds, each seed's difference averaged over the test scenes);
+  - the ablation: each item switched back to qdo's, against the release recipe, for QDO and QDO+A
+    at 4 levels (PSNR and ring deviation, paired the same way; the baseline: the grid's 4-level cells).
+Usage: python3 scripts/recipe_tables.py OUT [EPOCHS STEPS_PER_EPOCH]   (default out/recipe 50 36)
+"""
+import glob
+import json
+import math
+import os
+import sys
+
+T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262, 10: 2.228}
+
+
+def lr_sum(t_from, t_to, lr=0.01, rate=0.8, period=500.0):
+    """Sum of lr * rate^(t / period) over steps t_from .. t_to - 1 (continuous decay)."""
+    return sum(lr * rate ** (t / period) for t in range(int(t_from), int(t_to)))
+
+
+def cells(folder):
+    out = {}
+    for path in glob.glob(os.path.join(folder, "cells", "*", "metrics.json")):
+        name = os.path.basename(os.path.dirname(path))
+        with open(path) as f:
+            j = json.load(f)
+        out[name] = j
+    return out
+
+
+def scene_psnr(cell):
+    return {s["scene"]: s["psnr_db"] for s in cell.get("per_scene", [])}
+
+
+def interval(values):
+    n = len(values)
+    m = sum(values) / n
+    if n < 2:
+        return m, float("nan")
+    sd = math.sqrt(sum((v - m) ** 2 for v in values) / (n - 1))
+    return m, T975.get(n - 1, 1.96) * sd / math.sqrt(n)
+
+
+def paired(a_cells, a_name, b_cells, b_name, seeds):
+    """Per seed: mean over test scenes of PSNR(a) - PSNR(b); then mean and 95 % half-width."""
+    diffs = []
+    for s in seeds:
+        a, b = a_cells.get(a_name.format(s=s)), b_cells.get(b_name.format(s=s))
+        if a is None or b is None:
+            continue
+        pa, pb = scene_psnr(a), scene_psnr(b)
+        common = sorted(set(pa) & set(pb))
+        if not common:
+            continue
+        diffs.append(sum(pa[k] - pb[k] for k in common) / len(common))
+    if not diffs:
+        return None
+    m, hw = interval(diffs)
+    return m, hw, len(diffs)
+
+
+def fmt(r):
+    if r is None:
+        return "–"
+    m, hw, n = r
+    return f"{m:+.2f} [{m - hw:+.2f}, {m + hw:+.2f}]" if n > 1 else f"{m:+.2f} (1 seed)"
+
+
+def seeds_of(cs):
+    return sorted({int(n.rsplit("_s", 1)[1]) for n in cs if "_s" in n})
+
+
+def main():
+    out = sys.argv[1] if len(sys.argv) > 1 else "out/recipe"
+    epochs = int(sys.argv[2]) if len(sys.argv) > 2 else 50
+    spe = int(sys.argv[3]) if len(sys.argv) > 3 else 36
+    total, t0, t1 = epochs * spe, 0.1 * epochs * spe, 0.8 * epochs * spe
+    print("### Sums of learning rates (optics, 0.01 x 0.8^(t/500))\n")
+    print("| schedule | steps | alpha window (steps) | sum while alpha blends | sum in all |")
+    print("|---|---|---|---|---|")
+    print(f"| release (50 x 418) | 20900 | 2090-16720 | {lr_sum(2090, 16720):.2f} | {lr_sum(0, 20900):.2f} |")
+    print(f"| here ({epochs} x {spe}) | {total} | {t0:.0f}-{t1:.0f} | {lr_sum(t0, t1):.2f} | {lr_sum(0, total):.2f} |")
+    qsum = sum(0.01 * 0.8 ** (t // 8) for t in range(160))
+    print(f"| qdo's earlier tables (20 x 8, x0.8 per epoch) | 160 | 16-128 | "
+          f"{sum(0.01 * 0.8 ** (t // 8) for t in range(16, 128)):.2f} | {qsum:.2f} |\n")
+
+    grid = cells(os.path.join(out, "grid"))
+    if grid:
+        seeds = seeds_of(grid)
+        levels = sorted({int(n.split("_L")[1].split("_")[0]) for n in grid if "_L" in n})
+        print(f"### Paired PSNR differences on the grid (dB, mean [95 % interval] over {len(seeds)} seeds)\n")
+        print("| levels | QDO+A - DO | QDO - DO | QDO+A - QDO | QDO+A - DO-refit |")
+        print("|---|---|---|---|---|")
+        for L in levels:
+            row = [paired(grid, f"qdo+a_L{L}_s{{s}}", grid, f"do_L{L}_s{{s}}", seeds),
+                   paired(grid, f"qdo_L{L}_s{{s}}", grid, f"do_L{L}_s{{s}}", seeds),
+                   paired(grid, f"qdo+a_L{L}_s{{s}}", grid, f"qdo_L{L}_s{{s}}", seeds),
+                   paired(grid, f"qdo+a_L{L}_s{{s}}", grid, f"do-refit_L{L}_s{{s}}", seeds)]
+            print(f"| {L} | " + " | ".join(fmt(r) for r in row) + " |")
+        print()
+
+    ablations = [os.path.join(out, "grid")] + sorted(glob.glob(os.path.join(out, "ablation_*")))
+    base = grid  # the release recipe's 4-level cells
+    if base and ablations:
+        seeds = seeds_of(base)
+        print(f"### Ablation at 4 levels: one item set back to qdo's (PSNR difference to the release recipe, dB, "
+              f"mean [95 % interval] over {len(seeds)} seeds; ring deviation, nm, mean over seeds)\n")
+        print("| item switched back | QDO: PSNR diff | QDO+A: PSNR diff | QDO+A - QDO | QDO ring dev. | QDO+A ring dev. |")
+        print("|---|---|---|---|---|---|")
+        for folder in ablations:
+            if not os.path.isdir(folder):
+                continue
+            name = "release" if folder == ablations[0] else os.path.basename(folder)[len("ablation_"):]
+            cs = cells(folder)
+            if not cs:
+                continue
+
+            def dev(mode):
+                v = [cs[f"{mode}_L4_s{s}"].get("deviation_rings_nm") for s in seeds if f"{mode}_L4_s{s}" in cs]
+                v = [x for x in v if x is not None]
+                return f"{sum(v) / len(v):.1f}" if v else "–"
+
+            same = name == "release"
+            r_q = None if same else paired(cs, "qdo_L4_s{s}", base, "qdo_L4_s{s}", seeds)
+            r_a = None if same else paired(cs, "qdo+a_L4_s{s}", base, "qdo+a_L4_s{s}", seeds)
+            r_aq = paired(cs, "qdo+a_L4_s{s}", cs, "qdo_L4_s{s}", seeds)
+            label = "(none: the release recipe)" if same else name
+            print(f"| {label} | {fmt(r_q)} | {fmt(r_a)} | {fmt(r_aq)} | {dev('qdo')} | {dev('qdo+a')} |")
+        print()
+
+
+if __name__ == "__main__":
+    main()
