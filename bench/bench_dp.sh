@@ -23,7 +23,7 @@ for c in "${ranks_list[@]}"; do
   n=${c%%:*}; i=$(( ${i:-0} + 1 ))
   threads=$(( cores / n > 0 ? cores / n : 1 )); [[ "$c" == *:* ]] && threads=${c##*:}
   launcher=(); [ "$n" -gt 1 ] && launcher=(mpirun --oversubscribe -np "$n")
-  QDO_TORCH_THREADS=$threads "${launcher[@]}" "$qdo" design --preset "$preset" --decoder "$decoder" --batch "$batch" \
+  QDO_TORCH_THREADS=$threads "${launcher[@]}" "$qdo" design --recipe qdo --preset "$preset" --decoder "$decoder" --batch "$batch" \
     --epochs 1 --steps-per-epoch "$steps" --checkpoint-every "$steps" --seed 1 --out "$work/r$i" > "$work/log$i" 2>&1 \
     || { cat "$work/log$i"; exit 1; }
   [ -n "${VERBOSE:-}" ] && cut -d, -f1,6 "$work/r$i/log.csv" | tr "\n" " " >&2 && echo >&2

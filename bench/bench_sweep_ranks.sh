@@ -26,7 +26,7 @@ c.update({"n": n, "padding_px": n // 4, "bands": b, "wavelength_start_nm": 450, 
           "sensor_distance_m": 0.0125 * n / 256, "srf_interpolate": True})
 json.dump(c, open(sys.argv[2], "w"), indent=1)
 PY
-args=(--config "$dir/cfg.json" --grid levels=2,4 --grid mode=do,qdo,qdo+a --grid seed=1,2 --epochs "$epochs"
+args=(--recipe qdo --config "$dir/cfg.json" --grid levels=2,4 --grid mode=do,qdo,qdo+a --grid seed=1,2 --epochs "$epochs"
       --steps-per-epoch 5 --t0 1 --t1 "$(( epochs * 3 / 4 > 2 ? epochs * 3 / 4 : 2 ))" --synthetic-scenes 4 --eval-scenes 2)
 "$qdo" sweep "${args[@]}" --out "$dir/warm" > "$dir/warm.log" 2>&1 || { tail -5 "$dir/warm.log"; exit 1; }  # kernel cache, FFTW wisdom
 time_one() {  # time_one OUT LAUNCH...: seconds of one whole sweep command

@@ -26,7 +26,7 @@ for c in ${CASES:-small-resunet paper-resunet paper-wiener}; do
   run="$OUT/run_$c"
   rm -rf "$run"
   t0=$(date +%s.%N)
-  "$QDO" design --preset "$preset" --decoder "$dec" --mode qdo+a --levels 4 --epochs 1 --steps-per-epoch "$STEPS" \
+  "$QDO" design --recipe qdo --preset "$preset" --decoder "$dec" --mode qdo+a --levels 4 --epochs 1 --steps-per-epoch "$STEPS" \
     --seed 0 --out "$run" > "$OUT/$c.log" 2>&1 || { tail -20 "$OUT/$c.log"; exit 1; }
   t1=$(date +%s.%N)
   python3 - "$run/log.csv" "$c" "$preset" "$dec" "$WARM" "$(python3 -c "print($t1 - $t0)")" "$OUT/step_times.csv" <<'PY'

@@ -36,8 +36,8 @@ mkdir -p "$OUT"
 start=$(date +%s)
 RUN="$OUT/design_qdoa_L$LEVELS"
 if [ ! -f "$RUN/design.h5" ]; then
-  echo "[mosaic] $QDO design --preset small --mode qdo+a --levels $LEVELS --epochs $EPOCHS --steps-per-epoch $STEPS_PER_EPOCH --seed 0"
-  "$QDO" design --preset small --mode qdo+a --levels "$LEVELS" --epochs "$EPOCHS" --steps-per-epoch "$STEPS_PER_EPOCH" --seed 0 \
+  echo "[mosaic] $QDO design --recipe qdo --preset small --mode qdo+a --levels $LEVELS --epochs $EPOCHS --steps-per-epoch $STEPS_PER_EPOCH --seed 0"
+  "$QDO" design --recipe qdo --preset small --mode qdo+a --levels "$LEVELS" --epochs "$EPOCHS" --steps-per-epoch "$STEPS_PER_EPOCH" --seed 0 \
     --out "$RUN" > "$OUT/design.log"
 fi
 if [ "${TABLE_ONLY:-0}" != 1 ]; then

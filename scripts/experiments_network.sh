@@ -31,7 +31,7 @@ design() {  # design NAME ARGS...: skip a finished run, resume an interrupted on
   if [ -f "$OUT/$name/design.h5" ]; then echo "[$name] finished, skipped"; return; fi
   if [ -f "$OUT/$name/checkpoint.h5" ]; then "$QDO" design --resume --out "$OUT/$name"; return; fi
   echo "[$name] $QDO design $*"
-  "$QDO" design "$@" --out "$OUT/$name"
+  "$QDO" design --recipe qdo "$@" --out "$OUT/$name"  # the recipe its EXPERIMENTS tables ran with
 }
 evaluate() {  # evaluate CELL RUN ARGS...
   local cell=$1 run=$2; shift 2

@@ -22,7 +22,7 @@ DECAY=${DECAY:-$(python3 -c "print(round(0.8 ** ($SPE / 500), 6))")}
 TRAIN=../shared/data/hsi/cave_train,../shared/data/hsi/cave_png
 TEST=../shared/data/hsi/cave
 start=$(date +%s)
-${LAUNCH:-} "$QDO" sweep --preset small --grid decoder=resunet --data "$TRAIN" --test-data "$TEST" \
+${LAUNCH:-} "$QDO" sweep --recipe qdo --preset small --grid decoder=resunet --data "$TRAIN" --test-data "$TEST" \
   --grid levels="$LEVELS" --grid mode=do,do-finetune,qdo,qdo+a --grid seed="$SEEDS" \
   --epochs "$EPOCHS" --steps-per-epoch "$SPE" --decay "$DECAY" --finetune-steps "$FT" --out "$OUT" --into-existing
 echo "experiments_network_seeds: $(( $(date +%s) - start )) s for this invocation; tables in $OUT/table1.md and $OUT/comparisons.md"

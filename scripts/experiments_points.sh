@@ -66,7 +66,7 @@ PY
 design() {  # NAME CONFIG
   if [ -f "$OUT/$1/design.h5" ]; then echo "($OUT/$1 exists: kept)"; return 0; fi
   local t0=$SECONDS
-  "$QDO" design --config "$2" --mode qdo+a --levels 4 --epochs "$EPOCHS" --steps-per-epoch "$STEPS" --seed "$SEED" \
+  "$QDO" design --recipe qdo --config "$2" --mode qdo+a --levels 4 --epochs "$EPOCHS" --steps-per-epoch "$STEPS" --seed "$SEED" \
     "${DATA_ARGS[@]}" --out "$OUT/$1"
   echo "design $1: $((SECONDS - t0)) s wall" | tee "$OUT/$1.time"
 }

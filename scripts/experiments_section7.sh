@@ -51,7 +51,7 @@ print(json.dumps(c, indent=2))' > "$CAM"
 
 log "1. design: 4-level QDO+A, Wiener decoder, CAVE training scenes"
 if [ ! -f "$OUT/design/design.h5" ]; then
-  "$QDO" design --config "$CAM" --mode qdo+a --levels 4 --epochs "$EPOCHS" --steps-per-epoch "$STEPS" --seed "$SEED" \
+  "$QDO" design --recipe qdo --config "$CAM" --mode qdo+a --levels 4 --epochs "$EPOCHS" --steps-per-epoch "$STEPS" --seed "$SEED" \
     --data "$SHARED/data/hsi/cave_train" --out "$OUT/design"
 fi
 
