@@ -44,7 +44,7 @@ namespace {
 // does not read is a failure of the atomic writes and is reported by the caller's checks).
 bool load_checkpoint_step_changed(const std::string& path, long before) {
   try {
-    return load_checkpoint(path, 16, 4).step != before;
+    return load_checkpoint(path, 16, 4, false, true).step != before;  // the release recipe's pinned top level
   } catch (const InputError& e) {
     FAIL_CHECK("checkpoint unreadable while the run was going: " << e.what());
     return true;
@@ -288,7 +288,8 @@ TEST_SUITE("stress") {
     const std::string cfg = (dir / "cfg.json").string();
     write_text_atomic(cfg, config_to_json_text(tiny_config(32, 3)));
     auto args = [&](const std::string& out, bool resume) {
-      std::vector<std::string> a = {QDO_QDO_BINARY, "design", "--config", cfg, "--mode", "qdo+a", "--levels", "4",
+      // The default recipe (release): height noise per step, the top level pinned (load_checkpoint's pin_top).
+      std::vector<std::string> a = {QDO_QDO_BINARY, "design", "--config", cfg, "--mode", "qdo+a", "--levels", "4", "--recipe", "release",
                                     "--objective", "psf-target", "--target", "lens:500", "--init", "random", "--seed", "3",
                                     "--epochs", "30", "--steps-per-epoch", "10", "--t0", "3", "--t1", "20",
                                     "--checkpoint-every", "7", "--precision", "f64", "--out", out};
@@ -315,7 +316,7 @@ TEST_SUITE("stress") {
           continue;
         }
         if (name == "checkpoint.h5") {
-          CHECK(input_error([&] { load_checkpoint(f, 16, 4); }).empty());
+          CHECK(input_error([&] { load_checkpoint(f, 16, 4, false, true); }).empty());
         } else if (name == "design.h5" || name == "design_full.h5") {
           CHECK(input_error([&] { read_design(f); }).empty());
         } else if (name == "psf.h5") {
@@ -335,7 +336,7 @@ TEST_SUITE("stress") {
           while (std::getline(in, line)) {
             const long st = std::stol(line.substr(0, line.find(',')));
             CHECK(st > prev);  // complete rows, in order, none repeated
-            CHECK(std::count(line.begin(), line.end(), ',') == 6);
+            CHECK(std::count(line.begin(), line.end(), ',') == 7);
             prev = st;
             ++rows;
           }
@@ -364,7 +365,7 @@ TEST_SUITE("stress") {
     for (int round = 0; round < 12; ++round) {
       const bool resume = fs::exists(fs::path(run) / "checkpoint.h5");
       long before = -1;
-      if (resume) before = load_checkpoint((fs::path(run) / "checkpoint.h5").string(), 16, 4).step;
+      if (resume) before = load_checkpoint((fs::path(run) / "checkpoint.h5").string(), 16, 4, false, true).step;
       Child child(args(run, resume), log);
       if (round < 8) {
         const auto ck = fs::path(run) / "checkpoint.h5";
@@ -388,7 +389,8 @@ TEST_SUITE("stress") {
     }
     CHECK(kills >= 4);
     check_folder(99);
-    const DesignState a = load_checkpoint(ref_run + "/checkpoint.h5", 16, 4), b = load_checkpoint(run + "/checkpoint.h5", 16, 4);
+    const DesignState a = load_checkpoint(ref_run + "/checkpoint.h5", 16, 4, false, true),
+                      b = load_checkpoint(run + "/checkpoint.h5", 16, 4, false, true);
     CHECK(b.step == total);
     CHECK(a.w == b.w);
     CHECK(a.offsets == b.offsets);
