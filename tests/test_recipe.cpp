@@ -248,28 +248,24 @@ TEST_SUITE("recipe") {
     s.offsets[0] = std::fabs(s.offsets[0]);
     s.step = 6 * 418;  // alpha about 0.26: both branches of the blend carry gradient
     const Designer::Gradient g = d.gradient(s, obj);
-    const double h = 1e-7;
-    double gw_scale = 0;
-    for (double v : g.g_w) gw_scale = std::max(gw_scale, std::fabs(v));
-    for (std::size_t i : {std::size_t(0), std::size_t(3), std::size_t(7), std::size_t(12), std::size_t(15)}) {
+    // The central difference of the loss in parameter `i` of the group `group` picks from a state.
+    const auto central = [&](std::vector<double> DesignState::*group, std::size_t i) {
+      const double h = 1e-7;
       DesignState a = s, b = s;
-      a.w[i] += h;
-      b.w[i] -= h;
-      const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / (2 * h);
-      CAPTURE(i);
-      CHECK(std::fabs(fd - g.g_w[i]) <= 1e-5 * gw_scale + 1e-9);
-    }
-    double ga_scale = 0;
-    for (double v : g.g_offsets) ga_scale = std::max(ga_scale, std::fabs(v));
+      (a.*group)[i] += h;
+      (b.*group)[i] -= h;
+      return (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / (2 * h);
+    };
+    const double gw_scale = max_abs(g.g_w), ga_scale = max_abs(g.g_offsets);
     REQUIRE(ga_scale > 0);
+    for (std::size_t i : {std::size_t(0), std::size_t(3), std::size_t(7), std::size_t(12), std::size_t(15)}) {
+      CAPTURE(i);
+      CHECK(std::fabs(central(&DesignState::w, i) - g.g_w[i]) <= 1e-5 * gw_scale + 1e-9);
+    }
     CHECK(g.g_offsets[3] == 0.0);  // the pinned top level
     for (std::size_t l = 0; l < 3; ++l) {
-      DesignState a = s, b = s;
-      a.offsets[l] += h;
-      b.offsets[l] -= h;
-      const double fd = (d.gradient(a, obj).report.loss - d.gradient(b, obj).report.loss) / (2 * h);
       CAPTURE(l);
-      CHECK(std::fabs(fd - g.g_offsets[l]) <= 1e-5 * ga_scale + 1e-9);
+      CHECK(std::fabs(central(&DesignState::offsets, l) - g.g_offsets[l]) <= 1e-5 * ga_scale + 1e-9);
     }
   }
 
@@ -305,7 +301,8 @@ TEST_SUITE("recipe") {
   }
 
   TEST_CASE("qdo design without --recipe trains as the release; --resume holds to the recipe") {
-    const fs::path dir = temp_dir("recipe_cli");
+    const qdo::test::commands_suite::ScratchDir scratch("recipe_cli");  // removed on exit, a failed REQUIRE included
+    const fs::path& dir = scratch.dir;
     const std::string run = (dir / "r").string(), init = (dir / "i").string();
     const std::string base = "design " + cfg_arg() + " --mode qdo+a --levels 4 --synthetic-scenes 2 --epochs 2 --steps-per-epoch 3 --out ";
     const Run r = qdo_run(base + run + " --max-steps 3");
@@ -347,6 +344,5 @@ TEST_SUITE("recipe") {
     REQUIRE(lq.column("lr").size() == 4);
     CHECK(lq.column("lr")[2] == doctest::Approx(0.01));
     CHECK(lq.column("lr")[3] == doctest::Approx(0.008));
-    fs::remove_all(dir);
   }
 }

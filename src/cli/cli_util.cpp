@@ -255,9 +255,11 @@ DesignRunOptions design_options(const Args& a, bool range) {
   const auto rv = [&](const char* option) { return recipe_value(recipe, option, "--recipe"); };
   o.design.steps_per_epoch = std::size_t(parse_int("--steps-per-epoch", a.get("steps-per-epoch", rv("steps-per-epoch")), 1, 1000000));
   o.epochs = std::size_t(parse_int("--epochs", a.get("epochs", rv("epochs")), 1, 1000000));
-  const double e = double(o.epochs);
-  o.design.t0_epochs = parse_double("--t0", a.get("t0", to_str(recipe == "release" ? 0.1 * e : std::min(5.0, 0.1 * e))), 0, 1e6, "epochs");
-  o.design.t1_epochs = parse_double("--t1", a.get("t1", to_str(0.8 * e)), 0, 1e6, "epochs");
+  DesignRunOptions window;  // the recipe's alpha window for these epochs (apply_recipe's rule)
+  window.epochs = o.epochs;
+  apply_recipe(recipe, window, [](const std::string& option) { return option == "epochs"; });
+  o.design.t0_epochs = parse_double("--t0", a.get("t0", to_str(window.design.t0_epochs)), 0, 1e6, "epochs");
+  o.design.t1_epochs = parse_double("--t1", a.get("t1", to_str(window.design.t1_epochs)), 0, 1e6, "epochs");
   o.design.lr_optics = parse_double("--lr", a.get("lr", rv("lr")), 0, 1, "(Adam step on weights in [-1, 1])");
   o.design.lr_offsets = parse_double("--lr-offsets", a.get("lr-offsets", rv("lr-offsets")), 0, 1, "(Adam step on normalised offsets)");
   o.design.lr_decay_per_epoch = parse_double("--decay", a.get("decay", rv("decay")), 0, 1, "(factor per decay period)", true);
