@@ -110,6 +110,29 @@ TEST_SUITE("commands") {
     CHECK(ad.out.find("qdo+a") != std::string::npos);
     // An unknown grid axis is an input error.
     CHECK(qdo_run("sweep " + cfg_arg() + " --grid colour=red --out " + (dir / "y").string()).code == 2);
+    // The sweep's identity is the folder, not how a path to it is spelt: --collect from the parent
+    // folder with a relative, a ./ and a trailing-slash spelling finds every cell finished, and
+    // deletes no stamp (a Slurm array and its collect step spell paths as they like).
+    std::vector<fs::path> stamps;
+    for (const auto& e : fs::recursive_directory_iterator(dir))
+      if (e.path().filename() == "inputs") stamps.push_back(e.path());
+    REQUIRE(stamps.size() == 5);
+    const std::string grid = " --grid levels=2,4 --grid mode=do,do-refit --epochs 2 --steps-per-epoch 1 --t0 0.5 --t1 1.5 "
+                             "--synthetic-scenes 3 --eval-scenes 2 --collect --into-existing --out ";
+    const std::string name = dir.filename().string();
+    for (const std::string& spelt : {name, "./" + name + "/", (dir / "." / "runs" / "..").string()}) {
+      CAPTURE(spelt);
+      const Run c = qdo_run("sweep " + cfg_arg() + grid + spelt, "cd " + dir.parent_path().string() + " &&");
+      CAPTURE(c.out);
+      CHECK(c.code == 0);
+      for (const auto& st : stamps) CHECK(fs::exists(st));
+    }
+    // A collect that finds unfinished cells only reads: a cell's stale stamp stays until a run
+    // evaluates that cell again.
+    const fs::path one = stamps.front();
+    write_text_atomic(one.string(), "0123456789abcdef\n");
+    CHECK(qdo_run("sweep " + cfg_arg() + grid + dir.string()).code == 2);
+    CHECK(slurp(one) == "0123456789abcdef\n");
     fs::remove_all(dir);
   }
 

@@ -10,6 +10,7 @@
 
 #include "common.hpp"
 #include "io_common.hpp"
+#include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 
@@ -107,5 +108,50 @@ TEST_SUITE("io") {
     CHECK_THROWS_AS(write_map_png(mp, bad), NumericalError);  // an output that is not finite: nothing written,
     CHECK(png_header(mp).signature_ok);                         // the earlier file of that name kept as it was
     CHECK(tmp.entries() == 4);  // gray, montage, rgb, map: no temp files
+  }
+
+  TEST_CASE("16-bit PNGs are read as their stored codes, whatever gAMA, sRGB, cHRM or iCCP chunk they carry") {
+    // libpng's simplified API turned 12-bit codes into linear light when a file carried gAMA
+    // (ImageMagick's default): captures, darks, depth maps and CAVE band images must come back
+    // as stored.
+    TmpDir tmp;
+    Map2D codes(3, 5);
+    for (std::size_t i = 0; i < codes.data.size(); ++i) codes.data[i] = double((i * 977 + 13) % 4096);  // 12-bit codes
+    RealStack rgb(3, 3, 5);
+    for (std::size_t i = 0; i < rgb.data.size(); ++i) rgb.data[i] = double((i * 4099 + 7) % 65536);
+    const std::string chrm = std::string(32, '\x01');
+    const std::string iccp = std::string("icc\0\0", 5) + std::string("\x78\x9c\x03\x00\x00\x00\x00\x01", 8);  // an empty zlib stream
+    for (const auto& [type, data] : std::vector<std::pair<std::string, std::string>>{
+             {"gAMA", gama_2_2()}, {"sRGB", std::string(1, '\0')}, {"cHRM", chrm}, {"iCCP", iccp}}) {
+      CAPTURE(type);
+      const std::string g = tmp / ("gray_" + type + ".png"), c = tmp / ("rgb_" + type + ".png");
+      write_png16_gray(g, codes);
+      write_png16_rgb(c, rgb);
+      add_png_chunk(g, type, data);
+      add_png_chunk(c, type, data);
+      REQUIRE(contains(slurp(g), type));
+      CHECK(read_png16_gray(g).data == codes.data);
+      CHECK(read_png16(g).data == codes.data);
+      CHECK(read_png16(c).data == rgb.data);
+    }
+    // A CAVE band folder of 16-bit files with gAMA: the bands are the codes / 65535.
+    const std::string dir = tmp / "scene_ms";
+    fs::create_directories(dir);
+    for (int b = 1; b <= 3; ++b) {
+      const std::string f = dir + "/scene_ms_0" + std::to_string(b) + ".png";
+      Map2D band = codes;
+      for (double& v : band.data) v += 1000.0 * b;
+      write_png16_gray(f, band);
+      add_png_chunk(f, "gAMA", gama_2_2());
+    }
+    const RealStack cube = load_scene(dir, "cave-png", 3);
+    REQUIRE(cube.planes == 3);
+    for (std::size_t i = 0; i < codes.data.size(); ++i) CHECK(cube.data[2 * codes.data.size() + i] == (codes.data[i] + 3000.0) / 65535.0);
+    // What a raw frame cannot be is still refused, naming the file: 8-bit, colour.
+    const std::string e8 = tmp / "eight.png";
+    write_png(e8, 5, 3, 1, std::vector<unsigned char>(15, 128));
+    CHECK(contains(input_error_of([&] { read_png16_gray(e8); }), "16-bit grayscale"));
+    CHECK(contains(input_error_of([&] { read_png16(e8); }), "eight.png"));
+    CHECK(contains(input_error_of([&] { read_png16_gray(tmp / "rgb_gAMA.png"); }), "colour"));
   }
 }

@@ -138,16 +138,15 @@ struct PngImage {
   ~PngImage() { png_image_free(&img); }
 };
 
-// A grayscale PNG read through libpng's simplified API: the header on construction, the
-// pixels with finish().
+// A grayscale PNG: the header on construction (libpng's simplified API, which only reads it
+// here), the stored pixels with finish() (read_png_codes).
 class PngRead {
  public:
   explicit PngRead(const std::string& path) : path_(path) {
     if (!png_image_begin_read_from_file(&img_.img, path.c_str()))
       fail(path, std::string("not a readable PNG file (") + img_.img.message + ")");
-    // Colour (RGB, RGBA, colour palette) and alpha files are decoded to four channels and
-    // accepted when every pixel is grey (R = G = B) and opaque (checked in finish()).
-    four_channels_ = (img_.img.format & (PNG_FORMAT_FLAG_COLOR | PNG_FORMAT_FLAG_ALPHA)) != 0;
+    // Colour (RGB, RGBA, colour palette) and alpha files are accepted when every pixel is grey
+    // (R = G = B) and opaque (checked in finish()).
     // Decoding allocates what the header declares: check it against the file first. Each row
     // holds a filter byte and at least 1 bit per pixel, deflated at most ~1032:1.
     const std::uintmax_t w = img_.img.width, h = img_.img.height;
@@ -165,57 +164,37 @@ class PngRead {
   std::size_t height() const { return img_.img.height; }
   bool sixteen_bit() const { return (img_.img.format & PNG_FORMAT_FLAG_LINEAR) != 0; }
 
-  // The pixels, row-major, divided by 65535 (16-bit) or 255 (8-bit).
+  // The pixels, row-major, the stored codes divided by 65535 (16-bit) or 255 (8-bit): no gamma
+  // transform, whatever gAMA, sRGB or iCCP chunk the file carries (read_png_codes). Colour and
+  // alpha files are accepted when every pixel is grey (R = G = B) and opaque.
   std::vector<double> finish() {
-    const std::size_t n = width() * height();
+    const PngCodes p = read_png_codes(path_);
+    if (p.width != width() || p.height != height()) fail(path_, "the file changed while it was read");
+    const double full = p.bit_depth == 16 ? 65535.0 : 255.0;
+    const std::size_t n = p.width * p.height;
     std::vector<double> out(n);
-    if (four_channels_) {
-      if (sixteen_bit()) {
-        std::vector<png_uint_16> buf(4 * n);
-        decode(PNG_FORMAT_LINEAR_RGB_ALPHA, buf.data());
-        grey_opaque(buf, 65535, out);
-      } else {
-        std::vector<png_byte> buf(4 * n);
-        decode(PNG_FORMAT_RGBA, buf.data());
-        grey_opaque(buf, 255, out);
-      }
+    if (p.channels == 1) {
+      for (std::size_t i = 0; i < n; ++i) out[i] = p.samples[i] / full;
       return out;
     }
-    if (sixteen_bit()) {
-      img_.img.format = PNG_FORMAT_LINEAR_Y;
-      std::vector<png_uint_16> buf(n);
-      if (!png_image_finish_read(&img_.img, nullptr, buf.data(), 0, nullptr))
-        fail(path_, std::string("cannot decode the PNG data, truncated or corrupt file (") + img_.img.message + ")");
-      for (std::size_t i = 0; i < n; ++i) out[i] = buf[i] / 65535.0;
-    } else {
-      img_.img.format = PNG_FORMAT_GRAY;
-      std::vector<png_byte> buf(n);
-      if (!png_image_finish_read(&img_.img, nullptr, buf.data(), 0, nullptr))
-        fail(path_, std::string("cannot decode the PNG data, truncated or corrupt file (") + img_.img.message + ")");
-      for (std::size_t i = 0; i < n; ++i) out[i] = buf[i] / 255.0;
-    }
+    grey_opaque(p, full, out);
     return out;
   }
 
  private:
-  void decode(png_uint_32 format, void* buf) {
-    img_.img.format = format;
-    if (!png_image_finish_read(&img_.img, nullptr, buf, 0, nullptr))
-      fail(path_, std::string("cannot decode the PNG data, truncated or corrupt file (") + img_.img.message + ")");
-  }
-  // RGBA pixels to one grey channel: R = G = B and alpha at full scale everywhere, else an
-  // InputError naming the first pixel that is coloured or transparent. (libpng premultiplies
-  // 16-bit colour by alpha, so only opaque pixels keep their value.)
-  template <typename T>
-  void grey_opaque(const std::vector<T>& buf, double full, std::vector<double>& out) const {
-    const std::size_t w = width();
+  // Gray+alpha or RGB(A) samples to one grey channel: R = G = B and alpha at full scale
+  // everywhere, else an InputError naming the first pixel that is coloured or transparent.
+  void grey_opaque(const PngCodes& p, double full, std::vector<double>& out) const {
+    const std::size_t w = width(), ch = p.channels;
+    const bool colour = ch >= 3, alpha = ch == 2 || ch == 4;
     for (std::size_t i = 0; i < out.size(); ++i) {
-      const T r = buf[4 * i], g = buf[4 * i + 1], b = buf[4 * i + 2], a = buf[4 * i + 3];
+      const std::uint16_t* px = &p.samples[i * ch];
+      const std::uint16_t r = px[0], g = colour ? px[1] : r, b = colour ? px[2] : r, a = alpha ? px[ch - 1] : std::uint16_t(full);
       auto at = [&] { return "pixel (row " + std::to_string(i / w) + ", column " + std::to_string(i % w) + ")"; };
       if (r != g || g != b)
         fail(path_, "colour PNG with a coloured " + at() + " (R, G, B = " + std::to_string(r) + ", " + std::to_string(g) +
                         ", " + std::to_string(b) + "); a band image must be grayscale, or RGB(A) with R = G = B");
-      if (a != static_cast<T>(full))
+      if (a != full)
         fail(path_, "PNG with a transparent " + at() + " (alpha " + std::to_string(a) + " of " + to_str(full) +
                         "); a band image must be opaque");
       out[i] = r / full;
@@ -224,7 +203,6 @@ class PngRead {
 
   std::string path_;
   PngImage img_;
-  bool four_channels_ = false;
 };
 
 std::vector<std::string> checked_band_files(const std::string& dir, std::size_t expected_bands) {

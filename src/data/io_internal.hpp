@@ -38,6 +38,17 @@ void check_declared_bytes(const std::string& path, const std::string& what, cons
 std::size_t count_nonfinite(const std::vector<double>& v);
 void require_file(const std::string& path);
 
+// A PNG file's stored samples, no gamma or colour transform applied (src/data/io_png_codes.cpp):
+// height x width x channels, row-major, interleaved. A palette is expanded to its RGB entries,
+// 1/2/4-bit gray to 8-bit codes, a tRNS chunk to an alpha channel.
+struct PngCodes {
+  std::size_t width = 0, height = 0, channels = 0;  // channels: 1 gray, 2 gray+alpha, 3 RGB, 4 RGBA
+  int bit_depth = 0;                                  // 8 or 16
+  bool has_alpha = false, from_palette = false;
+  std::vector<std::uint16_t> samples;
+};
+PngCodes read_png_codes(const std::string& path);
+
 // Writes go to "<path>.tmp-<pid>"; commit() renames onto path; the destructor removes the
 // temp file unless committed, so an exception anywhere leaves nothing behind.
 class AtomicFile {

@@ -12,44 +12,16 @@
 namespace qdo {
 using namespace io_detail;
 
-// libpng's simplified API: a 16-bit file without a gAMA chunk (or with gamma 1) is linear and
-// decoded to PNG_FORMAT_LINEAR_Y unchanged; an 8-bit file is widened (v * 257) by libpng, so it is
-// refused here (a raw frame is 16-bit).
+// The stored 16-bit codes (read_png_codes: no gamma transform, whatever gAMA, sRGB, cHRM or iCCP
+// chunk the file carries). An 8-bit, colour, palette or alpha file is refused: a raw frame is
+// 16-bit grayscale.
 Map2D read_png16_gray(const std::string& path) {
-  require_file(path);
-  png_image img;
-  std::memset(&img, 0, sizeof img);
-  img.version = PNG_IMAGE_VERSION;
-  if (!png_image_begin_read_from_file(&img, path.c_str())) {
-    const std::string msg = img.message;
-    png_image_free(&img);
-    fail(path, "", "not a readable PNG file (" + msg + ")");
-  }
-  const bool sixteen = (img.format & PNG_FORMAT_FLAG_LINEAR) != 0;
-  const bool colour = (img.format & (PNG_FORMAT_FLAG_COLOR | PNG_FORMAT_FLAG_ALPHA)) != 0;
-  const std::size_t w = img.width, h = img.height;
-  if (!sixteen || colour) {
-    png_image_free(&img);
-    fail(path, "", std::string("a raw frame must be a 16-bit grayscale PNG; this one is ") + (sixteen ? "16" : "8") +
-                       "-bit " + (colour ? "colour or with alpha" : "grayscale"));
-  }
-  std::error_code ec;
-  const std::uintmax_t bytes = std::filesystem::file_size(path, ec);
-  if (w == 0 || h == 0 || w * h > (std::uintmax_t{1} << 28) || ec || h * (1 + 2 * w) > bytes * kMaxExpansion + kSlackBytes) {
-    png_image_free(&img);
-    fail(path, "", "header declares " + std::to_string(h) + " x " + std::to_string(w) +
-                       " pixels: empty, larger than 2^28 pixels, or more than the file can hold (truncated or corrupt)");
-  }
-  img.format = PNG_FORMAT_LINEAR_Y;
-  std::vector<png_uint_16> buf(w * h);
-  if (!png_image_finish_read(&img, nullptr, buf.data(), 0, nullptr)) {
-    const std::string msg = img.message;
-    png_image_free(&img);
-    fail(path, "", "cannot decode the PNG data, truncated or corrupt file (" + msg + ")");
-  }
-  png_image_free(&img);
-  Map2D m(h, w);
-  for (std::size_t i = 0; i < w * h; ++i) m.data[i] = buf[i];
+  const PngCodes p = read_png_codes(path);
+  if (p.bit_depth != 16 || p.channels != 1)
+    fail(path, "", std::string("a raw frame must be a 16-bit grayscale PNG; this one is ") + (p.from_palette ? "a palette" : std::to_string(p.bit_depth) + "-bit") +
+                       " " + (p.channels == 1 ? "grayscale" : "colour or with alpha") + " file");
+  Map2D m(p.height, p.width);
+  for (std::size_t i = 0; i < m.data.size(); ++i) m.data[i] = p.samples[i];
   return m;
 }
 
@@ -84,45 +56,17 @@ void write_png16_planes(const std::string& path, const std::vector<double>& data
 
 void write_png16_gray(const std::string& path, const Map2D& dn) { write_png16_planes(path, dn.data, 1, dn.rows, dn.cols); }
 
-// A capture: 16-bit grayscale (1 plane) or RGB (3 planes), code values unchanged. libpng's
-// simplified API gives a 16-bit file (without gAMA, or gamma 1) as linear values; an 8-bit file
-// (widened by libpng) and one with alpha are refused, naming the file.
+// A capture: 16-bit grayscale (1 plane) or RGB (3 planes), the stored codes (read_png_codes: no
+// gamma transform). An 8-bit, palette or alpha file is refused, naming the file.
 RealStack read_png16(const std::string& path) {
-  require_file(path);
-  png_image img;
-  std::memset(&img, 0, sizeof img);
-  img.version = PNG_IMAGE_VERSION;
-  if (!png_image_begin_read_from_file(&img, path.c_str())) {
-    const std::string msg = img.message;
-    png_image_free(&img);
-    fail(path, "", "not a readable PNG file (" + msg + ")");
-  }
-  const bool sixteen = (img.format & PNG_FORMAT_FLAG_LINEAR) != 0;
-  const bool colour = (img.format & PNG_FORMAT_FLAG_COLOR) != 0, alpha = (img.format & PNG_FORMAT_FLAG_ALPHA) != 0;
-  const std::size_t w = img.width, h = img.height, ch = colour ? 3 : 1;
-  if (!sixteen || alpha) {
-    png_image_free(&img);
+  const PngCodes p = read_png_codes(path);
+  if (p.bit_depth != 16 || p.has_alpha || p.from_palette)
     fail(path, "", std::string("a capture must be a 16-bit grayscale (raw mosaic) or 16-bit RGB PNG without alpha; this one is ") +
-                       (sixteen ? "16" : "8") + "-bit" + (alpha ? " with alpha" : ""));
-  }
-  std::error_code ec;
-  const std::uintmax_t bytes = std::filesystem::file_size(path, ec);
-  if (w == 0 || h == 0 || w * h > (std::uintmax_t{1} << 28) || ec || h * (1 + 2 * ch * w) > bytes * kMaxExpansion + kSlackBytes) {
-    png_image_free(&img);
-    fail(path, "", "header declares " + std::to_string(h) + " x " + std::to_string(w) +
-                       " pixels: empty, larger than 2^28 pixels, or more than the file can hold (truncated or corrupt)");
-  }
-  img.format = colour ? PNG_FORMAT_LINEAR_RGB : PNG_FORMAT_LINEAR_Y;
-  std::vector<png_uint_16> buf(w * h * ch);
-  if (!png_image_finish_read(&img, nullptr, buf.data(), 0, nullptr)) {
-    const std::string msg = img.message;
-    png_image_free(&img);
-    fail(path, "", "cannot decode the PNG data, truncated or corrupt file (" + msg + ")");
-  }
-  png_image_free(&img);
-  RealStack out(ch, h, w);
-  for (std::size_t i = 0; i < w * h; ++i)
-    for (std::size_t c = 0; c < ch; ++c) out.data[c * w * h + i] = buf[i * ch + c];
+                       (p.from_palette ? "a palette file" : std::to_string(p.bit_depth) + "-bit") + (p.has_alpha ? " with alpha" : ""));
+  const std::size_t ch = p.channels, n = p.width * p.height;
+  RealStack out(ch, p.height, p.width);
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t c = 0; c < ch; ++c) out.data[c * n + i] = p.samples[i * ch + c];
   return out;
 }
 

@@ -40,9 +40,15 @@ bool run_finished(const fs::path& run) { return fs::exists(run / "DONE"); }
 using Fnv = Fnv1a64;  // content hash for provenance checks (qdo/hash.hpp)
 
 // The bytes of a file, or of every regular file under a folder (sorted by path, each with its
-// relative path and size); "missing" for a path that does not exist.
+// relative path and size); "missing" for a path that does not exist. Only the last name of `p`
+// enters, never its spelling: `sw`, `./sw` and `$PWD/sw/` (a Slurm array and its collect step
+// spell paths as they like) name the same inputs.
 void hash_path(Fnv& f, const fs::path& p) {
-  f.add(p.string());
+  std::error_code ec;
+  fs::path canon = fs::weakly_canonical(p, ec);
+  if (ec) canon = p.lexically_normal();
+  if (canon.filename().empty()) canon = canon.parent_path();  // "dir/"
+  f.add(canon.filename().string());
   auto file = [&](const fs::path& q) {
     std::ifstream in(q, std::ios::binary);
     if (!in) throw InputError("file '" + q.string() + "': cannot be read (to hash a sweep cell's inputs)");
@@ -139,11 +145,16 @@ void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, cons
   const std::string what = "a new sweep folder, or one whose runs were made with this call's options; its run '" +
                            dir.filename().string() + "' was made with other ones";
   const fs::path cfg = RunFolder(o.out).config_path();
+  const fs::path stamp = dir / "sweep_inputs";
   if (fs::exists(cfg)) {
     const DesignRunOptions stored = read_run_config(dir.string());
     std::vector<std::string> diffs;
+    // With the stamp, the training scenes are compared by their bytes (below), not by how the
+    // paths to them are spelt.
+    std::set<std::string> ign = ignore;
+    if (fs::exists(stamp)) ign.insert("design.data");
     json_diffs(nlohmann::json::parse(design_run_options_to_json(stored)), nlohmann::json::parse(design_run_options_to_json(o)), "",
-               ignore, diffs);
+               ign, diffs);
     if (!diffs.empty()) {
       std::string list;
       for (std::string d : diffs) {
@@ -155,7 +166,6 @@ void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, cons
                                    "; choose another --out, or move that run folder and the cells/ folder away to redo them)");
     }
   }
-  const fs::path stamp = dir / "sweep_inputs";
   if (fs::exists(stamp)) {
     std::string held = read_text(stamp);
     while (!held.empty() && (held.back() == '\n' || held.back() == ' ')) held.pop_back();

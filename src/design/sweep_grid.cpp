@@ -251,7 +251,7 @@ std::string Grid::run_outputs(const std::string& run) const {
 std::string Grid::cell_inputs(const Job& job) const {
   nlohmann::json j = job.key;
   j["test"] = test_inputs_;
-  j["test_files"] = test_;
+  j["test_files"] = test_.size();  // their bytes and names are in test_inputs_, never their spelling
   j["eval_synthetic_scenes"] = g_.eval_synthetic_scenes;
   j["precision"] = to_string(base_.precision);
   j["system"] = nlohmann::json::parse(config_to_json_text(base_.cfg));
@@ -263,8 +263,8 @@ std::string Grid::cell_inputs(const Job& job) const {
 }
 
 // A cell's metrics.json is reused only when the cell's `inputs` file (written after it) holds the
-// same hash; else the stale stamp is dropped (the sweep's own file), so that a stamp never
-// vouches for metrics of other inputs.
+// same hash. Reading changes nothing (--collect only reads); run_cell drops a stale stamp before
+// it evaluates again, so that a stamp never vouches for metrics of other inputs.
 bool Grid::read_cell(std::size_t k, GridCell& c) const {
   const Job& job = jobs_.at(k);
   c = GridCell{};
@@ -279,14 +279,9 @@ bool Grid::read_cell(std::size_t k, GridCell& c) const {
   const fs::path dir = out_ / "cells" / job.plan.name, f = dir / "metrics.json", stamp = dir / "inputs";
   std::string held = fs::exists(stamp) ? read_text(stamp) : std::string();
   while (!held.empty() && (held.back() == '\n' || held.back() == ' ')) held.pop_back();
-  bool ok = held == c.inputs && fs::exists(f) &&
-            read_cell_metrics(f.string(), c.mean, c.deviation_nm, job.kind == CellKind::Eval ? &c.scenes : nullptr,
-                              &c.deviation_rings_nm);
-  if (!ok) {
-    std::error_code ec;
-    if (fs::exists(stamp, ec)) fs::remove(stamp, ec);
-  }
-  return ok;
+  return held == c.inputs && fs::exists(f) &&
+         read_cell_metrics(f.string(), c.mean, c.deviation_nm, job.kind == CellKind::Eval ? &c.scenes : nullptr,
+                           &c.deviation_rings_nm);
 }
 
 void Grid::run_cell(Runtime& rt, std::size_t k, bool progress) {
@@ -308,6 +303,8 @@ void Grid::run_cell(Runtime& rt, std::size_t k, bool progress) {
   GridCell c;
   const bool cached = read_cell(k, c);
   if (!cached) {
+    std::error_code ec;
+    fs::remove(dir / "inputs", ec);  // the cell's own stale stamp, under its lock: evaluated again below
     if (job.kind == CellKind::Eval) {
       EvalOptions e = job.eval;
       e.out = dir.string();
