@@ -313,4 +313,56 @@ TEST_SUITE("calibrate") {
                     r.out);
     }
   }
+
+  TEST_CASE("darks that do not match the frames: refused with --background none, noted or refused with ring; the frames as darks") {
+    // Darks 15 DN off the frames' background (read noise ~2 DN) were accepted silently: the
+    // background check compares each dark-subtracted frame's unlit level with 0.
+    const Sweep& s = sweep();
+    for (const double shift : {15.0, -15.0}) {
+      CAPTURE(shift);
+      const fs::path d = s.dir / ("darks_shift_" + std::to_string(int(shift)));
+      fs::create_directories(d);
+      for (const auto& e : fs::directory_iterator(s.dir / "darks")) {
+        Map2D f = read_png16_gray(e.path().string());
+        for (double& v : f.data) v += shift;
+        write_png16_gray((d / e.path().filename()).string(), f);
+      }
+      const std::string darks = " --darks " + d.string();
+      auto run = [&](const std::string& bg, const std::string& out) {
+        return qdo_run("calibrate --config " + s.cfg_path.string() + " --frames " + (s.dir / "frames").string() + darks + " --out " +
+                           (s.dir / out).string() + " --background " + bg,
+                       "QDO_DEVICE=cpu");
+      };
+      const Run none = run("none", "o_dshift_none");
+      CHECK(none.code == 2);
+      CHECK_MESSAGE((none.out.find("were not taken as this frame was") != std::string::npos && none.out.find(".png") != std::string::npos),
+                    none.out);
+      CHECK(!fs::exists(s.dir / "o_dshift_none/psf.h5"));
+      const Run ring = run("ring", "o_dshift_ring_" + std::to_string(int(shift)));
+      if (shift > 0) {  // darks brighter than the frames' unlit pixels: not darks of these frames
+        CHECK(ring.code == 2);
+        CHECK_MESSAGE(ring.out.find("brighter than the frame") != std::string::npos, ring.out);
+      } else {  // darks dimmer: a constant offset the ring subtracts, said in stdout and psf.h5
+        CHECK_MESSAGE(ring.code == 0, ring.out);
+        CHECK_MESSAGE(ring.out.find("note: ") != std::string::npos, ring.out);
+        const auto attrs = h5_read_root_attrs((s.dir / ("o_dshift_ring_" + std::to_string(int(shift))) / "psf.h5").string());
+        CHECK(attrs.at("notes").find("background sits at") != std::string::npos);
+        const auto bg = h5_read((s.dir / ("o_dshift_ring_" + std::to_string(int(shift))) / "psf.h5").string(), "/background_dn");
+        for (double v : bg.data) CHECK(v == doctest::Approx(-shift).epsilon(0.25));
+      }
+    }
+    // Matching darks: every frame's background within a few tenths of the noise of 0.
+    const Run ok = calibrate(s.dir / "frames", "o_dmatch");
+    REQUIRE_MESSAGE(ok.code == 0, ok.out);
+    CHECK(ok.out.find("note: ") == std::string::npos);
+    const auto bg = h5_read((s.dir / "o_dmatch/psf.h5").string(), "/background_dn");
+    const auto noise = h5_read((s.dir / "o_dmatch/psf.h5").string(), "/noise_dn");
+    for (std::size_t b = 0; b < bg.data.size(); ++b) CHECK(std::abs(bg.data[b]) <= noise.data[b]);
+    // The frames folder given as --darks: said so, not "too dark".
+    const Run same = qdo_run("calibrate --config " + s.cfg_path.string() + " --frames " + (s.dir / "frames").string() + " --darks " +
+                                 (s.dir / "frames").string() + " --out " + (s.dir / "o_dsame").string(),
+                             "QDO_DEVICE=cpu");
+    CHECK(same.code == 2);
+    CHECK_MESSAGE(same.out.find("is also a frame") != std::string::npos, same.out);
+  }
 }

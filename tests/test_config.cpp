@@ -145,7 +145,13 @@ TEST_SUITE("config") {
     CHECK_FALSE(finite.scene_at_infinity);
     CHECK(finite.scene_distance_m == 2.5);
     CHECK(finite.n == 512);
-    CHECK(from_json("{}").preset == "paper");
+    // A file without "preset" has the paper's values but is not the paper preset: its provenance
+    // (config.json, psf.h5 of calibrate and psf) names no preset.
+    const SystemConfig bare = from_json(R"({"n": 512})");
+    CHECK(bare.preset == "custom");
+    CHECK(qdo::config_to_json_text(bare).find("\"preset\"") == std::string::npos);
+    CHECK(bare.sensor_distance_m == qdo::preset_config("paper").sensor_distance_m);
+    CHECK(from_json(R"({"preset": "paper", "n": 512})").preset == "paper");
   }
 
   TEST_CASE("JSON rejections name the key") {

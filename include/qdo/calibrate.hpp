@@ -73,6 +73,11 @@ struct CalibrationResult {
   std::size_t hot_pixels = 0;         // replaced, over all frames
   long centre_row = 0, centre_col = 0;  // frame pixel put at (S/2, S/2)
   std::size_t frame_rows = 0, frame_cols = 0;
+  // Per band, the frame's own background after the mean dark is subtracted (DN): ~0 when the
+  // darks match the frames (same exposure, gain, temperature). Estimated from the frame's 10th
+  // percentile (which light only raises) plus 1.2816 noise sigmas.
+  std::vector<double> background_dn;
+  std::vector<std::string> notes;  // what the user should know (printed and stored with psf.h5)
   // Seconds per step, in order: match, read, dark, hot pixels and SNR, mosaic, centre, crop,
   // background and normalise.
   std::vector<std::pair<std::string, double>> seconds;

@@ -138,7 +138,8 @@ SystemConfig preset_config(const std::string& name);
 std::vector<std::string> preset_names();
 
 // JSON I/O. `from_json_text` starts from the preset named by the optional "preset" key
-// (default "paper") and overrides with the other keys; unknown keys are rejected.
+// (default "paper"; the result's preset field is then "custom") and overrides with the other
+// keys; unknown keys are rejected.
 SystemConfig config_from_json_text(const std::string& text, const std::string& origin = "<json>");
 SystemConfig config_from_json_file(const std::string& path);
 std::string config_to_json_text(const SystemConfig& c);

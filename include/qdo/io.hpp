@@ -65,6 +65,9 @@ void h5_write_unchecked(const std::string& path, const std::vector<H5Dataset>& d
 H5Dataset h5_read(const std::string& path, const std::string& name,
                   std::size_t max_elements = std::size_t(1) << 31);
 bool h5_has(const std::string& path, const std::string& name);
+// The file's root attributes (the provenance qdo writes: "config", "source", "notes", ...): string
+// attributes as stored, numeric ones as text. InputError naming the file if it cannot be read.
+std::map<std::string, std::string> h5_read_root_attrs(const std::string& path);
 
 // ---------- Contract helpers ----------
 struct Design {

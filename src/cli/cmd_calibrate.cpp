@@ -52,6 +52,12 @@ int cmd_calibrate(const Args& a) {
   ds.push_back({"/frame_wavelengths_nm", {cfg.bands}, r.wavelengths_nm, {}, {{"units", "nm, from the file names"}}});
   ds.push_back({"/peak_snr", {cfg.bands}, r.peak_snr, {}, {{"units", "peak / noise sigma"}}});
   ds.push_back({"/noise_dn", {cfg.bands}, r.noise_dn, {}, {{"units", "DN"}}});
+  ds.push_back({"/background_dn", {cfg.bands}, r.background_dn, {}, {{"units", "DN, each frame's background after the mean dark"}}});
+  std::string notes;
+  for (const auto& n : r.notes) {
+    std::printf("note: %s\n", n.c_str());
+    notes += (notes.empty() ? "" : "\n") + n;
+  }
   h5_write(dir + "/psf.h5", ds,
            {{"config", config_to_json_text(cfg)},
             {"design", "measured"},
@@ -63,7 +69,8 @@ int cmd_calibrate(const Args& a) {
             {"dark_count", std::to_string(r.darks.size())},
             {"hot_pixels_replaced", std::to_string(r.hot_pixels)},
             {"centre_row_col", std::to_string(r.centre_row) + "," + std::to_string(r.centre_col)},
-            {"frame_rows_cols", std::to_string(r.frame_rows) + "," + std::to_string(r.frame_cols)}});
+            {"frame_rows_cols", std::to_string(r.frame_rows) + "," + std::to_string(r.frame_cols)},
+            {"notes", notes}});
   const std::size_t crop = std::min<std::size_t>(96, s);
   write_montage_png(dir + "/psf.png", r.psf, cfg.wavelengths_nm(), 0.5, crop);
   std::printf("calibrated %zu bands from %s (%zu dark frames, %zu hot pixels replaced), centre (row %ld, column %ld) of %zu x %zu, "

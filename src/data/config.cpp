@@ -550,6 +550,9 @@ SystemConfig config_from_json_text(const std::string& text, const std::string& o
       if (it == table.end()) reject_unknown_key(item.key());
       it->read(c, item.key(), item.value());
     }
+    // A file without "preset" starts from the paper's values but is not the paper preset: its
+    // provenance (psf.h5, config.json) must not say "paper".
+    if (!j.contains("preset")) c.preset = "custom";
     c.validate();
     return c;
   } catch (const InputError& e) {

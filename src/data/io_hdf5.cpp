@@ -445,6 +445,16 @@ bool h5_has(const std::string& path, const std::string& name) {
   return h5_is_dataset(file.get(), name);
 }
 
+std::map<std::string, std::string> h5_read_root_attrs(const std::string& path) {
+  H5Id file = h5_open_read(path);
+  H5Dataset root;
+  root.name = "/";
+  h5_read_attrs(file.get(), path, root);
+  std::map<std::string, std::string> out = root.str_attrs;
+  for (const auto& [k, v] : root.num_attrs) out.emplace(k, to_str(v));
+  return out;
+}
+
 // =========================================================================================
 // Contract helpers
 // =========================================================================================

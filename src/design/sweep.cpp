@@ -153,6 +153,7 @@ void check_run_inputs(const DesignRunOptions& o, const std::string& inputs, cons
     // paths to them are spelt.
     std::set<std::string> ign = ignore;
     if (fs::exists(stamp)) ign.insert("design.data");
+    ign.insert("system.preset");  // informational: which preset a configuration started from
     json_diffs(nlohmann::json::parse(design_run_options_to_json(stored)), nlohmann::json::parse(design_run_options_to_json(o)), "",
                ign, diffs);
     if (!diffs.empty()) {

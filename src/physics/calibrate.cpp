@@ -144,6 +144,13 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   lap("match");
   // 2. Read and check every frame and dark.
   const std::vector<std::string> dark_files = frame_files(darks_dir, "--darks");
+  for (const auto& d : dark_files) {
+    std::error_code ec;
+    for (const auto& f : band_file)
+      if (std::filesystem::equivalent(d, f, ec))
+        refuse(d, "given as a dark (--darks " + in_quotes(darks_dir) + ") but it is also a frame (--frames " + in_quotes(frames_dir) +
+                      "); darks are frames taken with the source off, in a folder of their own");
+  }
   std::vector<Frame> frames(bands), darks;
   auto read = [&](const std::string& p) {
     Frame f{p, {}};
@@ -194,6 +201,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   r.frame_cols = cols;
   r.peak_snr.resize(bands);
   r.noise_dn.resize(bands);
+  r.background_dn.resize(bands);
   lap("dark");
   std::vector<Map2D> sig(bands);  // dark-subtracted, hot pixels replaced, DN
   std::vector<double> cell(4, 0), worst(bands, 0);
@@ -204,6 +212,27 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     const double sigma = std::max(mad_sigma(m.data), 0.5 * file_scale);
     const double med = median_of(m.data);
     r.noise_dn[b] = sigma;
+    // The darks against this frame's own background: its 10th percentile is the background's
+    // (-1.2816 sigma for Gaussian noise) wherever at least a tenth of the frame is unlit, and
+    // light can only raise it. Darks taken at another exposure, gain or temperature shift it.
+    {
+      std::vector<double> v = m.data;
+      const std::size_t k = v.size() / 10;
+      std::nth_element(v.begin(), v.begin() + long(k), v.end());
+      const double offset = v[k] + 1.2816 * sigma;
+      r.background_dn[b] = offset;
+      if (std::abs(offset) > 3 * sigma) {
+        const std::string what = "after the mean dark is subtracted, the frame's background sits at " + to_str(offset) +
+                                 " DN (noise sigma " + to_str(sigma) + " DN; darks that match give 0 +- " + to_str(3 * sigma) +
+                                 "): the darks in " + in_quotes(darks_dir) + " were not taken as this frame was " +
+                                 "(exposure, gain, black level, temperature)";
+        if (!opt.ring_background || offset < 0)
+          refuse(frames[b].path, what + (offset < 0 ? "; a dark brighter than the frame's unlit pixels is not a dark of it. "
+                                                      : "; --background ring would subtract a constant offset, or ") +
+                                     "take darks with the frames' settings");
+        r.notes.push_back(frames[b].path + ": " + what + "; --background ring subtracts it as a constant");
+      }
+    }
     // 4. Hot pixels: the dark's, and isolated spikes of this frame.
     Map2D fixed = m;
     for (std::size_t y = 0; y < rows; ++y)
