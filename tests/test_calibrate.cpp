@@ -3,6 +3,8 @@
 // mosaic, black level, read noise, 12-bit quantization) with an offset, a fixed hot pixel (in the
 // darks too) and a transient one, is calibrated back to the known stack; every refusal exits 2
 // naming the file; the output is accepted by `qdo simulate --psf`.
+#include <tiffio.h>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -247,6 +249,38 @@ TEST_SUITE("calibrate") {
     const Run r = calibrate(bad, "o_tiff_rgb");
     CHECK(r.code == 2);
     CHECK_MESSAGE(r.out.find("this one is RGB") != std::string::npos, r.out);
+    // Several pages (a stack of exposures) and untyped samples are refused, naming the file and
+    // what it holds, in the reader that calibrate and reconstruct share.
+    auto write_pages = [&](const fs::path& path, int pages, std::uint16_t format) {
+      TIFF* t = TIFFOpen(path.string().c_str(), "w");
+      REQUIRE(t != nullptr);
+      const std::vector<std::uint16_t> row(7, 1000);
+      for (int p = 0; p < pages; ++p) {
+        TIFFSetField(t, TIFFTAG_IMAGEWIDTH, 7);
+        TIFFSetField(t, TIFFTAG_IMAGELENGTH, 5);
+        TIFFSetField(t, TIFFTAG_BITSPERSAMPLE, 16);
+        TIFFSetField(t, TIFFTAG_SAMPLESPERPIXEL, 1);
+        TIFFSetField(t, TIFFTAG_SAMPLEFORMAT, format);
+        TIFFSetField(t, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+        TIFFSetField(t, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
+        for (std::uint32_t y = 0; y < 5; ++y) REQUIRE(TIFFWriteScanline(t, const_cast<std::uint16_t*>(row.data()), y, 0) >= 0);
+        REQUIRE(TIFFWriteDirectory(t));
+      }
+      TIFFClose(t);
+    };
+    write_pages(s.dir / "pages.tif", 3, SAMPLEFORMAT_UINT);
+    write_pages(s.dir / "one_page.tif", 1, SAMPLEFORMAT_UINT);
+    write_pages(s.dir / "untyped.tif", 1, SAMPLEFORMAT_VOID);
+    CHECK(read_tiff16((s.dir / "one_page.tif").string()).data == std::vector<double>(35, 1000.0));
+    CHECK_THROWS_WITH_AS(read_tiff16((s.dir / "pages.tif").string()), doctest::Contains("pages.tif': holds 3 pages"), InputError);
+    CHECK_THROWS_WITH_AS(read_tiff16((s.dir / "untyped.tif").string()), doctest::Contains("SampleFormat 4"), InputError);
+    const fs::path paged = s.dir / "tiff_paged";
+    fs::create_directories(paged);
+    for (const auto& e : fs::directory_iterator(tf)) fs::copy_file(e.path(), paged / e.path().filename());
+    fs::copy_file(s.dir / "pages.tif", paged / "psf_550nm.tif", fs::copy_options::overwrite_existing);
+    const Run rp = calibrate(paged, "o_paged");
+    CHECK(rp.code == 2);
+    CHECK_MESSAGE(rp.out.find("holds 3 pages") != std::string::npos, rp.out);
     const fs::path dng = frames_copy("dng");
     std::ofstream(dng / "psf_550nm.dng") << "not a frame";
     const Run rd = calibrate(dng, "o_dng");

@@ -70,9 +70,19 @@ RealStack read_tiff16(const std::string& path) {
   TIFFGetFieldDefaulted(t.get(), TIFFTAG_SAMPLEFORMAT, &fmt);
   TIFFGetFieldDefaulted(t.get(), TIFFTAG_PLANARCONFIG, &planar);
   TIFFGetField(t.get(), TIFFTAG_PHOTOMETRIC, &photometric);
-  if (bits != 16 || fmt != SAMPLEFORMAT_UINT)
-    fail(path, "", "a capture must be a 16-bit unsigned TIFF; this one has " + std::to_string(bits) + "-bit " +
-                       (fmt == SAMPLEFORMAT_IEEEFP ? "floating-point" : fmt == SAMPLEFORMAT_INT ? "signed" : "unsigned") + " samples");
+  // A multi-page file (a stack of exposures, a thumbnail page) is refused, not read as page 1:
+  // an average over exposures silently lost all but one.
+  const tdir_t pages = TIFFNumberOfDirectories(t.get());
+  if (pages != 1)
+    fail(path, "", "holds " + std::to_string(pages) + " pages (image directories); qdo reads one frame per file: " +
+                       "write each exposure to its own file (e.g. tiffsplit) and give them all, they are averaged");
+  if (bits != 16 || fmt != SAMPLEFORMAT_UINT) {
+    const std::string kind = fmt == SAMPLEFORMAT_IEEEFP ? "floating-point"
+                             : fmt == SAMPLEFORMAT_INT  ? "signed"
+                             : fmt == SAMPLEFORMAT_UINT ? "unsigned"
+                                                        : "SampleFormat " + std::to_string(fmt) + " (untyped or complex)";
+    fail(path, "", "a capture must be a 16-bit unsigned TIFF; this one has " + std::to_string(bits) + "-bit " + kind + " samples");
+  }
   if (photometric == PHOTOMETRIC_PALETTE) fail(path, "", "a palette TIFF is not a capture (16-bit grayscale or RGB)");
   if (spp != 1 && spp != 3)
     fail(path, "", std::to_string(spp) + " samples per pixel; a capture has 1 (grayscale: a raw mosaic) or 3 (RGB, no alpha)");
