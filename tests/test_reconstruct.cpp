@@ -362,6 +362,68 @@ TEST_SUITE("reconstruct") {
     fs::remove_all(dir);
   }
 
+  TEST_CASE("saturated, empty and clipped captures: refused when nothing can be reconstructed, noted when part is clipped") {
+    const SharedRun& s = shared_run();
+    REQUIRE(s.result.code == 0);
+    const auto dir = temp_dir("recon_levels");
+    const std::size_t S = tiny().sensor_size_px();
+    SystemConfig c12 = tiny();
+    c12.bit_depth = 12;
+    c12.black_level_dn = 64;
+    auto read = [&](const RealStack& img, const std::string& name, const std::string& darks = "") {
+      CaptureOptions o;
+      o.captures = {(dir / name).string()};
+      o.darks_dir = darks;
+      write_png16_rgb(o.captures[0], img);
+      return read_captures(c12, o);
+    };
+    RealStack scene(3, S, S, 1000.0);
+    for (std::size_t i = 0; i < scene.data.size(); ++i) scene.data[i] += double(i % 97);
+    // Every value at the white level: overexposed, refused naming the file.
+    CHECK(input_error_of([&] { read(RealStack(3, S, S, 4095.0), "white.png"); }).find("white.png': 100 % of the capture values") !=
+          std::string::npos);
+    // Every value at the black level (or all zero): no signal, refused.
+    CHECK(input_error_of([&] { read(RealStack(3, S, S, 64.0), "black.png"); }).find("black.png': no signal") != std::string::npos);
+    CHECK(input_error_of([&] { read(RealStack(3, S, S, 0.0), "zero.png"); }).find("no signal") != std::string::npos);
+    // The lens cap on: the black level plus read noise (sigma 5 DN, seeded), nothing else.
+    RealStack cap(3, S, S);
+    std::mt19937 rng(5);
+    std::normal_distribution<double> noise(64.0, 5.0);
+    for (double& v : cap.data) v = std::max(0.0, std::round(noise(rng)));
+    CHECK(input_error_of([&] { read(cap, "cap.png"); }).find("within the noise") != std::string::npos);
+    // The darks given as the capture: no signal above the mean dark.
+    fs::create_directories(dir / "darks");
+    write_png16_rgb((dir / "darks" / "d0.PNG").string(), scene);  // upper-case extension: read, as calibrate reads it
+    CHECK(input_error_of([&] { read(scene, "same.png", (dir / "darks").string()); }).find("above the mean dark") != std::string::npos);
+    // Part clipped: read, with a note that counts the values.
+    RealStack part = scene;
+    for (std::size_t i = 0; i < 30; ++i) part.data[i] = 4095;
+    const CaptureFiles f = read(part, "part.png");
+    CHECK(f.saturated == 30);
+    REQUIRE(f.notes.size() == 1);
+    CHECK(f.notes[0].find("30 capture values") != std::string::npos);
+    CHECK(read(scene, "fine.png").notes.empty());
+    // Through the command: the note in stdout and reconstruct.json. The shared run's configuration
+    // has no bit depth (white 65535).
+    RealStack sat(3, S, S, 20000.0);
+    for (std::size_t i = 0; i < sat.data.size(); ++i) sat.data[i] += double((i * 37) % 1000);
+    for (std::size_t i = 0; i < 10; ++i) sat.data[i * 7] = 65535;
+    write_png16_rgb((dir / "sat.png").string(), sat);
+    const Run r = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "sat.png").string() + " --out " + (dir / "o").string());
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    CHECK(r.out.find("note: 10 capture values") != std::string::npos);
+    CHECK(read_json(dir / "o" / "reconstruct.json").at("notes").size() == 1);
+    // --truth-border leaving less than the SSIM window: refused before any work, naming the option.
+    write_cube((dir / "truth.h5").string(), RealStack(tiny().bands, S, S, 0.5), tiny().wavelengths_nm());
+    const Run b = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "sat.png").string() + " --truth " +
+                          (dir / "truth.h5").string() + " --truth-border " + std::to_string(S / 2 - 1) + " --out " + (dir / "ob").string());
+    CHECK(b.code == 2);
+    CHECK_MESSAGE(b.out.find("--truth-border") != std::string::npos, b.out);
+    CHECK(!fs::exists(dir / "ob" / "cube.h5"));
+    fs::remove_all(dir);
+  }
+
   TEST_CASE("a mosaic whose green sites sit on the other diagonal is refused, naming the file; the configured one passes") {
     // A colourful scene through RGGB: R at (0,0), G at (0,1) and (1,0), B at (1,1).
     const RealStack scene = smooth_scene(3, 32, 32, 4);

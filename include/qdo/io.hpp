@@ -225,6 +225,11 @@ bool is_tiff_path(const std::string& path);  // extension .tif or .tiff (any cas
 // A 16-bit capture by its extension: .png (read_png16) or .tif / .tiff (read_tiff16); any other
 // extension is refused, naming the file. planes x H x W code values in DN.
 RealStack read_capture16(const std::string& path);
+// The frames of a folder (calibrate's frames and darks, reconstruct's darks): its .png, .tif and
+// .tiff files in any case of the extension, sorted. A camera raw file in it (.dng, .nef, .cr2, ...)
+// is refused naming the file; a folder that is none, or holds no frame, is refused naming
+// `argument`.
+std::vector<std::string> capture_files(const std::string& dir, const std::string& argument);
 // An RGB image from a 3 x H x W stack: scaled so the 99.9th percentile maps to 1, sRGB gamma.
 void write_rgb_png(const std::string& path, const RealStack& rgb3);
 // A single map (e.g. a height map) with a perceptual colormap (viridis-like), min..max.

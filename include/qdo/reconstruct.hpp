@@ -62,6 +62,7 @@ struct CaptureFiles {
   std::vector<std::string> darks;    // the dark frames read
   std::size_t saturated = 0;         // capture values at the white level (kept; counted)
   double white_dn = 0;               // the white level used
+  std::vector<std::string> notes;    // what the user should know (clipped values), printed and in reconstruct.json
 };
 CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o);
 
@@ -168,6 +169,7 @@ struct ReconstructResult {
   std::string boundary;                                 // "circular" or "mirror"
   std::string psf, decoder;                             // what was used, one line each
   double exposure_factor = 1;
+  std::vector<std::string> notes;                       // from the captures (CaptureFiles::notes)
 };
 // Writes OUT/cube.h5 (/cube bands x H x W float64, /wavelengths_nm, provenance attributes),
 // srgb.png, spectra.csv (wavelength_nm, one column per region), spectra.png and reconstruct.json

@@ -69,9 +69,12 @@ int cmd_reconstruct(const Args& a) {
       truth = std::move(c);
     }
     border = std::size_t(parse_int("--truth-border", a.get("truth-border", "0"), 0, 1 << 20));
-    if (2 * border >= std::min(truth.rows, truth.cols))
-      reject("--truth-border", std::to_string(border), "fewer than half the image's smaller side (" +
-                                                           std::to_string(std::min(truth.rows, truth.cols)) + " px)");
+    // The scored interior must hold the metrics' 11 x 11 SSIM window: checked here, before any work.
+    const std::size_t side = std::min(truth.rows, truth.cols);
+    if (side < 11 || border > (side - 11) / 2)
+      reject("--truth-border", std::to_string(border),
+             "at most " + std::to_string(side < 11 ? 0 : (side - 11) / 2) + " px for a " + std::to_string(truth.rows) + " x " +
+                 std::to_string(truth.cols) + " image (the scored interior must be at least 11 x 11, the SSIM window)");
   } else if (a.has("truth-key") || a.has("truth-border")) {
     reject(a.has("truth-key") ? "--truth-key" : "--truth-border", "(given)", "only with --truth");
   }
@@ -98,6 +101,7 @@ int cmd_reconstruct(const Args& a) {
     std::printf("against %s (interior, %zu px border): PSNR %.3f dB, SSIM %.4f, RMSE %.5f, ERGAS %.3f, SAM %.4f rad\n",
                 a.get("truth").c_str(), border, sc.psnr, sc.ssim, sc.rmse, sc.ergas, sc.sam_rad);
   }
+  for (const auto& n : r.notes) std::printf("note: %s\n", n.c_str());
   std::printf("decoder: %s\nPSF: %s\nimage %zu x %zu -> cube %zu x %zu x %zu in %zu tile%s of %zu x %zu px, boundary %s (exposure factor %.6g)\nseconds:",
               r.decoder.c_str(), r.psf.c_str(), r.cube.rows, r.cube.cols, r.cube.planes, r.cube.rows, r.cube.cols, r.tiles,
               r.tiles == 1 ? "" : "s", r.tile_px, r.tile_px, r.boundary.c_str(), r.exposure_factor);

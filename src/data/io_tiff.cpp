@@ -161,6 +161,24 @@ void write_tiff16(const std::string& path, const RealStack& dn) {
   out.commit();
 }
 
+std::vector<std::string> capture_files(const std::string& dir, const std::string& argument) {
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir, ec)) reject(argument, dir, "a folder of 16-bit PNG or TIFF frames");
+  std::vector<std::string> out;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    if (!e.is_regular_file(ec)) continue;
+    const std::string p = e.path().string(), ext = lower_extension(p);
+    if (ext == ".png" || is_tiff_path(p)) out.push_back(p);
+    else if (ext == ".dng" || ext == ".raw" || ext == ".nef" || ext == ".cr2" || ext == ".cr3" || ext == ".arw" || ext == ".raf" ||
+             ext == ".orf" || ext == ".rw2")
+      fail(p, "", "frames are read as 16-bit PNG or TIFF (DNG and camera raw files are not supported: export them as 16-bit "
+                  "TIFF without demosaicking)");
+  }
+  std::sort(out.begin(), out.end());
+  if (out.empty()) reject(argument, dir, "a folder holding at least one .png or .tif frame (it holds none)");
+  return out;
+}
+
 RealStack read_capture16(const std::string& path) {
   if (is_tiff_path(path)) return read_tiff16(path);
   if (lower_extension(path) == ".png") return read_png16(path);

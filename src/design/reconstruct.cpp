@@ -53,18 +53,6 @@ std::vector<std::string> split(const std::string& s, char sep) {
   return out;
 }
 
-// The *.png files of a folder, sorted; an InputError naming `argument` when it is not a folder
-// holding at least one.
-std::vector<std::string> png_files(const std::string& dir, const std::string& argument) {
-  if (!fs::is_directory(dir)) reject(argument, dir, "a folder of 16-bit PNG or TIFF frames");
-  std::vector<std::string> v;
-  for (const auto& e : fs::directory_iterator(dir))
-    if (e.is_regular_file() && (e.path().extension() == ".png" || is_tiff_path(e.path().string()))) v.push_back(e.path().string());
-  std::sort(v.begin(), v.end());
-  if (v.empty()) reject(argument, dir, "a folder holding at least one .png or .tif frame (it holds none)");
-  return v;
-}
-
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
@@ -98,6 +86,42 @@ ExposureRule exposure_rule_from_string(const std::string& s, const std::string& 
 // ---------------------------------------------------------------------------------------------
 // Captures.
 
+// Saturated, empty and clipped captures: refused when nothing can be reconstructed from them
+// (no signal above the dark or black level; most values at the white level), said in f.notes
+// (printed, and kept in reconstruct.json) when part of the capture is clipped.
+void check_capture_levels(const SystemConfig& cfg, const CaptureOptions& o, CaptureFiles& f) {
+  const std::string first = "file '" + o.captures.front() + "'" + (o.captures.size() > 1 ? " (and the other captures)" : "");
+  const std::size_t n = f.mean_dn.data.size() * o.captures.size();
+  const double sat_fraction = double(f.saturated) / double(std::max<std::size_t>(n, 1));
+  if (sat_fraction > 0.5)
+    throw InputError(first + ": " + to_str(100 * sat_fraction) + " % of the capture values are at the white level " + to_str(f.white_dn) +
+                     " DN: overexposed, nothing to reconstruct; capture again with a shorter exposure or a lower gain");
+  // The signal above the dark (or the black level). Empty: its 99.9th percentile within 0.1 % of
+  // the range of 0 (black, zero, the darks themselves), or within 0.5 % and no further above the
+  // median than noise goes (4 sigma, from the median absolute deviation): the lens cap on.
+  std::vector<double> sig(f.mean_dn.data.size());
+  for (std::size_t i = 0; i < sig.size(); ++i)
+    sig[i] = f.mean_dn.data[i] - (f.dark_dn.data.empty() ? cfg.black_level_dn : f.dark_dn.data[i]);
+  auto quantile = [](std::vector<double> v, double q) {
+    const std::size_t k = std::min(v.size() - 1, std::size_t(q * double(v.size())));
+    std::nth_element(v.begin(), v.begin() + long(k), v.end());
+    return v[k];
+  };
+  const double top = quantile(sig, 0.999), med = quantile(sig, 0.5), range = f.white_dn - cfg.black_level_dn;
+  std::vector<double> dev(sig.size());
+  for (std::size_t i = 0; i < sig.size(); ++i) dev[i] = std::fabs(sig[i] - med);
+  const double sigma = 1.4826 * quantile(dev, 0.5);
+  const bool noise_only = sigma > 0 && top <= 0.005 * range && top - med <= 4 * sigma;
+  if (!(top > 0.001 * range) || noise_only)
+    throw InputError(first + ": no signal: its 99.9th percentile is " + to_str(top) + " DN above the " +
+                     (f.dark_dn.data.empty() ? "black level " + to_str(cfg.black_level_dn) + " DN" : std::string("mean dark")) +
+                     (noise_only ? ", within the noise (" + to_str(sigma) + " DN) of its median" : std::string()) + " (range " + to_str(range) +
+                     " DN): an empty or black capture, the lens cap on, or darks given as the capture");
+  if (f.saturated > 0)
+    f.notes.push_back(to_str(f.saturated) + " capture values (" + to_str(100 * sat_fraction) + " %) are at the white level " +
+                      to_str(f.white_dn) + " DN: clipped, so the cube is wrong around them; a shorter exposure avoids it");
+}
+
 CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
   if (o.captures.empty()) reject("--capture", "(missing)", "one or more 16-bit PNG captures of the scene");
   const std::size_t planes = raw_channels(cfg.cfa);
@@ -125,7 +149,7 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
     caps.push_back(read_capture16(path));
     check(caps.back(), path, caps.size() > 1 ? &caps.front() : nullptr, o.captures.front());
   }
-  if (!o.darks_dir.empty()) f.darks = png_files(o.darks_dir, "--darks");
+  if (!o.darks_dir.empty()) f.darks = capture_files(o.darks_dir, "--darks");
   std::vector<RealStack> darks;
   for (const std::string& path : f.darks) {
     darks.push_back(read_capture16(path));
@@ -142,6 +166,7 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
     for (const RealStack& d : darks)
       for (std::size_t i = 0; i < d.data.size(); ++i) f.dark_dn.data[i] += d.data[i] / double(darks.size());
   }
+  check_capture_levels(cfg, o, f);
   return f;
 }
 
@@ -598,6 +623,7 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   secs.push_back({"spectra", seconds_since(t)});
 
   res.exposure_factor = cap.exposure_factor;
+  res.notes = files.notes;
   res.seconds = secs;
   nlohmann::json j;
   j["run"] = o.run;
@@ -606,6 +632,7 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   j["captures"] = o.capture.captures;
   j["darks"] = files.darks;
   j["saturated_values"] = files.saturated;
+  j["notes"] = files.notes;
   j["white_level_dn"] = files.white_dn;
   j["exposure"] = o.capture.exposure.to_string();
   j["exposure_factor"] = cap.exposure_factor;

@@ -33,24 +33,6 @@ double mad_sigma(const std::vector<double>& v) {
   return 1.4826 * median_of(d);
 }
 
-// The 16-bit PNGs of a folder, sorted; another raw format in it is refused naming the file.
-std::vector<std::string> frame_files(const std::string& dir, const std::string& what) {
-  if (!fs::is_directory(dir)) throw InputError(what + " " + in_quotes(dir) + ": not a folder");
-  std::vector<std::string> out;
-  for (const auto& e : fs::directory_iterator(dir)) {
-    if (!e.is_regular_file()) continue;
-    std::string ext = e.path().extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-    if (ext == ".png" || ext == ".tif" || ext == ".tiff") out.push_back(e.path().string());
-    else if (ext == ".dng" || ext == ".raw" || ext == ".nef" || ext == ".cr2")
-      refuse(e.path().string(), "raw frames are read as 16-bit grayscale PNG or TIFF (DNG and camera raw files are not supported: "
-                                "export them as 16-bit TIFF without demosaicking)");
-  }
-  std::sort(out.begin(), out.end());
-  if (out.empty()) throw InputError(what + " " + in_quotes(dir) + ": holds no .png or .tif frame");
-  return out;
-}
-
 struct Frame {
   std::string path;
   Map2D dn;  // rows x cols code values
@@ -119,7 +101,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   };
 
   // 1. Match the file names to the bands (before reading any pixel).
-  const std::vector<std::string> files = frame_files(frames_dir, "--frames");
+  const std::vector<std::string> files = capture_files(frames_dir, "--frames");
   std::vector<std::string> band_file(bands);
   std::vector<double> band_nm(bands, 0);
   for (const auto& f : files) {
@@ -143,7 +125,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
 
   lap("match");
   // 2. Read and check every frame and dark.
-  const std::vector<std::string> dark_files = frame_files(darks_dir, "--darks");
+  const std::vector<std::string> dark_files = capture_files(darks_dir, "--darks");
   for (const auto& d : dark_files) {
     std::error_code ec;
     for (const auto& f : band_file)
