@@ -64,6 +64,10 @@ void h5_write_unchecked(const std::string& path, const std::vector<H5Dataset>& d
 // file and dataset if missing, non-numeric, or larger than max_elements.
 H5Dataset h5_read(const std::string& path, const std::string& name,
                   std::size_t max_elements = std::size_t(1) << 31);
+// Several datasets through one open file: all from the same file even when another process
+// renames a new one over `path` meanwhile (a checkpoint read while its run saves the next).
+std::vector<H5Dataset> h5_read_many(const std::string& path, const std::vector<std::string>& names,
+                                    std::size_t max_elements = std::size_t(1) << 31);
 bool h5_has(const std::string& path, const std::string& name);
 // The file's root attributes (the provenance qdo writes: "config", "source", "notes", ...): string
 // attributes as stored, numeric ones as text. InputError naming the file if it cannot be read.

@@ -355,9 +355,9 @@ H5Numeric h5_open_numeric(hid_t file, const std::string& name, const std::string
 }
 
 // Reads one numeric dataset (converted to float64, C order) plus its attributes.
-H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::size_t max_elements,
-                       NumKind* kind) {
-  H5Id file = h5_open_read(path);
+namespace {
+// One dataset of an open file (h5_read_impl, h5_read_many).
+H5Dataset h5_read_open(const H5Id& file, const std::string& path, const std::string& name, std::size_t max_elements, NumKind* kind) {
   H5Dataset ds;
   ds.name = h5_abs(name);
   const std::string what = "dataset '" + ds.name + "'";
@@ -376,6 +376,19 @@ H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::si
   h5_read_attrs(dset.get(), path, ds);
   if (kind) *kind = h5_num_kind(type.get());
   return ds;
+}
+}  // namespace
+
+H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::size_t max_elements, NumKind* kind) {
+  const H5Id file = h5_open_read(path);
+  return h5_read_open(file, path, name, max_elements, kind);
+}
+
+std::vector<H5Dataset> h5_read_many_impl(const std::string& path, const std::vector<std::string>& names, std::size_t max_elements) {
+  const H5Id file = h5_open_read(path);
+  std::vector<H5Dataset> out;
+  for (const auto& n : names) out.push_back(h5_read_open(file, path, n, max_elements, nullptr));
+  return out;
 }
 
 }  // namespace io_detail
@@ -438,6 +451,10 @@ void h5_write_unchecked(const std::string& path, const std::vector<H5Dataset>& d
 
 H5Dataset h5_read(const std::string& path, const std::string& name, std::size_t max_elements) {
   return h5_read_impl(path, name, max_elements, nullptr);
+}
+
+std::vector<H5Dataset> h5_read_many(const std::string& path, const std::vector<std::string>& names, std::size_t max_elements) {
+  return h5_read_many_impl(path, names, max_elements);
 }
 
 bool h5_has(const std::string& path, const std::string& name) {

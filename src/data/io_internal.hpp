@@ -116,6 +116,7 @@ void check_h5_storage(const std::string& path, const std::string& what, hid_t ds
                       const std::vector<std::size_t>& shape, std::size_t n);
 H5Dataset h5_read_impl(const std::string& path, const std::string& name, std::size_t max_elements,
                        NumKind* kind);
+std::vector<H5Dataset> h5_read_many_impl(const std::string& path, const std::vector<std::string>& names, std::size_t max_elements);
 // An open numeric (integer or float) dataset `name` of an open file, with its type, dataspace
 // and shape; every failure is fail(path, what, ...): missing (`missing` says how), unreadable,
 // not numeric, or a rank above 32.

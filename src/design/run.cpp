@@ -155,8 +155,14 @@ DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std
   // Every dataset is read first, then the checksum (on /counters, written since format 2) is
   // checked before any value is trusted: a flipped byte in a dataset would otherwise resume a
   // different optimisation silently. Checkpoints without the attribute (older qdo) are read as before.
+  // One open file for every dataset: opened by name once per dataset, a read racing the run's
+  // next save mixed two checkpoints and failed its checksum (the stress suite under load).
   std::map<std::string, H5Dataset> sets;
-  for (const char* name : kCheckpointSets) sets[name] = h5_read(path, name, 1u << 28);
+  {
+    const std::vector<std::string> names(std::begin(kCheckpointSets), std::end(kCheckpointSets));
+    std::vector<H5Dataset> read = h5_read_many(path, names, 1u << 28);
+    for (std::size_t i = 0; i < names.size(); ++i) sets[names[i]] = std::move(read[i]);
+  }
   const auto& cattrs = sets["/counters"].str_attrs;
   const auto stored = cattrs.find("checksum");
   const auto nf = cattrs.find("network_file"), nc = cattrs.find("network_checksum");
