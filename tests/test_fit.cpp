@@ -421,6 +421,40 @@ TEST_SUITE("fit") {
                                (dir / "psf.h5").string() + " --fit levels,z --out " + (dir / "o4").string());
     CHECK(levels.code == 2);
     CHECK(levels.out.find("quantized design") != std::string::npos);
+    // --start in the parameter's own unit, bounded by what a built camera can be; refused before
+    // any work, naming --start (not an internal argument), the item and the unit rule.
+    const std::string with_psf = base + " --psf " + (dir / "psf.h5").string();
+    auto refused = [&](const std::string& extra, const std::string& named, const std::string& out) {
+      const Run r = qdo_run(with_psf + " " + extra + " --out " + (dir / out).string());
+      CAPTURE(extra);
+      CAPTURE(r.out);
+      CHECK(r.code == 2);
+      CHECK(r.out.find(named) != std::string::npos);
+      CHECK(!fs::exists(dir / out / "design.h5"));
+    };
+    refused("--start dx=1.5,dy=-1.0", "lengths are metres unless suffixed", "s1");  // 1.5 m: beyond the aperture
+    refused("--start sx=1e3 --fit levels,z,shift", "sx=1e3: a registration within half", "s2");
+    refused("--start z=-0.01", "--start", "s3");
+    refused("--start level1=1", "level1=1: a depth in", "s4");
+    refused("--start dx=0.1um,dx=0.2um", "given twice", "s5");
+    refused("--fit ''", "--fit", "s6");
+    refused("--fit ' , '", "--fit", "s7");
+    refused("--fit=", "--fit", "s7b");
+    // Suffixes are read: 0.1um is 1e-7 m (taken: a fit from there converges to the truth).
+    const Run um = qdo_run(with_psf + " --start dx=0.1um,dy=-50nm,z=" + to_str(cfg.sensor_distance_m * 1e3) + "mm --out " + (dir / "s8").string());
+    CAPTURE(um.out);
+    CHECK(um.code == 0);
+    // A fit that ends worse than the design writes no as-built design and fails (exit 3): one
+    // iteration from a start far off in dx.
+    const double far_um = 0.35 * double(cfg.n) * cfg.pitch_m * 1e6;
+    const Run worse = qdo_run(with_psf + " --iterations 1 --start dx=" + to_str(far_um) + "um,dy=" + to_str(far_um) + "um --out " +
+                              (dir / "s9").string());
+    CAPTURE(worse.out);
+    CHECK(worse.code == 3);
+    CHECK(worse.out.find("above the design's own") != std::string::npos);
+    CHECK(worse.out.find("NOT CONVERGED") != std::string::npos);
+    CHECK(!fs::exists(dir / "s9" / "design.h5"));
+    CHECK(!fs::exists(dir / "s9" / "config.json"));
     fs::remove_all(dir);
   }
 }

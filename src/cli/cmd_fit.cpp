@@ -7,6 +7,7 @@
 #include <cmath>
 #include <algorithm>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 
 #include "cli.hpp"
@@ -50,12 +51,73 @@ std::string human(const FitValue& v, double x) {
   return b;
 }
 
+// One --start item NAME=VALUE in the parameter's own unit, checked against what a built camera can
+// be: lengths in metres unless suffixed (nm, um, mm, m: `dx=1.5um`, as fabricate --offset-um
+// takes them); sx, sy in sensor px (an optional px suffix); scale plain. Bounds: offsets within
+// the aperture's half width, shifts within half the sensor window, z and d within a factor 10 of
+// the configuration's, level and mask depths within [0, 2 x the design's deepest + 1 um], scale in
+// (0, 10]. An InputError names --start, the item, the value read and what is allowed.
+double start_value(const SystemConfig& cfg, const Design& design, const std::string& name, const std::string& item) {
+  const std::string text = item.substr(item.find('=') + 1);
+  const bool px = name == "sx" || name == "sy", plain = name == "scale";
+  struct Suffix {
+    const char* s;
+    double f;
+  };
+  const Suffix lengths[] = {{"nm", 1e-9}, {"um", 1e-6}, {"\u00b5m", 1e-6}, {"mm", 1e-3}, {"m", 1.0}};
+  std::string num = text, unit;
+  double factor = 1;
+  if (px) {
+    if (num.size() > 2 && num.compare(num.size() - 2, 2, "px") == 0) num.resize(num.size() - 2);
+    unit = " px";
+  } else if (!plain) {
+    for (const auto& u : lengths) {
+      const std::size_t n = std::strlen(u.s);
+      if (num.size() > n && num.compare(num.size() - n, n, u.s) == 0 && (std::isdigit(static_cast<unsigned char>(num[num.size() - n - 1])) || num[num.size() - n - 1] == '.')) {
+        num.resize(num.size() - n);
+        factor = u.f;
+        break;
+      }
+    }
+    unit = " m";
+  }
+  const double v = parse_double("--start", num) * factor;
+  double lo = 0, hi = 0;
+  std::string why;
+  const double half_aperture = 0.5 * double(cfg.n) * cfg.pitch_m;
+  double deepest = 0;
+  for (double l : design.levels_m) deepest = std::max(deepest, std::fabs(l));
+  for (double h : design.height_m.data) deepest = std::max(deepest, std::fabs(h));
+  if (name == "dx" || name == "dy") {
+    lo = -half_aperture, hi = half_aperture, why = "the relief's offset within the aperture's half width";
+  } else if (px) {
+    hi = 0.5 * double(cfg.sensor_size_px()), lo = -hi, why = "a registration within half the " + to_str(cfg.sensor_size_px()) + " px window";
+  } else if (name == "z") {
+    lo = 0.1 * cfg.sensor_distance_m, hi = 10 * cfg.sensor_distance_m, why = "within a factor 10 of the configuration's sensor_distance_m";
+  } else if (name == "d") {
+    lo = 0.1 * cfg.scene_distance_m, hi = 10 * cfg.scene_distance_m, why = "within a factor 10 of the configuration's scene_distance_m";
+  } else if (plain) {
+    lo = 1e-6, hi = 10, why = "a factor on every height, in (0, 10]";
+  } else {  // levelK, maskK
+    lo = 0, hi = 2 * deepest + 1e-6, why = "a depth in [0, 2 x the design's deepest + 1 um]";
+  }
+  if (!(v >= lo && v <= hi)) {
+    const std::string shown = to_str(v) + unit;
+    reject("--start", item,
+           why + ", [" + to_str(lo) + ", " + to_str(hi) + "]" + unit + "; it reads as " + shown +
+               (px || plain ? std::string() : " (lengths are metres unless suffixed: " + name + "=1.5um, " + name + "=550nm, " + name + "=20mm)"));
+  }
+  return v;
+}
+
 }  // namespace
 
 int cmd_fit(const Args& a) {
   const SystemConfig cfg = load_config(a);
   if (!a.has("psf")) reject("--psf", "(missing)", "the measured PSF stack: psf.h5 as qdo calibrate or qdo psf writes it");
   FitOptions opt;
+  if (a.has("fit") && a.get("fit").find_first_not_of(" ,") == std::string::npos)
+    reject("--fit", a.get("fit"), "one or more of levels, masks, scale, z, d, offset, shift, aperture (omit --fit for the default set)");
   opt.parameters = split_list(a.get("fit"));
   opt.max_iterations = parse_int("--iterations", a.get("iterations"), 1, 1000);
   opt.tolerance = parse_double("--tolerance", a.get("tolerance"), 0, 1, "", false);
@@ -87,9 +149,11 @@ int cmd_fit(const Args& a) {
       if (eq == std::string::npos || std::find(allowed.begin(), allowed.end(), name) == allowed.end()) {
         std::string all;
         for (const auto& n : allowed) all += (all.empty() ? "" : ", ") + n;
-        reject("--start", item, "NAME=VALUE with NAME a fitted parameter (" + all + "), VALUE in metres, sensor px (sx, sy) or none (scale)");
+        reject("--start", item, "NAME=VALUE with NAME a fitted parameter (" + all + "), VALUE in metres or with a unit (550nm, 1.5um, 20mm), sensor px (sx, sy) or none (scale)");
       }
-      opt.start.push_back({name, parse_double("--start", item.substr(eq + 1), -1e3, 1e3, "", false)});
+      for (const auto& [given, value] : opt.start)
+        if (given == name) reject("--start", item, "each name once (" + name + " is given twice)");
+      opt.start.push_back({name, start_value(cfg, design, name, item)});
     }
   }
   const std::string dir = out_dir(a);
@@ -138,6 +202,7 @@ int cmd_fit(const Args& a) {
   j["residual_rel_fit"] = r.residual_rel_fit;
   j["iterations"] = r.iterations;
   j["converged"] = r.converged;
+  j["worse_than_design"] = !(r.loss_final <= r.loss_design);
   j["loss_history"] = r.loss_history;
   j["levels_m"] = r.as_built.levels_m;
   j["seconds"] = {{"psf", r.times.psf_s}, {"vjp", r.times.vjp_s}, {"jacobian", r.times.jacobian_s}, {"solve", r.times.solve_s},
@@ -166,9 +231,14 @@ int cmd_fit(const Args& a) {
             {"design", a.get("design")},
             {"psf", a.get("psf")},
             {"source", "qdo fit"}});
-  write_design(dir + "/design.h5", r.as_built,
-               {{"source", "qdo fit"}, {"design", a.get("design")}, {"psf", a.get("psf")}, {"fit", names}});
-  write_text_atomic(dir + "/config.json", config_to_json_text(r.as_built_config) + "\n");
+  // An as-built design that explains the measurement worse than the design itself is no result:
+  // the command fails (exit 3) and, as on any failure, --out keeps nothing of it.
+  const bool worse = !(r.loss_final <= r.loss_design);
+  if (!worse) {
+    write_design(dir + "/design.h5", r.as_built,
+                 {{"source", "qdo fit"}, {"design", a.get("design")}, {"psf", a.get("psf")}, {"fit", names}});
+    write_text_atomic(dir + "/config.json", config_to_json_text(r.as_built_config) + "\n");
+  }
   // fit.png: per band four tiles, measured, fitted, design and |fitted - measured|, each tile
   // scaled to its own maximum (residual.png holds the residuals' sizes); a band's four tiles
   // start a row's quarter (the montage's near-square grid is C columns, C a multiple of 4;
@@ -222,6 +292,14 @@ int cmd_fit(const Args& a) {
               "(%ld PSF evaluations, %ld adjoints, %ld simulators)\n",
               r.times.psf_s, r.times.vjp_s, r.times.jacobian_s, r.times.solve_s, r.times.scan_s, out_s, r.times.psf_evaluations,
               r.times.vjps, r.times.simulators_built);
+  if (!r.converged)
+    std::fprintf(stderr, "qdo fit: NOT CONVERGED: the iteration limit (--iterations %d) ended the fit; the values and sigmas above "
+                         "are not a minimum: raise --iterations, or start elsewhere (--start, --lateral-starts)\n",
+                 opt.max_iterations);
+  if (worse)
+    throw AccuracyError("the fit ended at loss " + to_str(r.loss_final) + ", above the design's own " + to_str(r.loss_design) +
+                        ": no as-built design is written (nothing in --out " + a.get("out") + "); start nearer the truth (--start in "
+                        "the parameter's unit, e.g. dx=1.5um), raise --iterations or try more starts (--lateral-starts)");
   std::printf("wrote %s/fit.h5, fit.json, design.h5, config.json, fit.png, residual.png\n", dir.c_str());
   return 0;
 }

@@ -90,11 +90,20 @@ bool parse_command_line(const CommandSpec& c, int argc, char** argv, Args& out) 
     const std::string s = argv[i];
     if (s == "--") break;
     if (s == "-h" || s == "--help") break;
-    if (s.rfind("--", 0) != 0 || s.find('=') != std::string::npos) continue;
+    if (s.rfind("--", 0) != 0) continue;
+    const auto eq = s.find('=');
+    if (eq != std::string::npos) {  // --name= with nothing after it: an empty value, refused as below
+      const OptionSpec* o = find_option(c, s.substr(2, eq - 2));
+      if (o && !o->flag && eq + 1 == s.size()) reject(s.substr(0, eq), "\"\"", "a value (it is empty): " + o->help);
+      continue;
+    }
     const OptionSpec* o = find_option(c, s.substr(2));
     if (!o || o->flag) continue;
     if (i + 1 >= argc) reject(s, "(missing)", "a value after the option: " + o->help);
     const std::string next = argv[i + 1];
+    // An empty value ('') is not "the default": CLI11 would drop it and the command would run as if
+    // the option were not given.
+    if (next.find_first_not_of(" \t") == std::string::npos) reject(s, "\"" + next + "\"", "a value (it is empty): " + o->help);
     if (next.rfind("--", 0) == 0 && next.size() > 2) reject(s, "(missing)", "a value after the option (got the option " + next + "): " + o->help);
     ++i;
   }
