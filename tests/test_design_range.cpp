@@ -510,6 +510,10 @@ TEST_SUITE("design-range") {
         {"--object-distances 0.01,0.02 --points-per-step 3", "--points-per-step", "[1, 2]"},
         {"--object-distances 0.01,0.02 --points-per-step 0", "--points-per-step", "0"},
         {"--object-distances 0.01,0.02 --decoder resunet", "objective", "object points"},
+        // One point given twice is not a range (eval and reconstruct would refuse the run).
+        {"--object-distances 1,1", "--object-distances", "1 is given twice"},
+        {"--object-distances 0.01 --field-angles 0,0", "--field-angles", "0 is given twice"},
+        {"--object-distances 0.01 --field-angles 1:2,0,1:2", "--field-angles", "1:2 is given twice"},
     };
     for (const Case& c : cases) {
       const Run r = qdo_run("design " + cfg_arg() + " " + c.args + out);
@@ -519,6 +523,17 @@ TEST_SUITE("design-range") {
       CHECK(r.out.find(c.option) != std::string::npos);
       CHECK(r.out.find(c.value) != std::string::npos);
       CHECK_FALSE(fs::exists(dir / "run"));
+    }
+    // A point too near for the DOE grid's sampling trains (the user may want it) but is said to
+    // be INACCURATE, as qdo psf says it for that point; a sampled one is not.
+    {
+      const Run near = qdo_run("design " + cfg_arg() + " --recipe qdo --object-distances 0.0002,0.05 --epochs 1 --steps-per-epoch 1 --out " +
+                               (dir / "near").string());
+      CAPTURE(near.out);
+      CHECK(near.code == 0);
+      CHECK(near.out.find("training point 0 of 2 INACCURATE") != std::string::npos);
+      CHECK(near.out.find("training point 1 of 2 INACCURATE") == std::string::npos);
+      fs::remove_all(dir / "near");
     }
     // The field-angle refusal names the largest angle this configuration samples there.
     const Run wide = qdo_run("design " + cfg_arg() + " --object-distances 0.01 --field-angles 60" + out);

@@ -80,6 +80,18 @@ TEST_SUITE("fab") {
     fab::AsBuiltOptions bad = none;
     bad.sensor_distance_error_m = -2 * cfg.sensor_distance_m;
     CHECK_THROWS_WITH_AS(fab::fabricate(d, cfg, bad), doctest::Contains("sensor_distance_error_m"), InputError);
+    // An error that takes the sensor to the DOE (-12.5 mm on a 12.5 mm camera wrote 1.7e-18 m) or
+    // beyond half the distance is no assembly error.
+    for (const double f : {-1.0, -0.6, 0.6}) {
+      bad.sensor_distance_error_m = f * cfg.sensor_distance_m;
+      CHECK_THROWS_WITH_AS(fab::fabricate(d, cfg, bad), doctest::Contains("at most half the DOE-sensor distance"), InputError);
+    }
+    bad.sensor_distance_error_m = -0.5 * cfg.sensor_distance_m;
+    CHECK(fab::fabricate(d, cfg, bad).cfg.sensor_distance_m == doctest::Approx(0.5 * cfg.sensor_distance_m));
+    // ... and a configuration with the sensor on the DOE is refused wherever it is read.
+    SystemConfig touching = cfg;
+    touching.sensor_distance_m = 1.73e-18;
+    CHECK_THROWS_WITH_AS(touching.validate(), doctest::Contains("sensor_distance_m"), InputError);
     bad = none;
     bad.offset_x_m = double(cfg.n) * cfg.pitch_m;
     CHECK_THROWS_WITH_AS(fab::fabricate(d, cfg, bad), doctest::Contains("offset_x_m"), InputError);

@@ -211,6 +211,15 @@ void range_options(const Args& a, DesignRunOptions& o) {
     }
     if (a.has("field-angles") && angles.empty())
       reject("--field-angles", a.get("field-angles"), "one or more angles in degrees (A on the x axis, or X:Y), comma-separated");
+    // Each value once, as eval-points asks: 1,1 is one point, not a range that eval then refuses.
+    for (std::size_t i = 0; i < distances.size(); ++i)
+      for (std::size_t j = 0; j < i; ++j)
+        if (distances[i] == distances[j])
+          reject("--object-distances", a.get("object-distances"), "distinct distances (" + split_list(a.get("object-distances"))[i] + " is given twice)");
+    for (std::size_t i = 0; i < angles.size(); ++i)
+      for (std::size_t j = 0; j < i; ++j)
+        if (angles[i] == angles[j])
+          reject("--field-angles", a.get("field-angles"), "distinct angles (" + split_list(a.get("field-angles"))[i] + " is given twice)");
     if (angles.empty()) angles.push_back({0.0, 0.0});
     // Each off-axis angle within the sampling at each distance, named with the limit there.
     for (const auto& ang : angles) {

@@ -206,8 +206,8 @@ void SystemConfig::validate() const {
   if (!scene_at_infinity)
     check_finite_range("scene_distance_m", scene_distance_m, std::numeric_limits<double>::min(), inf,
                        "a finite distance > 0 m, or \"inf\" for a source at infinity");
-  check_finite_range("sensor_distance_m", sensor_distance_m, std::numeric_limits<double>::min(), 10.0,
-                     "a distance > 0 and <= 10 m");
+  // Below 1 um the DOE would touch the sensor: no optics qdo models (nor any Fresnel sampling).
+  check_finite_range("sensor_distance_m", sensor_distance_m, 1e-6, 10.0, "a distance from 1 um to 10 m");
   const double half_width_m = static_cast<double>(n) / 2.0 * pitch_m;
   check_finite_range("aperture_radius_m", aperture_radius_m, 0.0, half_width_m,
                      "0 (default (n/2 - 1) * pitch_m) or a radius up to n/2 * pitch_m = " + to_str(half_width_m) + " m");

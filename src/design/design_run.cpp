@@ -436,6 +436,15 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   // psf.h5 and psf.png: the PSF at the first object point (the run's one point when it has one).
   sim.set_heights(out.height_m);
   sim.compute_psf();
+  // A training point whose spherical wave the DOE grid under-samples (qdo psf's "ALIASES" for that
+  // point: an object too near for the pitch) trained on aliased physics: said, with qdo psf's report.
+  for (std::size_t k = 0; k < sims.size(); ++k) {
+    const SamplingReport& rep = sims[k]->sampling();
+    const bool aliases = std::any_of(rep.bands.begin(), rep.bands.end(), [](const BandSampling& b) { return b.source_undersampled; });
+    if (aliases)
+      std::fprintf(stderr, "qdo: note: training point %zu of %zu INACCURATE, the point source's wave aliases on the DOE grid: %s\n", k,
+                   sims.size(), rep.summary().c_str());
+  }
   const RealStack psf = sim.psf_sensor();
   write_psf(folder.psf_path(), psf, o.cfg.wavelengths_nm(), o.cfg.sensor_pitch_m);
   write_montage_png((dir / "psf.png").string(), psf, o.cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf.rows, 96));

@@ -26,9 +26,11 @@ AsBuiltCamera fabricate(const Design& d, const SystemConfig& cfg, const AsBuiltO
   for (const auto& [name, v] : {std::pair<const char*, double>{"offset_x_m", o.offset_x_m}, {"offset_y_m", o.offset_y_m}})
     if (!(std::isfinite(v) && std::abs(v) <= half_grid_m))
       reject(name, v, "a lateral offset within half the DOE grid, |offset| <= " + std::to_string(half_grid_m) + " m");
-  if (!(std::isfinite(o.sensor_distance_error_m) && cfg.sensor_distance_m + o.sensor_distance_error_m > 0))
-    reject("sensor_distance_error_m", o.sensor_distance_error_m,
-           "an error keeping the DOE-sensor distance positive (it is " + std::to_string(cfg.sensor_distance_m) + " m)");
+  // An assembly error, not a new camera: at most half the DOE-sensor distance either way.
+  if (!(std::isfinite(o.sensor_distance_error_m) && std::abs(o.sensor_distance_error_m) <= 0.5 * cfg.sensor_distance_m))
+    reject("sensor_distance_error_m (--sensor-distance-error-um)", to_str(o.sensor_distance_error_m) + " m",
+           "an assembly error of at most half the DOE-sensor distance " + to_str(cfg.sensor_distance_m) + " m, i.e. |error| <= " +
+               to_str(0.5e6 * cfg.sensor_distance_m) + " um");
   if (d.height_m.rows != cfg.n || d.height_m.cols != cfg.n)
     reject("design", std::to_string(d.height_m.rows) + " x " + std::to_string(d.height_m.cols),
            "a design on the configuration's " + std::to_string(cfg.n) + " x " + std::to_string(cfg.n) + " grid");
