@@ -17,7 +17,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 SECONDS_EACH="${1:-60}"
 shift || true
-ALL=(config design_h5 cube_h5 mat checkpoint png csv kernel_cache run_folder sweep_cell network_state)
+ALL=(config design_h5 cube_h5 mat checkpoint png capture_png capture_tiff csv kernel_cache run_folder sweep_cell network_state)
 TARGETS=("$@")
 [ ${#TARGETS[@]} -eq 0 ] && TARGETS=("${ALL[@]}")
 

@@ -3,12 +3,15 @@
 // folder takes its reruns; a folder qdo did not make, or another command made, that holds anything
 // is refused, exit 2, naming what is there, before any work and with nothing changed on disk,
 // unless --into-existing.
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <set>
 #include <string>
+#include <thread>
 
 #include "commands_common.hpp"
+#include "stress_common.hpp"  // Child: a qdo process the test can signal
 
 using namespace qdo;
 using namespace qdo::test;
@@ -99,6 +102,56 @@ TEST_SUITE("commands") {
     // A folder the command creates and then fails in is removed again.
     CHECK(qdo_run("psf " + cfg_arg() + " --design " + (dir / "missing.h5").string() + " --out " + (dir / "new").string()).code == 2);
     CHECK_FALSE(fs::exists(dir / "new"));
+    fs::remove_all(dir);
+  }
+
+  TEST_CASE("--out: SIGTERM or SIGINT mid-command leaves no folder it created, keeps an earlier run's files and a run's checkpoint") {
+    // A Ctrl-C or a kill (Slurm's time limit) left the folder a command created, holding
+    // .qdo-out.tmp-PID. The process discards what it staged, as a failure does, and dies of the signal.
+    const auto dir = temp_dir("out_signal");
+    const std::string qdo = QDO_QDO_BINARY, log = (dir / "log.txt").string();
+    // Waits until `p` exists (at most 120 s), then signals the child; returns how it ended.
+    auto interrupt = [&](stress_suite::Child& child, const fs::path& p, int sig) {
+      for (int t = 0; t < 24000 && child.running() && !fs::exists(p); ++t) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      const bool was_running = child.running();
+      if (was_running) ::kill(child.pid(), sig);
+      const int st = child.wait();
+      return was_running && WIFSIGNALED(st) && WTERMSIG(st) == sig;
+    };
+    for (const int sig : {SIGTERM, SIGINT}) {
+      CAPTURE(sig);
+      const fs::path out = dir / ("sim_" + std::to_string(sig));
+      stress_suite::Child child({qdo, "simulate", "--preset", "paper", "--design", "lens:550", "--out", out.string()}, log);
+      const bool interrupted = interrupt(child, out, sig);
+      REQUIRE_MESSAGE(interrupted, slurp(log));  // the paper preset's simulate takes seconds: the signal lands inside it
+      CHECK_FALSE(fs::exists(out));
+    }
+    // A rerun into the command's own folder, interrupted: the earlier outputs stay as they were,
+    // no temporary file remains.
+    const fs::path again = dir / "again";
+    REQUIRE(qdo_run("simulate --preset paper --design lens:550 --out " + again.string()).code == 0);
+    const std::set<std::string> before = entries(again);
+    const std::string psf_before = slurp(again / "psf.h5");
+    {
+      stress_suite::Child child({qdo, "simulate", "--preset", "paper", "--design", "lens:550", "--out", again.string()}, log);
+      std::this_thread::sleep_for(std::chrono::milliseconds(400));
+      if (child.running()) ::kill(child.pid(), SIGTERM);
+      child.wait();
+    }
+    CHECK(entries(again) == before);
+    CHECK(slurp(again / "psf.h5") == psf_before);
+    // A training run stopped by SIGTERM keeps its folder and its checkpoint.
+    const fs::path run = dir / "run";
+    {
+      stress_suite::Child child({qdo, "design", "--config", tiny_config_file().string(), "--recipe", "qdo", "--epochs", "400",
+                                 "--steps-per-epoch", "10", "--checkpoint-every", "1", "--out", run.string()},
+                                log);
+      CHECK(interrupt(child, run / "checkpoint.h5", SIGTERM));
+    }
+    CHECK(fs::exists(run / "checkpoint.h5"));
+    for (const auto& name : entries(run)) CHECK(name.find(".tmp-") == std::string::npos);
+    CHECK(h5_has((run / "checkpoint.h5").string(), "/w"));  // whole (written, then renamed), so a --resume reads it
     fs::remove_all(dir);
   }
 }

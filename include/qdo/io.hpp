@@ -260,6 +260,8 @@ class OutputStage {
   void commit();  // renames every staged file into place; the created folders stay
 
  private:
+  friend void abandon_output_stage();
+  void discard();  // what the destructor does when not committed (and abandon_output_stage)
   friend void commit_output(const std::string& tmp, const std::string& path);
   friend std::string readable_output(const std::string& path);
   friend void make_output_dir(const std::string& dir, const std::string& argument);
@@ -270,6 +272,15 @@ class OutputStage {
   std::vector<std::string> markers_;                        // output markers claim_output_dir wrote
   friend void claim_output_dir(const std::string&, const std::string&, const std::string&, bool);
 };
+// What a command interrupted by SIGINT, SIGTERM or SIGHUP leaves: the active stage discarded as
+// on a failure (its staged files, its "<name>.tmp-<pid>" files in the folders it wrote to, its
+// marker in a folder holding nothing else, the folders it created while empty), from the CLI's
+// signal thread; nothing happens without an active stage or after commit. A resumable run's
+// folder (checkpoints, logs) is kept: it is not empty.
+void abandon_output_stage();
+// Blocks for good once abandon_output_stage has run (the signal then ends the process): called
+// where an output write starts (AtomicFile) or ends (commit_output, the checkpoint's renames).
+void wait_if_abandoned();
 // Moves a finished temporary file onto path, or records it in the active deferring stage.
 void commit_output(const std::string& tmp, const std::string& path);
 // The name under which an output written in this command can be read back now: its

@@ -3,13 +3,16 @@
 // are generated from the table here, and main() dispatches to the command.
 #include <CLI/CLI.hpp>
 #include <fftw3.h>
+#include <pthread.h>
 
 #include <algorithm>
-#include <memory>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <memory>
 #include <sstream>
+#include <thread>
 
 #include "cli.hpp"
 #include "qdo/error.hpp"
@@ -213,7 +216,35 @@ int print_version() {
 
 }  // namespace
 
+namespace {
+
+// SIGINT (Ctrl-C), SIGTERM (kill, Slurm's time limit) and SIGHUP are blocked in every thread and
+// taken by one thread of their own, which discards the command's unfinished outputs as a failure
+// does (abandon_output_stage: the staged files, this process's temporary files, a folder the
+// command created and left empty) and then dies of the same signal (exit status 128 + signal for
+// the shell). A resumable run keeps its folder: checkpoints and logs make it non-empty.
+void take_termination_signals() {
+  sigset_t set;
+  sigemptyset(&set);
+  for (int sig : {SIGINT, SIGTERM, SIGHUP}) sigaddset(&set, sig);
+  if (pthread_sigmask(SIG_BLOCK, &set, nullptr) != 0) return;  // the default handling then
+  std::thread([set] {
+    int sig = 0;
+    if (sigwait(&set, &sig) != 0) return;
+    qdo::abandon_output_stage();
+    std::signal(sig, SIG_DFL);
+    sigset_t one;
+    sigemptyset(&one);
+    sigaddset(&one, sig);
+    pthread_sigmask(SIG_UNBLOCK, &one, nullptr);
+    std::raise(sig);
+  }).detach();
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
+  take_termination_signals();  // before any other thread exists, so that all inherit the mask
 #ifdef QDO_WITH_TORCH
   qdo::cli::register_net_plugin_loader();  // --decoder resunet: libqdo-net.so, loaded on first use (net_plugin.cpp)
 #endif
@@ -241,27 +272,35 @@ int main(int argc, char** argv) {
     // rename them into place together only when the command succeeds (OutputStage, io.hpp).
     OutputStage stage(!c->writes_as_it_goes);
     const int status = c->run(a);
+    qdo::wait_if_abandoned();  // interrupted as it finished: no commit, the signal ends the process
     if (status == 0) stage.commit();
     return status;
   } catch (const InputError& e) {
+    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
     return 2;
   } catch (const AccuracyError& e) {
+    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: refused: %s\n", cmd.c_str(), e.what());
     return 3;
   } catch (const DeviceError& e) {
+    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: device error: %s\n", cmd.c_str(), e.what());
     return 4;
   } catch (const cl::Error& e) {
+    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: OpenCL error in %s: %s\n", cmd.c_str(), e.what(), cl_error_name(e.err()).c_str());
     return 4;
   } catch (const std::filesystem::filesystem_error& e) {
+    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: file system error: %s\n", cmd.c_str(), e.what());
     return 6;
   } catch (const std::bad_alloc&) {
+    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: out of host memory (reduce the problem size: --preset, n, bands, batch)\n", cmd.c_str());
     return 7;
   } catch (const std::exception& e) {
+    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: internal error (please report): %s\n", cmd.c_str(), e.what());
     return 1;
   }

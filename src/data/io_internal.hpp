@@ -56,6 +56,7 @@ class AtomicFile {
   explicit AtomicFile(std::string path)
       : path_(std::move(path)), tmp_(path_ + ".tmp-" + std::to_string(static_cast<long>(::getpid()))) {
     if (path_.empty()) reject("path", "\"\"", "an output file name is required");
+    wait_if_abandoned();
   }
   AtomicFile(const AtomicFile&) = delete;
   AtomicFile& operator=(const AtomicFile&) = delete;

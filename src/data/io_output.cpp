@@ -3,6 +3,8 @@
 // (make_output_dir), the rule of every command's output folder (claim_output_dir), and
 // write_text_atomic.
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -10,6 +12,7 @@
 #include <fstream>
 #include <mutex>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "data/io_internal.hpp"
@@ -27,6 +30,10 @@ namespace fs = std::filesystem;
 // =========================================================================================
 
 namespace {
+// Set by abandon_output_stage: from then on no thread starts or finishes an output write
+// (wait_if_abandoned), so that nothing is created after the discard and before the signal ends
+// the process.
+std::atomic<bool> g_abandoned{false};
 OutputStage* g_stage = nullptr;  // the active stage (CLI: one per command)
 // Guards the active stage's lists: a command may write outputs from two threads (figures beside
 // HDF5 files), and every writer ends in commit_output.
@@ -39,10 +46,39 @@ OutputStage::OutputStage(bool defer_files) : defer_files_(defer_files) {
 }
 
 OutputStage::~OutputStage() {
+  const std::lock_guard<std::mutex> lock(g_stage_mutex);
   g_stage = nullptr;
   if (committed_) return;
+  discard();
+}
+
+void wait_if_abandoned() {
+  while (g_abandoned.load()) std::this_thread::sleep_for(std::chrono::seconds(1));  // until the signal ends the process
+}
+
+void abandon_output_stage() {
+  g_abandoned.store(true);
+  const std::lock_guard<std::mutex> lock(g_stage_mutex);
+  if (!g_stage || g_stage->committed_) return;
+  g_stage->discard();
+  g_stage->committed_ = true;  // nothing is renamed into place after this
+  g_stage->files_.clear();
+}
+
+// Called with g_stage_mutex held.
+void OutputStage::discard() {
   std::error_code ec;
   for (const auto& f : files_) fs::remove(f.first, ec);
+  // This process's temporary files ("<name>.tmp-<pid>": a write it had not finished) in the
+  // folders it claimed or created; another process's are never touched.
+  const std::string mine = ".tmp-" + std::to_string(static_cast<long>(::getpid()));
+  std::vector<fs::path> folders(dirs_.begin(), dirs_.end());
+  for (const std::string& m : markers_) folders.push_back(fs::path(m).parent_path());
+  for (const fs::path& d : folders)
+    for (const auto& e : fs::directory_iterator(d, ec)) {
+      const std::string name = e.path().filename().string();
+      if (name.size() > mine.size() && name.compare(name.size() - mine.size(), mine.size(), mine) == 0) fs::remove(e.path(), ec);
+    }
   // A marker this command wrote into a folder that holds nothing else goes too: the folder is
   // then as it was (empty, or removed below when the command created it).
   for (const std::string& m : markers_) {
@@ -76,6 +112,7 @@ void OutputStage::commit() {
 }
 
 void commit_output(const std::string& tmp, const std::string& path) {
+  wait_if_abandoned();
   const std::lock_guard<std::mutex> lock(g_stage_mutex);
   if (g_stage && g_stage->defer_files_) {
     for (auto& f : g_stage->files_)

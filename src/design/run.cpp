@@ -122,6 +122,7 @@ void save_checkpoint(const std::string& path, const DesignState& s) {
   h5_write(next, ds, {{"format", "qdo checkpoint 2"}});
   std::error_code ec;
   if (fs::is_regular_file(path, ec)) {
+    wait_if_abandoned();
     const std::string prev = checkpoint_prev_path(path), prev_tmp = prev + ".tmp-" + std::to_string(long(::getpid()));
     fs::remove(prev_tmp, ec);
     fs::create_hard_link(path, prev_tmp, ec);
@@ -136,6 +137,7 @@ void save_checkpoint(const std::string& path, const DesignState& s) {
       throw InputError("file '" + path + "': cannot keep it as the previous checkpoint " + prev + ": " + ec.message());
     }
   }
+  wait_if_abandoned();
   fs::rename(next, path, ec);
   if (ec) throw InputError("file '" + next + "': cannot move it onto " + path + ": " + ec.message());
 }
