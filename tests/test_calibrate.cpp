@@ -346,6 +346,16 @@ TEST_SUITE("calibrate") {
                      r.out.find(".png") != std::string::npos),
                     r.out);
     }
+    {  // mosaic frames calibrated as a monochrome sensor ("cfa": "none"): refused, naming the layout they show
+      const fs::path cfg = s.dir / "mono.json";
+      write_text_atomic(cfg.string(), config_text(s.dir, "none"));
+      const Run r = qdo_run("calibrate --config " + cfg.string() + " --frames " + (s.dir / "frames").string() + " --darks " +
+                                (s.dir / "darks").string() + " --out " + (s.dir / "o_mono").string(),
+                            "QDO_DEVICE=cpu");
+      CHECK(r.code == 2);
+      CHECK_MESSAGE((r.out.find("\"cfa\": \"none\"") != std::string::npos && r.out.find("\"rggb\"") != std::string::npos), r.out);
+      CHECK(!fs::exists(s.dir / "o_mono/psf.h5"));
+    }
   }
 
   TEST_CASE("darks that do not match the frames: refused with --background none, noted or refused with ring; the frames as darks") {

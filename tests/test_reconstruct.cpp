@@ -551,6 +551,26 @@ TEST_SUITE("reconstruct") {
                              (dir / "bad2").string());
     CHECK(bad2.code == 2);
     CHECK(bad2.out.find("rgb.png") != std::string::npos);
+    // Cropped by one row and one column: RGGB read as BGGR, red and blue swapped, the green sites
+    // still on their diagonal (the phase check cannot see it). The colours then lie outside what
+    // the camera's responses can produce: refused, naming the file and the swapped layout. The
+    // frame as captured passes the same check.
+    Map2D cropped(H - 1, W - 1);
+    for (std::size_t y = 0; y + 1 < H; ++y)
+      for (std::size_t x = 0; x + 1 < W; ++x) cropped.data[y * (W - 1) + x] = dn.data[(y + 1) * W + x + 1];
+    write_png16_gray((dir / "cropped.png").string(), cropped);
+    const Run swapped = qdo_run("reconstruct --run " + (dir / "run").string() + " --capture " + (dir / "cropped.png").string() +
+                                " --out " + (dir / "bad3").string());
+    CAPTURE(swapped.out);
+    CHECK(swapped.code == 2);
+    CHECK(swapped.out.find("cropped.png") != std::string::npos);
+    CHECK(swapped.out.find("\"bggr\"") != std::string::npos);
+    RealStack as_captured(1, H, W);
+    for (std::size_t i = 0; i < dn.data.size(); ++i) as_captured.data[i] = dn.data[i] - 64;
+    CHECK_NOTHROW(check_mosaic_colours(as_captured, Cfa::RGGB, sensor_response(cfg), "raw.png"));
+    // A grey scene shows nothing either way: never refused.
+    RealStack grey(1, H, W, 500.0);
+    CHECK_NOTHROW(check_mosaic_colours(grey, Cfa::BGGR, sensor_response(cfg), "grey.png"));
     fs::remove_all(dir);
   }
 }

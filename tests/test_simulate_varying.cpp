@@ -413,7 +413,7 @@ TEST_SUITE("simulate-varying") {
     check_refused(base + " --field-grid 3 --field-edge-deg 30", out,
                   {"--field-edge-deg", "30 deg", "sampling limit", to_str(limit) + " deg"});
     check_refused(base + " --field-grid 0", out, {"--field-grid", "[1, 31]"});
-    check_refused(base + " --field-grid 3x", out, {"--field-grid"});
+    check_refused(base + " --field-grid 3x", out, {"--field-grid", "= 3x:", "NXxNY"});  // the whole value named, not an empty part
     check_refused(base + " --field-grid 3 --field-rank 10", out, {"--field-rank", "[1, 9]"});
     check_refused(base + " --field-grid 3 --depth-layers 1", out, {"--depth-layers", "only with --depth"});
   }

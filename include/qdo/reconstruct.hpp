@@ -20,6 +20,8 @@
 // Then the decoder on tiles of its grid (S x S, the prior's and the training crops'), with
 // overlap, blended (blend_tiles); the cube is clipped to [0, 1] as `qdo eval` clips it.
 #pragma once
+#include <Eigen/Dense>
+
 #include <cstddef>
 #include <functional>
 #include <string>
@@ -76,6 +78,15 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o);
 // camera response; a broadband scene has no such prediction, hence this one.)
 // raw: 1 x H x W signal (dark subtracted).
 void check_mosaic_phase(const RealStack& raw, Cfa cfa, const std::string& origin);
+// Red and blue within a family (RGGB read as BGGR: a raw frame cropped by one row and one
+// column), seen through physics instead of the scene: every light the camera records is a
+// non-negative mix of its bands, so a cell's (R, B) / (R + G + B) lies in the convex hull of the
+// band columns of srf (3 x bands), whatever the scene and the PSF. With the configured layout, the
+// fraction of bright cells (sum above the median) outside the hull by more than 0.02 is compared
+// with the same fraction with red and blue swapped; above 20 % and more than 4 times the swapped
+// one, the capture is refused naming `origin` and the swapped layout. A grey or weakly coloured
+// scene passes either way (nothing to see). raw: 1 x H x W signal (dark subtracted).
+void check_mosaic_colours(const RealStack& raw, Cfa cfa, const Eigen::MatrixXd& srf, const std::string& origin);
 
 // Steps 2 and 3: the linear signal (planes x H x W) of read_captures' result.
 RealStack capture_signal(const SystemConfig& cfg, const CaptureFiles& f);

@@ -297,7 +297,12 @@ int main(int argc, char** argv) {
     return 6;
   } catch (const std::bad_alloc&) {
     qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
-    std::fprintf(stderr, "qdo %s: out of host memory (reduce the problem size: --preset, n, bands, batch)\n", cmd.c_str());
+    // The advice names what this command takes.
+    const std::string advice = cmd == "calibrate"   ? "frames cropped closer to the PSF, or fewer bands in the configuration"
+                               : cmd == "reconstruct" ? "--crop, or fewer captures and darks"
+                               : cmd == "fit"         ? "a smaller configuration (n, bands) or --precision f32"
+                                                      : "--preset, n, bands, batch";
+    std::fprintf(stderr, "qdo %s: out of host memory (reduce the problem size: %s)\n", cmd.c_str(), advice.c_str());
     return 7;
   } catch (const std::exception& e) {
     qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error

@@ -199,7 +199,12 @@ std::vector<double> depth_layers(const Args& a, const Map2D& depth, std::string&
 // --field-grid NX[xNY].
 std::pair<std::size_t, std::size_t> field_grid_size(const std::string& s) {
   const std::size_t x = s.find_first_of("xX");
-  const auto one = [&](const std::string& v) { return std::size_t(parse_int("--field-grid", v, 1, 31)); };
+  // Each side parsed with the whole value in the message: "3x" names "3x", not an empty part.
+  const auto one = [&](const std::string& v) {
+    if (v.empty() || v.find_first_not_of("0123456789") != std::string::npos)
+      reject("--field-grid", s, "NX or NXxNY, integers in [1, 31] (e.g. 5 or 5x3)");
+    return std::size_t(parse_int("--field-grid", v, 1, 31));
+  };
   if (x == std::string::npos) {
     const std::size_t n = one(s);
     return {n, n};

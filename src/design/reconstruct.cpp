@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -200,6 +201,117 @@ void check_mosaic_phase(const RealStack& raw, Cfa cfa, const std::string& origin
                      " %; the capture fits " + (anti ? "grbg or gbrg" : "rggb or bggr") + " (check the configuration's cfa, or a crop of the raw frame by one pixel)");
 }
 
+namespace {
+
+struct Pt {
+  double x, y;
+};
+
+// The convex hull (Andrew's monotone chain), counter-clockwise, without repeated points.
+std::vector<Pt> convex_hull(std::vector<Pt> p) {
+  std::sort(p.begin(), p.end(), [](const Pt& a, const Pt& b) { return a.x < b.x || (a.x == b.x && a.y < b.y); });
+  if (p.size() < 3) return p;
+  const auto cross = [](const Pt& o, const Pt& a, const Pt& b) { return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x); };
+  std::vector<Pt> h(2 * p.size());
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    while (k >= 2 && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  for (std::size_t i = p.size() - 1, t = k + 1; i-- > 0;) {
+    while (k >= t && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  h.resize(k - 1);
+  return h;
+}
+
+// How far q lies outside the convex polygon h (counter-clockwise): 0 inside, else the distance to
+// the nearest edge (a point or segment hull: the distance to it).
+double outside(const std::vector<Pt>& h, const Pt& q) {
+  const auto seg = [](const Pt& a, const Pt& b, const Pt& p) {
+    const double dx = b.x - a.x, dy = b.y - a.y, l2 = dx * dx + dy * dy;
+    const double t = l2 > 0 ? std::clamp(((p.x - a.x) * dx + (p.y - a.y) * dy) / l2, 0.0, 1.0) : 0.0;
+    return std::hypot(p.x - a.x - t * dx, p.y - a.y - t * dy);
+  };
+  if (h.size() == 1) return std::hypot(q.x - h[0].x, q.y - h[0].y);
+  bool in = h.size() >= 3;
+  double d = 1e300;
+  for (std::size_t i = 0; i < h.size(); ++i) {
+    const Pt& a = h[i];
+    const Pt& b = h[(i + 1) % h.size()];
+    if ((b.x - a.x) * (q.y - a.y) - (b.y - a.y) * (q.x - a.x) < 0) in = false;
+    d = std::min(d, seg(a, b, q));
+  }
+  return in ? 0.0 : d;
+}
+
+Cfa swap_red_blue(Cfa c) {
+  switch (c) {
+    case Cfa::RGGB: return Cfa::BGGR;
+    case Cfa::BGGR: return Cfa::RGGB;
+    case Cfa::GRBG: return Cfa::GBRG;
+    case Cfa::GBRG: return Cfa::GRBG;
+    default: return c;
+  }
+}
+
+}  // namespace
+
+void check_mosaic_colours(const RealStack& raw, Cfa cfa, const Eigen::MatrixXd& srf, const std::string& origin) {
+  if (cfa == Cfa::None || raw.rows < 2 || raw.cols < 2 || srf.rows() != 3) return;
+  std::vector<Pt> cols;
+  for (long b = 0; b < srf.cols(); ++b) {
+    const double sum = srf(0, b) + srf(1, b) + srf(2, b);
+    if (sum > 0) cols.push_back({srf(0, b) / sum, srf(2, b) / sum});
+  }
+  if (cols.empty()) return;
+  const std::vector<Pt> hull = convex_hull(cols);
+  // Per 2 x 2 cell: its (R, G, B) under a layout (G the mean of the two green sites).
+  const std::size_t ch = raw.rows / 2, cw = raw.cols / 2;
+  std::vector<double> sums;
+  sums.reserve(ch * cw);
+  auto cell = [&](Cfa c, std::size_t cy, std::size_t cx) {
+    double v[3] = {0, 0, 0}, n[3] = {0, 0, 0};
+    for (std::size_t dy = 0; dy < 2; ++dy)
+      for (std::size_t dx = 0; dx < 2; ++dx) {
+        const std::size_t y = 2 * cy + dy, x = 2 * cx + dx;
+        const int k = cfa_channel(c, y, x);
+        v[k] += raw.data[y * raw.cols + x];
+        n[k] += 1;
+      }
+    return std::array<double, 3>{v[0] / n[0], v[1] / n[1], v[2] / n[2]};
+  };
+  for (std::size_t cy = 0; cy < ch; ++cy)
+    for (std::size_t cx = 0; cx < cw; ++cx) {
+      const auto c = cell(cfa, cy, cx);
+      sums.push_back(c[0] + c[1] + c[2]);
+    }
+  if (sums.empty()) return;
+  std::vector<double> sorted = sums;
+  std::nth_element(sorted.begin(), sorted.begin() + long(sorted.size() / 2), sorted.end());
+  const double median = sorted[sorted.size() / 2];
+  auto fraction_outside = [&](Cfa c) {
+    std::size_t bright = 0, out = 0;
+    for (std::size_t cy = 0; cy < ch; ++cy)
+      for (std::size_t cx = 0; cx < cw; ++cx) {
+        const double sum = sums[cy * cw + cx];
+        if (!(sum > 0) || sum < median) continue;
+        const auto v = cell(c, cy, cx);
+        ++bright;
+        out += outside(hull, Pt{std::max(v[0], 0.0) / sum, std::max(v[2], 0.0) / sum}) > 0.02;
+      }
+    return bright ? double(out) / double(bright) : 0.0;
+  };
+  const Cfa swapped = swap_red_blue(cfa);
+  const double f_cfg = fraction_outside(cfa), f_swap = fraction_outside(swapped);
+  if (f_cfg > 0.2 && f_cfg > 4 * f_swap)
+    throw InputError("file '" + origin + "': read as \"" + to_string(cfa) + "\", " + to_str(100 * f_cfg) +
+                     " % of its bright 2 x 2 cells have colours the camera's responses cannot produce (with red and blue swapped, \"" +
+                     to_string(swapped) + "\": " + to_str(100 * f_swap) +
+                     " %); check the configuration's cfa, or a crop of the raw frame by one row and one column");
+}
+
 RealStack capture_signal(const SystemConfig& cfg, const CaptureFiles& f) {
   const double span = cfg.gain * (f.white_dn - cfg.black_level_dn);
   if (!(span > 0)) reject("gain", cfg.gain, "> 0 with a white level above the black level");
@@ -218,6 +330,7 @@ PreparedCapture prepare_capture(Runtime& rt, Precision p, const SystemConfig& cf
   RealStack rgb;
   if (cfg.cfa != Cfa::None) {
     check_mosaic_phase(v, cfg.cfa, o.captures.front());
+    check_mosaic_colours(v, cfg.cfa, sensor_response(cfg), o.captures.front());
     if (v.rows < 3 || v.cols < 3) reject("capture size", shape(v), "at least 3 x 3 for the demosaic");
     DemosaicStage stage(rt, cfg.cfa, demosaic_method_from_string(o.demosaic, "--demosaic"), p);
     rgb = stage.run(std::vector<RealStack>{v}).front();
@@ -526,7 +639,9 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
              "inside the reconstructed " + to_str(img_rows) + " x " + to_str(img_cols) + " image (after --crop)");
   if (cfg.cfa != Cfa::None) {
     (void)demosaic_method_from_string(o.capture.demosaic, "--demosaic");
-    check_mosaic_phase(capture_signal(cfg, files), cfg.cfa, o.capture.captures.front());
+    const RealStack signal = capture_signal(cfg, files);
+    check_mosaic_phase(signal, cfg.cfa, o.capture.captures.front());
+    check_mosaic_colours(signal, cfg.cfa, sensor_response(cfg), o.capture.captures.front());
   }
   secs.push_back({"read", seconds_since(t)});
 

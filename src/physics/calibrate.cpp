@@ -244,33 +244,35 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     if (r.peak_snr[b] < opt.min_snr)
       refuse(frames[b].path, "too dark: peak SNR " + to_str(r.peak_snr[b]) + " (peak " + to_str(peak) + " DN above the dark, noise " +
                                  to_str(sigma) + " DN) is below --min-snr " + to_str(opt.min_snr));
-    if (mosaic)
-      for (std::size_t y = 0; y < rows; ++y)
+    for (std::size_t y = 0; y < rows; ++y)  // the 2 x 2 cell signals, with "cfa": "none" too (5a)
         for (std::size_t x = 0; x < cols; ++x)
           if (m(y, x) - med > 3 * sigma) cell_b[b][(y & 1) * 2 + (x & 1)] += m(y, x) - med;
     sig[b] = std::move(m);
   }
 
   lap("hot pixels and SNR");
-  // 5a. The mosaic layout against the configured one.
-  if (mosaic) {
-    const Cfa layouts[4] = {Cfa::RGGB, Cfa::GRBG, Cfa::GBRG, Cfa::BGGR};
-    double err[4] = {0, 0, 0, 0}, err_cfg = 0;
+  // 5a. The mosaic layout against the configured one, "none" (a monochrome sensor: the four
+  // cells share a band's light equally) among the candidates: mosaic frames calibrated as
+  // monochrome were read as speckle full of hot pixels.
+  {
+    const Cfa layouts[5] = {Cfa::None, Cfa::RGGB, Cfa::GRBG, Cfa::GBRG, Cfa::BGGR};
+    const auto shares = [&](Cfa c, std::size_t b) { return c == Cfa::None ? std::vector<double>(4, 0.25) : cell_shares(c, srf, b); };
+    double err[5] = {0, 0, 0, 0, 0}, err_cfg = 0;
     for (std::size_t b = 0; b < bands; ++b) {
       double tot = 0;
       for (double v : cell_b[b]) tot += v;
       if (tot <= 0) continue;
-      for (int l = 0; l < 4; ++l) {
-        const auto p = cell_shares(layouts[l], srf, b);
+      for (int l = 0; l < 5; ++l) {
+        const auto p = shares(layouts[l], b);
         for (std::size_t k = 0; k < 4; ++k) err[l] += std::pow(cell_b[b][k] / tot - p[k], 2);
       }
-      const auto p = cell_shares(cfg.cfa, srf, b);
+      const auto p = shares(cfg.cfa, b);
       double e = 0;
       for (std::size_t k = 0; k < 4; ++k) e += std::pow(cell_b[b][k] / tot - p[k], 2);
       worst[b] = e;
       err_cfg += e;
     }
-    const int best = int(std::min_element(err, err + 4) - err);
+    const int best = int(std::min_element(err, err + 5) - err);
     if (layouts[best] != cfg.cfa && err_cfg > 4 * err[best] && err_cfg > 1e-3 * double(bands)) {
       const std::size_t wb = std::size_t(std::max_element(worst.begin(), worst.end()) - worst.begin());
       refuse(frames[wb].path, "the capture's colour mosaic does not match the sensor settings: \"cfa\": \"" + to_string(cfg.cfa) +
