@@ -148,7 +148,7 @@ std::vector<CommandSpec> make_table() {
                 opt("iterations", "most Levenberg-Marquardt iterations, an integer in [1, 1000]", "30"),
                 opt("lateral-starts", "K: the loss at K x K lateral starts (offset or shift) on a grid around zero, the fit started "
                                       "from the lowest (a DOE's PSF has mirror minima the centroid start does not tell apart); 1: the "
-                                      "centroid difference alone; an integer in [1, 15]", "1"),
+                                      "centroid difference alone; an integer in [1, 15]", "3"),
                 opt("start", "NAME=VALUE,...: start values of fitted parameters by the names the fit prints (level1, z, dx, sx, ...), "
                              "in metres, sensor px (sx, sy) or none (scale) (default: the design's, the centroid for offset or shift)"),
                 opt("tolerance", "stop when an accepted step lowers the loss by less than this fraction, in [0, 1]", "1e-7"),
