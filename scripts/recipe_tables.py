@@ -17,7 +17,7 @@ import math
 import os
 import sys
 
-T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262, 10: 2.228}
+from qdo_stats import mean_ci  # noqa: E402 (scripts/qdo_stats.py)
 
 
 def lr_sum(t_from, t_to, lr=0.01, rate=0.8, period=500.0):
@@ -39,15 +39,6 @@ def scene_psnr(cell):
     return {s["scene"]: s["psnr_db"] for s in cell.get("per_scene", [])}
 
 
-def interval(values):
-    n = len(values)
-    m = sum(values) / n
-    if n < 2:
-        return m, float("nan")
-    sd = math.sqrt(sum((v - m) ** 2 for v in values) / (n - 1))
-    return m, T975.get(n - 1, 1.96) * sd / math.sqrt(n)
-
-
 def paired(a_cells, a_name, b_cells, b_name, seeds):
     """Per seed: mean over test scenes of PSNR(a) - PSNR(b); then mean and 95 % half-width."""
     diffs = []
@@ -62,7 +53,7 @@ def paired(a_cells, a_name, b_cells, b_name, seeds):
         diffs.append(sum(pa[k] - pb[k] for k in common) / len(common))
     if not diffs:
         return None
-    m, hw = interval(diffs)
+    m, hw = mean_ci(diffs)
     return m, hw, len(diffs)
 
 

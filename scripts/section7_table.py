@@ -12,7 +12,7 @@ import math
 import os
 import sys
 
-T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262, 10: 2.228}
+from qdo_stats import mean_ci  # noqa: E402 (scripts/qdo_stats.py)
 SCENARIOS = [("depth", "depth errors + offset + z (inside qdo fit's model)"),
              ("full", "the same + per-mask overlay (as qdo tolerance draws it; outside the model)")]
 ROWS = [("design", "the design as simulated (RGGB 12-bit, noise, MHC)")]
@@ -22,15 +22,6 @@ for sc, _ in SCENARIOS:
              (f"{sc}/fitted", f"{sc}: as built, decoder adapted to the fitted model"),
              (f"{sc}/oracle", f"{sc}: as built, decoder for its true PSF (bound)")]
 METRICS = ["psnr", "ssim", "sam_rad"]
-
-
-def mean_ci(v):
-    n = len(v)
-    m = sum(v) / n
-    if n < 2:
-        return m, float("nan")
-    sd = math.sqrt(sum((x - m) ** 2 for x in v) / (n - 1))
-    return m, T975.get(n - 1, 1.96) * sd / math.sqrt(n)
 
 
 def recon_table(out, rows_csv):
