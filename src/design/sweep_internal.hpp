@@ -17,7 +17,8 @@ namespace qdo::sweep_detail {
 
 bool run_finished(const std::filesystem::path& run);  // RUN/DONE exists
 // The bytes of a file, or of every regular file under a folder (sorted by path, each with its
-// relative path and size); "missing" for a path that does not exist.
+// relative path and size); "missing" for a path that does not exist. Of `p` itself only its last
+// name enters, never its spelling (sw, ./sw/ and $PWD/sw name the same inputs).
 void hash_path(Fnv1a64& f, const std::filesystem::path& p);
 std::string hash_paths(const std::vector<std::string>& paths);
 std::string read_text(const std::filesystem::path& p);
