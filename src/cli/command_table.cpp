@@ -150,7 +150,8 @@ std::vector<CommandSpec> make_table() {
                                       "from the lowest (a DOE's PSF has mirror minima the centroid start does not tell apart); 1: the "
                                       "centroid difference alone; an integer in [1, 15]", "3"),
                 opt("start", "NAME=VALUE,...: start values of fitted parameters by the names the fit prints (level1, z, dx, sx, ...), "
-                             "in metres, sensor px (sx, sy) or none (scale) (default: the design's, the centroid for offset or shift)"),
+                             "lengths in metres or with a unit (550nm, 1.5um, 12.5mm), sx and sy in sensor px, scale plain; bounded by "
+                             "the aperture, the sensor window, a factor 10 on z and d (default: the design's, the centroid for offset or shift)"),
                 opt("tolerance", "stop when an accepted step lowers the loss by less than this fraction, in [0, 1]", "1e-7"),
                 opt("precision", "floating-point precision on the device: f32 or f64 (the fit's central differences want f64)", "f64"),
                 device(), out_dir_opt()},
