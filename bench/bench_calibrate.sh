@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Speed of `qdo calibrate` (issue 28): one calibration of a 31-frame monochromator sweep (16-bit
+# Speed of `qdo calibrate`: one calibration of a 31-frame monochromator sweep (16-bit
 # RGGB 12-bit frames made by `qdo simulate --capture psf-sweep` of a lens at the given preset, plus
 # 8 darks), REPEATS runs after one warm-up; the median and min..max of every step the command
 # reports (calibrate.hpp's steps) and of the whole command's wall time (writing psf.h5 and psf.png

@@ -1,8 +1,8 @@
-// Whole-command timings (issue 11: `qdo simulate` at least as fast as `qdo image`): one scene and
+// Whole-command timings (the target: `qdo simulate` at least as fast as `qdo image`): one scene and
 // design through `qdo simulate` (f32 and f64) and, as the baseline measured in the same run,
 // `qdo image` (Camera with its default skipping tolerance 3e-7, as users run it). With
 // --qdo-before PATH, the same `qdo simulate` f32 and `qdo image` f32 through another build (e.g.
-// the one the issue was measured on) are timed too. Each command runs once first (kernel caches warm), then --repeats
+// an older build to compare against) are timed too. Each command runs once first (kernel caches warm), then --repeats
 // times; median, min and max wall time of the whole process are reported: PSF, imaging and
 // writing every output included. Error column: the largest |f32 - f64| of simulate's sensor.h5
 // (units of full scale; f64 is the reference). `qdo image` writes no HDF5 image, so its row has

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Data-parallel joint training (issue 30 item 3): the time of one `qdo design --decoder resunet`
+# Data-parallel joint training: the time of one `qdo design --decoder resunet`
 # step in one process and under `mpirun -np N` (each rank batch / N scenes, one allreduce per
 # step, batch norm synchronised), median step_s of log.csv after WARMUP steps. Prints one markdown
 # row per configuration: ranks, LibTorch threads per rank, median s/step, speed-up over the first.

@@ -1,4 +1,4 @@
-// bench_objpts: the PSF stack's time against the number of object points (issue 29 step 1).
+// bench_objpts: the PSF stack's time against the number of object points.
 //
 // For each preset (small, paper; the band-limited angular spectrum, so off-axis points are exact)
 // and each point count P in --points (default 1,4,9,16: a grid of distances x field angles within

@@ -1,4 +1,4 @@
-// bench_pareto: run time against error for every knob that trades one for the other (issue 5).
+// bench_pareto: run time against error for every knob that trades one for the other.
 //
 // Workloads (paper physics: 31 bands 400-700 nm, 4 um pitch, z = 50 mm, d = 1 m, N = --n):
 //   psf    the PSF stack on the sensor grid. Axes: float32 / float64 / float32 with float64 phase,
@@ -407,7 +407,7 @@ void section_step(const Options& o, const Reference& ref) {
 }
 
 // Wiener reconstruction PSNR on the CAVE scenes through the PSFs of one design from different
-// paths (the issue's radial criterion): the 2-D path, the radial path, and the reference.
+// paths (the criterion for the radial path): the 2-D path, the radial path, and the reference.
 void section_psnr(const Options& o, const Reference& ref) {
   std::vector<RealStack> scenes;
   for (const char* f : {"balloons_256.mat", "chart_and_stuffed_toy_256.mat", "cloth_256.mat"})

@@ -1,5 +1,5 @@
-// bench_range: one optimiser step of a design over a range of object points (issue 29 step 4,
-// Designer::range_step) against the one-point step in the same run (the baseline): the `small`
+// bench_range: one optimiser step of a design over a range of object points
+// (Designer::range_step) against the one-point step in the same run (the baseline): the `small`
 // preset (or --preset), qdo+a, radial parameterization (the radial engine, one per point), the
 // Wiener expected-error objective on the device. Rows: one point at 1 m; P = 4 distances
 // (0.5, 1, 2, 5 m) with points_per_step K = 1, 2 and 4. Median of --repeats steps after one

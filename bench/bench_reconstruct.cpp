@@ -1,4 +1,4 @@
-// `qdo reconstruct` of one 1024 x 1024 capture (issue 28 step 5), the time per stage: read (the
+// `qdo reconstruct` of one 1024 x 1024 capture, the time per stage: read (the
 // 16-bit PNG and every input check), dark (subtraction and scaling), demosaic, psf+decoder (the
 // run's PSF simulated and the Wiener decoder built), tiles (decoding and blending every S x S
 // tile), write cube, sRGB, spectra. A Wiener run of the preset is made first with `qdo design`

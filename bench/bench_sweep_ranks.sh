@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# A sweep on 1 and 2 MPI ranks against the serial sweep (issue 30 item 6): the whole command's
+# A sweep on 1 and 2 MPI ranks against the serial sweep: the whole command's
 # wall time (median of REPEATS runs, each into a fresh folder, kernel cache warm), the parallel
 # efficiency t(serial) / (ranks x t(ranks)), and beside each time the largest difference of its
 # table1.csv / comparisons.csv numbers from the serial sweep's (0: the same tables).

@@ -1,5 +1,5 @@
-// bench_varying: depth-layered and spatially varying images (include/qdo/varying.hpp, issue 29
-// steps 2, 3 and 6) on the small preset (N = 256, 31 bands, S = 128) with the band-limited angular
+// bench_varying: depth-layered and spatially varying images (include/qdo/varying.hpp) on
+// the small preset (N = 256, 31 bands, S = 128) with the band-limited angular
 // spectrum and a diffractive lens (lens_design at 550 nm).
 //
 // For each scene size in --sizes (default 256), in one run:

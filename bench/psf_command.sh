@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# The whole `qdo psf` command against its own in-process compute (issue 14's whole-command
-# target): runs `qdo psf --preset P --design lens:550` R times after one warm-up, each with
-# /usr/bin/time, and prints per run the wall time, the PSF compute time the command prints
-# (compute_psf + finish), their ratio, the peak memory and the size of psf.h5, then the medians.
+# The whole `qdo psf` command against its own in-process compute (the target: at most 1.3 x;
+# BENCHMARKS.md "CPU speed"): runs `qdo psf --preset P --design lens:550` R times after one
+# warm-up, each with /usr/bin/time, and prints per run the wall time, the PSF compute time the
+# command prints (compute_psf + finish), their ratio, the peak memory and the size of psf.h5,
+# then the medians.
 # Usage: bench/psf_command.sh [QDO_BINARY] [PRESET] [RUNS] [extra qdo psf options...]
 set -euo pipefail
 qdo="${1:-build/qdo}"; preset="${2:-paper}"; runs="${3:-5}"; shift $(( $# < 3 ? $# : 3 ))

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Several `qdo psf` variants side by side (issue 14's whole-command target): one warm-up of each,
+# Several `qdo psf` variants side by side (the whole-command target of psf_command.sh): one warm-up of each,
 # then R rounds in which every variant runs once, in turn, so that a drift of the machine's speed
 # (~20 % within a session on the CI-class VM) hits all of them alike. Per variant it prints the
 # median wall time (min, max), the median PSF compute time the command prints, the median of the

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The framework baseline of issue 14: the paper preset's PSF stack written in NumPy as a user
+"""The framework baseline: the paper preset's PSF stack written in NumPy as a user
 would write it (one vectorised pass over the 31 bands), timed beside qdo in the same run.
 
 Physics as qdo's paper preset (REFERENCE §1): 31 bands 400..700 nm, N = 1024 samples of 4 um,

@@ -13,7 +13,7 @@ export QDO_DEVICE="${QDO_DEVICE:-cpu}"
 ./build/bench_psf --sizes 256,512,1024 --repeats 3 --out "$out/psf.md"
 ./build/bench_skip --data ../shared/data/hsi/cave --repeats 3 --out "$out/skip.md"
 ./build/bench_commands --qdo ./build/qdo --repeats 11 --out "$out/commands.md"
-# The framework baseline (issue 14): NumPy's PSF stack; Debian's python3-numpy, installed if missing.
+# The framework baseline: NumPy's PSF stack; Debian's python3-numpy, installed if missing.
 if ! /usr/bin/python3 -c "import numpy" 2> /dev/null; then
   sudo_cmd=""; [[ $(id -u) -ne 0 ]] && sudo_cmd="sudo"
   $sudo_cmd env DEBIAN_FRONTEND=noninteractive apt-get install -y -q python3-numpy > /dev/null

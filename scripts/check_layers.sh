@@ -15,6 +15,10 @@
 #   2. every public header is in the table, and every table entry exists;
 #   3. a .cpp whose first include is its own header (the header's name begins its file name, as
 #      wiener.cpp / wiener.hpp, camera_skip.cpp / camera.hpp) lies in that header's folder.
+# And, once the includes pass, for the code and documentation (src include tests bench docs scripts
+# python fuzz examples, README.md, BENCHMARKS.md, STABILITY.md, CMakeLists.txt):
+#   4. no project-internal issue number (the word issue or issues, then a number, as in "issue #N"),
+#      which a reader cannot look up: comments and docs say what the code does today.
 # Prints each violation and exits 1 when there is one. Usage: scripts/check_layers.sh [REPO]
 set -euo pipefail
 cd "${1:-$(dirname "$0")/..}"
@@ -157,3 +161,21 @@ files=(src/*/*.cpp src/*/*.hpp include/qdo/*.hpp)
     print "layers: every include points down"
   }
 '
+
+# 4. No project-internal issue numbers. The word must stand alone (not part of another word) and
+# not follow a "/", so a link to an upstream tracker (github.com/OWNER/REPO/issues/N) is no hit.
+issue_paths=()
+for p in src include tests bench docs scripts python fuzz examples README.md BENCHMARKS.md STABILITY.md EXPERIMENTS.md EXPERIMENTS_FAB.md kernels CMakeLists.txt; do
+  [[ -e $p ]] && issue_paths+=("$p")
+done
+rc=0
+hits=$(grep -rnIE '(^|[^[:alnum:]_/])[Ii]ssues? ?#?[0-9]+' "${issue_paths[@]}") || rc=$?
+if (( rc == 0 )); then
+  echo "$hits"
+  echo "layers: issue numbers found (say what the code does instead of citing an internal issue)"
+  exit 1
+elif (( rc > 1 )); then
+  echo "layers: grep failed ($rc) while looking for issue numbers"
+  exit 1
+fi
+echo "layers: no internal issue numbers in the code and docs"

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 28: from a Bayer raw capture, does a demosaic stage (bilinear, Malvar-He-Cutler) then the
+# From a Bayer raw capture, does a demosaic stage (bilinear, Malvar-He-Cutler) then the
 # decoder reconstruct better than a decoder that reads the mosaic directly? One design trained with
 # the Wiener objective at the small preset (QDO+A, LEVELS levels, on synthetic scenes: the Wiener
 # objective needs no network), then bench/net/mosaic_compare on the 3 CAVE test scenes: the run's

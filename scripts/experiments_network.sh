@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The paper's comparison with the network decoder (issue 13 item 7): a Res-UNet (resunet: depth 4,
+# The paper's comparison with the network decoder: a Res-UNet (resunet: depth 4,
 # root 16) trained jointly with the optics at the small preset on the CAVE training scenes
 # (../shared/data/hsi/cave_train and cave_png), evaluated on the 3 CAVE test scenes
 # (../shared/data/hsi/cave, never trained on), for do, do-finetune, qdo and qdo+a at each level.
@@ -19,7 +19,7 @@ DECAY=${DECAY:-$(python3 -c "print(round(0.8 ** (${STEPS_PER_EPOCH:-50} / 500), 
 SPE=${STEPS_PER_EPOCH:-50}
 FT=${FT_STEPS:-100}
 TRAIN=../shared/data/hsi/cave_train,../shared/data/hsi/cave_png
-# SYNTH=N adds N synthetic training scenes (issue 13 item 6: do they help?)
+# SYNTH=N adds N synthetic training scenes (to measure whether they help)
 if [ "${SYNTH:-0}" != 0 ]; then TRAIN="$TRAIN,synthetic:$SYNTH"; fi
 TEST=../shared/data/hsi/cave
 COMMON=(--preset small --decoder resunet --data "$TRAIN" --epochs "$EPOCHS" --steps-per-epoch "$SPE" --decay "$DECAY" --seed 0)

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The network comparison of EXPERIMENTS.md ("With the network decoder") with seeds as a grid axis
-# (issue 30 item 5): `qdo sweep` of do, do-finetune, qdo and qdo+a at 4 and 8 levels with the
+# The network comparison of EXPERIMENTS.md ("With the network decoder") with seeds as a grid axis:
+# `qdo sweep` of do, do-finetune, qdo and qdo+a at 4 and 8 levels with the
 # Res-UNet decoder (depth 4, root 16), SEEDS seeds, trained on the CAVE training scenes and
 # evaluated on the 3 CAVE test crops; table1 gives mean ± sd over seeds, comparisons.md the paper's
 # comparisons as differences paired by seed and test scene with 95 % intervals.

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# What a design can do against object distance and field angle (issue 29 step 5; EXPERIMENTS.md
+# What a design can do against object distance and field angle (EXPERIMENTS.md
 # "Object distance and field angle"): a 4-level QDO+A design (Wiener decoder, radial) trained for a
 # point at 1 m, and the same design trained over a depth range (on-axis object points at 0.5, 1, 2
 # and 5 m), each evaluated by `qdo eval-points` from 0.3 m to infinity and from 0 degrees to its

@@ -16,12 +16,12 @@ pkgs=(
   libtiff-dev            # 16-bit TIFF captures (qdo calibrate, qdo reconstruct)
   doctest-dev            # tests
   libcli11-dev           # the command line (header-only CLI11)
-  klayout                # tests: an independent GDSII reader for the mask round trip (issue 7)
+  klayout                # tests: an independent GDSII reader for the mask round trip
   pybind11-dev           # the Python extension qdo._qdo (pyproject.toml)
   python3-venv python3-pip python3-numpy python3-pytest  # the Python package's build and tests
   python3-torch          # qdo.torch (the PyTorch operators) and its tests
   python3-h5py           # the Python tests read arrays with h5py (its dtypes must be accepted)
-  libopenmpi-dev openmpi-bin  # qdo sweep / qdo design under mpirun (issue 30); the build without MPI works too
+  libopenmpi-dev openmpi-bin  # qdo sweep / qdo design under mpirun; the build without MPI works too
   libtorch-dev           # the Res-UNet decoder in C++ (LibTorch 1.13, find_package(Torch); target qdo_net)
 )
 missing=()

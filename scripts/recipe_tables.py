@@ -97,6 +97,37 @@ def main():
             print(f"| {L} | " + " | ".join(fmt(r) for r in row) + " |")
         print()
 
+    net = cells(os.path.join(out, "network"))
+    if net:
+        tag = "_resunet-depth4-root16"
+        seeds = seeds_of(net)
+        levels = sorted({int(n.split("_L")[1].split("_")[0]) for n in net if "_L" in n})
+        print(f"### The Res-UNet under the release recipe (PSNR dB, mean [95 % interval] over the seeds that finished)\n")
+        print("| levels | DO | DO-finetune | QDO | QDO+A | QDO+A - DO | QDO - DO | QDO+A - QDO | QDO+A - DO-finetune | ring dev. QDO / QDO+A (nm) |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+
+        def mean_of(name):
+            v = [net[name.format(s=s)]["mean"]["psnr_db"] for s in seeds if name.format(s=s) in net]
+            if not v:
+                return "–"
+            m, hw = mean_ci(v)
+            return f"{m:.2f} [{m - hw:.2f}, {m + hw:.2f}] ({len(v)})" if len(v) > 1 else f"{m:.2f} (1 seed)"
+
+        def ring_dev(name):
+            v = [net[name.format(s=s)].get("deviation_rings_nm") for s in seeds if name.format(s=s) in net]
+            v = [x for x in v if x is not None]
+            return f"{sum(v) / len(v):.1f}" if v else "–"
+
+        full = mean_of("full" + tag + "_s{s}")
+        for L in levels:
+            n = {m: f"{m}_L{L}{tag}_s{{s}}" for m in ["do", "do-finetune", "qdo", "qdo+a"]}
+            row = [mean_of(n["do"]), mean_of(n["do-finetune"]), mean_of(n["qdo"]), mean_of(n["qdo+a"]),
+                   fmt(paired(net, n["qdo+a"], net, n["do"], seeds)), fmt(paired(net, n["qdo"], net, n["do"], seeds)),
+                   fmt(paired(net, n["qdo+a"], net, n["qdo"], seeds)), fmt(paired(net, n["qdo+a"], net, n["do-finetune"], seeds)),
+                   ring_dev(n["qdo"]) + " / " + ring_dev(n["qdo+a"])]
+            print(f"| {L} | " + " | ".join(row) + " |")
+        print(f"\nFull precision (DO's design unquantized): {full}.\n")
+
     ablations = [os.path.join(out, "grid")] + sorted(glob.glob(os.path.join(out, "ablation_*")))
     base = grid  # the release recipe's 4-level cells
     if base and ablations:

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# A real Slurm job array over `qdo sweep --cell slurm` (issue 30 item 2), on a one-node cluster
+# A real Slurm job array over `qdo sweep --cell slurm`, on a one-node cluster
 # this script starts for itself from Debian's slurm-wlm and munge: munged, slurmctld and slurmd
 # with a private configuration, state and ports under a scratch folder, run as root (as CI runs).
 # It submits the sweep's cells as `sbatch --array=0-(N-1)`, waits for the array, collects the

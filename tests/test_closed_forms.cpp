@@ -1,4 +1,4 @@
-// Closed forms with sharp tolerances (issue 16, item 2): the Airy pattern's peak and encircled
+// Closed forms with sharp tolerances: the Airy pattern's peak and encircled
 // energy, the direction and amount a tilted wave moves, and the first-order efficiency of
 // L-level blazed gratings. Expected values come from the formulas written here, never from the
 // simulator's host helpers; every tolerance is derived next to its check.

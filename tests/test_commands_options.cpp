@@ -1,7 +1,7 @@
-// Options checked at parse time (suite "commands"; issue 31, classes 12, 14, 15): every refusal
+// Options checked at parse time (suite "commands"): every refusal
 // (a value out of range, an option given twice or doing nothing in the run, a grid that cannot
 // mean anything) exits 2 naming the option, the value and what is allowed, before any work and
-// with no --out folder made. And messages that name what is wrong and where (class 16).
+// with no --out folder made. And messages that name what is wrong and where.
 #include <filesystem>
 #include <string>
 

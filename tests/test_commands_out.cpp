@@ -1,5 +1,5 @@
-// Every command's --out folder under one rule (suite "commands"; claim_output_dir, io.hpp; issue
-// 31, class 3): a new or empty folder becomes the command's (marked .qdo-out); the command's own
+// Every command's --out folder under one rule (suite "commands"; claim_output_dir, io.hpp): a
+// new or empty folder becomes the command's (marked .qdo-out); the command's own
 // folder takes its reruns; a folder qdo did not make, or another command made, that holds anything
 // is refused, exit 2, naming what is there, before any work and with nothing changed on disk,
 // unless --into-existing.

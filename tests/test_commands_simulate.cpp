@@ -69,7 +69,7 @@ TEST_SUITE("commands") {
     CHECK(r.code == 2);
     CHECK(r.out.find("square") != std::string::npos);
     // A scene of another size would be scaled by N / S, not by the pitch ratio (2 here): refused,
-    // for smaller and larger scenes alike (issue 31, class 1).
+    // for smaller and larger scenes alike.
     for (std::size_t side : {14u, 20u, 31u}) {
       CAPTURE(side);
       write_cube((dir / "other.h5").string(), random_cube(c.bands, side, side, 7), c.wavelengths_nm());

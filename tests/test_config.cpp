@@ -346,7 +346,7 @@ TEST_SUITE("config") {
     refused("resunet:width=3", "width");
     refused("resunet:depth=3,depth=4", "given once");
     refused("resunet:depth", "key=value");
-    // A network too wide to allocate is refused before any work (issue 31, class 12): the widest
+    // A network too wide to allocate is refused before any work: the widest
     // layer, root x 2^(depth-1), holds at most 4096 channels (the paper's: 2048).
     refused("resunet:depth=8,root=1024", "at most 4096 channels (this one: 131072)");
     refused("resunet:depth=10,root=16", "at most 4096 channels");

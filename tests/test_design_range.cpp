@@ -1,4 +1,4 @@
-// Designs over a range of object points (issue 29 step 4), doctest suite "design-range": the
+// Designs over a range of object points, doctest suite "design-range": the
 // range objective's gradient against finite differences (tests/adjoint_ladder.hpp), the Wiener
 // objective's indifference to where in the window the PSF lies (why off-axis PSFs are not
 // recentred), `qdo design` training over a depth range end to end, resume, a range design
@@ -390,7 +390,7 @@ TEST_SUITE("design-range") {
     fs::remove_all(dir);
   }
 
-  // The issue's "done when": qdo design trains over a depth range (P = 4 distances, two per step).
+  // End to end: qdo design trains over a depth range (P = 4 distances, two per step).
   TEST_CASE("qdo design --object-distances trains over a depth range: points sampled per step, the loss falls, range.csv") {
     const auto dir = temp_dir("range_cli");
     const fs::path run = dir / "run";

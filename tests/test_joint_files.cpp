@@ -1,8 +1,8 @@
 // Joint training's files (suite "joint"): a network run deletes only the network states it
-// recorded as its own (issue 31, class 2): the state a checkpoint named, with its checksum, when
+// recorded as its own: the state a checkpoint named, with its checksum, when
 // the checkpoint rotation drops it. A user's step_*.pt in RUN/network, a state replaced since it
 // was recorded, and everything behind a symlinked RUN/network stay. A checkpoint belongs to its
-// run, a resumed log has no gap, and a do-finetune starts only from a finished do run (class 5, 6).
+// run, a resumed log has no gap, and a do-finetune starts only from a finished do run.
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -75,7 +75,7 @@ TEST_SUITE("joint") {
     fs::remove_all(dir);
   }
 
-  TEST_CASE("a checkpoint belongs to its run, a log has no gap, a do-finetune starts from a finished do run (issue 31, classes 5 and 6)") {
+  TEST_CASE("a checkpoint belongs to its run, a log has no gap, a do-finetune starts from a finished do run") {
     const AffineFactory fake;
     const auto dir = temp_dir("joint_belongs");
     // A network run's checkpoint copied into a Wiener run folder: --resume refused, nothing written.
@@ -133,7 +133,7 @@ TEST_SUITE("joint") {
     fs::remove_all(dir);
   }
 
-  TEST_CASE("a network run records its thread count; a resume with another count says so (issue 31, class 17)") {
+  TEST_CASE("a network run records its thread count; a resume with another count says so") {
     const AffineFactory fake;
     const auto dir = temp_dir("joint_threads");
     const char* saved = std::getenv("QDO_TORCH_THREADS");

@@ -1,5 +1,5 @@
-// Data-parallel joint training under mpirun (suite "joint-mpi", CTest entry joint-mpi; issue 30
-// item 3): `mpirun -np 2 qdo design --decoder resunet ... --batch 4` (2 scenes per rank) takes
+// Data-parallel joint training under mpirun (suite "joint-mpi", CTest entry joint-mpi):
+// `mpirun -np 2 qdo design --decoder resunet ... --batch 4` (2 scenes per rank) takes
 // the steps `qdo design ... --batch 4` takes in one process, a 2-rank run stopped with
 // --max-steps and resumed at 2 ranks ends bit-identical to the uninterrupted one, as does one
 // whose rank is killed (kill -9) mid-run, and a 2-rank checkpoint resumes in one process. Runs the qdo tool; needs MPI and LibTorch in the build and

@@ -1,4 +1,4 @@
-// Object points as an axis of the PSF stack (issue 29 step 1): the configuration's object_points,
+// Object points as an axis of the PSF stack: the configuration's object_points,
 // the batched points x bands stack with its adjoint, the exact tilted spherical wave, the sampling
 // refusals and report, the radial path for on-axis points at any distance, and two closed forms of
 // a thin lens (REFERENCE §7): an off-axis point images at (-z tan θx, -z tan θy), and an on-axis

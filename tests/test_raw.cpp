@@ -143,7 +143,7 @@ TEST_SUITE("raw") {
           }
       }
     }
-    // RGGB spelled out, as the issue gives it.
+    // RGGB spelled out, channel by channel.
     CHECK(cfa_channel(Cfa::RGGB, 0, 0) == 0);
     CHECK(cfa_channel(Cfa::RGGB, 0, 1) == 1);
     CHECK(cfa_channel(Cfa::RGGB, 1, 0) == 1);

@@ -1,4 +1,4 @@
-// `qdo reconstruct` and the camera as built (issue 28 steps 4 and 5; reconstruct.hpp): tiles blend
+// `qdo reconstruct` and the camera as built (reconstruct.hpp): tiles blend
 // with weights summing to 1 (a pointwise decoder tiles exactly; the Wiener decoder within a stated
 // tolerance of a whole-image one), the command's cube is the run's Wiener decoder's estimate of the
 // capture (the decoder `qdo eval` builds), crops, darks and several frames act as stated, the

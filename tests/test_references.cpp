@@ -1,4 +1,4 @@
-// References that do not share the host code they check (issue 16, item 1).
+// References that do not share the host code they check.
 //
 // The CPU reference and the OpenCL path both call delta_n_per_band, wavenumber_per_band,
 // AreaWeights::make and sensor_response (src/physics/optics.cpp), so a bug there is invisible to the

@@ -498,7 +498,7 @@ TEST_SUITE("runs") {
 
   TEST_CASE("gradcheck passes through the Wiener objectives in every mode") {
     // wiener-mae and the network runs' check go through a smooth stand-in (wiener-mse), named in
-    // the rows: a piecewise-linear loss made the check fail on correct gradients (issue 31, 13).
+    // the rows: a piecewise-linear loss made the check fail on correct gradients.
     for (const char* objective : {"wiener", "wiener-mse", "wiener-mae"})
       for (DesignMode m : {DesignMode::DO, DesignMode::QDO, DesignMode::QDOA, DesignMode::QDOM}) {
         CAPTURE(objective);

@@ -55,7 +55,7 @@ bool load_checkpoint_step_changed(const std::string& path, long before) {
 
 TEST_SUITE("stress") {
   TEST_CASE("checkpoint rotation: a kill -9 at any instant of save_checkpoint leaves a complete checkpoint.h5") {
-    // Regression (issue 31, item 8): the rotation used to rename checkpoint.h5 to
+    // Regression: the rotation used to rename checkpoint.h5 to
     // checkpoint.prev.h5 and then write the new one, so a kill in between left no checkpoint.h5.
     // A child process saves checkpoints in a loop (2^16 weights: a few MB per file, so a write
     // takes milliseconds and a kill lands inside one); the parent kills it a seeded random delay

@@ -1,4 +1,4 @@
-// `qdo sweep` beyond one process (issue 30): the plan, Slurm-style cells and shards, --collect,
+// `qdo sweep` beyond one process: the plan, Slurm-style cells and shards, --collect,
 // and mpirun with rank 0 handing out cells; each must give the tables of the serial sweep. The
 // seed axis and its statistics are checked on the same folders. Doctest suite "sweep-cluster".
 #include <dirent.h>

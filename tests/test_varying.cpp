@@ -1,4 +1,4 @@
-// Depth-layered and spatially varying imaging (issue 29 steps 2, 3 and 6; include/qdo/varying.hpp,
+// Depth-layered and spatially varying imaging (include/qdo/varying.hpp,
 // kernels/varying.cl, src/physics/varying.cpp, the CPU references in varying_reference.hpp): the
 // device operator against the double reference (both placements, float32 and float64, shifted
 // PSFs), the adjoint ladder of the scene and PSF adjoints, the shift-invariant Camera as the K = 1

@@ -471,7 +471,7 @@ TEST_SUITE("wiener") {
     bad.cov.pop_back();
     CHECK_THROWS_AS(decode(RealStack(3, t.rows, t.cols), otf, t.srf, bad, t.sigma), InputError);
     CHECK_THROWS_AS(estimate_prior({}, 3), InputError);
-    // bins bounded before the bins x B x B covariances are allocated (issue 31, class 10).
+    // bins bounded before the bins x B x B covariances are allocated.
     CHECK_THROWS_WITH_AS(estimate_prior(t.scenes, 1000000000), doctest::Contains("in [2, 4096]"), InputError);
     CHECK_THROWS_WITH_AS(estimate_prior({RealStack(301, 4, 4, 0.5)}, 4096), doctest::Contains("bins x bands^2 <= 2^27"), InputError);
     // σ = 0 with an OTF that vanishes at a frequency: singular, reported as qdo::Error.

@@ -1,9 +1,9 @@
-// bench_train: the cost of one joint-training step (issue 13 item 9) with the pieces that exist:
+// bench_train: the cost of one joint-training step with the pieces that exist:
 // the optics forward (OpenCL PSF), the camera (OpenCL, a batch of scenes), the Res-UNet forward +
 // backward (LibTorch, MAE loss against the scenes), the adjoints back to the heights (OpenCL camera
 // and PSF adjoints) and the network's Adam step, each timed alone (median of --repeats after one
 // warm-up), then the whole step. The question it answers: is the physics the bottleneck of joint
-// training (the issue's goal: at the small preset the optics' share at most the network's)?
+// training (the goal: at the small preset the optics' share at most the network's)?
 // Speed is never asserted. Peak resident memory (VmHWM) is printed at the end.
 //
 // Usage: bench_train [--presets small,paper] [--decoder resunet] [--batch 4] [--repeats 3]

@@ -1,4 +1,4 @@
-// mosaic_compare: which reconstructs better from a Bayer raw capture (issue 28): demosaic then
+// mosaic_compare: which reconstructs better from a Bayer raw capture: demosaic then
 // decode, or a decoder that reads the mosaic directly? One trained design (a `qdo design` run
 // folder: its psf.h5, prior.h5 and configuration), the CAVE test patches (testset::patches, as
 // `qdo eval`), each patch's noiseless RGB image through the design (testset::PatchCamera), then

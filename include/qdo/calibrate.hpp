@@ -1,4 +1,4 @@
-// Measured PSFs from captures (REFERENCE §8, issue 28 step 2): a monochromator sweep of a point
+// Measured PSFs from captures (REFERENCE §8): a monochromator sweep of a point
 // source, one raw frame per wavelength (16-bit grayscale PNG or TIFF, the wavelength in the file name:
 // `psf_550nm.png`, `*_<number>nm.png`), and a folder of dark frames at the same exposure, become
 // a sensor-grid PSF stack in the layout of `qdo psf` (bands x S x S, each band summing to 1, the

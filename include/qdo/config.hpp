@@ -50,7 +50,7 @@ struct SystemConfig {
   // (JSON: "scene_distance_m": "inf").
   double scene_distance_m = 1.0;
   bool scene_at_infinity = false;
-  // Object points of the PSF stack (issue 29 step 1): empty (the default) means one on-axis point
+  // Object points of the PSF stack: empty (the default) means one on-axis point
   // at scene_distance_m, computed exactly as before object points existed. Non-empty: the PSF
   // chain computes points x bands planes, point-major (plane p * bands + b), and
   // scene_distance_m no longer enters the PSF. JSON: "object_points": [[d_m, θx_deg, θy_deg], ...]

@@ -147,7 +147,7 @@ class Designer {
   // `psf` (the 2-D path; its runtime, configuration and precision also build the radial engine) must
   // outlive the designer.
   Designer(HeightMapPsfSource& psf, const DesignOptions& opt);
-  // A design over a range of object points (issue 29 step 4): one source per point (each one
+  // A design over a range of object points: one source per point (each one
   // point's configuration, e.g. point_config(cfg, p): same grid, bands and sensor, one object
   // point; each yields bands planes), all driven by the one height map. Each must outlive the
   // designer. InputError when the list is empty, the sources' grids, bands or sensor sizes differ,

@@ -27,9 +27,9 @@ struct DesignRunResult {
 // which only max_steps and quiet are taken from `o`) and writes the run folder (run.hpp). The
 // folder is locked (RunLock) while this runs: a second writer gets an InputError naming the pid.
 //
-// A run whose configuration lists P > 1 object points is a design over that range (issue 29 step
-// 4): each step trains on design.points_per_step of them (Designer::range_step: the mean of the
-// objective over their PSF stacks, one 2-D or radial source per point, point_config(cfg, p)).
+// A run whose configuration lists P > 1 object points is a design over that range: each step
+// trains on design.points_per_step of them (Designer::range_step: the mean of the objective over
+// their PSF stacks, one 2-D or radial source per point, point_config(cfg, p)).
 // log.csv then has two more columns, points (the indices trained on, ';'-separated) and
 // point_losses (the objective at each); at the end RUN/range.csv holds, per point, its distance,
 // field angles, the fabricated design's objective there (design_point_losses) and the number of

@@ -57,9 +57,9 @@ struct TargetSpec {
 TargetSpec target_spec_from_string(const std::string& s, const std::string& argument = "target");
 
 struct DesignRunOptions {
-  // The system. With object_points of P > 1 points the run is a design over a range (issue 29
-  // step 4): the points are training conditions, design.points_per_step of them per step, the
-  // step's loss the mean of the objective over those points' PSF stacks (run_design). Objectives
+  // The system. With object_points of P > 1 points the run is a design over a range: the
+  // points are training conditions, design.points_per_step of them per step, the step's loss the
+  // mean of the objective over those points' PSF stacks (run_design). Objectives
   // wiener, wiener-mse, wiener-mae and psf-target (its target at each point: the target's PSF at
   // that point, lens:NM focused for that point's distance); a network decoder is refused.
   SystemConfig cfg;
@@ -77,10 +77,10 @@ struct DesignRunOptions {
   // Fabrication height noise (design.height_noise_m) also on the PSF a run's evaluation measures
   // through (the release draws it on every forward pass, test included): one draw per test scene.
   bool height_noise_at_test = false;
-  // do-finetune (issue 13 item 4): the finished network `do` run whose network is trained on for
+  // do-finetune: the finished network `do` run whose network is trained on for
   // epochs x steps_per_epoch steps with its DOE quantized to this run's levels and frozen. Mode do.
   std::string finetune_from;
-  // do-finetune for the camera as built (issue 28 step 4): the frozen PSF the network is trained
+  // do-finetune for the camera as built: the frozen PSF the network is trained
   // on is a measured stack (finetune_psf: qdo calibrate's or qdo psf's psf.h5, checked against
   // the configuration's bands and sensor grid) or a fitted as-built design's (finetune_design: a
   // design .h5, simulated with this configuration), instead of the do run's quantized DOE. At most

@@ -1,4 +1,4 @@
-// `qdo eval-points` as a library call (issue 29 step 5): what a design does against object distance
+// `qdo eval-points` as a library call: what a design does against object distance
 // and field angle, and its valid field of view.
 //
 // Per distance d (on axis, the run's propagator): the design's PSF at d, the test patches imaged

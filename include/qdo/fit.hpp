@@ -1,4 +1,4 @@
-// The as-built DOE (issue 28, step 3; REFERENCE §8): from a design and a measured sensor-grid PSF
+// The as-built DOE (REFERENCE §8): from a design and a measured sensor-grid PSF
 // stack, fit the parameters a fab and an assembly get wrong, by Levenberg-Marquardt on the
 // least-squares misfit of the stacks, with Gauss-Newton uncertainties.
 //

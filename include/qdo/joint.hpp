@@ -1,4 +1,4 @@
-// Joint training of the optics and a network decoder (issue 13 item 3), the core half: the
+// Joint training of the optics and a network decoder, the core half: the
 // training patches, the device camera with its adjoint, the sensor noise, and the glue that turns
 // a NetworkDecoder step into a PsfObjective for Designer::step. Per step:
 //   batch of S x S scene patches (random crops, one of the 8 flips/rotations each)
@@ -33,7 +33,8 @@ struct JointData {
 // scenes and max(2, synthetic / 4) validation scenes of S x S drawn with other seeds. Validation
 // patches: non-overlapping S x S crops, at most `max_val_patches` (spread evenly).
 // An entry "synthetic:N" of `data` adds N synthetic S x S training scenes (drawn with the seed)
-// to the real ones, which alone are split (issue 13 item 6: do synthetic scenes help?).
+// to the real ones, which alone are split (scripts/experiments_network.sh SYNTH=N measures
+// whether they help).
 // InputError naming `data` for a scene smaller than S x S.
 JointData load_joint_data(const SystemConfig& cfg, const std::vector<std::string>& data, const std::string& data_format,
                           std::size_t synthetic, std::uint64_t seed, std::size_t max_val_patches = 16);

@@ -1,4 +1,4 @@
-// A learned decoder trained with the optics (issue 13: the paper's Res-UNet), as the LibTorch-free
+// A learned decoder trained with the optics (the paper's Res-UNet), as the LibTorch-free
 // core sees it. The core (qdo_core) draws the training patches, images them through the device
 // camera, adds the sensor noise, hands the noisy images to a NetworkDecoder, and carries the image
 // gradient it returns back through the camera adjoint to the PSF (src/design/joint.cpp). The

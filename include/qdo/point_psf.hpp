@@ -1,4 +1,4 @@
-// Per-object-point PSF planes (issue 29): picking one point's planes out of a points x bands stack
+// Per-object-point PSF planes: picking one point's planes out of a points x bands stack
 // and moving an off-axis point's PSF onto the axis, so that a field-dependent PSF can be compared
 // with, or interpolated against, the on-axis one.
 //

@@ -1,4 +1,4 @@
-// `qdo reconstruct` as a library call (issue 28 step 5): captured photos of one scene through the
+// `qdo reconstruct` as a library call: captured photos of one scene through the
 // built camera -> the run's decoder, with the PSF of the camera as built (measured or fitted) ->
 // the spectral cube, an sRGB render and spectra at named points and boxes.
 //

@@ -72,7 +72,7 @@ struct GridOptions {
   std::vector<std::string> encoders{"doe"};
   double fresnel_design_nm = 550;
   std::size_t cassi_shift_px = 1;
-  // Seeds (issue 30): every cell is trained and evaluated once per seed (design.seed). Empty:
+  // Seeds: every cell is trained and evaluated once per seed (design.seed). Empty:
   // base.design.seed alone, with the folder names of a sweep without a seed axis (runs/NAME,
   // cells/NAME); else runs/NAME_sSEED and cells/NAME_sSEED. The test scenes do not depend on it
   // (base.design.seed's split), so every seed is measured on the same scenes.

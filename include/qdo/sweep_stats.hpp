@@ -1,4 +1,4 @@
-// Statistics of a sweep over seeds (issue 30): mean and standard deviation of every cell over
+// Statistics of a sweep over seeds: mean and standard deviation of every cell over
 // seeds, and the paper's comparisons as paired differences with 95 % intervals. Pure functions
 // on per-scene scores; run_grid writes their tables (sweep.hpp).
 #pragma once

@@ -1,4 +1,4 @@
-// Depth-layered and spatially varying imaging (issue 29, steps 2, 3 and 6): one linear operator
+// Depth-layered and spatially varying imaging: one linear operator
 // with K components, each a spectral PSF stack PSF_k (bands x S x S, axis at (S/2, S/2)) and a
 // per-pixel weight map w_k (H x W), in one of two placements:
 //

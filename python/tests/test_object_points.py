@@ -1,4 +1,4 @@
-"""Object points (issue 29 step 1): qdo.Optics.psf(height_m, object_points=...) returns
+"""Object points: qdo.Optics.psf(height_m, object_points=...) returns
 points x bands x S x S from one batched pass; qdo.torch passes the points through and the gradient
 wrt the heights sums over them; bad points are refused before any work."""
 import math

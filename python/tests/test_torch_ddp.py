@@ -1,4 +1,4 @@
-"""qdo.torch inside torch.nn.parallel.DistributedDataParallel (issue 30 item 3): a model whose
+"""qdo.torch inside torch.nn.parallel.DistributedDataParallel: a model whose
 parameters are a DOE height map (through qdo.torch's PSF and Camera operators) and a 1x1
 convolution decoder, trained data-parallel by 2 processes over gloo, each with its own qdo.Optics
 (its own OpenCL context) and half of the batch. DDP averages the gradients over the processes, so

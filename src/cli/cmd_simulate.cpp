@@ -249,7 +249,7 @@ int cmd_simulate(const Args& a) {
       reject("--formation release", "a " + to_str(scene.rows) + " x " + to_str(scene.cols) + " scene", "a square S x S scene");
     // The release resizes the S x S scene onto the N x N DOE grid, a scale of N / S: the physical
     // one (sensor pitch over DOE pitch) only when S is the configuration's sensor size. Another S
-    // would blur with a PSF scaled by the wrong factor, silently (issue 31, class 1).
+    // would blur with a PSF scaled by the wrong factor, silently.
     if (scene.rows != cfg.sensor_size_px())
       reject("--formation release", "a " + to_str(scene.rows) + " x " + to_str(scene.cols) + " scene",
              "a scene of the configuration's sensor size, " + to_str(cfg.sensor_size_px()) + " x " + to_str(cfg.sensor_size_px()) +

@@ -124,7 +124,7 @@ DesignRunOptions finetune_options(const Args& a) {
   o.checkpoint_every = std::size_t(parse_int("--checkpoint-every", a.get("checkpoint-every", "10"), 1, 100000000));
   o.max_steps = a.has("max-steps") ? parse_int("--max-steps", a.get("max-steps"), 0, 2147483647) : -1;
   if (a.has("precision")) o.precision = precision_from_string(a.get("precision"));
-  // The camera as built (issue 28 step 4): the frozen PSF is a measured stack or a fitted design's,
+  // do-finetune for the camera as built: the frozen PSF is a measured stack or a fitted design's,
   // checked against the do run's configuration here, before any work.
   if (a.has("psf") && a.has("design"))
     reject("--design", a.get("design"), "either --psf or --design, not both (the frozen PSF comes from one of them)");

@@ -1,5 +1,5 @@
 // qdo simulate --depth / --field-grid: the RGB sensor image of a scene whose PSF varies from pixel to
-// pixel (issue 29 steps 2, 3 and 6), through VaryingCamera (include/qdo/varying.hpp).
+// pixel, through VaryingCamera (include/qdo/varying.hpp).
 //
 //  --depth FILE[:KEY]   an H x W depth map (metres) beside the scene; each pixel goes to the nearest
 //                       depth layer in diopters (depth_layer_weights); the design's PSF is computed

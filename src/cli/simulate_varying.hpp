@@ -1,5 +1,5 @@
-// qdo simulate with a depth map (--depth) or a field-dependent PSF (--field-grid): issue 29 steps
-// 2, 3 and 6 on the command line, through VaryingCamera (include/qdo/varying.hpp).
+// qdo simulate with a depth map (--depth) or a field-dependent PSF (--field-grid) on the command
+// line, through VaryingCamera (include/qdo/varying.hpp).
 #pragma once
 #include "cli.hpp"
 #include "qdo/types.hpp"

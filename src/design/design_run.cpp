@@ -193,7 +193,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     source_network = read_network_state(o.finetune_from, source.state, source.checkpoint);
   }
   // do-finetune for the camera as built: the measured stack or the fitted design, read and checked
-  // against the configuration before any writing (issue 28 step 4).
+  // against the configuration before any writing.
   RealStack asbuilt_psf;
   Map2D asbuilt_heights;
   if (finetune && !o.finetune_psf.empty()) asbuilt_psf = read_psf_stack_for(o.cfg, o.finetune_psf, "psf");
@@ -230,7 +230,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   }
   if (!resume && writer) write_text_atomic(cfg_path.string(), design_run_options_to_json(o) + "\n");
   if (o.objective != Objective::PsfTarget && writer) save_prior(folder.prior_path(), pb.prior);
-  if (network && !resume && writer) {  // the scenes the network trains and validates on (issue 13 item 6)
+  if (network && !resume && writer) {  // split.json: the scenes the network trains and validates on
     json sp;
     sp["train"] = pb.joint.train_names;
     sp["validation"] = pb.joint.val_names;

@@ -153,7 +153,7 @@ void DesignRunOptions::validate() const {
   }
   if (objective == Objective::PsfTarget && target.kind != TargetSpec::Kind::Lens && !fs::exists(target.path))
     reject("target", target.to_string(), "lens:NM or an existing design .h5 file");
-  // A design over object points (issue 29 step 4): points_per_step of the P points per step.
+  // A design over a range of object points: points_per_step of the P points per step.
   const std::size_t points = cfg.point_count();
   if (design.points_per_step < 1 || design.points_per_step > points)
     reject("points_per_step", design.points_per_step,
@@ -161,7 +161,7 @@ void DesignRunOptions::validate() const {
   if (points > 1 && (net || objective == Objective::Network || !finetune_from.empty()))
     reject("objective", to_string(objective),
            "wiener, wiener-mse, wiener-mae or psf-target for a design over " + to_str(points) +
-               " object points (a network decoder trained over a range of points is later work, issue 29)");
+               " object points (a network decoder trained over a range of points is not supported)");
   if (epochs < 1) reject("epochs", epochs, ">= 1");
   if (batch < 1) reject("batch", batch, ">= 1");
   if (synthetic_scenes < 1) reject("synthetic_scenes", synthetic_scenes, ">= 1");

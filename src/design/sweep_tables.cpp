@@ -146,7 +146,7 @@ void write_grid_tables(const fs::path& out, const std::vector<GridCell>& cells, 
       comparisons.push_back({m, "do" + dec});
     }
   }
-  // qdo+a's comparisons first, then qdo's, as the list orders them.
+  // qdo+a's comparisons first, then qdo's.
   std::stable_sort(comparisons.begin(), comparisons.end(),
                    [](const auto& x, const auto& y) { return (split_label(x.first).first == "qdo+a") > (split_label(y.first).first == "qdo+a"); });
   const std::vector<PairedDifference> diffs = paired_differences(scores, comparisons);

@@ -1,4 +1,4 @@
-// A network run's decoder adapted to the camera as built (issue 28 step 4): `qdo design --mode
+// A network run's decoder adapted to the camera as built: `qdo design --mode
 // do-finetune --from RUN --psf FILE | --design FILE` trains the do run's network on with the
 // measured (or fitted) PSF frozen, records the file in config.json, split.json and design.h5, and
 // `qdo eval` / `qdo reconstruct` of the fine-tuned run use that PSF. Suite "net" (LibTorch).
