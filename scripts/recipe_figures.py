@@ -3,6 +3,7 @@
 
   psnr_vs_levels   Table 1: PSNR against the level count per mode, mean and sd over seeds
   deviation        Table 2: the ring deviation against the level count (log scale), with the paper's
+  network_psnr     the Res-UNet's table: PSNR per mode at 4 and 8 levels, seeds and 95 % intervals
   training_<sweep> the training curves of every design of a sweep (loss per step, and the network's
                    MAE when it has one), one line per run, a moving median over 25 steps
 
@@ -137,10 +138,51 @@ def training_figure(folder, figdir, name, title):
     save(fig, figdir, name)
 
 
+def network_figure(out, figdir):
+    """The Res-UNet under the release recipe: PSNR per mode at each level count, one dot per seed,
+    the mean with its 95 % t interval; full precision (DO's design unquantized) as a band."""
+    cs = cells(os.path.join(out, "network"))
+    if not cs:
+        return
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from qdo_stats import mean_ci
+    tag = "_resunet-depth4-root16"
+    levels = sorted({int(n.split("_L")[1].split("_")[0]) for n in cs if "_L" in n})
+    modes = ["do", "do-finetune", "qdo", "qdo+a"]
+    fig, ax = plt.subplots(figsize=(7.2, 4.4))
+    full = [c["mean"]["psnr_db"] for n, c in cs.items() if n.startswith("full" + tag)]
+    if full:
+        m, hw = mean_ci(full)
+        ax.axhspan(m - (hw if hw == hw else 0), m + (hw if hw == hw else 0), color="black", alpha=0.08)
+        ax.axhline(m, color="black", lw=1, ls="--", label=f"full precision ({len(full)} seeds)")
+    for k, mode in enumerate(modes):
+        xs, ms, errs = [], [], []
+        for i, L in enumerate(levels):
+            v = [c["mean"]["psnr_db"] for n, c in cs.items() if n.startswith(f"{mode}_L{L}{tag}_s")]
+            if not v:
+                continue
+            x = i + (k - 1.5) * 0.15
+            ax.scatter([x] * len(v), v, s=12, color=COLORS[mode], alpha=0.5)
+            m, hw = mean_ci(v)
+            xs.append(x)
+            ms.append(m)
+            errs.append(hw if hw == hw else 0)
+        if xs:
+            ax.errorbar(xs, ms, yerr=errs, fmt="o", color=COLORS[mode], capsize=3, label=f"{mode.upper()} (mean, 95 % interval)")
+    ax.set_xticks(range(len(levels)))
+    ax.set_xticklabels([f"{L} levels" for L in levels])
+    ax.set_ylabel("PSNR on the CAVE test crops (dB)")
+    ax.set_title("Res-UNet (depth 4, root 16) under the release recipe, small preset, 300 steps")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    save(fig, figdir, "network_psnr")
+
+
 def main():
     out = sys.argv[1] if len(sys.argv) > 1 else "out/recipe"
     figdir = sys.argv[2] if len(sys.argv) > 2 else os.path.join(out, "figures")
     grid_figures(out, figdir, "Release recipe, Wiener decoder, small preset")
+    network_figure(out, figdir)
     for sweep in ["grid", "network"]:
         training_figure(os.path.join(out, sweep), figdir, f"training_{sweep}",
                         f"Training curves, release recipe ({sweep})")
