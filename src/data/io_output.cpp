@@ -93,6 +93,9 @@ void OutputStage::discard() {
 }
 
 void OutputStage::commit() {
+  wait_if_abandoned();  // a signal's discard has run or is running: nothing is renamed into place
+  // Under the stage's lock: the signal thread's abandon_output_stage never runs beside it.
+  const std::lock_guard<std::mutex> lock(g_stage_mutex);
   if (committed_) return;
   // What can be known to fail is checked before the first rename, so that a set is renamed
   // whole or not at all: a final name taken by a folder, a temporary file that vanished.
