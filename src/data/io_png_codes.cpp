@@ -1,8 +1,8 @@
-// PNG files read as their stored code values (libpng's progressive-free "low-level" API). The
+// PNG files read as their stored code values through libpng's low-level (png_read_*) API. The
 // simplified API (png_image_*) converts 16-bit samples to linear light when a file carries a
-// gAMA, sRGB, cHRM or iCCP chunk (ImageMagick writes gAMA by default), so a raw capture of 12-bit
-// codes came back gamma-decoded; this reader applies no colour or gamma transform at all: what
-// the file stores is what the caller gets.
+// gAMA, sRGB, cHRM or iCCP chunk (ImageMagick writes gAMA by default), which would turn a raw
+// capture's 12-bit codes into gamma-decoded values; this reader applies no colour or gamma
+// transform at all: what the file stores is what the caller gets.
 #include <png.h>
 
 #include <csetjmp>
