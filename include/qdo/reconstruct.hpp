@@ -12,7 +12,8 @@
 //      planes) is subtracted; without darks the configured black level (black_level_dn).
 //   3. signal: v = (DN - dark) / (gain * (white - black_level_dn)): the linear signal, 1.0 = full
 //      well, the inverse of the sensor-as-built stage (raw.hpp).
-//   4. mosaic: the 2 x 2 phase is checked (check_mosaic_phase), then the demosaic (demosaic.hpp:
+//   4. mosaic: the 2 x 2 phase and colours are checked by read_captures (check_mosaic_phase,
+//      check_mosaic_colours, on step 3's signal), then the demosaic (demosaic.hpp:
 //      bilinear or Malvar-He-Cutler, on the device).
 //   5. crop: ROW, COL, H, W of the frame (after the demosaic, so the mosaic phase is kept).
 //   6. exposure (ExposureRule): none, a fixed factor, or the factor that puts a percentile of
@@ -66,6 +67,8 @@ struct CaptureFiles {
   double white_dn = 0;               // the white level used
   std::vector<std::string> notes;    // what the user should know (clipped values), printed and in reconstruct.json
 };
+// Every capture and dark read and checked: sizes, the white level, overexposed or empty captures
+// (check_capture_levels), and with a mosaic its phase and colours (step 4's checks).
 CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o);
 
 // The mosaic's 2 x 2 phase against cfg.cfa, cheaply: the two green sites of a Bayer cell see the

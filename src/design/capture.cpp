@@ -51,6 +51,8 @@ ExposureRule exposure_rule_from_string(const std::string& s, const std::string& 
 // ---------------------------------------------------------------------------------------------
 // Captures.
 
+namespace {
+
 // Saturated, empty and clipped captures: refused when nothing can be reconstructed from them
 // (no signal above the dark or black level; most values at the white level), said in f.notes
 // (printed, and kept in reconstruct.json) when part of the capture is clipped.
@@ -86,6 +88,8 @@ void check_capture_levels(const SystemConfig& cfg, const CaptureOptions& o, Capt
     f.notes.push_back(to_str(f.saturated) + " capture values (" + to_str(100 * sat_fraction) + " %) are at the white level " +
                       to_str(f.white_dn) + " DN: clipped, so the cube is wrong around them; a shorter exposure avoids it");
 }
+
+}  // namespace
 
 CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
   if (o.captures.empty()) reject("--capture", "(missing)", "one or more 16-bit PNG captures of the scene");
@@ -132,6 +136,13 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
       for (std::size_t i = 0; i < d.data.size(); ++i) f.dark_dn.data[i] += d.data[i] / double(darks.size());
   }
   check_capture_levels(cfg, o, f);
+  // The mosaic's phase and colours, once, on the signal, before any work (prepare_capture and
+  // reconstruct rely on it).
+  if (cfg.cfa != Cfa::None) {
+    const RealStack signal = capture_signal(cfg, f);
+    check_mosaic_phase(signal, cfg.cfa, o.captures.front());
+    check_mosaic_colours(signal, cfg.cfa, sensor_response(cfg), o.captures.front());
+  }
   return f;
 }
 
@@ -293,8 +304,6 @@ PreparedCapture prepare_capture(Runtime& rt, Precision p, const SystemConfig& cf
   const auto t1 = std::chrono::steady_clock::now();
   RealStack rgb;
   if (cfg.cfa != Cfa::None) {
-    check_mosaic_phase(v, cfg.cfa, o.captures.front());
-    check_mosaic_colours(v, cfg.cfa, sensor_response(cfg), o.captures.front());
     if (v.rows < 3 || v.cols < 3) reject("capture size", shape(v), "at least 3 x 3 for the demosaic");
     DemosaicStage stage(rt, cfg.cfa, demosaic_method_from_string(o.demosaic, "--demosaic"), p);
     rgb = stage.run(std::vector<RealStack>{v}).front();

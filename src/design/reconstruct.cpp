@@ -306,12 +306,7 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
     if (r.row + r.rows > img_rows || r.col + r.cols > img_cols)
       reject(r.box ? "--boxes" : "--points", r.label(),
              "inside the reconstructed " + to_str(img_rows) + " x " + to_str(img_cols) + " image (after --crop)");
-  if (cfg.cfa != Cfa::None) {
-    (void)demosaic_method_from_string(o.capture.demosaic, "--demosaic");
-    const RealStack signal = capture_signal(cfg, files);
-    check_mosaic_phase(signal, cfg.cfa, o.capture.captures.front());
-    check_mosaic_colours(signal, cfg.cfa, sensor_response(cfg), o.capture.captures.front());
-  }
+  if (cfg.cfa != Cfa::None) (void)demosaic_method_from_string(o.capture.demosaic, "--demosaic");  // the mosaic: read_captures
   secs.push_back({"read", seconds_since(t)});
 
   make_output_dir(o.out, "--out");
