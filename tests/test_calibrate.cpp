@@ -122,10 +122,17 @@ fs::path frames_copy(const std::string& tag) {
   return to;
 }
 
-Run calibrate(const fs::path& frames, const std::string& out, const std::string& extra = "") {
-  return qdo_run("calibrate --config " + sweep().cfg_path.string() + " --frames " + frames.string() + " --darks " +
-                     (sweep().dir / "darks").string() + " --out " + (sweep().dir / out).string() + " " + extra,
+// qdo calibrate with a configuration, frames and darks of the test's choice, into DIR/<out>.
+Run calibrate_with(const fs::path& cfg, const fs::path& frames, const fs::path& darks, const std::string& out,
+                   const std::string& extra = "") {
+  return qdo_run("calibrate --config " + cfg.string() + " --frames " + frames.string() + " --darks " + darks.string() + " --out " +
+                     (sweep().dir / out).string() + " " + extra,
                  "QDO_DEVICE=cpu");
+}
+
+// ... with the sweep's configuration and darks.
+Run calibrate(const fs::path& frames, const std::string& out, const std::string& extra = "") {
+  return calibrate_with(sweep().cfg_path, frames, sweep().dir / "darks", out, extra);
 }
 
 }  // namespace
@@ -235,9 +242,7 @@ TEST_SUITE("calibrate") {
     for (const auto& e : fs::directory_iterator(s.dir / "darks")) to_tiff(e.path(), td / e.path().filename().replace_extension(".tiff"));
     const Run png = calibrate(s.dir / "frames", "o_png");
     REQUIRE_MESSAGE(png.code == 0, png.out);
-    const Run tif = qdo_run("calibrate --config " + s.cfg_path.string() + " --frames " + tf.string() + " --darks " + td.string() +
-                                " --out " + (s.dir / "o_tif").string(),
-                            "QDO_DEVICE=cpu");
+    const Run tif = calibrate_with(s.cfg_path, tf, td, "o_tif");
     REQUIRE_MESSAGE(tif.code == 0, tif.out);
     CHECK(read_psf_stack_file((s.dir / "o_tif/psf.h5").string()).psf_sensor.data ==
           read_psf_stack_file((s.dir / "o_png/psf.h5").string()).psf_sensor.data);
@@ -338,9 +343,7 @@ TEST_SUITE("calibrate") {
     {  // a capture whose mosaic is not the configured one
       const fs::path cfg = s.dir / "bggr.json";
       write_text_atomic(cfg.string(), config_text(s.dir, "bggr"));
-      const Run r = qdo_run("calibrate --config " + cfg.string() + " --frames " + (s.dir / "frames").string() + " --darks " +
-                                (s.dir / "darks").string() + " --out " + (s.dir / "o_cfa").string(),
-                            "QDO_DEVICE=cpu");
+      const Run r = calibrate_with(cfg, s.dir / "frames", s.dir / "darks", "o_cfa");
       CHECK(r.code == 2);
       CHECK_MESSAGE((r.out.find("mosaic does not match") != std::string::npos && r.out.find("\"rggb\"") != std::string::npos &&
                      r.out.find(".png") != std::string::npos),
@@ -349,9 +352,7 @@ TEST_SUITE("calibrate") {
     {  // mosaic frames calibrated as a monochrome sensor ("cfa": "none"): refused, naming the layout they show
       const fs::path cfg = s.dir / "mono.json";
       write_text_atomic(cfg.string(), config_text(s.dir, "none"));
-      const Run r = qdo_run("calibrate --config " + cfg.string() + " --frames " + (s.dir / "frames").string() + " --darks " +
-                                (s.dir / "darks").string() + " --out " + (s.dir / "o_mono").string(),
-                            "QDO_DEVICE=cpu");
+      const Run r = calibrate_with(cfg, s.dir / "frames", s.dir / "darks", "o_mono");
       CHECK(r.code == 2);
       CHECK_MESSAGE((r.out.find("\"cfa\": \"none\"") != std::string::npos && r.out.find("\"rggb\"") != std::string::npos), r.out);
       CHECK(!fs::exists(s.dir / "o_mono/psf.h5"));
@@ -371,11 +372,8 @@ TEST_SUITE("calibrate") {
         for (double& v : f.data) v += shift;
         write_png16_gray((d / e.path().filename()).string(), f);
       }
-      const std::string darks = " --darks " + d.string();
       auto run = [&](const std::string& bg, const std::string& out) {
-        return qdo_run("calibrate --config " + s.cfg_path.string() + " --frames " + (s.dir / "frames").string() + darks + " --out " +
-                           (s.dir / out).string() + " --background " + bg,
-                       "QDO_DEVICE=cpu");
+        return calibrate_with(s.cfg_path, s.dir / "frames", d, out, "--background " + bg);
       };
       const Run none = run("none", "o_dshift_none");
       CHECK(none.code == 2);
@@ -403,9 +401,7 @@ TEST_SUITE("calibrate") {
     const auto noise = h5_read((s.dir / "o_dmatch/psf.h5").string(), "/noise_dn");
     for (std::size_t b = 0; b < bg.data.size(); ++b) CHECK(std::abs(bg.data[b]) <= noise.data[b]);
     // The frames folder given as --darks: said so, not "too dark".
-    const Run same = qdo_run("calibrate --config " + s.cfg_path.string() + " --frames " + (s.dir / "frames").string() + " --darks " +
-                                 (s.dir / "frames").string() + " --out " + (s.dir / "o_dsame").string(),
-                             "QDO_DEVICE=cpu");
+    const Run same = calibrate_with(s.cfg_path, s.dir / "frames", s.dir / "frames", "o_dsame");
     CHECK(same.code == 2);
     CHECK_MESSAGE(same.out.find("is also a frame") != std::string::npos, same.out);
   }
