@@ -265,38 +265,37 @@ int main(int argc, char** argv) {
   std::unique_ptr<qdo::mpi::World> world;
   const int rc = [&]() -> int {
   try {
-    world = std::make_unique<qdo::mpi::World>();
-    Args a;
-    if (!parse_command_line(*c, argc, argv, a)) return 0;  // --help
-    // Long, resumable commands write their files as they go; the others stage every output and
-    // rename them into place together only when the command succeeds (OutputStage, io.hpp).
-    OutputStage stage(!c->writes_as_it_goes);
-    const int status = c->run(a);
-    qdo::wait_if_abandoned();  // interrupted as it finished: no commit, the signal ends the process
-    if (status == 0) stage.commit();
-    return status;
+    try {
+      world = std::make_unique<qdo::mpi::World>();
+      Args a;
+      if (!parse_command_line(*c, argc, argv, a)) return 0;  // --help
+      // Long, resumable commands write their files as they go; the others stage every output and
+      // rename them into place together only when the command succeeds (OutputStage, io.hpp).
+      OutputStage stage(!c->writes_as_it_goes);
+      const int status = c->run(a);
+      qdo::wait_if_abandoned();  // interrupted as it finished: no commit, the signal ends the process
+      if (status == 0) stage.commit();
+      return status;
+    } catch (...) {
+      qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
+      throw;
+    }
   } catch (const InputError& e) {
-    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: error: %s\n", cmd.c_str(), e.what());
     return 2;
   } catch (const AccuracyError& e) {
-    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: refused: %s\n", cmd.c_str(), e.what());
     return 3;
   } catch (const DeviceError& e) {
-    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: device error: %s\n", cmd.c_str(), e.what());
     return 4;
   } catch (const cl::Error& e) {
-    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: OpenCL error in %s: %s\n", cmd.c_str(), e.what(), cl_error_name(e.err()).c_str());
     return 4;
   } catch (const std::filesystem::filesystem_error& e) {
-    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: file system error: %s\n", cmd.c_str(), e.what());
     return 6;
   } catch (const std::bad_alloc&) {
-    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     // The advice names what this command takes.
     const std::string advice = cmd == "calibrate"   ? "frames cropped closer to the PSF, or fewer bands in the configuration"
                                : cmd == "reconstruct" ? "--crop, or fewer captures and darks"
@@ -305,7 +304,6 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "qdo %s: out of host memory (reduce the problem size: %s)\n", cmd.c_str(), advice.c_str());
     return 7;
   } catch (const std::exception& e) {
-    qdo::wait_if_abandoned();  // interrupted: the signal thread ends the process, not this error
     std::fprintf(stderr, "qdo %s: internal error (please report): %s\n", cmd.c_str(), e.what());
     return 1;
   }
