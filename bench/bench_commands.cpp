@@ -22,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "qdo/data_root.hpp"
 #include "qdo/io.hpp"
 
 #include "bench_util.hpp"
@@ -45,7 +46,7 @@ double run_once(const std::string& cmd) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string qdo = "build/qdo", before, scene = "../shared/data/hsi/cave/balloons_256.mat", preset = "small", out;
+  std::string qdo = "build/qdo", before, scene, preset = "small", out;
   int repeats = 5;
   for (int i = 1; i < argc; i += 2) {  // --help, or a flag without its value, prints the usage (exit 2)
     const std::string k = i + 1 < argc ? argv[i] : "--help", v = i + 1 < argc ? argv[i + 1] : "";
@@ -62,6 +63,7 @@ int main(int argc, char** argv) {
   }
   const fs::path work = fs::temp_directory_path() / ("qdo_bench_commands_" + std::to_string(::getpid()));
   fs::create_directories(work);
+  if (scene.empty()) scene = qdo::resolve_dataset("cave", "--scene") + "/balloons_256.mat";  // under the data root
   const std::string common = " --preset " + preset + " --design lens:550 --scene " + scene;
   struct Row {
     std::string label, binary, args, dir;

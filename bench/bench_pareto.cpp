@@ -35,6 +35,7 @@
 #include <thread>
 #include <vector>
 
+#include "qdo/data_root.hpp"
 #include "qdo/config.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/datasets.hpp"
@@ -63,7 +64,7 @@ struct Options {
   std::size_t n = 1024;
   int repeats = 5;
   std::set<std::string> sections{"psf", "image", "step", "sweep", "psnr"};
-  std::string cave = "../shared/data/hsi/cave";
+  std::string cave = "cave";  // a dataset name under the data root (qdo data), or a folder
   bool cpu = true;
   std::string out;
 };
@@ -584,10 +585,7 @@ int main(int argc, char** argv) {
   }
   try {
     if (o.n < 32 || o.n % 8) reject("--n", o.n, "a multiple of 8, at least 32");
-    // The default scene folder is ../shared/... of the repository: try it from the repository
-    // root and from a build folder inside it.
-    if (o.cave == "../shared/data/hsi/cave" && !std::ifstream(o.cave + "/cloth_256.mat"))
-      o.cave = "../../shared/data/hsi/cave";
+    o.cave = resolve_dataset(o.cave, "--cave");
     if (o.repeats < 1) reject("--repeats", o.repeats, ">= 1");
     const auto t0 = Clock::now();
     Reference ref;

@@ -14,8 +14,8 @@
 //
 // Usage: bench_skip [--data DIR] [--preset paper|small] [--repeats 3] [--warmup 1]
 //                   [--loose 1e-4] [--radial] [--quick] [--out FILE.md]
-//   --data    folder of CAVE .mat scenes (default ../shared/data/hsi/cave, relative to the
-//             working directory: run from the repository root)
+//   --data    folder of CAVE .mat scenes, or a dataset name under the data root (default cave;
+//             qdo data says where that is)
 //   --quick   small preset (N = 256, S = 128), scenes centre-cropped to 128 x 128, 1 repeat
 // Device: QDO_DEVICE (see runtime.hpp); kernel disk cache: QDO_CACHE_DIR.
 #include <algorithm>
@@ -31,6 +31,7 @@
 #include <string>
 #include <vector>
 
+#include "qdo/data_root.hpp"
 #include "qdo/config.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/doe.hpp"
@@ -51,7 +52,7 @@ using qdo::bench::fmt;
 using qdo::bench::median_seconds;
 
 struct Options {
-  std::string data = "../shared/data/hsi/cave", preset = "paper", out;
+  std::string data = "cave", preset = "paper", out;
   int repeats = 3, warmup = 1;
   double loose = 1e-4;
   bool radial = false, quick = false;
@@ -112,8 +113,9 @@ Err error(const std::vector<RealStack>& a, const std::vector<RealStack>& truth) 
 }  // namespace
 
 int main(int argc, char** argv) try {
-  const Options o = parse(argc, argv);
+  Options o = parse(argc, argv);
   std::vector<std::string> files;
+  o.data = resolve_dataset(o.data, "--data");
   if (!fs::is_directory(o.data)) reject("--data", o.data, "a folder of CAVE .mat scenes");
   for (const auto& e : fs::directory_iterator(o.data))
     if (e.path().extension() == ".mat") files.push_back(e.path().string());

@@ -32,6 +32,8 @@ calibrate physics
 config data
 cpu_reference physics
 datasets data
+data_root data
+figure data
 decoder decode
 decoder_registry decode
 decoder_spec decode
@@ -58,6 +60,7 @@ gradcheck design
 hash runtime
 host_propagator runtime
 io data
+io_raw data
 joint design
 kernel_cache runtime
 materials data

@@ -14,6 +14,8 @@ pkgs=(
   nlohmann-json3-dev     # configuration files
   libpng-dev             # figures, 16-bit PNG captures
   libtiff-dev            # 16-bit TIFF captures (qdo calibrate, qdo reconstruct)
+  libraw-dev             # camera raw captures: DNG and vendor raws (qdo calibrate, qdo reconstruct)
+  libplplot-dev plplot-driver-cairo  # figures: PNG through cairo and SVG, with axes, legends, colour bars
   doctest-dev            # tests
   libcli11-dev           # the command line (header-only CLI11)
   klayout                # tests: an independent GDSII reader for the mask round trip

@@ -199,8 +199,8 @@ TEST_SUITE("commands") {
     CHECK(foreign.out.find("--into-existing") != std::string::npos);
     // A folder an earlier demo made: its run folders are still checked, and a user's file in one refused.
     std::ofstream(dir / ".qdo-out") << "{\"made_by\": \"qdo\", \"command\": \"demo\"}\n";
-    const Run r = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --data " + (dir / "no_cave").string() +
-                          " --out " + dir.string());
+    const Run r = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --data none --out " +
+                           dir.string());
     CAPTURE(r.out);
     CHECK(r.code == 2);
     CHECK(r.out.find((dir / "do").string()) != std::string::npos);
@@ -218,9 +218,9 @@ TEST_SUITE("commands") {
   TEST_CASE("qdo demo at the smallest size it accepts writes its runs, evaluations and summary") {
     const auto dir = temp_dir("cmd_demo");
     // demo has no --config: the small preset (N = 256, 31 bands) is its smallest system; 2 epochs of
-    // 1 step each is its smallest schedule. --data names a missing folder so the CAVE rows are left out.
-    const Run r = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --data " + (dir / "no_cave").string() +
-                          " --out " + dir.string());
+    // 1 step each is its smallest schedule. --data none leaves the CAVE rows out.
+    const Run r = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --data none --out " +
+                           dir.string());
     CAPTURE(r.out);
     REQUIRE(r.code == 0);
     for (const char* run : {"qdoa", "do"}) {
@@ -254,8 +254,8 @@ TEST_SUITE("commands") {
     CHECK(fs::file_size(dir / "chart_sensor_qdoa.png") > 100);
     // A rerun over its own output replaces its run files and keeps anything else put there.
     std::ofstream(dir / "do" / "notes.txt") << "mine";
-    const Run again = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --data " + (dir / "no_cave").string() +
-                              " --out " + dir.string());
+    const Run again = qdo_run("demo --preset small --levels 2 --epochs 2 --steps-per-epoch 1 --data none --out " +
+                               dir.string());
     CAPTURE(again.out);
     CHECK(again.code == 0);
     CHECK(slurp(dir / "do" / "notes.txt") == "mine");

@@ -64,6 +64,7 @@ void register_net_plugin_loader();
 // The command bodies (src/cli/*.cpp); options are parsed before any of them runs.
 int cmd_devices(const Args& a);
 int cmd_config(const Args& a);
+int cmd_data(const Args& a);
 int cmd_psf(const Args& a);
 int cmd_calibrate(const Args& a);
 int cmd_fit(const Args& a);
@@ -102,6 +103,10 @@ double parse_double(const std::string& name, const std::string& v);
 double parse_double(const std::string& name, const std::string& v, double lo, double hi, const std::string& unit,
                     bool lo_open = false);
 std::vector<std::string> split_list(const std::string& s);  // comma-separated
+// The scene sources of option `name` (comma-separated): dataset names resolved under the data root
+// (data_root.hpp), paths checked to exist; an InputError naming --name otherwise. Empty when the
+// option is not given and has no default.
+std::vector<std::string> scene_paths(const Args& a, const std::string& name);
 bool parse_on_off(const std::string& name, const std::string& v);  // "on" or "off", else an InputError naming the option
 // lens:NM, flat, or an HDF5 design file matching the configuration's grid.
 Map2D load_design(const SystemConfig& cfg, const std::string& spec);

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "qdo/data_root.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
@@ -174,6 +175,14 @@ std::vector<std::string> split_list(const std::string& s) {
   return out;
 }
 
+std::vector<std::string> scene_paths(const Args& a, const std::string& name) {
+  const std::vector<std::string> out = resolve_datasets(split_list(a.get(name)), "--" + name);
+  for (const std::string& p : out)
+    if (p.rfind("synthetic:", 0) != 0 && !fs::exists(p))
+      reject("--" + name, p, "existing scene files or folders, or dataset names under the data root (qdo data lists them)");
+  return out;
+}
+
 // Options shared by design and gradcheck.
 namespace {
 
@@ -298,7 +307,7 @@ DesignRunOptions design_options(const Args& a, bool range) {
   o.lr_decoder = parse_double("--lr-decoder", a.get("lr-decoder", rv("lr-decoder")), 0, 1, "", true);
   o.gamma_decoder = parse_double("--gamma", a.get("gamma", rv("gamma")), 0, 1e3, "");
   o.target = target_spec_from_string(a.get("target", "lens:550"), "--target");
-  o.data = split_list(a.get("data", ""));
+  o.data = scene_paths(a, "data");
   o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes", "12"), 1, 100000));
   o.batch = std::size_t(parse_int("--batch", a.get("batch", "4"), 1, 100000));
   o.decoder_noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma", rv("noise-sigma")), 0, 10, "(units of full scale)");

@@ -30,9 +30,14 @@ const char* const kDemoMarker = ".qdo-demo";
 
 // The main job: a QDO+A design at L levels on synthetic scenes (small preset), compared with
 // conventional deep optics (DO: full-precision training, quantized afterwards) on held-out
-// synthetic scenes and, when present, the real CAVE scenes; plus the forward-model figures.
+// synthetic scenes and the real CAVE scenes (--data, unless none); plus the forward-model figures.
 int cmd_demo(const Args& a) {
   const std::string dir = a.get("out", "out/demo");
+  const bool network = decoder_spec_from_string(a.get("decoder", "wiener")).network();
+  // The datasets, resolved under the data root before anything is written: a missing one is an
+  // error naming where qdo looked (--data none leaves the real-scene rows out).
+  const std::vector<std::string> train = network ? scene_paths(a, "train-data") : std::vector<std::string>{};
+  const std::string real = a.get("data") == "none" ? std::string() : scene_paths(a, "data").front();
   // A demo folder of a qdo from before the output marker (claim_output_dir) is recognised by its
   // run folders' demo markers, and adopted.
   bool earlier_demo = !fs::exists(fs::path(dir) / kOutputMarker);
@@ -43,7 +48,6 @@ int cmd_demo(const Args& a) {
   DesignRunOptions o;
   o.cfg = preset_config(a.get("preset"));
   o.decoder = decoder_spec_from_string(a.get("decoder", "wiener"));
-  const bool network = o.decoder.network();
   o.design.quantizer.levels = parse_int("--levels", a.get("levels"), 2, 65536);
   // The Wiener demo: 15 x 8 steps on synthetic scenes. The network demo: 8 x 50 steps on the CAVE
   // training scenes (the network needs real data and more steps; README: how long it takes).
@@ -57,16 +61,8 @@ int cmd_demo(const Args& a) {
   if (network) o.design.lr_decay_per_epoch = std::pow(0.8, double(o.design.steps_per_epoch) / 500.0);
   o.precision = precision_from_string(a.get("precision"));
   o.objective = network ? Objective::Network : Objective::Wiener;
-  if (network) {
-    for (const std::string& d : split_list(a.get("train-data")))
-      if (fs::exists(d)) o.data.push_back(d);
-    if (o.data.empty())
-      std::fprintf(stderr, "qdo demo: note: no --train-data found (%s); the network trains on synthetic scenes\n",
-                   a.get("train-data").c_str());
-  }
+  o.data = train;
   const std::size_t finetune_steps = std::size_t(parse_int("--finetune-steps", a.get("finetune-steps"), 1, 100000000));
-  std::string real = a.get("data");
-  if (!fs::exists(real)) real.clear();
   struct Job {
     DesignMode mode;
     std::string name;

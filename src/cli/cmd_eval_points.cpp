@@ -47,7 +47,7 @@ int cmd_eval_points(const Args& a) {
     if (!(o.nominal_m > 0)) reject("--nominal", v + " m", "a distance in metres > 0, or inf");
   }
   o.angle_steps = std::size_t(parse_int("--angle-steps", a.get("angle-steps"), 1, 1000));
-  o.data = split_list(a.get("data"));
+  o.data = scene_paths(a, "data");
   o.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));
   o.fov_tolerance = parse_double("--fov-tolerance", a.get("fov-tolerance"), 0, 10, "", true);
   o.dof_margin_db = parse_double("--dof-margin-db", a.get("dof-margin-db"), 0, 100, "dB", true);

@@ -86,7 +86,7 @@ int cmd_tolerance(const Args& a) {
   t.oversample = std::size_t(parse_int("--oversample", a.get("oversample"), 1, 16));
   t.per_source = !a.has("no-per-source");
   t.save_psfs = a.has("save-psfs");
-  t.data = split_list(a.get("data"));
+  t.data = scene_paths(a, "data");
   t.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));
   t.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale)") : -1;
   t.precision = precision_from_string(a.get("precision"));

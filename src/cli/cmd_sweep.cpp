@@ -146,7 +146,7 @@ int cmd_sweep(const Args& a) {
     for (int i = 0; i < n; ++i) g.seeds.push_back(first + std::uint64_t(i));
   }
   g.finetune_steps = std::size_t(parse_int("--finetune-steps", a.get("finetune-steps", "100"), 1, 100000000));
-  g.test_data = split_list(a.get("test-data"));
+  g.test_data = scene_paths(a, "test-data");
   g.eval_synthetic_scenes = std::size_t(parse_int("--eval-scenes", a.get("eval-scenes"), 1, 10000));
   // An option no cell of this grid uses is refused, naming where it acts (as qdo design does for
   // its one run); one that some cells use applies to those.

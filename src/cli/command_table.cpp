@@ -42,7 +42,14 @@ OptionSpec scene() {
 }
 OptionSpec key() { return opt("key", "variable / dataset name of the cube in a .mat or .h5 --scene file (default: found automatically)"); }
 OptionSpec resample_bands() { return flag("resample-bands", "interpolate a --scene cube whose band axis differs from the configuration's"); }
-OptionSpec data(const std::string& what) { return opt("data", what + ": CAVE folders, cube files or folders of them, comma-separated"); }
+OptionSpec data(const std::string& what) {
+  return opt("data", what + ": dataset names under the data root (cave, cave_train, ...; qdo data lists them), CAVE "
+                     "folders, cube files or folders of them, comma-separated");
+}
+OptionSpec data_root() {
+  return opt("data-root", "the folder that holds the datasets named in --data (default: $QDO_DATA, else data_root in "
+                          "~/.config/qdo/settings.json, else ~/.local/share/qdo, else the source tree's data; qdo data)");
+}
 OptionSpec synthetic_scenes(const std::string& def) { return opt("synthetic-scenes", "number of synthetic scenes, an integer in [1, 100000]", def); }
 OptionSpec noise_sigma(const std::string& help, const std::string& def) { return opt("noise-sigma", help, def); }
 OptionSpec seed() { return opt("seed", "random seed, an integer in [0, 2147483647]", "0"); }
@@ -105,6 +112,11 @@ std::vector<CommandSpec> make_table() {
   std::vector<CommandSpec> t;
   t.push_back({"devices", "list the OpenCL platforms and devices and the default choice", "", "", {}, cmd_devices});
   t.push_back({"config", "print the system configuration as JSON", "", "", {preset(), config()}, cmd_config});
+  t.push_back({"data", "where qdo looks for datasets and what it finds: each dataset's scenes, formats, shapes, value ranges, "
+                       "sizes and checksums, and the known ones that are missing", "", "",
+               {data_root(), opt("bands", "bands expected in each scene, an integer in [1, 1024]", "31"),
+                flag("quick", "leave the value ranges out (the cubes are not read; shapes come from the file headers)")},
+               cmd_data});
   t.push_back({"psf", "compute a design's PSF stack: DIR/psf.h5 (the sensor-grid stack), psf.png, design.png", "", "",
                {preset(), config(), design_spec(), levels_post(), placement(), precision(), device(), save_opt(), compress(),
                 out_dir_opt()},
@@ -213,10 +225,11 @@ std::vector<CommandSpec> make_table() {
                 opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 100000] (default: 8; 50 with a network decoder)"),
                 opt("decoder", "decoder: wiener (closed form, trained on synthetic scenes) or a network spec (resunet, ...; "
                                "trained with the optics on --train-data; about 10 minutes on 2 cores with resunet)", "wiener"),
-                opt("train-data", "training scenes of the network decoder (comma-separated; those that exist are used)",
-                    "../shared/data/hsi/cave_train,../shared/data/hsi/cave_png"),
+                opt("train-data", "training scenes of the network decoder: dataset names under the data root or paths, "
+                                  "comma-separated (each must exist)", "cave_train,cave_png"),
                 opt("finetune-steps", "network decoder: do-finetune steps (doft/), an integer in [1, 100000000]", "100"),
-                opt("data", "real test scenes (CAVE folder); skipped when absent", "../shared/data/hsi/cave"), precision(), device(),
+                opt("data", "real test scenes: a dataset name under the data root or a path; none leaves the real-scene rows out", "cave"),
+                data_root(), precision(), device(),
                 opt("out", "output folder (created; its qdoa/ and do/ (and doft/) run folders are replaced)", "out/demo")},
                cmd_demo, true});
   t.push_back({"design", "optimise a design end to end into a run folder (resumable)", "", "",
@@ -224,7 +237,7 @@ std::vector<CommandSpec> make_table() {
                        opt("mode", "design mode: full, do, qdo, ste, qdo+a, qdo+m, or do-finetune (with --from: a network do run's "
                                    "network trained on with its DOE quantized to --levels and frozen)", "qdo+a"),
                        opt("levels", "height levels L, an integer in [2, 65536]", "4"), placement(),
-                       parameterization(), objective(), target(), data("training scenes (default: synthetic scenes)"),
+                       parameterization(), objective(), target(), data("training scenes (default: synthetic scenes)"), data_root(),
                        opt("from", "do-finetune: the finished network do run folder to fine-tune"),
                        opt("finetune-steps", "do-finetune: network steps with the DOE frozen, an integer in [1, 100000000]", "200"),
                        opt("psf", "do-finetune for the camera as built: a measured PSF stack (qdo calibrate's psf.h5, for the run's "
@@ -253,7 +266,7 @@ std::vector<CommandSpec> make_table() {
                 opt("wiener-on", "where the wiener objective's device row is checked: device (default) or cpu (no such row)", "device")},
                cmd_gradcheck});
   t.push_back({"eval", "evaluate a run's design: metrics, reconstructions and figures", "RUN", "run folder written by qdo design",
-               {data("test scenes (default: synthetic scenes)"),
+               {data("test scenes (default: synthetic scenes)"), data_root(),
                 opt("levels", "re-quantize the full-precision design to L levels, an integer in [2, 65536] (default: the run's)"),
                 placement(), opt("decoder", "decoder: matched (refit to the evaluated design) or mismatch (fit to the full-precision design)", "matched"),
                 opt("decoder-kind", "the decoder that reconstructs: wiener, cg[:tolerance=T,max_iterations=N] (conjugate-gradient MAP) or "
@@ -279,7 +292,7 @@ std::vector<CommandSpec> make_table() {
                               "distance] (default: 0 to the field edge, min(atan(half the sensor window / z), that limit), in "
                               "--angle-steps steps); 0 is always added"),
                 opt("angle-steps", "steps of the default angle grid, an integer in [1, 1000]", "8"),
-                data("test scenes (default: synthetic held-out scenes, as qdo eval)"), synthetic_scenes("6"),
+                data("test scenes (default: synthetic held-out scenes, as qdo eval)"), data_root(), synthetic_scenes("6"),
                 opt("fov-tolerance", "largest model error ||I_theta - I_0|| / ||I_0|| (field-dependent image against the "
                                      "shift-invariant model's) inside the valid field of view, a number in (0, 10]; 0.05: a 5 % "
                                      "relative image error, about 26 dB of model PSNR", "0.05"),
@@ -311,7 +324,7 @@ std::vector<CommandSpec> make_table() {
                 opt("edge-blur-um", "edge blur in um, in [0, 1000]", "0"), opt("height-noise-nm", "height noise std in nm, in [0, 10000]", "0"),
                 opt("trials", "trials per scenario, an integer in [1, 100000]", "16"), seed(),
                 opt("scheme", "mask scheme: auto, binary, nested or greyscale", "auto"),
-                opt("oversample", "mask oversampling, an integer in [1, 16]", "4"), data("test scenes (default: synthetic scenes)"),
+                opt("oversample", "mask oversampling, an integer in [1, 16]", "4"), data("test scenes (default: synthetic scenes)"), data_root(),
                 synthetic_scenes("6"), noise_sigma("sensor noise std, in units of full scale, in [0, 10] (default: the run's)", ""),
                 flag("no-per-source", "skip the scenarios of one error source at a time"),
                 flag("save-psfs", "write every trial's PSF stack to psfs.h5"), precision(), device(), out_dir_opt()},
@@ -339,8 +352,9 @@ std::vector<CommandSpec> make_table() {
                         "", false, true},
                        opt("finetune-steps", "do-finetune with a network decoder: network steps with the DOE frozen, an integer in [1, 100000000]", "100"),
                        preset(), config(), placement(), parameterization(), objective(),
-                       data("training scenes (default: synthetic scenes)"),
-                       opt("test-data", "test scenes: CAVE folders, cube files or folders of them, comma-separated (default: synthetic)"),
+                       data("training scenes (default: synthetic scenes)"), data_root(),
+                       opt("test-data", "test scenes: dataset names under the data root, CAVE folders, cube files or folders of "
+                                        "them, comma-separated (default: synthetic)"),
                        opt("eval-scenes", "synthetic test scenes, an integer in [1, 10000]", "4"),
                        opt("seeds", "N seeds as a grid axis: --seed, --seed + 1, ..., an integer in [1, 1000] (or --grid seed=S1,S2,...)"),
                        flag("plan", "print the grid's cells (index, name, mode, levels, seed, runs) and exit: nothing is run or written"),

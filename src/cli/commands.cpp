@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "cli.hpp"
+#include "qdo/data_root.hpp"
 #include "qdo/error.hpp"
 #include "qdo/mpi.hpp"
 #include "qdo/io.hpp"
@@ -269,6 +270,7 @@ int main(int argc, char** argv) {
       world = std::make_unique<qdo::mpi::World>();
       Args a;
       if (!parse_command_line(*c, argc, argv, a)) return 0;  // --help
+      if (a.has("data-root")) qdo::set_data_root(a.get("data-root"));  // dataset names resolve there
       // Long, resumable commands write their files as they go; the others stage every output and
       // rename them into place together only when the command succeeds (OutputStage, io.hpp).
       OutputStage stage(!c->writes_as_it_goes);

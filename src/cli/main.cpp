@@ -233,7 +233,7 @@ int cmd_design(const Args& a) {
 int cmd_eval(const Args& a) {
   EvalOptions e;
   e.run = a.positional;
-  e.data = split_list(a.get("data"));
+  e.data = scene_paths(a, "data");
   e.levels = a.has("levels") ? parse_int("--levels", a.get("levels"), 2, 65536) : 0;
   e.placement = placement_from_string(a.get("placement"));
   e.decoder = decoder_fit_from_string(a.get("decoder"), "--decoder");
