@@ -71,6 +71,7 @@ optics physics
 propagate physics
 propagate_reference physics
 psf physics
+psf_metrics physics
 psf_reference physics
 psf_source physics
 point_psf physics

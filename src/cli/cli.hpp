@@ -138,6 +138,9 @@ DesignRunOptions design_options(const Args& a, bool range = false);
 // inf, each angle within max_field_angle_deg at every distance (the refusal names the limit),
 // --points-per-step in 1 .. P. InputError naming the option otherwise, before any work.
 void range_options(const Args& a, DesignRunOptions& o);
+// --object-distances and --field-angles into c.object_points (every distance under every angle,
+// each angle checked against the sampling at each distance); refused when c already lists points.
+void object_point_options(const Args& a, SystemConfig& c);
 // With --resume: every option given explicitly that differs from RUN/config.json is an
 // InputError listing "--option: stored X, given Y" (--max-steps, --device, --out,
 // --check-gradients may differ).

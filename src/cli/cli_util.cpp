@@ -198,8 +198,7 @@ double object_distance(const std::string& v) {
 
 }  // namespace
 
-void range_options(const Args& a, DesignRunOptions& o) {
-  SystemConfig& c = o.cfg;
+void object_point_options(const Args& a, SystemConfig& c) {
   if ((a.has("object-distances") || a.has("field-angles")) && !c.object_points.empty())
     reject(a.has("object-distances") ? "--object-distances" : "--field-angles",
            a.get(a.has("object-distances") ? "object-distances" : "field-angles"),
@@ -247,6 +246,11 @@ void range_options(const Args& a, DesignRunOptions& o) {
     if (c.object_points.size() > 4096)
       reject("--object-distances", a.get("object-distances"), "at most 4096 object points (distances x angles)");
   }
+}
+
+void range_options(const Args& a, DesignRunOptions& o) {
+  object_point_options(a, o.cfg);
+  const SystemConfig& c = o.cfg;
   // With --resume the run's points are in its config.json, not here: check_resume_options compares
   // the value with the stored one.
   const std::size_t points = a.has("resume") ? 4096 : c.point_count();

@@ -16,7 +16,10 @@ namespace qdo::cli {
 int cmd_psf(const Args& a) {
   const auto t_cmd = std::chrono::steady_clock::now();
   (void)save_native(a);  // validated before any work
-  const SystemConfig cfg = load_config(a);
+  // Several object points (the configuration's object_points, or --object-distances x
+  // --field-angles) are one batched pass: points x bands planes.
+  SystemConfig cfg = load_config(a, true);
+  object_point_options(a, cfg);
   const Precision p = precision_from_string(a.get("precision"));
   // The device (context, kernels from the disk cache, FFT plans) starts on a second thread while
   // this one makes the design's heights and the output folder; an error in those inputs is
@@ -59,26 +62,31 @@ int cmd_psf(const Args& a) {
   // float32: the files are written from the device buffer mapped on the host (on a CPU device the
   // buffer itself); float64: read back into a host stack.
   const auto t_read = std::chrono::steady_clock::now();
-  const std::size_t s = sim.sensor_size(), count = cfg.bands * s * s;
+  const std::size_t s = sim.sensor_size(), count = cfg.point_count() * cfg.bands * s * s;
   std::unique_ptr<MappedBuffer> mapped;
   RealStack host;
   std::unique_ptr<SensorStack> psf_s;
   if (p == Precision::F32) {
     mapped = std::make_unique<MappedBuffer>(rt.queue(), sim.psf_sensor_buffer(), CL_MAP_READ, count * sizeof(float));
-    psf_s = std::make_unique<SensorStack>(cfg.bands, s, s, mapped->as<const float>());
+    psf_s = std::make_unique<SensorStack>(cfg.point_count() * cfg.bands, s, s, mapped->as<const float>());
   } else {
     host = sim.psf_sensor();
     psf_s = std::make_unique<SensorStack>(host);
   }
   const double read_s = seconds_since(t_read);
   const auto t_write = std::chrono::steady_clock::now();
-  write_concurrently([&] { write_psf_h5(sim, *psf_s, h, dir, a.get("design"), save_native(a), a.has("compress")); },
-                     [&] { write_psf_figures(cfg, *psf_s, h, dir); });
+  write_concurrently(
+      [&] {
+        write_psf_h5(sim, *psf_s, h, dir, a.get("design"), save_native(a), a.has("compress"));
+        if (cfg.point_count() > 1) write_points_csv(cfg, psf_point_summaries(cfg, *psf_s), dir + "/points.csv");
+      },
+      [&] { write_psf_figures(cfg, *psf_s, h, dir); });
   const double write_s = seconds_since(t_write);
-  std::printf("device: %s (%s)\nPSF stack: %zu bands x %zu x %zu (window %zu), %s, %.3f s (setup %.3f s: kernels %.3f s, FFT plans %.3f s)\n%s\nwrote %s/psf.h5, psf.png, design.png\n",
-              rt.info().name.c_str(), rt.info().platform.c_str(), cfg.bands, cfg.n, cfg.n, sim.geometry().m,
+  const std::string points = cfg.point_count() > 1 ? to_str(cfg.point_count()) + " object points x " : std::string();
+  std::printf("device: %s (%s)\nPSF stack: %s%zu bands x %zu x %zu (window %zu), %s, %.3f s (setup %.3f s: kernels %.3f s, FFT plans %.3f s)\n%s\nwrote %s/psf.h5, %spsf.png, design.png\n",
+              rt.info().name.c_str(), rt.info().platform.c_str(), points.c_str(), cfg.bands, cfg.n, cfg.n, sim.geometry().m,
               to_string(p).c_str(), psf_seconds, st.setup_s, rt.build_seconds(), rt.fft_bake_seconds(), sim.sampling().summary().c_str(),
-              dir.c_str());
+              dir.c_str(), cfg.point_count() > 1 ? "points.csv, " : "");
   std::printf("time: inputs %.3f s, device %.3f s, setup %.3f s (both on a second thread during the inputs), PSF %.3f s, "
               "read-back %.3f s, files %.3f s; command %.3f s\n",
               inputs_s, st.device_s, st.setup_s, psf_seconds, read_s, write_s, seconds_since(t_cmd));

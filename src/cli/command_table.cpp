@@ -46,6 +46,17 @@ OptionSpec data(const std::string& what) {
   return opt("data", what + ": dataset names under the data root (cave, cave_train, ...; qdo data lists them), CAVE "
                      "folders, cube files or folders of them, comma-separated");
 }
+OptionSpec object_distances(const std::string& what, const std::string& role) {
+  return opt("object-distances", what + ": object distances in metres, each > 0 (at least 1e-6) or inf, comma-separated, e.g. "
+                                        "0.5,1,2,5; the object points are every distance under every --field-angles angle, " + role +
+                                        " (default: the configuration's object_points, else its one scene distance); not with a "
+                                        "--config that lists object_points");
+}
+OptionSpec field_angles(const std::string& what) {
+  return opt("field-angles", what + ": field angles in degrees, comma-separated, A (on the x axis) or X:Y, each within the "
+                                    "sampling at every distance (the refusal names the largest, max_field_angle_deg) (default: 0, "
+                                    "on the axis)");
+}
 OptionSpec data_root() {
   return opt("data-root", "the folder that holds the datasets named in --data (default: $QDO_DATA, else data_root in "
                           "~/.config/qdo/settings.json, else ~/.local/share/qdo, else the source tree's data; qdo data)");
@@ -117,9 +128,11 @@ std::vector<CommandSpec> make_table() {
                {data_root(), opt("bands", "bands expected in each scene, an integer in [1, 1024]", "31"),
                 flag("quick", "leave the value ranges out (the cubes are not read; shapes come from the file headers)")},
                cmd_data});
-  t.push_back({"psf", "compute a design's PSF stack: DIR/psf.h5 (the sensor-grid stack), psf.png, design.png", "", "",
-               {preset(), config(), design_spec(), levels_post(), placement(), precision(), device(), save_opt(), compress(),
-                out_dir_opt()},
+  t.push_back({"psf", "compute a design's PSF stack: DIR/psf.h5 (the sensor-grid stack; points x bands x S x S with several "
+                      "object points, and points.csv), psf.png, design.png", "", "",
+               {preset(), config(), design_spec(), levels_post(), placement(),
+                object_distances("several object points", "all computed in one batched pass"), field_angles("several object points"),
+                precision(), device(), save_opt(), compress(), out_dir_opt()},
                cmd_psf});
   t.push_back({"calibrate",
                "measured PSFs from captures: a folder of point-source frames, one per band (16-bit PNG or TIFF, psf_<nm>nm.png), "
@@ -244,13 +257,7 @@ std::vector<CommandSpec> make_table() {
                                   "bands and sensor grid; checked) frozen in place of the do run's quantized DOE; not with --levels"),
                        opt("design", "do-finetune for the camera as built: a fitted as-built design .h5 (N x N at the run's pitch), "
                                      "its simulated PSF frozen in place of the do run's quantized DOE; not with --levels or --psf"),
-                       opt("object-distances", "design over a range: object distances in metres, each > 0 (at least 1e-6) or inf, "
-                                               "comma-separated, e.g. 0.5,1,2,5; the object points are every distance under every "
-                                               "--field-angles angle, the training conditions of the run (default: the configuration's "
-                                               "object_points, else its one scene distance); not with a --config that lists object_points"),
-                       opt("field-angles", "design over a range: field angles in degrees, comma-separated, A (on the x axis) or X:Y, each "
-                                           "within the sampling at every distance (the refusal names the largest, max_field_angle_deg) "
-                                           "(default: 0, on the axis)"),
+                       object_distances("design over a range", "the training conditions of the run"), field_angles("design over a range"),
                        opt("points-per-step", "object points each optimiser step trains on, drawn anew each step (seeded), an integer "
                                               "in [1, P] for P object points (P: every point every step)", "1")},
                       concat(training_options(),

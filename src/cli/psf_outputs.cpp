@@ -2,11 +2,15 @@
 #include "psf_outputs.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <future>
+#include <sstream>
+#include <tuple>
 
 #include "qdo/config.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
+#include "qdo/psf_metrics.hpp"
 #include "qdo/scenes.hpp"
 
 namespace qdo::cli {
@@ -42,14 +46,19 @@ void write_psf_h5(Simulator& sim, const SensorStack& psf_s, const Map2D& h, cons
                   bool native, bool compress) {
   const SystemConfig& cfg = sim.config();
   const bool f32 = sim.precision() == Precision::F32;
+  const std::size_t points = cfg.point_count();
+  // One object point: bands x rows x cols; several: points x bands x rows x cols.
+  auto dims = [&](std::size_t rows, std::size_t cols) {
+    return points > 1 ? std::vector<std::size_t>{points, cfg.bands, rows, cols} : std::vector<std::size_t>{cfg.bands, rows, cols};
+  };
   std::vector<H5Dataset> ds;
   if (native) {
     const RealStack psf = sim.psf_native();
-    ds.push_back({"/psf_native", {psf.planes, psf.rows, psf.cols}, psf.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "fraction of band energy per sample"}}});
+    ds.push_back({"/psf_native", dims(psf.rows, psf.cols), psf.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "fraction of band energy per sample"}}});
     ds.back().float32 = f32;
     ds.back().compress = compress;
   }
-  ds.push_back({"/psf_sensor", {psf_s.planes, psf_s.rows, psf_s.cols}, {}, {{"pitch_m", cfg.sensor_pitch_m}},
+  ds.push_back({"/psf_sensor", dims(psf_s.rows, psf_s.cols), {}, {{"pitch_m", cfg.sensor_pitch_m}},
                 {{"units", "fraction of band energy per sensor pixel"}}});
   // Written from psf_s itself (the figures read it meanwhile).
   if (psf_s.f32) {
@@ -66,11 +75,86 @@ void write_psf_h5(Simulator& sim, const SensorStack& psf_s, const Map2D& h, cons
     alias.push_back(b.aliased_energy_fraction);
     outside.push_back(b.energy_outside_window);
   }
-  ds.push_back({"/aliased_energy_fraction", {cfg.bands}, alias, {}, {{"units", "fraction"}}});
-  ds.push_back({"/energy_outside_window", {cfg.bands}, outside, {}, {{"units", "fraction"}}});
+  const std::vector<std::size_t> per_plane = points > 1 ? std::vector<std::size_t>{points, cfg.bands} : std::vector<std::size_t>{cfg.bands};
+  ds.push_back({"/aliased_energy_fraction", per_plane, alias, {}, {{"units", "fraction"}}});
+  ds.push_back({"/energy_outside_window", per_plane, outside, {}, {{"units", "fraction"}}});
+  if (points > 1) {  // the points' table: 1 / distance (0: at infinity), field angles, chief-ray image point
+    std::vector<double> table;
+    for (const ObjectPoint& q : cfg.points()) {
+      const auto [cx, cy] = chief_ray_image_m(cfg, q);
+      for (double v : {q.at_infinity() ? 0.0 : 1.0 / q.distance_m, q.field_x_deg, q.field_y_deg, cx, cy}) table.push_back(v);
+    }
+    ds.push_back({"/object_points", {points, 5}, table, {},
+                  {{"columns", "inverse_distance_per_m (0: a point at infinity), field_x_deg, field_y_deg, chief_ray_x_m, chief_ray_y_m"},
+                   {"units", "1/m, deg, deg, m, m"}}});
+  }
   ds.push_back({"/height_m", {h.rows, h.cols}, h.data, {{"pitch_m", cfg.pitch_m}}, {{"units", "m"}}});
   ds.back().compress = few_distinct_values(h.data);  // as in design files: quantized maps only
   h5_write(dir + "/psf.h5", ds, {{"config", config_to_json_text(cfg)}, {"design", tag}, {"precision", to_string(sim.precision())}});
+}
+
+RealStack point_crops(const SystemConfig& cfg, const SensorStack& psf_s, std::size_t band, std::size_t crop) {
+  const auto pts = cfg.points();
+  const std::size_t c = std::min({crop, psf_s.rows, psf_s.cols});
+  RealStack out(pts.size(), c, c);
+  for (std::size_t p = 0; p < pts.size(); ++p) {
+    const auto [x_m, y_m] = chief_ray_image_m(cfg, pts[p]);
+    // The crop's corner: the chief-ray pixel minus half the crop, kept inside the window.
+    auto corner = [&](double at_m, std::size_t n) {
+      const long centre = long(n / 2) + std::lround(at_m / cfg.sensor_pitch_m);
+      return std::size_t(std::clamp(centre - long(c / 2), 0L, long(n - c)));
+    };
+    const std::size_t y0 = corner(y_m, psf_s.rows), x0 = corner(x_m, psf_s.cols);
+    const std::size_t base = (p * cfg.bands + band) * psf_s.rows * psf_s.cols;
+    for (std::size_t y = 0; y < c; ++y)
+      for (std::size_t x = 0; x < c; ++x) {
+        const std::size_t at = base + (y0 + y) * psf_s.cols + x0 + x;
+        out(p, y, x) = psf_s.f32 ? double(psf_s.f32[at]) : (*psf_s.f64)[at];
+      }
+  }
+  return out;
+}
+
+std::vector<PointSummary> psf_point_summaries(const SystemConfig& cfg, const SensorStack& psf_s) {
+  const std::size_t bands = cfg.bands, plane = psf_s.rows * psf_s.cols, mid = bands / 2;
+  std::vector<PointSummary> out;
+  const auto pts = cfg.points();
+  std::vector<double> buf(plane);
+  for (std::size_t p = 0; p < pts.size(); ++p) {
+    PointSummary r;
+    r.point = pts[p];
+    std::tie(r.chief_ray_x_m, r.chief_ray_y_m) = chief_ray_image_m(cfg, pts[p]);
+    r.min_energy_in_window = 1.0;
+    double ee_sum = 0;
+    for (std::size_t b = 0; b < bands; ++b) {
+      const std::size_t at = (p * bands + b) * plane;
+      for (std::size_t k = 0; k < plane; ++k) buf[k] = psf_s.f32 ? double(psf_s.f32[at + k]) : (*psf_s.f64)[at + k];
+      const PsfPlaneMetrics m = psf_plane_metrics(buf.data(), psf_s.rows, psf_s.cols, cfg.sensor_pitch_m);
+      ee_sum += m.ee80_radius_m;
+      r.min_energy_in_window = std::min(r.min_energy_in_window, m.sum);
+      if (b == mid) r.mid = m;
+    }
+    r.ee80_mean_m = ee_sum / double(bands);
+    out.push_back(r);
+  }
+  return out;
+}
+
+void write_points_csv(const SystemConfig& cfg, const std::vector<PointSummary>& rows, const std::string& path) {
+  std::ostringstream csv;
+  const double mid_nm = cfg.wavelengths_nm()[cfg.bands / 2];
+  csv << "point,distance_m,field_x_deg,field_y_deg,chief_ray_x_um,chief_ray_y_um,centroid_x_um_" << mid_nm << "nm,centroid_y_um_"
+      << mid_nm << "nm,peak_" << mid_nm << "nm,ee80_um_" << mid_nm << "nm,ee80_um_mean_over_bands,min_energy_in_window\n";
+  csv.precision(9);
+  auto um = [](double m) { return m * 1e6 + 0.0; };  // + 0.0: no "-0" in the table
+  for (std::size_t p = 0; p < rows.size(); ++p) {
+    const PointSummary& r = rows[p];
+    csv << p << ',' << (r.point.at_infinity() ? std::string("inf") : to_str(r.point.distance_m)) << ',' << r.point.field_x_deg << ','
+        << r.point.field_y_deg << ',' << um(r.chief_ray_x_m) << ',' << um(r.chief_ray_y_m) << ',' << um(r.mid.centroid_x_m) << ','
+        << um(r.mid.centroid_y_m) << ',' << r.mid.peak << ',' << um(r.mid.ee80_radius_m) << ',' << um(r.ee80_mean_m) << ','
+        << r.min_energy_in_window << '\n';
+  }
+  write_text_atomic(path, csv.str());
 }
 
 // DIR/psf.png (montage of the sensor PSF stack) and DIR/design.png (height map). Host only.
@@ -79,6 +163,11 @@ void write_psf_h5(Simulator& sim, const SensorStack& psf_s, const Map2D& h, cons
 // threads (libpng is reentrant).
 void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const Map2D& h, const std::string& dir) {
   auto montage = std::async(std::launch::async, [&] {
+    if (cfg.point_count() > 1) {
+      // Several object points: the middle band of each, 96 x 96 around its chief-ray image point.
+      write_montage_png(dir + "/psf.png", point_crops(cfg, psf_s, cfg.bands / 2, 96), {}, 0.5, 0);
+      return;
+    }
     // The montage shows the central 96 x 96 of each plane: only that part is converted.
     const RealStack crop = psf_s.central(96);
     write_montage_png(dir + "/psf.png", crop, cfg.wavelengths_nm(), 0.5, 0);  // 0: the whole (cropped) stack

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "cli.hpp"
+#include "qdo/psf_metrics.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/types.hpp"
 
@@ -33,6 +34,22 @@ struct SensorStack {
 // f64. Reads the device (call it on the thread that owns the simulator).
 void write_psf_h5(Simulator& sim, const SensorStack& psf_s, const Map2D& h, const std::string& dir, const std::string& tag,
                   bool native, bool compress);
+// One object point of a points x bands stack, summarised: where its chief ray lands, the middle
+// band's metrics, the 80 % encircled-energy radius averaged over the bands, and the smallest
+// fraction of a band's energy inside the window.
+struct PointSummary {
+  ObjectPoint point;
+  double chief_ray_x_m = 0, chief_ray_y_m = 0;
+  PsfPlaneMetrics mid;
+  double ee80_mean_m = 0, min_energy_in_window = 0;
+};
+// Band `band` of every point of psf_s (points x bands planes of S x S, point-major), crop x crop
+// around each point's chief-ray image point (kept inside the window): points x crop x crop.
+RealStack point_crops(const SystemConfig& cfg, const SensorStack& psf_s, std::size_t band, std::size_t crop);
+// psf_s: points x bands planes of S x S (point-major), cfg's points in order.
+std::vector<PointSummary> psf_point_summaries(const SystemConfig& cfg, const SensorStack& psf_s);
+// The table of psf_point_summaries as CSV (lengths in micrometres), written atomically.
+void write_points_csv(const SystemConfig& cfg, const std::vector<PointSummary>& rows, const std::string& path);
 // DIR/psf.png (montage of the sensor PSF stack) and DIR/design.png (height map). Host only.
 void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const Map2D& h, const std::string& dir);
 // Runs `figures` (PNG writers only: libpng is reentrant) on a second thread while `data` (every

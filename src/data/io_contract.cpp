@@ -80,6 +80,10 @@ PsfStackFile read_psf_stack_file(const std::string& path) {
   if (f.dataset.empty()) fail(path, "", "no dataset '/psf_sensor' (a PSF stack as qdo psf writes it)");
   const std::string what = "dataset '" + f.dataset + "'";
   H5Dataset d = h5_read(path, f.dataset);
+  if (d.shape.size() == 4)
+    fail(path, what, "shape " + shape_str(d.shape) + " holds " + to_str(d.shape[0]) +
+                         " object points (qdo psf with several points); one camera PSF is one point's bands x S x S: "
+                         "rerun qdo psf with that point alone");
   if (d.shape.size() != 3 || d.shape[1] != d.shape[2] || d.shape[0] == 0 || d.shape[1] == 0)
     fail(path, what, "shape " + shape_str(d.shape) + " is not a stack of square planes (bands x S x S)");
   if (const std::size_t bad = count_nonfinite(d.data)) fail(path, what, to_str(bad) + " values are NaN or Inf");
