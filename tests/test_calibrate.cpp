@@ -5,6 +5,8 @@
 // naming the file; the output is accepted by `qdo simulate --psf`.
 #include <tiffio.h>
 
+#include <tuple>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -218,7 +220,7 @@ TEST_SUITE("calibrate") {
     CHECK_MESSAGE(sim.code == 0, sim.out);
   }
 
-  TEST_CASE("16-bit TIFF frames and darks calibrate exactly as the PNG ones; RGB TIFF frames and DNG files are refused") {
+  TEST_CASE("16-bit TIFF and DNG frames and darks calibrate exactly as the PNG ones; RGB TIFF frames, broken DNGs and DNG metadata that contradicts the configuration are refused") {
     const Sweep& s = sweep();
     // The io round trip: grayscale and RGB code values unchanged.
     RealStack rgb(3, 5, 7);
@@ -291,6 +293,33 @@ TEST_SUITE("calibrate") {
     const Run rd = calibrate(dng, "o_dng");
     CHECK(rd.code == 2);
     CHECK_MESSAGE(rd.out.find("psf_550nm.dng") != std::string::npos, rd.out);
+    // Camera raw: the same codes as DNG files (the configuration's RGGB mosaic, black 64 DN, white
+    // 4095 DN in the metadata) calibrate exactly as the PNG frames do.
+    const auto to_dng = [](const fs::path& from, const fs::path& to, const std::string& cfa, double black) {
+      write_dng_mosaic(to.string(), read_png16_gray(from.string()), cfa, black, 4095);
+    };
+    const fs::path df = s.dir / "dng_frames", dd = s.dir / "dng_darks";
+    fs::create_directories(df);
+    fs::create_directories(dd);
+    for (const auto& e : fs::directory_iterator(s.dir / "frames")) to_dng(e.path(), df / e.path().filename().replace_extension(".dng"), "rggb", 64);
+    for (const auto& e : fs::directory_iterator(s.dir / "darks")) to_dng(e.path(), dd / e.path().filename().replace_extension(".DNG"), "rggb", 64);
+    const Run raw = calibrate_with(s.cfg_path, df, dd, "o_dng_ok");
+    REQUIRE_MESSAGE(raw.code == 0, raw.out);
+    CHECK(read_psf_stack_file((s.dir / "o_dng_ok/psf.h5").string()).psf_sensor.data ==
+          read_psf_stack_file((s.dir / "o_png/psf.h5").string()).psf_sensor.data);
+    // Metadata that contradicts the configuration: named, with the setting to change.
+    for (const auto& [cfa, black, expect] : std::vector<std::tuple<std::string, double, std::string>>{
+             {"grbg", 64, "\"cfa\": \"grbg\""}, {"rggb", 60, "\"black_level_dn\": 60"}}) {
+      CAPTURE(cfa);
+      const fs::path odd = s.dir / ("dng_" + cfa + "_" + std::to_string(int(black)));
+      fs::create_directories(odd);
+      for (const auto& e : fs::directory_iterator(df)) fs::copy_file(e.path(), odd / e.path().filename());
+      to_dng(s.dir / "frames" / nm_name(550), odd / "psf_550nm.dng", cfa, black);
+      const Run r2 = calibrate_with(s.cfg_path, odd, dd, "o_" + odd.filename().string());
+      CHECK(r2.code == 2);
+      CHECK_MESSAGE(r2.out.find("psf_550nm.dng") != std::string::npos, r2.out);
+      CHECK_MESSAGE(r2.out.find(expect) != std::string::npos, r2.out);
+    }
   }
 
   TEST_CASE("refusals exit 2 naming the file") {

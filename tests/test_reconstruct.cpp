@@ -536,6 +536,25 @@ TEST_SUITE("reconstruct") {
     CHECK(cube.rows == H);
     CHECK(cube.cols == W);
     CHECK(read_json(dir / "out" / "reconstruct.json").at("demosaic") == "mhc");
+    // The same codes as a DNG (RGGB, black 64, white 4095 in its metadata): the same cube.
+    // LibRaw reads no DNG under 22 x 22, so the frame is padded to the right.
+    Map2D wide(H, W + 8, 64);
+    for (std::size_t y = 0; y < H; ++y)
+      for (std::size_t x = 0; x < W; ++x) wide.data[y * (W + 8) + x] = dn.data[y * W + x];
+    write_png16_gray((dir / "wide.png").string(), wide);
+    write_dng_mosaic((dir / "wide.dng").string(), wide, "rggb", 64, 4095);
+    for (const char* file : {"wide.png", "wide.dng"}) {
+      const Run w = qdo_run("reconstruct --run " + (dir / "run").string() + " --capture " + (dir / file).string() + " --demosaic mhc --out " +
+                            (dir / (std::string("out_") + file)).string());
+      CAPTURE(w.out);
+      REQUIRE(w.code == 0);
+    }
+    CHECK(read_cube_h5(dir / "out_wide.dng" / "cube.h5").data == read_cube_h5(dir / "out_wide.png" / "cube.h5").data);
+    write_dng_mosaic((dir / "gbrg.dng").string(), wide, "gbrg", 64, 4095);
+    const Run wrong = qdo_run("reconstruct --run " + (dir / "run").string() + " --capture " + (dir / "gbrg.dng").string() + " --out " +
+                              (dir / "out_gbrg").string());
+    CHECK(wrong.code == 2);
+    CHECK_MESSAGE(wrong.out.find("\"cfa\": \"gbrg\"") != std::string::npos, wrong.out);
     Map2D shifted(H, W - 1);
     for (std::size_t y = 0; y < H; ++y)
       for (std::size_t x = 0; x + 1 < W; ++x) shifted.data[y * (W - 1) + x] = dn.data[y * W + x + 1];

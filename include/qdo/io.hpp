@@ -12,6 +12,7 @@
 #include <utility>
 #include <vector>
 
+#include "qdo/io_raw.hpp"
 #include "qdo/types.hpp"
 
 namespace qdo {
@@ -226,13 +227,24 @@ void write_png16_rgb(const std::string& path, const RealStack& dn3);
 RealStack read_tiff16(const std::string& path);
 void write_tiff16(const std::string& path, const RealStack& dn);
 bool is_tiff_path(const std::string& path);  // extension .tif or .tiff (any case)
-// A 16-bit capture by its extension: .png (read_png16) or .tif / .tiff (read_tiff16); any other
-// extension is refused, naming the file. planes x H x W code values in DN.
-RealStack read_capture16(const std::string& path);
-// The frames of a folder (calibrate's frames and darks, reconstruct's darks): its .png, .tif and
-// .tiff files in any case of the extension, sorted. A camera raw file in it (.dng, .nef, .cr2, ...)
-// is refused naming the file; a folder that is none, or holds no frame, is refused naming
-// `argument`.
+// What a capture file says about itself beyond its codes: for a camera raw file, its metadata.
+struct CaptureMeta {
+  bool camera_raw = false;
+  CameraRawInfo raw;  // when camera_raw
+};
+// A 16-bit capture by its extension: .png (read_png16), .tif / .tiff (read_tiff16), or a camera
+// raw file (.dng, .nef, .cr2, ...: read_camera_raw, the Bayer mosaic as stored, 1 x H x W); any
+// other extension is refused, naming the file. planes x H x W code values in DN.
+RealStack read_capture16(const std::string& path, CaptureMeta* meta = nullptr);
+// A camera raw file's metadata against the configuration (cfa as config's JSON names it: "none",
+// "rggb", ...; black level and white level in DN): an InputError naming the file, both values and
+// the setting to change when the mosaic layout or the black level differ, or the file's white level
+// lies above the configuration's. Nothing for other files.
+void check_camera_raw(const CaptureMeta& meta, const std::string& config_cfa, double black_level_dn, double white_level_dn,
+                      const std::string& path);
+// The frames of a folder (calibrate's frames and darks, reconstruct's darks): its .png, .tif,
+// .tiff and camera raw files (is_camera_raw_path) in any case of the extension, sorted; a folder
+// that is none, or holds no frame, is refused naming `argument`.
 std::vector<std::string> capture_files(const std::string& dir, const std::string& argument);
 // An RGB image from a 3 x H x W stack: scaled so the 99.9th percentile maps to 1, sRGB gamma.
 void write_rgb_png(const std::string& path, const RealStack& rgb3);

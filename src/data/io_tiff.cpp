@@ -16,6 +16,7 @@
 #include "data/io_internal.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
+#include "qdo/io_raw.hpp"
 
 namespace qdo {
 using namespace io_detail;
@@ -163,26 +164,50 @@ void write_tiff16(const std::string& path, const RealStack& dn) {
 
 std::vector<std::string> capture_files(const std::string& dir, const std::string& argument) {
   std::error_code ec;
-  if (!std::filesystem::is_directory(dir, ec)) reject(argument, dir, "a folder of 16-bit PNG or TIFF frames");
+  if (!std::filesystem::is_directory(dir, ec)) reject(argument, dir, "a folder of 16-bit PNG or TIFF frames, or camera raw files");
   std::vector<std::string> out;
   for (const auto& e : std::filesystem::directory_iterator(dir)) {
     if (!e.is_regular_file(ec)) continue;
-    const std::string p = e.path().string(), ext = lower_extension(p);
-    if (ext == ".png" || is_tiff_path(p)) out.push_back(p);
-    else if (ext == ".dng" || ext == ".raw" || ext == ".nef" || ext == ".cr2" || ext == ".cr3" || ext == ".arw" || ext == ".raf" ||
-             ext == ".orf" || ext == ".rw2")
-      fail(p, "", "frames are read as 16-bit PNG or TIFF (DNG and camera raw files are not supported: export them as 16-bit "
-                  "TIFF without demosaicking)");
+    const std::string p = e.path().string();
+    if (lower_extension(p) == ".png" || is_tiff_path(p) || is_camera_raw_path(p)) out.push_back(p);
   }
   std::sort(out.begin(), out.end());
-  if (out.empty()) reject(argument, dir, "a folder holding at least one .png or .tif frame (it holds none)");
+  if (out.empty()) reject(argument, dir, "a folder holding at least one .png, .tif or camera raw (.dng, ...) frame (it holds none)");
   return out;
 }
 
-RealStack read_capture16(const std::string& path) {
+RealStack read_capture16(const std::string& path, CaptureMeta* meta) {
+  if (meta) *meta = CaptureMeta{};
   if (is_tiff_path(path)) return read_tiff16(path);
   if (lower_extension(path) == ".png") return read_png16(path);
-  fail(path, "", "a capture is a 16-bit PNG (.png) or TIFF (.tif, .tiff) file");
+  if (is_camera_raw_path(path)) {
+    CameraRawInfo info;
+    RealStack mosaic = read_camera_raw(path, &info);
+    if (meta) {
+      meta->camera_raw = true;
+      meta->raw = info;
+    }
+    return mosaic;
+  }
+  fail(path, "", "a capture is a 16-bit PNG (.png) or TIFF (.tif, .tiff) file, or a camera raw file (.dng, .nef, .cr2, ...)");
+}
+
+void check_camera_raw(const CaptureMeta& meta, const std::string& config_cfa, double black_level_dn, double white_level_dn,
+                      const std::string& path) {
+  if (!meta.camera_raw) return;
+  const CameraRawInfo& r = meta.raw;
+  if (config_cfa == "none")
+    fail(path, "", "a camera raw Bayer mosaic (" + r.cfa + " by its metadata), but the configuration's cfa is \"none\" (RGB or "
+                   "monochrome frames): set \"cfa\": \"" + r.cfa + "\"");
+  if (config_cfa != r.cfa)
+    fail(path, "", "its metadata says the mosaic is " + r.cfa + ", but the configuration's cfa is \"" + config_cfa +
+                       "\": set \"cfa\": \"" + r.cfa + "\" (or the file was cropped by one pixel)");
+  if (std::fabs(r.black_level_dn - black_level_dn) > 0.5)
+    fail(path, "", "its metadata gives the black level " + to_str(r.black_level_dn) + " DN, but the configuration's black_level_dn is " +
+                       to_str(black_level_dn) + ": set \"black_level_dn\": " + to_str(r.black_level_dn));
+  if (r.white_level_dn > white_level_dn)
+    fail(path, "", "its metadata gives the white level " + to_str(r.white_level_dn) + " DN, above the configuration's " +
+                       to_str(white_level_dn) + " DN (bit_depth): set bit_depth so that 2^bit_depth - 1 >= " + to_str(r.white_level_dn));
 }
 
 }  // namespace qdo

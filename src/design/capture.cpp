@@ -92,7 +92,7 @@ void check_capture_levels(const SystemConfig& cfg, const CaptureOptions& o, Capt
 }  // namespace
 
 CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
-  if (o.captures.empty()) reject("--capture", "(missing)", "one or more 16-bit PNG captures of the scene");
+  if (o.captures.empty()) reject("--capture", "(missing)", "one or more captures of the scene (16-bit PNG or TIFF, or camera raw)");
   const std::size_t planes = raw_channels(cfg.cfa);
   CaptureFiles f;
   f.white_dn = cfg.bit_depth > 0 ? cfg.white_level_dn() : 65535.0;
@@ -113,15 +113,24 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
       }
   };
   // Every file read and checked before any is processed.
+  // A camera raw file's metadata is checked against the configuration; its white level (where the
+  // sensor saturates) counts as the white level when it lies below the configuration's.
+  auto read = [&](const std::string& path) {
+    CaptureMeta meta;
+    RealStack img = read_capture16(path, &meta);
+    check_camera_raw(meta, to_string(cfg.cfa), cfg.black_level_dn, f.white_dn, path);
+    if (meta.camera_raw) f.white_dn = std::min(f.white_dn, meta.raw.white_level_dn);
+    return img;
+  };
   std::vector<RealStack> caps;
   for (const std::string& path : o.captures) {
-    caps.push_back(read_capture16(path));
+    caps.push_back(read(path));
     check(caps.back(), path, caps.size() > 1 ? &caps.front() : nullptr, o.captures.front());
   }
   if (!o.darks_dir.empty()) f.darks = capture_files(o.darks_dir, "--darks");
   std::vector<RealStack> darks;
   for (const std::string& path : f.darks) {
-    darks.push_back(read_capture16(path));
+    darks.push_back(read(path));
     check(darks.back(), path, &caps.front(), o.captures.front());
   }
   f.mean_dn = RealStack(caps.front().planes, caps.front().rows, caps.front().cols, 0.0);

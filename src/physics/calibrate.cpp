@@ -136,9 +136,12 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   std::vector<Frame> frames(bands), darks;
   auto read = [&](const std::string& p) {
     Frame f{p, {}};
-    if (is_tiff_path(p)) {
-      const RealStack t = read_tiff16(p);
+    if (is_tiff_path(p) || is_camera_raw_path(p)) {
+      CaptureMeta meta;
+      const RealStack t = read_capture16(p, &meta);
       if (t.planes != 1) refuse(p, "a raw frame must be a 16-bit grayscale (one sample per pixel) TIFF; this one is RGB");
+      // A camera raw file's mosaic layout, black and white levels against the configuration.
+      check_camera_raw(meta, to_string(cfg.cfa), cfg.black_level_dn, white, p);
       f.dn = Map2D(t.rows, t.cols);
       f.dn.data = t.data;
     } else {
