@@ -488,8 +488,9 @@ TEST_SUITE("design-range") {
     const auto rc = log_rows(dir / "run" / "range.csv");
     REQUIRE(rc.size() == 2);
     for (const auto& row : log_rows(dir / "run" / "log.csv")) CHECK(row.at(7) == "0;1");
-    // The other commands keep one point per configuration (refused naming object_points).
-    const Run psf = qdo_run("psf --config " + (dir / "range.json").string() + " --design lens:550 --out " + (dir / "psf").string());
+    // The imaging commands keep one point per configuration (refused naming object_points).
+    const Run psf = qdo_run("simulate --config " + (dir / "range.json").string() + " --design lens:550 --scene builtin --out " +
+                            (dir / "psf").string());
     CHECK(psf.code == 2);
     CHECK(psf.out.find("object_points") != std::string::npos);
     fs::remove_all(dir);

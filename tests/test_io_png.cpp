@@ -1,5 +1,7 @@
 // Tests of the file I/O layer (src/data/io_*.cpp), PNG: gray, montage, RGB and map images are valid
 // files of the expected size; bad input and non-finite values are refused.
+#include <sstream>
+#include <fstream>
 #include <doctest/doctest.h>
 
 #include <algorithm>
@@ -8,8 +10,10 @@
 #include <string>
 #include <vector>
 
+#include "svg_text.hpp"
 #include "common.hpp"
 #include "io_common.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -61,28 +65,19 @@ TEST_SUITE("io") {
     CHECK_THROWS_AS(write_png(g, 5, 3, 1, std::vector<unsigned char>(14)), InputError);
     CHECK_THROWS_AS(write_png(g, 5, 3, 2, std::vector<unsigned char>(30)), InputError);
 
-    // 5 planes of 10 x 12 -> 3 x 2 grid with 2 px gaps.
+    // The PSF and height figures (figure.hpp): a PNG and an SVG beside it, titled and labelled.
     RealStack s(5, 10, 12);
     for (std::size_t i = 0; i < s.size(); ++i) s.data[i] = static_cast<double>(i % 17);
     const std::string m = tmp / "montage.png";
-    write_montage_png(m, s, {400, 450, 500, 600, 700});
-    h = png_header(m);
-    CHECK(h.signature_ok);
-    CHECK(h.width == 3 * 12 + 2 * 2);
-    CHECK(h.height == 2 * 10 + 2);
-    CHECK(h.color_type == 2);
-    write_montage_png(m, s, {}, 1.0, 6);  // centre 6 x 6 crop, gray
-    h = png_header(m);
-    CHECK(h.width == 3 * 6 + 2 * 2);
-    CHECK(h.height == 2 * 6 + 2);
-    CHECK_THROWS_AS(write_montage_png(m, s, {400, 500}), InputError);
-
-    RealStack big(1, 600, 600, 1.0);  // tiles larger than 256 px are box-averaged down
-    write_montage_png(m, big, {});
-    h = png_header(m);
-    CHECK(h.width <= 256);
-    CHECK(h.width == 200);
-
+    write_psf_figure(m, "five planes", s, {400, 450, 500, 600, 700}, 5e-6, 6);
+    CHECK(png_header(m).signature_ok);
+    const auto svg = qdo::test::svg_texts(tmp / "montage.svg");
+    for (const char* text : {"five planes", "400 nm", "700 nm", "x (µm)", "PSF / panel maximum"}) {
+      CAPTURE(text);
+      CHECK(qdo::test::svg_has(svg, text));
+    }
+    CHECK_THROWS_AS(write_psf_figure(m, "t", s, {400, 500}, 5e-6), InputError);
+    CHECK_THROWS_AS(write_psf_figure(m, "t", s, {}, 0.0), InputError);
     RealStack rgb(3, 4, 6);
     for (std::size_t i = 0; i < rgb.size(); ++i) rgb.data[i] = static_cast<double>(i);
     const std::string r = tmp / "rgb.png";
@@ -94,20 +89,18 @@ TEST_SUITE("io") {
     CHECK_THROWS_AS(write_rgb_png(r, RealStack(2, 4, 6)), InputError);
 
     Map2D map(7, 9);
-    for (std::size_t i = 0; i < map.data.size(); ++i) map.data[i] = static_cast<double>(i) * 1e-7;
+    for (std::size_t i = 0; i < map.data.size(); ++i) map.data[i] = static_cast<double>(i) * 1e-9;
     const std::string mp = tmp / "map.png";
-    write_map_png(mp, map);
-    h = png_header(mp);
-    CHECK(h.signature_ok);
-    CHECK(h.width == 9);
-    CHECK(h.height == 7);
-    write_map_png(mp, Map2D(2, 2, 3.0));  // constant map: mid colour, no division by zero
+    write_height_figure(mp, "a ramp", map, 1e-5);
     CHECK(png_header(mp).signature_ok);
-    Map2D bad(2, 2);
-    bad.data[1] = std::numeric_limits<double>::quiet_NaN();
-    CHECK_THROWS_AS(write_map_png(mp, bad), NumericalError);  // an output that is not finite: nothing written,
-    CHECK(png_header(mp).signature_ok);                         // the earlier file of that name kept as it was
-    CHECK(tmp.entries() == 4);  // gray, montage, rgb, map: no temp files
+    const auto msvg = qdo::test::svg_texts(tmp / "map.svg");
+    for (const char* text : {"a ramp", "x (mm)", "y (mm)", "height (nm)"}) {
+      CAPTURE(text);
+      CHECK(qdo::test::svg_has(msvg, text));
+    }
+    write_height_figure(mp, "constant", Map2D(2, 2, 3e-7), 1e-5);  // constant map: no division by zero
+    CHECK(png_header(mp).signature_ok);
+    CHECK(tmp.entries() == 6);  // gray, montage (png, svg), rgb, map (png, svg): no temp files
   }
 
   TEST_CASE("16-bit PNGs are read as their stored codes, whatever gAMA, sRGB, cHRM or iCCP chunk they carry") {

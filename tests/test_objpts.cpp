@@ -490,12 +490,13 @@ TEST_SUITE("objpts") {
     CHECK(input_error_of([&] { RadialEngine eng(runtime(), off, Precision::F64); }).find("2-D path") != std::string::npos);
   }
 
-  TEST_CASE("the commands refuse a stack of several object points (exit 2, naming object_points); one point runs") {
+  TEST_CASE("the imaging commands refuse a stack of several object points (exit 2, naming object_points); one point runs") {
     const auto dir = temp_dir("objpts_cli");
     const std::string many = (dir / "many.json").string(), one = (dir / "one.json").string();
     std::ofstream(many) << R"({"preset": "small", "object_points": [[1, 0, 0], [2, 0, 0]]})";
     std::ofstream(one) << R"({"preset": "small", "propagator": "asm", "object_points": [[1, 1.0, 0]]})";
-    const Run r = qdo_run("psf --config " + many + " --design flat --out " + (dir / "out1").string());
+    // (qdo psf takes several points: tests/test_psf_points_cli.cpp.)
+    const Run r = qdo_run("simulate --config " + many + " --design flat --scene builtin --out " + (dir / "out1").string());
     CHECK(r.code == 2);
     CHECK(r.out.find("object_points") != std::string::npos);
     CHECK(!std::filesystem::exists(dir / "out1"));

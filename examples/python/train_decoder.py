@@ -197,8 +197,9 @@ def main():
         print("mean test PSNR %.2f dB (%d levels, %d steps, %.0f s)" % (np.mean(scores), a.levels, a.steps,
                                                                          time.time() - t0))
         srf = optics.srf()
-        qdo.write_map_png(os.path.join(a.out, "height.png"), h_fab.numpy())
-        qdo.write_montage_png(os.path.join(a.out, "psf.png"), psf, optics.wavelengths_nm)
+        qdo.write_height_figure(os.path.join(a.out, "height.png"), "Fabricated DOE heights", h_fab.numpy(), optics.config["pitch_m"])
+        qdo.write_psf_figure(os.path.join(a.out, "psf.png"), "PSF stack of the trained DOE", psf, optics.wavelengths_nm,
+                             optics.config["sensor_pitch_m"])
         # The first test scene (left) and its reconstruction (right), seen through the camera response.
         side = np.concatenate([np.tensordot(srf, test[0], axes=(1, 0)), np.tensordot(srf, recs[0], axes=(1, 0))], axis=2)
         qdo.write_rgb_png(os.path.join(a.out, "test_vs_reconstruction.png"), np.ascontiguousarray(side))

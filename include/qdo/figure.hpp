@@ -100,3 +100,22 @@ void write_image_plot(const std::string& png_path, const ImagePlot& plot);
 void write_montage_plot(const std::string& png_path, const MontagePlot& plot);
 
 }  // namespace qdo
+
+// ---------- Figures of the kinds qdo writes, built on the writers above ----------
+namespace qdo {
+
+// A PSF stack (planes x rows x cols at pitch_m): the central crop x crop of each plane (0 = whole),
+// one panel per plane titled by its wavelength (wavelengths_nm: one per plane, or empty: "plane k"),
+// log colour scale of 4 decades, each panel divided by its own maximum, axes in µm from the centre.
+void write_psf_figure(const std::string& png_path, const std::string& title, const RealStack& stack,
+                      const std::vector<double>& wavelengths_nm, double pitch_m, std::size_t crop = 0);
+// A height map (rows x cols, metres, at pitch_m): colours in nm, axes in mm from the centre.
+// value_label names the colour bar ("height (nm)", "height error (nm)", ...).
+void write_height_figure(const std::string& png_path, const std::string& title, const Map2D& height_m, double pitch_m,
+                         const std::string& value_label = "height (nm)");
+// One curve per series against 0, 1, 2, ... (x_label names what the index counts), each named
+// in the legend by labels[k]; log y when every finite value is positive.
+void write_index_plot(const std::string& png_path, const std::string& title, const std::string& x_label, const std::string& y_label,
+                      const std::vector<std::vector<double>>& series, const std::vector<std::string>& labels);
+
+}  // namespace qdo

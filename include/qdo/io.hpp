@@ -202,12 +202,6 @@ class CsvText {
 // 8-bit grayscale (channels = 1) or RGB (channels = 3) image, row-major, interleaved.
 void write_png(const std::string& path, std::size_t width, std::size_t height, int channels,
                const std::vector<unsigned char>& pixels);
-// A montage of every plane of `stack`, tiles in a near-square grid with 2 px gaps, each plane
-// scaled to its own max, gamma `gamma` (0.5 shows faint PSF wings), tinted by its wavelength
-// (CIE-like hue) when wavelengths_nm is non-empty, else gray. Optional crop to the centre
-// `crop` x `crop` of each plane (0 = whole).
-void write_montage_png(const std::string& path, const RealStack& stack,
-                       const std::vector<double>& wavelengths_nm, double gamma = 0.5, std::size_t crop = 0);
 // A raw frame as a 16-bit grayscale PNG (rows x cols code values in DN, row-major), read and
 // written unchanged (a 16-bit file without gAMA, or with gamma 1, is linear). Reading refuses an
 // 8-bit or colour file, naming it.
@@ -248,8 +242,6 @@ void check_camera_raw(const CaptureMeta& meta, const std::string& config_cfa, do
 std::vector<std::string> capture_files(const std::string& dir, const std::string& argument);
 // An RGB image from a 3 x H x W stack: scaled so the 99.9th percentile maps to 1, sRGB gamma.
 void write_rgb_png(const std::string& path, const RealStack& rgb3);
-// A single map (e.g. a height map) with a perceptual colormap (viridis-like), min..max.
-void write_map_png(const std::string& path, const Map2D& m);
 
 // Atomic text write (temp + rename).
 void write_text_atomic(const std::string& path, const std::string& text);

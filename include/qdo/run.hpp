@@ -58,9 +58,6 @@ std::string checkpoint_next_path(const std::string& path);
 DesignState load_checkpoint(const std::string& path, std::size_t expected_w, std::size_t expected_levels,
                             bool mask_depths = false, bool pin_top = false);
 
-// A line plot (PNG, width x height) of one or more series against their index, log-scaled y
-// when every value is positive. For loss curves.
-void write_line_plot_png(const std::string& path, const std::vector<std::vector<double>>& series,
-                         std::size_t width = 640, std::size_t height = 360);
+
 
 }  // namespace qdo

@@ -57,14 +57,12 @@ struct PairedDifference {
 std::vector<PairedDifference> paired_differences(const std::vector<SceneScore>& scores,
                                                  const std::vector<std::pair<std::string, std::string>>& comparisons);
 
-// A figure of the differences: one row per difference (top to bottom in the order given), its
-// 95 % (seed, scene) interval as a bar, the mean as a dot, the seed-level interval as thin
-// whiskers, and a grey line at 0 dB. PNG, width x height pixels.
-void write_difference_plot_png(const std::string& path, const std::vector<PairedDifference>& diffs, std::size_t width = 640,
-                               std::size_t height = 0);
-// The same figure as SVG, with what the PNG cannot say: each row labelled ("L4  qdo+a − do
-// (9 pairs, 3 seeds)", a decoder spec both sides share written once), the ΔPSNR axis with its
-// ticks in dB, and a legend.
-void write_difference_plot_svg(const std::string& path, const std::vector<PairedDifference>& diffs);
+// A difference's label: "L4  qdo+a − do  (9 pairs, 3 seeds)" (a decoder spec both sides share
+// written once).
+std::string difference_label(const PairedDifference& d);
+// The figure of the differences (figure.hpp: PNG and SVG): one legend entry per difference, its
+// mean and 95 % interval over the (seed, scene) pairs at x = 1, 2, ... in the order given, the
+// seed-level intervals beside them as one more series, and a dashed line at 0 dB.
+void write_difference_figure(const std::string& png_path, const std::vector<PairedDifference>& diffs);
 
 }  // namespace qdo

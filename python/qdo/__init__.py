@@ -37,7 +37,7 @@ __version__ = _qdo.__version__
 
 __all__ = ["__version__", "Optics", "devices", "preset", "quantize", "lens_design", "estimate_prior",
            "wiener_decode", "read_cube", "write_cube", "read_design", "write_design", "read_h5", "write_rgb_png",
-           "write_montage_png", "write_map_png"]
+           "write_psf_figure", "write_height_figure"]
 
 
 def devices():
@@ -299,12 +299,14 @@ def write_rgb_png(path, rgb):
     _qdo.write_rgb_png(path, rgb)
 
 
-def write_montage_png(path, stack, wavelengths_nm=(), gamma=0.5):
-    """Every plane of a stack (e.g. a PSF stack, bands x S x S) tiled into one PNG, each tinted
-    by its wavelength when given (one per plane), gamma > 0."""
-    _qdo.write_montage_png(path, stack, wavelengths_nm, gamma)
+def write_psf_figure(path, title, stack, wavelengths_nm, pitch_m, crop=0):
+    """A PSF stack (planes x S x S at pitch_m metres) as a figure: one panel per plane titled by its
+    wavelength (one per plane, or () for "plane k"), log colour scale with its bar, axes in µm;
+    the central crop x crop of each plane (0: whole). Writes path (.png) and the .svg beside it."""
+    _qdo.write_psf_figure(path, title, stack, wavelengths_nm, pitch_m, crop)
 
 
-def write_map_png(path, m):
-    """A 2-D map (e.g. a height map) as a colour-mapped PNG, min to max."""
-    _qdo.write_map_png(path, m)
+def write_height_figure(path, title, height_m, pitch_m, value_label="height (nm)"):
+    """A height map (H x W metres at pitch_m) as a figure: colours in nm with a colour bar, axes in
+    mm. Writes path (.png) and the .svg beside it."""
+    _qdo.write_height_figure(path, title, height_m, pitch_m, value_label)

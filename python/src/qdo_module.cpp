@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "arguments.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/config.hpp"
 #include "qdo/datasets.hpp"
@@ -557,20 +558,22 @@ PYBIND11_MODULE(_qdo, m) {
       },
       py::arg("path"), py::arg("rgb"));
   m.def(
-      "write_montage_png",
-      [](const py::handle& path, const py::handle& stack_obj, const py::handle& wavelengths, const py::handle& gamma) {
+      "write_psf_figure",
+      [](const py::handle& path, const std::string& title, const py::handle& stack_obj, const py::handle& wavelengths,
+         const py::handle& pitch_m, std::size_t crop) {
         const std::string p = path_arg(path, "path");
         const RealStack st = to_stack(checked(stack_obj, "stack", {"planes", "H", "W"}));
-        write_montage_png(p, st, reals_arg(wavelengths, "wavelengths_nm"), positive_arg(gamma, "gamma"));
+        write_psf_figure(p, title, st, reals_arg(wavelengths, "wavelengths_nm"), positive_arg(pitch_m, "pitch_m"), crop);
       },
-      py::arg("path"), py::arg("stack"), py::arg("wavelengths_nm") = py::tuple(), py::arg("gamma") = 0.5);
+      py::arg("path"), py::arg("title"), py::arg("stack"), py::arg("wavelengths_nm"), py::arg("pitch_m"), py::arg("crop") = 0);
   m.def(
-      "write_map_png",
-      [](const py::handle& path, const py::handle& map_obj) {
+      "write_height_figure",
+      [](const py::handle& path, const std::string& title, const py::handle& map_obj, const py::handle& pitch_m,
+         const std::string& value_label) {
         const std::string p = path_arg(path, "path");
-        write_map_png(p, to_map(checked(map_obj, "map", {"H", "W"})));
+        write_height_figure(p, title, to_map(checked(map_obj, "height_m", {"H", "W"})), positive_arg(pitch_m, "pitch_m"), value_label);
       },
-      py::arg("path"), py::arg("map"));
+      py::arg("path"), py::arg("title"), py::arg("height_m"), py::arg("pitch_m"), py::arg("value_label") = "height (nm)");
   m.def(
       "read_h5",
       [](const py::handle& path, const py::handle& name) {

@@ -89,8 +89,8 @@ def test_an_array_too_large_to_copy_raises_memory_error_naming_it(optics64):
     huge = np.broadcast_to(np.zeros(1), HUGE)
     with pytest.raises(MemoryError, match=r"^height_m: no memory for a C-order float64 copy of its shape \(536870912, 1073741824\)"):
         qdo.quantize(huge, 1e-6, 4)
-    with pytest.raises(MemoryError, match=r"^map: no memory"):
-        qdo.write_map_png("never.png", huge)
+    with pytest.raises(MemoryError, match=r"^height_m: no memory"):
+        qdo.write_height_figure("never.png", "t", huge, 1e-6)
     with pytest.raises(MemoryError, match=r"^scenes: no memory"):
         qdo.estimate_prior(np.broadcast_to(np.zeros(1), (1, 1) + HUGE), bins=4)
     # Where the shape is fixed, the shape is checked first: no copy is attempted.

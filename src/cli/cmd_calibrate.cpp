@@ -5,6 +5,7 @@
 #include <memory>
 
 #include "cli.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/calibrate.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -72,7 +73,7 @@ int cmd_calibrate(const Args& a) {
             {"frame_rows_cols", std::to_string(r.frame_rows) + "," + std::to_string(r.frame_cols)},
             {"notes", notes}});
   const std::size_t crop = std::min<std::size_t>(96, s);
-  write_montage_png(dir + "/psf.png", r.psf, cfg.wavelengths_nm(), 0.5, crop);
+  write_psf_figure(dir + "/psf.png", "Measured PSF stack from " + a.get("frames"), r.psf, cfg.wavelengths_nm(), cfg.sensor_pitch_m, crop);
   std::printf("calibrated %zu bands from %s (%zu dark frames, %zu hot pixels replaced), centre (row %ld, column %ld) of %zu x %zu, "
               "S = %zu\n",
               cfg.bands, a.get("frames").c_str(), r.darks.size(), r.hot_pixels, r.centre_row, r.centre_col, r.frame_rows, r.frame_cols, s);
@@ -99,13 +100,31 @@ int cmd_calibrate(const Args& a) {
     mean_corr += cmp[b].correlation / double(cfg.bands);
   }
   write_text_atomic(dir + "/compare.csv", csv.str());
-  // compare.png: one montage, the measured bands first, then the simulated ones, each in band order.
-  RealStack both(2 * cfg.bands, s, s);
-  std::copy(r.psf.data.begin(), r.psf.data.end(), both.data.begin());
-  std::copy(simulated.data.begin(), simulated.data.end(), both.data.begin() + long(r.psf.data.size()));
-  std::vector<double> wl2 = wl;
-  wl2.insert(wl2.end(), wl.begin(), wl.end());
-  write_montage_png(dir + "/compare.png", both, wl2, 0.5, crop);
+  // compare.png: measured and simulated side by side for up to 8 bands, evenly spaced.
+  {
+    const std::size_t shown = std::min<std::size_t>(8, cfg.bands), c = crop, y0 = (s - c) / 2;
+    MontagePlot m;
+    m.title = "Measured (left) against simulated (right): " + design;
+    m.x_label = "x (µm)";
+    m.y_label = "y (µm)";
+    m.value_label = "PSF / panel maximum";
+    m.stack = RealStack(2 * shown, c, c);
+    m.max_panels = 2 * shown;
+    for (std::size_t k = 0; k < shown; ++k) {
+      const std::size_t b = shown > 1 ? k * (cfg.bands - 1) / (shown - 1) : 0;
+      for (std::size_t y = 0; y < c; ++y)
+        for (std::size_t x = 0; x < c; ++x) {
+          m.stack(2 * k, y, x) = r.psf(b, y0 + y, y0 + x);
+          m.stack(2 * k + 1, y, x) = simulated(b, y0 + y, y0 + x);
+        }
+      m.panel_titles.push_back("measured " + to_str(wl[b]) + " nm");
+      m.panel_titles.push_back("simulated " + to_str(wl[b]) + " nm");
+    }
+    const double half_um = double(c) / 2 * cfg.sensor_pitch_m * 1e6;
+    m.x_min = m.y_min = -half_um;
+    m.x_max = m.y_max = half_um;
+    write_montage_plot(dir + "/compare.png", m);
+  }
   std::printf("against the design %s: mean correlation %.4f over %zu bands\nwrote %s/psf.h5, psf.png, compare.csv, compare.png\n",
               design.c_str(), mean_corr, cfg.bands, dir.c_str());
   return 0;

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
@@ -193,10 +194,10 @@ int cmd_fabricate(const Args& a) {
   write_design(dir + "/design.h5", cam.design, {{"source", source}, {"made_by", "qdo fabricate"}, {"scheme", cam.scheme_note}});
   write_text_atomic(dir + "/config.json", config_to_json_text(cam.cfg) + "\n");
   write_text_atomic(dir + "/truth.json", t.dump(2) + "\n");
-  write_map_png(dir + "/heights.png", cam.design.height_m);
+  write_height_figure(dir + "/heights.png", "As-built DOE heights (simulated fabrication)", cam.design.height_m, cam.cfg.pitch_m);
   Map2D err = cam.design.height_m;
   for (std::size_t i = 0; i < err.data.size(); ++i) err.data[i] -= d.height_m.data[i];
-  write_map_png(dir + "/height_error.png", err);
+  write_height_figure(dir + "/height_error.png", "As-built minus designed heights", err, cam.cfg.pitch_m, "height error (nm)");
 
   std::printf("fabricated %s (%s): %zu mask(s)\n", source.c_str(), cam.scheme_note.c_str(), cam.plan.masks.size());
   for (std::size_t m = 0; m < cam.plan.masks.size(); ++m)

@@ -11,6 +11,7 @@
 #include <filesystem>
 
 #include "cli.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/error.hpp"
 #include "qdo/fit.hpp"
 #include "qdo/io.hpp"
@@ -239,39 +240,49 @@ int cmd_fit(const Args& a) {
                  {{"source", "qdo fit"}, {"design", a.get("design")}, {"psf", a.get("psf")}, {"fit", names}});
     write_text_atomic(dir + "/config.json", config_to_json_text(r.as_built_config) + "\n");
   }
-  // fit.png: per band four tiles, measured, fitted, design and |fitted - measured|, each tile
-  // scaled to its own maximum (residual.png holds the residuals' sizes); a band's four tiles
-  // start a row's quarter (the montage's near-square grid is C columns, C a multiple of 4;
-  // blank tiles pad the last row).
+  // fit.png: for up to 6 bands, evenly spaced, four panels each: measured, fitted, design and
+  // |fitted - measured|, each divided by its own maximum (residual.png holds the residuals' sizes).
+  const auto w = cfg.wavelengths_nm();
   {
-    std::size_t c = 4, rows = 0;
-    for (;; c += 4) {
-      bool ok = false;
-      for (rows = (4 * cfg.bands + c - 1) / c; rows <= c; ++rows)
-        if (std::size_t(std::ceil(std::sqrt(double(c * rows)))) == c) {
-          ok = true;
-          break;
+    const std::size_t shown = std::min<std::size_t>(6, cfg.bands), c = std::min<std::size_t>(s, 48), y0 = (s - c) / 2;
+    MontagePlot m;
+    m.title = "Measured, fitted and designed PSFs, and |fitted - measured|";
+    m.x_label = "x (µm)";
+    m.y_label = "y (µm)";
+    m.value_label = "PSF / panel maximum";
+    m.stack = RealStack(4 * shown, c, c);
+    m.max_panels = 4 * shown;
+    const char* what[4] = {"measured", "fitted", "design", "|fit - meas.|"};
+    for (std::size_t k = 0; k < shown; ++k) {
+      const std::size_t b = shown > 1 ? k * (cfg.bands - 1) / (shown - 1) : 0;
+      for (std::size_t y = 0; y < c; ++y)
+        for (std::size_t x = 0; x < c; ++x) {
+          const double meas = measured(b, y0 + y, y0 + x), fit = r.model_psf(b, y0 + y, y0 + x);
+          m.stack(4 * k, y, x) = std::max(meas, 0.0);
+          m.stack(4 * k + 1, y, x) = std::max(fit, 0.0);
+          m.stack(4 * k + 2, y, x) = std::max(r.design_psf(b, y0 + y, y0 + x), 0.0);
+          m.stack(4 * k + 3, y, x) = std::fabs(fit - meas);
         }
-      if (ok) break;
+      for (const char* t : what) m.panel_titles.push_back(std::string(t) + " " + to_str(w[b]) + " nm");
     }
-    const std::size_t plane = s * s;
-    RealStack tiles(c * rows, s, s);
-    std::vector<double> wl(c * rows, 0.0);
-    const auto w = cfg.wavelengths_nm();
-    for (std::size_t b = 0; b < cfg.bands; ++b) {
-      const RealStack* src[3] = {&measured, &r.model_psf, &r.design_psf};
-      for (std::size_t k = 0; k < 4; ++k) {
-        double* dst = tiles.data.data() + (4 * b + k) * plane;
-        for (std::size_t i = 0; i < plane; ++i)
-          dst[i] = k < 3 ? std::max(src[k]->data[b * plane + i], 0.0)
-                         : std::fabs(r.model_psf.data[b * plane + i] - measured.data[b * plane + i]);
-        wl[4 * b + k] = w[b];
-      }
-    }
-    for (std::size_t t = 4 * cfg.bands; t < c * rows; ++t) wl[t] = w.back();
-    write_montage_png(dir + "/fit.png", tiles, wl, 0.5, std::min<std::size_t>(s, 48));
+    const double half_um = double(c) / 2 * cfg.sensor_pitch_m * 1e6;
+    m.x_min = m.y_min = -half_um;
+    m.x_max = m.y_max = half_um;
+    write_montage_plot(dir + "/fit.png", m);
   }
-  write_line_plot_png(dir + "/residual.png", {r.residual_rel_design, r.residual_rel_fit});
+  {
+    LinePlot lp;
+    lp.title = "Relative residual ||model - measured|| / ||measured|| per band";
+    lp.x_label = "wavelength (nm)";
+    lp.y_label = "relative residual";
+    const bool per_band = r.residual_rel_design.size() == cfg.bands && r.residual_rel_fit.size() == cfg.bands;
+    std::vector<double> x(r.residual_rel_fit.size());
+    for (std::size_t i = 0; i < x.size(); ++i) x[i] = per_band ? w[i] : double(i);
+    if (!per_band) lp.x_label = "band index";
+    lp.series.push_back(PlotSeries{"the design", per_band ? w : std::vector<double>(x), r.residual_rel_design, {}, {}, false});
+    lp.series.push_back(PlotSeries{"the fitted as-built design", x, r.residual_rel_fit, {}, {}, false});
+    write_line_plot(dir + "/residual.png", lp);
+  }
   const double out_s = seconds_since(t1);
 
   std::printf("fitted %zu parameters in %d iterations (%s) in %.2f s: loss %.4e -> %.4e, residual sigma %.3e per pixel\n", np,

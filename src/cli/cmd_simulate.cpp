@@ -15,6 +15,7 @@
 #include "cli.hpp"
 #include "psf_outputs.hpp"
 #include "simulate_varying.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/cpu_reference.hpp"
 #include "qdo/demosaic.hpp"
@@ -197,7 +198,8 @@ int simulate_psf_sweep(const Args& a, const SystemConfig& cfg, Precision p) {
             {"darks", to_str(n_darks)},
             {"saturated", to_str(total.saturated)},
             {"floored", to_str(total.floored + dark_counts.floored)}});
-  write_montage_png(dir + "/frames.png", crops, wl, 0.5, std::min<std::size_t>(S, 96));
+  write_psf_figure(dir + "/frames.png", "PSF sweep frames above the black level, around the axis", crops, wl, cfg.sensor_pitch_m,
+                   std::min<std::size_t>(S, 96));
   std::printf("device: %s\nPSF: %s\nsweep: %zu frames of %zu x %zu (cfa %s, %zu-bit, black %g DN, gain %g), axis at (%ld, %ld), "
               "peak %g of full well, and %zu dark frames in %.3f s\n"
               "raw: %s of frame pixels saturated (%zu of %zu frames hold one: qdo calibrate refuses those), %s floored at 0; "
@@ -309,8 +311,9 @@ int cmd_simulate(const Args& a) {
       },
       [&] {
         write_rgb_png(dir + "/scene.png", scene_rgb);
-        write_montage_png(dir + "/psf.png", psf_s, cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf_s.rows, 96));
-        if (!in.from_file) write_map_png(dir + "/design.png", in.h);
+        write_psf_figure(dir + "/psf.png", "PSF stack on the sensor", psf_s, cfg.wavelengths_nm(), cfg.sensor_pitch_m,
+                         std::min<std::size_t>(psf_s.rows, 96));
+        if (!in.from_file) write_height_figure(dir + "/design.png", "DOE height map", in.h, cfg.pitch_m);
       });
   std::string raw_line;
   if (raw) {

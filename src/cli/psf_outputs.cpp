@@ -7,6 +7,7 @@
 #include <sstream>
 #include <tuple>
 
+#include "qdo/figure.hpp"
 #include "qdo/config.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -165,22 +166,35 @@ void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const 
   auto montage = std::async(std::launch::async, [&] {
     if (cfg.point_count() > 1) {
       // Several object points: the middle band of each, 96 x 96 around its chief-ray image point.
-      write_montage_png(dir + "/psf.png", point_crops(cfg, psf_s, cfg.bands / 2, 96), {}, 0.5, 0);
+      MontagePlot m;
+      m.title = "PSF of each object point at " + to_str(cfg.wavelengths_nm()[cfg.bands / 2]) + " nm, around its chief ray";
+      m.x_label = "x from the crop centre (µm)";
+      m.y_label = "y from the crop centre (µm)";
+      m.value_label = "PSF / panel maximum";
+      m.stack = point_crops(cfg, psf_s, cfg.bands / 2, 96);
+      for (const ObjectPoint& q : cfg.points())
+        m.panel_titles.push_back((q.at_infinity() ? std::string("inf") : to_str(q.distance_m) + " m") + ", " + to_str(q.field_x_deg) +
+                                 (q.field_y_deg != 0 ? ":" + to_str(q.field_y_deg) : std::string()) + " deg");
+      const double half_um = double(m.stack.cols) / 2 * cfg.sensor_pitch_m * 1e6;
+      m.x_min = m.y_min = -half_um;
+      m.x_max = m.y_max = half_um;
+      write_montage_plot(dir + "/psf.png", m);
       return;
     }
     // The montage shows the central 96 x 96 of each plane: only that part is converted.
     const RealStack crop = psf_s.central(96);
-    write_montage_png(dir + "/psf.png", crop, cfg.wavelengths_nm(), 0.5, 0);  // 0: the whole (cropped) stack
+    write_psf_figure(dir + "/psf.png", "PSF stack on the sensor (central " + to_str(crop.rows) + " pixels)", crop, cfg.wavelengths_nm(),
+                     cfg.sensor_pitch_m);
   });
   const std::size_t k = (std::max(h.rows, h.cols) + 511) / 512;
   try {
     if (k <= 1) {
-      write_map_png(dir + "/design.png", h);
+      write_height_figure(dir + "/design.png", "DOE height map", h, cfg.pitch_m);
     } else {
       Map2D small((h.rows + k - 1) / k, (h.cols + k - 1) / k);
       for (std::size_t y = 0; y < small.rows; ++y)
         for (std::size_t x = 0; x < small.cols; ++x) small(y, x) = h(y * k, x * k);
-      write_map_png(dir + "/design.png", small);
+      write_height_figure(dir + "/design.png", "DOE height map (every " + to_str(k) + "th sample)", small, cfg.pitch_m * double(k));
     }
   } catch (...) {
     montage.wait();

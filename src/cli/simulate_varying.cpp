@@ -30,6 +30,7 @@
 #include <vector>
 
 #include "psf_outputs.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -500,11 +501,30 @@ int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
       if (!shifts.empty()) one = shift_planes(one, shifts[k].first, shifts[k].second);
       std::copy(one.data.begin(), one.data.end(), fig.plane(k));
     }
-    write_montage_png(dir + "/psf.png", fig, std::vector<double>(np, wl[mid]), 0.5, std::min<std::size_t>(psfs.rows, 96));
+    std::vector<std::string> titles;
+    for (std::size_t k = 0; k < np; ++k) titles.push_back("point " + to_str(k));
+    MontagePlot m;
+    m.title = "PSF of each computed point at " + to_str(wl[mid]) + " nm (recentred; psf.h5 lists the points)";
+    m.x_label = "x (pixels)";
+    m.y_label = "y (pixels)";
+    m.value_label = "PSF / panel maximum";
+    const std::size_t c = std::min<std::size_t>(psfs.rows, 96), y0 = (psfs.rows - c) / 2, x0 = (psfs.cols - c) / 2;
+    m.stack = RealStack(np, c, c);
+    for (std::size_t k = 0; k < np; ++k)
+      for (std::size_t y = 0; y < c; ++y)
+        for (std::size_t x = 0; x < c; ++x) m.stack(k, y, x) = fig(k, y0 + y, x0 + x);
+    m.panel_titles = titles;
+    write_montage_plot(dir + "/psf.png", m);
   }
-  write_map_png(dir + "/design.png", h);
+  write_height_figure(dir + "/design.png", "DOE height map", h, cfg.pitch_m);
   if (depth_mode) {
-    write_map_png(dir + "/depth.png", layer_map);
+    ImagePlot dp;
+    dp.title = "Depth layer each pixel was imaged at";
+    dp.x_label = "x (pixels)";
+    dp.y_label = "y (pixels)";
+    dp.value_label = "1 / depth (1/m; 0 = infinity)";
+    dp.values = layer_map;
+    write_image_plot(dir + "/depth.png", dp);
     h5_write(dir + "/depth.h5",
              {{"/inverse_depth_per_m", {rows, cols}, depth_diopters.data, {}, {{"units", "1/m (diopters), 0 = infinity: the depth map read"}}},
               {"/layer_inverse_depth_per_m", {rows, cols}, layer_map.data, {}, {{"units", "1/m, the layer each pixel was imaged at"}}}},

@@ -21,6 +21,7 @@
 #include "design/problem.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/error.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/io.hpp"
 #include "qdo/joint.hpp"
 #include "qdo/mpi.hpp"
@@ -431,7 +432,8 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
           << pt.field_y_deg << "," << r.point_losses[p] << "," << sampled[p] << "\n";
     }
     write_text_atomic(folder.path("range.csv"), csv.str());
-    write_line_plot_png(folder.path("range.png"), {r.point_losses});
+    write_index_plot(folder.path("range.png"), "Loss at each object point after training: " + dir.filename().string(),
+                     "object point (row of range.csv)", "loss", {r.point_losses}, {"final design"});
   }
   // psf.h5 and psf.png: the PSF at the first object point (the run's one point when it has one).
   sim.set_heights(out.height_m);
@@ -447,9 +449,12 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   }
   const RealStack psf = sim.psf_sensor();
   write_psf(folder.psf_path(), psf, o.cfg.wavelengths_nm(), o.cfg.sensor_pitch_m);
-  write_montage_png((dir / "psf.png").string(), psf, o.cfg.wavelengths_nm(), 0.5, std::min<std::size_t>(psf.rows, 96));
-  write_map_png((dir / "design.png").string(), out.height_m);
-  if (!losses.empty()) write_line_plot_png((dir / "loss.png").string(), {losses});
+  const std::string run_name = dir.filename().string();
+  write_psf_figure((dir / "psf.png").string(), "PSF stack on the sensor: " + run_name, psf, o.cfg.wavelengths_nm(),
+                   o.cfg.sensor_pitch_m, std::min<std::size_t>(psf.rows, 96));
+  write_height_figure((dir / "design.png").string(), "DOE height map: " + run_name, out.height_m, o.cfg.pitch_m);
+  if (!losses.empty())
+    write_index_plot((dir / "loss.png").string(), "Training loss: " + run_name, "optimiser step", "loss", {losses}, {"loss per step"});
   if (network && !rows.empty()) {  // training PSNR per step (blue), validation PSNR per epoch (red)
     std::vector<double> tr, va;
     for (const auto& row : rows) {
@@ -459,7 +464,18 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
       tr.push_back(f.size() > 8 && !f[8].empty() ? std::strtod(f[8].c_str(), nullptr) : NAN);
       va.push_back(f.size() > 9 && !f[9].empty() ? std::strtod(f[9].c_str(), nullptr) : NAN);
     }
-    write_line_plot_png((dir / "psnr.png").string(), {tr, va});
+    LinePlot lp;
+    lp.title = "Network PSNR during training: " + run_name;
+    lp.x_label = "optimiser step";
+    lp.y_label = "PSNR (dB)";
+    PlotSeries train{"training batch (per step)", {}, {}, {}, {}, false}, val{"validation (per epoch)", {}, {}, {}, {}, true};
+    for (std::size_t i = 0; i < tr.size(); ++i) {
+      if (std::isfinite(tr[i])) train.x.push_back(double(i)), train.y.push_back(tr[i]);
+      if (std::isfinite(va[i])) val.x.push_back(double(i)), val.y.push_back(va[i]);
+    }
+    for (PlotSeries* ps : {&train, &val})
+      if (!ps->x.empty()) lp.series.push_back(*ps);
+    if (!lp.series.empty()) write_line_plot((dir / "psnr.png").string(), lp);
   }
   r.levels_m = out.levels_m;
   return r;

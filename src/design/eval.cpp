@@ -20,6 +20,7 @@
 #include "qdo/simulator.hpp"
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/io.hpp"
 #include "qdo/network_decoder.hpp"
 #include "qdo/optics.hpp"
@@ -203,7 +204,17 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& given) {
       curves.push_back(t);
       curves.push_back(r2);
     }
-    write_line_plot_png((fs::path(e.out) / ("spectra_" + tag + ".png")).string(), {curves[0], curves[1]});
+    // Every chosen pixel: the true spectrum (line) and the reconstruction (points), against wavelength.
+    LinePlot lp;
+    lp.title = "Spectra of test patch " + tag + " (" + fs::path(scene).filename().string() + ")";
+    lp.x_label = "wavelength (nm)";
+    lp.y_label = "radiance (scene units, 1 = full scale)";
+    for (std::size_t q = 0; q < px.size(); ++q) {
+      const std::string at = "pixel " + to_str(px[q].first) + ":" + to_str(px[q].second);
+      lp.series.push_back(PlotSeries{at + " truth", wl, curves[2 * q], {}, {}, false});
+      lp.series.push_back(PlotSeries{at + " reconstruction", wl, curves[2 * q + 1], {}, {}, true});
+    }
+    write_line_plot((fs::path(e.out) / ("spectra_" + tag + ".png")).string(), lp);
   };
   const testset::Evaluation ev = testset::evaluate(camera, psf_eval, patches, *dec, sigma, o.design.seed, keep);
   const auto& per_patch = ev.per_patch;

@@ -16,6 +16,7 @@
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
 #include "qdo/hash.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/point_psf.hpp"
@@ -170,75 +171,25 @@ nlohmann::json quality_json(const PointQuality& q) {
   return {{"psnr_db", spread_json(q.psnr_db)}, {"ssim", spread_json(q.ssim)}, {"sam_rad", spread_json(q.sam_rad)}};
 }
 
-// ---------- figures: panels of lines against numeric x, stacked vertically ----------
-struct Series {
-  std::vector<double> x, y;
-  int color = 0;
-  bool dashed = false;
-};
-struct Panel {
-  std::vector<Series> series;
-};
-void plot_panels_png(const std::string& path, const std::vector<Panel>& panels, std::size_t width = 640, std::size_t panel_h = 240) {
-  const std::size_t height = panel_h * panels.size();
-  std::vector<unsigned char> px(width * height * 3, 255);
-  const unsigned char colors[6][3] = {{31, 119, 180}, {214, 39, 40}, {44, 160, 44}, {255, 127, 14}, {148, 103, 189}, {0, 0, 0}};
-  auto put = [&](long x, long y, const unsigned char* c) {
-    if (x < 0 || y < 0 || x >= long(width) || y >= long(height)) return;
-    std::copy(c, c + 3, px.begin() + long((std::size_t(y) * width + std::size_t(x)) * 3));
-  };
-  double xlo = kInf, xhi = -kInf;
-  for (const Panel& p : panels)
-    for (const Series& s : p.series)
-      for (double v : s.x)
-        if (std::isfinite(v)) xlo = std::min(xlo, v), xhi = std::max(xhi, v);
-  if (!(xhi > xlo)) xlo -= 0.5, xhi += 0.5;
-  const double mx = 30, fw = double(width);
-  for (std::size_t k = 0; k < panels.size(); ++k) {
-    double lo = kInf, hi = -kInf;
-    for (const Series& s : panels[k].series)
-      for (double v : s.y)
-        if (std::isfinite(v)) lo = std::min(lo, v), hi = std::max(hi, v);
-    if (!(hi > lo)) lo -= 0.5, hi += 0.5;
-    const double pad = 0.05 * (hi - lo);
-    lo -= pad;
-    hi += pad;
-    const double top = double(k * panel_h) + 10, bottom = double((k + 1) * panel_h) - 20;
-    const unsigned char axis[3] = {0, 0, 0}, grid[3] = {220, 220, 220};
-    for (int g = 1; g < 4; ++g)
-      for (long x = long(mx); x < long(fw - 10); x += 2) put(x, long(top + (bottom - top) * g / 4.0), grid);
-    for (long x = long(mx); x < long(fw - 10); ++x) put(x, long(bottom), axis);
-    for (long y = long(top); y <= long(bottom); ++y) put(long(mx), y, axis);
-    for (const Series& s : panels[k].series) {
-      long xp = -1, yp = -1;
-      for (std::size_t i = 0; i < s.x.size() && i < s.y.size(); ++i) {
-        if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i])) continue;
-        const long x = long(mx + (fw - 10 - mx) * (s.x[i] - xlo) / (xhi - xlo));
-        const long y = long(bottom - (bottom - top) * (s.y[i] - lo) / (hi - lo));
-        if (!s.dashed)  // sample markers on the data, none on reference lines
-          for (long dy = -2; dy <= 2; ++dy)
-            for (long dx = -2; dx <= 2; ++dx) put(x + dx, y + dy, colors[s.color % 6]);
-        if (xp >= 0) {
-          const long steps = std::max(std::labs(x - xp), std::labs(y - yp)) + 1;
-          for (long t = 0; t <= steps; ++t)
-            if (!s.dashed || (t / 6) % 2 == 0) put(xp + (x - xp) * t / steps, yp + (y - yp) * t / steps, colors[s.color % 6]);
-        }
-        xp = x;
-        yp = y;
-      }
-    }
-  }
-  write_png(path, width, height, 3, px);
-}
-
-// One band's PSF of every point side by side (a montage of planes, each scaled to its own max).
-void write_psf_row(const std::string& path, const std::vector<RealStack>& psfs, std::size_t band) {
+// One band's PSF of every point side by side, the central crop of each, titled by its point.
+void write_psf_row(const std::string& path, const std::string& title, const std::vector<RealStack>& psfs, std::size_t band,
+                   const std::vector<std::string>& titles, double nm, double pitch_m) {
   const RealStack& first = psfs.front();
-  RealStack all(psfs.size(), first.rows, first.cols);
+  const std::size_t c = std::min<std::size_t>(first.rows, 96), y0 = (first.rows - c) / 2, x0 = (first.cols - c) / 2;
+  MontagePlot m;
+  m.title = title + " at " + to_str(nm) + " nm";
+  m.x_label = "x (µm)";
+  m.y_label = "y (µm)";
+  m.value_label = "PSF / panel maximum";
+  m.stack = RealStack(psfs.size(), c, c);
   for (std::size_t q = 0; q < psfs.size(); ++q)
-    std::copy(psfs[q].data.begin() + long(band * first.rows * first.cols), psfs[q].data.begin() + long((band + 1) * first.rows * first.cols),
-              all.data.begin() + long(q * first.rows * first.cols));
-  write_montage_png(path, all, {}, 0.5, std::min<std::size_t>(first.rows, 96));
+    for (std::size_t y = 0; y < c; ++y)
+      for (std::size_t x = 0; x < c; ++x) m.stack(q, y, x) = psfs[q](band, y0 + y, x0 + x);
+  m.panel_titles = titles;
+  const double half_um = double(c) / 2 * pitch_m * 1e6;
+  m.x_min = m.y_min = -half_um;
+  m.x_max = m.y_max = half_um;
+  write_montage_plot(path, m);
 }
 
 }  // namespace
@@ -519,40 +470,52 @@ EvalPointsResult evaluate_points(Runtime& rt, const EvalPointsOptions& o) {
   write_text_atomic((out / "points.json").string(), j.dump(2) + "\n");
 
   // Figures: x = 1/d (diopters; infinity at 0) for distances, degrees for angles.
-  Panel p1, p2, p3;
-  Series mis_s, mat_s, ssim_mis, ssim_mat;
+  const std::string run = fs::path(o.run).filename().string();
+  LinePlot psnr_d, ssim_d;
+  psnr_d.title = "PSNR against object distance: " + run;
+  ssim_d.title = "SSIM against object distance";
+  psnr_d.x_label = ssim_d.x_label = "1 / object distance (1/m; 0 = infinity)";
+  psnr_d.y_label = "PSNR (dB)";
+  ssim_d.y_label = "SSIM";
+  PlotSeries mis{"decoder for the design distance (mismatched)", {}, {}, {}, {}, false}, mat{"decoder for each distance (matched)", {}, {}, {}, {}, false};
+  PlotSeries smis = mis, smat = mat;
   for (const DistanceRow& r : res.distances) {
     const double x = std::isinf(r.distance_m) ? 0.0 : 1.0 / r.distance_m;
-    mis_s.x.push_back(x);
-    mis_s.y.push_back(r.mismatch.psnr_db.mean);
-    mat_s.x.push_back(x);
-    mat_s.y.push_back(r.matched.psnr_db.mean);
-    ssim_mis.x.push_back(x);
-    ssim_mis.y.push_back(r.mismatch.ssim.mean);
-    ssim_mat.x.push_back(x);
-    ssim_mat.y.push_back(r.matched.ssim.mean);
+    for (PlotSeries* ps : {&mis, &mat, &smis, &smat}) ps->x.push_back(x);
+    mis.y.push_back(r.mismatch.psnr_db.mean);
+    mat.y.push_back(r.matched.psnr_db.mean);
+    smis.y.push_back(r.mismatch.ssim.mean);
+    smat.y.push_back(r.matched.ssim.mean);
   }
-  mat_s.color = ssim_mat.color = 1;
-  Series margin{mis_s.x, std::vector<double>(mis_s.x.size(), res.nominal_psnr_db - o.dof_margin_db), 5, true};
-  p1.series = {mis_s, mat_s, margin};
-  p2.series = {ssim_mis, ssim_mat};
-  plot_panels_png((out / "quality_vs_distance.png").string(), {p1, p2});
-  Series ap, ae, at;
+  psnr_d.series = {mis, mat};
+  psnr_d.hlines = {res.nominal_psnr_db - o.dof_margin_db};  // the depth-of-field margin below the nominal PSNR
+  psnr_d.title += " (dashed: nominal − " + to_str(o.dof_margin_db) + " dB)";
+  ssim_d.series = {smis, smat};
+  write_line_panels((out / "quality_vs_distance.png").string(), "Quality against object distance: " + run, {psnr_d, ssim_d});
+  LinePlot psnr_a, err_a;
+  psnr_a.title = "PSNR against field angle, on-axis decoder";
+  err_a.title = "Shift-invariant model error against field angle (dashed: the tolerance)";
+  psnr_a.x_label = err_a.x_label = "field angle (deg)";
+  psnr_a.y_label = "PSNR (dB)";
+  err_a.y_label = "||I_theta - I_0|| / ||I_0||";
+  PlotSeries ap{"on-axis decoder", {}, {}, {}, {}, false}, ae{"model error", {}, {}, {}, {}, false};
   for (const AngleRow& r : res.angles) {
     ap.x.push_back(r.angle_deg);
     ap.y.push_back(r.on_axis_decoder.psnr_db.mean);
     ae.x.push_back(r.angle_deg);
     ae.y.push_back(r.model_error);
   }
-  ae.color = 1;
-  at = {ae.x, std::vector<double>(ae.x.size(), o.fov_tolerance), 5, true};
-  Panel q1, q2;
-  q1.series = {ap};
-  q2.series = {ae, at};
-  plot_panels_png((out / "quality_vs_angle.png").string(), {q1, q2});
+  psnr_a.series = {ap};
+  err_a.series = {ae};
+  err_a.hlines = {o.fov_tolerance};
+  write_line_panels((out / "quality_vs_angle.png").string(), "Quality against field angle: " + run, {psnr_a, err_a});
   const std::size_t band = cfg.bands / 2;
-  write_psf_row((out / "psf_vs_distance.png").string(), dpsf, band);
-  write_psf_row((out / "psf_vs_angle.png").string(), apsf, band);
+  const double nm = cfg.wavelengths_nm()[band];
+  std::vector<std::string> dt, at;
+  for (const DistanceRow& r : res.distances) dt.push_back(std::isinf(r.distance_m) ? std::string("inf") : to_str(r.distance_m) + " m");
+  for (const AngleRow& r : res.angles) at.push_back(to_str(r.angle_deg) + " deg");
+  write_psf_row((out / "psf_vs_distance.png").string(), "PSF against object distance: " + run, dpsf, band, dt, nm, cfg.sensor_pitch_m);
+  write_psf_row((out / "psf_vs_angle.png").string(), "PSF against field angle: " + run, apsf, band, at, nm, cfg.sensor_pitch_m);
   return res;
 }
 

@@ -18,6 +18,7 @@
 #include "qdo/design_run.hpp"
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/io.hpp"
 #include "qdo/network_decoder.hpp"
 #include "qdo/optics.hpp"
@@ -398,7 +399,12 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
     csv.row(row);
   }
   write_text_atomic((dir / "spectra.csv").string(), csv.str());
-  write_line_plot_png((dir / "spectra.png").string(), spectra);
+  LinePlot lp;
+  lp.title = "Mean spectra of the regions: " + dir.filename().string();
+  lp.x_label = "wavelength (nm)";
+  lp.y_label = "reconstructed radiance (scene units)";
+  for (std::size_t k = 0; k < spectra.size(); ++k) lp.series.push_back(PlotSeries{regions[k].label(), wl, spectra[k], {}, {}, false});
+  write_line_plot((dir / "spectra.png").string(), lp);
   secs.push_back({"spectra", seconds_since(t)});
 
   res.exposure_factor = cap.exposure_factor;

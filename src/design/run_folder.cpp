@@ -19,9 +19,9 @@ std::string RunFolder::path(const std::string& name) const { return (fs::path(di
 const std::vector<std::string>& RunFolder::file_names() {
   static const std::vector<std::string> names{"config.json", "checkpoint.h5", "checkpoint.prev.h5", "checkpoint.next.h5",
                                               "checkpoint.refused.h5", "log.csv", "prior.h5", "design.h5",
-                                              "design_full.h5", "psf.h5", "psf.png", "design.png",
-                                              "loss.png", "psnr.png", "split.json",
-                                              "range.csv", "range.png"};
+                                              "design_full.h5", "psf.h5", "psf.png", "psf.svg", "design.png",
+                                              "design.svg", "loss.png", "loss.svg", "psnr.png", "psnr.svg",
+                                              "split.json", "range.csv", "range.png", "range.svg"};
   return names;
 }
 

@@ -7,9 +7,11 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <sstream>
 
 #include "qdo/error.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
@@ -131,23 +133,47 @@ std::vector<PsfSweepRow> sweep_psf(Runtime& rt, const PsfSweepOptions& o) {
                    {"ee80_um", r.ee80_um},
                    {"energy_outside_window", r.energy_outside}});
       h5.push_back({"/psf_" + r.label, {bands, psfs[k].rows, psfs[k].cols}, psfs[k].data, {{"pitch_m", o.cfg.sensor_pitch_m}}, {}});
-      write_montage_png((fs::path(o.out) / ("psf_" + r.label + ".png")).string(), psfs[k], wl, 0.5,
-                        std::min<std::size_t>(psfs[k].rows, 96));
+      write_psf_figure((fs::path(o.out) / ("psf_" + r.label + ".png")).string(),
+                       "PSF stack, " + (r.levels ? r.label + " (" + to_str(r.levels) + " levels)" : std::string("full precision")),
+                       psfs[k], wl, o.cfg.sensor_pitch_m, std::min<std::size_t>(psfs[k].rows, 96));
     }
     h5.push_back({"/wavelengths_nm", {bands}, wl, {}, {{"units", "nm"}}});
     h5_write((fs::path(o.out) / "psf.h5").string(), h5, {{"config", config_to_json_text(o.cfg)}});
     write_text_atomic((fs::path(o.out) / "sweep.csv").string(), csv.str());
     write_text_atomic((fs::path(o.out) / "sweep.json").string(), j.dump(2) + "\n");
-    // Metric vs variant (in the order given, reference first), mean over bands.
-    std::vector<double> l2, peak, ee;
-    for (const auto& r : rows) {
-      l2.push_back(mean(r.rel_l2));
-      peak.push_back(mean(r.peak_ratio));
-      ee.push_back(mean(r.ee80_um));
-    }
-    write_line_plot_png((fs::path(o.out) / "rel_l2_vs_variant.png").string(), {std::vector<double>(l2.begin() + 1, l2.end())});
-    write_line_plot_png((fs::path(o.out) / "peak_ratio_vs_variant.png").string(), {peak});
-    write_line_plot_png((fs::path(o.out) / "ee80_vs_variant.png").string(), {ee});
+    // Each metric (mean over bands) against the number of levels: one series per kind of variant
+    // (its label without the leading "L<levels>"), the full-precision reference as a dashed line.
+    auto metric_plot = [&](const std::string& file, const std::string& what, const std::string& y_label,
+                           const std::function<double(const PsfSweepRow&)>& value, bool reference_line) {
+      LinePlot lp;
+      lp.title = what + " against the number of levels (mean over " + to_str(bands) + " bands)";
+      lp.x_label = "height levels L";
+      lp.y_label = y_label;
+      lp.log_x = true;
+      for (std::size_t k = 1; k < rows.size(); ++k) {
+        std::string kind = rows[k].label;
+        const std::string prefix = "L" + to_str(rows[k].levels);
+        if (kind.rfind(prefix, 0) == 0) kind = kind.substr(prefix.size());
+        while (!kind.empty() && (kind[0] == '_' || kind[0] == '-')) kind.erase(0, 1);
+        if (kind.empty()) kind = "uniform";
+        auto it = std::find_if(lp.series.begin(), lp.series.end(), [&](const PlotSeries& ps) { return ps.label == kind; });
+        if (it == lp.series.end()) {
+          lp.series.push_back(PlotSeries{kind, {}, {}, {}, {}, false});
+          it = lp.series.end() - 1;
+        }
+        it->x.push_back(double(rows[k].levels));
+        it->y.push_back(value(rows[k]));
+      }
+      for (PlotSeries& ps : lp.series) ps.points_only = ps.x.size() == 1;
+      if (reference_line) lp.hlines.push_back(value(rows.front()));
+      if (!lp.series.empty()) write_line_plot((fs::path(o.out) / file).string(), lp);
+    };
+    metric_plot("rel_l2_vs_variant.png", "PSF error ||P_L - P_full|| / ||P_full||", "relative L2 error",
+                [&](const PsfSweepRow& r) { return mean(r.rel_l2); }, false);
+    metric_plot("peak_ratio_vs_variant.png", "PSF peak against full precision (dashed)", "peak / full-precision peak",
+                [&](const PsfSweepRow& r) { return mean(r.peak_ratio); }, true);
+    metric_plot("ee80_vs_variant.png", "80 % encircled-energy radius (full precision dashed)", "radius (µm)",
+                [&](const PsfSweepRow& r) { return mean(r.ee80_um); }, true);
   }
   return rows;
 }

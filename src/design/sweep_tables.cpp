@@ -14,6 +14,7 @@
 
 #include "design/sweep_internal.hpp"
 #include "qdo/hash.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/io.hpp"
 #include "qdo/run.hpp"
 #include "qdo/sweep_stats.hpp"
@@ -173,32 +174,33 @@ void write_grid_tables(const fs::path& out, const std::vector<GridCell>& cells, 
         "thin grey bar the seed interval, grey line 0 dB).\n";
   write_text_atomic((out / "comparisons.md").string(), cm.str());
   write_text_atomic((out / "comparisons.csv").string(), cmcsv.str());
-  if (!diffs.empty()) {
-    write_difference_plot_png((out / "differences.png").string(), diffs);
-    write_difference_plot_svg((out / "differences.svg").string(), diffs);
-  }
+  if (!diffs.empty()) write_difference_figure((out / "differences.png").string(), diffs);
 
-  // PSNR vs levels, one series per mode (levels in the order of the rows, mean over seeds).
-  std::vector<std::string> series_modes;
-  std::vector<int> levels;
+  // PSNR against levels, one series per mode: the mean over seeds and its 95 % interval.
+  LinePlot lp;
+  lp.title = "Test PSNR against the number of levels, mean and 95 % interval over seeds";
+  lp.x_label = "height levels L";
+  lp.y_label = "PSNR (dB)";
+  lp.log_x = true;
   for (const auto& [L, m] : rows) {
     if (L <= 0) continue;
-    if (std::find(series_modes.begin(), series_modes.end(), m) == series_modes.end()) series_modes.push_back(m);
-    if (std::find(levels.begin(), levels.end(), L) == levels.end()) levels.push_back(L);
-  }
-  std::vector<std::vector<double>> series;
-  for (const auto& m : series_modes) {
-    std::vector<double> s;
-    for (int L : levels) {
-      const auto it = by_row.find({L, m});
-      if (it == by_row.end()) continue;
-      std::vector<double> v;
-      for (const GridCell* c : it->second) v.push_back(c->mean.psnr);
-      s.push_back(mean_interval(v).mean);
+    const auto it = by_row.find({L, m});
+    if (it == by_row.end()) continue;
+    std::vector<double> v;
+    for (const GridCell* c : it->second) v.push_back(c->mean.psnr);
+    const MeanInterval mi = mean_interval(v);
+    auto s = std::find_if(lp.series.begin(), lp.series.end(), [&](const PlotSeries& p) { return p.label == m; });
+    if (s == lp.series.end()) {
+      lp.series.push_back(PlotSeries{m, {}, {}, {}, {}, false});
+      s = lp.series.end() - 1;
     }
-    if (!s.empty()) series.push_back(s);
+    s->x.push_back(double(L));
+    s->y.push_back(mi.mean);
+    s->y_low.push_back(mi.n > 1 ? mi.lo() : mi.mean);
+    s->y_high.push_back(mi.n > 1 ? mi.hi() : mi.mean);
   }
-  write_line_plot_png((out / "psnr_vs_levels.png").string(), series);
+  for (PlotSeries& ps : lp.series) ps.points_only = ps.x.size() == 1;
+  if (!lp.series.empty()) write_line_plot((out / "psnr_vs_levels.png").string(), lp);
 }
 
 }  // namespace qdo::sweep_detail

@@ -12,6 +12,7 @@
 
 #include "fab/fab_internal.hpp"
 #include "qdo/error.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/io.hpp"
 
 namespace fs = std::filesystem;
@@ -241,7 +242,8 @@ ExportResult export_design(const Design& d, const SystemConfig& cfg, const Expor
     write_png((dir / name).string(), n, n, 1, px);
     res.files.push_back(name);
   }
-  write_map_png((dir / "heights_from_masks.png").string(), rec.height_m);
+  write_height_figure((dir / "heights_from_masks.png").string(), "Heights the masks make (" + to_str(plan.masks.size()) + " layers)",
+                      rec.height_m, cfg.pitch_m);
   res.files.push_back("heights_from_masks.png");
 
   // Markdown sheet.

@@ -18,6 +18,7 @@
 
 #include "qdo/design_run.hpp"
 #include "qdo/error.hpp"
+#include "qdo/figure.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/simulator.hpp"
@@ -202,98 +203,48 @@ Stat stat_of(const std::vector<double>& v) {
   return s;
 }
 
-// --- A small raster canvas with a 3 x 5 pixel font, for the strip chart ---
-struct Canvas {
-  std::size_t w, h;
-  std::vector<unsigned char> px;
-  Canvas(std::size_t w_, std::size_t h_) : w(w_), h(h_), px(w_ * h_ * 3, 255) {}
-  void dot(long x, long y, const unsigned char* c) {
-    if (x < 0 || y < 0 || x >= long(w) || y >= long(h)) return;
-    std::copy(c, c + 3, px.begin() + long((std::size_t(y) * w + std::size_t(x)) * 3));
-  }
-  void rect(long x0, long y0, long x1, long y1, const unsigned char* c) {
-    for (long y = std::min(y0, y1); y <= std::max(y0, y1); ++y)
-      for (long x = std::min(x0, x1); x <= std::max(x0, x1); ++x) dot(x, y, c);
-  }
-  void text(long x, long y, const std::string& s, const unsigned char* c, int scale = 2) {
-    static const std::map<char, const char*> font = {
-        {'0', "111101101101111"}, {'1', "010110010010111"}, {'2', "111001111100111"}, {'3', "111001111001111"},
-        {'4', "101101111001001"}, {'5', "111100111001111"}, {'6', "111100111101111"}, {'7', "111001001001001"},
-        {'8', "111101111101111"}, {'9', "111101111001111"}, {'.', "000000000000010"}, {'-', "000000111000000"},
-        {'A', "010101111101101"}, {'B', "110101110101110"}, {'D', "110101101101110"}, {'E', "111100110100111"},
-        {'H', "101101111101101"}, {'I', "111010010010111"}, {'L', "100100100100111"}, {'N', "111101101101101"},
-        {'O', "010101101101010"}, {'P', "110101110100100"}, {'R', "110101110101101"}, {'S', "011100010001110"},
-        {'T', "111010010010010"}, {'U', "101101101101111"}, {'V', "101101101101010"}, {'Y', "101101010010010"},
-        {'C', "111100100100111"}, {'G', "111100101101111"}, {' ', "000000000000000"}};
-    long cx = x;
-    for (char ch : s) {
-      const auto it = font.find(ch);
-      const char* g = it == font.end() ? "111111111111111" : it->second;
-      for (int r = 0; r < 5; ++r)
-        for (int q = 0; q < 3; ++q)
-          if (g[r * 3 + q] == '1') rect(cx + q * scale, y + r * scale, cx + q * scale + scale - 1, y + r * scale + scale - 1, c);
-      cx += 4 * scale;
-    }
-  }
-};
-
-std::string upper_label(const std::string& s) {
-  std::string o;
-  for (char ch : s) o += char(std::toupper(static_cast<unsigned char>(ch)));
-  return o;
-}
-
 std::string fixed(double v, int digits) {
   char b[64];
   std::snprintf(b, sizeof b, "%.*f", digits, v);
   return b;
 }
 
-// PSNR per trial for every scenario: dots (blue: calibrated decoder, red: nominal decoder), a
-// black bar at each mean, a grey line at the nominal design's PSNR; y ticks every 1 or more dB.
-void write_strip_chart(const std::string& path, const ToleranceResult& r) {
-  const std::size_t W = 720, H = 400;
-  Canvas cv(W, H);
-  const unsigned char black[3] = {0, 0, 0}, grey[3] = {150, 150, 150}, blue[3] = {31, 119, 180}, red[3] = {214, 39, 40};
-  double lo = r.nominal.psnr, hi = r.nominal.psnr;
-  for (const auto& t : r.trials)
-    for (double v : {t.calibrated.psnr, t.nominal_decoder.psnr})
-      if (std::isfinite(v)) {
-        lo = std::min(lo, v);
-        hi = std::max(hi, v);
-      }
-  double step = 1;
-  while ((hi - lo) / step > 8) step *= 2;
-  lo = std::floor(lo / step) * step - step * 0.5;
-  hi = std::ceil(hi / step) * step + step * 0.25;
-  const long left = 70, right = long(W) - 10, top = 30, bottom = long(H) - 40;
-  auto Y = [&](double v) { return long(double(bottom) - (v - lo) / (hi - lo) * double(bottom - top)); };
-  cv.rect(left, top, left, bottom, black);
-  cv.rect(left, bottom, right, bottom, black);
-  for (double v = std::ceil(lo / step) * step; v <= hi; v += step) {
-    cv.rect(left - 5, Y(v), left, Y(v), black);
-    cv.text(8, Y(v) - 5, fixed(v, step < 1 ? 1 : 0), black);
-  }
-  cv.text(8, 8, "PSNR DB", black);
-  for (long x = left; x <= right; x += 6) cv.rect(x, Y(r.nominal.psnr), x + 2, Y(r.nominal.psnr), grey);
-  const std::size_t S = r.summary.size();
-  const double colw = double(right - left) / double(std::max<std::size_t>(S, 1));
-  for (std::size_t s = 0; s < S; ++s) {
-    const long cx = left + long(colw * (double(s) + 0.5));
-    cv.text(cx - long(upper_label(r.summary[s].scenario).size()) * 4, bottom + 12, upper_label(r.summary[s].scenario), black);
-    std::size_t k = 0;
+// PSNR per trial for every scenario (x = 1, 2, ... in the summary's order): every trial as a
+// point, the calibrated decoder left of the scenario's x and the nominal decoder right of it,
+// the mean with its [min, max] as error bars, and the nominal design's PSNR dashed.
+void write_strip_chart(const std::string& path, const std::string& run, const ToleranceResult& r) {
+  LinePlot lp;
+  lp.title = "PSNR under fabrication errors: " + run;
+  lp.y_label = "PSNR (dB)";
+  lp.x_label = "scenario:";
+  lp.hlines = {r.nominal.psnr};
+  PlotSeries cal{"calibrated decoder, each trial", {}, {}, {}, {}, true}, nom{"nominal decoder, each trial", {}, {}, {}, {}, true};
+  PlotSeries cal_m{"calibrated decoder, mean [min, max]", {}, {}, {}, {}, true}, nom_m{"nominal decoder, mean [min, max]", {}, {}, {}, {}, true};
+  for (std::size_t k = 0; k < r.summary.size(); ++k) {
+    const double x = double(k + 1);
+    lp.x_label += " " + to_str(k + 1) + " " + r.summary[k].scenario;
     for (const auto& t : r.trials) {
-      if (t.scenario != r.summary[s].scenario) continue;
-      const long jitter = long(k++ % 7) * 3 - 9;
-      cv.rect(cx - 14 + jitter, Y(t.calibrated.psnr) - 1, cx - 12 + jitter, Y(t.calibrated.psnr) + 1, blue);
-      cv.rect(cx + 12 + jitter, Y(t.nominal_decoder.psnr) - 1, cx + 14 + jitter, Y(t.nominal_decoder.psnr) + 1, red);
+      if (t.scenario != r.summary[k].scenario) continue;
+      cal.x.push_back(x - 0.2);
+      cal.y.push_back(t.calibrated.psnr);
+      nom.x.push_back(x + 0.2);
+      nom.y.push_back(t.nominal_decoder.psnr);
     }
-    const auto& c = r.summary[s].calibrated.at("psnr_db");
-    const auto& nd = r.summary[s].nominal_decoder.at("psnr_db");
-    cv.rect(cx - 26, Y(c.mean), cx - 2, Y(c.mean) + 1, black);
-    cv.rect(cx + 2, Y(nd.mean), cx + 26, Y(nd.mean) + 1, black);
+    const Stat& c = r.summary[k].calibrated.at("psnr_db");
+    const Stat& n = r.summary[k].nominal_decoder.at("psnr_db");
+    cal_m.x.push_back(x - 0.1);
+    cal_m.y.push_back(c.mean);
+    cal_m.y_low.push_back(c.min);
+    cal_m.y_high.push_back(c.max);
+    nom_m.x.push_back(x + 0.1);
+    nom_m.y.push_back(n.mean);
+    nom_m.y_low.push_back(n.min);
+    nom_m.y_high.push_back(n.max);
   }
-  write_png(path, W, H, 3, cv.px);
+  lp.title += " (dashed: the nominal design)";
+  for (const PlotSeries* ps : {&cal, &nom, &cal_m, &nom_m})
+    if (!ps->x.empty()) lp.series.push_back(*ps);
+  if (!lp.series.empty()) write_line_plot(path, lp);
 }
 
 }  // namespace
@@ -483,16 +434,17 @@ ToleranceResult tolerance_analysis(Runtime& rt, const ToleranceOptions& t) {
     j["scenarios"].push_back(sj);
   }
   write_text_atomic((dir / "tolerance.json").string(), j.dump(2) + "\n");
-  write_strip_chart((dir / "psnr_by_scenario.png").string(), res);
+  write_strip_chart((dir / "psnr_by_scenario.png").string(), fs::path(t.run).filename().string(), res);
   if (!psf_sets.empty()) {
     const auto wl = o.cfg.wavelengths_nm();
     psf_sets.push_back({"/wavelengths_nm", {wl.size()}, wl, {}, {{"units", "nm"}}});
     h5_write((dir / "psfs.h5").string(), psf_sets, {{"run", t.run}, {"content", "sensor PSF stacks (bands x S x S) per trial"}});
   }
   if (!worst_dh.data.empty()) {
-    write_map_png((dir / "worst_height_error.png").string(), worst_dh);
-    write_montage_png((dir / "worst_psf.png").string(), worst_psf, o.cfg.wavelengths_nm(), 0.5,
-                      std::min<std::size_t>(worst_psf.rows, 96));
+    write_height_figure((dir / "worst_height_error.png").string(), "Height error of the worst trial (lowest PSNR)", worst_dh,
+                        o.cfg.pitch_m, "height error (nm)");
+    write_psf_figure((dir / "worst_psf.png").string(), "PSF stack of the worst trial (lowest PSNR)", worst_psf, o.cfg.wavelengths_nm(),
+                     o.cfg.sensor_pitch_m, std::min<std::size_t>(worst_psf.rows, 96));
   }
   std::ostringstream md;
   md << "# Tolerance analysis\n\nRun `" << t.run << "`, scheme " << to_string(plan.scheme) << " (" << scheme_note << "), " << K
