@@ -104,6 +104,13 @@ void write_montage_plot(const std::string& png_path, const MontagePlot& plot);
 // ---------- Figures of the kinds qdo writes, built on the writers above ----------
 namespace qdo {
 
+// The outer edges [lo, hi] of n samples at `pitch` whose sample n / 2 sits at 0 (qdo's centre
+// convention for PSF windows, crops and height maps), for the extents above.
+inline void centred_extent(std::size_t n, double pitch, double& lo, double& hi) {
+  lo = -(double(n / 2) + 0.5) * pitch;
+  hi = lo + double(n) * pitch;
+}
+
 // A PSF stack (planes x rows x cols at pitch_m): the central crop x crop of each plane (0 = whole),
 // one panel per plane titled by its wavelength (wavelengths_nm: one per plane, or empty: "plane k"),
 // log colour scale of 4 decades, each panel divided by its own maximum, axes in µm from the centre.

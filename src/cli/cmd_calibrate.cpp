@@ -120,9 +120,8 @@ int cmd_calibrate(const Args& a) {
       m.panel_titles.push_back("measured " + to_str(wl[b]) + " nm");
       m.panel_titles.push_back("simulated " + to_str(wl[b]) + " nm");
     }
-    const double half_um = double(c) / 2 * cfg.sensor_pitch_m * 1e6;
-    m.x_min = m.y_min = -half_um;
-    m.x_max = m.y_max = half_um;
+    centred_extent(c, cfg.sensor_pitch_m * 1e6, m.x_min, m.x_max);
+    centred_extent(c, cfg.sensor_pitch_m * 1e6, m.y_min, m.y_max);
     write_montage_plot(dir + "/compare.png", m);
   }
   std::printf("against the design %s: mean correlation %.4f over %zu bands\nwrote %s/psf.h5, psf.png, compare.csv, compare.png\n",

@@ -265,9 +265,8 @@ int cmd_fit(const Args& a) {
         }
       for (const char* t : what) m.panel_titles.push_back(std::string(t) + " " + to_str(w[b]) + " nm");
     }
-    const double half_um = double(c) / 2 * cfg.sensor_pitch_m * 1e6;
-    m.x_min = m.y_min = -half_um;
-    m.x_max = m.y_max = half_um;
+    centred_extent(c, cfg.sensor_pitch_m * 1e6, m.x_min, m.x_max);
+    centred_extent(c, cfg.sensor_pitch_m * 1e6, m.y_min, m.y_max);
     write_montage_plot(dir + "/fit.png", m);
   }
   {

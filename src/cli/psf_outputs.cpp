@@ -96,20 +96,18 @@ void write_psf_h5(Simulator& sim, const SensorStack& psf_s, const Map2D& h, cons
 
 RealStack point_crops(const SystemConfig& cfg, const SensorStack& psf_s, std::size_t band, std::size_t crop) {
   const auto pts = cfg.points();
-  const std::size_t c = std::min({crop, psf_s.rows, psf_s.cols});
-  RealStack out(pts.size(), c, c);
+  RealStack out(pts.size(), crop, crop, 0.0);
   for (std::size_t p = 0; p < pts.size(); ++p) {
     const auto [x_m, y_m] = chief_ray_image_m(cfg, pts[p]);
-    // The crop's corner: the chief-ray pixel minus half the crop, kept inside the window.
-    auto corner = [&](double at_m, std::size_t n) {
-      const long centre = long(n / 2) + std::lround(at_m / cfg.sensor_pitch_m);
-      return std::size_t(std::clamp(centre - long(c / 2), 0L, long(n - c)));
-    };
-    const std::size_t y0 = corner(y_m, psf_s.rows), x0 = corner(x_m, psf_s.cols);
+    // Centred on the chief-ray pixel; samples outside the window stay 0.
+    const long cy = long(psf_s.rows / 2) + std::lround(y_m / cfg.sensor_pitch_m) - long(crop / 2);
+    const long cx = long(psf_s.cols / 2) + std::lround(x_m / cfg.sensor_pitch_m) - long(crop / 2);
     const std::size_t base = (p * cfg.bands + band) * psf_s.rows * psf_s.cols;
-    for (std::size_t y = 0; y < c; ++y)
-      for (std::size_t x = 0; x < c; ++x) {
-        const std::size_t at = base + (y0 + y) * psf_s.cols + x0 + x;
+    for (std::size_t y = 0; y < crop; ++y)
+      for (std::size_t x = 0; x < crop; ++x) {
+        const long sy = cy + long(y), sx = cx + long(x);
+        if (sy < 0 || sx < 0 || sy >= long(psf_s.rows) || sx >= long(psf_s.cols)) continue;
+        const std::size_t at = base + std::size_t(sy) * psf_s.cols + std::size_t(sx);
         out(p, y, x) = psf_s.f32 ? double(psf_s.f32[at]) : (*psf_s.f64)[at];
       }
   }
@@ -167,17 +165,16 @@ void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const 
     if (cfg.point_count() > 1) {
       // Several object points: the middle band of each, 96 x 96 around its chief-ray image point.
       MontagePlot m;
-      m.title = "PSF of each object point at " + to_str(cfg.wavelengths_nm()[cfg.bands / 2]) + " nm, around its chief ray";
-      m.x_label = "x from the crop centre (µm)";
-      m.y_label = "y from the crop centre (µm)";
+      m.title = "PSF of each object point at " + to_str(cfg.wavelengths_nm()[cfg.bands / 2]) + " nm, centred on its chief ray";
+      m.x_label = "x from the chief ray's image point (µm)";
+      m.y_label = "y from the chief ray's image point (µm)";
       m.value_label = "PSF / panel maximum";
-      m.stack = point_crops(cfg, psf_s, cfg.bands / 2, 96);
+      m.stack = point_crops(cfg, psf_s, cfg.bands / 2, 48);
       for (const ObjectPoint& q : cfg.points())
         m.panel_titles.push_back((q.at_infinity() ? std::string("inf") : to_str(q.distance_m) + " m") + ", " + to_str(q.field_x_deg) +
                                  (q.field_y_deg != 0 ? ":" + to_str(q.field_y_deg) : std::string()) + " deg");
-      const double half_um = double(m.stack.cols) / 2 * cfg.sensor_pitch_m * 1e6;
-      m.x_min = m.y_min = -half_um;
-      m.x_max = m.y_max = half_um;
+      centred_extent(m.stack.cols, cfg.sensor_pitch_m * 1e6, m.x_min, m.x_max);
+      centred_extent(m.stack.rows, cfg.sensor_pitch_m * 1e6, m.y_min, m.y_max);
       write_montage_plot(dir + "/psf.png", m);
       return;
     }

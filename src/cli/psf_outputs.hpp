@@ -44,7 +44,7 @@ struct PointSummary {
   double ee80_mean_m = 0, min_energy_in_window = 0;
 };
 // Band `band` of every point of psf_s (points x bands planes of S x S, point-major), crop x crop
-// around each point's chief-ray image point (kept inside the window): points x crop x crop.
+// centred on each point's chief-ray image point (0 outside the window): points x crop x crop.
 RealStack point_crops(const SystemConfig& cfg, const SensorStack& psf_s, std::size_t band, std::size_t crop);
 // psf_s: points x bands planes of S x S (point-major), cfg's points in order.
 std::vector<PointSummary> psf_point_summaries(const SystemConfig& cfg, const SensorStack& psf_s);

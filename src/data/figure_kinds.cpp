@@ -39,11 +39,8 @@ void write_psf_figure(const std::string& png_path, const std::string& title, con
       for (std::size_t x = 0; x < w; ++x) m.stack(p, y, x) = stack(p, y0 + y, x0 + x);
     m.panel_titles.push_back(wavelengths_nm.empty() ? "plane " + to_str(p) : nm_title(wavelengths_nm[p]));
   }
-  const double um = pitch_m * 1e6;
-  m.x_min = -double(w) / 2 * um;
-  m.x_max = double(w) / 2 * um;
-  m.y_min = -double(h) / 2 * um;
-  m.y_max = double(h) / 2 * um;
+  centred_extent(w, pitch_m * 1e6, m.x_min, m.x_max);
+  centred_extent(h, pitch_m * 1e6, m.y_min, m.y_max);
   write_montage_plot(png_path, m);
 }
 
@@ -57,11 +54,8 @@ void write_height_figure(const std::string& png_path, const std::string& title, 
   im.value_label = value_label;
   im.values = height_m;
   for (double& v : im.values.data) v *= 1e9;
-  const double mm = pitch_m * 1e3;
-  im.x_min = -double(height_m.cols) / 2 * mm;
-  im.x_max = double(height_m.cols) / 2 * mm;
-  im.y_min = -double(height_m.rows) / 2 * mm;
-  im.y_max = double(height_m.rows) / 2 * mm;
+  centred_extent(height_m.cols, pitch_m * 1e3, im.x_min, im.x_max);
+  centred_extent(height_m.rows, pitch_m * 1e3, im.y_min, im.y_max);
   write_image_plot(png_path, im);
 }
 

@@ -186,9 +186,8 @@ void write_psf_row(const std::string& path, const std::string& title, const std:
     for (std::size_t y = 0; y < c; ++y)
       for (std::size_t x = 0; x < c; ++x) m.stack(q, y, x) = psfs[q](band, y0 + y, x0 + x);
   m.panel_titles = titles;
-  const double half_um = double(c) / 2 * pitch_m * 1e6;
-  m.x_min = m.y_min = -half_um;
-  m.x_max = m.y_max = half_um;
+  centred_extent(c, pitch_m * 1e6, m.x_min, m.x_max);
+  centred_extent(c, pitch_m * 1e6, m.y_min, m.y_max);
   write_montage_plot(path, m);
 }
 

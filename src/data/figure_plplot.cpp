@@ -1,0 +1,267 @@
+// The PLplot side of the figure module: one figure at a time under a mutex, PLplot's exit and
+// abort handlers turned into exceptions, one fresh stream per file, and each figure rendered
+// twice (the "pngcairo" device to the PNG, the "svg" device, text kept as <text>, to the SVG
+// beside it), each into a temporary file that commit_output moves into place.
+#include <plplot.h>
+#include <unistd.h>
+
+#include <array>
+#include <cerrno>
+#include <climits>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <functional>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "data/figure_internal.hpp"
+#include "qdo/error.hpp"
+#include "qdo/figure.hpp"
+#include "qdo/io.hpp"
+
+namespace qdo::figure_detail {
+namespace {
+
+// ---------------------------------------------------------------------------------------
+// PLplot session: one mutex, one fresh stream per file
+// ---------------------------------------------------------------------------------------
+
+std::mutex g_plplot_mutex;     // PLplot keeps global state: one figure at a time
+bool g_plplot_exited = false;  // set when PLplot called its exit handler
+std::string g_plplot_message;  // the first error PLplot reported in the current stream
+
+// PLplot's fatal errors (plexit) end the process unless the handler does not return: it
+// throws, and the stream left behind is abandoned, never ended.
+int on_plplot_exit(const char* message) {
+  g_plplot_exited = true;
+  throw Error(std::string("figure: PLplot failed: ") + (message ? message : "unknown error"));
+}
+
+// PLplot's recoverable errors (plabort) are recorded and fail the figure once its stream ends.
+void on_plplot_abort(const char* message) {
+  if (g_plplot_message.empty()) g_plplot_message = message ? message : "unknown error";
+}
+
+// Throws Error unless PLplot has the output device `device` (a driver it found).
+void require_device(const char* device) {
+  constexpr int kMaxDevices = 256;
+  std::vector<const char*> menu(kMaxDevices + 1, nullptr), names(kMaxDevices + 1, nullptr);
+  const char** menu_p = menu.data();
+  const char** names_p = names.data();
+  int n = kMaxDevices;
+  try {
+    plgDevs(&menu_p, &names_p, &n);
+  } catch (const Error& e) {
+    throw Error(std::string(e.what()) + " (Debian: install plplot-driver-cairo)");
+  }
+  for (int i = 0; i < n && i < kMaxDevices; ++i)
+    if (names_p[i] && std::strcmp(names_p[i], device) == 0) return;
+  throw Error(std::string("figure: PLplot has no '") + device +
+              "' output device (Debian: install plplot-driver-cairo; PLplot looks in PLPLOT_DRV_DIR)");
+}
+
+// PLplot's exit and abort handlers, installed for a scope (a figure, under the mutex).
+class Handlers {
+ public:
+  Handlers() {
+    g_plplot_exited = false;
+    g_plplot_message.clear();
+    plsexit(&on_plplot_exit);
+    plsabort(&on_plplot_abort);
+  }
+  Handlers(const Handlers&) = delete;
+  Handlers& operator=(const Handlers&) = delete;
+  ~Handlers() {
+    plsexit(nullptr);
+    plsabort(nullptr);
+  }
+};
+
+// One PLplot stream; ended (plend1) and the previous stream made current again on scope exit.
+class Stream {
+ public:
+  Stream() {
+    plgstrm(&previous_);
+    g_plplot_message.clear();
+    plmkstrm(&id_);
+    if (id_ < 0) throw Error("figure: PLplot has no free stream");
+  }
+  Stream(const Stream&) = delete;
+  Stream& operator=(const Stream&) = delete;
+  ~Stream() {
+    if (!g_plplot_exited && !ended_) plend1();
+    plsstrm(previous_);
+  }
+  // Ends the stream (its file is complete); throws when PLplot reported an error.
+  void end() {
+    plend1();
+    ended_ = true;
+    if (!g_plplot_message.empty()) throw Error("figure: PLplot reported an error: " + g_plplot_message);
+  }
+
+ private:
+  PLINT previous_ = 0, id_ = -1;
+  bool ended_ = false;
+};
+
+// Viridis control points (matplotlib's map at 0, 1/8, ..., 1).
+constexpr std::array<std::array<double, 3>, 9> kViridis = {{{68, 1, 84},
+                                                            {71, 45, 123},
+                                                            {59, 82, 139},
+                                                            {44, 114, 142},
+                                                            {33, 145, 140},
+                                                            {40, 174, 128},
+                                                            {94, 201, 98},
+                                                            {173, 220, 48},
+                                                            {253, 231, 37}}};
+
+void set_colours() {
+  plscmap0n(kColours);
+  plscol0(kBackground, 255, 255, 255);
+  plscol0(kInk, 0, 0, 0);
+  plscol0(kGrid, 222, 222, 222);
+  plscol0(kReference, 100, 100, 100);
+  for (std::size_t i = 0; i < kSeriesRgb.size(); ++i) {
+    const auto& c = kSeriesRgb[i];
+    plscol0(kSeries0 + static_cast<PLINT>(i), c[0], c[1], c[2]);
+    plscol0a(kBand0 + static_cast<PLINT>(i), c[0], c[1], c[2], 0.22);
+  }
+  std::array<double, kViridis.size()> pos{}, r{}, g{}, b{};
+  for (std::size_t i = 0; i < kViridis.size(); ++i) {
+    pos[i] = static_cast<double>(i) / static_cast<double>(kViridis.size() - 1);
+    r[i] = kViridis[i][0] / 255;
+    g[i] = kViridis[i][1] / 255;
+    b[i] = kViridis[i][2] / 255;
+  }
+  plscmap1n(256);
+  plscmap1l(1, static_cast<PLINT>(kViridis.size()), pos.data(), r.data(), g.data(), b.data(), nullptr);
+}
+
+// Starts a page of w x h px on the current stream (device and output already set).
+Page begin_page(int w, int h) {
+  plspage(0, 0, w, h, 0, 0);
+  plscolbg(255, 255, 255);
+  plinit();
+  set_colours();
+  plschr(kCharMm, 1.0);
+  pladv(0);
+  double x0 = 0, x1 = 0, y0 = 0, y1 = 0;
+  plgspa(&x0, &x1, &y0, &y1);
+  plcol0(kInk);
+  return Page{x1 - x0, y1 - y0};
+}
+
+// Renders one page of w x h px with `draw` into `file` on `device`.
+void render(const char* device, const std::string& file, int w, int h, const std::function<void(const Page&)>& draw) {
+  Stream stream;
+  plsdev(device);
+  plsfnam(file.c_str());
+  const Page page = begin_page(w, h);
+  draw(page);
+  stream.end();
+}
+
+// Temporary outputs "<name>.tmp-<pid>": removed on scope exit unless committed.
+class TempOutputs {
+ public:
+  explicit TempOutputs(const std::string& png_path) : finals_{png_path, svg_path_for(png_path)} {
+    const std::string suffix = ".tmp-" + std::to_string(static_cast<long>(::getpid()));
+    for (std::size_t i = 0; i < 2; ++i) {
+      temps_[i] = finals_[i] + suffix;
+      // Created here, so that PLplot never meets a file it cannot open (it would prompt for one).
+      std::ofstream probe(temps_[i], std::ios::binary | std::ios::trunc);
+      if (!probe) {
+        const std::string why = std::strerror(errno);
+        if (i == 1) std::remove(temps_[0].c_str());
+        throw InputError("file '" + finals_[i] + "': cannot be written (" + why + ")");
+      }
+    }
+  }
+  TempOutputs(const TempOutputs&) = delete;
+  TempOutputs& operator=(const TempOutputs&) = delete;
+  ~TempOutputs() {
+    for (std::size_t i = 0; i < 2; ++i)
+      if (!committed_[i]) std::remove(temps_[i].c_str());
+  }
+  const std::string& png() const { return temps_[0]; }
+  const std::string& svg() const { return temps_[1]; }
+  void commit() {
+    for (std::size_t i = 0; i < 2; ++i) {
+      commit_output(temps_[i], finals_[i]);
+      committed_[i] = true;
+    }
+  }
+
+ private:
+  std::array<std::string, 2> finals_, temps_;
+  std::array<bool, 2> committed_{{false, false}};
+};
+
+}  // namespace
+
+PLINT pl_int(std::size_t n) {
+  if (n > static_cast<std::size_t>(INT_MAX))
+    throw Error("figure: too many values for PLplot (" + std::to_string(n) + ")");
+  return static_cast<PLINT>(n);
+}
+
+// Renders `draw` on a throwaway page of w x h px, for measuring what PLplot draws: the two
+// devices measure text differently (cairo from the font, svg from PLplot's own metrics).
+void render_to_measure(bool svg, int w, int h, const std::function<void(const Page&)>& draw) {
+  std::vector<unsigned char> pixels;
+  Stream stream;
+  if (svg) {
+    plsdev("svg");
+    plsfnam("/dev/null");
+  } else {
+    pixels.resize(static_cast<std::size_t>(w) * static_cast<std::size_t>(h) * 4);
+    plsdev("memcairo");
+    plsmema(w, h, pixels.data());
+  }
+  const Page page = begin_page(w, h);
+  draw(page);
+  stream.end();
+}
+
+// Runs `measure` (PLplot measurements on throwaway pages), then draws the figure with
+// `draw(page, svg)` to the PNG and to the SVG and moves both into place.
+void write_figure(const std::string& png_path, const std::function<void()>& measure, int w, int h,
+                  const std::function<void(const Page&, bool)>& draw) {
+  wait_if_abandoned();
+  const std::lock_guard<std::mutex> lock(g_plplot_mutex);
+  const Handlers handlers;
+  require_device("pngcairo");
+  require_device("svg");
+  require_device("memcairo");  // measurements
+  measure();
+  TempOutputs out(png_path);
+  render("pngcairo", out.png(), w, h, [&](const Page& p) { draw(p, false); });
+  render("svg", out.svg(), w, h, [&](const Page& p) { draw(p, true); });
+  out.commit();
+}
+
+// ---------------------------------------------------------------------------------------
+// Text
+// ---------------------------------------------------------------------------------------
+
+// PLplot text: '#' starts an escape sequence, "##" is a literal '#'.
+std::string pl_text(const std::string& s) {
+  std::string t;
+  t.reserve(s.size());
+  for (char c : s) {
+    t += c;
+    if (c == '#') t += '#';
+  }
+  return t;
+}
+
+// Text centred above the viewport, `disp` character heights out, at `scale` times the height.
+void text_top(double disp, double scale, const std::string& s) {
+  plschr(0, scale);
+  plmtex("t", disp, 0.5, 0.5, pl_text(s).c_str());
+  plschr(0, 1.0);
+}
+
+}  // namespace qdo::figure_detail
