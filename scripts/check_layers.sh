@@ -18,7 +18,8 @@
 # And, once the includes pass, for the code and documentation (src include tests bench docs scripts
 # python fuzz examples, README.md, BENCHMARKS.md, STABILITY.md, CMakeLists.txt):
 #   4. no project-internal issue number (the word issue or issues, then a number, as in "issue #N"),
-#      which a reader cannot look up: comments and docs say what the code does today.
+#      which a reader cannot look up: comments and docs say what the code does today;
+#   5. no "../shared" path in src/ or include/ (datasets come through the data root).
 # Prints each violation and exits 1 when there is one. Usage: scripts/check_layers.sh [REPO]
 set -euo pipefail
 cd "${1:-$(dirname "$0")/..}"
@@ -183,3 +184,17 @@ elif (( rc > 1 )); then
   exit 1
 fi
 echo "layers: no internal issue numbers in the code and docs"
+
+# 5. No path relative to the working directory into the shared data in the library or the tool:
+# datasets are found through the data root (include/qdo/data_root.hpp).
+rc=0
+hits=$(grep -rnI '\.\./shared' src include) || rc=$?
+if (( rc == 0 )); then
+  echo "$hits"
+  echo "layers: a ../shared path in src/ or include/ (use the data root: dataset names, qdo data)"
+  exit 1
+elif (( rc > 1 )); then
+  echo "layers: grep failed ($rc) while looking for ../shared paths"
+  exit 1
+fi
+echo "layers: no ../shared path in src/ or include/"

@@ -9,7 +9,7 @@
 namespace qdo {
 namespace {
 
-// Coefficients copied as data from ../shared/data/spectral/sellmeier_coefficients.csv and
+// Coefficients copied as data from the project data set's spectral/sellmeier_coefficients.csv and
 // noa61_cauchy.csv (sources named there and repeated in `source`).
 std::vector<Material> make_table() {
   std::vector<Material> t;
