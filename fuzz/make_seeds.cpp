@@ -12,6 +12,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <memory>
 #include <string>
 #include <vector>
@@ -99,6 +100,21 @@ int main(int argc, char** argv) {
     text(c / "seed-unknown.json", R"({"pitch": 4e-6})");
     text(c / "seed-truncated.json", R"({"preset": "small", "n": 2)");
     text(c / "seed-nested.json", R"({"n": [[[[[[[[[[1]]]]]]]]]]})");
+    // ---- camera raw (DNG through LibRaw)
+    const fs::path cr = dir("capture_raw");
+    for (const char* cfa : {"rggb", "bggr", "grbg", "gbrg"}) {
+      Map2D m(24, 26);
+      for (std::size_t i = 0; i < m.data.size(); ++i) m.data[i] = double(64 + (i * 37) % 4000);
+      write_dng_mosaic((cr / (std::string("seed-") + cfa + ".dng")).string(), m, cfa, 64, 4095);
+    }
+    {
+      Map2D odd(23, 25);
+      for (std::size_t i = 0; i < odd.data.size(); ++i) odd.data[i] = double((i * 977) % 65536);
+      write_dng_mosaic((cr / "seed-odd-16bit.dng").string(), odd, "rggb", 0, 65535);
+      std::ifstream in(cr / "seed-rggb.dng", std::ios::binary);
+      std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      text(cr / "seed-truncated.dng", bytes.substr(0, bytes.size() / 2));
+    }
     // ---- design (HDF5)
     const fs::path d = dir("design_h5");
     Design des;

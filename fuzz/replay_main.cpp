@@ -23,6 +23,7 @@ extern "C" int qdo_fuzz_checkpoint(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_png(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_capture_png(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_capture_tiff(const std::uint8_t*, std::size_t);
+extern "C" int qdo_fuzz_capture_raw(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_csv(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_kernel_cache(const std::uint8_t*, std::size_t);
 extern "C" int qdo_fuzz_run_folder(const std::uint8_t*, std::size_t);
@@ -38,7 +39,7 @@ struct Target {
 const Target kTargets[] = {{"config", qdo_fuzz_config},         {"design_h5", qdo_fuzz_design_h5},
                            {"cube_h5", qdo_fuzz_cube_h5},       {"mat", qdo_fuzz_mat},
                            {"checkpoint", qdo_fuzz_checkpoint}, {"png", qdo_fuzz_png},
-                           {"capture_png", qdo_fuzz_capture_png}, {"capture_tiff", qdo_fuzz_capture_tiff},
+                           {"capture_png", qdo_fuzz_capture_png}, {"capture_tiff", qdo_fuzz_capture_tiff}, {"capture_raw", qdo_fuzz_capture_raw},
                            {"csv", qdo_fuzz_csv},               {"kernel_cache", qdo_fuzz_kernel_cache},
                            {"run_folder", qdo_fuzz_run_folder},   {"sweep_cell", qdo_fuzz_sweep_cell},
                            {"network_state", qdo_fuzz_network_state}};

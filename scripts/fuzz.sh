@@ -4,7 +4,8 @@
 #   scripts/fuzz.sh [SECONDS] [TARGET ...]     # default: 60 s for each of all targets
 #
 # Targets (fuzz/fuzz_<name>.cpp): config (JSON), design_h5, cube_h5, checkpoint (HDF5), mat
-# (.mat v5 / v7.3), png (PNG band folders), csv (CSV tables and the camera response),
+# (.mat v5 / v7.3), png (PNG band folders), capture_png, capture_tiff and capture_raw (16-bit
+# captures and camera raw files), csv (CSV tables and the camera response),
 # kernel_cache (one kernel-cache entry), run_folder (what `qdo design --resume` reads),
 # sweep_cell (a sweep cell's metrics.json), network_state (a network run's state file).
 # Builds them into build-fuzz/ with clang and -fsanitize=fuzzer,address,undefined, then runs
@@ -17,7 +18,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 SECONDS_EACH="${1:-60}"
 shift || true
-ALL=(config design_h5 cube_h5 mat checkpoint png capture_png capture_tiff csv kernel_cache run_folder sweep_cell network_state)
+ALL=(config design_h5 cube_h5 mat checkpoint png capture_png capture_tiff capture_raw csv kernel_cache run_folder sweep_cell network_state)
 TARGETS=("$@")
 [ ${#TARGETS[@]} -eq 0 ] && TARGETS=("${ALL[@]}")
 
