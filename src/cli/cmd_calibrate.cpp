@@ -102,27 +102,17 @@ int cmd_calibrate(const Args& a) {
   write_text_atomic(dir + "/compare.csv", csv.str());
   // compare.png: measured and simulated side by side for up to 8 bands, evenly spaced.
   {
-    const std::size_t shown = std::min<std::size_t>(8, cfg.bands), c = crop, y0 = (s - c) / 2;
-    MontagePlot m;
-    m.title = "Measured (left) against simulated (right): " + design;
-    m.x_label = "x (µm)";
-    m.y_label = "y (µm)";
-    m.value_label = "PSF / panel maximum";
-    m.stack = RealStack(2 * shown, c, c);
-    m.max_panels = 2 * shown;
+    const std::size_t shown = std::min<std::size_t>(8, cfg.bands);
+    RealStack pairs(2 * shown, s, s);
+    std::vector<std::string> titles;
     for (std::size_t k = 0; k < shown; ++k) {
       const std::size_t b = shown > 1 ? k * (cfg.bands - 1) / (shown - 1) : 0;
-      for (std::size_t y = 0; y < c; ++y)
-        for (std::size_t x = 0; x < c; ++x) {
-          m.stack(2 * k, y, x) = r.psf(b, y0 + y, y0 + x);
-          m.stack(2 * k + 1, y, x) = simulated(b, y0 + y, y0 + x);
-        }
-      m.panel_titles.push_back("measured " + to_str(wl[b]) + " nm");
-      m.panel_titles.push_back("simulated " + to_str(wl[b]) + " nm");
+      std::copy(r.psf.plane(b), r.psf.plane(b) + r.psf.plane_size(), pairs.plane(2 * k));
+      std::copy(simulated.plane(b), simulated.plane(b) + simulated.plane_size(), pairs.plane(2 * k + 1));
+      titles.push_back("measured " + to_str(wl[b]) + " nm");
+      titles.push_back("simulated " + to_str(wl[b]) + " nm");
     }
-    centred_extent(c, cfg.sensor_pitch_m * 1e6, m.x_min, m.x_max);
-    centred_extent(c, cfg.sensor_pitch_m * 1e6, m.y_min, m.y_max);
-    write_montage_plot(dir + "/compare.png", m);
+    write_psf_panels(dir + "/compare.png", "Measured against simulated PSFs: " + design, pairs, titles, cfg.sensor_pitch_m, crop);
   }
   std::printf("against the design %s: mean correlation %.4f over %zu bands\nwrote %s/psf.h5, psf.png, compare.csv, compare.png\n",
               design.c_str(), mean_corr, cfg.bands, dir.c_str());

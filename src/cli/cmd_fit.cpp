@@ -244,30 +244,23 @@ int cmd_fit(const Args& a) {
   // |fitted - measured|, each divided by its own maximum (residual.png holds the residuals' sizes).
   const auto w = cfg.wavelengths_nm();
   {
-    const std::size_t shown = std::min<std::size_t>(6, cfg.bands), c = std::min<std::size_t>(s, 48), y0 = (s - c) / 2;
-    MontagePlot m;
-    m.title = "Measured, fitted and designed PSFs, and |fitted - measured|";
-    m.x_label = "x (µm)";
-    m.y_label = "y (µm)";
-    m.value_label = "PSF / panel maximum";
-    m.stack = RealStack(4 * shown, c, c);
-    m.max_panels = 4 * shown;
+    const std::size_t shown = std::min<std::size_t>(6, cfg.bands);
+    RealStack panels(4 * shown, s, s);
+    std::vector<std::string> titles;
     const char* what[4] = {"measured", "fitted", "design", "|fit - meas.|"};
     for (std::size_t k = 0; k < shown; ++k) {
       const std::size_t b = shown > 1 ? k * (cfg.bands - 1) / (shown - 1) : 0;
-      for (std::size_t y = 0; y < c; ++y)
-        for (std::size_t x = 0; x < c; ++x) {
-          const double meas = measured(b, y0 + y, y0 + x), fit = r.model_psf(b, y0 + y, y0 + x);
-          m.stack(4 * k, y, x) = std::max(meas, 0.0);
-          m.stack(4 * k + 1, y, x) = std::max(fit, 0.0);
-          m.stack(4 * k + 2, y, x) = std::max(r.design_psf(b, y0 + y, y0 + x), 0.0);
-          m.stack(4 * k + 3, y, x) = std::fabs(fit - meas);
-        }
-      for (const char* t : what) m.panel_titles.push_back(std::string(t) + " " + to_str(w[b]) + " nm");
+      for (std::size_t i = 0; i < s * s; ++i) {
+        const double meas = measured.plane(b)[i], fit = r.model_psf.plane(b)[i];
+        panels.plane(4 * k)[i] = std::max(meas, 0.0);
+        panels.plane(4 * k + 1)[i] = std::max(fit, 0.0);
+        panels.plane(4 * k + 2)[i] = std::max(r.design_psf.plane(b)[i], 0.0);
+        panels.plane(4 * k + 3)[i] = std::fabs(fit - meas);
+      }
+      for (const char* t : what) titles.push_back(std::string(t) + " " + to_str(w[b]) + " nm");
     }
-    centred_extent(c, cfg.sensor_pitch_m * 1e6, m.x_min, m.x_max);
-    centred_extent(c, cfg.sensor_pitch_m * 1e6, m.y_min, m.y_max);
-    write_montage_plot(dir + "/fit.png", m);
+    write_psf_panels(dir + "/fit.png", "Measured, fitted and designed PSFs, and |fitted - measured|", panels, titles,
+                     cfg.sensor_pitch_m, std::min<std::size_t>(s, 48));
   }
   {
     LinePlot lp;

@@ -164,18 +164,13 @@ void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const 
   auto montage = std::async(std::launch::async, [&] {
     if (cfg.point_count() > 1) {
       // Several object points: the middle band of each, 96 x 96 around its chief-ray image point.
-      MontagePlot m;
-      m.title = "PSF of each object point at " + to_str(cfg.wavelengths_nm()[cfg.bands / 2]) + " nm, centred on its chief ray";
-      m.x_label = "x from the chief ray's image point (µm)";
-      m.y_label = "y from the chief ray's image point (µm)";
-      m.value_label = "PSF / panel maximum";
-      m.stack = point_crops(cfg, psf_s, cfg.bands / 2, 48);
+      std::vector<std::string> titles;
       for (const ObjectPoint& q : cfg.points())
-        m.panel_titles.push_back((q.at_infinity() ? std::string("inf") : to_str(q.distance_m) + " m") + ", " + to_str(q.field_x_deg) +
-                                 (q.field_y_deg != 0 ? ":" + to_str(q.field_y_deg) : std::string()) + " deg");
-      centred_extent(m.stack.cols, cfg.sensor_pitch_m * 1e6, m.x_min, m.x_max);
-      centred_extent(m.stack.rows, cfg.sensor_pitch_m * 1e6, m.y_min, m.y_max);
-      write_montage_plot(dir + "/psf.png", m);
+        titles.push_back((q.at_infinity() ? std::string("inf") : to_str(q.distance_m) + " m") + ", " + to_str(q.field_x_deg) +
+                         (q.field_y_deg != 0 ? ":" + to_str(q.field_y_deg) : std::string()) + " deg");
+      write_psf_panels(dir + "/psf.png",
+                       "PSF of each object point at " + to_str(cfg.wavelengths_nm()[cfg.bands / 2]) + " nm, centred on its chief ray",
+                       point_crops(cfg, psf_s, cfg.bands / 2, 48), titles, cfg.sensor_pitch_m, 0, "the chief ray's image point");
       return;
     }
     // The montage shows the central 96 x 96 of each plane: only that part is converted.

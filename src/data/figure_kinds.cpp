@@ -21,27 +21,35 @@ std::string nm_title(double nm) {
 
 }  // namespace
 
-void write_psf_figure(const std::string& png_path, const std::string& title, const RealStack& stack,
-                      const std::vector<double>& wavelengths_nm, double pitch_m, std::size_t crop) {
-  if (!wavelengths_nm.empty() && wavelengths_nm.size() != stack.planes)
-    reject("wavelengths_nm", to_str(wavelengths_nm.size()) + " values", "one per plane (" + to_str(stack.planes) + ") or none");
+void write_psf_panels(const std::string& png_path, const std::string& title, const RealStack& stack,
+                      const std::vector<std::string>& panel_titles, double pitch_m, std::size_t crop, const std::string& origin) {
+  if (panel_titles.size() != stack.planes)
+    reject("panel_titles", to_str(panel_titles.size()) + " titles", "one per plane (" + to_str(stack.planes) + ")");
   if (!(pitch_m > 0)) reject("pitch_m", pitch_m, "> 0");
   const std::size_t h = crop ? std::min(crop, stack.rows) : stack.rows, w = crop ? std::min(crop, stack.cols) : stack.cols;
   const std::size_t y0 = (stack.rows - h) / 2, x0 = (stack.cols - w) / 2;
   MontagePlot m;
   m.title = title;
-  m.x_label = "x (µm)";
-  m.y_label = "y (µm)";
+  m.x_label = origin.empty() ? "x (µm)" : "x from " + origin + " (µm)";
+  m.y_label = origin.empty() ? "y (µm)" : "y from " + origin + " (µm)";
   m.value_label = "PSF / panel maximum";
   m.stack = RealStack(stack.planes, h, w);
-  for (std::size_t p = 0; p < stack.planes; ++p) {
+  for (std::size_t p = 0; p < stack.planes; ++p)
     for (std::size_t y = 0; y < h; ++y)
       for (std::size_t x = 0; x < w; ++x) m.stack(p, y, x) = stack(p, y0 + y, x0 + x);
-    m.panel_titles.push_back(wavelengths_nm.empty() ? "plane " + to_str(p) : nm_title(wavelengths_nm[p]));
-  }
+  m.panel_titles = panel_titles;
   centred_extent(w, pitch_m * 1e6, m.x_min, m.x_max);
   centred_extent(h, pitch_m * 1e6, m.y_min, m.y_max);
   write_montage_plot(png_path, m);
+}
+
+void write_psf_figure(const std::string& png_path, const std::string& title, const RealStack& stack,
+                      const std::vector<double>& wavelengths_nm, double pitch_m, std::size_t crop) {
+  if (!wavelengths_nm.empty() && wavelengths_nm.size() != stack.planes)
+    reject("wavelengths_nm", to_str(wavelengths_nm.size()) + " values", "one per plane (" + to_str(stack.planes) + ") or none");
+  std::vector<std::string> titles;
+  for (std::size_t p = 0; p < stack.planes; ++p) titles.push_back(wavelengths_nm.empty() ? "plane " + to_str(p) : nm_title(wavelengths_nm[p]));
+  write_psf_panels(png_path, title, stack, titles, pitch_m, crop);
 }
 
 void write_height_figure(const std::string& png_path, const std::string& title, const Map2D& height_m, double pitch_m,
