@@ -28,7 +28,7 @@ namespace {
 
 using qdo::bench::cpu_model;
 using qdo::bench::fmt;
-using qdo::bench::split;
+using qdo::split_items;
 using qdo::bench::time_it;
 using qdo::bench::Timing;
 
@@ -59,7 +59,7 @@ int main(int argc, char** argv) {
     try {
       if (a == "--sizes") {
         sizes.clear();
-        for (const auto& s : split(value())) {
+        for (const auto& s : split_items(value())) {
           const unsigned long n = std::stoul(s);
           if (n < 3 || n > 16384) usage("--sizes must lie in [3, 16384]");
           sizes.push_back(n);

@@ -56,7 +56,7 @@ using qdo::bench::Clock;
 using qdo::bench::cpu_model;
 using qdo::bench::fmt;
 using qdo::bench::seconds_since;
-using qdo::bench::split;
+using qdo::split_items;
 using qdo::bench::Timing;
 
 struct Options {
@@ -82,7 +82,7 @@ struct Options {
 std::vector<std::size_t> sizes(const std::string& v) {
   std::vector<std::size_t> out;
   if (v == "none") return out;
-  for (const auto& s : split(v, ',')) {
+  for (const auto& s : split_items(v, ',')) {
     const unsigned long n = std::stoul(s);
     if (n < 2) usage("sizes must be >= 2");
     out.push_back(static_cast<std::size_t>(n));
@@ -115,11 +115,11 @@ Options parse(int argc, char** argv) {
         if (o.warmup < 0) usage("--warmup must be >= 0");
       } else if (a == "--precision") {
         o.precisions.clear();
-        for (const auto& s : split(value(), ',')) o.precisions.push_back(qdo::precision_from_string(s));
+        for (const auto& s : split_items(value(), ',')) o.precisions.push_back(qdo::precision_from_string(s));
         if (o.precisions.empty()) usage("--precision needs at least one of f32, f64");
       } else if (a == "--backends") {
         o.backends.clear();
-        for (const auto& s : split(value(), ',')) o.backends.push_back(qdo::fft_backend_from_string(s, "--backends"));
+        for (const auto& s : split_items(value(), ',')) o.backends.push_back(qdo::fft_backend_from_string(s, "--backends"));
         if (o.backends.empty()) usage("--backends needs at least one of clfft, vkfft, fftw");
       } else if (a == "--no-zero-pad") {
         o.zero_pad = false;

@@ -39,7 +39,7 @@
 namespace {
 
 using qdo::bench::fmt;
-using qdo::bench::split;
+using qdo::split_items;
 using qdo::bench::time_it;
 using qdo::bench::Timing;
 
@@ -59,10 +59,10 @@ Options parse(int argc, char** argv) {
       if (i + 1 >= argc) qdo::reject(a, "(missing)", "a value");
       return argv[++i];
     };
-    if (a == "--presets") o.presets = split(value());
+    if (a == "--presets") o.presets = split_items(value());
     else if (a == "--points") {
       o.points.clear();
-      for (const auto& s : split(value())) o.points.push_back(std::size_t(std::stoul(s)));
+      for (const auto& s : split_items(value())) o.points.push_back(std::size_t(std::stoul(s)));
     } else if (a == "--repeats") o.repeats = std::stoi(value());
     else if (a == "--warmup") o.warmup = std::stoi(value());
     else if (a == "--precision") o.precision = qdo::precision_from_string(value());

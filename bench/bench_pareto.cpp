@@ -58,7 +58,7 @@ namespace {
 
 using qdo::bench::Clock;
 using qdo::bench::seconds_since;
-using qdo::bench::split;
+using qdo::split_items;
 
 struct Options {
   std::size_t n = 1024;
@@ -572,7 +572,7 @@ int main(int argc, char** argv) {
     if (a == "--n") o.n = std::stoul(val());
     else if (a == "--repeats") o.repeats = std::stoi(val());
     else if (a == "--sections") {
-      const auto v = split(val());
+      const auto v = split_items(val());
       o.sections = std::set<std::string>(v.begin(), v.end());
     } else if (a == "--cave") o.cave = val();
     else if (a == "--no-cpu") o.cpu = false;

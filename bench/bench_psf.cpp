@@ -57,7 +57,7 @@ using qdo::bench::Clock;
 using qdo::bench::cpu_model;
 using qdo::bench::fmt;
 using qdo::bench::seconds_since;
-using qdo::bench::split;
+using qdo::split_items;
 using qdo::bench::summarize;
 using qdo::bench::time_it;
 using qdo::bench::Timing;
@@ -88,7 +88,7 @@ Options parse(int argc, char** argv) {
     try {
       if (a == "--sizes") {
         o.sizes.clear();
-        for (const auto& s : split(value(), ',')) o.sizes.push_back(static_cast<std::size_t>(std::stoul(s)));
+        for (const auto& s : split_items(value(), ',')) o.sizes.push_back(static_cast<std::size_t>(std::stoul(s)));
         if (o.sizes.empty()) usage("--sizes needs at least one size");
       } else if (a == "--repeats") {
         o.repeats = std::stoi(value());
@@ -98,7 +98,7 @@ Options parse(int argc, char** argv) {
         if (o.warmup < 0) usage("--warmup must be >= 0");
       } else if (a == "--precision") {
         o.precisions.clear();
-        for (const auto& s : split(value(), ',')) o.precisions.push_back(qdo::precision_from_string(s));
+        for (const auto& s : split_items(value(), ',')) o.precisions.push_back(qdo::precision_from_string(s));
         if (o.precisions.empty()) usage("--precision needs at least one of f32, f64");
       } else if (a == "--no-cpu") {
         o.cpu = false;

@@ -37,7 +37,7 @@ std::vector<double> timed(int repeats, F&& f) {
   return qdo::bench::sorted_seconds(1, repeats, std::forward<F>(f));
 }
 
-using qdo::bench::split;
+using qdo::split_items;
 
 }  // namespace
 
@@ -48,7 +48,7 @@ int main(int argc, char** argv) {
   std::string out;
   for (int i = 1; i < argc; i += 2) {  // --help, or a flag without its value, prints the usage (exit 2)
     const std::string k = i + 1 < argc ? argv[i] : "--help", v = i + 1 < argc ? argv[i + 1] : "";
-    if (k == "--presets") presets = split(v);
+    if (k == "--presets") presets = split_items(v);
     else if (k == "--repeats") repeats = std::stoi(v);
     else if (k == "--cpu-repeats") cpu_repeats = std::stoi(v);
     else if (k == "--precision") prec = precision_from_string(v);

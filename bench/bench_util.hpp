@@ -12,12 +12,13 @@
 #include <utility>
 #include <vector>
 
+#include "qdo/util.hpp"
+
 namespace qdo::bench {
 
 using Clock = std::chrono::steady_clock;
 
-// Seconds elapsed on the steady clock since t0.
-inline double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+using qdo::seconds_since;  // qdo/util.hpp: seconds elapsed on the steady clock since t0
 
 // Runs f() `warmup` times unmeasured, then `repeats` times measured; the wall times in seconds, sorted ascending.
 template <typename F>
@@ -65,14 +66,7 @@ Timing time_it(int warmup, int repeats, F&& f) {
   return summarize(sorted_seconds(warmup, repeats, std::forward<F>(f)));
 }
 
-// The items of s between the separators `sep`, in order; empty items are dropped ("a,,b," -> {"a", "b"}).
-inline std::vector<std::string> split(const std::string& s, char sep = ',') {
-  std::vector<std::string> parts;
-  std::stringstream ss(s);
-  for (std::string item; std::getline(ss, item, sep);)
-    if (!item.empty()) parts.push_back(item);
-  return parts;
-}
+using qdo::split_items;  // qdo/util.hpp: the items between the separators, empty ones dropped
 
 // v formatted by the printf format f (one double conversion, e.g. "%.3f"); at most 63 characters.
 inline std::string fmt(const char* f, double v) {

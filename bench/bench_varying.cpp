@@ -45,7 +45,7 @@
 namespace {
 
 using qdo::bench::fmt;
-using qdo::bench::split;
+using qdo::split_items;
 using qdo::bench::time_it;
 using qdo::bench::Timing;
 
@@ -69,10 +69,10 @@ Options parse(int argc, char** argv) {
     };
     if (a == "--sizes") {
       o.sizes.clear();
-      for (const auto& s : split(value())) o.sizes.push_back(std::size_t(std::stoul(s)));
+      for (const auto& s : split_items(value())) o.sizes.push_back(std::size_t(std::stoul(s)));
     } else if (a == "--grid") o.grid = std::size_t(std::stoul(value()));
     else if (a == "--ranks") {
-      for (const auto& s : split(value())) o.ranks.push_back(std::size_t(std::stoul(s)));
+      for (const auto& s : split_items(value())) o.ranks.push_back(std::size_t(std::stoul(s)));
     } else if (a == "--layers") o.layers = std::size_t(std::stoul(value()));
     else if (a == "--field") o.field = std::stod(value());
     else if (a == "--repeats") o.repeats = std::stoi(value());

@@ -96,6 +96,7 @@ sweep design
 sweep_stats design
 testset decode
 types runtime
+util runtime
 varying physics
 varying_reference physics
 wiener decode

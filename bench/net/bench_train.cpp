@@ -38,7 +38,7 @@ double median_time(int repeats, F&& f) {
 }
 
 using qdo::bench::peak_rss_kib;
-using qdo::bench::split;
+using qdo::split_items;
 
 torch::Tensor batch_tensor(const std::vector<RealStack>& xs) {  // each planes x H x W -> B x planes x H x W (float)
   std::vector<torch::Tensor> ts;
@@ -59,7 +59,7 @@ int main(int argc, char** argv) {
   Precision prec = Precision::F32;
   for (int i = 1; i < argc; i += 2) {  // --help, or a flag without its value, prints the usage (exit 2)
     const std::string k = i + 1 < argc ? argv[i] : "--help", v = i + 1 < argc ? argv[i + 1] : "";
-    if (k == "--presets") presets = split(v);
+    if (k == "--presets") presets = split_items(v);
     else if (k == "--decoder") decoder = v;
     else if (k == "--batch") batch = std::size_t(std::stoul(v));
     else if (k == "--repeats") repeats = std::stoi(v);

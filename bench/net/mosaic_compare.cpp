@@ -145,7 +145,7 @@ int main(int argc, char** argv) {
       else if (a == "--out") o.out = value();
       else if (a == "--seeds") {
         o.seeds.clear();
-        for (const auto& s : bench::split(value())) o.seeds.push_back(std::stoull(s));
+        for (const auto& s : qdo::split_items(value())) o.seeds.push_back(std::stoull(s));
         if (o.seeds.empty()) usage("--seeds needs at least one seed");
       } else if (a == "--cfa") {
         const std::string v = value();
@@ -173,7 +173,7 @@ int main(int argc, char** argv) {
         o.net_lr = std::stod(value());
         if (!(o.net_lr > 0)) usage("--net-lr must be > 0");
       } else if (a == "--net-inputs") {
-        o.net_inputs = bench::split(value());
+        o.net_inputs = qdo::split_items(value());
         for (const auto& k : o.net_inputs)
           if (k != "none" && k != "mhc" && k != "bilinear" && k != "zeros") usage("--net-inputs: none, bilinear, mhc, zeros");
       } else if (a == "--help" || a == "-h") usage("");

@@ -116,6 +116,11 @@ inline void centred_extent(std::size_t n, double pitch, double& lo, double& hi) 
 // log colour scale of 4 decades, each panel divided by its own maximum, axes in µm from the centre.
 void write_psf_figure(const std::string& png_path, const std::string& title, const RealStack& stack,
                       const std::vector<double>& wavelengths_nm, double pitch_m, std::size_t crop = 0);
+// The same with a title per panel (panel_titles: one per plane, e.g. an object point); the axes are
+// "x (µm)" and "y (µm)", or "x from ORIGIN (µm)" when `origin` names where 0 lies.
+void write_psf_panels(const std::string& png_path, const std::string& title, const RealStack& stack,
+                      const std::vector<std::string>& panel_titles, double pitch_m, std::size_t crop = 0,
+                      const std::string& origin = "");
 // A height map (rows x cols, metres, at pitch_m): colours in nm, axes in mm from the centre.
 // value_label names the colour bar ("height (nm)", "height error (nm)", ...).
 void write_height_figure(const std::string& png_path, const std::string& title, const Map2D& height_m, double pitch_m,

@@ -13,6 +13,7 @@
 #include "qdo/doe.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/types.hpp"
+#include "qdo/util.hpp"
 
 namespace qdo::cli {
 
@@ -102,7 +103,6 @@ double parse_double(const std::string& name, const std::string& v);
 // InputError naming the option, the value, the unit and the range otherwise.
 double parse_double(const std::string& name, const std::string& v, double lo, double hi, const std::string& unit,
                     bool lo_open = false);
-std::vector<std::string> split_list(const std::string& s);  // comma-separated
 // The scene sources of option `name` (comma-separated): dataset names resolved under the data root
 // (data_root.hpp), paths checked to exist; an InputError naming --name otherwise. Empty when the
 // option is not given and has no default.
@@ -123,7 +123,6 @@ std::string out_dir(const Args& a, const std::string& def = "");
 void claim_out(const Args& a, const std::string& dir);
 // "sensor: 0.12 % of values clipped at full scale (max 1.3 before clipping)" or "... none clipped".
 std::string clip_summary(const SensorClip& c);
-double seconds_since(std::chrono::steady_clock::time_point t0);
 // The options of `qdo design` (also used by gradcheck and sweep); --mode and --out as given.
 // The defaults written in the shared helpers (here, load_config, load_quantizer, scene_from_args)
 // apply only to options a command's table entry does not declare (e.g. --levels in qdo sweep);

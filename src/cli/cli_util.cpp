@@ -146,9 +146,6 @@ std::string clip_summary(const SensorClip& c) {
   return buf;
 }
 
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 
 double parse_double(const std::string& name, const std::string& v) {
   char* end = nullptr;
@@ -166,17 +163,9 @@ double parse_double(const std::string& name, const std::string& v, double lo, do
   return x;
 }
 
-std::vector<std::string> split_list(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ','))
-    if (!item.empty()) out.push_back(item);
-  return out;
-}
 
 std::vector<std::string> scene_paths(const Args& a, const std::string& name) {
-  const std::vector<std::string> out = resolve_datasets(split_list(a.get(name)), "--" + name);
+  const std::vector<std::string> out = resolve_datasets(split_items(a.get(name)), "--" + name);
   for (const std::string& p : out)
     if (p.rfind("synthetic:", 0) != 0 && !fs::exists(p))
       reject("--" + name, p, "existing scene files or folders, or dataset names under the data root (qdo data lists them)");
@@ -206,12 +195,12 @@ void object_point_options(const Args& a, SystemConfig& c) {
                " points in --config): give the points one way");
   if (a.has("object-distances") || a.has("field-angles")) {
     std::vector<double> distances;
-    for (const std::string& v : split_list(a.get("object-distances"))) distances.push_back(object_distance(v));
+    for (const std::string& v : split_items(a.get("object-distances"))) distances.push_back(object_distance(v));
     if (a.has("object-distances") && distances.empty())
       reject("--object-distances", a.get("object-distances"), "one or more distances in metres or inf, comma-separated");
     if (distances.empty()) distances.push_back(c.points()[0].distance_m);
     std::vector<std::pair<double, double>> angles;
-    for (const std::string& v : split_list(a.get("field-angles"))) {
+    for (const std::string& v : split_items(a.get("field-angles"))) {
       const auto colon = v.find(':');
       const double x = parse_double("--field-angles", colon == std::string::npos ? v : v.substr(0, colon), -89, 89, "deg");
       const double y = colon == std::string::npos ? 0.0 : parse_double("--field-angles", v.substr(colon + 1), -89, 89, "deg");
@@ -223,11 +212,11 @@ void object_point_options(const Args& a, SystemConfig& c) {
     for (std::size_t i = 0; i < distances.size(); ++i)
       for (std::size_t j = 0; j < i; ++j)
         if (distances[i] == distances[j])
-          reject("--object-distances", a.get("object-distances"), "distinct distances (" + split_list(a.get("object-distances"))[i] + " is given twice)");
+          reject("--object-distances", a.get("object-distances"), "distinct distances (" + split_items(a.get("object-distances"))[i] + " is given twice)");
     for (std::size_t i = 0; i < angles.size(); ++i)
       for (std::size_t j = 0; j < i; ++j)
         if (angles[i] == angles[j])
-          reject("--field-angles", a.get("field-angles"), "distinct angles (" + split_list(a.get("field-angles"))[i] + " is given twice)");
+          reject("--field-angles", a.get("field-angles"), "distinct angles (" + split_items(a.get("field-angles"))[i] + " is given twice)");
     if (angles.empty()) angles.push_back({0.0, 0.0});
     // Each off-axis angle within the sampling at each distance, named with the limit there.
     for (const auto& ang : angles) {

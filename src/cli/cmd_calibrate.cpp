@@ -27,7 +27,7 @@ int cmd_calibrate(const Args& a) {
   if (bg != "ring" && bg != "none") reject("--background", bg, "ring (the median of the crop's outer 2-pixel ring) or none");
   opt.ring_background = bg == "ring";
   if (a.has("centre")) {
-    const auto v = split_list(a.get("centre"));
+    const auto v = split_items(a.get("centre"));
     if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
     opt.has_centre = true;
     opt.centre_row = parse_int("--centre", v[0], 0, 1 << 20);

@@ -22,7 +22,7 @@ int cmd_eval_points(const Args& a) {
   o.design_file = a.get("design");
   if (a.has("distances")) {
     o.distances_m.clear();
-    for (const std::string& v : split_list(a.get("distances"))) {
+    for (const std::string& v : split_items(a.get("distances"))) {
       if (v == "inf") {
         o.distances_m.push_back(std::numeric_limits<double>::infinity());
         continue;
@@ -34,7 +34,7 @@ int cmd_eval_points(const Args& a) {
     if (o.distances_m.empty()) reject("--distances", a.get("distances"), "a comma-separated list of distances in metres (or inf)");
   }
   if (a.has("angles")) {
-    for (const std::string& v : split_list(a.get("angles"))) {
+    for (const std::string& v : split_items(a.get("angles"))) {
       const double t = parse_double("--angles", v);
       if (t < 0) reject("--angles", v + " degrees", "field angles >= 0 degrees (along x)");
       o.angles_deg.push_back(t);

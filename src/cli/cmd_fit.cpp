@@ -119,7 +119,7 @@ int cmd_fit(const Args& a) {
   FitOptions opt;
   if (a.has("fit") && a.get("fit").find_first_not_of(" ,") == std::string::npos)
     reject("--fit", a.get("fit"), "one or more of levels, masks, scale, z, d, offset, shift, aperture (omit --fit for the default set)");
-  opt.parameters = split_list(a.get("fit"));
+  opt.parameters = split_items(a.get("fit"));
   opt.max_iterations = parse_int("--iterations", a.get("iterations"), 1, 1000);
   opt.tolerance = parse_double("--tolerance", a.get("tolerance"), 0, 1, "", false);
   const Precision p = precision_from_string(a.get("precision"));
@@ -144,7 +144,7 @@ int cmd_fit(const Args& a) {
       else if (pname != "aperture")
         allowed.push_back(pname);
     }
-    for (const auto& item : split_list(a.get("start"))) {
+    for (const auto& item : split_items(a.get("start"))) {
       const auto eq = item.find('=');
       const std::string name = item.substr(0, eq);
       if (eq == std::string::npos || std::find(allowed.begin(), allowed.end(), name) == allowed.end()) {

@@ -29,7 +29,7 @@ int cmd_reconstruct(const Args& a) {
   if (a.has("psf") && a.has("design")) reject("--design", o.design_file, "either --psf or --design, not both (the camera as built is one of them)");
   o.capture.exposure = exposure_rule_from_string(a.get("exposure"), "--exposure");
   if (a.has("crop")) {
-    const auto v = split_list(a.get("crop"));
+    const auto v = split_items(a.get("crop"));
     if (v.size() != 4) reject("--crop", a.get("crop"), "ROW,COL,H,W (four integers)");
     o.capture.crop = true;
     o.capture.crop_row = std::size_t(parse_int("--crop", v[0], 0, 1 << 28));

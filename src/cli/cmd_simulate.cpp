@@ -124,7 +124,7 @@ int simulate_psf_sweep(const Args& a, const SystemConfig& cfg, Precision p) {
   const std::size_t n_darks = std::size_t(parse_int("--darks", a.get("darks"), 1, 1000));
   long cy = long(F / 2), cx = long(F / 2);
   if (a.has("centre")) {
-    const auto v = split_list(a.get("centre"));
+    const auto v = split_items(a.get("centre"));
     if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
     cy = parse_int("--centre", v[0], 0, int(F) - 1);
     cx = parse_int("--centre", v[1], 0, int(F) - 1);

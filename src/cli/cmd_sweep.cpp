@@ -47,7 +47,7 @@ int cmd_sweep_psf(const Args& a) {
   }
   const Placement pl = placement_from_string(a.get("placement"));
   std::set<int> seen_levels;
-  for (const auto& l : split_list(a.get("levels"))) {
+  for (const auto& l : split_items(a.get("levels"))) {
     PsfSweepVariant v;
     v.quantizer.levels = parse_int("--levels", l, 2, 65536);
     if (!seen_levels.insert(v.quantizer.levels).second)
@@ -106,7 +106,7 @@ int cmd_sweep(const Args& a) {
     if (axis != "levels" && axis != "mode" && axis != "encoder" && axis != "decoder" && axis != "seed")
       reject("--grid", axis, "levels, mode, encoder, decoder or seed");
     if (!axes.insert(axis).second) reject("--grid", spec, "each axis once (" + axis + " is given twice)");
-    std::vector<std::string> vals = split_list(spec.substr(eq + 1));
+    std::vector<std::string> vals = split_items(spec.substr(eq + 1));
     // A decoder spec holds commas of its own (resunet:depth=4,root=16): a key=value item after a
     // spec with parameters belongs to it.
     if (axis == "decoder") {

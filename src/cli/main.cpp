@@ -247,7 +247,7 @@ int cmd_eval(const Args& a) {
   e.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale)") : -1;
   e.renders = std::size_t(parse_int("--renders", a.get("renders"), 0, 1000));
   e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));
-  for (const auto& p : split_list(a.get("pixels"))) {
+  for (const auto& p : split_items(a.get("pixels"))) {
     const auto c = p.find(':');
     if (c == std::string::npos) reject("--pixels", p, "y:x pairs separated by commas");
     e.pixels.push_back({std::size_t(parse_int("--pixels", p.substr(0, c), 0, 1 << 20)),

@@ -20,7 +20,7 @@ namespace qdo::cli {
 // stack /psf_native in psf.h5, bands x N x N: the largest output, off by default).
 bool save_native(const Args& a) {
   bool native = false;
-  for (const auto& s : split_list(a.get("save"))) {
+  for (const auto& s : split_items(a.get("save"))) {
     if (s == "native") native = true;
     else reject("--save", s, "a comma-separated list of: native");
   }

@@ -128,7 +128,7 @@ std::vector<double> depth_layers(const Args& a, const Map2D& depth, std::string&
   std::vector<double> layers;
   if (a.has("depth-layers")) {
     const std::string s = a.get("depth-layers");
-    for (const std::string& v : split_list(s)) {
+    for (const std::string& v : split_items(s)) {
       if (v == "inf" || v == "+inf") {
         layers.push_back(kInf);
         continue;

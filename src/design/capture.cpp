@@ -33,7 +33,7 @@ ExposureRule exposure_rule_from_string(const std::string& s, const std::string& 
   const std::string allowed = "none, scale:K (K in (0, 1e6]) or percentile:P:L (P in (0, 100], L in (0, 1])";
   ExposureRule r;
   if (s == "none" || s.empty()) return r;
-  const auto f = split(s, ':');
+  const auto f = split_fields(s, ':');
   if (f.size() == 2 && f[0] == "scale") {
     r.kind = ExposureRule::Kind::Scale;
     r.scale = number_in(f[1], argument, s, 0, 1e6, true, allowed);

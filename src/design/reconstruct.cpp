@@ -166,8 +166,8 @@ std::vector<SpectrumRegion> parse_regions(const std::string& s, bool boxes, cons
   std::vector<SpectrumRegion> out;
   if (s.empty()) return out;
   const std::string allowed = boxes ? "ROW,COL,H,W boxes separated by ';' (integers, H, W >= 1)" : "ROW,COL points separated by ';' (integers >= 0)";
-  for (const std::string& item : split(s, ';')) {
-    const auto f = split(item, ',');
+  for (const std::string& item : split_fields(s, ';')) {
+    const auto f = split_fields(item, ',');
     if (f.size() != (boxes ? 4u : 2u)) reject(argument, item, allowed);
     std::vector<std::size_t> v;
     for (const std::string& x : f) {
