@@ -189,7 +189,8 @@ void write_grid_tables(const fs::path& out, const std::vector<GridCell>& cells, 
     std::vector<double> v;
     for (const GridCell* c : it->second) v.push_back(c->mean.psnr);
     const MeanInterval mi = mean_interval(v);
-    auto s = std::find_if(lp.series.begin(), lp.series.end(), [&](const PlotSeries& p) { return p.label == m; });
+    const std::string mode = m;  // a structured binding cannot be captured (C++17)
+    auto s = std::find_if(lp.series.begin(), lp.series.end(), [&](const PlotSeries& p) { return p.label == mode; });
     if (s == lp.series.end()) {
       lp.series.push_back(PlotSeries{m, {}, {}, {}, {}, false});
       s = lp.series.end() - 1;
