@@ -312,6 +312,56 @@ TEST_SUITE("reconstruct") {
     fs::remove_all(dir);
   }
 
+  TEST_CASE("qdo reconstruct --sensor: raw captures for a run trained on RGB, as its config.json edited by hand; non-sensor keys refused") {
+    const SharedRun& s = shared_run();  // a Wiener run of tiny(): RGB captures (cfa none)
+    const auto dir = temp_dir("recon_sensor");
+    const std::size_t H = 24, W = 28;
+    const RealStack rgb = camera_image(s.dir, smooth_scene(tiny().bands, H, W, 5));
+    Map2D dn(H, W);
+    for (std::size_t y = 0; y < H; ++y)
+      for (std::size_t x = 0; x < W; ++x)
+        dn.data[y * W + x] = std::round(64 + std::clamp(rgb(std::size_t(cfa_channel(Cfa::RGGB, y, x)), y, x), 0.0, 1.0) * (4095 - 64));
+    write_png16_gray((dir / "raw.png").string(), dn);
+    std::ofstream(dir / "sensor.json") << R"({"cfa": "rggb", "bit_depth": 12, "black_level_dn": 64})";
+    // Without it the run's sensor (RGB) refuses the mosaic, naming cfa.
+    const Run plain = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "raw.png").string() + " --out " +
+                              (dir / "plain").string());
+    CHECK(plain.code == 2);
+    CHECK_MESSAGE(plain.out.find("cfa") != std::string::npos, plain.out);
+    const Run ok = qdo_run("reconstruct --run " + s.dir.string() + " --sensor " + (dir / "sensor.json").string() + " --capture " +
+                           (dir / "raw.png").string() + " --out " + (dir / "with").string());
+    CAPTURE(ok.out);
+    REQUIRE(ok.code == 0);
+    const json j = read_json(dir / "with" / "reconstruct.json");
+    CHECK(j.at("sensor").at("values").at("cfa") == "rggb");
+    CHECK(j.at("sensor").at("values").at("bit_depth") == 12);
+    // The same as a copy of the run whose config.json says so (what a user had to do by hand).
+    const fs::path edited = dir / "edited_run";
+    fs::copy(s.dir, edited, fs::copy_options::recursive);
+    json cfg = read_json(edited / "config.json");
+    json& sys = cfg.at("system");
+    sys["cfa"] = "rggb";
+    sys["bit_depth"] = 12;
+    sys["black_level_dn"] = 64;
+    std::ofstream(edited / "config.json") << cfg.dump(2);
+    const Run hand = qdo_run("reconstruct --run " + edited.string() + " --capture " + (dir / "raw.png").string() + " --out " +
+                             (dir / "hand").string());
+    REQUIRE_MESSAGE(hand.code == 0, hand.out);
+    CHECK(read_cube_h5(dir / "with" / "cube.h5").data == read_cube_h5(dir / "hand" / "cube.h5").data);
+    // Keys of the optics, and values the configuration refuses, are refused naming them.
+    std::ofstream(dir / "optics.json") << R"({"cfa": "rggb", "pitch_m": 4e-6})";
+    const Run optics = qdo_run("reconstruct --run " + s.dir.string() + " --sensor " + (dir / "optics.json").string() + " --capture " +
+                               (dir / "raw.png").string() + " --out " + (dir / "optics").string());
+    CHECK(optics.code == 2);
+    CHECK_MESSAGE(optics.out.find("'pitch_m' is not a sensor key") != std::string::npos, optics.out);
+    std::ofstream(dir / "bad.json") << R"({"cfa": "rgbg"})";
+    const Run bad = qdo_run("reconstruct --run " + s.dir.string() + " --sensor " + (dir / "bad.json").string() + " --capture " +
+                            (dir / "raw.png").string() + " --out " + (dir / "bad").string());
+    CHECK(bad.code == 2);
+    CHECK_MESSAGE(bad.out.find("rgbg") != std::string::npos, bad.out);
+    fs::remove_all(dir);
+  }
+
   TEST_CASE("qdo reconstruct refuses bad input before any work, naming the file or argument (exit 2)") {
     const SharedRun& s = shared_run();
     REQUIRE(s.result.code == 0);

@@ -160,8 +160,18 @@ RealStack render_srgb(const RealStack& cube, const std::vector<double>& waveleng
 // InputError "argument '<argument>' = PATH: ..." otherwise. Checked without a device.
 Map2D read_design_heights_for(const SystemConfig& cfg, const std::string& path, const std::string& argument);
 
+// The sensor as built, over the run's configuration: a JSON object of sensor keys only (cfa,
+// black_level_dn, bit_depth, gain, read_noise_sigma, full_well_photons, noise_seed, camera,
+// srf_interpolate) replacing the run's values, checked as a configuration. Any other key (the
+// optics are the run's) is refused naming it; with a trained decoder (a network) the camera
+// response cannot change (its network saw the run's), so camera and srf_interpolate are refused.
+// `overridden` (optional) gets the keys given, in the file's order.
+SystemConfig with_sensor(const SystemConfig& run_cfg, const std::string& sensor_file, bool trained_decoder,
+                         std::vector<std::string>* overridden = nullptr);
+
 struct ReconstructOptions {
   std::string run;          // the run folder: its configuration, prior and decoder
+  std::string sensor_file;  // the sensor as built (with_sensor); empty: the run's sensor
   std::string psf_file;     // a measured PSF stack (qdo calibrate's psf.h5); or
   std::string design_file;  // a fitted as-built design .h5 (simulated); neither: the run's design
   CaptureOptions capture;

@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli.hpp"
+#include "qdo/decoder_registry.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -19,6 +20,7 @@ int cmd_reconstruct(const Args& a) {
   ReconstructOptions o;
   if (!a.has("run")) reject("--run", "(missing)", "the run folder whose decoder reconstructs");
   o.run = a.get("run");
+  o.sensor_file = a.get("sensor");
   const auto it = a.multi.find("capture");
   if (it != a.multi.end()) o.capture.captures = it->second;
   else if (a.has("capture")) o.capture.captures = {a.get("capture")};
@@ -54,7 +56,8 @@ int cmd_reconstruct(const Args& a) {
   RealStack truth;
   std::size_t border = 0;
   if (a.has("truth")) {
-    const SystemConfig cfg = read_run_config(o.run, "--run", "a run folder written by qdo design").cfg;
+    const DesignRunOptions ro = read_run_config(o.run, "--run", "a run folder written by qdo design");
+    const SystemConfig cfg = o.sensor_file.empty() ? ro.cfg : with_sensor(ro.cfg, o.sensor_file, decoder_entry(ro.decoder.kind_name()).trained);
     truth = scene_from_path(cfg, a.get("truth"), a.get("truth-key"), false, "--truth-key");
     const CaptureFiles f = read_captures(cfg, o.capture);
     if (truth.rows != f.mean_dn.rows || truth.cols != f.mean_dn.cols)

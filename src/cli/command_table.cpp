@@ -388,6 +388,9 @@ std::vector<CommandSpec> make_table() {
                  "", false, true},
                 opt("darks", "folder of dark frames (16-bit PNG or TIFF, the captures' size and kind; the mean is subtracted) (default: the "
                              "configuration's black_level_dn)"),
+                opt("sensor", "the sensor as built: a JSON file of sensor keys (cfa, black_level_dn, bit_depth, gain, read_noise_sigma, "
+                              "full_well_photons, noise_seed, camera, srf_interpolate) over the run's configuration, e.g. raw "
+                              "captures for a run trained on RGB (default: the run's sensor)"),
                 opt("psf", "the camera as built: a measured PSF stack (qdo calibrate's psf.h5), for the run's bands and sensor grid "
                            "(checked) (default: the run's design simulated, or the PSF a do-finetune run was fine-tuned for)"),
                 opt("design", "the camera as built: a fitted design .h5 (N x N at the run's pitch), simulated; not with --psf"),

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <sstream>
 
@@ -249,6 +250,38 @@ Map2D read_design_heights_for(const SystemConfig& cfg, const std::string& path, 
   return d.height_m;
 }
 
+SystemConfig with_sensor(const SystemConfig& run_cfg, const std::string& sensor_file, bool trained_decoder,
+                         std::vector<std::string>* overridden) {
+  static const std::vector<std::string> keys = {"cfa", "black_level_dn", "bit_depth", "gain", "read_noise_sigma", "full_well_photons",
+                                                "noise_seed", "camera", "srf_interpolate"};
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(sensor_file, ec)) reject("--sensor", sensor_file, "an existing JSON file of sensor keys");
+  nlohmann::json given;
+  try {
+    std::ifstream in(sensor_file);
+    given = nlohmann::json::parse(in);
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError("--sensor '" + sensor_file + "': not valid JSON (" + e.what() + ")");
+  }
+  if (!given.is_object() || given.empty())
+    throw InputError("--sensor '" + sensor_file + "': a JSON object of sensor keys, e.g. {\"cfa\": \"rggb\", \"bit_depth\": 12}");
+  nlohmann::json merged = nlohmann::json::parse(config_to_json_text(run_cfg));
+  for (const auto& [k, v] : given.items()) {
+    if (std::find(keys.begin(), keys.end(), k) == keys.end()) {
+      std::string allowed;
+      for (const std::string& a : keys) allowed += (allowed.empty() ? "" : ", ") + a;
+      throw InputError("--sensor '" + sensor_file + "': key '" + k + "' is not a sensor key (allowed: " + allowed +
+                       "; the optics are the run's)");
+    }
+    if (trained_decoder && (k == "camera" || k == "srf_interpolate"))
+      throw InputError("--sensor '" + sensor_file + "': key '" + k + "' changes the camera response, which this run's network was trained "
+                       "with; fine-tune a run for that camera instead");
+    merged[k] = v;
+    if (overridden) overridden->push_back(k);
+  }
+  return config_from_json_text(merged.dump(), "--sensor '" + sensor_file + "' over the run's configuration");
+}
+
 // ---------------------------------------------------------------------------------------------
 // The command.
 
@@ -259,9 +292,10 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
     reject("--design", o.design_file, "either --psf or --design, not both (the camera as built is one of them)");
   const RunFolder folder(o.run);
   const DesignRunOptions ro = folder.config("--run");
-  const SystemConfig& cfg = ro.cfg;
-  const std::size_t s = cfg.sensor_size_px();
   const DecoderEntry entry = decoder_entry(ro.decoder.kind_name());
+  std::vector<std::string> sensor_keys;
+  const SystemConfig cfg = o.sensor_file.empty() ? ro.cfg : with_sensor(ro.cfg, o.sensor_file, entry.trained, &sensor_keys);
+  const std::size_t s = cfg.sensor_size_px();
   // A network is trained for one PSF and cannot be refit: only that one is accepted.
   if (entry.trained) {
     const bool own = o.psf_file == ro.finetune_psf && o.design_file == ro.finetune_design;
@@ -423,6 +457,12 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   j["exposure_factor"] = cap.exposure_factor;
   j["crop"] = crop;
   j["demosaic"] = cfg.cfa == Cfa::None ? std::string("none (RGB captures)") : o.capture.demosaic;
+  if (!o.sensor_file.empty()) {
+    nlohmann::json sensor = {{"file", o.sensor_file}};
+    const nlohmann::json full = nlohmann::json::parse(config_to_json_text(cfg));
+    for (const std::string& k : sensor_keys) sensor["values"][k] = full.at(k);
+    j["sensor"] = sensor;
+  }
   j["image_rows_cols"] = {res.cube.rows, res.cube.cols};
   j["tiles"] = res.tiles;
   j["tile_px"] = s;
