@@ -312,6 +312,61 @@ TEST_SUITE("reconstruct") {
     fs::remove_all(dir);
   }
 
+  TEST_CASE("qdo reconstruct --white: colour gains and pixel response divided out by the flat field; a dead white pixel refused") {
+    const SharedRun& s = shared_run();
+    const auto dir = temp_dir("recon_white");
+    const std::size_t S = tiny().sensor_size_px(), H = S + 6, W = S + 10;
+    const RealStack rgb = camera_image(s.dir, smooth_scene(3, H, W, 17));
+    // The sensor's gains: R 1.25, G 1, B 0.8 and a 5 % pixel response pattern, scaled to mean 1.
+    RealStack gain(3, H, W);
+    const double channel[3] = {1.25, 1.0, 0.8};
+    for (std::size_t c = 0; c < 3; ++c)
+      for (std::size_t y = 0; y < H; ++y)
+        for (std::size_t x = 0; x < W; ++x) gain(c, y, x) = channel[c] * (1 + 0.05 * std::sin(0.7 * double(y) + 1.3 * double(x) + double(c)));
+    double mean = 0;
+    for (double g : gain.data) mean += g / double(gain.data.size());
+    for (double& g : gain.data) g /= mean;
+    RealStack ideal(3, H, W), seen(3, H, W), white(3, H, W);
+    for (std::size_t i = 0; i < rgb.data.size(); ++i) {
+      const double v = 0.6 * std::clamp(rgb.data[i], 0.0, 1.0) * 65535.0;
+      ideal.data[i] = std::round(v);
+      seen.data[i] = std::round(v * gain.data[i]);
+      white.data[i] = std::round(0.5 * 65535.0 * gain.data[i]);
+    }
+    write_png16_rgb((dir / "ideal.png").string(), ideal);
+    write_png16_rgb((dir / "seen.png").string(), seen);
+    fs::create_directories(dir / "white");
+    write_png16_rgb((dir / "white" / "w0.png").string(), white);
+    auto recon = [&](const std::string& cap, const std::string& extra, const std::string& out) {
+      const Run r = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / cap).string() + extra + " --out " +
+                            (dir / out).string());
+      CAPTURE(r.out);
+      REQUIRE(r.code == 0);
+      return read_cube_h5(dir / out / "cube.h5");
+    };
+    const RealStack want = recon("ideal.png", "", "ideal");
+    const RealStack raw = recon("seen.png", "", "seen");
+    const RealStack flat = recon("seen.png", " --white " + (dir / "white").string(), "flat");
+    const double err_flat = max_abs_diff(flat, want), err_raw = max_abs_diff(raw, want);
+    CAPTURE(err_flat);
+    CAPTURE(err_raw);
+    CHECK(err_flat < 2e-3);           // DN rounding of the three files only
+    CHECK(err_raw > 20 * err_flat);   // the gains, left in, are visible
+    const json j = read_json(dir / "flat" / "reconstruct.json");
+    const auto g = j.at("white").at("channel_gains_rgb");
+    CHECK(g.at(0).get<double>() / g.at(1).get<double>() == doctest::Approx(1.25).epsilon(2e-3));
+    CHECK(g.at(2).get<double>() / g.at(1).get<double>() == doctest::Approx(0.8).epsilon(2e-3));
+    // A dead pixel in the white frame: refused, naming it.
+    white(1, 3, 4) = 0;
+    fs::create_directories(dir / "dead");
+    write_png16_rgb((dir / "dead" / "w0.png").string(), white);
+    const Run dead = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "seen.png").string() + " --white " +
+                             (dir / "dead").string() + " --out " + (dir / "dead_out").string());
+    CHECK(dead.code == 2);
+    CHECK_MESSAGE(dead.out.find("row 3, column 4") != std::string::npos, dead.out);
+    fs::remove_all(dir);
+  }
+
   TEST_CASE("qdo reconstruct --sensor: raw captures for a run trained on RGB, as its config.json edited by hand; non-sensor keys refused") {
     const SharedRun& s = shared_run();  // a Wiener run of tiny(): RGB captures (cfa none)
     const auto dir = temp_dir("recon_sensor");

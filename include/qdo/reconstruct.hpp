@@ -52,6 +52,12 @@ ExposureRule exposure_rule_from_string(const std::string& s, const std::string& 
 struct CaptureOptions {
   std::vector<std::string> captures;  // 16-bit PNG or TIFF files of one scene (averaged)
   std::string darks_dir;              // folder of dark frames (*.png); empty: the black level
+  // Folder of white (flat-field) frames: a uniformly lit, spectrally flat white target filling the
+  // view, the captures' size and kind, averaged, dark subtracted as the captures. Every capture
+  // pixel is divided by its white signal over the white's mean: the colour channels' gains and
+  // the pixels' response non-uniformity measured instead of taken from the response table.
+  // Empty: none.
+  std::string white_dir;
   ExposureRule exposure;
   bool crop = false;                  // crop_* below: rows and columns of the frame, 0-based
   std::size_t crop_row = 0, crop_col = 0, crop_rows = 0, crop_cols = 0;
@@ -65,6 +71,9 @@ struct CaptureFiles {
   std::vector<std::string> darks;    // the dark frames read
   std::size_t saturated = 0;         // capture values at the white level (kept; counted)
   double white_dn = 0;               // the white level used
+  std::vector<std::string> whites;   // the white (flat-field) frames read
+  RealStack flat;                    // planes x H x W: white signal / its mean (1 = nominal); empty: none
+  std::vector<double> channel_gains; // with whites: each colour channel's white mean / the white's mean (R, G, B)
   std::vector<std::string> notes;    // what the user should know (clipped values), printed and in reconstruct.json
 };
 // Every capture and dark read and checked: sizes, the white level, overexposed or empty captures

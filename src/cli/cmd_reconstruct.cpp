@@ -26,6 +26,7 @@ int cmd_reconstruct(const Args& a) {
   else if (a.has("capture")) o.capture.captures = {a.get("capture")};
   if (o.capture.captures.empty()) reject("--capture", "(missing)", "one or more 16-bit PNG captures of the scene");
   o.capture.darks_dir = a.get("darks");
+  o.capture.white_dir = a.get("white");
   o.psf_file = a.get("psf");
   o.design_file = a.get("design");
   if (a.has("psf") && a.has("design")) reject("--design", o.design_file, "either --psf or --design, not both (the camera as built is one of them)");

@@ -388,6 +388,10 @@ std::vector<CommandSpec> make_table() {
                  "", false, true},
                 opt("darks", "folder of dark frames (16-bit PNG or TIFF, the captures' size and kind; the mean is subtracted) (default: the "
                              "configuration's black_level_dn)"),
+                opt("white", "folder of white (flat-field) frames: a uniformly lit, spectrally flat white target filling the view, "
+                             "the captures' size and kind (averaged, dark subtracted); each capture pixel is divided by its white "
+                             "signal over the white's mean (colour gains and pixel response measured; reconstruct.json records the "
+                             "gains) (default: none)"),
                 opt("sensor", "the sensor as built: a JSON file of sensor keys (cfa, black_level_dn, bit_depth, gain, read_noise_sigma, "
                               "full_well_photons, noise_seed, camera, srf_interpolate) over the run's configuration, e.g. raw "
                               "captures for a run trained on RGB (default: the run's sensor)"),

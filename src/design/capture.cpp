@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <filesystem>
 #include <cmath>
 #include <string>
 #include <vector>
@@ -89,6 +90,55 @@ void check_capture_levels(const SystemConfig& cfg, const CaptureOptions& o, Capt
                       to_str(f.white_dn) + " DN: clipped, so the cube is wrong around them; a shorter exposure avoids it");
 }
 
+// The flat field from the white frames (CaptureOptions::white_dir): their mean signal over the
+// darks (or the black level), per pixel over the white's mean, and each colour channel's mean over
+// it. Refused, naming the folder: a white with saturated pixels (the field would be clipped), or a
+// pixel below 5 % of its channel's mean (a dead pixel or no light there: dividing by it would blow
+// up the noise).
+void flat_field(const SystemConfig& cfg, const std::vector<RealStack>& whites, CaptureFiles& f) {
+  const RealStack& first = whites.front();
+  RealStack w(first.planes, first.rows, first.cols, 0.0);
+  std::size_t saturated = 0;
+  for (const RealStack& x : whites)
+    for (std::size_t i = 0; i < x.data.size(); ++i) {
+      w.data[i] += x.data[i] / double(whites.size());
+      if (x.data[i] >= f.white_dn) ++saturated;
+    }
+  const std::string where = "--white '" + std::filesystem::path(f.whites.front()).parent_path().string() + "'";
+  if (saturated > 0)
+    throw InputError(where + ": " + to_str(saturated) + " white-frame values at the white level " + to_str(f.white_dn) +
+                     " DN: the flat field would be clipped; take the white frames with a shorter exposure");
+  for (std::size_t i = 0; i < w.data.size(); ++i) w.data[i] -= f.dark_dn.data.empty() ? cfg.black_level_dn : f.dark_dn.data[i];
+  // Colour channel of element i: the mosaic's site colour, or the RGB plane.
+  const std::size_t plane = w.plane_size();
+  auto channel = [&](std::size_t i) {
+    return cfg.cfa == Cfa::None ? i / plane : std::size_t(cfa_channel(cfg.cfa, (i % plane) / w.cols, (i % plane) % w.cols));
+  };
+  std::array<double, 3> sum{}, count{};
+  double total = 0;
+  for (std::size_t i = 0; i < w.data.size(); ++i) {
+    sum[channel(i)] += w.data[i];
+    count[channel(i)] += 1;
+    total += w.data[i];
+  }
+  const double mean = total / double(w.data.size());
+  if (!(mean > 0)) throw InputError(where + ": the white frames hold no signal above the " +
+                                    std::string(f.dark_dn.data.empty() ? "black level" : "darks"));
+  f.channel_gains.assign(3, 0.0);
+  for (std::size_t c = 0; c < 3; ++c) f.channel_gains[c] = count[c] > 0 ? sum[c] / count[c] / mean : 0.0;
+  for (std::size_t i = 0; i < w.data.size(); ++i) {
+    const double channel_mean = f.channel_gains[channel(i)] * mean;
+    if (!(w.data[i] > 0.05 * channel_mean))
+      throw InputError(where + ": the white signal at row " + to_str((i % plane) / w.cols) + ", column " + to_str((i % plane) % w.cols) +
+                       " is " + to_str(w.data[i]) + " DN, under 5 % of its channel's mean " + to_str(channel_mean) +
+                       " DN (a dead pixel, or the white target does not fill the view)");
+    w.data[i] /= mean;
+  }
+  f.flat = std::move(w);
+  f.notes.push_back("flat field from " + to_str(whites.size()) + " white frame(s): channel gains R " + to_str(f.channel_gains[0]) + ", G " +
+                    to_str(f.channel_gains[1]) + ", B " + to_str(f.channel_gains[2]) + " of the white's mean, divided out with each pixel's response");
+}
+
 }  // namespace
 
 CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
@@ -133,6 +183,12 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
     darks.push_back(read(path));
     check(darks.back(), path, &caps.front(), o.captures.front());
   }
+  if (!o.white_dir.empty()) f.whites = capture_files(o.white_dir, "--white");
+  std::vector<RealStack> whites;
+  for (const std::string& path : f.whites) {
+    whites.push_back(read(path));
+    check(whites.back(), path, &caps.front(), o.captures.front());
+  }
   f.mean_dn = RealStack(caps.front().planes, caps.front().rows, caps.front().cols, 0.0);
   for (const RealStack& c : caps)
     for (std::size_t i = 0; i < c.data.size(); ++i) {
@@ -145,6 +201,7 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
       for (std::size_t i = 0; i < d.data.size(); ++i) f.dark_dn.data[i] += d.data[i] / double(darks.size());
   }
   check_capture_levels(cfg, o, f);
+  if (!whites.empty()) flat_field(cfg, whites, f);
   // The mosaic's phase and colours, once, on the signal, before any work (prepare_capture and
   // reconstruct rely on it).
   if (cfg.cfa != Cfa::None) {
@@ -301,7 +358,8 @@ RealStack capture_signal(const SystemConfig& cfg, const CaptureFiles& f) {
   if (!(span > 0)) reject("gain", cfg.gain, "> 0 with a white level above the black level");
   RealStack v = f.mean_dn;
   for (std::size_t i = 0; i < v.data.size(); ++i)
-    v.data[i] = (v.data[i] - (f.dark_dn.data.empty() ? cfg.black_level_dn : f.dark_dn.data[i])) / span;
+    v.data[i] = (v.data[i] - (f.dark_dn.data.empty() ? cfg.black_level_dn : f.dark_dn.data[i])) / span /
+                (f.flat.data.empty() ? 1.0 : f.flat.data[i]);
   return v;
 }
 

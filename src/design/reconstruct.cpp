@@ -450,6 +450,7 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   j["psf"] = res.psf;
   j["captures"] = o.capture.captures;
   j["darks"] = files.darks;
+  if (!files.whites.empty()) j["white"] = {{"frames", files.whites}, {"channel_gains_rgb", files.channel_gains}};
   j["saturated_values"] = files.saturated;
   j["notes"] = files.notes;
   j["white_level_dn"] = files.white_dn;
