@@ -54,6 +54,7 @@ fab fab
 fft runtime
 fftw2 runtime
 field physics
+flat_field physics
 field_reference physics
 gds fab
 fit design

@@ -322,6 +322,61 @@ TEST_SUITE("calibrate") {
     }
   }
 
+  TEST_CASE("--white: frames seen through unequal colour gains and pixel responses calibrate as the plain ones once the flat field divides them") {
+    const Sweep& s = sweep();
+    const double black = s.cfg.black_level_dn, top = s.cfg.white_level_dn();
+    // The sensor's gains: R 1.2, G 1, B 0.85 and a 3 % pixel response pattern, mean 1.
+    const Map2D first = read_png16_gray((s.dir / "frames" / nm_name(550)).string());
+    const std::size_t R = first.rows, C = first.cols;
+    Map2D gain(R, C);
+    const double colour[3] = {1.2, 1.0, 0.85};
+    double mean = 0;
+    for (std::size_t y = 0; y < R; ++y)
+      for (std::size_t x = 0; x < C; ++x) {
+        gain(y, x) = colour[cfa_channel(Cfa::RGGB, y, x)] * (1 + 0.03 * std::sin(0.9 * double(y) + 1.7 * double(x)));
+        mean += gain(y, x) / double(R * C);
+      }
+    for (double& g : gain.data) g /= mean;
+    const fs::path gf = s.dir / "gained_frames", wf = s.dir / "whites";
+    fs::create_directories(gf);
+    fs::create_directories(wf);
+    for (const auto& e : fs::directory_iterator(s.dir / "frames")) {
+      Map2D m = read_png16_gray(e.path().string());
+      for (std::size_t i = 0; i < m.data.size(); ++i) m.data[i] = std::min(top - 1, std::round(black + (m.data[i] - black) * gain.data[i]));
+      write_png16_gray((gf / e.path().filename()).string(), m);
+    }
+    for (int k = 0; k < 2; ++k) {
+      Map2D w(R, C);
+      for (std::size_t i = 0; i < w.data.size(); ++i) w.data[i] = std::round(black + 1800 * gain.data[i]);
+      write_png16_gray((wf / ("white_" + std::to_string(k) + ".png")).string(), w);
+    }
+    const Run plain = calibrate(s.dir / "frames", "o_plain");
+    REQUIRE_MESSAGE(plain.code == 0, plain.out);
+    const Run raw = calibrate(gf, "o_gained");
+    REQUIRE_MESSAGE(raw.code == 0, raw.out);
+    const Run flat = calibrate(gf, "o_flat", "--white " + wf.string());
+    REQUIRE_MESSAGE(flat.code == 0, flat.out);
+    const RealStack want = read_psf_stack_file((s.dir / "o_plain/psf.h5").string()).psf_sensor;
+    auto rel = [&](const std::string& out) {
+      const RealStack got = read_psf_stack_file((s.dir / out / "psf.h5").string()).psf_sensor;
+      double num = 0, den = 0;
+      for (std::size_t i = 0; i < want.data.size(); ++i) {
+        num += (got.data[i] - want.data[i]) * (got.data[i] - want.data[i]);
+        den += want.data[i] * want.data[i];
+      }
+      return std::sqrt(num / den);
+    };
+    const double err_flat = rel("o_flat"), err_raw = rel("o_gained");
+    CAPTURE(err_flat);
+    CAPTURE(err_raw);
+    CHECK(err_flat < 0.01);             // the frames' 12-bit rounding, twice (measured 0.0037)
+    CHECK(err_raw > 3 * err_flat);      // the gains, left in, are visible
+    const H5Dataset g = h5_read((s.dir / "o_flat/psf.h5").string(), "/white_channel_gains");
+    REQUIRE(g.data.size() == 3);
+    CHECK(g.data[0] / g.data[1] == doctest::Approx(1.2).epsilon(5e-3));
+    CHECK(g.data[2] / g.data[1] == doctest::Approx(0.85).epsilon(5e-3));
+  }
+
   TEST_CASE("refusals exit 2 naming the file") {
     const Sweep& s = sweep();
     const std::size_t H = s.known.rows + kMargin;

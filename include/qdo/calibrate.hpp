@@ -40,6 +40,7 @@
 //      (4 passes; the rest set to 0), so the band's sum stays unbiased (clamping would add
 //      0.4 sigma per masked pixel); each band is divided by its sum.
 #pragma once
+#include <array>
 #include <string>
 #include <utility>
 #include <vector>
@@ -59,6 +60,11 @@ struct CalibrationOptions {
   double min_response = 0.2;   // least relative colour response a mosaic colour must have to be used
   double floor_sigma = 4;      // signal-mask threshold, in sigmas of a 5 x 5 mean's noise
   bool ring_background = true; // subtract the median of the crop's outer ring (false: the dark only)
+  // Folder of white (flat-field) frames, the frames' size: a uniformly lit, spectrally flat white
+  // target filling the view (flat_field.hpp). Their mean over the mean dark divides every frame's
+  // signal before the colours are combined, so the colour channels' gains and the pixels' response
+  // are measured, not taken from the response table. Empty: none.
+  std::string white_dir;
   bool has_centre = false;     // use centre_row/col instead of the centroid
   long centre_row = 0, centre_col = 0;
 };
@@ -78,6 +84,8 @@ struct CalibrationResult {
   // percentile (which light only raises) plus 1.2816 noise sigmas.
   std::vector<double> background_dn;
   std::vector<std::string> notes;  // what the user should know (printed and stored with psf.h5)
+  std::vector<std::string> whites;        // the white frames averaged (CalibrationOptions::white_dir)
+  std::array<double, 3> channel_gains{};  // with whites: each colour's mean white signal over the white's mean
   // Seconds per step, in order: match, read, dark, hot pixels and SNR, mosaic, centre, crop,
   // background and normalise.
   std::vector<std::pair<std::string, double>> seconds;

@@ -19,6 +19,7 @@ int cmd_calibrate(const Args& a) {
   if (!a.has("frames")) throw InputError("argument '--frames' is required: the folder of PSF frames (psf_<nm>nm.png)");
   if (!a.has("darks")) throw InputError("argument '--darks' is required: the folder of dark frames (*.png)");
   CalibrationOptions opt;
+  opt.white_dir = a.get("white");
   opt.hot_sigma = parse_double("--hot-sigma", a.get("hot-sigma"), 1, 1e6, "noise sigmas", false);
   opt.min_snr = parse_double("--min-snr", a.get("min-snr"), 0, 1e12, "", false);
   opt.min_response = parse_double("--min-response", a.get("min-response"), 0, 1, "", true);
@@ -54,6 +55,9 @@ int cmd_calibrate(const Args& a) {
   ds.push_back({"/peak_snr", {cfg.bands}, r.peak_snr, {}, {{"units", "peak / noise sigma"}}});
   ds.push_back({"/noise_dn", {cfg.bands}, r.noise_dn, {}, {{"units", "DN"}}});
   ds.push_back({"/background_dn", {cfg.bands}, r.background_dn, {}, {{"units", "DN, each frame's background after the mean dark"}}});
+  if (!r.whites.empty())
+    ds.push_back({"/white_channel_gains", {3}, {r.channel_gains.begin(), r.channel_gains.end()}, {},
+                  {{"units", "R, G, B: each colour's mean white signal over the white's mean (divided out with each pixel's)"}}});
   std::string notes;
   for (const auto& n : r.notes) {
     std::printf("note: %s\n", n.c_str());
@@ -71,6 +75,8 @@ int cmd_calibrate(const Args& a) {
             {"hot_pixels_replaced", std::to_string(r.hot_pixels)},
             {"centre_row_col", std::to_string(r.centre_row) + "," + std::to_string(r.centre_col)},
             {"frame_rows_cols", std::to_string(r.frame_rows) + "," + std::to_string(r.frame_cols)},
+            {"white_dir", a.get("white")},
+            {"white_count", std::to_string(r.whites.size())},
             {"notes", notes}});
   const std::size_t crop = std::min<std::size_t>(96, s);
   write_psf_figure(dir + "/psf.png", "Measured PSF stack from " + a.get("frames"), r.psf, cfg.wavelengths_nm(), cfg.sensor_pitch_m, crop);

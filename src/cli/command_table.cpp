@@ -141,6 +141,9 @@ std::vector<CommandSpec> make_table() {
                {preset(), config(), opt("frames", "folder of PSF frames: 16-bit grayscale PNG or TIFF raw frames named <anything>_<nm>nm.png|.tif, one "
                                                   "per configured band (required)"),
                 opt("darks", "folder of dark frames (16-bit grayscale PNG or TIFF, same exposure; averaged) (required)"),
+                opt("white", "folder of white (flat-field) frames: a uniformly lit, spectrally flat white target filling the view, the "
+                             "frames' size (averaged, dark subtracted); every frame is divided by its white signal over the white's "
+                             "mean (colour gains and pixel response measured; psf.h5 /white_channel_gains) (default: none)"),
                 opt("design", "design to compare with: lens:NM, flat, a design .h5 file or a run folder (its design.h5)"),
                 opt("hot-sigma", "hot-pixel threshold, in noise sigmas (> 1)", "8"),
                 opt("min-snr", "least peak SNR (peak above the dark / noise sigma) of a band; a darker frame is refused", "20"),

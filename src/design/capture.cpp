@@ -13,6 +13,7 @@
 #include "design/reconstruct_internal.hpp"
 #include "qdo/demosaic.hpp"
 #include "qdo/error.hpp"
+#include "qdo/flat_field.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/raw_reference.hpp"
@@ -91,11 +92,9 @@ void check_capture_levels(const SystemConfig& cfg, const CaptureOptions& o, Capt
 }
 
 // The flat field from the white frames (CaptureOptions::white_dir): their mean signal over the
-// darks (or the black level), per pixel over the white's mean, and each colour channel's mean over
-// it. Refused, naming the folder: a white with saturated pixels (the field would be clipped), or a
-// pixel below 5 % of its channel's mean (a dead pixel or no light there: dividing by it would blow
-// up the noise).
-void flat_field(const SystemConfig& cfg, const std::vector<RealStack>& whites, CaptureFiles& f) {
+// darks (or the black level), through flat_field (flat_field.hpp). Refused, naming the folder: a
+// white with saturated pixels (the field would be clipped), and flat_field's refusals.
+void read_flat_field(const SystemConfig& cfg, const std::vector<RealStack>& whites, CaptureFiles& f) {
   const RealStack& first = whites.front();
   RealStack w(first.planes, first.rows, first.cols, 0.0);
   std::size_t saturated = 0;
@@ -109,32 +108,9 @@ void flat_field(const SystemConfig& cfg, const std::vector<RealStack>& whites, C
     throw InputError(where + ": " + to_str(saturated) + " white-frame values at the white level " + to_str(f.white_dn) +
                      " DN: the flat field would be clipped; take the white frames with a shorter exposure");
   for (std::size_t i = 0; i < w.data.size(); ++i) w.data[i] -= f.dark_dn.data.empty() ? cfg.black_level_dn : f.dark_dn.data[i];
-  // Colour channel of element i: the mosaic's site colour, or the RGB plane.
-  const std::size_t plane = w.plane_size();
-  auto channel = [&](std::size_t i) {
-    return cfg.cfa == Cfa::None ? i / plane : std::size_t(cfa_channel(cfg.cfa, (i % plane) / w.cols, (i % plane) % w.cols));
-  };
-  std::array<double, 3> sum{}, count{};
-  double total = 0;
-  for (std::size_t i = 0; i < w.data.size(); ++i) {
-    sum[channel(i)] += w.data[i];
-    count[channel(i)] += 1;
-    total += w.data[i];
-  }
-  const double mean = total / double(w.data.size());
-  if (!(mean > 0)) throw InputError(where + ": the white frames hold no signal above the " +
-                                    std::string(f.dark_dn.data.empty() ? "black level" : "darks"));
-  f.channel_gains.assign(3, 0.0);
-  for (std::size_t c = 0; c < 3; ++c) f.channel_gains[c] = count[c] > 0 ? sum[c] / count[c] / mean : 0.0;
-  for (std::size_t i = 0; i < w.data.size(); ++i) {
-    const double channel_mean = f.channel_gains[channel(i)] * mean;
-    if (!(w.data[i] > 0.05 * channel_mean))
-      throw InputError(where + ": the white signal at row " + to_str((i % plane) / w.cols) + ", column " + to_str((i % plane) % w.cols) +
-                       " is " + to_str(w.data[i]) + " DN, under 5 % of its channel's mean " + to_str(channel_mean) +
-                       " DN (a dead pixel, or the white target does not fill the view)");
-    w.data[i] /= mean;
-  }
-  f.flat = std::move(w);
+  FlatField ff = flat_field(w, cfg.cfa, where);
+  f.channel_gains.assign(ff.channel_gains.begin(), ff.channel_gains.end());
+  f.flat = std::move(ff.gain);
   f.notes.push_back("flat field from " + to_str(whites.size()) + " white frame(s): channel gains R " + to_str(f.channel_gains[0]) + ", G " +
                     to_str(f.channel_gains[1]) + ", B " + to_str(f.channel_gains[2]) + " of the white's mean, divided out with each pixel's response");
 }
@@ -201,7 +177,7 @@ CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o) {
       for (std::size_t i = 0; i < d.data.size(); ++i) f.dark_dn.data[i] += d.data[i] / double(darks.size());
   }
   check_capture_levels(cfg, o, f);
-  if (!whites.empty()) flat_field(cfg, whites, f);
+  if (!whites.empty()) read_flat_field(cfg, whites, f);
   // The mosaic's phase and colours, once, on the signal, before any work (prepare_capture and
   // reconstruct rely on it).
   if (cfg.cfa != Cfa::None) {

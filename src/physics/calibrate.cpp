@@ -2,12 +2,14 @@
 #include "qdo/calibrate.hpp"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <regex>
 
 #include "qdo/error.hpp"
+#include "qdo/flat_field.hpp"
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/raw_reference.hpp"
@@ -162,6 +164,12 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     darks.push_back(read(p));
     check_codes(darks.back(), white, false);
   }
+  std::vector<Frame> whites;
+  if (!opt.white_dir.empty())
+    for (const auto& p : capture_files(opt.white_dir, "--white")) {
+      whites.push_back(read(p));
+      check_codes(whites.back(), white, true);  // a clipped white would bend the flat field
+    }
   const std::size_t rows = frames[0].dn.rows, cols = frames[0].dn.cols;
   if (rows < s || cols < s)
     refuse(frames[0].path, "frame " + std::to_string(rows) + " x " + std::to_string(cols) + " is smaller than the sensor grid's S x S = " +
@@ -177,8 +185,23 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   std::vector<char> hot(rows * cols, 0);
   for (std::size_t i = 0; i < hot.size(); ++i) hot[i] = dark.data[i] > dark_med + opt.hot_sigma * dark_sigma;
   const long step = mosaic ? 2 : 1;
+  // The flat field (1 x rows x cols, mean 1) of the white frames over the mean dark.
+  RealStack flat;
+  std::array<double, 3> r_channel_gains{};
+  std::vector<std::string> white_files;
+  if (!whites.empty()) {
+    RealStack w(1, rows, cols, 0.0);
+    for (const auto& f : whites)
+      for (std::size_t i = 0; i < w.data.size(); ++i) w.data[i] += (f.dn.data[i] - dark.data[i]) / double(whites.size());
+    FlatField ff = flat_field(w, cfg.cfa, "--white " + in_quotes(opt.white_dir));
+    flat = std::move(ff.gain);
+    r_channel_gains = ff.channel_gains;
+    for (const auto& f : whites) white_files.push_back(f.path);
+  }
 
   CalibrationResult r;
+  r.channel_gains = r_channel_gains;
+  r.whites = white_files;
   r.files = band_file;
   r.wavelengths_nm = band_nm;
   r.darks = dark_files;
@@ -241,6 +264,8 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
         }
       }
     m = std::move(fixed);
+    if (!flat.data.empty())
+      for (std::size_t i = 0; i < m.data.size(); ++i) m.data[i] /= flat.data[i];
     // 6. Peak SNR.
     const double peak = *std::max_element(m.data.begin(), m.data.end()) - med;
     r.peak_snr[b] = peak / sigma;
