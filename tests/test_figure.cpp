@@ -272,23 +272,47 @@ TEST_SUITE("figure") {
     CHECK(tmp.entries() == 4);
   }
 
-  TEST_CASE("a large image is block-averaged in the SVG, not in the PNG") {
+  TEST_CASE("an image is embedded in the SVG as one PNG with every cell, not drawn cell by cell") {
     TmpDir tmp;
     ImagePlot p;
     p.title = "large";
     p.x_label = "x (px)";
     p.y_label = "y (px)";
     p.value_label = "value (1)";
-    p.values = Map2D(300, 300);
-    p.values.data = spot(300, 300, 150, 150, 40);
+    p.values = Map2D(300, 280);
+    p.values.data = spot(300, 280, 150, 140, 40);
     const std::string png = tmp / "large.png";
     write_image_plot(png, p);
     check_figure(png, {"large"});
     const std::string svg = read_all(svg_path_for(png));
-    std::size_t shapes = 0;  // PLplot's SVG draws each image cell as one filled <polyline>
+    std::size_t shapes = 0;
     for (std::size_t pos = 0; (pos = svg.find("<polyline", pos)) != std::string::npos; ++pos) ++shapes;
-    CHECK(shapes <= kSvgImageCells + 500);
-    CHECK(shapes >= kSvgImageCells / 4);
+    CHECK(shapes < 600);  // the frame, ticks and colour bar only
+    const std::string tag = "xlink:href=\"data:image/png;base64,";
+    const std::size_t at = svg.find(tag);
+    REQUIRE(at != std::string::npos);
+    CHECK(svg.find(tag, at + 1) == std::string::npos);  // one image
+    CHECK(svg.find("<image") < svg.find("<g"));          // under everything PLplot draws
+    // The embedded PNG's size: its cells, rows x cols of the map.
+    const std::string b64 = svg.substr(at + tag.size(), 64);
+    auto val = [](char c) -> unsigned {
+      if (c >= 'A' && c <= 'Z') return unsigned(c - 'A');
+      if (c >= 'a' && c <= 'z') return unsigned(c - 'a' + 26);
+      if (c >= '0' && c <= '9') return unsigned(c - '0' + 52);
+      return c == '+' ? 62u : 63u;
+    };
+    std::vector<unsigned char> head;
+    for (std::size_t i = 0; i + 3 < b64.size(); i += 4) {
+      const unsigned v = (val(b64[i]) << 18) | (val(b64[i + 1]) << 12) | (val(b64[i + 2]) << 6) | val(b64[i + 3]);
+      head.push_back(static_cast<unsigned char>(v >> 16));
+      head.push_back(static_cast<unsigned char>(v >> 8));
+      head.push_back(static_cast<unsigned char>(v));
+    }
+    REQUIRE(head.size() >= 24);
+    auto be32 = [&](std::size_t o) { return (unsigned(head[o]) << 24) | (unsigned(head[o + 1]) << 16) | (unsigned(head[o + 2]) << 8) | head[o + 3]; };
+    CHECK(head[1] == 'P');
+    CHECK(be32(16) == 280u);  // width: columns
+    CHECK(be32(20) == 300u);  // height: rows
   }
 
   TEST_CASE("a montage names every panel and shares one colour bar") {

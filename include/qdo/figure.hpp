@@ -5,8 +5,8 @@
 // case) and as an SVG beside it with the same stem (svg_path_for). Both go through temporary
 // files "<name>.tmp-<pid>" and commit_output (qdo/io.hpp), so a failure leaves neither file
 // half-written and an OutputStage stages both. The SVG keeps every text as a <text> element;
-// images in it are block-averaged (mean of the finite values of each block) to at most
-// kSvgImageCells colour cells in all, as the PNG's are to 4 Mi cells.
+// images in it are PNG <image> elements with the same cells as the PNG's (block-averaged, the
+// mean of the finite values of each block, only beyond 4 Mi cells in all).
 //
 // Array arguments, all dense and row-major (C order):
 //   PlotSeries::x, y       n values each (n >= 1, same n); point i is (x[i], y[i]).
@@ -83,8 +83,8 @@ struct MontagePlot {
   std::size_t max_panels = 36;  // more planes: this many, evenly spaced, first and last included
 };
 
-// Colour cells an SVG holds for all its images together (each cell is one filled SVG shape).
-inline constexpr std::size_t kSvgImageCells = 16384;
+// Colour cells an SVG holds for all its images together (embedded as PNG <image> elements).
+inline constexpr std::size_t kSvgImageCells = std::size_t{1} << 22;
 
 // The SVG written beside png_path: the same stem with extension ".svg" (InputError when
 // png_path does not end in .png).

@@ -186,7 +186,7 @@ void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const 
       Map2D small((h.rows + k - 1) / k, (h.cols + k - 1) / k);
       for (std::size_t y = 0; y < small.rows; ++y)
         for (std::size_t x = 0; x < small.cols; ++x) small(y, x) = h(y * k, x * k);
-      write_height_figure(dir + "/design.png", "DOE height map (every " + to_str(k) + "th sample)", small, cfg.pitch_m * double(k));
+      write_height_figure(dir + "/design.png", "DOE height map (1 sample in " + to_str(k) + " per axis)", small, cfg.pitch_m * double(k));
     }
   } catch (...) {
     montage.wait();

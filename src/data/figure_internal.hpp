@@ -226,6 +226,25 @@ ColourScale colour_scale(const std::vector<const std::vector<double>*>& data, bo
 // Draws a raster in the current viewport and window; non-finite cells stay blank.
 void draw_raster(const Raster& r, const ColourScale& s);
 
+// The PNG pass draws its rasters itself: PLplot's cairo device draws an image cell by cell (a
+// filled polygon each, ~0.5 s for a 31-panel PSF montage), so draw_raster hands the PNG's rasters
+// to a RasterSink instead, and write_figure paints them into the page's pixels after PLplot has
+// drawn the rest (only over pixels PLplot left as background: the frame, ticks and text stay on
+// top). Colours: the viridis map PLplot uses (figure_plplot.cpp), per cell, nearest-cell scaling.
+struct PendingRaster {
+  double px0 = 0, px1 = 0, py0 = 0, py1 = 0;  // the raster's outer edges in page pixels (py0 at the top)
+  std::size_t rows = 0, cols = 0;             // cells, row 0 at the top
+  std::vector<std::array<unsigned char, 4>> rgba;  // per cell; alpha 0: not drawn (non-finite)
+};
+struct RasterSink {
+  int page_w = 0, page_h = 0;  // px
+  std::vector<PendingRaster> rasters;
+};
+// The sink of the pass being drawn (the PNG pass), or nullptr (the SVG pass draws with PLplot).
+RasterSink*& raster_sink();
+// The viridis colour at t in [0, 1] (PLplot's colour map 1 as set_colours sets it).
+std::array<unsigned char, 3> viridis(double t);
+
 // A colour bar right of the current viewport (offset and width in viewport widths).
 void draw_colour_bar(const ColourScale& s, const std::string& label, double offset, double width);
 

@@ -3,16 +3,20 @@
 // twice (the "pngcairo" device to the PNG, the "svg" device, text kept as <text>, to the SVG
 // beside it), each into a temporary file that commit_output moves into place.
 #include <plplot.h>
+#include <png.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <cerrno>
+#include <cmath>
 #include <climits>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <functional>
 #include <mutex>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -139,6 +143,22 @@ void set_colours() {
   plscmap1l(1, static_cast<PLINT>(kViridis.size()), pos.data(), r.data(), g.data(), b.data(), nullptr);
 }
 
+}  // namespace
+
+std::array<unsigned char, 3> viridis(double t) {
+  if (!(t >= 0)) t = 0;
+  if (t > 1) t = 1;
+  const double at = t * static_cast<double>(kViridis.size() - 1);
+  const std::size_t i = std::min(kViridis.size() - 2, static_cast<std::size_t>(at));
+  const double f = at - static_cast<double>(i);
+  std::array<unsigned char, 3> c{};
+  for (std::size_t k = 0; k < 3; ++k)
+    c[k] = static_cast<unsigned char>(std::lround(kViridis[i][k] + f * (kViridis[i + 1][k] - kViridis[i][k])));
+  return c;
+}
+
+namespace {
+
 // Starts a page of w x h px on the current stream (device and output already set).
 Page begin_page(int w, int h) {
   plspage(0, 0, w, h, 0, 0);
@@ -153,14 +173,130 @@ Page begin_page(int w, int h) {
   return Page{x1 - x0, y1 - y0};
 }
 
-// Renders one page of w x h px with `draw` into `file` on `device`.
-void render(const char* device, const std::string& file, int w, int h, const std::function<void(const Page&)>& draw) {
-  Stream stream;
-  plsdev(device);
-  plsfnam(file.c_str());
-  const Page page = begin_page(w, h);
-  draw(page);
-  stream.end();
+// The PNG pass: PLplot draws into an RGBA page in memory ("memcairo"), the sink's rasters are
+// painted over the pixels PLplot left as background, and the page is written as an RGB PNG.
+void render_png(const std::string& file, int w, int h, const std::function<void(const Page&)>& draw) {
+  const std::size_t W = static_cast<std::size_t>(w), H = static_cast<std::size_t>(h);
+  std::vector<unsigned char> rgba(W * H * 4, 255);
+  RasterSink sink;
+  sink.page_w = w;
+  sink.page_h = h;
+  {
+    Stream stream;
+    plsdev("memcairo");
+    plsmema(w, h, rgba.data());
+    const Page page = begin_page(w, h);
+    raster_sink() = &sink;
+    try {
+      draw(page);
+    } catch (...) {
+      raster_sink() = nullptr;
+      throw;
+    }
+    raster_sink() = nullptr;
+    stream.end();
+  }
+  for (const PendingRaster& r : sink.rasters) {
+    const long x0 = std::max(0L, std::lround(r.px0)), x1 = std::min(long(W), std::lround(r.px1));
+    const long y0 = std::max(0L, std::lround(r.py0)), y1 = std::min(long(H), std::lround(r.py1));
+    for (long y = y0; y < y1; ++y)
+      for (long x = x0; x < x1; ++x) {
+        unsigned char* px = &rgba[(std::size_t(y) * W + std::size_t(x)) * 4];
+        if (px[0] != 255 || px[1] != 255 || px[2] != 255) continue;  // PLplot drew here: frame, tick, text
+        const std::size_t cy = std::min(r.rows - 1, std::size_t((double(y) + 0.5 - r.py0) / (r.py1 - r.py0) * double(r.rows)));
+        const std::size_t cx = std::min(r.cols - 1, std::size_t((double(x) + 0.5 - r.px0) / (r.px1 - r.px0) * double(r.cols)));
+        const auto& c = r.rgba[cy * r.cols + cx];
+        if (c[3] == 0) continue;
+        px[0] = c[0];
+        px[1] = c[1];
+        px[2] = c[2];
+      }
+  }
+  std::vector<unsigned char> rgb(W * H * 3);
+  for (std::size_t i = 0; i < W * H; ++i)
+    for (std::size_t c = 0; c < 3; ++c) rgb[i * 3 + c] = rgba[i * 4 + c];
+  write_png(file, W, H, 3, rgb);
+}
+
+// A raster's cells as an RGBA PNG in memory (libpng's simplified API).
+std::vector<unsigned char> png_bytes(const PendingRaster& r) {
+  std::vector<unsigned char> pixels(r.rows * r.cols * 4);
+  for (std::size_t i = 0; i < r.rgba.size(); ++i) std::copy(r.rgba[i].begin(), r.rgba[i].end(), pixels.begin() + long(i * 4));
+  png_image img;
+  std::memset(&img, 0, sizeof img);
+  img.version = PNG_IMAGE_VERSION;
+  img.width = static_cast<png_uint_32>(r.cols);
+  img.height = static_cast<png_uint_32>(r.rows);
+  img.format = PNG_FORMAT_RGBA;
+  img.flags = PNG_IMAGE_FLAG_FAST;  // faster zlib settings, as write_png
+  png_alloc_size_t size = 0;
+  if (!png_image_write_to_memory(&img, nullptr, &size, 0, pixels.data(), 0, nullptr)) throw Error("figure: PNG encoding failed");
+  std::vector<unsigned char> out(size);
+  if (!png_image_write_to_memory(&img, out.data(), &size, 0, pixels.data(), 0, nullptr)) throw Error("figure: PNG encoding failed");
+  out.resize(size);
+  png_image_free(&img);
+  return out;
+}
+
+std::string base64(const std::vector<unsigned char>& in) {
+  static const char* const k = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  out.reserve((in.size() + 2) / 3 * 4);
+  for (std::size_t i = 0; i < in.size(); i += 3) {
+    const unsigned v = (unsigned(in[i]) << 16) | (i + 1 < in.size() ? unsigned(in[i + 1]) << 8 : 0u) | (i + 2 < in.size() ? unsigned(in[i + 2]) : 0u);
+    out += k[(v >> 18) & 63];
+    out += k[(v >> 12) & 63];
+    out += i + 1 < in.size() ? k[(v >> 6) & 63] : '=';
+    out += i + 2 < in.size() ? k[v & 63] : '=';
+  }
+  return out;
+}
+
+// The SVG pass: PLplot writes everything but the rasters, which go into the file as <image>
+// elements (each raster's cells as an embedded PNG, drawn without smoothing) right after the
+// page's background, so the frame, ticks and text lie on top of them.
+void render_svg(const std::string& file, int w, int h, const std::function<void(const Page&)>& draw) {
+  RasterSink sink;
+  sink.page_w = w;
+  sink.page_h = h;
+  {
+    Stream stream;
+    plsdev("svg");
+    plsfnam(file.c_str());
+    const Page page = begin_page(w, h);
+    raster_sink() = &sink;
+    try {
+      draw(page);
+    } catch (...) {
+      raster_sink() = nullptr;
+      throw;
+    }
+    raster_sink() = nullptr;
+    stream.end();
+  }
+  if (sink.rasters.empty()) return;
+  std::string svg;
+  {
+    std::ifstream in(file, std::ios::binary);
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    svg = ss.str();
+  }
+  const std::size_t rect = svg.find("<rect");
+  const std::size_t at = rect == std::string::npos ? std::string::npos : svg.find("/>", rect);
+  if (at == std::string::npos) throw Error("figure: the SVG device wrote no page background to place the images after");
+  std::string images;
+  for (const PendingRaster& r : sink.rasters) {
+    char box[160];
+    std::snprintf(box, sizeof box, "  <image x=\"%.2f\" y=\"%.2f\" width=\"%.2f\" height=\"%.2f\" preserveAspectRatio=\"none\" ",
+                  r.px0, r.py0, r.px1 - r.px0, r.py1 - r.py0);
+    images += std::string("\n") + box + "style=\"image-rendering:pixelated\" xlink:href=\"data:image/png;base64," +
+              base64(png_bytes(r)) + "\"/>";
+  }
+  svg.insert(at + 2, images);
+  std::ofstream out(file, std::ios::binary | std::ios::trunc);
+  out << svg;
+  if (!out) throw Error("figure: cannot write '" + file + "'");
 }
 
 // Temporary outputs "<name>.tmp-<pid>": removed on scope exit unless committed.
@@ -232,13 +368,12 @@ void write_figure(const std::string& png_path, const std::function<void()>& meas
   wait_if_abandoned();
   const std::lock_guard<std::mutex> lock(g_plplot_mutex);
   const Handlers handlers;
-  require_device("pngcairo");
   require_device("svg");
-  require_device("memcairo");  // measurements
+  require_device("memcairo");  // the PNG page and the measurements
   measure();
   TempOutputs out(png_path);
-  render("pngcairo", out.png(), w, h, [&](const Page& p) { draw(p, false); });
-  render("svg", out.svg(), w, h, [&](const Page& p) { draw(p, true); });
+  render_png(out.png(), w, h, [&](const Page& p) { draw(p, false); });
+  render_svg(out.svg(), w, h, [&](const Page& p) { draw(p, true); });
   out.commit();
 }
 
