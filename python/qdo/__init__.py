@@ -35,7 +35,7 @@ from . import _qdo
 
 __version__ = _qdo.__version__
 
-__all__ = ["__version__", "Optics", "devices", "preset", "quantize", "lens_design", "estimate_prior",
+__all__ = ["__version__", "Optics", "devices", "data_root", "dataset_path", "preset", "quantize", "lens_design", "estimate_prior",
            "wiener_decode", "read_cube", "write_cube", "read_design", "write_design", "read_h5", "write_rgb_png",
            "write_psf_figure", "write_height_figure"]
 
@@ -44,6 +44,20 @@ def devices():
     """Every OpenCL device: a list of dicts (platform, name, type, driver_version, fp64,
     compute_units, selector). Pass a selector, "cpu", "gpu" or a name substring as `device`."""
     return _qdo.devices()
+
+
+def data_root(root=None):
+    """Where qdo looks for datasets, as `qdo data` reports it: a dict with the root's path, its
+    source ("QDO_DATA", "settings file ...", "user data folder", "source tree", ...), whether it
+    exists, and every place considered. root: use this folder instead (as --data-root)."""
+    return _qdo.data_root(root)
+
+
+def dataset_path(name, root=None):
+    """The folder of a named dataset ("cave", "cave_train", "icvl", ...) under the data root;
+    ValueError naming the folder looked in when it is missing. A path (with '/' or '.') is
+    returned as given. root: use this folder instead of the data root."""
+    return _qdo.dataset_path(name, root)
 
 
 def preset(name):

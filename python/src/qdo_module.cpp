@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "arguments.hpp"
+#include "qdo/data_root.hpp"
 #include "qdo/figure.hpp"
 #include "qdo/camera.hpp"
 #include "qdo/config.hpp"
@@ -404,6 +405,34 @@ PYBIND11_MODULE(_qdo, m) {
   // that prints every argument (whole arrays included).
   m.def("preset_json", [](const py::handle& name) { return config_to_json_text(preset_config(str_arg(name, "name"))); },
         py::arg("name"), "The configuration of a preset (small, paper) as JSON text.");
+  m.def(
+      "data_root",
+      [](const py::handle& root) {
+        if (!root.is_none()) set_data_root(path_arg(root, "root"), "root");
+        const DataRoot r = data_root();
+        if (!root.is_none()) set_data_root("");
+        py::dict d;
+        d["path"] = r.path;
+        d["source"] = r.source;
+        d["exists"] = r.exists;
+        d["looked"] = r.looked;
+        return d;
+      },
+      py::arg("root") = py::none(), "Where datasets are looked for (include/qdo/data_root.hpp), as a dict.");
+  m.def(
+      "dataset_path",
+      [](const py::handle& name, const py::handle& root) {
+        if (!root.is_none()) set_data_root(path_arg(root, "root"), "root");
+        try {
+          const std::string p = resolve_dataset(str_arg(name, "name"), "name");
+          if (!root.is_none()) set_data_root("");
+          return p;
+        } catch (...) {
+          if (!root.is_none()) set_data_root("");
+          throw;
+        }
+      },
+      py::arg("name"), py::arg("root") = py::none(), "A dataset name resolved under the data root (a path is returned as given).");
   m.def("devices", [] {
     py::list out;
     for (const DeviceInfo& d : list_devices()) {
