@@ -257,13 +257,6 @@ double measure_legend_mm(const LinePlot& plot, bool svg) {
 
 namespace {
 
-// A value in coloured units (log10, clamped to the floor, on a log scale); NaN when not drawable.
-double coloured(double v, const ColourScale& s) {
-  if (!drawable(v)) return kNaN;
-  if (!s.log) return v;
-  return std::log10(std::max(v, s.floor));
-}
-
 // Tick format of a linear colour bar: about 5 intervals.
 TickFormat colour_bar_ticks(const ColourScale& s) { return tick_format({s.lo, s.hi}, nice_step(s.hi - s.lo, 5)); }
 
@@ -352,51 +345,11 @@ ColourScale colour_scale(const std::vector<const std::vector<double>*>& data, bo
   return s;
 }
 
-RasterSink*& raster_sink() {
-  static RasterSink* sink = nullptr;  // guarded by the module's PLplot mutex, as every figure
-  return sink;
-}
-
-namespace {
-
-// The raster's cells as colours, and its edges in page pixels (the current viewport and window).
-PendingRaster pending(const Raster& r, const ColourScale& s, const RasterSink& sink) {
-  double vx0 = 0, vx1 = 0, vy0 = 0, vy1 = 0, wx0 = 0, wx1 = 0, wy0 = 0, wy1 = 0;
-  plgvpd(&vx0, &vx1, &vy0, &vy1);
-  plgvpw(&wx0, &wx1, &wy0, &wy1);
-  auto px = [&](double x) { return (vx0 + (x - wx0) / (wx1 - wx0) * (vx1 - vx0)) * sink.page_w; };
-  auto py = [&](double y) { return (1 - (vy0 + (y - wy0) / (wy1 - wy0) * (vy1 - vy0))) * sink.page_h; };
-  PendingRaster p;
-  p.px0 = px(r.x0);
-  p.px1 = px(r.x1);
-  // Row 0 of r.v lies at the y1 side when top_is_y1, else at the y0 side; py0 is the top edge.
-  p.py0 = std::min(py(r.y0), py(r.y1));
-  p.py1 = std::max(py(r.y0), py(r.y1));
-  const bool row0_top = r.top_is_y1 == (py(r.y1) < py(r.y0));
-  p.rows = r.rows;
-  p.cols = r.cols;
-  p.rgba.resize(r.rows * r.cols);
-  for (std::size_t y = 0; y < r.rows; ++y)
-    for (std::size_t x = 0; x < r.cols; ++x) {
-      const double c = coloured(r.v[y * r.cols + x], s);
-      auto& out = p.rgba[(row0_top ? y : r.rows - 1 - y) * r.cols + x];
-      if (!std::isfinite(c)) {
-        out = {0, 0, 0, 0};
-        continue;
-      }
-      const auto rgb = viridis((std::clamp(c, s.lo, s.hi) - s.lo) / (s.hi - s.lo));
-      out = {rgb[0], rgb[1], rgb[2], 255};
-    }
-  return p;
-}
-
-}  // namespace
-
 // Draws a raster in the current viewport and window; non-finite cells stay blank. In the PNG
 // pass the raster goes to the sink (RasterSink) instead.
 void draw_raster(const Raster& r, const ColourScale& s) {
   if (RasterSink* sink = raster_sink()) {
-    sink->rasters.push_back(pending(r, s, *sink));
+    sink->rasters.push_back(pending_raster(r, s, *sink));
     return;
   }
   const double below = s.lo - 1 - std::fabs(s.lo);  // outside [lo, hi]: not drawn

@@ -242,6 +242,14 @@ struct RasterSink {
 };
 // The sink of the pass being drawn (the PNG pass), or nullptr (the SVG pass draws with PLplot).
 RasterSink*& raster_sink();
+// A value in coloured units (log10, clamped to the floor, on a log scale); NaN when not drawable.
+inline double coloured(double v, const ColourScale& s) {
+  if (!drawable(v)) return kNaN;
+  if (!s.log) return v;
+  return std::log10(std::max(v, s.floor));
+}
+// The raster's cells as colours and its edges in page pixels (the current viewport and window).
+PendingRaster pending_raster(const Raster& r, const ColourScale& s, const RasterSink& sink);
 // The viridis colour at t in [0, 1] (PLplot's colour map 1 as set_colours sets it).
 std::array<unsigned char, 3> viridis(double t);
 
