@@ -209,6 +209,14 @@ Page begin_page(int w, int h) {
   return Page{x1 - x0, y1 - y0};
 }
 
+// Sets raster_sink() to `sink` for one pass, and back to none on leaving it (also on an error).
+struct SinkScope {
+  explicit SinkScope(RasterSink& sink) { raster_sink() = &sink; }
+  ~SinkScope() { raster_sink() = nullptr; }
+  SinkScope(const SinkScope&) = delete;
+  SinkScope& operator=(const SinkScope&) = delete;
+};
+
 // The PNG pass: PLplot draws into an RGBA page in memory ("memcairo"), the sink's rasters are
 // painted over the pixels PLplot left as background, and the page is written as an RGB PNG.
 void render_png(const std::string& file, int w, int h, const std::function<void(const Page&)>& draw) {
@@ -222,14 +230,8 @@ void render_png(const std::string& file, int w, int h, const std::function<void(
     plsdev("memcairo");
     plsmema(w, h, rgba.data());
     const Page page = begin_page(w, h);
-    raster_sink() = &sink;
-    try {
-      draw(page);
-    } catch (...) {
-      raster_sink() = nullptr;
-      throw;
-    }
-    raster_sink() = nullptr;
+    const SinkScope scope(sink);
+    draw(page);
     stream.end();
   }
   for (const PendingRaster& r : sink.rasters) {
@@ -300,14 +302,8 @@ void render_svg(const std::string& file, int w, int h, const std::function<void(
     plsdev("svg");
     plsfnam(file.c_str());
     const Page page = begin_page(w, h);
-    raster_sink() = &sink;
-    try {
-      draw(page);
-    } catch (...) {
-      raster_sink() = nullptr;
-      throw;
-    }
-    raster_sink() = nullptr;
+    const SinkScope scope(sink);
+    draw(page);
     stream.end();
   }
   if (sink.rasters.empty()) return;

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "data/io_internal.hpp"
+#include "data/io_tiff_internal.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io_raw.hpp"
 
@@ -122,20 +123,6 @@ std::array<double, 4> channel_black(RawDecoder& r, std::size_t top, std::size_t 
   return out;
 }
 
-// libtiff reports through global handlers; the last message of this thread is kept for the error.
-thread_local std::string tiff_message;
-void tiff_handler(const char* module, const char* fmt, va_list ap) {
-  char b[512];
-  std::vsnprintf(b, sizeof b, fmt, ap);
-  tiff_message = std::string(module ? module : "") + (module ? ": " : "") + b;
-}
-
-struct TiffCloser {
-  void operator()(TIFF* t) const {
-    if (t) TIFFClose(t);
-  }
-};
-using TiffPtr = std::unique_ptr<TIFF, TiffCloser>;
 
 bool is_code_value(double v) { return v >= 0 && v <= 65535 && v == std::floor(v); }
 

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "data/io_internal.hpp"
+#include "data/io_tiff_internal.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/io_raw.hpp"
@@ -22,21 +23,6 @@ namespace qdo {
 using namespace io_detail;
 
 namespace {
-
-// libtiff reports through global handlers; the last message of this thread is kept for the error.
-thread_local std::string tiff_message;
-void tiff_handler(const char* module, const char* fmt, va_list ap) {
-  char b[512];
-  std::vsnprintf(b, sizeof b, fmt, ap);
-  tiff_message = std::string(module ? module : "") + (module ? ": " : "") + b;
-}
-
-struct TiffCloser {
-  void operator()(TIFF* t) const {
-    if (t) TIFFClose(t);
-  }
-};
-using TiffPtr = std::unique_ptr<TIFF, TiffCloser>;
 
 std::string lower_extension(const std::string& path) {
   std::string ext = std::filesystem::path(path).extension().string();
