@@ -23,7 +23,7 @@ ETCH_NM=${ETCH_NM:-20}     # per-mask etch depth error bound (REFERENCE §6)
 OVERLAY_UM=${OVERLAY_UM:-0.5}
 OFFSET_UM=${OFFSET_UM:-1.5,-1.0}      # relief against the aperture (assembly of the aperture stop)
 DZ_UM=${DZ_UM:-150}                   # DOE-sensor distance error (1.2 % of z = 12.5 mm)
-LATERAL_STARTS=${LATERAL_STARTS:-9}   # qdo fit --lateral-starts
+LATERAL_STARTS=${LATERAL_STARTS:-auto}   # qdo fit --lateral-starts
 SIGMAS=${SIGMAS:-"run model 0.01 0.03"}  # noise sigmas the decoder assumes: run (the run's), model (the sensor's at the capture's level), or values
 RECON_ONLY=${RECON_ONLY:-0}           # 1: only steps 7-8 (reconstruct and tables) on an earlier run's files
 BORDER=${BORDER:-16}                  # pixels left out of each score at every edge

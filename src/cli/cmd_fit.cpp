@@ -7,6 +7,7 @@
 #include <cmath>
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 
@@ -127,7 +128,16 @@ int cmd_fit(const Args& a) {
   if (opt.parameters.empty()) opt.parameters = default_fit_parameters(design);
   const RealStack measured = read_psf_stack_for(cfg, a.get("psf"), "--psf");
   check_fit_parameters(cfg, design, opt.parameters);  // names, levels without a table, degenerate pairs: before any work
-  opt.lateral_starts = parse_int("--lateral-starts", a.get("lateral-starts"), 1, 15);
+  if (a.get("lateral-starts") == "auto") {
+    opt.lateral_starts = 0;
+  } else {
+    char* end = nullptr;
+    const std::string& v = a.get("lateral-starts");
+    const long k = std::strtol(v.c_str(), &end, 10);
+    if (v.empty() || *end || k < 1 || k > 15) reject("--lateral-starts", v, "auto or an integer in [1, 15]");
+    opt.lateral_starts = int(k);
+  }
+  opt.refine_starts = parse_int("--refine-starts", a.get("refine-starts"), 1, 16);
   if (a.has("start")) {
     // NAME=VALUE,...: the names the fit prints, in metres (levels, masks, z, d, dx, dy) or sensor
     // px (sx, sy) or none (scale); checked against the fitted set before any work.
