@@ -1,5 +1,5 @@
-// Argument checking and conversion of qdo's Python extension (qdo_module.cpp): NumPy arrays of
-// any byte order and layout checked (dtype by kind and size, shape, finiteness) and copied to C
+// Argument checking and conversion of qdo's Python extension (python/src: qdo_module.cpp and the
+// parts it binds): NumPy arrays of any byte order and layout checked (dtype by kind and size, shape, finiteness) and copied to C
 // order, scalars, strings and paths checked and named, and the conversions between arrays and
 // qdo's Map2D / RealStack (row-major, planes x rows x cols). A bad argument raises ValueError
 // naming it and what is allowed (never printing an array); a copy that fails, MemoryError.

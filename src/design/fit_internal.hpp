@@ -1,5 +1,5 @@
-// Private to the as-built fit (fit_model.cpp, fit.cpp, fit_starts.cpp): timing, number formatting
-// and the search for the start.
+// Private to the as-built fit (fit_model.cpp, fit_parameters.cpp, fit.cpp, fit_starts.cpp): timing,
+// number formatting and the search for the start.
 #pragma once
 #include <chrono>
 #include <cstdio>

@@ -1,6 +1,6 @@
-// The as-built model of the fit (fit.hpp): the bilinear registration shift and its adjoints, the
-// fit's parameters, and AsBuiltModel (a measured PSF stack's model from a design, its adjoint
-// gradient and Jacobian). The fit itself is fit.cpp.
+// The as-built model of the fit (fit.hpp): AsBuiltModel, a measured PSF stack's model from a
+// design, its adjoint gradient and Jacobian. The registration shift is fit_shift.cpp, the
+// parameters' names and checks fit_parameters.cpp, the fit itself fit.cpp.
 #include "qdo/fit.hpp"
 
 #include <algorithm>
@@ -18,87 +18,13 @@
 
 namespace qdo {
 
-using fit_detail::fmt;
 using fit_detail::since;
 
 namespace {
 
-// The bilinear weights of a shift s: s = i + f, i = floor(s), f in [0, 1); out(x) = (1 - f) in(x - i) + f in(x - i - 1).
-struct ShiftSplit {
-  long i = 0;
-  double f = 0;
-  explicit ShiftSplit(double s) {
-    const double fl = std::floor(s);
-    i = long(fl);
-    f = s - fl;
-  }
-};
-
-// Visits every (output index, input index, weight, d weight / d sx, d weight / d sy) of the shift.
-template <typename F>
-void for_each_tap(std::size_t planes, std::size_t rows, std::size_t cols, double sx, double sy, F&& f) {
-  const ShiftSplit x(sx), y(sy);
-  const double wx[2] = {1 - x.f, x.f}, wy[2] = {1 - y.f, y.f}, dw[2] = {-1, 1};
-  const long r = long(rows), c = long(cols);
-  for (std::size_t p = 0; p < planes; ++p) {
-    const std::size_t base = p * rows * cols;
-    for (long yy = 0; yy < r; ++yy)
-      for (int a = 0; a < 2; ++a) {
-        const long ys = yy - y.i - a;
-        if (ys < 0 || ys >= r) continue;
-        for (long xx = 0; xx < c; ++xx)
-          for (int b = 0; b < 2; ++b) {
-            const long xs = xx - x.i - b;
-            if (xs < 0 || xs >= c) continue;
-            f(base + std::size_t(yy * c + xx), base + std::size_t(ys * c + xs), wy[a] * wx[b], wy[a] * dw[b], dw[a] * wx[b]);
-          }
-      }
-  }
-}
-
-void require_size(const std::vector<double>& v, std::size_t planes, std::size_t rows, std::size_t cols, const char* what) {
-  if (v.size() != planes * rows * cols)
-    throw Error(std::string("shift_bilinear: ") + what + " holds " + std::to_string(v.size()) + " values, expected " +
-                shape(planes, rows, cols));
-}
-
 enum class Kind { Level, Mask, Scale, Z, D, DX, DY, SX, SY };
 
 }  // namespace
-
-std::vector<double> shift_bilinear(const std::vector<double>& in, std::size_t planes, std::size_t rows, std::size_t cols, double sx,
-                                   double sy) {
-  require_size(in, planes, rows, cols, "the input");
-  std::vector<double> out(in.size(), 0.0);
-  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double w, double, double) { out[o] += w * in[i]; });
-  return out;
-}
-
-std::vector<double> shift_bilinear_adjoint(const std::vector<double>& g_out, std::size_t planes, std::size_t rows, std::size_t cols,
-                                           double sx, double sy) {
-  require_size(g_out, planes, rows, cols, "the gradient");
-  std::vector<double> g(g_out.size(), 0.0);
-  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double w, double, double) { g[i] += w * g_out[o]; });
-  return g;
-}
-
-void shift_bilinear_derivative(const std::vector<double>& in, const std::vector<double>& g_out, std::size_t planes, std::size_t rows,
-                               std::size_t cols, double sx, double sy, double& d_sx, double& d_sy) {
-  require_size(in, planes, rows, cols, "the input");
-  require_size(g_out, planes, rows, cols, "the gradient");
-  d_sx = d_sy = 0;
-  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double, double dx, double dy) {
-    d_sx += g_out[o] * dx * in[i];
-    d_sy += g_out[o] * dy * in[i];
-  });
-}
-
-std::vector<std::string> fit_parameter_names() { return {"levels", "masks", "scale", "z", "d", "offset", "shift", "aperture"}; }
-
-std::vector<std::string> default_fit_parameters(const Design& design) {
-  if (design.levels_m.size() >= 2) return {"levels", "z", "offset"};
-  return {"scale", "z", "offset"};
-}
 
 // ---------------------------------------------------------------------------------------------
 // The model
@@ -363,51 +289,6 @@ struct AsBuiltModel::Impl {
     return j;
   }
 };
-
-void check_fit_parameters(const SystemConfig& cfg, const Design& design, const std::vector<std::string>& parameters) {
-  cfg.validate();
-  if (design.height_m.rows != cfg.n || design.height_m.cols != cfg.n)
-    throw InputError("the design is " + std::to_string(design.height_m.rows) + " x " + std::to_string(design.height_m.cols) +
-                     "; the configuration's DOE grid is N x N = " + std::to_string(cfg.n) + " x " + std::to_string(cfg.n));
-  if (std::fabs(design.pitch_m - cfg.pitch_m) > 1e-6 * cfg.pitch_m)
-    throw InputError("the design's pitch_m is " + fmt("%g", design.pitch_m) + "; the configuration's is " + fmt("%g", cfg.pitch_m));
-  std::set<std::string> given;
-  const auto known = fit_parameter_names();
-  for (const auto& name : parameters) {
-    if (std::find(known.begin(), known.end(), name) == known.end())
-      reject("--fit", name, "a comma-separated list of levels, masks, scale, z, d, offset, shift, aperture");
-    if (!given.insert(name).second) reject("--fit", name, "each parameter once");
-  }
-  given.erase("aperture");  // not a continuous parameter (fit_as_built scans it)
-  if (given.empty()) reject("--fit", "aperture alone", "at least one of levels, masks, scale, z, d, offset, shift");
-  const auto has = [&](const char* s) { return given.count(s) > 0; };
-  const std::size_t levels = design.levels_m.size();
-  if ((has("levels") || has("masks")) && levels < 2)
-    reject("--fit", has("levels") ? "levels" : "masks",
-           "levels or masks only for a quantized design (a design file with /levels_m); this design has no level table: fit scale instead");
-  if (has("levels") && has("masks")) reject("--fit", "levels,masks", "one of levels (every level free) and masks (subset sums)");
-  if (has("scale") && (has("levels") || has("masks")))
-    reject("--fit", "scale with " + std::string(has("levels") ? "levels" : "masks"),
-           "scale or free level depths, not both: a global scale of the heights is exactly a scale of every level depth (a "
-           "degenerate pair)");
-  if (has("d") && cfg.scene_at_infinity)
-    reject("--fit", "d", "d only for a finite object distance (the configuration's scene is at infinity)");
-  for (double l : design.levels_m)
-    if (!std::isfinite(l)) throw InputError("the design's level table holds a non-finite value");
-  if (has("masks")) {
-    const int k = mask_count(int(levels));  // InputError unless a power of two
-    for (std::size_t l = 0; l < levels; ++l) {
-      double sum = 0;
-      for (int j = 0; j < k; ++j)
-        if (l & (std::size_t(1) << j)) sum += design.levels_m[std::size_t(1) << j];
-      if (std::fabs(sum - design.levels_m[l]) > 1e-9 || std::fabs(design.levels_m[0]) > 1e-9)
-        reject("--fit", "masks",
-               "masks only for a QDO+M design: level 0 at 0 and every level the subset sum of the log2(L) mask depths (level " +
-                   std::to_string(l) + " is " + fmt("%.2f", design.levels_m[l] * 1e9) + " nm, the subset sum " + fmt("%.2f", sum * 1e9) +
-                   " nm, level 0 " + fmt("%.2f", design.levels_m[0] * 1e9) + " nm); fit levels instead");
-    }
-  }
-}
 
 AsBuiltModel::AsBuiltModel(Runtime& rt, const SystemConfig& cfg, Precision p, const Design& design,
                            const std::vector<std::string>& parameters, const FitOptions& opt)

@@ -1,36 +1,19 @@
-// The experiment grid of `qdo sweep`: its plan (a fixed list of cells), the running of any subset
-// of cells by any process (one sweep, Slurm job array tasks, MPI ranks), and the tables from the
-// finished cells. sweep.cpp holds the run and cell helpers, sweep_tables.cpp the tables.
+// The experiment grid of `qdo sweep`: its plan, a fixed list of cells (Grid, sweep_internal.hpp).
+// Its cells are sweep_cells.cpp, their running by any process (one sweep, Slurm job array tasks,
+// MPI ranks) sweep_dispatch.cpp; sweep.cpp the run and cell helpers, sweep_tables.cpp the tables.
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
-#include <atomic>
-#include <chrono>
 #include <cmath>
-#include <condition_variable>
-#include <cstdio>
-#include <deque>
 #include <filesystem>
-#include <map>
-#include <memory>
-#include <mutex>
 #include <set>
-#include <thread>
 #include <utility>
 
 #include "design/sweep_internal.hpp"
 #include "qdo/datasets.hpp"
 #include "qdo/decoder_registry.hpp"
 #include "qdo/design_run.hpp"
-#include "qdo/encoders.hpp"
 #include "qdo/error.hpp"
-#include "qdo/hash.hpp"
-#include "qdo/io.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/run.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/simulator.hpp"
 #include "qdo/sweep.hpp"
 
 namespace fs = std::filesystem;
@@ -41,42 +24,6 @@ using namespace sweep_detail;
 
 namespace {
 
-enum class CellKind { Eval, Fresnel, Cassi };
-
-// One cell and what running it takes.
-struct Job {
-  PlannedCell plan;
-  CellKind kind = CellKind::Eval;
-  std::vector<DesignRunOptions> runs;           // trained in this order (plan.runs are their folders)
-  std::vector<std::set<std::string>> ignores;   // per run: config fields the sweep does not read
-  EvalOptions eval;                             // Eval: the evaluation (its run set)
-  nlohmann::json key;                           // the cell's own fields of its inputs hash
-  std::string prior_run;                        // Fresnel, Cassi: the DO run whose prior they use
-};
-
-class Grid {
- public:
-  explicit Grid(const GridOptions& g);
-  const std::vector<Job>& jobs() const { return jobs_; }
-  bool seed_axis() const { return !g_.seeds.empty(); }
-  // Trains what cell k needs and evaluates it (under the cell's lock).
-  void run_cell(Runtime& rt, std::size_t k, bool progress);
-  // The finished cell k as the tables show it; false when it is not finished (or stale).
-  bool read_cell(std::size_t k, GridCell& c) const;
-
- private:
-  std::string cell_inputs(const Job& j) const;
-  std::string run_outputs(const std::string& run) const;
-  const std::string& train_inputs();
-
-  GridOptions g_;
-  DesignRunOptions base_;
-  std::vector<std::string> test_;
-  std::string test_inputs_, train_inputs_;
-  fs::path out_;
-  std::vector<Job> jobs_;
-};
-
 // Runs of decoder `dec`: Wiener runs keep the names they always had, network runs carry the spec.
 std::string tag_of(const DecoderSpec& dec) {
   if (dec.kind == DecoderSpec::Kind::Wiener) return std::string();
@@ -85,6 +32,8 @@ std::string tag_of(const DecoderSpec& dec) {
   t.erase(std::remove(t.begin(), t.end(), '\0'), t.end());
   return t;
 }
+
+}  // namespace
 
 Grid::Grid(const GridOptions& g) : g_(g), out_(g.out) {
   if (g.out.empty()) reject("out", "(missing)", "an output folder");
@@ -237,305 +186,11 @@ Grid::Grid(const GridOptions& g) : g_(g), out_(g.out) {
   }
 }
 
-const std::string& Grid::train_inputs() {
-  if (train_inputs_.empty()) train_inputs_ = hash_paths(base_.data);  // every run trains on base.data
-  return train_inputs_;
-}
-
-std::string Grid::run_outputs(const std::string& run) const {
-  const RunFolder folder(run);
-  return hash_paths({folder.config_path(), folder.design_path(), folder.design_full_path(), folder.prior_path()});
-}
-
-// What determines a cell: its own fields, the test scenes (bytes), and its runs' outputs (bytes).
-std::string Grid::cell_inputs(const Job& job) const {
-  nlohmann::json j = job.key;
-  j["test"] = test_inputs_;
-  j["test_files"] = test_.size();  // their bytes and names are in test_inputs_, never their spelling
-  j["eval_synthetic_scenes"] = g_.eval_synthetic_scenes;
-  j["precision"] = to_string(base_.precision);
-  j["system"] = nlohmann::json::parse(config_to_json_text(base_.cfg));
-  if (job.kind == CellKind::Eval) j["run"] = run_outputs(job.eval.run);
-  else j["prior_run"] = run_outputs(job.prior_run);
-  Fnv1a64 f;
-  f.add(j.dump());
-  return f.hex();
-}
-
-// A cell's metrics.json is reused only when the cell's `inputs` file (written after it) holds the
-// same hash. Reading changes nothing (--collect only reads); run_cell drops a stale stamp before
-// it evaluates again, so that a stamp never vouches for metrics of other inputs.
-bool Grid::read_cell(std::size_t k, GridCell& c) const {
-  const Job& job = jobs_.at(k);
-  c = GridCell{};
-  c.name = job.plan.name;
-  c.mode = job.plan.mode;
-  c.decoder = job.plan.decoder;
-  c.levels = job.plan.levels;
-  c.seed = job.plan.seed;
-  for (const auto& r : job.plan.runs)
-    if (!run_finished(r)) return false;
-  c.inputs = cell_inputs(job);
-  const fs::path dir = out_ / "cells" / job.plan.name, f = dir / "metrics.json", stamp = dir / "inputs";
-  std::string held = fs::exists(stamp) ? read_text(stamp) : std::string();
-  while (!held.empty() && (held.back() == '\n' || held.back() == ' ')) held.pop_back();
-  return held == c.inputs && fs::exists(f) &&
-         read_cell_metrics(f.string(), c.mean, c.deviation_nm, job.kind == CellKind::Eval ? &c.scenes : nullptr,
-                           &c.deviation_rings_nm);
-}
-
-void Grid::run_cell(Runtime& rt, std::size_t k, bool progress) {
-  const mpi::Solo alone;  // a cell's runs train in this process alone, whatever the other ranks do
-  const Job& job = jobs_.at(k);
-  const auto t0 = std::chrono::steady_clock::now();
-  const fs::path dir = out_ / "cells" / job.plan.name;
-  // Runs of other options or scenes are refused before anything is written (the cell's lock included).
-  for (std::size_t i = 0; i < job.runs.size(); ++i) check_run_inputs(job.runs[i], train_inputs(), g_.out, job.ignores[i]);
-  fs::create_directories(dir);
-  fs::create_directories(out_ / "runs");
-  std::unique_ptr<RunLock> lock;
-  try {
-    lock = std::make_unique<RunLock>(dir.string(), "cell");
-  } catch (const RunBusyError& e) {
-    throw InputError("cell " + std::to_string(k) + " (" + job.plan.name + ") is being run by another process: " + e.what());
-  }
-  for (std::size_t i = 0; i < job.runs.size(); ++i) ensure_run_waiting(rt, job.runs[i], train_inputs(), g_.quiet, g_.out, job.ignores[i]);
-  GridCell c;
-  const bool cached = read_cell(k, c);
-  if (!cached) {
-    std::error_code ec;
-    fs::remove(dir / "inputs", ec);  // the cell's own stale stamp, under its lock: evaluated again below
-    if (job.kind == CellKind::Eval) {
-      EvalOptions e = job.eval;
-      e.out = dir.string();
-      const EvalResult r = evaluate_run(rt, e);
-      write_text_atomic((dir / "inputs").string(), c.inputs + "\n");
-      c.mean = r.mean;
-    } else {
-      const std::uint64_t seed = job.plan.seed;
-      const wiener::SpectralPrior prior = load_prior(RunFolder(job.prior_run).prior_path());
-      const Eigen::MatrixXd srf = sensor_response(base_.cfg);
-      const double sigma = base_.decoder_noise_sigma;
-      const std::vector<RealStack> cubes = test_patches(base_.cfg, test_, g_.eval_synthetic_scenes, base_.design.seed);
-      // The decoders of the other encoders come from the registry: wiener for the Fresnel lens's
-      // PSF, cg for CASSI (any linear encoder), on the DO run's prior.
-      auto decoder_of = [&](const DecoderSpec& spec, RealStack psf, std::shared_ptr<const Encoder> enc) {
-        DecoderInputs in;
-        in.spec = spec;
-        in.psf = std::move(psf);
-        in.srf = srf;
-        in.encoder = std::move(enc);
-        in.prior = prior;
-        in.noise_sigma = sigma;
-        return make_decoder(in);
-      };
-      EncoderEval ev;
-      if (job.kind == CellKind::Fresnel) {
-        Simulator sim(rt, base_.cfg, base_.precision);
-        sim.set_heights(fresnel_lens_heights(base_.cfg, g_.fresnel_design_nm, job.plan.levels));
-        sim.compute_psf();
-        const RealStack psf = sim.psf_sensor();
-        const DoeEncoder enc(wiener::psf_to_otf(psf, prior.rows, prior.cols), srf);
-        ev = evaluate_encoder(enc, *decoder_of(DecoderSpec{}, psf, nullptr), cubes, sigma, seed + 77);
-      } else {
-        DecoderSpec cg;
-        cg.kind = DecoderSpec::Kind::Named;
-        cg.name = "cg";
-        const std::size_t s = base_.cfg.sensor_size_px();
-        auto enc = std::make_shared<CassiEncoder>(random_binary_mask(s, s, 0.5, seed + 5), base_.cfg.bands, g_.cassi_shift_px);
-        ev = evaluate_encoder(*enc, *decoder_of(cg, RealStack(), enc), cubes, sigma, seed + 77);
-      }
-      c.mean.psnr = ev.psnr_db;
-      c.mean.ssim = ev.ssim;
-      c.mean.rmse = ev.rmse;
-      c.mean.ergas = ev.ergas;
-      c.mean.sam_rad = ev.sam_rad;
-      write_cell_metrics(dir, c);
-    }
-  }
-  if (progress)
-    std::fprintf(stderr, "[sweep] cell #%zu of %zu %-22s PSNR %.2f dB%s (%.1f s)\n", k, jobs_.size(), job.plan.name.c_str(), c.mean.psnr,
-                 cached ? ", finished earlier" : "",
-                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-}
-
-// Rank 0's dispatcher (a thread beside rank 0's own work): hands each idle rank the first cell in
-// plan order whose runs are finished or used by no running cell, so that no two ranks train one
-// run; a rank that finds none ready waits until a running cell finishes.
-// Messages: a rank sends kRequest with the cell it finished (-1 at first); rank 0 answers kAssign
-// with a cell or kStop when none is left. Rank 0's own work goes through `local` instead of MPI.
-constexpr int kRequest = 1, kAssign = 2, kStop = 3;
-
-class Dispatcher {
- public:
-  Dispatcher(const Grid& grid, const mpi::World& world) : grid_(grid), world_(world), state_(grid.jobs().size(), 0) {}
-  // The dispatcher thread's body: returns when every rank has been told to stop.
-  void serve() {
-    std::size_t stopped = 0;
-    std::deque<int> idle;
-    const std::size_t ranks = std::size_t(world_.size());
-    while (stopped < ranks) {
-      bool busy = false;
-      mpi::Message m;
-      if (world_.poll(m)) {
-        busy = true;
-        if (m.tag != kRequest) throw std::logic_error("sweep dispatcher: unexpected message tag " + std::to_string(m.tag));
-        finished(m.value);
-        idle.push_back(m.source);
-      }
-      {
-        std::lock_guard<std::mutex> lk(mu_);
-        if (local_request_) {
-          busy = true;
-          local_request_ = false;
-          finished(local_done_);
-          idle.push_back(0);
-        }
-      }
-      while (!idle.empty()) {
-        const int rank = idle.front();
-        const long k = next_ready();
-        if (k == -2) break;  // cells remain, none ready: wait for a running one
-        idle.pop_front();
-        if (k < 0) ++stopped;
-        if (rank == 0) {
-          std::lock_guard<std::mutex> lk(mu_);
-          local_assigned_ = k;
-          cv_.notify_all();
-        } else {
-          world_.send(rank, k < 0 ? kStop : kAssign, k);
-        }
-      }
-      if (!busy) std::this_thread::sleep_for(std::chrono::milliseconds(5));
-    }
-  }
-  // Rank 0's work loop asks here: the cell it finished (-1 at first); returns its next cell or -1.
-  long local_next(long done) {
-    std::unique_lock<std::mutex> lk(mu_);
-    local_done_ = done;
-    local_request_ = true;
-    local_assigned_ = -3;
-    cv_.wait(lk, [&] { return local_assigned_ != -3; });
-    return local_assigned_;
-  }
-
- private:
-  void finished(long k) {
-    if (k >= 0 && std::size_t(k) < state_.size()) state_[std::size_t(k)] = 2;
-  }
-  // The next ready cell (marked running), -1 when every cell is handed out, -2 when cells remain
-  // but each needs a run that a running cell trains.
-  long next_ready() {
-    bool pending = false;
-    for (std::size_t k = 0; k < state_.size(); ++k) {
-      if (state_[k] != 0) continue;
-      pending = true;
-      bool ready = true;
-      for (const auto& run : grid_.jobs()[k].plan.runs) {
-        if (run_finished(run)) continue;
-        for (std::size_t r = 0; r < state_.size() && ready; ++r)
-          if (state_[r] == 1) {
-            const auto& used = grid_.jobs()[r].plan.runs;
-            if (std::find(used.begin(), used.end(), run) != used.end()) ready = false;
-          }
-      }
-      if (ready) {
-        state_[k] = 1;
-        return long(k);
-      }
-    }
-    return pending ? -2 : -1;
-  }
-
-  const Grid& grid_;
-  const mpi::World& world_;
-  std::vector<int> state_;  // per cell: 0 pending, 1 running, 2 done
-  std::mutex mu_;
-  std::condition_variable cv_;
-  bool local_request_ = false;
-  long local_done_ = -1, local_assigned_ = -3;
-};
-
-std::vector<GridCell> collect(const Grid& grid, const fs::path& out, bool write) {
-  std::vector<GridCell> cells;
-  std::vector<std::string> missing;
-  for (std::size_t k = 0; k < grid.jobs().size(); ++k) {
-    GridCell c;
-    if (grid.read_cell(k, c)) cells.push_back(c);
-    else missing.push_back(std::to_string(k) + " " + grid.jobs()[k].plan.name);
-  }
-  if (!missing.empty()) {
-    std::string list;
-    for (std::size_t i = 0; i < missing.size() && i < 40; ++i) list += (i ? ", " : "") + missing[i];
-    if (missing.size() > 40) list += ", ... (" + std::to_string(missing.size() - 40) + " more)";
-    reject("out", out.string(),
-           "a sweep folder whose cells are all finished; " + std::to_string(missing.size()) + " of " + std::to_string(grid.jobs().size()) +
-               " are not (or their inputs changed since): " + list + ". Run them (qdo sweep with the same options, or --cell K / --shard i/n), then collect");
-  }
-  if (write) write_grid_tables(out, cells, grid.seed_axis());
-  return cells;
-}
-
-}  // namespace
-
 std::vector<PlannedCell> plan_grid(const GridOptions& g) {
   const Grid grid(g);
   std::vector<PlannedCell> out;
   for (const auto& j : grid.jobs()) out.push_back(j.plan);
   return out;
-}
-
-void run_grid_cells(Runtime& rt, const GridOptions& g, const std::vector<std::size_t>& which, bool progress) {
-  Grid grid(g);
-  for (std::size_t k : which)
-    if (k >= grid.jobs().size()) reject("cell", k, "a cell index in [0, " + std::to_string(grid.jobs().size() - 1) + "] (qdo sweep --plan lists them)");
-  for (std::size_t k : which) grid.run_cell(rt, k, progress);
-}
-
-std::vector<GridCell> collect_grid(const GridOptions& g) {
-  const Grid grid(g);
-  return collect(grid, fs::path(g.out), true);
-}
-
-std::vector<GridCell> run_grid(Runtime& rt, const GridOptions& g) {
-  Grid grid(g);
-  const mpi::World* world = mpi::world();
-  if (!world || !world->active() || world->size() < 2) {
-    for (std::size_t k = 0; k < grid.jobs().size(); ++k) grid.run_cell(rt, k, !g.quiet);
-    return collect(grid, fs::path(g.out), true);
-  }
-  if (world->rank() != 0) {  // a worker: ask rank 0 for cells until it says stop
-    long done = -1;
-    for (;;) {
-      world->send(0, kRequest, done);
-      const mpi::Message m = world->receive_any();
-      if (m.tag == kStop) break;
-      grid.run_cell(rt, std::size_t(m.value), !g.quiet);
-      done = long(m.value);
-    }
-    return {};
-  }
-  Dispatcher d(grid, *world);
-  std::thread serving([&] {
-    try {
-      d.serve();
-    } catch (const std::exception& e) {
-      std::fprintf(stderr, "qdo sweep: the MPI dispatcher failed: %s\n", e.what());
-      world->abort(1);
-    }
-  });
-  try {
-    long k = d.local_next(-1);
-    while (k >= 0) {
-      grid.run_cell(rt, std::size_t(k), !g.quiet);
-      k = d.local_next(k);
-    }
-  } catch (...) {
-    serving.detach();  // the caller ends the job (MPI_Abort)
-    throw;
-  }
-  serving.join();
-  return collect(grid, fs::path(g.out), true);
 }
 
 }  // namespace qdo

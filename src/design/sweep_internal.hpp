@@ -1,5 +1,6 @@
-// The sweep's private helpers (sweep.cpp), shared by its parts: the grid's plan and execution
-// (sweep_grid.cpp) and its tables (sweep_tables.cpp).
+// The sweep's private helpers (sweep.cpp), shared by its parts: the grid's plan (sweep_grid.cpp),
+// its cells (sweep_cells.cpp), their running and collection (sweep_dispatch.cpp) and its tables
+// (sweep_tables.cpp).
 #pragma once
 #include <nlohmann/json.hpp>
 
@@ -9,6 +10,7 @@
 #include <vector>
 
 #include "qdo/design_run_options.hpp"
+#include "qdo/eval.hpp"
 #include "qdo/hash.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/sweep.hpp"
@@ -42,5 +44,42 @@ void ensure_run_waiting(Runtime& rt, const DesignRunOptions& o, const std::strin
 
 // The tables, figures and comparisons of the cells (sweep_tables.cpp); `seed_axis`: the grid has one.
 void write_grid_tables(const std::filesystem::path& out, const std::vector<GridCell>& cells, bool seed_axis);
+
+// The experiment grid: its plan (the constructor, sweep_grid.cpp) and its cells (sweep_cells.cpp).
+enum class CellKind { Eval, Fresnel, Cassi };
+
+// One cell and what running it takes.
+struct Job {
+  PlannedCell plan;
+  CellKind kind = CellKind::Eval;
+  std::vector<DesignRunOptions> runs;           // trained in this order (plan.runs are their folders)
+  std::vector<std::set<std::string>> ignores;   // per run: config fields the sweep does not read
+  EvalOptions eval;                             // Eval: the evaluation (its run set)
+  nlohmann::json key;                           // the cell's own fields of its inputs hash
+  std::string prior_run;                        // Fresnel, Cassi: the DO run whose prior they use
+};
+
+class Grid {
+ public:
+  explicit Grid(const GridOptions& g);
+  const std::vector<Job>& jobs() const { return jobs_; }
+  bool seed_axis() const { return !g_.seeds.empty(); }
+  // Trains what cell k needs and evaluates it (under the cell's lock).
+  void run_cell(Runtime& rt, std::size_t k, bool progress);
+  // The finished cell k as the tables show it; false when it is not finished (or stale).
+  bool read_cell(std::size_t k, GridCell& c) const;
+
+ private:
+  std::string cell_inputs(const Job& j) const;
+  std::string run_outputs(const std::string& run) const;
+  const std::string& train_inputs();
+
+  GridOptions g_;
+  DesignRunOptions base_;
+  std::vector<std::string> test_;
+  std::string test_inputs_, train_inputs_;
+  std::filesystem::path out_;
+  std::vector<Job> jobs_;
+};
 
 }  // namespace qdo::sweep_detail
