@@ -165,9 +165,6 @@ std::vector<std::vector<double>> region_spectra(const RealStack& cube, const std
 // 2° observer (a flat unit spectrum has Y = 1) and the XYZ -> linear sRGB (D65) matrix.
 RealStack render_srgb(const RealStack& cube, const std::vector<double>& wavelengths_nm);
 
-// A design .h5 for cfg (read_design: N x N at the configured pitch, heights in [0, 2 h_max]); an
-// InputError "argument '<argument>' = PATH: ..." otherwise. Checked without a device.
-Map2D read_design_heights_for(const SystemConfig& cfg, const std::string& path, const std::string& argument);
 
 // The sensor as built, over the run's configuration: a JSON object of sensor keys only (cfa,
 // black_level_dn, bit_depth, gain, read_noise_sigma, full_well_photons, noise_seed, camera,

@@ -22,6 +22,14 @@
 
 namespace qdo {
 
+// A design .h5 for cfg (read_design: N x N at the configured pitch, heights in [0, 2 h_max]); an
+// InputError "argument '<argument>' = PATH: ..." otherwise. Checked without a device.
+Map2D read_design_heights_for(const SystemConfig& cfg, const std::string& path, const std::string& argument);
+// A design given by name, as the commands' --design takes it: lens:NM (a diffractive lens for NM
+// nanometres, doe.hpp lens_design), flat, or a design .h5 file (read_design_heights_for). The
+// N x N heights, metres; an InputError naming `argument` otherwise.
+Map2D design_heights_from_spec(const SystemConfig& cfg, const std::string& spec, const std::string& argument);
+
 // What `qdo design --resume` reads from a run folder, all of it checked before any work and
 // without a device (run_design uses these; the fuzz target run_folder calls load_resume_state).
 // Every refusal is an InputError naming the file (or, for a missing file, the folder).

@@ -15,6 +15,10 @@
 #include "qdo/types.hpp"
 #include "qdo/util.hpp"
 
+namespace qdo {
+struct GradcheckRow;  // qdo/gradcheck.hpp
+}  // namespace qdo
+
 namespace qdo::cli {
 
 // The parsed command line of one command. `opt` holds exactly the options given on the command
@@ -83,6 +87,9 @@ int cmd_tolerance(const Args& a);
 int cmd_fabricate(const Args& a);
 int cmd_sweep(const Args& a);
 int cmd_sweep_psf(const Args& a);
+// The gradient check's table on stdout (parameter group, max relative error, tolerance, ok/FAIL);
+// 0 when every group passes, 5 otherwise (cmd_gradcheck.cpp; also qdo design --check-gradients).
+int print_gradcheck(const std::vector<GradcheckRow>& rows);
 
 // The configuration from --config or --preset (default small), the camera response checked too.
 // A configuration of several object points is refused unless allow_points (qdo design: a design

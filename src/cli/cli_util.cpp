@@ -76,32 +76,7 @@ int parse_int(const std::string& name, const std::string& v, int lo, int hi) {
 }
 
 // lens:NM, flat, or an HDF5 design file matching the configuration's grid.
-Map2D load_design(const SystemConfig& cfg, const std::string& spec) {
-  if (spec.empty()) reject("--design", "(missing)", "lens:NM (a diffractive lens for NM nanometres), flat, or a design .h5 file");
-  if (spec == "flat") return flat_design(cfg);
-  if (spec.rfind("lens:", 0) == 0) {
-    char* end = nullptr;
-    const double nm = std::strtod(spec.c_str() + 5, &end);
-    if (*end || !(nm > 0)) reject("--design", spec, "lens:NM with NM a wavelength in nm, e.g. lens:550");
-    return lens_design(cfg, nm);
-  }
-  const Design d = read_design(spec);
-  if (d.height_m.rows != cfg.n)
-    reject("--design", spec, "a height map of N x N = " + std::to_string(cfg.n) + " x " + std::to_string(cfg.n) +
-                                 " samples (the file has " + std::to_string(d.height_m.rows) + ")");
-  if (std::fabs(d.pitch_m - cfg.pitch_m) > 1e-6 * cfg.pitch_m)
-    reject("--design", spec, "pitch_m = " + to_str(cfg.pitch_m) + " as configured (the file has " + to_str(d.pitch_m) + ")");
-  // The heights the device will take (DoeStage), checked here so that the message names the file.
-  const double hmax = cfg.h_max_m();
-  for (std::size_t i = 0; i < d.height_m.data.size(); ++i) {
-    const double h = d.height_m.data[i];
-    if (!std::isfinite(h) || h < 0 || h > 2 * hmax)
-      reject("--design", spec,
-             "heights in [0, 2 h_max] = [0, " + to_str(2 * hmax) + "] m for this configuration (the file's /height_m[" +
-                 to_str(i / d.height_m.cols) + "][" + to_str(i % d.height_m.cols) + "] = " + to_str(h) + " m)");
-  }
-  return d.height_m;
-}
+Map2D load_design(const SystemConfig& cfg, const std::string& spec) { return design_heights_from_spec(cfg, spec, "--design"); }
 
 QuantSpec load_quantizer(const Args& a) {
   QuantSpec s;

@@ -27,7 +27,6 @@
 #include "qdo/mpi.hpp"
 #include "qdo/network_decoder.hpp"
 #include "qdo/psf_source.hpp"
-#include "qdo/reconstruct.hpp"
 #include "qdo/run.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/simulator.hpp"

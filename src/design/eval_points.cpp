@@ -20,7 +20,6 @@
 #include "qdo/io.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/point_psf.hpp"
-#include "qdo/reconstruct.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/simulator.hpp"
 #include "qdo/testset.hpp"

@@ -231,25 +231,6 @@ RealStack render_srgb(const RealStack& cube, const std::vector<double>& wl) {
   return out;
 }
 
-Map2D read_design_heights_for(const SystemConfig& cfg, const std::string& path, const std::string& argument) {
-  if (!fs::is_regular_file(path)) reject(argument, path, "an existing design .h5 file");
-  const Design d = read_design(path);
-  if (d.height_m.rows != cfg.n || d.height_m.cols != cfg.n)
-    reject(argument, path, "a height map of N x N = " + to_str(cfg.n) + " x " + to_str(cfg.n) + " samples, the configuration's (the file has " +
-                               to_str(d.height_m.rows) + " x " + to_str(d.height_m.cols) + ")");
-  if (std::fabs(d.pitch_m - cfg.pitch_m) > 1e-6 * cfg.pitch_m)
-    reject(argument, path, "pitch_m = " + to_str(cfg.pitch_m) + " as configured (the file has " + to_str(d.pitch_m) + ")");
-  const double hmax = cfg.h_max_m();
-  for (std::size_t i = 0; i < d.height_m.data.size(); ++i) {
-    const double h = d.height_m.data[i];
-    if (!std::isfinite(h) || h < 0 || h > 2 * hmax)
-      reject(argument, path,
-             "heights in [0, 2 h_max] = [0, " + to_str(2 * hmax) + "] m for this configuration (the file's /height_m[" +
-                 to_str(i / d.height_m.cols) + "][" + to_str(i % d.height_m.cols) + "] = " + to_str(h) + " m)");
-  }
-  return d.height_m;
-}
-
 SystemConfig with_sensor(const SystemConfig& run_cfg, const std::string& sensor_file, bool trained_decoder,
                          std::vector<std::string>* overridden) {
   static const std::vector<std::string> keys = {"cfa", "black_level_dn", "bit_depth", "gain", "read_noise_sigma", "full_well_photons",

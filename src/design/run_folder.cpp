@@ -1,5 +1,6 @@
 #include "qdo/run_folder.hpp"
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -169,6 +170,37 @@ ResumeState load_resume_state(const std::string& dir) {
   }
   if (fs::exists(log_path)) read_resume_log(log_path.string(), r.state.step, r.log_rows, r.losses);
   return r;
+}
+
+Map2D read_design_heights_for(const SystemConfig& cfg, const std::string& path, const std::string& argument) {
+  if (!fs::is_regular_file(path)) reject(argument, path, "an existing design .h5 file");
+  const Design d = read_design(path);
+  if (d.height_m.rows != cfg.n || d.height_m.cols != cfg.n)
+    reject(argument, path, "a height map of N x N = " + to_str(cfg.n) + " x " + to_str(cfg.n) + " samples, the configuration's (the file has " +
+                               to_str(d.height_m.rows) + " x " + to_str(d.height_m.cols) + ")");
+  if (std::fabs(d.pitch_m - cfg.pitch_m) > 1e-6 * cfg.pitch_m)
+    reject(argument, path, "pitch_m = " + to_str(cfg.pitch_m) + " as configured (the file has " + to_str(d.pitch_m) + ")");
+  const double hmax = cfg.h_max_m();
+  for (std::size_t i = 0; i < d.height_m.data.size(); ++i) {
+    const double h = d.height_m.data[i];
+    if (!std::isfinite(h) || h < 0 || h > 2 * hmax)
+      reject(argument, path,
+             "heights in [0, 2 h_max] = [0, " + to_str(2 * hmax) + "] m for this configuration (the file's /height_m[" +
+                 to_str(i / d.height_m.cols) + "][" + to_str(i % d.height_m.cols) + "] = " + to_str(h) + " m)");
+  }
+  return d.height_m;
+}
+
+Map2D design_heights_from_spec(const SystemConfig& cfg, const std::string& spec, const std::string& argument) {
+  if (spec.empty()) reject(argument, "(missing)", "lens:NM (a diffractive lens for NM nanometres), flat, or a design .h5 file");
+  if (spec == "flat") return flat_design(cfg);
+  if (spec.rfind("lens:", 0) == 0) {
+    char* end = nullptr;
+    const double nm = std::strtod(spec.c_str() + 5, &end);
+    if (*end || !(nm > 0)) reject(argument, spec, "lens:NM with NM a wavelength in nm, e.g. lens:550");
+    return lens_design(cfg, nm);
+  }
+  return read_design_heights_for(cfg, spec, argument);
 }
 
 }  // namespace qdo

@@ -1,98 +1,27 @@
-// qdo command bodies: devices, config, quantize, design, eval, gradcheck (main() and the command table:
-// commands.cpp; psf: cmd_psf.cpp; simulate and image: cmd_simulate.cpp).
+// qdo design: a design optimised end to end into a run folder (design_run.hpp), resumable; with
+// --mode do-finetune, a do run's network fine-tuned for quantized or as-built optics.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
-#include <functional>
-#include <future>
-#include <iostream>
-#include <map>
 #include <set>
-#include <sstream>
 #include <string>
-#include <vector>
 
-#include "qdo/run_folder.hpp"
-#include "qdo/psf_source.hpp"
-#include "qdo/reconstruct.hpp"
+#include "cli.hpp"
 #include "qdo/config.hpp"
-#include "qdo/cpu_reference.hpp"
+#include "qdo/design.hpp"
 #include "qdo/design_run.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/gradcheck.hpp"
+#include "qdo/design_run_options.hpp"
 #include "qdo/doe.hpp"
 #include "qdo/error.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/io.hpp"
+#include "qdo/gradcheck.hpp"
 #include "qdo/mpi.hpp"
-#include "qdo/network_decoder.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/run.hpp"
+#include "qdo/psf_source.hpp"
+#include "qdo/run_folder.hpp"
 #include "qdo/runtime.hpp"
-#include "qdo/scenes.hpp"
-#include "qdo/release.hpp"
-#include "qdo/simulator.hpp"
-#include "cli.hpp"
-
-namespace fs = std::filesystem;
-using namespace qdo;
-using namespace qdo::cli;
+#include "qdo/util.hpp"
 
 namespace qdo::cli {
-
-int cmd_devices(const Args&) {
-  const auto devs = list_devices();
-  for (const auto& d : devs)
-    std::printf("%zu:%zu  %s / %s  [%s]  driver %s  %s  fp64 %s  %u CUs  %.1f GiB\n", d.platform_index, d.device_index,
-                d.platform.c_str(), d.name.c_str(), d.type.c_str(), d.driver_version.c_str(), d.version.c_str(),
-                d.fp64 ? "yes" : "no", d.compute_units, double(d.global_mem_bytes) / 1073741824.0);
-  Runtime rt;
-  std::printf("default: %zu:%zu %s\n", rt.info().platform_index, rt.info().device_index, rt.info().name.c_str());
-  return 0;
-}
-
-int cmd_config(const Args& a) {
-  std::cout << config_to_json_text(load_config(a)) << "\n";
-  return 0;
-}
-
-int cmd_quantize(const Args& a) {
-  const SystemConfig cfg = load_config(a);
-  if (!a.has("levels")) reject("--levels", "(missing)", "the number of levels L >= 2");
-  const std::string out = a.get("out");
-  if (out.empty()) reject("--out", "(missing)", "an output .h5 file");
-  const Map2D full = load_design(cfg, a.get("design"));
-  const QuantSpec qs = load_quantizer(a);
-  const Map2D hq = quantize_heights(full, cfg.h_max_m(), qs.q);
-  Design d;
-  d.height_m = hq;
-  d.pitch_m = cfg.pitch_m;
-  d.levels_m = qs.q.level_heights_m(cfg.h_max_m());
-  if (fs::path(out).has_parent_path()) make_output_dir(fs::path(out).parent_path().string(), "--out");
-  write_design(out, d, {{"source", a.get("design")}, {"mode", "DO (post-hoc uniform quantization)"},
-                        {"levels", std::to_string(qs.q.levels)}, {"placement", to_string(qs.q.placement)}});
-  std::printf("quantized to %d levels (%s): mean |H_q - H_f| = %.3f nm; levels (nm):", qs.q.levels,
-              to_string(qs.q.placement).c_str(), quantization_deviation_m(hq, full) * 1e9);
-  for (double l : d.levels_m) std::printf(" %.1f", l * 1e9);
-  std::printf("\nwrote %s\n", out.c_str());
-  return 0;
-}
-
-
-namespace {
-int print_gradcheck(const std::vector<GradcheckRow>& rows) {
-  bool ok = true;
-  std::printf("%-78s %12s %10s  %s\n", "parameter group", "max rel err", "tolerance", "");
-  for (const auto& r : rows) {
-    std::printf("%-78s %12.3e %10.1e  %s\n", r.group.c_str(), r.max_rel_error, r.tolerance, r.ok() ? "ok" : "FAIL");
-    ok = ok && r.ok();
-  }
-  return ok ? 0 : 5;
-}
-
-}  // namespace
 
 namespace {
 // qdo design --mode do-finetune --from RUN: the options of the do run RUN with this run's levels
@@ -228,59 +157,6 @@ int cmd_design(const Args& a) {
   std::printf("wrote %s/ (config.json checkpoint.h5 log.csv design.h5 psf.h5 design.png psf.png loss.png%s)\n", o.out.c_str(),
               r.point_losses.empty() ? "" : " range.csv range.png");
   return 0;
-}
-
-int cmd_eval(const Args& a) {
-  EvalOptions e;
-  e.run = a.positional;
-  e.data = scene_paths(a, "data");
-  e.levels = a.has("levels") ? parse_int("--levels", a.get("levels"), 2, 65536) : 0;
-  e.placement = placement_from_string(a.get("placement"));
-  e.decoder = decoder_fit_from_string(a.get("decoder"), "--decoder");
-  if (a.has("decoder-kind")) e.decoder_kind = decoder_spec_from_string(a.get("decoder-kind"));
-  e.psf_file = a.get("psf");
-  if (a.has("psf") && a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --psf (the PSF file is the measured camera)");
-  e.design_file = a.get("design");
-  if (a.has("design") && a.has("psf")) reject("--design", e.design_file, "either --psf or --design, not both (the camera as built is one of them)");
-  if (a.has("design") && a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --design (the fitted design is used as it is)");
-  if (a.has("design")) (void)read_design_heights_for(read_run_config(e.run, "RUN").cfg, e.design_file, "--design");
-  e.noise_sigma = a.has("noise-sigma") ? parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale)") : -1;
-  e.renders = std::size_t(parse_int("--renders", a.get("renders"), 0, 1000));
-  e.synthetic_scenes = std::size_t(parse_int("--synthetic-scenes", a.get("synthetic-scenes"), 1, 100000));
-  for (const auto& p : split_items(a.get("pixels"))) {
-    const auto c = p.find(':');
-    if (c == std::string::npos) reject("--pixels", p, "y:x pairs separated by commas");
-    e.pixels.push_back({std::size_t(parse_int("--pixels", p.substr(0, c), 0, 1 << 20)),
-                        std::size_t(parse_int("--pixels", p.substr(c + 1), 0, 1 << 20))});
-  }
-  e.precision = precision_from_string(a.get("precision"));
-  e.out = a.get("out");
-  claim_out(a, e.out);
-  Runtime rt(a.get("device"));
-  const EvalResult r = evaluate_run(rt, e);
-  std::printf("%-28s %8s %8s %7s %8s %8s %8s\n", "scene", "PSNR", "PSNR-H", "SSIM", "RMSE", "ERGAS", "SAM");
-  for (const auto& row : r.rows)
-    std::printf("%-28s %8.2f %8.2f %7.4f %8.4f %8.2f %8.4f\n", row.scene.c_str(), row.psnr, row.psnr_hyper, row.ssim, row.rmse,
-                row.ergas, row.sam_rad);
-  std::printf("%-28s %8.2f %8.2f %7.4f %8.4f %8.2f %8.4f\n", "mean", r.mean.psnr, r.mean.psnr_hyper, r.mean.ssim, r.mean.rmse,
-              r.mean.ergas, r.mean.sam_rad);
-  std::printf("quantization deviation %.3f nm; wrote %s/ (metrics.csv metrics.json reconstructions.h5 render_*.png spectra_*.png)\n",
-              r.deviation_nm, e.out.c_str());
-  return 0;
-}
-
-int cmd_gradcheck(const Args& a) {
-  Args b = a;
-  b.opt["out"] = "(unused)";
-  b.opt["epochs"] = "10";
-  // A generic state whatever the training recipe: qdo's (random heights away from the quantizer's
-  // thresholds, 10 steps an epoch so the checked step 6 lies inside the alpha window). The release
-  // recipe's own terms (L_aq over the rings, the pinned top level) are checked by suite recipe.
-  b.opt["recipe"] = "qdo";
-  DesignRunOptions o = design_options(b);
-  o.validate();  // every option checked before the device is opened
-  Runtime rt(a.get("device"));
-  return print_gradcheck(gradcheck(rt, o, o.design.seed));
 }
 
 }  // namespace qdo::cli

@@ -1,0 +1,37 @@
+// qdo gradcheck: the analytic gradients against finite differences (gradcheck.hpp), and the table
+// it prints (print_gradcheck, also qdo design --check-gradients).
+#include <cstdio>
+#include <vector>
+
+#include "cli.hpp"
+#include "qdo/design_run_options.hpp"
+#include "qdo/gradcheck.hpp"
+#include "qdo/runtime.hpp"
+
+namespace qdo::cli {
+
+int print_gradcheck(const std::vector<GradcheckRow>& rows) {
+  bool ok = true;
+  std::printf("%-78s %12s %10s  %s\n", "parameter group", "max rel err", "tolerance", "");
+  for (const auto& r : rows) {
+    std::printf("%-78s %12.3e %10.1e  %s\n", r.group.c_str(), r.max_rel_error, r.tolerance, r.ok() ? "ok" : "FAIL");
+    ok = ok && r.ok();
+  }
+  return ok ? 0 : 5;
+}
+
+int cmd_gradcheck(const Args& a) {
+  Args b = a;
+  b.opt["out"] = "(unused)";
+  b.opt["epochs"] = "10";
+  // A generic state whatever the training recipe: qdo's (random heights away from the quantizer's
+  // thresholds, 10 steps an epoch so the checked step 6 lies inside the alpha window). The release
+  // recipe's own terms (L_aq over the rings, the pinned top level) are checked by suite recipe.
+  b.opt["recipe"] = "qdo";
+  DesignRunOptions o = design_options(b);
+  o.validate();  // every option checked before the device is opened
+  Runtime rt(a.get("device"));
+  return print_gradcheck(gradcheck(rt, o, o.design.seed));
+}
+
+}  // namespace qdo::cli
