@@ -322,6 +322,55 @@ TEST_SUITE("fit") {
     for (std::size_t b = 0; b < cfg.bands; ++b) CHECK(r.residual_rel_fit[b] < r.residual_rel_design[b]);
   }
 
+  TEST_CASE("the jackknife sigma over band groups: about the curvature sigma under noise alone, far above it when the bands disagree") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    const auto t = truth(cfg, d);
+    AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels", "z", "offset"});
+    FitOptions opt;
+    opt.parameters = {"levels", "z", "offset"};
+    // Noise alone: both estimate the same spread (8 groups of one band: the jackknife's own
+    // scatter is wide, hence the bounds).
+    const FitResult noise = fit_as_built(runtime(), cfg, Precision::F64, d, noisy(m.evaluate(t), 1e-3, 11), opt);
+    CHECK(noise.jackknife_groups == 8);
+    CHECK(noise.sigma_reliable);
+    for (const FitValue& v : noise.values) {
+      CAPTURE(v.name);
+      INFO("sigma " << v.sigma << ", jackknife " << v.sigma_jackknife);
+      REQUIRE(std::isfinite(v.sigma_jackknife));
+      CHECK(v.sigma_jackknife > 0.2 * v.sigma);
+      CHECK(v.sigma_jackknife < 5 * v.sigma);
+    }
+    // A misfit the model does not have, different between wavelengths: the upper half of the bands
+    // measured through levels 12 nm deeper than the lower half's. The fit lands between the two;
+    // the curvature sigma (the noise-free residual's) does not cover that, the jackknife does.
+    std::vector<double> t2 = t;
+    for (std::size_t k = 0; k < 3; ++k) t2[k] += 12e-9;
+    RealStack meas = m.evaluate(t);
+    const RealStack upper = m.evaluate(t2);
+    const std::size_t plane = meas.rows * meas.cols;
+    for (std::size_t i = cfg.bands / 2 * plane; i < meas.data.size(); ++i) meas.data[i] = upper.data[i];
+    const FitResult split = fit_as_built(runtime(), cfg, Precision::F64, d, meas, opt);
+    CHECK_FALSE(split.sigma_reliable);
+    for (std::size_t k = 0; k < 3; ++k) {
+      const FitValue& v = split.values[k];
+      CAPTURE(v.name);
+      INFO("fitted " << v.value << " +- " << v.sigma << " (jackknife " << v.sigma_jackknife << "), lower bands' " << t[k] << ", upper's " << t2[k]);
+      CHECK(v.sigma_jackknife > 3 * v.sigma);
+      // The compromise lies within 3 jackknife sigmas of the mean of the two halves' levels, and
+      // outside 3 curvature sigmas of it.
+      const double mid = 0.5 * (t[k] + t2[k]);
+      CHECK(std::fabs(v.value - mid) < 3 * v.sigma_jackknife);
+      CHECK(std::fabs(v.value - t[k]) > 3 * v.sigma);
+    }
+    // None with jackknife_groups < 2.
+    opt.jackknife_groups = 1;
+    const FitResult none = fit_as_built(runtime(), cfg, Precision::F64, d, meas, opt);
+    CHECK(none.jackknife_groups == 0);
+    CHECK(std::isnan(none.values[0].sigma_jackknife));
+    CHECK_FALSE(none.sigma_reliable);
+  }
+
   TEST_CASE("mask depths of a qdo+m design are recovered; z and d together are reported as not separable") {
     const SystemConfig cfg = fit_config();
     Design d = quantized_lens(cfg);
@@ -442,10 +491,14 @@ TEST_SUITE("fit") {
     CHECK(ok.out.find("lateral starts of dx, dy by scans of each") != std::string::npos);
     CHECK(ok.out.find("fit: start 2 at dx=") != std::string::npos);
     CHECK(ok.out.find("fitted 6 parameters in ") != std::string::npos);
+    CHECK(ok.out.find("SIGMA UNRELIABLE") == std::string::npos);  // an exact fit leaves nothing to disagree on
     for (const char* f : {"fit.h5", "fit.json", "design.h5", "config.json", "fit.png", "residual.png"}) CHECK(fs::exists(dir / "out" / f));
     const auto j = nlohmann::json::parse(slurp(dir / "out" / "fit.json"));
     REQUIRE(j["parameters"].size() == 6);
     CHECK(j["parameters"][0]["name"] == "level1");
+    CHECK(j["parameters"][0].contains("sigma_jackknife"));
+    CHECK(j["jackknife_groups"] == 8);
+    CHECK(j["sigma_reliable"] == true);
     CHECK(std::fabs(j["parameters"][0]["value"].get<double>() - t[0]) < 0.5e-9);
     CHECK(std::fabs(j["parameters"][3]["value"].get<double>() - t[3]) < 1e-3 * t[3]);
     CHECK(h5_read((dir / "out" / "fit.h5").string(), "/correlation").shape == std::vector<std::size_t>{6, 6});

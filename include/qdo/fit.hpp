@@ -41,12 +41,17 @@
 // Gradients: the height parameters (levels, masks, scale, offset) and shift through the
 // simulator's adjoint (psf_sensor_vjp) chained through the shifts' adjoints; z and d by central
 // differences in double (they change the configuration, not the heights). The Gauss-Newton matrix
-// J^T J uses Jacobian columns by central differences of the model (2 evaluations per parameter).
-// Uncertainties: Cov = s^2 (J^T J)^-1, s^2 = 2 L / (m - p) (m residuals, p parameters).
+// J^T J of each step uses Jacobian columns by one-sided differences of the model from the current
+// stack (1 evaluation per parameter; z and d central), the uncertainties at the end central ones.
+// Uncertainties: Cov = s^2 (J^T J)^-1, s^2 = 2 L / (m - p) (m residuals, p parameters); and a
+// jackknife over groups of contiguous bands (FitOptions::jackknife_groups), linearised at the fit:
+// for each group the Gauss-Newton step of the fit without it, from the Jacobian and residuals at
+// the fit (no new model evaluation); sigma_jk^2 = (G - 1) / G sum_g (step_g - mean)^2.
 #pragma once
 #include <Eigen/Dense>
 
 #include <functional>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -90,6 +95,8 @@ struct FitOptions {
   int refine_iterations = 3;
   int max_iterations = 30;             // LM iterations, >= 1
   double tolerance = 1e-7;             // stop when the relative loss decrease of an accepted step is below this
+  // Groups of contiguous bands for the jackknife sigma (FitValue::sigma_jackknife); < 2: none.
+  int jackknife_groups = 8;
   double step_sigmas = 1e-3;           // ... or when an accepted step moves no parameter by more than this many sigmas
   double lambda0 = 1e-3;               // initial Marquardt damping (relative to diag(J^T J))
   // Central-difference steps: z and d relative (x value), heights metres, offsets and shifts pixels.
@@ -108,6 +115,9 @@ struct FitValue {
   double value = 0;                    // fitted
   double sigma = 0;                    // 1-sigma from the Gauss-Newton curvature
   std::string gradient;                // "adjoint", "central differences" or "scan"
+  // 1-sigma from the jackknife over band groups (FitOptions::jackknife_groups; NaN when not
+  // computed, e.g. the aperture): the spread of the fit when each group of bands is left out.
+  double sigma_jackknife = std::numeric_limits<double>::quiet_NaN();
 };
 
 struct FitTimes {
@@ -127,6 +137,12 @@ struct FitResult {
   double condition = 0;                // of J^T J scaled to unit diagonal
   double loss_design = 0, loss_initial = 0, loss_final = 0;
   double residual_sigma = 0;           // s, per pixel
+  int jackknife_groups = 0;            // the band groups of sigma_jackknife (0: not computed)
+  // Whether the curvature sigma can be read as an error: the jackknife was computed and no
+  // parameter's jackknife sigma is over 3 x its curvature sigma (the band groups disagree by more
+  // than it allows: the model misses something that differs between wavelengths), or the fit
+  // left no residual (relative residual below 1e-6 in every band).
+  bool sigma_reliable = false;
   std::vector<double> residual_rel_design, residual_rel_fit;  // per band: |model - measured| / |measured|
   std::vector<double> loss_history;    // loss after each iteration (index 0 = start)
   int iterations = 0;
@@ -176,8 +192,10 @@ class AsBuiltModel {
   // model_out: the model stack at theta, when given.
   double adjoint_gradient(const std::vector<double>& theta, const RealStack& measured, std::vector<double>& grad,
                           RealStack* model_out = nullptr);
-  // d model / d theta: (bands x S x S) x p, column k by central differences along parameter k.
-  Eigen::MatrixXd jacobian(const std::vector<double>& theta);
+  // d model / d theta: (bands x S x S) x p, column k by central differences along parameter k;
+  // with at_theta (the model stack at theta, bands x S x S) by one-sided differences from it,
+  // except z and d (central: their columns give the fit their gradient).
+  Eigen::MatrixXd jacobian(const std::vector<double>& theta, const RealStack* at_theta = nullptr);
   // The relief of theta (N x N metres) and the configuration (z, d, aperture radius).
   Map2D heights(const std::vector<double>& theta) const;
   SystemConfig config(const std::vector<double>& theta) const;

@@ -184,13 +184,15 @@ int cmd_fit(const Args& a) {
   j["design"] = a.get("design");
   j["psf"] = a.get("psf");
   j["parameters"] = nlohmann::json::array();
-  std::vector<double> vals, sig, des;
+  std::vector<double> vals, sig, sig_jk, des;
   std::string names;
   for (const auto& v : r.values) {
     j["parameters"].push_back({{"name", v.name}, {"unit", v.unit}, {"design", v.design}, {"value", v.value}, {"sigma", v.sigma},
+                               {"sigma_jackknife", std::isfinite(v.sigma_jackknife) ? nlohmann::json(v.sigma_jackknife) : nlohmann::json()},
                                {"gradient", v.gradient}});
     vals.push_back(v.value);
     sig.push_back(std::isfinite(v.sigma) ? v.sigma : -1.0);
+    sig_jk.push_back(std::isfinite(v.sigma_jackknife) ? v.sigma_jackknife : -1.0);
     des.push_back(v.design);
     names += (names.empty() ? "" : ",") + v.name;
   }
@@ -219,7 +221,13 @@ int cmd_fit(const Args& a) {
   j["seconds"] = {{"psf", r.times.psf_s}, {"vjp", r.times.vjp_s}, {"jacobian", r.times.jacobian_s}, {"solve", r.times.solve_s},
                   {"aperture_scan", r.times.scan_s}, {"total", fit_s}};
   j["counts"] = {{"psf_evaluations", r.times.psf_evaluations}, {"vjps", r.times.vjps}, {"simulators_built", r.times.simulators_built}};
+  j["jackknife_groups"] = r.jackknife_groups;
+  // Whether the curvature sigma can be read as an error: not when the band groups disagree by more
+  // than it allows (the jackknife sigma over 3 x the curvature sigma for some parameter).
+  j["sigma_reliable"] = r.sigma_reliable;
   j["notes"] = "sigma: 1-sigma from the Gauss-Newton curvature, Cov = s^2 (J^T J)^-1 with s^2 = 2 loss / (m - p), equal weights; "
+               "sigma_jackknife: the spread over fits each leaving out one of jackknife_groups groups of contiguous bands "
+               "(linearised at the fit), which grows where the model misses what differs between wavelengths; "
                "levels: level 0 held at its design value (a common piston is invisible); z and d by central differences; "
                "aperture by a half-pixel scan";
   write_text_atomic(dir + "/fit.json", j.dump(2) + "\n");
@@ -227,6 +235,7 @@ int cmd_fit(const Args& a) {
   std::vector<H5Dataset> ds;
   ds.push_back({"/value", {nv}, vals, {}, {{"names", names}, {"units", "m, px or 1 per parameter (fit.json)"}}});
   ds.push_back({"/sigma", {nv}, sig, {}, {{"names", names}, {"note", "-1: not determined"}}});
+  ds.push_back({"/sigma_jackknife", {nv}, sig_jk, {}, {{"names", names}, {"note", "over band groups; -1: not computed"}}});
   ds.push_back({"/design_value", {nv}, des, {}, {{"names", names}}});
   if (np > 0) ds.push_back({"/correlation", {np, np}, corr, {}, {{"names", names}}});
   ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});
@@ -289,9 +298,17 @@ int cmd_fit(const Args& a) {
 
   std::printf("fitted %zu parameters in %d iterations (%s) in %.2f s: loss %.4e -> %.4e, residual sigma %.3e per pixel\n", np,
               r.iterations, r.converged ? "converged" : "iteration limit", fit_s, r.loss_design, r.loss_final, r.residual_sigma);
-  for (const auto& v : r.values)
-    std::printf("  %-9s %s +- %s (design %s; %s)\n", v.name.c_str(), human(v, v.value).c_str(),
-                std::isfinite(v.sigma) ? human(v, v.sigma).c_str() : "undetermined", human(v, v.design).c_str(), v.gradient.c_str());
+  for (const auto& v : r.values) {
+    const std::string jk = std::isfinite(v.sigma_jackknife) ? ", jackknife +- " + human(v, v.sigma_jackknife) : std::string();
+    std::printf("  %-9s %s +- %s (design %s; %s%s)\n", v.name.c_str(), human(v, v.value).c_str(),
+                std::isfinite(v.sigma) ? human(v, v.sigma).c_str() : "undetermined", human(v, v.design).c_str(), v.gradient.c_str(),
+                jk.c_str());
+  }
+  if (!r.sigma_reliable && r.jackknife_groups >= 2)
+    std::printf("note: SIGMA UNRELIABLE: for some parameters the jackknife sigma over %d band groups is more than 3 x the curvature "
+                "sigma: the model misses something that differs between wavelengths, and the curvature sigma does not bound the "
+                "error; the jackknife sigma is a lower bound on it (fit.json sigma_reliable)\n",
+                r.jackknife_groups);
   for (const auto& d : r.degenerate)
     std::printf("  not separable: %s and %s (correlation %+.4f)\n", r.values[d.first].name.c_str(), r.values[d.second].name.c_str(),
                 r.correlation(long(d.first), long(d.second)));

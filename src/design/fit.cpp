@@ -115,7 +115,7 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
       std::vector<double> grad;
       RealStack current;
       l = model.adjoint_gradient(th, measured, grad, &current);
-      const Eigen::MatrixXd j = model.jacobian(th);
+      const Eigen::MatrixXd j = model.jacobian(th, &current);  // one-sided: J^T J for the step
       const auto ts = std::chrono::steady_clock::now();
       const Eigen::VectorXd r = Eigen::Map<const Eigen::VectorXd>(current.data.data(), long(m)) - meas;
       Eigen::VectorXd g = Eigen::VectorXd::Zero(long(np));
@@ -351,11 +351,53 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   for (std::size_t x = 0; x < np; ++x)
     for (std::size_t y = x + 1; y < np; ++y)
       if (std::fabs(res.correlation(long(x), long(y))) > 0.95) res.degenerate.push_back({x, y});
+  // The jackknife over band groups: the bands in jackknife_groups contiguous groups; for each, the
+  // Gauss-Newton step from the fit with that group's residuals left out (linearised: the Jacobian
+  // and residuals at the fit, no new model evaluation), sigma_jk^2 = (G - 1) / G sum (step -
+  // mean step)^2. Where the model misses something that differs between wavelengths, the groups
+  // pull the parameters apart and sigma_jk grows; the curvature sigma does not see it.
+  res.model_psf = model.evaluate(theta);
+  const std::size_t groups = std::min<std::size_t>(cfg.bands, std::size_t(std::max(0, opt.jackknife_groups)));
+  if (groups >= 2 && np > 0) {
+    const Eigen::VectorXd r = Eigen::Map<const Eigen::VectorXd>(res.model_psf.data.data(), long(m)) - meas;
+    const Eigen::VectorXd g_all = j.transpose() * r;
+    const std::size_t plane = measured.rows * measured.cols;
+    std::vector<Eigen::VectorXd> steps;
+    for (std::size_t q = 0; q < groups; ++q) {
+      const std::size_t b0 = q * cfg.bands / groups, b1 = (q + 1) * cfg.bands / groups;
+      const long row0 = long(b0 * plane), rows = long((b1 - b0) * plane);
+      const Eigen::MatrixXd jq = j.middleRows(row0, rows);
+      const Eigen::MatrixXd aq = a - jq.transpose() * jq;
+      const Eigen::VectorXd gq = g_all - jq.transpose() * r.segment(row0, rows);
+      // Solved in the unit-diagonal scaling of the full problem, small eigenvalues dropped (as the covariance).
+      const Eigen::MatrixXd aqs = dinv.asDiagonal() * aq * dinv.asDiagonal();
+      Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eq(aqs);
+      const Eigen::VectorXd evq = eq.eigenvalues();
+      Eigen::VectorXd inv = Eigen::VectorXd::Zero(long(np));
+      for (long k = 0; k < long(np); ++k) inv(k) = evq(k) > 1e-12 * evq.maxCoeff() ? 1 / evq(k) : 0;
+      steps.push_back(-(dinv.asDiagonal() * (eq.eigenvectors() * inv.asDiagonal() * eq.eigenvectors().transpose()) *
+                        (dinv.asDiagonal() * gq)));
+    }
+    Eigen::VectorXd mean = Eigen::VectorXd::Zero(long(np));
+    for (const auto& d : steps) mean += d / double(groups);
+    for (std::size_t k = 0; k < np; ++k) {
+      double v = 0;
+      for (const auto& d : steps) v += (d(long(k)) - mean(long(k))) * (d(long(k)) - mean(long(k)));
+      res.values[k].sigma_jackknife = std::sqrt(v * double(groups - 1) / double(groups));
+    }
+    res.jackknife_groups = int(groups);
+  }
   t.solve_s += since(t2);
   if (scan_aperture) res.values.push_back(aperture);
-  res.model_psf = model.evaluate(theta);
   res.loss_final = 0.5 * (Eigen::Map<const Eigen::VectorXd>(res.model_psf.data.data(), long(m)) - meas).squaredNorm();
   res.residual_rel_fit = band_residuals(res.model_psf, measured);
+  if (res.jackknife_groups >= 2) {
+    const double worst = *std::max_element(res.residual_rel_fit.begin(), res.residual_rel_fit.end());
+    res.sigma_reliable = true;
+    for (const FitValue& v : res.values)
+      if (worst >= 1e-6 && std::isfinite(v.sigma_jackknife) && std::isfinite(v.sigma) && v.sigma_jackknife > 3 * v.sigma)
+        res.sigma_reliable = false;
+  }
   res.as_built.height_m = model.heights(theta);
   res.as_built.pitch_m = design.pitch_m;
   res.as_built.levels_m = model.levels(theta);
