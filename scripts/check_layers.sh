@@ -76,6 +76,7 @@ psf physics
 psf_metrics physics
 psf_reference physics
 psf_source physics
+psf_spec design
 point_psf physics
 reconstruct design
 radial physics

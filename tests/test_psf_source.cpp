@@ -11,6 +11,8 @@
 #include "qdo/camera.hpp"
 #include "qdo/io.hpp"
 #include "qdo/psf_source.hpp"
+#include "qdo/psf_spec.hpp"
+#include "qdo/error.hpp"
 #include "qdo/radial.hpp"
 #include "qdo/simulator.hpp"
 
@@ -66,6 +68,45 @@ TEST_SUITE("psf-source") {
       // A fixed stack has no parameters to take a gradient to.
       CHECK_THROWS_AS(fixed.parameter_vjp(sim.psf_sensor_buffer()), Error);
     }
+  }
+
+  TEST_CASE("a PSF spec: one of --psf and --design, read without a device, made into a source in one place") {
+    const SystemConfig c = tiny_config(32, 3);
+    // Both refused naming the design option and the reason; neither: the run's design.
+    CHECK_THROWS_WITH_AS(psf_spec_from_options("a.h5", "b.h5", "--psf", "--design", "one camera"),
+                         doctest::Contains("either --psf or --design, not both (one camera)"), InputError);
+    CHECK(psf_spec_from_options("", "", "--psf", "--design", "x").kind == PsfSpec::Kind::Run);
+    CHECK_THROWS_WITH_AS(read_psf_input(psf_spec_from_options("", "", "--psf", "--design", "x"), c), doctest::Contains("--design"),
+                         InputError);
+    // A design by name: the lens's heights, simulated; its stack is the simulator's.
+    const PsfInput lens = read_psf_input(psf_spec_from_options("", "lens:500", "--psf", "--design", "x"), c);
+    CHECK(lens.spec.kind == PsfSpec::Kind::Design);
+    CHECK(lens.heights.data == lens_design(c, 500).data);
+    CHECK(lens.describe() == "fitted design lens:500 (simulated)");
+    const RealStack from_design = psf_stack(runtime(), c, Precision::F64, lens);
+    Simulator sim(runtime(), c, Precision::F64);
+    sim.set_heights(lens_design(c, 500));
+    sim.compute_psf();
+    CHECK(from_design.data == sim.psf_sensor().data);
+    // A file: its stack as read and checked, the same through the source.
+    const auto dir = temp_dir("psf_spec");
+    const std::string file = (dir / "psf.h5").string();
+    write_psf(file, from_design, c.wavelengths_nm(), c.sensor_pitch_m);
+    const PsfInput stack = read_psf_input(psf_spec_from_options(file, "", "--psf", "--design", "x"), c);
+    CHECK(stack.from_file());
+    CHECK(stack.describe() == "PSF file " + file);
+    CHECK(psf_stack(runtime(), c, Precision::F64, stack).data == from_design.data);
+    SpecPsfSource src = make_psf_source(runtime(), c, Precision::F64, stack);
+    src.compute();
+    CHECK(src.source().psf_sensor().data == from_design.data);
+    // The run's design, given as heights.
+    const Map2D flat = flat_design(c);
+    const PsfInput run = read_psf_input(psf_spec_from_options("", "", "--psf", "--design", "x"), c, &flat);
+    CHECK(run.describe("RUN/design.h5") == "the run's design RUN/design.h5 (simulated)");
+    // A missing file is refused naming it.
+    CHECK_THROWS_WITH_AS(read_psf_input(psf_spec_from_options((dir / "none.h5").string(), "", "--psf", "--design", "x"), c),
+                         doctest::Contains("none.h5"), InputError);
+    std::filesystem::remove_all(dir);
   }
 
   TEST_CASE("the radial engine is a PSF source for the camera too") {

@@ -27,61 +27,29 @@
 #include "qdo/raw_reference.hpp"
 #include "qdo/release.hpp"
 #include "qdo/scenes.hpp"
+#include "qdo/psf_spec.hpp"
 #include "qdo/simulator.hpp"
 
 namespace qdo::cli {
 
 namespace {
 
-// The PSF of simulate and image, decided and checked before any device work: --psf FILE (the
-// file's stack, checked against the configuration's bands and sensor grid) or --design (heights,
-// simulated once the device is up). Exactly one of the two.
-struct PsfInput {
-  bool from_file = false;
-  std::string path;
-  RealStack file_stack;  // bands x S x S (from_file)
-  Map2D h;               // N x N heights, metres (design)
-};
-
+// The PSF of simulate and image, decided and checked before any device work (psf_spec.hpp):
+// --psf FILE (the file's stack, checked against the configuration's bands and sensor grid) or
+// --design (heights, quantized by --levels when given, simulated once the device is up). Exactly
+// one of the two.
 PsfInput psf_input(const SystemConfig& cfg, const Args& a) {
-  PsfInput in;
-  if (a.has("psf")) {
-    in.path = a.get("psf");
-    if (a.has("design")) reject("--psf", in.path, "either --psf or --design, not both (the PSF comes from one of them)");
+  const PsfSpec spec = psf_spec_from_options(a.get("psf"), a.get("design"), "--psf", "--design", "the PSF comes from one of them");
+  if (spec.kind == PsfSpec::Kind::File) {
     if (a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --psf (the PSF file is used as it is)");
-    in.from_file = true;
-    in.file_stack = read_psf_stack_for(cfg, in.path, "--psf");
-    return in;
+    return read_psf_input(spec, cfg);
   }
-  if (!a.has("design")) reject("--design", "(missing)", "lens:NM, flat, or a design .h5 file (or --psf FILE: a PSF stack)");
-  in.h = design_heights(cfg, a);
+  if (spec.kind == PsfSpec::Kind::Run) reject("--design", "(missing)", "lens:NM, flat, or a design .h5 file (or --psf FILE: a PSF stack)");
+  PsfInput in;
+  in.spec = spec;
+  in.heights = design_heights(cfg, a);
   return in;
 }
-
-// The device source for a checked input: a Simulator with the design's heights (no adjoint
-// follows: the field is not kept; compute() makes the PSF), or the file's stack on the device.
-struct PsfSourceHolder {
-  std::unique_ptr<Simulator> sim;
-  std::unique_ptr<StackPsfSource> file;
-  const PsfSource& source() const { return sim ? static_cast<const PsfSource&>(*sim) : *file; }
-  // The design's PSF on the device (nothing to compute for a file).
-  void compute() {
-    if (sim) sim->compute_psf();
-  }
-};
-
-PsfSourceHolder make_source(Runtime& rt, const SystemConfig& cfg, Precision p, const PsfInput& in) {
-  PsfSourceHolder s;
-  if (in.from_file) {
-    s.file = std::make_unique<StackPsfSource>(rt, cfg, p, in.file_stack, "PSF file '" + in.path + "'");
-  } else {
-    s.sim = std::make_unique<Simulator>(rt, cfg, p);
-    s.sim->set_keep_field(false);  // no adjoint follows (Simulator::set_keep_field)
-    s.sim->set_heights(in.h);
-  }
-  return s;
-}
-
 
 // Raw captures need what a raw file holds: one mosaic plane of integer code values.
 void check_raw_config(const SystemConfig& cfg, const std::string& option) {
@@ -136,7 +104,7 @@ int simulate_psf_sweep(const Args& a, const SystemConfig& cfg, Precision p) {
                " frame: rows and columns in [" + to_str(half) + ", " + to_str(long(F) - long(S) + half) + "]");
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
-  PsfSourceHolder src = make_source(rt, cfg, p, in);
+  SpecPsfSource src = make_psf_source(rt, cfg, p, in);
   src.compute();
   const RealStack psf = src.source().psf_sensor();
   const Eigen::MatrixXd srf = sensor_response(cfg);
@@ -191,7 +159,7 @@ int simulate_psf_sweep(const Args& a, const SystemConfig& cfg, Precision p) {
             {"/peak_dn", {cfg.bands}, peak_dn, {}, {{"units", "DN, the frame's largest code value"}}}},
            {{"config", config_to_json_text(cfg)},
             {"source", "qdo simulate --capture psf-sweep"},
-            {"design", in.from_file ? in.path : a.get("design")},
+            {"design", in.from_file() ? in.spec.value : a.get("design")},
             {"frame_size", to_str(F)},
             {"centre_row_col", to_str(cy) + "," + to_str(cx)},
             {"peak", to_str(peak)},
@@ -242,9 +210,9 @@ int cmd_simulate(const Args& a) {
     cam_cfg.full_well_photons = 0;
   }
   const PsfInput in = psf_input(cfg, a);
-  if (in.from_file && release)
+  if (in.from_file() && release)
     reject("--formation", formation, "qdo with --psf (the release formation needs the native-grid PSF, which a PSF file does not hold)");
-  if (in.from_file && save_native(a)) reject("--save", a.get("save"), "no native output with --psf (the file holds the sensor-grid stack only)");
+  if (in.from_file() && save_native(a)) reject("--save", a.get("save"), "no native output with --psf (the file holds the sensor-grid stack only)");
   const RealStack scene = scene_from_args(cfg, a);
   if (release) {  // the release's geometry needs a square scene and N >= S + 2; checked before any device work
     if (scene.rows != scene.cols)
@@ -265,7 +233,7 @@ int cmd_simulate(const Args& a) {
   }
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
-  PsfSourceHolder src = make_source(rt, cam_cfg, p, in);
+  SpecPsfSource src = make_psf_source(rt, cam_cfg, p, in);
   const auto t0 = std::chrono::steady_clock::now();
   src.compute();
   const RealStack psf_s = src.source().psf_sensor();
@@ -303,7 +271,7 @@ int cmd_simulate(const Args& a) {
         const auto t1 = std::chrono::steady_clock::now();
         write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
         if (src.sim)
-          write_psf_h5(*src.sim, SensorStack(psf_s), in.h, dir, a.get("design"), save_native(a), a.has("compress"));
+          write_psf_h5(*src.sim, SensorStack(psf_s), in.heights, dir, a.get("design"), save_native(a), a.has("compress"));
         else
           write_psf(dir + "/psf.h5", psf_s, cfg.wavelengths_nm(), cfg.sensor_pitch_m);
         write_rgb_png(dir + "/sensor.png", rgb);
@@ -313,7 +281,7 @@ int cmd_simulate(const Args& a) {
         write_rgb_png(dir + "/scene.png", scene_rgb);
         write_psf_figure(dir + "/psf.png", "PSF stack on the sensor", psf_s, cfg.wavelengths_nm(), cfg.sensor_pitch_m,
                          std::min<std::size_t>(psf_s.rows, 96));
-        if (!in.from_file) write_height_figure(dir + "/design.png", "DOE height map", in.h, cfg.pitch_m);
+        if (!in.from_file()) write_height_figure(dir + "/design.png", "DOE height map", in.heights, cfg.pitch_m);
       });
   std::string raw_line;
   if (raw) {
@@ -350,7 +318,7 @@ int cmd_simulate(const Args& a) {
               release ? "release (bilinear up, mirror padding, shifted PSF, bilinear down)" : "qdo (camera operator, area-sampled PSF)",
               src.source().describe().c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs, to_string(p).c_str(),
               outputs_s, src.sim ? src.sim->sampling().summary().c_str() : "sampling: not known for a PSF read from a file",
-              clip_summary(clip).c_str(), raw_line.c_str(), dir.c_str(), in.from_file ? "" : ", design.png",
+              clip_summary(clip).c_str(), raw_line.c_str(), dir.c_str(), in.from_file() ? "" : ", design.png",
               raw ? ", raw.png, raw.h5, raw_demosaiced.png" : "");
   return 0;
 }
@@ -369,7 +337,7 @@ int cmd_image(const Args& a) {
   const RealStack scene = scene_from_args(cfg, a);
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
-  PsfSourceHolder src = make_source(rt, cfg, p, in);
+  SpecPsfSource src = make_psf_source(rt, cfg, p, in);
   src.compute();
   Camera im(src.source());
   const auto t0 = std::chrono::steady_clock::now();

@@ -26,6 +26,7 @@
 #include "qdo/psf_source.hpp"
 #include "qdo/raw_reference.hpp"
 #include "qdo/run.hpp"
+#include "qdo/psf_spec.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/scenes.hpp"
 #include "qdo/simulator.hpp"
@@ -269,8 +270,7 @@ SystemConfig with_sensor(const SystemConfig& run_cfg, const std::string& sensor_
 ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   using clock = std::chrono::steady_clock;
   if (o.out.empty()) reject("--out", "(missing)", "an output folder");
-  if (!o.psf_file.empty() && !o.design_file.empty())
-    reject("--design", o.design_file, "either --psf or --design, not both (the camera as built is one of them)");
+  (void)psf_spec_from_options(o.psf_file, o.design_file, "--psf", "--design", "the camera as built is one of them");  // both: refused first
   const RunFolder folder(o.run);
   const DesignRunOptions ro = folder.config("--run");
   const DecoderEntry entry = decoder_entry(ro.decoder.kind_name());
@@ -296,10 +296,15 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   std::vector<std::pair<std::string, double>> secs;
   // Every input read and checked before any work.
   auto t = clock::now();
-  const std::string psf_file = !o.psf_file.empty() ? o.psf_file : o.design_file.empty() ? ro.finetune_psf : "";
-  const std::string design_file = !o.design_file.empty() ? o.design_file : o.psf_file.empty() ? ro.finetune_design : "";
-  const RealStack psf_from_file = psf_file.empty() ? RealStack() : read_psf_stack_for(cfg, psf_file, "--psf");
-  const Map2D heights = !design_file.empty() ? read_design_heights_for(cfg, design_file, "--design") : folder.design().height_m;
+  // The camera as built (psf_spec.hpp): --psf or --design, else the run's do-finetune target, else its design.
+  const bool given = !o.psf_file.empty() || !o.design_file.empty();
+  const PsfSpec spec = psf_spec_from_options(given ? o.psf_file : ro.finetune_psf, given ? o.design_file : ro.finetune_design, "--psf",
+                                             "--design", "the camera as built is one of them");
+  const PsfInput psf_in = spec.kind == PsfSpec::Kind::Run ? [&] {
+    const Map2D run_heights = folder.design().height_m;
+    return read_psf_input(spec, cfg, &run_heights);
+  }()
+                                                          : read_psf_input(spec, cfg);
   const wiener::SpectralPrior prior = folder.prior(s);
   const CaptureFiles files = read_captures(cfg, o.capture);
   if (o.capture.crop) {
@@ -333,17 +338,8 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   // The PSF the decoder is built for, then the decoder (the registry's, as `qdo eval` builds it).
   t = clock::now();
   ReconstructResult res;
-  RealStack psf = psf_from_file;
-  if (psf_file.empty()) {
-    Simulator sim(rt, cfg, o.precision);
-    sim.set_keep_field(false);
-    sim.set_heights(heights);
-    sim.compute_psf();
-    psf = sim.psf_sensor();
-  }
-  res.psf = !psf_file.empty()      ? "PSF file " + psf_file
-            : !design_file.empty() ? "fitted design " + design_file + " (simulated)"
-                                   : "the run's design " + folder.design_path() + " (simulated)";
+  const RealStack psf = psf_stack(rt, cfg, o.precision, psf_in);
+  res.psf = psf_in.describe(folder.design_path());
   DecoderInputs in;
   in.spec = ro.decoder;
   in.psf = psf;
