@@ -17,6 +17,7 @@
 #include "qdo/gradcheck.hpp"
 #include "qdo/mpi.hpp"
 #include "qdo/psf_source.hpp"
+#include "qdo/psf_spec.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/util.hpp"
@@ -55,17 +56,14 @@ DesignRunOptions finetune_options(const Args& a) {
   if (a.has("precision")) o.precision = precision_from_string(a.get("precision"));
   // do-finetune for the camera as built: the frozen PSF is a measured stack or a fitted design's,
   // checked against the do run's configuration here, before any work.
-  if (a.has("psf") && a.has("design"))
-    reject("--design", a.get("design"), "either --psf or --design, not both (the frozen PSF comes from one of them)");
-  if (a.has("psf")) {
-    if (a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --psf (the measured stack is used as it is)");
-    o.finetune_psf = a.get("psf");
-    (void)read_psf_stack_for(o.cfg, o.finetune_psf, "--psf");
-  }
-  if (a.has("design")) {
-    if (a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --design (the fitted design is used as it is)");
-    o.finetune_design = a.get("design");
-    (void)read_design_heights_for(o.cfg, o.finetune_design, "--design");
+  const PsfSpec asbuilt = psf_spec_from_options(a.get("psf"), a.get("design"), "--psf", "--design", "the frozen PSF comes from one of them");
+  if (asbuilt.kind != PsfSpec::Kind::Run) {
+    if (a.has("levels"))
+      reject("--levels", a.get("levels"),
+             asbuilt.kind == PsfSpec::Kind::File ? "no --levels with --psf (the measured stack is used as it is)"
+                                                 : "no --levels with --design (the fitted design is used as it is)");
+    (asbuilt.kind == PsfSpec::Kind::File ? o.finetune_psf : o.finetune_design) = asbuilt.value;
+    (void)read_psf_input(asbuilt, o.cfg);
   }
   o.out = a.get("out");
   return o;

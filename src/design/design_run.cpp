@@ -28,6 +28,7 @@
 #include "qdo/network_decoder.hpp"
 #include "qdo/psf_source.hpp"
 #include "qdo/run.hpp"
+#include "qdo/psf_spec.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/simulator.hpp"
 
@@ -196,8 +197,12 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   // against the configuration before any writing.
   RealStack asbuilt_psf;
   Map2D asbuilt_heights;
-  if (finetune && !o.finetune_psf.empty()) asbuilt_psf = read_psf_stack_for(o.cfg, o.finetune_psf, "psf");
-  if (finetune && !o.finetune_design.empty()) asbuilt_heights = read_design_heights_for(o.cfg, o.finetune_design, "design");
+  if (finetune && (!o.finetune_psf.empty() || !o.finetune_design.empty())) {
+    const PsfInput in = read_psf_input(
+        psf_spec_from_options(o.finetune_psf, o.finetune_design, "psf", "design", "the frozen PSF comes from one of them"), o.cfg);
+    asbuilt_psf = in.stack;
+    asbuilt_heights = in.heights;
+  }
   const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing
   std::unique_ptr<NetworkDecoder> net;
   if (network) net = make_network_decoder(network_settings(o));  // refused here when built without LibTorch

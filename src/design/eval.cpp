@@ -25,6 +25,7 @@
 #include "qdo/network_decoder.hpp"
 #include "qdo/optics.hpp"
 #include "qdo/run.hpp"
+#include "qdo/psf_spec.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/scenes.hpp"
 #include "qdo/testset.hpp"
@@ -60,8 +61,7 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& given) {
   const RunFolder folder(given.run);
   const DesignRunOptions o = folder.config();
   EvalOptions e = given;
-  if (!e.psf_file.empty() && !e.design_file.empty())
-    reject("design", e.design_file, "either a PSF file or a fitted design, not both (psf = " + e.psf_file + ")");
+  (void)psf_spec_from_options(e.psf_file, e.design_file, "psf", "design", "the camera as built is one of them");  // both: refused first
   // A run fine-tuned for the camera as built is evaluated through that camera by default.
   if (e.psf_file.empty() && e.design_file.empty() && e.levels == 0 && !e.full_precision) {
     e.psf_file = o.finetune_psf;
@@ -111,16 +111,20 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& given) {
   const Design fab = folder.design();
   const std::size_t s = cfg.sensor_size_px();
   const wiener::SpectralPrior prior = folder.prior(s);
-  // A PSF file is read and checked against the run's configuration before any work.
-  const RealStack psf_file = e.psf_file.empty() ? RealStack() : read_psf_stack_for(cfg, e.psf_file, "psf");
-  Map2D h_eval = e.full_precision ? full.height_m : fab.height_m;
-  if (!e.design_file.empty()) h_eval = read_design_heights_for(cfg, e.design_file, "design");
+  // The camera evaluated (psf_spec.hpp), read and checked against the run's configuration before
+  // any work: a PSF file, a fitted design, or the run's own heights (quantized, full precision or
+  // re-quantized to other levels).
+  Map2D h_run = e.full_precision ? full.height_m : fab.height_m;
   if (e.levels > 0 && !e.full_precision) {
     Quantizer q;
     q.levels = e.levels;
     q.placement = e.placement;
-    h_eval = quantize_heights(full.height_m, cfg.h_max_m(), q);
+    h_run = quantize_heights(full.height_m, cfg.h_max_m(), q);
   }
+  const PsfInput psf_in =
+      read_psf_input(psf_spec_from_options(e.psf_file, e.design_file, "psf", "design", "the camera as built is one of them"), cfg, &h_run);
+  const RealStack& psf_file = psf_in.stack;
+  const Map2D& h_eval = psf_in.from_file() ? h_run : psf_in.heights;
   const double sigma = e.noise_sigma >= 0 ? e.noise_sigma : o.decoder_noise_sigma;
 
   // Test scenes as S x S patches (non-overlapping), tagged with their scene name.
@@ -166,9 +170,8 @@ EvalResult evaluate_run(Runtime& rt, const EvalOptions& given) {
   in.run_network = [&e] { return load_run_network(e.run); };
   const std::unique_ptr<Decoder> dec = make_decoder(in);
   const std::string imaging = dec->description().empty() ? "decoder " + spec.to_string() : dec->description();
-  const std::string psf_used = !e.psf_file.empty()      ? "PSF file " + e.psf_file
-                               : !e.design_file.empty() ? "fitted design " + e.design_file + " (simulated)"
-                               : e.full_precision       ? "the run's full-precision design (simulated)"
+  const std::string psf_used = psf_in.spec.kind != PsfSpec::Kind::Run ? psf_in.describe()
+                               : e.full_precision                      ? "the run's full-precision design (simulated)"
                                : e.levels > 0           ? "the run's design re-quantized to " + to_str(e.levels) + " levels (simulated)"
                                                         : "the run's design (simulated)";
 
