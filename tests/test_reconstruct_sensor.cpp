@@ -181,7 +181,7 @@ TEST_SUITE("reconstruct") {
     fs::remove_all(dir);
   }
 
-  TEST_CASE("qdo reconstruct --sensor: raw captures for a run trained on RGB, as its config.json edited by hand; non-sensor keys refused") {
+  TEST_CASE("qdo reconstruct --sensor: raw captures for a run trained on RGB, as its config.json edited by hand; non-sensor keys refused; --noise-sigma model") {
     const SharedRun& s = shared_run();  // a Wiener run of tiny(): RGB captures (cfa none)
     const auto dir = temp_dir("recon_sensor");
     const std::size_t H = 24, W = 28;
@@ -223,6 +223,26 @@ TEST_SUITE("reconstruct") {
                                (dir / "raw.png").string() + " --out " + (dir / "optics").string());
     CHECK(optics.code == 2);
     CHECK_MESSAGE(optics.out.find("'pitch_m' is not a sensor key") != std::string::npos, optics.out);
+    // --noise-sigma model: the sensor's noise at the capture's mean signal (read 0.002, 10,000
+    // photons full well, 12 bits), the mean as the test's own mosaic gives it (within the
+    // demosaic's reweighting of green, 15 %).
+    std::ofstream(dir / "noisy_sensor.json")
+        << R"({"cfa": "rggb", "bit_depth": 12, "black_level_dn": 64, "read_noise_sigma": 0.002, "full_well_photons": 10000})";
+    const Run model = qdo_run("reconstruct --run " + s.dir.string() + " --sensor " + (dir / "noisy_sensor.json").string() + " --capture " +
+                              (dir / "raw.png").string() + " --noise-sigma model --out " + (dir / "model").string());
+    REQUIRE_MESSAGE(model.code == 0, model.out);
+    const json jm = read_json(dir / "model" / "reconstruct.json");
+    double v_mosaic = 0;
+    for (double x : dn.data) v_mosaic += (x - 64) / (4095 - 64) / double(dn.data.size());
+    const double v = jm.at("noise_sigma_model").at("mean_signal").get<double>();
+    CHECK(v == doctest::Approx(v_mosaic).epsilon(0.15));
+    const double lsb = 1.0 / 4095;
+    CHECK(jm.at("noise_sigma").get<double>() == doctest::Approx(std::sqrt(0.002 * 0.002 + v / 10000 + lsb * lsb / 12)).epsilon(1e-9));
+    CHECK(jm.at("noise_sigma").get<double>() > 0.002);  // shot noise on top of the read noise
+    const Run word = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "raw.png").string() +
+                             " --noise-sigma modle --out " + (dir / "word").string());
+    CHECK(word.code == 2);
+    CHECK_MESSAGE(word.out.find("--noise-sigma") != std::string::npos, word.out);
     std::ofstream(dir / "bad.json") << R"({"cfa": "rgbg"})";
     const Run bad = qdo_run("reconstruct --run " + s.dir.string() + " --sensor " + (dir / "bad.json").string() + " --capture " +
                             (dir / "raw.png").string() + " --out " + (dir / "bad").string());

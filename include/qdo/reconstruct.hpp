@@ -186,7 +186,12 @@ struct ReconstructOptions {
   // (which refuses mirror: it was trained on circular S x S patches).
   bool boundary_set = false;
   TileBoundary boundary = TileBoundary::Mirror;
-  double noise_sigma = -1;     // the Wiener decoder's sigma; < 0: the run's
+  double noise_sigma = -1;     // the Wiener decoder's sigma; < 0: the run's (or the model's, below)
+  // The sigma from the sensor's noise model at the capture's mean signal v (full-scale units,
+  // before the exposure): sqrt(read^2 + v / full well + (1 / (2^bits - 1))^2 / 12), times the
+  // exposure factor; each term only where the configuration has it (read_noise_sigma,
+  // full_well_photons > 0, bit_depth > 0). Demosaic error is not in it.
+  bool noise_sigma_model = false;
   std::vector<SpectrumRegion> regions;  // empty: the image centre
   std::string out;
   Precision precision = Precision::F32;

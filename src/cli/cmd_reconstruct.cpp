@@ -47,7 +47,10 @@ int cmd_reconstruct(const Args& a) {
     o.boundary_set = true;
     o.boundary = tile_boundary_from_string(a.get("boundary"), "--boundary");
   }
-  if (a.has("noise-sigma")) o.noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale)");
+  if (a.get("noise-sigma") == "model")
+    o.noise_sigma_model = true;
+  else if (a.has("noise-sigma"))
+    o.noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale, or model)");
   o.regions = parse_regions(a.get("points"), false, "--points");
   for (const auto& r : parse_regions(a.get("boxes"), true, "--boxes")) o.regions.push_back(r);
   o.precision = precision_from_string(a.get("precision"));

@@ -346,6 +346,14 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   in.srf = sensor_response(cfg);
   in.prior = boundary == TileBoundary::Mirror ? regrid_prior(prior, 2 * s, 2 * s) : prior;
   in.noise_sigma = o.noise_sigma >= 0 ? o.noise_sigma : ro.decoder_noise_sigma;
+  double mean_signal = 0;  // the capture's mean, full-scale units before the exposure
+  if (o.noise_sigma_model) {
+    for (double v : cap.rgb.data) mean_signal += v;
+    mean_signal /= double(std::max<std::size_t>(cap.rgb.data.size(), 1)) * cap.exposure_factor;
+    const double lsb = cfg.bit_depth > 0 ? 1.0 / (std::ldexp(1.0, int(cfg.bit_depth)) - 1) : 0.0;
+    const double shot = cfg.full_well_photons > 0 ? std::max(mean_signal, 0.0) / cfg.full_well_photons : 0.0;
+    in.noise_sigma = cap.exposure_factor * std::sqrt(cfg.read_noise_sigma * cfg.read_noise_sigma + shot + lsb * lsb / 12);
+  }
   const std::string run = o.run;
   in.run_network = [run] { return load_run_network(run); };
   const std::unique_ptr<Decoder> dec = make_decoder(in);
@@ -447,6 +455,13 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   j["overlap_px"] = overlap;
   j["boundary"] = res.boundary;
   j["noise_sigma"] = in.noise_sigma;
+  if (o.noise_sigma_model)
+    j["noise_sigma_model"] = {{"mean_signal", mean_signal},
+                              {"read_noise_sigma", cfg.read_noise_sigma},
+                              {"full_well_photons", cfg.full_well_photons},
+                              {"bit_depth", cfg.bit_depth},
+                              {"exposure_factor", cap.exposure_factor},
+                              {"formula", "exposure x sqrt(read^2 + mean_signal / full_well + (1 / (2^bits - 1))^2 / 12); no demosaic error"}};
   nlohmann::json st = nlohmann::json::object();
   for (const auto& [k, v] : secs) st[k] = v;
   j["seconds"] = st;
