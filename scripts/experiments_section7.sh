@@ -101,17 +101,9 @@ fi
 
 log "7. adapt + reconstruct: the run's Wiener decoder refit in closed form for each PSF, scored against the scene"
 # The noise sigma the decoder assumes: the run's (1e-3, what the design was trained with), the
-# sensor's noise model at each capture's mean signal v: sqrt(read_noise^2 + v / full_well), and
-# fixed larger values (a sensitivity: the same for every row, not tuned per row).
-sigma_model() {  # RAW.h5 -> sigma
-  /usr/bin/python3 - "$1" "$CAM" <<'PY'
-import json, sys, h5py
-r = h5py.File(sys.argv[1], "r")["raw"]
-c = json.load(open(sys.argv[2]))
-v = (r[()].mean() - r.attrs["black_level_dn"]) / (c["gain"] * (r.attrs["white_level_dn"] - r.attrs["black_level_dn"]))
-print("%.6g" % ((c["read_noise_sigma"] ** 2 + max(v, 0) / c["full_well_photons"]) ** 0.5))
-PY
-}
+# sensor's noise model at each capture's mean signal (qdo reconstruct --noise-sigma model: read,
+# shot and quantization noise), and fixed larger values (a sensitivity: the same for every row,
+# not tuned per row).
 run_rec() {  # NAME CAPTURE_SET PSF_ARGS...
   local name=$1 set=$2; shift 2
   for f in "$SHARED"/data/hsi/cave/*.mat; do
@@ -122,7 +114,7 @@ run_rec() {  # NAME CAPTURE_SET PSF_ARGS...
       mkdir -p "$(dirname "$d")"
       case $sig in
         run) ns=0.001 ;;
-        model) ns=$(sigma_model "$OUT/captures/$set/$s/raw.h5") ;;
+        model) ns=model ;;
         *) ns=$sig ;;
       esac
       "$QDO" reconstruct --run "$OUT/design" --capture "$OUT/captures/$set/$s/raw.png" --demosaic mhc --noise-sigma "$ns" "$@" \
