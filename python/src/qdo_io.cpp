@@ -16,6 +16,7 @@
 #include "qdo/error.hpp"
 #include "qdo/figure.hpp"
 #include "qdo/io.hpp"
+#include "qdo/scenes.hpp"
 
 namespace py = pybind11;
 using namespace qdo;
@@ -26,24 +27,6 @@ namespace {
 // The scene a cube file or PNG band folder gives `qdo simulate --scene PATH [--key KEY]
 // [--resample-bands]` under configuration cfg (src/cli/cli_util.cpp, scene_from_args, the same
 // library calls in the same order): bands x H x W on cfg's band grid, in [0, 1].
-RealStack read_scene(const SystemConfig& cfg, const std::string& path, const std::string& key, bool resample) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) {  // a CAVE folder of PNG bands
-    if (!key.empty()) reject("key", key, "\"\" for a PNG band folder ('" + path + "')");
-    RealStack png = read_png_band_folder(path, cfg.bands);
-    conform_radiance(png, "folder '" + path + "'");
-    return png;
-  }
-  CubeReadOptions o;
-  o.key = key;
-  o.expected_bands = cfg.bands;
-  o.wavelengths_nm = cfg.wavelengths_nm();
-  o.resample_bands = resample;
-  RealStack cube = read_cube(path, o);
-  conform_radiance(cube, "file '" + path + "'");
-  return cube;
-}
-
 // The configuration a read_cube call's scene must fit: JSON text as the Python wrapper gives it.
 SystemConfig scene_config(const py::handle& config_json, const py::handle& origin) {
   SystemConfig c = config_from_json_text(str_arg(config_json, "config"), str_arg(origin, "config"));
@@ -60,7 +43,7 @@ void bind_io(py::module_& m) {
          const py::handle& resample) {
         const std::string p = path_arg(path, "path"), k = str_arg(key, "key");
         const bool rs = bool_arg(resample, "resample_bands");
-        return from_stack(read_scene(scene_config(config_json, origin), p, k, rs));
+        return from_stack(qdo::read_scene(scene_config(config_json, origin), p, k, rs, "key"));
       },
       py::arg("path"), py::arg("key"), py::arg("config_json"), py::arg("origin"), py::arg("resample_bands"));
   m.def(

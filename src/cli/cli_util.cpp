@@ -26,22 +26,7 @@ namespace qdo::cli {
 // configuration error surfaces before any device work or output.
 RealStack scene_from_path(const SystemConfig& cfg, const std::string& s, const std::string& key, bool resample_bands,
                           const std::string& key_option) {
-  if (s == "builtin") return builtin_chart_scene(cfg);
-  std::error_code ec;
-  if (std::filesystem::is_directory(s, ec)) {  // a CAVE folder of PNG bands, as --data takes
-    if (!key.empty()) reject(key_option, key, "omitted for a PNG band folder (" + s + ")");
-    RealStack png = read_png_band_folder(s, cfg.bands);
-    conform_radiance(png, "folder '" + s + "'");
-    return png;
-  }
-  CubeReadOptions o;
-  o.key = key;
-  o.expected_bands = cfg.bands;
-  o.wavelengths_nm = cfg.wavelengths_nm();
-  o.resample_bands = resample_bands;
-  RealStack cube = read_cube(s, o);
-  conform_radiance(cube, "file '" + s + "'");
-  return cube;
+  return read_scene(cfg, s, key, resample_bands, key_option);
 }
 
 RealStack scene_from_args(const SystemConfig& cfg, const Args& a) {

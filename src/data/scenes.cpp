@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 
+#include "qdo/datasets.hpp"
 #include "qdo/embedded.hpp"
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
@@ -65,6 +67,26 @@ RealStack builtin_chart_scene(const SystemConfig& cfg) {
     const std::size_t cx = std::size_t(double(s) * k / 4.0), cy = std::size_t(margin / 2);
     for (std::size_t b = 0; b < bands.size(); ++b) cube(b, cy, cx) = 1.0;
   }
+  return cube;
+}
+
+RealStack read_scene(const SystemConfig& cfg, const std::string& path, const std::string& key, bool resample_bands,
+                     const std::string& key_argument) {
+  if (path == "builtin") return builtin_chart_scene(cfg);
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {  // a CAVE folder of PNG bands, as --data takes
+    if (!key.empty()) reject(key_argument, key, "omitted for a PNG band folder (" + path + ")");
+    RealStack png = read_png_band_folder(path, cfg.bands);
+    conform_radiance(png, "folder '" + path + "'");
+    return png;
+  }
+  CubeReadOptions o;
+  o.key = key;
+  o.expected_bands = cfg.bands;
+  o.wavelengths_nm = cfg.wavelengths_nm();
+  o.resample_bands = resample_bands;
+  RealStack cube = read_cube(path, o);
+  conform_radiance(cube, "file '" + path + "'");
   return cube;
 }
 
