@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "cli.hpp"
+#include "qdo/decoder_spec.hpp"
 
 using namespace qdo;
 using namespace qdo::cli;
@@ -109,7 +110,7 @@ std::vector<OptionSpec> training_options() {
           opt("wiener-on", "where the wiener objective runs: device (OpenCL, the run's precision) or cpu (double, the reference)",
               "device"),
           opt("decoder", "decoder trained with the optics: wiener (closed form), resunet (depth 4, root 16), resunet:paper "
-                         "(depth 7, root 32) or resunet:depth=D,root=R (needs the qdo tool built with LibTorch)", "wiener"),
+                         "(depth 7, root 32) or resunet:depth=D,root=R (needs the qdo tool built with LibTorch)", DecoderSpec{}.to_string()),
           opt("lr-decoder", "learning rate of the network decoder, in (0, 1] (do-finetune: default the do run's last) (" + r + "0.001)"),
           opt("gamma", "weight decay gamma of the network's convolution weights (Eq. 14), in [0, 1000] (" + r + "release 0, qdo 0.0001)")};
 }
@@ -244,7 +245,7 @@ std::vector<CommandSpec> make_table() {
                 opt("epochs", "epochs per design, an integer in [2, 100000] (default: 15; 8 with a network decoder)"),
                 opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 100000] (default: 8; 50 with a network decoder)"),
                 opt("decoder", "decoder: wiener (closed form, trained on synthetic scenes) or a network spec (resunet, ...; "
-                               "trained with the optics on --train-data; about 10 minutes on 2 cores with resunet)", "wiener"),
+                               "trained with the optics on --train-data; about 10 minutes on 2 cores with resunet)", DecoderSpec{}.to_string()),
                 opt("train-data", "training scenes of the network decoder: dataset names under the data root or paths, "
                                   "comma-separated (each must exist)", "cave_train,cave_png"),
                 opt("finetune-steps", "network decoder: do-finetune steps (doft/), an integer in [1, 100000000]", "100"),
@@ -313,7 +314,7 @@ std::vector<CommandSpec> make_table() {
                 opt("dof-margin-db", "depth of field: the distances where the mismatch PSNR stays within this many dB of the "
                                      "nominal's, a number in (0, 100]", "1"),
                 noise_sigma("sensor noise std, in units of full scale, in [0, 10] (default: the run's)", ""),
-                opt("decoder-kind", "decoder built from the PSF: wiener (default) or cg[:tolerance=T,max_iterations=N]", "wiener"),
+                opt("decoder-kind", "decoder built from the PSF: wiener (default) or cg[:tolerance=T,max_iterations=N]", DecoderSpec{}.to_string()),
                 precision(), device(), out_dir_opt()},
                cmd_eval_points});
   t.push_back({"image", "the RGB sensor image of one scene with the skipping rules of Camera and a skip report", "", "",

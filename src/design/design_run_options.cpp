@@ -307,7 +307,7 @@ const std::vector<RunField>& run_fields() {
       named_field("precision", [](auto& o) -> auto& { return o.precision; }, precision_from_string,
                   [](Precision p) { return to_string(p); }),
       // Run folders written before the network decoder existed trained against the Wiener decoder.
-      {"decoder", [](DesignRunOptions& o, const json& d) { o.decoder = decoder_spec_from_string(d.value("decoder", std::string("wiener"))); },
+      {"decoder", [](DesignRunOptions& o, const json& d) { o.decoder = decoder_spec_from_string(d.value("decoder", DecoderSpec{}.to_string())); },
        [](const DesignRunOptions& o, json& d) { d["decoder"] = o.decoder.to_string(); }},
       {"lr_decoder", [](DesignRunOptions& o, const json& d) { o.lr_decoder = d.value("lr_decoder", 1e-3); },
        [](const DesignRunOptions& o, json& d) { d["lr_decoder"] = o.lr_decoder; }},

@@ -226,7 +226,7 @@ void check_eval_points(const EvalPointsOptions& o) {
   (void)resolve(o, ro.cfg);
   const SystemConfig cfg = base_config(ro.cfg);
   if (!o.design_file.empty()) (void)read_design_heights_for(cfg, o.design_file, "design");
-  const DecoderSpec spec = o.decoder_kind ? *o.decoder_kind : decoder_spec_from_string("wiener");
+  const DecoderSpec spec = o.decoder_kind ? *o.decoder_kind : DecoderSpec{};
   if (decoder_entry(spec.kind_name()).trained)
     reject("decoder-kind", spec.to_string(), "a decoder built from the PSF (wiener, cg): it is refit for every distance");
 }
@@ -243,7 +243,7 @@ EvalPointsResult evaluate_points(Runtime& rt, const EvalPointsOptions& o) {
     reject("run", folder.design_path(), "a design of N x N = " + to_str(cfg.n) + " x " + to_str(cfg.n) + " samples (the run's grid)");
   const std::size_t s = cfg.sensor_size_px();
   const wiener::SpectralPrior prior = folder.prior(s);
-  const DecoderSpec spec = o.decoder_kind ? *o.decoder_kind : decoder_spec_from_string("wiener");
+  const DecoderSpec spec = o.decoder_kind ? *o.decoder_kind : DecoderSpec{};
   const double sigma = o.noise_sigma >= 0 ? o.noise_sigma : ro.decoder_noise_sigma;
   const std::vector<testset::Patch> patches = testset::patches(cfg, s, o.data, o.data_format, o.synthetic_scenes, ro.design.seed);
   if (!o.out.empty()) make_output_dir(o.out, "out");
