@@ -75,22 +75,24 @@ struct FitOptions {
   // InputError. For a start from an earlier fit, or a known assembly. With lateral_starts > 1 a
   // lateral start given here is one candidate of the grid.
   std::vector<std::pair<std::string, double>> start;
-  // Lateral starts tried (when offset or shift is fitted). 0 (automatic): a grid symmetric about
-  // zero, half a DOE pixel apart for the offset (the blur a sub-pixel offset adds to the sampled
-  // relief repeats with the DOE pitch, so its minima are about that wide) over +-(|centroid| +
-  // 1.5 DOE px), or +-2 DOE px with shift fitted too; half a sensor px apart over +-(|centroid| + 1)
-  // px for the shift alone; at most 15 x 15. 1 = the centroid difference only. K > 1 = K x K starts
-  // over +-(|centroid| + lateral_span_px) sensor px (with shift fitted too, +-lateral_span_px / 2).
-  // The offset grid is in metres (divided by the magnification); with shift fitted too, each
-  // offset start takes its best whole-pixel registration within +-3 px of the centroid's.
+  // Lateral starts tried (when offset or shift is fitted). 0 (automatic): for the offset, scans
+  // of dx (dy held) then of dy (dx held), twice, an eighth of a DOE pixel apart over
+  // +-(|centroid| + 1.5 DOE px) (+-2 DOE px with shift fitted too): the blur a sub-pixel offset
+  // adds to the sampled relief changes with the offset's fraction of a DOE pixel, so the loss has
+  // narrow minima; for the shift alone a grid half a sensor px apart over +-(|centroid| + 1) px,
+  // at most 15 x 15. The mirrors of the lowest start are evaluated too. 1 = the centroid
+  // difference only. K > 1 = K x K starts over +-(|centroid| + lateral_span_px) sensor px (with
+  // shift fitted too, +-lateral_span_px / 2). The offset's starts are in metres (divided by the
+  // magnification); with shift fitted too, each offset start takes its best whole-pixel
+  // registration within +-3 px of the centroid's.
   int lateral_starts = 0;
   double lateral_span_px = 1.0;
-  // With a grid: short fits (refine_iterations each) from refine_starts grid starts in different
-  // basins (at least a DOE pixel apart for the offset, a sensor px for the shift): the lowest, the
-  // grid starts nearest its three mirrors (the blur a relief offset adds is even in the offset, so
+  // With a grid or scans: short fits (refine_iterations each) from refine_starts starts in
+  // different basins (at least a quarter of a DOE pixel apart for the offset, a sensor px for the
+  // shift): the lowest, its three mirrors (the blur a relief offset adds is even in the offset, so
   // a DOE's speckled PSF has mirror minima that the loss at the start does not tell apart), then
   // the next lowest; the fit goes on from the one that ends lowest, its iterations counted in the
-  // budget. refine_starts < 2: the lowest grid start alone.
+  // budget. refine_starts < 2: the lowest start alone.
   int refine_starts = 4;
   int refine_iterations = 3;
   int max_iterations = 30;             // LM iterations, >= 1

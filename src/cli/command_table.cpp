@@ -175,12 +175,13 @@ std::vector<CommandSpec> make_table() {
                            "stack, sensor px; a nuisance), aperture (radius, m, by a walk of the loss in half-pixel steps) (default: levels,z,offset for a "
                            "quantized design, else scale,z,offset)"),
                 opt("iterations", "most Levenberg-Marquardt iterations, an integer in [1, 1000]", "30"),
-                opt("lateral-starts", "auto: the loss at lateral starts (offset or shift) on a grid symmetric about zero, half a DOE "
-                                      "pixel apart for the offset, over the centroid's reach plus 1.5 DOE px (a DOE's PSF has mirror "
-                                      "minima the centroid start does not tell apart); K: a K x K grid over the centroid's reach plus "
-                                      "1 sensor px; 1: the centroid difference alone; auto or an integer in [1, 15]", "auto"),
-                opt("refine-starts", "M: short fits (3 iterations) from M grid starts in different basins (the lowest, the nearest to "
-                                     "its mirrors, the next lowest), the fit going on from the lowest; 1: the lowest grid start alone; "
+                opt("lateral-starts", "auto: scans of the offset along x, then y, twice, an eighth of a DOE pixel apart, over the "
+                                      "centroid's reach plus 1.5 DOE px, and the mirrors of the lowest (a DOE's PSF has narrow mirror "
+                                      "minima the centroid start does not tell apart; the shift alone: a grid half a sensor px apart); "
+                                      "K: a K x K grid over the centroid's reach plus 1 sensor px; 1: the centroid difference alone; "
+                                      "auto or an integer in [1, 15]", "auto"),
+                opt("refine-starts", "M: short fits (3 iterations) from M starts in different basins (the lowest, its "
+                                     "mirrors, the next lowest), the fit going on from the lowest; 1: the lowest start alone; "
                                      "an integer in [1, 16]", "4"),
                 opt("start", "NAME=VALUE,...: start values of fitted parameters by the names the fit prints (level1, z, dx, sx, ...), "
                              "lengths in metres or with a unit (550nm, 1.5um, 12.5mm), sx and sy in sensor px, scale plain; bounded by "

@@ -157,8 +157,8 @@ LateralStarts find_lateral_starts(AsBuiltModel& model, const SystemConfig& cfg, 
     } else {
       // Automatic for the offset: scans of dx (dy held), then of dy (dx held), twice, an eighth
       // of a DOE pixel apart. The blur a sub-pixel offset adds to the sampled relief changes
-      // with the offset's fraction of a DOE pixel, so the loss has minima about a quarter of a
-      // DOE pixel wide, one per fraction, and the image shift (odd in the offset) picks one;
+      // with the offset's fraction of a DOE pixel, so the loss has narrow minima, one per
+      // fraction, and the image shift (odd in the offset) picks one;
       // the blur is separable in x and y, so scans along each axis find the lowest. Over the
       // centroid's reach plus 1.5 DOE px (with shift fitted too: +-2 DOE px), at most 64 steps a side.
       const double doe_px = cfg.pitch_m / unit;  // one DOE pixel in sensor px
