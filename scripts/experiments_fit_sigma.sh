@@ -15,21 +15,8 @@ OUT=${1:-out/fit_sigma}
 QDO=${QDO:-build/qdo}
 SHARED=${SHARED:-../shared}
 OVERLAY_UM=${OVERLAY_UM:-0.5}
-export QDO_DEVICE=${QDO_DEVICE:-cpu}
-export QDO_CACHE_DIR=${QDO_CACHE_DIR:-$PWD/build/kernel-cache}
-if [ -e "$OUT" ] && [ ! -f "$OUT/.experiments_fit_sigma" ]; then
-  echo "experiments_fit_sigma: $OUT exists and was not made by this script (no $OUT/.experiments_fit_sigma); choose another OUT" >&2
-  exit 2
-fi
-mkdir -p "$OUT"
-touch "$OUT/.experiments_fit_sigma"
-CAM=$OUT/camera.json
-"$QDO" config --preset small > "$CAM"
-DESIGN=${DESIGN:-$OUT/design/design.h5}
-if [ ! -f "$DESIGN" ]; then
-  "$QDO" design --recipe qdo --config "$CAM" --mode qdo+a --levels 4 --epochs 15 --steps-per-epoch 8 --seed 0 \
-    --data "$SHARED/data/hsi/cave_train" --out "$OUT/design" > "$OUT/design.log" 2>&1
-fi
+NAME=experiments_fit_sigma
+source scripts/experiments_fit_common.sh
 # Each draw: the fabrication seed, the relief offset (um), the DOE-sensor distance error (um).
 DRAWS=("11 1.5,-1.0 150" "12 -2.0,0.5 -100" "13 0.7,2.4 60" "14 2.8,-1.9 180" "15 -0.6,-3.1 -140"
        "16 4.2,1.1 90" "17 -1.3,-0.4 0" "18 0.2,-0.9 -60" "19 -3.5,2.0 120" "20 1.0,1.0 -200")

@@ -15,21 +15,8 @@ OUT=${1:-out/fit_starts}
 QDO=${QDO:-build/qdo}
 SHARED=${SHARED:-../shared}
 MODES=${MODES:-"auto 1"}
-export QDO_DEVICE=${QDO_DEVICE:-cpu}
-export QDO_CACHE_DIR=${QDO_CACHE_DIR:-$PWD/build/kernel-cache}
-if [ -e "$OUT" ] && [ ! -f "$OUT/.experiments_fit_starts" ]; then
-  echo "experiments_fit_starts: $OUT exists and was not made by this script (no $OUT/.experiments_fit_starts); choose another OUT" >&2
-  exit 2
-fi
-mkdir -p "$OUT"
-touch "$OUT/.experiments_fit_starts"
-CAM=$OUT/camera.json
-"$QDO" config --preset small > "$CAM"
-DESIGN=${DESIGN:-$OUT/design/design.h5}
-if [ ! -f "$DESIGN" ]; then
-  "$QDO" design --recipe qdo --config "$CAM" --mode qdo+a --levels 4 --epochs 15 --steps-per-epoch 8 --seed 0 \
-    --data "$SHARED/data/hsi/cave_train" --out "$OUT/design" > "$OUT/design.log" 2>&1
-fi
+NAME=experiments_fit_starts
+source scripts/experiments_fit_common.sh
 # Each case: the relief offset (um), the fabrication seed, the DOE-sensor distance error (um).
 CASES=("1.5,-1.0 3 150" "-2.5,0.7 1 -80" "0.6,2.2 2 60" "3.1,-2.9 4 200" "-0.4,-3.6 5 -150" "5.0,1.0 6 100" "-1.1,-0.3 7 0")
 ROWS=$OUT/rows.tsv

@@ -100,10 +100,7 @@ SystemConfig load_config(const Args& a, bool allow_points = false);
 // A band axis stored in the file must match cfg's (refused naming both grids; interpolated
 // with --resample-bands); the radiance rule (conform_radiance) applies.
 RealStack scene_from_args(const SystemConfig& cfg, const Args& a);
-// The same for a path given otherwise (qdo reconstruct --truth): builtin, a cube file or a PNG
-// band folder; `key` the cube's variable (empty: found), named in errors as key_option.
-RealStack scene_from_path(const SystemConfig& cfg, const std::string& path, const std::string& key, bool resample_bands,
-                          const std::string& key_option);
+// (A path given otherwise, qdo reconstruct --truth: read_scene, scenes.hpp.)
 int parse_int(const std::string& name, const std::string& v, int lo, int hi);
 double parse_double(const std::string& name, const std::string& v);
 // A number within [lo, hi] (lo excluded when lo_open), in `unit` (e.g. "nm", "" for none): an

@@ -22,17 +22,12 @@ namespace fs = std::filesystem;
 
 namespace qdo::cli {
 
+RealStack scene_from_args(const SystemConfig& cfg, const Args& a) {
+  return read_scene(cfg, a.get("scene", "builtin"), a.get("key"), a.has("resample-bands"), "--key");
+}
+
 // The configuration from --config or --preset, with the camera response checked too, so every
 // configuration error surfaces before any device work or output.
-RealStack scene_from_path(const SystemConfig& cfg, const std::string& s, const std::string& key, bool resample_bands,
-                          const std::string& key_option) {
-  return read_scene(cfg, s, key, resample_bands, key_option);
-}
-
-RealStack scene_from_args(const SystemConfig& cfg, const Args& a) {
-  return scene_from_path(cfg, a.get("scene", "builtin"), a.get("key"), a.has("resample-bands"), "--key");
-}
-
 SystemConfig load_config(const Args& a, bool allow_points) {
   SystemConfig c;
   if (a.has("config")) {

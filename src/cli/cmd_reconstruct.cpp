@@ -11,6 +11,7 @@
 #include "qdo/error.hpp"
 #include "qdo/io.hpp"
 #include "qdo/reconstruct.hpp"
+#include "qdo/scenes.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/testset.hpp"
 
@@ -62,7 +63,7 @@ int cmd_reconstruct(const Args& a) {
   if (a.has("truth")) {
     const DesignRunOptions ro = read_run_config(o.run, "--run", "a run folder written by qdo design");
     const SystemConfig cfg = o.sensor_file.empty() ? ro.cfg : with_sensor(ro.cfg, o.sensor_file, decoder_entry(ro.decoder.kind_name()).trained);
-    truth = scene_from_path(cfg, a.get("truth"), a.get("truth-key"), false, "--truth-key");
+    truth = read_scene(cfg, a.get("truth"), a.get("truth-key"), false, "--truth-key");
     const CaptureFiles f = read_captures(cfg, o.capture);
     if (truth.rows != f.mean_dn.rows || truth.cols != f.mean_dn.cols)
       reject("--truth", a.get("truth"),

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <limits>
 #include <set>
+#include <utility>
 
 #include "qdo/design.hpp"
 #include "qdo/error.hpp"
@@ -39,6 +40,17 @@ std::vector<double> band_residuals(const RealStack& model, const RealStack& meas
     out[b] = mm > 0 ? std::sqrt(rr / mm) : std::sqrt(rr);
   }
   return out;
+}
+
+// The pseudo-inverse of a symmetric matrix: eigenvalues at or below rel x the largest dropped
+// (their directions undetermined); the eigenvalues, ascending, into *eigenvalues when given.
+Eigen::MatrixXd symmetric_pinv(const Eigen::MatrixXd& a, double rel, Eigen::VectorXd* eigenvalues = nullptr) {
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(a);
+  const Eigen::VectorXd& ev = es.eigenvalues();
+  Eigen::VectorXd inv = Eigen::VectorXd::Zero(ev.size());
+  for (long k = 0; k < ev.size(); ++k) inv(k) = ev(k) > rel * ev.maxCoeff() ? 1 / ev(k) : 0;
+  if (eigenvalues) *eigenvalues = ev;
+  return es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
 }
 
 std::string values_line(const AsBuiltModel& m, const std::vector<double>& theta) {
@@ -88,9 +100,9 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   res.loss_design = 0.5 * (Eigen::Map<const Eigen::VectorXd>(res.design_psf.data.data(), long(m)) - meas).squaredNorm();
   res.residual_rel_design = band_residuals(res.design_psf, measured);
   // The start: the centroid, the given values, the lateral grid or scans (fit_starts.cpp).
-  const fit_detail::LateralStarts lateral = fit_detail::find_lateral_starts(model, cfg, measured, res.design_psf, opt, theta, say);
+  fit_detail::LateralStarts lateral = fit_detail::find_lateral_starts(model, cfg, measured, res.design_psf, opt, theta, say);
   res.centroid_shift_px = lateral.centroid_shift_px;
-  std::vector<std::pair<double, std::vector<double>>> starts = lateral.starts;
+  std::vector<std::pair<double, std::vector<double>>> starts = std::move(lateral.starts);
   const std::size_t lateral_index = lateral.lateral_index;
   const double lateral_min_sep = lateral.min_separation;
   double loss = model.loss(theta, measured), lambda = opt.lambda0;
@@ -322,13 +334,10 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   Eigen::VectorXd dinv = Eigen::VectorXd::Zero(long(np));
   for (long k = 0; k < long(np); ++k) dinv(k) = a(k, k) > 0 ? 1 / std::sqrt(a(k, k)) : 0;
   const Eigen::MatrixXd as = dinv.asDiagonal() * a * dinv.asDiagonal();
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(as);
-  const Eigen::VectorXd ev = es.eigenvalues();
+  Eigen::VectorXd ev;
+  const Eigen::MatrixXd as_inv = symmetric_pinv(as, 1e-15, &ev);
   const double evmax = ev.maxCoeff(), evmin = ev.minCoeff();
   res.condition = evmin > 0 ? evmax / evmin : std::numeric_limits<double>::infinity();
-  Eigen::VectorXd evinv = Eigen::VectorXd::Zero(long(np));
-  for (long k = 0; k < long(np); ++k) evinv(k) = ev(k) > 1e-15 * evmax ? 1 / ev(k) : 0;
-  const Eigen::MatrixXd as_inv = es.eigenvectors() * evinv.asDiagonal() * es.eigenvectors().transpose();
   const double s2 = 2 * loss / double(m - np);
   res.residual_sigma = std::sqrt(s2);
   res.correlation = Eigen::MatrixXd::Zero(long(np), long(np));
@@ -366,17 +375,12 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
     for (std::size_t q = 0; q < groups; ++q) {
       const std::size_t b0 = q * cfg.bands / groups, b1 = (q + 1) * cfg.bands / groups;
       const long row0 = long(b0 * plane), rows = long((b1 - b0) * plane);
-      const Eigen::MatrixXd jq = j.middleRows(row0, rows);
+      const auto jq = j.middleRows(row0, rows);
       const Eigen::MatrixXd aq = a - jq.transpose() * jq;
       const Eigen::VectorXd gq = g_all - jq.transpose() * r.segment(row0, rows);
       // Solved in the unit-diagonal scaling of the full problem, small eigenvalues dropped (as the covariance).
-      const Eigen::MatrixXd aqs = dinv.asDiagonal() * aq * dinv.asDiagonal();
-      Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eq(aqs);
-      const Eigen::VectorXd evq = eq.eigenvalues();
-      Eigen::VectorXd inv = Eigen::VectorXd::Zero(long(np));
-      for (long k = 0; k < long(np); ++k) inv(k) = evq(k) > 1e-12 * evq.maxCoeff() ? 1 / evq(k) : 0;
-      steps.push_back(-(dinv.asDiagonal() * (eq.eigenvectors() * inv.asDiagonal() * eq.eigenvectors().transpose()) *
-                        (dinv.asDiagonal() * gq)));
+      const Eigen::MatrixXd aqs_inv = symmetric_pinv(dinv.asDiagonal() * aq * dinv.asDiagonal(), 1e-12);
+      steps.push_back(-(dinv.asDiagonal() * aqs_inv * (dinv.asDiagonal() * gq)));
     }
     Eigen::VectorXd mean = Eigen::VectorXd::Zero(long(np));
     for (const auto& d : steps) mean += d / double(groups);

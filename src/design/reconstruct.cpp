@@ -270,9 +270,12 @@ SystemConfig with_sensor(const SystemConfig& run_cfg, const std::string& sensor_
 ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   using clock = std::chrono::steady_clock;
   if (o.out.empty()) reject("--out", "(missing)", "an output folder");
-  (void)psf_spec_from_options(o.psf_file, o.design_file, "--psf", "--design", "the camera as built is one of them");  // both: refused first
   const RunFolder folder(o.run);
   const DesignRunOptions ro = folder.config("--run");
+  // The camera as built (psf_spec.hpp): --psf or --design, else the run's do-finetune target, else its design.
+  const bool given = !o.psf_file.empty() || !o.design_file.empty();
+  const PsfSpec spec = psf_spec_from_options(given ? o.psf_file : ro.finetune_psf, given ? o.design_file : ro.finetune_design, "--psf",
+                                             "--design", "the camera as built is one of them");
   const DecoderEntry entry = decoder_entry(ro.decoder.kind_name());
   std::vector<std::string> sensor_keys;
   const SystemConfig cfg = o.sensor_file.empty() ? ro.cfg : with_sensor(ro.cfg, o.sensor_file, entry.trained, &sensor_keys);
@@ -296,10 +299,6 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   std::vector<std::pair<std::string, double>> secs;
   // Every input read and checked before any work.
   auto t = clock::now();
-  // The camera as built (psf_spec.hpp): --psf or --design, else the run's do-finetune target, else its design.
-  const bool given = !o.psf_file.empty() || !o.design_file.empty();
-  const PsfSpec spec = psf_spec_from_options(given ? o.psf_file : ro.finetune_psf, given ? o.design_file : ro.finetune_design, "--psf",
-                                             "--design", "the camera as built is one of them");
   const PsfInput psf_in = spec.kind == PsfSpec::Kind::Run ? [&] {
     const Map2D run_heights = folder.design().height_m;
     return read_psf_input(spec, cfg, &run_heights);
