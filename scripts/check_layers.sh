@@ -64,6 +64,7 @@ host_propagator runtime
 io data
 io_raw data
 joint design
+joint_sampling design
 kernel_cache runtime
 materials data
 mpi runtime

@@ -24,6 +24,7 @@
 #include "qdo/io.hpp"
 #include "qdo/joint.hpp"
 #include "qdo/network_decoder.hpp"
+#include "qdo/optics.hpp"
 #include "qdo/run.hpp"
 #include "qdo/run_folder.hpp"
 #include "qdo/sweep.hpp"
@@ -175,6 +176,96 @@ TEST_SUITE("joint") {
         symmetries.insert({long(p(0, 0, 1) - p(0, 0, 0)), long(p(0, 1, 0) - p(0, 0, 0))});
     CHECK(symmetries == std::set<std::pair<long, long>>{{1, 100}, {-1, 100}, {1, -100}, {-1, -100},
                                                         {100, 1}, {-100, 1}, {100, -1}, {-100, -1}});
+  }
+
+  TEST_CASE("the release's fixed patches: the whole scene resized, then a 3 x 3 grid of crops, in order, unshuffled") {
+    const std::size_t s = 16;
+    JointData d;
+    for (auto [h, w] : {std::pair<std::size_t, std::size_t>{40, 50}, {30, 30}}) {
+      RealStack scene(2, h, w);
+      for (std::size_t b = 0; b < 2; ++b)
+        for (std::size_t y = 0; y < h; ++y)
+          for (std::size_t x = 0; x < w; ++x) scene(b, y, x) = double(b * 100000 + y * 100 + x);
+      d.train.push_back(scene);
+    }
+    const std::vector<FixedPatch> list = fixed_patches(d, s);
+    REQUIRE(list.size() == 20);
+    // Scene 0 (40 x 50): rows range(0, 40, 14) = 0, 14, 28 -> 24 inside; columns range(0, 50, 17) = 0, 17, 34.
+    // Scene 1 (30 x 30): range(0, 30, 10) = 0, 10, 20 -> 14.
+    const std::vector<std::size_t> r0 = {0, 14, 24}, c0 = {0, 17, 34}, r1 = {0, 10, 14};
+    for (std::size_t sc = 0; sc < 2; ++sc) {
+      const FixedPatch& whole = list[sc * 10];
+      CHECK(whole.scene == sc);
+      CHECK(whole.resized);
+      for (std::size_t i = 0; i < 9; ++i) {
+        const FixedPatch& p = list[sc * 10 + 1 + i];
+        CHECK(p.scene == sc);
+        CHECK_FALSE(p.resized);
+        CHECK(p.y0 == (sc == 0 ? r0 : r1)[i / 3]);
+        CHECK(p.x0 == (sc == 0 ? c0 : r1)[i % 3]);
+      }
+    }
+    // The release's ICVL numbers: 1392 x 1300 scenes, 512 patches -> rows 0, 464, 880, columns 0, 434, 788.
+    JointData icvl;
+    icvl.train.push_back(RealStack(1, 1392, 1300));
+    const std::vector<FixedPatch> li = fixed_patches(icvl, 512);
+    REQUIRE(li.size() == 10);
+    CHECK(li[9].y0 == 880);
+    CHECK(li[9].x0 == 788);
+    CHECK(li[5].y0 == 464);
+    CHECK(li[5].x0 == 434);
+    // A crop is the scene's window, unflipped.
+    const RealStack crop = fixed_patch(d, list[6], s);  // scene 0, row 14, column 34
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) CHECK(crop(1, y, x) == 100000 + double((14 + y) * 100 + 34 + x));
+    // The resize of a linear image is linear at the half-pixel-centre sample points:
+    // value 100 ((i + 0.5) H / S - 0.5) + ((j + 0.5) W / S - 0.5), inside the scene here.
+    const RealStack small = fixed_patch(d, list[0], s);
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) {
+        const double sy = (double(y) + 0.5) * 40.0 / 16.0 - 0.5, sx = (double(x) + 0.5) * 50.0 / 16.0 - 0.5;
+        CHECK(small(0, y, x) == doctest::Approx(100 * sy + sx).epsilon(1e-12));
+      }
+    // Batches: `batch` consecutive patches from step x batch, wrapping at the end of the list.
+    const auto b4 = fixed_batch(d, list, s, 4, 4), b5 = fixed_batch(d, list, s, 4, 5);
+    for (std::size_t k = 0; k < 4; ++k) {
+      CHECK(b4[k].data == fixed_patch(d, list[16 + k], s).data);
+      CHECK(b5[k].data == fixed_patch(d, list[k], s).data);
+    }
+  }
+
+  TEST_CASE("the release's sensor noise on the bands: srf n per sensor pixel, sigma pitch / sensor pitch per band") {
+    const SystemConfig c = tiny_config(32, 3);
+    const Eigen::MatrixXd srf = sensor_response(c);
+    const double sb = 0.01;
+    RealStack rgb(3, 128, 128), again(3, 128, 128), other(3, 128, 128);
+    add_band_noise(rgb, srf, sb, 5, 0);
+    add_band_noise(again, srf, sb, 5, 0);
+    add_band_noise(other, srf, sb, 5, 1);
+    CHECK(rgb.data == again.data);
+    CHECK(rgb.data != other.data);
+    // The sample covariance of the RGB noise over n pixels against sb^2 srf srf^T; each entry's
+    // standard error is at most sb^2 sqrt(2 / n) x its scale, so 6 of them bound it.
+    const std::size_t n = rgb.plane_size();
+    const Eigen::MatrixXd want = sb * sb * srf * srf.transpose();
+    for (std::size_t i = 0; i < 3; ++i)
+      for (std::size_t j = 0; j < 3; ++j) {
+        double acc = 0;
+        for (std::size_t p = 0; p < n; ++p) acc += rgb.plane(i)[p] * rgb.plane(j)[p];
+        const double scale = std::sqrt(want(Eigen::Index(i), Eigen::Index(i)) * want(Eigen::Index(j), Eigen::Index(j)));
+        CHECK(std::fabs(acc / double(n) - want(Eigen::Index(i), Eigen::Index(j))) < 6 * std::sqrt(2.0 / double(n)) * scale);
+      }
+    // REFERENCE §3: sigma = 1e-3 on the bands is about 1.5e-4 on RGB at the release's sampling
+    // (8 um pixels over 4 um samples, the small preset's too).
+    const SystemConfig small = preset_config("small");
+    const Eigen::MatrixXd rs = sensor_response(small);
+    const double per_band = band_noise_sigma(small, 1e-3);
+    CHECK(per_band == doctest::Approx(5e-4));
+    for (Eigen::Index ch = 0; ch < 3; ++ch) {
+      const double rgb_sigma = per_band * rs.row(ch).norm();
+      CHECK(rgb_sigma > 0.8e-4);
+      CHECK(rgb_sigma < 2.5e-4);
+    }
   }
 
   TEST_CASE("the joint step: lr 0 keeps the loss a function of the PSF, with a non-zero PSF gradient") {

@@ -12,6 +12,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "commands_common.hpp"
 #include "common.hpp"
 #include "qdo/design.hpp"
@@ -149,6 +151,10 @@ TEST_SUITE("recipe") {
     CHECK(r.design.psf_path == PsfPath::TwoD);
     CHECK(r.gamma_decoder == 0.0);
     CHECK(r.lr_decoder == 0.001);
+    CHECK(r.sampling.noise_on_bands);
+    CHECK(r.sampling.fixed_patches);
+    CHECK(r.network_style.keras_batch_norm);
+    CHECK(r.network_style.glorot_final);
     DesignRunOptions q;
     apply_recipe("qdo", q);
     CHECK(q.design.steps_per_epoch == 10);
@@ -159,6 +165,10 @@ TEST_SUITE("recipe") {
     CHECK_FALSE(q.design.quantizer.pin_top);
     CHECK(q.design.height_noise_m == 0.0);
     CHECK(q.gamma_decoder == 1e-4);
+    CHECK_FALSE(q.sampling.noise_on_bands);
+    CHECK_FALSE(q.sampling.fixed_patches);
+    CHECK_FALSE(q.network_style.keras_batch_norm);
+    CHECK_FALSE(q.network_style.glorot_final);
     // A caller's own choice stays; an unknown recipe is refused by name.
     DesignRunOptions g;
     g.epochs = 7;
@@ -175,6 +185,16 @@ TEST_SUITE("recipe") {
     CHECK(back.design.aq_domain == AqDomain::Parameters);
     CHECK(back.design.quantizer.pin_top);
     CHECK(back.init.kind == InitSpec::Kind::Half);
+    CHECK(back.sampling.fixed_patches);
+    CHECK(back.sampling.noise_on_bands);
+    CHECK(back.network_style.keras_batch_norm);
+    CHECK(back.network_style.glorot_final);
+    // A config.json written before the network items read as qdo's network.
+    nlohmann::json j = nlohmann::json::parse(design_run_options_to_json(rt));
+    for (const char* k : {"keras_batch_norm", "glorot_final", "noise_on_bands", "fixed_patches"}) j["design"].erase(k);
+    const DesignRunOptions old = design_run_options_from_json(j.dump(), "config.json");
+    CHECK_FALSE(old.sampling.fixed_patches);
+    CHECK_FALSE(old.network_style.glorot_final);
   }
 
   TEST_CASE("parity with the release: lr, alpha, the initial rings, L_aq and its gradients, the deviation") {

@@ -144,7 +144,7 @@ int main(int argc, char** argv) {
     // optics) around JointTrainer::step (random crops, the patch camera in circular mode, noise,
     // the network's step, the camera adjoint), on synthetic scenes of S x S.
     register_torch_network();
-    auto net2 = make_network_decoder(NetworkSettings{spec, 3, cfg.bands, 1, 1e-4});
+    auto net2 = make_network_decoder(NetworkSettings{spec, 3, cfg.bands, 1, 1e-4, NetworkStyle{}});
     const JointData jd = load_joint_data(cfg, {}, "auto", std::max<std::size_t>(batch, 4), 1);
     JointTrainer jt(rt, cfg, prec, *net2, jd, batch, 1e-3, 1);
     DesignOptions dopt;

@@ -9,6 +9,8 @@
 
 #include "qdo/config.hpp"
 #include "qdo/decoder_spec.hpp"
+#include "qdo/joint_sampling.hpp"
+#include "qdo/network_decoder.hpp"
 #include "qdo/design.hpp"
 #include "qdo/runtime.hpp"
 
@@ -71,6 +73,14 @@ struct DesignRunOptions {
   DecoderSpec decoder;
   double lr_decoder = 1e-3;
   double gamma_decoder = 1e-4;
+  // The network's batch-norm constants and last initialiser (network_decoder.hpp; recipe items
+  // batch-norm and final-init).
+  NetworkStyle network_style;
+  // The network's training data (joint.hpp; recipe items noise-at and patches): the sensor noise
+  // decoder_noise_sigma drawn on the band images before the response and the sensor's area
+  // resampling (the release's) instead of on the RGB image; the release's fixed patches in order
+  // instead of random crops with flips and transposes.
+  JointSampling sampling;
   // The training recipe these options were filled from (recipe.hpp: "release" or "qdo"); a name
   // only: every item it sets is its own field here and in config.json. "custom" when unknown.
   std::string recipe = "qdo";

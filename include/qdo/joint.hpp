@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "qdo/config.hpp"
+#include "qdo/joint_sampling.hpp"
 #include "qdo/network_decoder.hpp"
 #include "qdo/runtime.hpp"
 #include "qdo/testset.hpp"
@@ -47,6 +48,38 @@ std::size_t synthetic_count(const std::string& entry);
 
 std::vector<RealStack> joint_batch(const JointData& d, std::size_t s, std::size_t batch, std::uint64_t seed, long step);
 
+// One of the release's fixed training patches: the whole of scene `scene` resized to S x S
+// (resized), or its S x S crop with top-left corner (y0, x0).
+struct FixedPatch {
+  std::size_t scene = 0;
+  bool resized = false;
+  std::size_t y0 = 0, x0 = 0;
+};
+// The release's patch list (dataset_loader.py, the ICVL 512 loader, for any scene size H x W and
+// patch size S): per training scene in order, first the whole scene resized to S x S, then the
+// crops at rows y in range(0, H, ceil(H / 3)) and, within each row, columns x in range(0, W,
+// ceil(W / 3)), each moved inside the scene (y = min(y, H - S), x = min(x, W - S)). For the
+// release's 1392 x 1300 ICVL scenes and S = 512: rows 0, 464, 880 and columns 0, 434, 788, ten
+// patches per scene.
+std::vector<FixedPatch> fixed_patches(const JointData& d, std::size_t s);
+// A fixed patch's cube (bands x S x S). The resize is bilinear with half-pixel centres and no
+// anti-aliasing (tf.image.resize's default): output sample i reads the input at
+// (i + 0.5) H / S - 0.5, between samples max(floor, 0) and min(ceil, H - 1).
+RealStack fixed_patch(const JointData& d, const FixedPatch& p, std::size_t s);
+// The batch of step `step` under fixed patches: patches (step * batch + k) mod P, k < batch, of
+// the list `list` (P patches), in order: every epoch of P / batch steps sees each once, unshuffled.
+std::vector<RealStack> fixed_batch(const JointData& d, const std::vector<FixedPatch>& list, std::size_t s, std::size_t batch,
+                                   long step);
+
+// The sensor noise of JointSampling::noise_on_bands, added to rgb (3 x S x S, row-major planes):
+// on each pixel srf * n, n a vector of bands Gaussians of std sigma_band, drawn from (seed,
+// counter (scene_index * S*S + pixel) * bands + band). srf: 3 x bands.
+// The per-band std on the sensor grid of noise sigma drawn on the DOE grid and averaged over the
+// r x r samples of a sensor pixel: sigma / r, r = sensor_pitch_m / pitch_m.
+double band_noise_sigma(const SystemConfig& cfg, double sigma);
+void add_band_noise(RealStack& rgb, const Eigen::MatrixXd& srf, double sigma_band, unsigned long long seed,
+                    std::size_t scene_index);
+
 // Data-parallel training (qdo design under mpirun with N > 1 ranks, qdo/mpi.hpp): every rank
 // draws the step's whole batch from the seed (the one a single process draws) and takes items
 // [r B/N, (r+1) B/N) of it (rank r; B a multiple of N), with the read noise of their places in
@@ -61,8 +94,9 @@ class JointTrainer {
  public:
   // `net` and `data` must outlive the trainer. noise_sigma: the read noise added to each image.
   // Under mpirun with N > 1 ranks (above): InputError naming `batch` unless N divides it.
+  // sampling: which patches each step trains on and where the noise enters (joint_sampling.hpp).
   JointTrainer(Runtime& rt, const SystemConfig& cfg, Precision p, NetworkDecoder& net, const JointData& data,
-               std::size_t batch, double noise_sigma, std::uint64_t seed);
+               std::size_t batch, double noise_sigma, std::uint64_t seed, const JointSampling& sampling = {});
   // One joint step at the sensor PSF stack psf (bands x S x S): images the step's batch, trains
   // the network one step at learning rate lr_net, and writes dL/dpsf into grad_psf. Returns the
   // loss (NetworkStep::loss). Data-parallel: the global batch's loss and dL/dpsf on every rank.
@@ -82,6 +116,10 @@ class JointTrainer {
   std::size_t s_, batch_;
   double sigma_;
   std::uint64_t seed_;
+  JointSampling sampling_;
+  std::vector<FixedPatch> fixed_;  // the fixed patch list (sampling_.fixed_patches)
+  Eigen::MatrixXd srf_;            // 3 x bands (sampling_.noise_on_bands)
+  double sigma_band_ = 0;          // the band noise's std on the DOE grid, over the r x r average
   std::size_t rank_ = 0, ranks_ = 1;  // this process's MPI rank and the world size
   NetworkStep last_;
   RealStack last_psf_;

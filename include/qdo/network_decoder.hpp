@@ -69,11 +69,20 @@ class NetworkDecoder {
   virtual void apply_gradients(const double* grad, double lr);
 };
 
+// Training constants of the network that are not its architecture (the recipe's network items,
+// recipe.hpp): the release's Keras batch norm and Glorot-uniform last convolution, or torch's
+// batch norm and He-uniform everywhere (qdo's own).
+struct NetworkStyle {
+  bool keras_batch_norm = false;  // batch-norm momentum 0.01 and eps 1e-3 (else 0.1 and 1e-5)
+  bool glorot_final = false;      // Glorot-uniform last 1x1 convolution (else He-uniform)
+};
+
 struct NetworkSettings {
   DecoderSpec spec;                 // kind ResUNet
   std::size_t in_channels = 3, out_channels = 31;
   std::uint64_t seed = 0;           // initial weights
   double weight_decay_gamma = 1e-4; // γ of Eq. 14 on the convolution weights
+  NetworkStyle style;               // batch-norm constants and the last convolution's initialiser
 };
 using NetworkFactory = std::function<std::unique_ptr<NetworkDecoder>(const NetworkSettings&)>;
 

@@ -243,6 +243,16 @@ DesignRunOptions design_options(const Args& a, bool range) {
   o.design.beta_aq = parse_double("--beta", a.get("beta", rv("beta")), 0, 1e3, "");
   o.design.height_noise_m = parse_double("--height-noise-nm", a.get("height-noise-nm", rv("height-noise-nm")), 0, 1e4, "nm") * 1e-9;
   o.height_noise_at_test = parse_on_off("--noise-at-test", a.get("noise-at-test", rv("noise-at-test")));
+  // The network's recipe items: each a choice of two words, the first the release's.
+  const auto choice = [&](const char* option, const char* release, const char* other) {
+    const std::string v = a.get(option, rv(option));
+    if (v != release && v != other) reject(std::string("--") + option, v, std::string(release) + " or " + other);
+    return v == release;
+  };
+  o.sampling.noise_on_bands = choice("noise-at", "bands", "rgb");
+  o.sampling.fixed_patches = choice("patches", "fixed", "random");
+  o.network_style.keras_batch_norm = choice("batch-norm", "keras", "torch");
+  o.network_style.glorot_final = choice("final-init", "glorot", "he");
   o.design.seed = std::uint64_t(parse_int("--seed", a.get("seed", "0"), 0, 2147483647));
   // PSF engine of the optimisation: auto (radial engine for radial designs), 2d or radial.
   o.design.psf_path = psf_path_from_string(a.get("psf-path", rv("psf-path")));
@@ -292,7 +302,8 @@ void check_resume_options(const Args& a, const DesignRunOptions& given) {
       {"gamma", "gamma_decoder"}, {"points-per-step", "points_per_step"}, {"recipe", "recipe"},
       {"decay-steps", "lr_decay_steps"}, {"decay-staircase", "lr_staircase"}, {"adam-eps", "adam_epsilon"},
       {"adam-form", "adam_keras_form"}, {"aq-domain", "aq_domain"}, {"pinned-level", "pin_top"},
-      {"noise-at-test", "height_noise_at_test"}};
+      {"noise-at-test", "height_noise_at_test"}, {"noise-at", "noise_on_bands"}, {"patches", "fixed_patches"},
+      {"batch-norm", "keras_batch_norm"}, {"final-init", "glorot_final"}};
   std::vector<std::string> diffs;
   for (const auto& [opt, key] : fields) {
     if (!a.has(opt)) continue;

@@ -101,6 +101,13 @@ std::vector<OptionSpec> training_options() {
                                  "release 20, qdo 0)"),
           opt("noise-at-test", "on: the height noise also on the PSF the evaluation measures through (" + r + "release on, qdo off)"),
           noise_sigma("sensor noise std of the decoder's training data, in units of full scale, in [0, 10] (" + r + "0.001)", ""),
+          opt("noise-at", "where a network's training noise enters: bands (each band on the DOE grid, before the response and the "
+                          "sensor's area resampling) or rgb (each sensor pixel) (" + r + "release bands, qdo rgb)"),
+          opt("patches", "a network's training patches: fixed (per scene the whole scene resized and a 3 x 3 grid of crops, in "
+                         "order, no augmentation) or random (random crops, flips, transposes) (" + r + "release fixed, qdo random)"),
+          opt("batch-norm", "a network's batch-norm constants: keras (momentum 0.99 in Keras' terms, eps 1e-3) or torch (0.1, "
+                            "1e-5) (" + r + "release keras, qdo torch)"),
+          opt("final-init", "initialiser of a network's last convolution: glorot or he (uniform) (" + r + "release glorot, qdo he)"),
           opt("init", "initial design: random, flat, half (u = 0.5, the release's) or lens:NM (" + r + "release half, qdo random)"),
           seed(),
           synthetic_scenes("12"),

@@ -263,7 +263,8 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   DevicePsfObjective dev_resident;
   if (dev) dev_resident = [&dev](const cl::Buffer& psf, cl::Buffer& grad) { return dev->expected(psf, grad); };
   std::unique_ptr<JointTrainer> joint;
-  if (network) joint = std::make_unique<JointTrainer>(rt, o.cfg, o.precision, *net, pb.joint, o.batch, o.decoder_noise_sigma, o.design.seed);
+  if (network) joint = std::make_unique<JointTrainer>(rt, o.cfg, o.precision, *net, pb.joint, o.batch, o.decoder_noise_sigma, o.design.seed,
+                                                         o.sampling);
   const std::size_t levels = static_cast<std::size_t>(o.design.quantizer.levels);
   DesignState s;
   if (resume) {

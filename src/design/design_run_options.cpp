@@ -328,6 +328,11 @@ const std::vector<RunField>& run_fields() {
        [](const DesignRunOptions& o, json& d) { d["aq_domain"] = to_string(o.design.aq_domain); }},
       bool_field_or("pin_top", [](auto& o) -> auto& { return o.design.quantizer.pin_top; }, false),
       bool_field_or("height_noise_at_test", [](auto& o) -> auto& { return o.height_noise_at_test; }, false),
+      // Run folders written before these recipe items trained qdo's network as qdo does.
+      bool_field_or("keras_batch_norm", [](auto& o) -> auto& { return o.network_style.keras_batch_norm; }, false),
+      bool_field_or("glorot_final", [](auto& o) -> auto& { return o.network_style.glorot_final; }, false),
+      bool_field_or("noise_on_bands", [](auto& o) -> auto& { return o.sampling.noise_on_bands; }, false),
+      bool_field_or("fixed_patches", [](auto& o) -> auto& { return o.sampling.fixed_patches; }, false),
       // Written only when set: the config.json of every other run reads as before.
       {"finetune_psf", [](DesignRunOptions& o, const json& d) { o.finetune_psf = d.value("finetune_psf", std::string()); },
        [](const DesignRunOptions& o, json& d) {

@@ -9,6 +9,8 @@
 #include "qdo/datasets.hpp"
 #include "qdo/error.hpp"
 #include "qdo/mpi.hpp"
+#include "qdo/optics.hpp"
+#include "qdo/rng.hpp"
 #include "qdo/wiener.hpp"
 
 namespace qdo {
@@ -104,9 +106,95 @@ std::vector<RealStack> joint_batch(const JointData& d, std::size_t s, std::size_
   return out;
 }
 
+std::vector<FixedPatch> fixed_patches(const JointData& d, std::size_t s) {
+  std::vector<FixedPatch> out;
+  for (std::size_t i = 0; i < d.train.size(); ++i) {
+    const RealStack& c = d.train[i];
+    if (c.rows < s || c.cols < s)
+      reject("data", d.train_names.size() > i ? d.train_names[i] : to_str(i), "scenes of at least S x S = " + to_str(s) + " pixels");
+    out.push_back({i, true, 0, 0});
+    const std::size_t sy = (c.rows + 2) / 3, sx = (c.cols + 2) / 3;  // ceil(H / 3), ceil(W / 3)
+    for (std::size_t y = 0; y < c.rows; y += sy)
+      for (std::size_t x = 0; x < c.cols; x += sx) out.push_back({i, false, std::min(y, c.rows - s), std::min(x, c.cols - s)});
+  }
+  return out;
+}
+
+namespace {
+// tf.image.resize's bilinear weights along one axis (half-pixel centres, no anti-aliasing).
+struct Lerp {
+  std::size_t lo, hi;
+  double t;
+};
+std::vector<Lerp> lerps(std::size_t in, std::size_t out) {
+  std::vector<Lerp> w(out);
+  const double scale = double(in) / double(out);
+  for (std::size_t i = 0; i < out; ++i) {
+    const double src = (double(i) + 0.5) * scale - 0.5, f = std::floor(src);
+    w[i] = {std::size_t(std::max(f, 0.0)), std::size_t(std::min(std::ceil(src), double(in - 1))), src - f};
+  }
+  return w;
+}
+}  // namespace
+
+RealStack fixed_patch(const JointData& d, const FixedPatch& p, std::size_t s) {
+  if (p.scene >= d.train.size()) reject("patch scene", p.scene, "below the training scenes' count " + to_str(d.train.size()));
+  const RealStack& c = d.train[p.scene];
+  RealStack out(c.planes, s, s);
+  if (!p.resized) {
+    if (p.y0 + s > c.rows || p.x0 + s > c.cols) reject("patch corner", to_str(p.y0) + ", " + to_str(p.x0), "a crop inside the scene");
+    for (std::size_t b = 0; b < c.planes; ++b)
+      for (std::size_t y = 0; y < s; ++y)
+        for (std::size_t x = 0; x < s; ++x) out(b, y, x) = c(b, p.y0 + y, p.x0 + x);
+    return out;
+  }
+  const std::vector<Lerp> wy = lerps(c.rows, s), wx = lerps(c.cols, s);
+  for (std::size_t b = 0; b < c.planes; ++b)
+    for (std::size_t y = 0; y < s; ++y)
+      for (std::size_t x = 0; x < s; ++x) {
+        const Lerp &a = wy[y], &e = wx[x];
+        const double top = c(b, a.lo, e.lo) + (c(b, a.lo, e.hi) - c(b, a.lo, e.lo)) * e.t;
+        const double bottom = c(b, a.hi, e.lo) + (c(b, a.hi, e.hi) - c(b, a.hi, e.lo)) * e.t;
+        out(b, y, x) = top + (bottom - top) * a.t;
+      }
+  return out;
+}
+
+std::vector<RealStack> fixed_batch(const JointData& d, const std::vector<FixedPatch>& list, std::size_t s, std::size_t batch,
+                                   long step) {
+  if (list.empty()) reject("data", "(no fixed patches)", "at least one training scene");
+  if (step < 0) reject("step", step, ">= 0");
+  std::vector<RealStack> out;
+  out.reserve(batch);
+  for (std::size_t k = 0; k < batch; ++k) out.push_back(fixed_patch(d, list[(std::size_t(step) * batch + k) % list.size()], s));
+  return out;
+}
+
+double band_noise_sigma(const SystemConfig& cfg, double sigma) { return sigma * cfg.pitch_m / cfg.sensor_pitch_m; }
+
+void add_band_noise(RealStack& rgb, const Eigen::MatrixXd& srf, double sigma_band, unsigned long long seed,
+                    std::size_t scene_index) {
+  if (rgb.planes != 3 || srf.rows() != 3) reject("rgb", rgb.planes, "3 channels and a 3 x bands srf");
+  if (!(sigma_band >= 0) || !std::isfinite(sigma_band)) reject("sigma_band", sigma_band, ">= 0, finite");
+  if (sigma_band == 0) return;
+  const std::size_t hw = rgb.plane_size(), bands = std::size_t(srf.cols());
+  Eigen::VectorXd n(srf.cols());
+  for (std::size_t p = 0; p < hw; ++p) {
+    for (std::size_t b = 0; b < bands; ++b) n(Eigen::Index(b)) = sigma_band * noise_draw(seed, (scene_index * hw + p) * bands + b).gaussian;
+    const Eigen::Vector3d e = srf * n;
+    for (std::size_t c = 0; c < 3; ++c) rgb.plane(c)[p] += e(Eigen::Index(c));
+  }
+}
+
 JointTrainer::JointTrainer(Runtime& rt, const SystemConfig& cfg, Precision p, NetworkDecoder& net, const JointData& data,
-                           std::size_t batch, double noise_sigma, std::uint64_t seed)
-    : camera_(rt, cfg, p), net_(net), data_(data), s_(cfg.sensor_size_px()), batch_(batch), sigma_(noise_sigma), seed_(seed) {
+                           std::size_t batch, double noise_sigma, std::uint64_t seed, const JointSampling& sampling)
+    : camera_(rt, cfg, p), net_(net), data_(data), s_(cfg.sensor_size_px()), batch_(batch), sigma_(noise_sigma), seed_(seed),
+      sampling_(sampling) {
+  if (sampling_.fixed_patches) fixed_ = fixed_patches(data_, s_);
+  if (sampling_.noise_on_bands) {
+    srf_ = sensor_response(cfg);
+    sigma_band_ = band_noise_sigma(cfg, noise_sigma);
+  }
   if (batch < 1 || batch > testset::PatchCamera::kMaxBatch)
     reject("batch", batch, "1 to " + to_str(testset::PatchCamera::kMaxBatch) + " scenes per step");
   if (!(noise_sigma >= 0) || !std::isfinite(noise_sigma)) reject("noise_sigma", noise_sigma, ">= 0");
@@ -123,7 +211,8 @@ JointTrainer::JointTrainer(Runtime& rt, const SystemConfig& cfg, Precision p, Ne
 
 double JointTrainer::step(long step, double lr_net, const RealStack& psf, RealStack& grad_psf) {
   // This rank's items [k0, k1) of the step's batch (all of it in one process).
-  const std::vector<RealStack> batch = joint_batch(data_, s_, batch_, seed_, step);
+  const std::vector<RealStack> batch =
+      sampling_.fixed_patches ? fixed_batch(data_, fixed_, s_, batch_, step) : joint_batch(data_, s_, batch_, seed_, step);
   const std::size_t k0 = rank_ * batch_ / ranks_, k1 = (rank_ + 1) * batch_ / ranks_;
   const std::vector<RealStack> cubes(batch.begin() + long(k0), batch.begin() + long(k1));
   std::vector<testset::Patch> patches;
@@ -131,7 +220,10 @@ double JointTrainer::step(long step, double lr_net, const RealStack& psf, RealSt
   std::vector<RealStack> images = camera_.measure(psf, patches);
   // Read noise, drawn per step (scene k of the batch: counters of ref::add_noise's scene k).
   const unsigned long long noise_seed = (seed_ + 31) * 1000003ull + std::uint64_t(step);
-  for (std::size_t k = 0; k < images.size(); ++k) ref::add_noise(images[k], sigma_, 0, noise_seed, k0 + k);
+  for (std::size_t k = 0; k < images.size(); ++k) {
+    if (sampling_.noise_on_bands) add_band_noise(images[k], srf_, sigma_band_, noise_seed, k0 + k);
+    else ref::add_noise(images[k], sigma_, 0, noise_seed, k0 + k);
+  }
   last_ = ranks_ == 1 ? net_.train(images, cubes, lr_net) : net_.backward(images, cubes, double(k1 - k0) / double(batch_), rank_ == 0);
   if (last_.grad_images.size() != images.size() || !std::isfinite(last_.loss))
     throw NumericalError("joint step " + std::to_string(step) + ": the network returned loss " + to_str(last_.loss) + " and " +

@@ -120,6 +120,7 @@ std::string read_network_state(const fs::path& dir, const DesignState& s, const 
 NetworkSettings network_settings(const DesignRunOptions& o) {
   NetworkSettings ns;
   ns.spec = o.decoder;
+  ns.style = o.network_style;
   ns.in_channels = 3;
   ns.out_channels = o.cfg.bands;
   ns.seed = o.design.seed;

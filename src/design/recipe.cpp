@@ -38,6 +38,10 @@ const std::map<std::string, Setter>& setters() {
       {"psf-path", [](DesignRunOptions& o, const std::string& v) { o.design.psf_path = psf_path_from_string(v); }},
       {"gamma", [](DesignRunOptions& o, const std::string& v) { o.gamma_decoder = number(v); }},
       {"noise-sigma", [](DesignRunOptions& o, const std::string& v) { o.decoder_noise_sigma = number(v); }},
+      {"noise-at", [](DesignRunOptions& o, const std::string& v) { o.sampling.noise_on_bands = v == "bands"; }},
+      {"patches", [](DesignRunOptions& o, const std::string& v) { o.sampling.fixed_patches = v == "fixed"; }},
+      {"batch-norm", [](DesignRunOptions& o, const std::string& v) { o.network_style.keras_batch_norm = v == "keras"; }},
+      {"final-init", [](DesignRunOptions& o, const std::string& v) { o.network_style.glorot_final = v == "glorot"; }},
   };
   return t;
 }
@@ -69,7 +73,14 @@ const std::vector<RecipeItem>& recipe_items() {
       {"noise-at-test", "on", "off", "the same height noise on the PSF of the evaluation's measurements"},
       {"psf-path", "2d", "auto", "PSF engine: 2d draws the height noise per pixel, as the release; the radial engine can only per ring"},
       {"gamma", "0", "0.0001", "network weight decay (the release's L2 regulariser is never added to its loss)"},
-      {"noise-sigma", "0.001", "0.001", "sensor noise std of the training images (see recipe_gaps for where it is added)"},
+      {"noise-sigma", "0.001", "0.001", "sensor noise std of the network's training images (noise-at: where it is added)"},
+      {"noise-at", "bands", "rgb", "where the network's training noise enters: bands (on the band image on the DOE grid, before the "
+                                   "response and the area resampling) or rgb (on the sensor image)"},
+      {"patches", "fixed", "random", "the network's training patches: fixed (per scene the whole scene resized and a 3 x 3 grid of "
+                                     "crops, in order, no augmentation) or random (crops with flips and transposes)"},
+      {"batch-norm", "keras", "torch", "the network's batch-norm constants: keras (momentum 0.99 in Keras' convention, eps 1e-3) or "
+                                       "torch (momentum 0.1, eps 1e-5)"},
+      {"final-init", "glorot", "he", "the initialiser of the network's last 1x1 convolution: glorot (uniform) or he (uniform)"},
   };
   return t;
 }
@@ -79,12 +90,12 @@ const std::vector<std::string>& recipe_gaps() {
       "ring geometry: the release centres its rings on a pixel corner (r from (N/2 - 0.5, N/2 - 0.5) samples) and leaves "
       "pixels with r >= N/2 - 1 unetched; qdo centres rings on sample (N/2, N/2) and extends the last ring to the corners",
       "rounding: the release rounds half to even (tf.round), qdo half up; they differ only at exact ties",
-      "sensor noise: the release adds sigma = 1e-3 to the 31-band image on the DOE grid before the response and the 2x "
-      "resampling (about 1.5e-4 on RGB); qdo adds sigma to the RGB image",
-      "network: Keras batch norm (momentum 0.99, eps 1e-3) and a Glorot-uniform final convolution; qdo's Res-UNet uses "
-      "torch's batch norm (momentum 0.1, eps 1e-5) and He-uniform everywhere",
-      "data: the release trains on 10 fixed 512 x 512 patches per ICVL scene without augmentation; qdo samples random crops "
-      "with flips and rotations",
+      "sensor noise in training: the release draws it on the 4 um band image before a bilinear 2x downsampling; qdo draws "
+      "the same distribution (srf * n per sensor pixel, n of std sigma / 2 per band) on the sensor grid, not the same numbers",
+      "batch norm's running variance: Keras keeps the batch's biased variance, torch the unbiased one (a factor "
+      "n / (n - 1), n = batch x H x W, about 1 + 1.5e-5 at 4 x 128 x 128)",
+      "data: the release trains on ICVL (167 scenes, 1,672 patches, 418 steps per epoch); qdo's runs use CAVE, whose "
+      "fixed patches number 10 per scene",
   };
   return g;
 }

@@ -86,7 +86,7 @@ class TorchNetworkDecoder final : public NetworkDecoder {
   explicit TorchNetworkDecoder(const NetworkSettings& s)
       : settings_(s),
         device_(network_device()),
-        net_(make_resunet(s.spec, s.in_channels, s.out_channels, s.seed)),
+        net_(make_resunet(s.spec, s.in_channels, s.out_channels, s.seed, s.style)),
         adam_((net_->to(device_), net_->parameters()), torch::optim::AdamOptions(1e-3)) {
     if (!(s.weight_decay_gamma >= 0) || !std::isfinite(s.weight_decay_gamma))
       reject("gamma_decoder", s.weight_decay_gamma, ">= 0 (γ of Eq. 14)");

@@ -24,6 +24,16 @@ void he_uniform(torch::nn::Conv2d& c, torch::Generator& gen) {
   w.copy_(torch::rand(w.sizes(), gen, w.options()) * (2 * b) - b);
   if (c->options.bias()) c->bias.zero_();
 }
+// Glorot-uniform (Keras' default, the release's last convolution): U(-b, b),
+// b = sqrt(6 / (fan_in + fan_out)), fan_in = in_channels * k * k, fan_out = out_channels * k * k.
+void glorot_uniform(torch::nn::Conv2d& c, torch::Generator& gen) {
+  torch::NoGradGuard guard;
+  const auto& w = c->weight;
+  const double k2 = double(w.size(2) * w.size(3));
+  const double b = std::sqrt(6.0 / (double(w.size(1)) * k2 + double(w.size(0)) * k2));
+  w.copy_(torch::rand(w.sizes(), gen, w.options()) * (2 * b) - b);
+  if (c->options.bias()) c->bias.zero_();
+}
 using RankSum = std::function<void(double*, std::size_t)>;
 
 // A double tensor's values summed over the ranks (on the CPU, where MPI reads them).
@@ -86,12 +96,16 @@ torch::Tensor ResUNetImpl::norm(torch::nn::BatchNorm2d& bn, const torch::Tensor&
 }
 
 ResUNetImpl::ResUNetImpl(std::size_t in_channels, std::size_t out_channels, std::size_t depth, std::size_t root,
-                         std::uint64_t seed)
-    : in_(in_channels), out_(out_channels), depth_(depth), root_(root) {
+                         std::uint64_t seed, const NetworkStyle& style)
+    : in_(in_channels), out_(out_channels), depth_(depth), root_(root), style_(style) {
   if (in_channels < 1) reject("in_channels", in_channels, "at least 1");
   if (out_channels < 1) reject("out_channels", out_channels, "at least 1");
   if (depth < 1 || depth > 10) reject("depth", depth, "an integer from 1 to 10");
   if (root < 1 || root > 1024) reject("root", root, "an integer from 1 to 1024");
+  const auto bn = [&](std::size_t c) {
+    const BatchNormConstants k = batch_norm_constants(style.keras_batch_norm);
+    return torch::nn::BatchNorm2d(torch::nn::BatchNorm2dOptions(std::int64_t(c)).momentum(k.momentum).eps(k.eps));
+  };
   torch::Generator gen = at::detail::createCPUGenerator(seed);
   std::size_t c_in = in_channels;
   for (std::size_t i = 0; i < depth; ++i) {
@@ -99,9 +113,9 @@ ResUNetImpl::ResUNetImpl(std::size_t in_channels, std::size_t out_channels, std:
     Down d;
     d.identity = register_module("down" + std::to_string(i) + "_identity", conv(c_in, c, 1, false));
     d.conv1 = register_module("down" + std::to_string(i) + "_conv1", conv(c_in, c, i == 0 ? 7 : 3, true));
-    d.bn1 = register_module("down" + std::to_string(i) + "_bn1", torch::nn::BatchNorm2d(std::int64_t(c)));
+    d.bn1 = register_module("down" + std::to_string(i) + "_bn1", bn(c));
     d.conv2 = register_module("down" + std::to_string(i) + "_conv2", conv(c, c, 3, true));
-    d.bn2 = register_module("down" + std::to_string(i) + "_bn2", torch::nn::BatchNorm2d(std::int64_t(c)));
+    d.bn2 = register_module("down" + std::to_string(i) + "_bn2", bn(c));
     for (auto* cv : {&d.identity, &d.conv1, &d.conv2}) he_uniform(*cv, gen);
     down_.push_back(d);
     c_in = c;
@@ -113,16 +127,17 @@ ResUNetImpl::ResUNetImpl(std::size_t in_channels, std::size_t out_channels, std:
     const std::string p = "up" + std::to_string(k);
     u.up_conv = register_module(p + "_upconv", conv(c_in, c, 1, true));
     u.conv1 = register_module(p + "_conv1", conv(2 * c, c, 3, true));
-    u.bn1 = register_module(p + "_bn1", torch::nn::BatchNorm2d(std::int64_t(c)));
+    u.bn1 = register_module(p + "_bn1", bn(c));
     u.conv2 = register_module(p + "_conv2", conv(c, c, 3, true));
-    u.bn2 = register_module(p + "_bn2", torch::nn::BatchNorm2d(std::int64_t(c)));
+    u.bn2 = register_module(p + "_bn2", bn(c));
     u.identity = register_module(p + "_identity", conv(2 * c, c, 1, false));
     for (auto* cv : {&u.up_conv, &u.conv1, &u.conv2, &u.identity}) he_uniform(*cv, gen);
     up_[k] = u;
     c_in = c;
   }
   final_ = register_module("final", conv(root, out_channels, 1, true));
-  he_uniform(final_, gen);
+  if (style.glorot_final) glorot_uniform(final_, gen);
+  else he_uniform(final_, gen);
 }
 
 torch::Tensor ResUNetImpl::forward(const torch::Tensor& x) {
@@ -159,9 +174,14 @@ std::size_t ResUNetImpl::parameter_count() const {
   return n;
 }
 
-ResUNet make_resunet(const DecoderSpec& spec, std::size_t in_channels, std::size_t out_channels, std::uint64_t seed) {
+BatchNormConstants batch_norm_constants(bool keras) {
+  return keras ? BatchNormConstants{0.01, 1e-3} : BatchNormConstants{0.1, 1e-5};
+}
+
+ResUNet make_resunet(const DecoderSpec& spec, std::size_t in_channels, std::size_t out_channels, std::uint64_t seed,
+                     const NetworkStyle& style) {
   if (spec.kind != DecoderSpec::Kind::ResUNet) reject("decoder", spec.to_string(), "a resunet spec");
-  return ResUNet(in_channels, out_channels, spec.depth, spec.root, seed);
+  return ResUNet(in_channels, out_channels, spec.depth, spec.root, seed, style);
 }
 
 }  // namespace qdo

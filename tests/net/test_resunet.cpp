@@ -3,6 +3,7 @@
 // (LibTorch's backward, then qdo's camera and PSF adjoints) against central differences, in double.
 #include <cmath>
 #include <random>
+#include <tuple>
 
 #include "torch_common.hpp"  // LibTorch, then doctest's CHECK macros and the common helpers
 #include "qdo/doe.hpp"
@@ -84,6 +85,44 @@ TEST_SUITE("net") {
     CHECK_THROWS_WITH_AS(net->forward(torch::rand({1, 2, 16, 16})), doctest::Contains("network input"), InputError);
     CHECK_THROWS_WITH_AS(ResUNet(3, 31, 0, 4, 1), doctest::Contains("depth"), InputError);
     CHECK_THROWS_WITH_AS(ResUNet(3, 31, 3, 0, 1), doctest::Contains("root"), InputError);
+  }
+
+  TEST_CASE("the release's network style: Keras batch-norm constants and a Glorot-uniform last convolution") {
+    NetworkStyle keras;
+    keras.keras_batch_norm = true;
+    keras.glorot_final = true;
+    ResUNet k(3, 31, 2, 4, 5, keras), t(3, 31, 2, 4, 5);
+    // Every batch norm: momentum 0.01 (Keras' 0.99) and eps 1e-3, or torch's 0.1 and 1e-5.
+    std::size_t norms = 0;
+    for (const auto& [net, m, eps] : {std::tuple<ResUNet*, double, double>{&k, 0.01, 1e-3}, {&t, 0.1, 1e-5}})
+      for (const auto& mod : (*net)->modules(false))
+        if (const auto* bn = mod->as<torch::nn::BatchNorm2dImpl>()) {
+          CHECK(bn->options.momentum().value() == m);
+          CHECK(bn->options.eps() == eps);
+          ++norms;
+        }
+    CHECK(norms == 2 * 6);  // per network: 2 per block, 2 down blocks and 1 up block at depth 2
+    // The running mean moves by momentum x the batch mean in one training forward.
+    k->train();
+    const torch::Tensor x = torch::rand({2, 3, 8, 8}) + 1.0;
+    k->forward(x);
+    for (const auto& mod : k->modules(false))
+      if (const auto* bn = mod->as<torch::nn::BatchNorm2dImpl>()) {
+        CHECK(bn->running_mean.abs().max().item<double>() > 0);
+        break;
+      }
+    // The last 1x1 convolution (root 4 -> 31): Glorot's bound sqrt(6 / (4 + 31)) against He's sqrt(6 / 4).
+    const torch::Tensor wk = k->named_parameters()["final.weight"], wt = t->named_parameters()["final.weight"];
+    const double glorot = std::sqrt(6.0 / 35.0), he = std::sqrt(6.0 / 4.0);
+    CHECK(wk.abs().max().item<double>() <= glorot);
+    CHECK(wk.abs().max().item<double>() >= 0.8 * glorot);
+    CHECK(wt.abs().max().item<double>() > glorot);
+    CHECK(wt.abs().max().item<double>() <= he);
+    // The rest of the network is drawn as before: the same seed, the same first convolution.
+    CHECK(torch::equal(k->named_parameters()["down0_conv1.weight"], t->named_parameters()["down0_conv1.weight"]));
+    const BatchNormConstants kc = batch_norm_constants(true), tc = batch_norm_constants(false);
+    CHECK(kc.momentum == 0.01);
+    CHECK(tc.eps == 1e-5);
   }
 
   TEST_CASE("the whole chain's gradient: heights -> optics -> camera -> network -> loss, against central differences") {
