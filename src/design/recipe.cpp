@@ -92,6 +92,8 @@ const std::vector<std::string>& recipe_gaps() {
       "rounding: the release rounds half to even (tf.round), qdo half up; they differ only at exact ties",
       "sensor noise in training: the release draws it on the 4 um band image before a bilinear 2x downsampling; qdo draws "
       "the same distribution (srf * n per sensor pixel, n of std sigma / 2 per band) on the sensor grid, not the same numbers",
+      "sensor noise at test: the release images its test patches without noise (training only); qdo's evaluations add "
+      "sigma on RGB for every decoder, so a network and the Wiener decoder are scored under the same noise",
       "batch norm's running variance: Keras keeps the batch's biased variance, torch the unbiased one (a factor "
       "n / (n - 1), n = batch x H x W, about 1 + 1.5e-5 at 4 x 128 x 128)",
       "data: the release trains on ICVL (167 scenes, 1,672 patches, 418 steps per epoch); qdo's runs use CAVE, whose "
