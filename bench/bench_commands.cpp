@@ -22,8 +22,8 @@
 #include <string>
 #include <vector>
 
-#include "qdo/data_root.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/data_root.hpp"
+#include "qdo/data/io.hpp"
 
 #include "bench_util.hpp"
 

@@ -1,4 +1,4 @@
-// bench_demosaic: the demosaic stage (include/qdo/demosaic.hpp) on the device, forward and
+// bench_demosaic: the demosaic stage (include/qdo/physics/demosaic.hpp) on the device, forward and
 // transpose, bilinear and Malvar-He-Cutler, against its CPU reference (ref::demosaic, double, one
 // thread) as the baseline, in the same run. Input: one seeded random RGGB raw plane of each size
 // (1 x N x N reals), already on the device for the kernel times (the launch and a queue.finish();
@@ -17,10 +17,10 @@
 #include <string>
 #include <vector>
 
-#include "qdo/demosaic.hpp"
-#include "qdo/demosaic_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/physics/demosaic.hpp"
+#include "qdo/physics/demosaic_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 #include "bench_util.hpp"
 

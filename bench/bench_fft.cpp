@@ -42,11 +42,11 @@
 #include <thread>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/fftw2.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/types.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/runtime/fftw2.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/runtime/types.hpp"
 
 #include "bench_util.hpp"
 

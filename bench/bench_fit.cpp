@@ -1,4 +1,4 @@
-// bench_fit: one as-built fit (include/qdo/fit.hpp, `qdo fit`) with the time per stage.
+// bench_fit: one as-built fit (include/qdo/design/fit.hpp, `qdo fit`) with the time per stage.
 //
 // The case: a 4-level lens for 550 nm on --preset (wrapped levels), its level depths off by +15, -20, +10 nm, z off
 // by 1.6 % and the relief offset by (0.3, -0.2) DOE pixels, the PSF stack simulated through it
@@ -25,13 +25,13 @@
 #include <string>
 #include <vector>
 
-#include "qdo/config.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fit.hpp"
-#include "qdo/io.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/fit.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
 
 #include "bench_util.hpp"
 

@@ -24,15 +24,15 @@
 #include <string>
 #include <vector>
 
-#include "qdo/config.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/types.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/runtime/types.hpp"
 
 #include "bench_util.hpp"
 

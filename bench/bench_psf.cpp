@@ -39,15 +39,15 @@
 #include <thread>
 #include <vector>
 
-#include "qdo/config.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/types.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/runtime/types.hpp"
 
 #include "bench_util.hpp"
 

@@ -14,12 +14,12 @@
 #include <string>
 #include <vector>
 
-#include "qdo/datasets.hpp"
-#include "qdo/design.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/wiener.hpp"
-#include "qdo/wiener_device.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/decode/wiener.hpp"
+#include "qdo/decode/wiener_device.hpp"
 
 #include "bench_util.hpp"
 

@@ -24,13 +24,13 @@
 #include <string>
 #include <vector>
 
-#include "qdo/decoder_registry.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/reconstruct.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/reconstruct.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/decode/wiener.hpp"
 
 #include "bench_util.hpp"
 

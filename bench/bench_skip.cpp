@@ -1,4 +1,4 @@
-// bench_skip: sensor images with skipping rules (Camera, include/qdo/camera.hpp) against the
+// bench_skip: sensor images with skipping rules (Camera, include/qdo/physics/camera.hpp) against the
 // unskipped Simulator::sensor_images, on the CAVE scenes with the paper physics.
 //
 // For each design (lens_design at 550 nm; with --radial also a random radial design) it
@@ -31,15 +31,15 @@
 #include <string>
 #include <vector>
 
-#include "qdo/data_root.hpp"
-#include "qdo/config.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/types.hpp"
+#include "qdo/data/data_root.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/runtime/types.hpp"
 
 #include "bench_util.hpp"
 

@@ -16,14 +16,14 @@
 #include <string>
 #include <vector>
 
-#include "qdo/adjoint.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/design.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/recipe.hpp"
-#include "qdo/wiener.hpp"
-#include "qdo/wiener_device.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/recipe.hpp"
+#include "qdo/decode/wiener.hpp"
+#include "qdo/decode/wiener_device.hpp"
 
 #include "bench_util.hpp"
 
@@ -170,7 +170,7 @@ int main(int argc, char** argv) {
                 step_res[step_res.size() / 2] / step_dev[step_dev.size() / 2]);
     md << "| " << pname << " | " << cfg.n << " | ratio (device-resident step) / (CPU-Wiener step), same run | "
        << step_res[step_res.size() / 2] / step_cpu[step_cpu.size() / 2] << " | | | | |\n";
-    // The same step under the release's recipe (qdo/recipe.hpp): ring-profile L_aq, Keras' Adam,
+    // The same step under the release's recipe (qdo/design/recipe.hpp): ring-profile L_aq, Keras' Adam,
     // +-20 nm height noise drawn per pixel on the 2-D path (the recipe's), or per ring on the radial one.
     for (const char* path : {"2d", "radial"}) {
       DesignRunOptions ro;

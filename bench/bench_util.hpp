@@ -12,13 +12,13 @@
 #include <utility>
 #include <vector>
 
-#include "qdo/util.hpp"
+#include "qdo/runtime/util.hpp"
 
 namespace qdo::bench {
 
 using Clock = std::chrono::steady_clock;
 
-using qdo::seconds_since;  // qdo/util.hpp: seconds elapsed on the steady clock since t0
+using qdo::seconds_since;  // qdo/runtime/util.hpp: seconds elapsed on the steady clock since t0
 
 // Runs f() `warmup` times unmeasured, then `repeats` times measured; the wall times in seconds, sorted ascending.
 template <typename F>
@@ -66,7 +66,7 @@ Timing time_it(int warmup, int repeats, F&& f) {
   return summarize(sorted_seconds(warmup, repeats, std::forward<F>(f)));
 }
 
-using qdo::split_items;  // qdo/util.hpp: the items between the separators, empty ones dropped
+using qdo::split_items;  // qdo/runtime/util.hpp: the items between the separators, empty ones dropped
 
 // v formatted by the printf format f (one double conversion, e.g. "%.3f"); at most 63 characters.
 inline std::string fmt(const char* f, double v) {

@@ -1,4 +1,4 @@
-// bench_varying: depth-layered and spatially varying images (include/qdo/varying.hpp) on
+// bench_varying: depth-layered and spatially varying images (include/qdo/physics/varying.hpp) on
 // the small preset (N = 256, 31 bands, S = 128) with the band-limited angular
 // spectrum and a diffractive lens (lens_design at 550 nm).
 //
@@ -29,16 +29,16 @@
 #include <string>
 #include <vector>
 
-#include "qdo/camera.hpp"
-#include "qdo/config.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/point_psf.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/types.hpp"
-#include "qdo/varying.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/point_psf.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/runtime/types.hpp"
+#include "qdo/physics/varying.hpp"
 
 #include "bench_util.hpp"
 

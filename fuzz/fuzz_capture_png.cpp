@@ -4,7 +4,7 @@
 #include <cmath>
 
 #include "fuzz_util.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/io.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace qdo;

@@ -2,7 +2,7 @@
 #include <cmath>
 
 #include "fuzz_util.hpp"
-#include "qdo/run.hpp"
+#include "qdo/design/run.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace qdo;

@@ -1,7 +1,7 @@
 // Fuzz target: JSON system configurations (config_from_json_text); an accepted configuration
 // must survive a write / read round trip unchanged.
 #include "fuzz_util.hpp"
-#include "qdo/config.hpp"
+#include "qdo/data/config.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace qdo;

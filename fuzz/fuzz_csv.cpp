@@ -3,9 +3,9 @@
 #include <cmath>
 
 #include "fuzz_util.hpp"
-#include "qdo/config.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace qdo;

@@ -5,7 +5,7 @@
 // otherwise an InputError naming the file.
 #include "design/network_state.hpp"
 #include "fuzz_util.hpp"
-#include "qdo/hash.hpp"
+#include "qdo/runtime/hash.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace qdo;

@@ -3,7 +3,7 @@
 #include <filesystem>
 
 #include "fuzz_util.hpp"
-#include "qdo/datasets.hpp"
+#include "qdo/data/datasets.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace qdo;

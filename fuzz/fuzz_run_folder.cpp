@@ -8,10 +8,10 @@
 #include <filesystem>
 
 #include "fuzz_util.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/run.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/design/run.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace qdo;

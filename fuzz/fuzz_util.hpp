@@ -19,7 +19,7 @@
 #include <string>
 #include <vector>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo::fuzz {
 

@@ -17,15 +17,15 @@
 #include <string>
 #include <vector>
 
-#include "qdo/config.hpp"
-#include "qdo/design.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/embedded.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/kernel_cache.hpp"
-#include "qdo/run.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/embedded.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/kernel_cache.hpp"
+#include "qdo/design/run.hpp"
 
 #include "fuzz_util.hpp"
 

@@ -4,8 +4,8 @@
 #include <cmath>
 
 #include "fuzz_util.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo::fuzz {
 

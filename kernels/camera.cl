@@ -1,4 +1,4 @@
-// The camera: sensor images of scene batches, with skipping rules (src/physics/camera.cpp, include/qdo/camera.hpp).
+// The camera: sensor images of scene batches, with skipping rules (src/physics/camera.cpp, include/qdo/physics/camera.hpp).
 //
 // Layout conventions shared by these kernels (all row-major):
 //   psf     bands x S x S real, optical axis at (S/2, S/2), PSF offset t = index - S/2

@@ -45,7 +45,7 @@ inline __attribute__((always_inline)) real2 cexpi(real phase) {
 }
 #endif
 
-// Philox4x32-10: bit-identical to qdo::philox4x32 in include/qdo/rng.hpp.
+// Philox4x32-10: bit-identical to qdo::philox4x32 in include/qdo/runtime/rng.hpp.
 inline uint4 philox4x32(uint4 c, uint2 k) {
   for (int r = 0; r < 10; ++r) {
     const uint hi0 = mul_hi(0xD2511F53u, c.x), lo0 = 0xD2511F53u * c.x;

@@ -1,4 +1,4 @@
-// The demosaic stage (include/qdo/demosaic.hpp): one Bayer raw plane -> R, G, B planes, bilinear or
+// The demosaic stage (include/qdo/physics/demosaic.hpp): one Bayer raw plane -> R, G, B planes, bilinear or
 // Malvar-He-Cutler (5 x 5, gradient-corrected), and its transpose. Both are linear: output (c, y, x)
 // = sum of w * raw(m(y + dy), m(x + dx)) over the 5 x 5 filter picked by the pixel's site and c,
 // m the mirror about the edge pixel (m(-1) = 1, m(H) = H - 2; keeps parity, so the mosaic).

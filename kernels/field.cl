@@ -5,7 +5,7 @@
 // offset 0: see PropagationStage::plan); everything else,
 // and everything outside the circular aperture, is zero (so the buffer needs no clearing).
 // height_m: designs x N x N real, row-major. k_per_m[p] = 2π/λ, dn[p] = n(λ) - 1 per plane (planes reals).
-// Object points (include/qdo/config.hpp ObjectPoint): point_tab, points x 4 reals per point
+// Object points (include/qdo/data/config.hpp ObjectPoint): point_tab, points x 4 reals per point
 // (x0, y0, d, R0): the point at (x0, y0) at distance d (metres), R0 = sqrt(x0² + y0² + d²);
 // d <= 0 is a plane wave whose direction cosines (α, β) sit in the (x0, y0) slots.
 // Source phase k·src (point_source below), the exact spherical phase minus the constant k·R0:
@@ -108,7 +108,7 @@ __kernel void doe_field_p64(__global const real* height_m, __global const double
 }
 #endif
 
-// --- Adjoints (vector-Jacobian products; gradient convention of include/qdo/adjoint.hpp:
+// --- Adjoints (vector-Jacobian products; gradient convention of include/qdo/physics/adjoint.hpp:
 // complex gradients g = dL/dRe + i dL/dIm) ---
 
 // VJP of the DOE phase of one design: dH[i][j] = sum_p k_p dn_p Re(conj(gU1) i U1) over all

@@ -95,7 +95,7 @@ __kernel void intensity_crop_sums(__global const real2* field, __global real* ps
   if (lid == 0) partial[(size_t)b * groups_per_band + g] = scratch[0];
 }
 
-// --- Adjoints (vector-Jacobian products; gradient convention of include/qdo/adjoint.hpp:
+// --- Adjoints (vector-Jacobian products; gradient convention of include/qdo/physics/adjoint.hpp:
 // complex gradients g = dL/dRe + i dL/dIm) ---
 
 // Per-band partial dot products <a_b, b_b>. NDRange (groups_per_band * local, bands).

@@ -1,4 +1,4 @@
-// The radial PSF engine (include/qdo/radial.hpp): N/2 rings, K transform frequencies, J output radii,
+// The radial PSF engine (include/qdo/physics/radial.hpp): N/2 rings, K transform frequencies, J output radii,
 // U distinct sensor values, S x S sensor, `bands` planes. Complex values are real2, arrays row-major
 // with the band index outermost. 1-D kernels use the fixed work-group size and check their index.
 

@@ -1,4 +1,4 @@
-// The sensor as built (include/qdo/raw.hpp): linear RGB -> raw code values in DN, and the
+// The sensor as built (include/qdo/physics/raw.hpp): linear RGB -> raw code values in DN, and the
 // adjoint of its differentiable part. CPU reference: ref::raw_forward (raw_reference.hpp).
 
 // The colour channel (0 R, 1 G, 2 B) filtered at pixel (y, x): cfa_code holds the 2 x 2 cell,

@@ -1,4 +1,4 @@
-// The release's image formation (REFERENCE §1, as measured; include/qdo/release.hpp): per band,
+// The release's image formation (REFERENCE §1, as measured; include/qdo/physics/release.hpp): per band,
 // bilinear up-sampling of the S x S scene to the N x N DOE grid, symmetric (mirror) padding to
 // G x G, circular convolution with the PSF placed as the release's psf2otf places it, crop to
 // N x N and bilinear down-sampling to S x S. Host code: src/physics/release.cpp; CPU reference

@@ -1,4 +1,4 @@
-// Depth-layered and spatially varying imaging (src/physics/varying.cpp, include/qdo/varying.hpp):
+// Depth-layered and spatially varying imaging (src/physics/varying.cpp, include/qdo/physics/varying.hpp):
 // K components, each a PSF stack and a per-pixel weight map, summed by FFT convolution on one
 // GY x GX grid per scene (linear convolution, grid >= H + S/2 and >= S, so nothing folds).
 //

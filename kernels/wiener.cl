@@ -1,7 +1,7 @@
 // The Wiener expected-error objective and its gradient with respect to the PSF stack, on the
-// device (src/decode/wiener_device.cpp, include/qdo/wiener_device.hpp). CPU reference:
+// device (src/decode/wiener_device.cpp, include/qdo/decode/wiener_device.hpp). CPU reference:
 // wiener::objective_psf(Loss::Expected, ...) in src/decode/wiener.cpp, whose conventions these
-// kernels follow (include/qdo/wiener.hpp): per DFT frequency f, A = srf · diag(OTF(f)) (C x B),
+// kernels follow (include/qdo/decode/wiener.hpp): per DFT frequency f, A = srf · diag(OTF(f)) (C x B),
 // M = A P A^H + σ² I (C x C), Kh = M⁻¹ A P, tr E = tr P − Re tr(Kh^H A P),
 // G_A = −2c (Kh P − (Kh Kh^H) A P), G_OTF_b = Σ_c srf(c, b) G_A(c, b).
 //

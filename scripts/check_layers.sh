@@ -9,10 +9,10 @@
 # net (the LibTorch plugin, qdo_net) sits on decode and below, and nothing in the core includes it.
 # data may use runtime, and runtime nothing above it; decode may use physics, data and runtime; etc.
 #
-# Checks, for every file of src/<folder>/ and include/qdo/ (a public header belongs to the folder
-# that defines its functions, per the table below; a private header "<folder>/x.hpp" to <folder>):
-#   1. every #include "qdo/X.hpp" / "<folder>/x.hpp" names a header of the same or a lower layer;
-#   2. every public header is in the table, and every table entry exists;
+# Checks, for every file of src/<folder>/ and include/qdo/<folder>/ (a public header's layer is its
+# folder, the folder of src/ that defines its functions; a private header "<folder>/x.hpp" is <folder>'s):
+#   1. every #include "qdo/<folder>/X.hpp" / "<folder>/x.hpp" names a header of the same or a lower layer;
+#   2. every public header lies in the folder of a layer (none directly in include/qdo/);
 #   3. a .cpp whose first include is its own header (the header's name begins its file name, as
 #      wiener.cpp / wiener.hpp, camera_skip.cpp / camera.hpp) lies in that header's folder.
 # And, once the includes pass, for the code and documentation (src include tests bench docs scripts
@@ -23,88 +23,6 @@
 # Prints each violation and exits 1 when there is one. Usage: scripts/check_layers.sh [REPO]
 set -euo pipefail
 cd "${1:-$(dirname "$0")/..}"
-
-# public header -> the folder that defines its functions (header-only headers: runtime)
-table='
-adjoint physics
-camera physics
-camera_reference physics
-calibrate physics
-config data
-cpu_reference physics
-datasets data
-data_root data
-figure data
-decoder decode
-decoder_registry decode
-decoder_spec decode
-demosaic physics
-demosaic_reference physics
-design design
-design_run design
-design_run_options design
-doe physics
-doe_adjoint_reference physics
-embedded runtime
-encoders decode
-error runtime
-eval design
-eval_points design
-fab fab
-fft runtime
-fftw2 runtime
-field physics
-flat_field physics
-field_reference physics
-gds fab
-fit design
-gradcheck design
-hash runtime
-host_propagator runtime
-io data
-io_raw data
-joint design
-joint_sampling design
-kernel_cache runtime
-materials data
-mpi runtime
-net net
-network_decoder decode
-optics physics
-propagate physics
-propagate_reference physics
-psf physics
-psf_metrics physics
-psf_reference physics
-psf_source physics
-psf_spec design
-point_psf physics
-reconstruct design
-radial physics
-recipe design
-release physics
-release_reference physics
-resunet net
-rng runtime
-run design
-run_folder design
-runtime runtime
-scenes data
-raw physics
-raw_reference physics
-sensor physics
-sensor_reference physics
-simulator physics
-sweep design
-sweep_stats design
-testset decode
-types runtime
-util runtime
-varying physics
-varying_reference physics
-wiener decode
-wiener_device decode
-'
 
 # folder -> the folders it may include from
 allowed='
@@ -119,37 +37,40 @@ fab runtime,data,physics,decode,design,fab
 '
 
 shopt -s nullglob
-files=(src/*/*.cpp src/*/*.hpp include/qdo/*.hpp)
+files=(src/*/*.cpp src/*/*.hpp include/qdo/*/*.hpp)
+bad=0
+for h in include/qdo/*.hpp; do
+  echo "$h: a public header outside the layer folders (include/qdo/<layer>/, the layer of the src/ folder that defines it)"
+  bad=1
+done
+for d in include/qdo/*/; do
+  layer=$(basename "$d")
+  if ! grep -q "^$layer " <<< "$allowed"; then echo "$d: not a layer (one of: $(awk 'NF == 2 { printf "%s ", $1 }' <<< "$allowed"))"; bad=1; fi
+done
+((bad == 0)) || { echo "layers: violations found"; exit 1; }
 {
-  echo "TABLE"; echo "$table"
   echo "ALLOWED"; echo "$allowed"
-  echo "HEADERS"; for h in include/qdo/*.hpp; do basename "$h" .hpp; done
   echo "INCLUDES"; grep -H '^#include "' "${files[@]}" || true
 } | awk '
-  /^TABLE$/ { mode = "t"; next }
   /^ALLOWED$/ { mode = "a"; next }
-  /^HEADERS$/ { mode = "h"; next }
   /^INCLUDES$/ { mode = "i"; next }
-  mode == "t" && NF == 2 { folder[$1] = $2; next }
-  mode == "a" && NF == 2 { n = split($2, f, ","); for (k = 1; k <= n; ++k) ok[$1 "," f[k]] = 1; next }
-  mode == "h" && NF == 1 { present[$1] = 1; next }
+  mode == "a" && NF == 2 { n = split($2, f, ","); for (k = 1; k <= n; ++k) ok[$1 "," f[k]] = 1; layer[$1] = 1; next }
   mode == "i" {
     file = $0; sub(/:.*/, "", file)
     inc = $0; sub(/^[^"]*"/, "", inc); sub(/".*/, "", inc)
-    # the layer of the including file
-    if (file ~ /^include\/qdo\//) { h = file; sub(/^include\/qdo\//, "", h); sub(/\.hpp$/, "", h); from = folder[h] }
-    else { from = file; sub(/^src\//, "", from); sub(/\/.*/, "", from) }
-    if (from == "") next  # a header missing from the table is reported below
+    # the layer of the including file: its folder under include/qdo/ or src/
+    from = file; sub(/^include\/qdo\//, "", from); sub(/^src\//, "", from); sub(/\/.*/, "", from)
     # the layer of the included header
     if (inc ~ /^qdo\//) {
-      h = inc; sub(/^qdo\//, "", h); sub(/\.hpp$/, "", h)
-      if (!(h in folder)) { print file ": includes " inc ", which the table in scripts/check_layers.sh does not place"; bad = 1; next }
-      to = folder[h]
+      if (inc !~ /^qdo\/[a-z]+\/[a-z0-9_]+\.hpp$/) { print file ": includes " inc ", not a header of a layer folder (qdo/<layer>/x.hpp)"; bad = 1; next }
+      to = inc; sub(/^qdo\//, "", to); h = to; sub(/\/.*/, "", to); sub(/^[a-z]+\//, "", h); sub(/\.hpp$/, "", h)
+      if (!(to in layer)) { print file ": includes " inc ", whose folder is not a layer"; bad = 1; next }
+      if (system("test -f include/" inc) != 0) { print file ": includes " inc ", which does not exist"; bad = 1; next }
       # 3. a .cpp implementing its own header lies in the header s folder
       if (file ~ /\.cpp$/ && !(file in seen)) {
         base = file; sub(/^.*\//, "", base); sub(/\.cpp$/, "", base)
         if ((base == h || index(base, h "_") == 1) && to != from) {
-          print file ": implements include/qdo/" h ".hpp, whose functions the table places in src/" to "/"; bad = 1
+          print file ": implements include/" inc ", whose functions belong in src/" to "/"; bad = 1
         }
       }
     } else if (inc ~ /^[a-z_]+\/[a-z_]+\.hpp$/) {
@@ -164,8 +85,6 @@ files=(src/*/*.cpp src/*/*.hpp include/qdo/*.hpp)
     next
   }
   END {
-    for (h in present) if (!(h in folder)) { print "include/qdo/" h ".hpp: not in the table of scripts/check_layers.sh"; bad = 1 }
-    for (h in folder) if (!(h in present)) { print "scripts/check_layers.sh: the table names include/qdo/" h ".hpp, which does not exist"; bad = 1 }
     if (bad) { print "layers: violations found (runtime, data < physics < decode < design < fab < cli; net on decode)"; exit 1 }
     print "layers: every include points down"
   }
@@ -190,7 +109,7 @@ fi
 echo "layers: no internal issue numbers in the code and docs"
 
 # 5. No path relative to the working directory into the shared data in the library or the tool:
-# datasets are found through the data root (include/qdo/data_root.hpp).
+# datasets are found through the data root (include/qdo/data/data_root.hpp).
 rc=0
 hits=$(grep -rnI '\.\./shared' src include) || rc=$?
 if (( rc == 0 )); then

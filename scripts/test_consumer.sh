@@ -30,7 +30,7 @@ step() {
 }
 
 step install cmake --install "$build" --prefix "$prefix"
-for f in bin/qdo include/qdo/simulator.hpp include/qdo/config.hpp; do
+for f in bin/qdo include/qdo/physics/simulator.hpp include/qdo/data/config.hpp; do
   [[ -f "$prefix/$f" ]] || fail "not installed: $f"
 done
 cfgdir="$(dirname "$(find "$prefix" -path '*/cmake/qdo/qdoConfig.cmake' | head -n1)")"

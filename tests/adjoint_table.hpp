@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "adjoint_ladder.hpp"
-#include "qdo/types.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo::test {
 

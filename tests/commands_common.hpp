@@ -16,8 +16,8 @@
 #include <vector>
 
 #include "common.hpp"
-#include "qdo/config.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo::test::commands_suite {
 

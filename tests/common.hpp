@@ -1,6 +1,6 @@
 // Helpers shared by the test files.
 #pragma once
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 #include <doctest/doctest.h>
 
 #include <algorithm>
@@ -16,10 +16,10 @@
 #include <string>
 #include <vector>
 
-#include "qdo/camera.hpp"
-#include "qdo/config.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/types.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo::test {
 

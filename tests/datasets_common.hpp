@@ -13,8 +13,8 @@
 #include <system_error>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/types.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo::test::datasets_suite {
 

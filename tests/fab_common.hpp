@@ -5,9 +5,9 @@
 #include <random>
 #include <vector>
 
-#include "qdo/config.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo::test::fab_suite {
 

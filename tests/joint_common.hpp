@@ -11,9 +11,9 @@
 #include <vector>
 
 #include "common.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/error.hpp"
-#include "qdo/network_decoder.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/decode/network_decoder.hpp"
 
 namespace qdo::test {
 

@@ -11,11 +11,11 @@
 
 #include "commands_common.hpp"
 #include "common.hpp"
-#include "qdo/decoder_registry.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/decode/wiener.hpp"
 
 namespace qdo::test::reconstruct_suite {
 

@@ -8,9 +8,9 @@
 
 #include <vector>
 
-#include "qdo/field.hpp"
-#include "qdo/propagate.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/field.hpp"
+#include "qdo/physics/propagate.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace qdo::test {
 

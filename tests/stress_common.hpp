@@ -24,10 +24,10 @@
 
 #include "adjoint_ladder.hpp"  // dot(): the tests' one inner product
 #include "common.hpp"
-#include "qdo/config.hpp"
-#include "qdo/error.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/types.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/runtime/types.hpp"
 
 extern char** environ;
 

@@ -12,10 +12,10 @@
 
 #include "adjoint_table.hpp"
 #include "common.hpp"
-#include "qdo/adjoint.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -1,4 +1,4 @@
-// qdo calibrate (suite `calibrate`, include/qdo/calibrate.hpp): a synthetic monochromator sweep
+// qdo calibrate (suite `calibrate`, include/qdo/physics/calibrate.hpp): a synthetic monochromator sweep
 // made from a known simulated PSF stack through the sensor as built (ref::raw_forward: RGGB
 // mosaic, black level, read noise, 12-bit quantization) with an offset, a fixed hot pixel (in the
 // darks too) and a transient one, is calibrated back to the known stack; every refusal exits 2
@@ -16,11 +16,11 @@
 #include <vector>
 
 #include "common.hpp"
-#include "qdo/calibrate.hpp"
-#include "qdo/config.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/raw_reference.hpp"
+#include "qdo/physics/calibrate.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/raw_reference.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

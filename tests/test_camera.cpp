@@ -1,4 +1,4 @@
-// The camera operator (include/qdo/camera.hpp, kernels/camera.cl, src/physics/camera.cpp):
+// The camera operator (include/qdo/physics/camera.hpp, kernels/camera.cl, src/physics/camera.cpp):
 // per-band convolution -> sensor integration on the device, its blur, and its adjoints to the
 // PSF stack and to the scenes. The adjoint ladder (tests/adjoint_ladder.hpp) runs over a table of
 // stages, device (float64) and CPU reference alike; then every device result is compared with
@@ -10,14 +10,14 @@
 
 #include "adjoint_ladder.hpp"
 #include "common.hpp"
-#include "qdo/adjoint.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/testset.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/decode/testset.hpp"
+#include "qdo/decode/wiener.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

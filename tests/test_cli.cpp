@@ -6,7 +6,7 @@
 #include <sstream>
 
 #include "common.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/io.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

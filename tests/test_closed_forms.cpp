@@ -5,9 +5,9 @@
 #include <cmath>
 
 #include "common.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/physics/simulator.hpp"
 #include "stage_probes.hpp"
 
 using namespace qdo;

@@ -17,12 +17,12 @@
 #include <unistd.h>
 
 #include "commands_common.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/io.hpp"
-#include "qdo/run.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/design/eval.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -6,7 +6,7 @@
 #include <string>
 
 #include "commands_common.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/io.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

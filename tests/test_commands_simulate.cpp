@@ -14,15 +14,15 @@
 #include <sstream>
 
 #include "commands_common.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/release.hpp"
-#include "qdo/release_reference.hpp"
-#include "qdo/run.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/release.hpp"
+#include "qdo/physics/release_reference.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -10,10 +10,10 @@
 #include <sstream>
 
 #include "commands_common.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/fab.hpp"
-#include "qdo/io.hpp"
-#include "qdo/run.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/fab/fab.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/run.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -7,9 +7,9 @@
 #include <limits>
 #include <string>
 
-#include "qdo/config.hpp"
-#include "qdo/decoder_spec.hpp"
-#include "qdo/error.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/decode/decoder_spec.hpp"
+#include "qdo/runtime/error.hpp"
 
 using qdo::SystemConfig;
 

@@ -14,9 +14,9 @@
 #include <vector>
 
 #include "common.hpp"
-#include "qdo/data_root.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/data_root.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

@@ -11,9 +11,9 @@
 
 #include "common.hpp"
 #include "datasets_common.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

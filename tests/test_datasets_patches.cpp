@@ -10,8 +10,8 @@
 
 #include "common.hpp"
 #include "datasets_common.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

@@ -10,14 +10,14 @@
 #include <nlohmann/json.hpp>
 
 #include "common.hpp"
-#include "qdo/decoder_registry.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/encoders.hpp"
-#include "qdo/error.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/io.hpp"
-#include "qdo/testset.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/decode/encoders.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/eval.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/decode/testset.hpp"
+#include "qdo/decode/wiener.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -1,4 +1,4 @@
-// The demosaic stage (suite `demosaic`, include/qdo/demosaic.hpp, demosaic_reference.hpp): bilinear
+// The demosaic stage (suite `demosaic`, include/qdo/physics/demosaic.hpp, demosaic_reference.hpp): bilinear
 // and Malvar-He-Cutler on the four Bayer layouts, the device against the CPU reference (forward
 // and transpose), the adjoint ladder (reference and device rows, run here through the ladder body),
 // closed forms (constants everywhere, affine ramps in the interior, an impulse's response by hand),
@@ -10,14 +10,14 @@
 
 #include "adjoint_ladder.hpp"
 #include "common.hpp"
-#include "qdo/config.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/demosaic.hpp"
-#include "qdo/demosaic_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/raw_reference.hpp"
-#include "qdo/sensor_reference.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/physics/demosaic.hpp"
+#include "qdo/physics/demosaic_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/raw_reference.hpp"
+#include "qdo/physics/sensor_reference.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

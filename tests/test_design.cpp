@@ -10,13 +10,13 @@
 
 #include "adjoint_table.hpp"
 #include "common.hpp"
-#include "qdo/adjoint.hpp"
-#include "qdo/design.hpp"
-#include "qdo/error.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/wiener.hpp"
-#include "qdo/wiener_device.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/decode/wiener.hpp"
+#include "qdo/decode/wiener_device.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -13,12 +13,12 @@
 
 #include "adjoint_table.hpp"
 #include "common.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/encoders.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fftw2.hpp"
-#include "qdo/materials.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/decode/encoders.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fftw2.hpp"
+#include "qdo/data/materials.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

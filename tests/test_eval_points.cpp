@@ -14,11 +14,11 @@
 #include <limits>
 
 #include "common.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/eval_points.hpp"
-#include "qdo/io.hpp"
-#include "qdo/materials.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/design/eval.hpp"
+#include "qdo/design/eval_points.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/data/materials.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -12,9 +12,9 @@
 #include "commands_common.hpp"
 #include "common.hpp"
 #include "fab_common.hpp"
-#include "qdo/fab.hpp"
-#include "qdo/fit.hpp"
-#include "qdo/io.hpp"
+#include "qdo/fab/fab.hpp"
+#include "qdo/design/fit.hpp"
+#include "qdo/data/io.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -10,13 +10,13 @@
 
 #include "common.hpp"
 #include "fab_common.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/gradcheck.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fab.hpp"
-#include "qdo/gds.hpp"
-#include "qdo/io.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/design/eval.hpp"
+#include "qdo/design/gradcheck.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/fab/fab.hpp"
+#include "qdo/fab/gds.hpp"
+#include "qdo/data/io.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -16,10 +16,10 @@
 #include <vector>
 
 #include "common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/fftw2.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/runtime/fftw2.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -16,8 +16,8 @@
 
 #include "svg_text.hpp"
 #include "io_common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

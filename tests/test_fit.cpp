@@ -1,4 +1,4 @@
-// qdo fit (suite `fit`, include/qdo/fit.hpp): the as-built DOE. A known perturbation of a 4-level
+// qdo fit (suite `fit`, include/qdo/design/fit.hpp): the as-built DOE. A known perturbation of a 4-level
 // lens (level depths off by +15, -20, +20 nm, the DOE-sensor distance z off by 1.6 %, the relief
 // offset by (0.3, -0.2) DOE pixels) is applied through the fit's own model (the same forward
 // model: these tests check the inverse, not the physics, which the psf suite checks), PSFs are
@@ -19,12 +19,12 @@
 
 #include "adjoint_ladder.hpp"
 #include "common.hpp"
-#include "qdo/config.hpp"
-#include "qdo/design.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fit.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/fit.hpp"
+#include "qdo/data/io.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -9,8 +9,8 @@
 
 #include "common.hpp"
 #include "io_common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

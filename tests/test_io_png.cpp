@@ -13,10 +13,10 @@
 #include "svg_text.hpp"
 #include "common.hpp"
 #include "io_common.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

@@ -17,9 +17,9 @@
 
 #include "common.hpp"
 #include "io_common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/io_raw.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/data/io_raw.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

@@ -1,4 +1,4 @@
-// Joint training of the optics with a network decoder, the core half (qdo/joint.hpp): the patch
+// Joint training of the optics with a network decoder, the core half (qdo/design/joint.hpp): the patch
 // camera, the training batches, the step a JointTrainer takes (their adjoints are rows of the
 // adjoint table, adjoint_rows::joint, defined here), and network runs of qdo design / eval
 // (checkpointed network state, bit-identical resume, refusals, do-finetune). The network here is
@@ -18,16 +18,16 @@
 #include "adjoint_table.hpp"
 #include "common.hpp"
 #include "joint_common.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/joint.hpp"
-#include "qdo/network_decoder.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/run.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/sweep.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/design/eval.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/joint.hpp"
+#include "qdo/decode/network_decoder.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/design/sweep.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -11,10 +11,10 @@
 
 #include "common.hpp"
 #include "joint_common.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/network_decoder.hpp"
-#include "qdo/decoder_spec.hpp"
-#include "qdo/run.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/decode/network_decoder.hpp"
+#include "qdo/decode/decoder_spec.hpp"
+#include "qdo/design/run.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

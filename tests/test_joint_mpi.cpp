@@ -23,11 +23,11 @@
 #include <vector>
 
 #include "stress_common.hpp"  // Child, children_of
-#include "qdo/config.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/mpi.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/mpi.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

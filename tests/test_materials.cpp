@@ -3,8 +3,8 @@
 #include <cmath>
 #include <string>
 
-#include "qdo/error.hpp"
-#include "qdo/materials.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/materials.hpp"
 
 using qdo::material_by_name;
 

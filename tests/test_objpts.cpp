@@ -9,11 +9,11 @@
 
 #include "adjoint_ladder.hpp"
 #include "common.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/point_psf.hpp"
-#include "qdo/radial.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/physics/point_psf.hpp"
+#include "qdo/physics/radial.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -11,8 +11,8 @@
 #include <vector>
 
 #include "common.hpp"
-#include "qdo/config.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/io.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

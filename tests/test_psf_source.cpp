@@ -1,4 +1,4 @@
-// The PSF source seam (include/qdo/psf_source.hpp): the camera takes any PsfSource (the 2-D
+// The PSF source seam (include/qdo/physics/psf_source.hpp): the camera takes any PsfSource (the 2-D
 // simulator, the radial engine, a fixed stack such as a PSF file) and gives the same images for the
 // same stack; `qdo simulate --psf` and `qdo image --psf` with a stack written by `qdo psf` give the
 // images of the design that made it; a stack for other bands or another sensor grid is refused
@@ -8,13 +8,13 @@
 #include <fstream>
 
 #include "common.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/io.hpp"
-#include "qdo/psf_source.hpp"
-#include "qdo/psf_spec.hpp"
-#include "qdo/error.hpp"
-#include "qdo/radial.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/psf_source.hpp"
+#include "qdo/design/psf_spec.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/radial.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -1,4 +1,4 @@
-// The radial PSF engine (qdo/radial.hpp): Bessel routines, the quasi-discrete Hankel transform,
+// The radial PSF engine (qdo/physics/radial.hpp): Bessel routines, the quasi-discrete Hankel transform,
 // OpenCL (float32 / float64) against the CPU reference, and accuracy against the 2-D FFT path on
 // the paper physics at a test-sized N. Its adjoint ladder in double (dot-product tests per linear
 // stage, directional and central differences of the whole chain) is rows of the adjoint table
@@ -12,15 +12,15 @@
 
 #include "adjoint_table.hpp"
 #include "common.hpp"
-#include "qdo/adjoint.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/design.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/radial.hpp"
-#include "qdo/scenes.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/radial.hpp"
+#include "qdo/data/scenes.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/decode/wiener.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

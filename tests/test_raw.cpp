@@ -1,4 +1,4 @@
-// The raw stage (suite `raw`): the sensor as built (include/qdo/raw.hpp) against its CPU reference
+// The raw stage (suite `raw`): the sensor as built (include/qdo/physics/raw.hpp) against its CPU reference
 // (raw_reference.hpp) and against values worked out by hand: mosaic layout, saturation and floor
 // counts, bit depth, black level, gain, noise statistics, configuration errors. Its adjoint
 // rows (reference and device) are defined here as adjoint_rows::raw and run by the suite `adjoint`.
@@ -10,11 +10,11 @@
 
 #include "adjoint_table.hpp"
 #include "common.hpp"
-#include "qdo/config.hpp"
-#include "qdo/error.hpp"
-#include "qdo/raw.hpp"
-#include "qdo/raw_reference.hpp"
-#include "qdo/sensor_reference.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/raw.hpp"
+#include "qdo/physics/raw_reference.hpp"
+#include "qdo/physics/sensor_reference.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -1,4 +1,4 @@
-// The release's training recipe (qdo/recipe.hpp), checked against an independent reference of the
+// The release's training recipe (qdo/design/recipe.hpp), checked against an independent reference of the
 // release's quantities. The reference (namespace rel) is written in double from the facts of the
 // authors' code (REFERENCE §2-3: optics/diffractive_optical_element.py, model.py,
 // tasks/hyperspectral.py), in the release's own coordinates: the weight w_rel in [-1, 1] of each
@@ -16,14 +16,14 @@
 
 #include "commands_common.hpp"
 #include "common.hpp"
-#include "qdo/design.hpp"
-#include "qdo/design_run_options.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/radial.hpp"
-#include "qdo/recipe.hpp"
-#include "qdo/run.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/design/design_run_options.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/radial.hpp"
+#include "qdo/design/recipe.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -11,11 +11,11 @@
 #include "commands_common.hpp"
 #include "common.hpp"
 #include "reconstruct_common.hpp"
-#include "qdo/demosaic_reference.hpp"
-#include "qdo/io.hpp"
-#include "qdo/io_raw.hpp"
-#include "qdo/raw_reference.hpp"
-#include "qdo/reconstruct.hpp"
+#include "qdo/physics/demosaic_reference.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/data/io_raw.hpp"
+#include "qdo/physics/raw_reference.hpp"
+#include "qdo/design/reconstruct.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -16,12 +16,12 @@
 #include <sstream>
 
 #include "common.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/materials.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/data/materials.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
 #include "stage_probes.hpp"
 
 using namespace qdo;

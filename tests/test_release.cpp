@@ -1,4 +1,4 @@
-// The release's image formation (include/qdo/release.hpp, kernels/release.cl): its geometry as the
+// The release's image formation (include/qdo/physics/release.hpp, kernels/release.cl): its geometry as the
 // release computes it, the CPU reference against closed forms (a point PSF gives the half-pixel
 // shift's 2 x 2 average with mirrored edges, a constant scene stays constant, TF's bilinear
 // resize on hand-computed values), and the device path against the reference in float32 and
@@ -7,9 +7,9 @@
 #include <random>
 
 #include "common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/release.hpp"
-#include "qdo/release_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/release.hpp"
+#include "qdo/physics/release_reference.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -9,10 +9,10 @@
 #include <vector>
 
 #include "common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/kernel_cache.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/runtime/kernel_cache.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

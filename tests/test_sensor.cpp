@@ -2,10 +2,10 @@
 #include <fstream>
 
 #include "common.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -10,9 +10,9 @@
 #include <vector>
 
 #include "common.hpp"
-#include "qdo/config.hpp"
-#include "qdo/io.hpp"
-#include "qdo/raw_reference.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/raw_reference.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -13,14 +13,14 @@
 #include <nlohmann/json.hpp>
 
 #include "common.hpp"
-#include "qdo/config.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/point_psf.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/varying.hpp"
-#include "qdo/varying_reference.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/point_psf.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/physics/varying.hpp"
+#include "qdo/physics/varying_reference.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

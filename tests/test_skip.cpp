@@ -1,4 +1,4 @@
-// Camera (include/qdo/camera.hpp): sensor images with skipping rules and error bounds.
+// Camera (include/qdo/physics/camera.hpp): sensor images with skipping rules and error bounds.
 #include <cmath>
 #include <fstream>
 #include <random>
@@ -6,12 +6,12 @@
 #include <sys/wait.h>
 
 #include "common.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

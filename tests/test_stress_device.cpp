@@ -5,10 +5,10 @@
 #include <string>
 
 #include "stress_common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -19,12 +19,12 @@
 #include <vector>
 
 #include "stress_common.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/design.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/run.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/run.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -9,11 +9,11 @@
 #include <vector>
 
 #include "stress_common.hpp"
-#include "qdo/adjoint.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -17,12 +17,12 @@
 
 #include "stage_probes.hpp"
 #include "stress_common.hpp"
-#include "qdo/adjoint.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -24,14 +24,14 @@
 #include <vector>
 
 #include "stress_common.hpp"
-#include "qdo/design.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/run.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -11,9 +11,9 @@
 #include <vector>
 
 #include "stress_common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/run_folder.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/run_folder.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -3,12 +3,12 @@
 #include <fstream>
 
 #include "common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/run.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/sweep.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/design/sweep.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

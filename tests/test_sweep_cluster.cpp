@@ -14,12 +14,12 @@
 #include <thread>
 
 #include "svg_text.hpp"
-#include "qdo/config.hpp"
-#include "qdo/io.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/run.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/sweep_stats.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/mpi.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/design/sweep_stats.hpp"
 #include "stress_common.hpp"
 
 using namespace qdo;

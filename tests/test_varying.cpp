@@ -1,4 +1,4 @@
-// Depth-layered and spatially varying imaging (include/qdo/varying.hpp,
+// Depth-layered and spatially varying imaging (include/qdo/physics/varying.hpp,
 // kernels/varying.cl, src/physics/varying.cpp, the CPU references in varying_reference.hpp): the
 // device operator against the double reference (both placements, float32 and float64, shifted
 // PSFs), the adjoint ladder of the scene and PSF adjoints, the shift-invariant Camera as the K = 1
@@ -12,14 +12,14 @@
 
 #include "adjoint_ladder.hpp"
 #include "common.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/error.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/point_psf.hpp"
-#include "qdo/sensor_reference.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/varying.hpp"
-#include "qdo/varying_reference.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/point_psf.hpp"
+#include "qdo/physics/sensor_reference.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/physics/varying.hpp"
+#include "qdo/physics/varying_reference.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -12,10 +12,10 @@
 #include <string>
 #include <vector>
 
-#include "qdo/config.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/decode/wiener.hpp"
 
 #include "adjoint_table.hpp"
 

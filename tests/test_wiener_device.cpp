@@ -1,4 +1,4 @@
-// The Wiener expected-error objective on the device (include/qdo/wiener_device.hpp,
+// The Wiener expected-error objective on the device (include/qdo/decode/wiener_device.hpp,
 // kernels/wiener.cl) against its CPU reference wiener::objective_psf(Loss::Expected, ...) in
 // double: value and PSF gradient on seeded random problems (odd and even grids and band counts,
 // PSFs smaller and larger than the grid, 1 to 4 channels), in float64 and float32 (with and
@@ -11,9 +11,9 @@
 
 #include "adjoint_ladder.hpp"
 #include "common.hpp"
-#include "qdo/error.hpp"
-#include "qdo/wiener.hpp"
-#include "qdo/wiener_device.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/decode/wiener.hpp"
+#include "qdo/decode/wiener_device.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -17,13 +17,13 @@
 #include <thread>
 #include <vector>
 
-#include "qdo/camera.hpp"
-#include "qdo/resunet.hpp"
-#include "qdo/design.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/joint.hpp"
-#include "qdo/net.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/net/resunet.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/design/joint.hpp"
+#include "qdo/net/net.hpp"
+#include "qdo/physics/simulator.hpp"
 
 #include "../bench_util.hpp"
 

@@ -10,11 +10,11 @@
 #include <random>
 #include <vector>
 
-#include "qdo/config.hpp"
-#include "qdo/error.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/types.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/runtime/types.hpp"
 
 int main() {
   try {

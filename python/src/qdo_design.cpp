@@ -8,9 +8,9 @@
 
 #include "arguments.hpp"
 #include "qdo_bindings.hpp"
-#include "qdo/config.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace py = pybind11;
 using namespace qdo;

@@ -10,13 +10,13 @@
 
 #include "arguments.hpp"
 #include "qdo_bindings.hpp"
-#include "qdo/config.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
-#include "qdo/scenes.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/data/scenes.hpp"
 
 namespace py = pybind11;
 using namespace qdo;

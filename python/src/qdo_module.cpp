@@ -25,11 +25,11 @@
 
 #include "arguments.hpp"
 #include "qdo_bindings.hpp"
-#include "qdo/config.hpp"
-#include "qdo/data_root.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/data/data_root.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 namespace py = pybind11;
 using namespace qdo;
@@ -70,7 +70,7 @@ PYBIND11_MODULE(_qdo, m) {
         d["looked"] = r.looked;
         return d;
       },
-      py::arg("root") = py::none(), "Where datasets are looked for (include/qdo/data_root.hpp), as a dict.");
+      py::arg("root") = py::none(), "Where datasets are looked for (include/qdo/data/data_root.hpp), as a dict.");
   m.def(
       "dataset_path",
       [](const py::handle& name, const py::handle& root) {

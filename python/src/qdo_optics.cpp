@@ -17,13 +17,13 @@
 
 #include "arguments.hpp"
 #include "qdo_bindings.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/config.hpp"
-#include "qdo/error.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/psf_source.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/psf_source.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace py = pybind11;
 using namespace qdo;

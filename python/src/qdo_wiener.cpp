@@ -9,8 +9,8 @@
 
 #include "arguments.hpp"
 #include "qdo_bindings.hpp"
-#include "qdo/error.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/decode/wiener.hpp"
 
 namespace py = pybind11;
 using namespace qdo;

@@ -1,5 +1,5 @@
 """The data root from Python: qdo.data_root() and qdo.dataset_path() as `qdo data` and --data see
-them (include/qdo/data_root.hpp)."""
+them (include/qdo/data/data_root.hpp)."""
 import os
 
 import pytest

@@ -8,15 +8,15 @@
 #include <string>
 #include <vector>
 
-#include "qdo/config.hpp"
-#include "qdo/design_run_options.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/types.hpp"
-#include "qdo/util.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/design/design_run_options.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/runtime/types.hpp"
+#include "qdo/runtime/util.hpp"
 
 namespace qdo {
-struct GradcheckRow;  // qdo/gradcheck.hpp
+struct GradcheckRow;  // qdo/design/gradcheck.hpp
 }  // namespace qdo
 
 namespace qdo::cli {

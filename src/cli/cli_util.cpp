@@ -9,14 +9,14 @@
 #include <fstream>
 #include <sstream>
 
-#include "qdo/data_root.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/recipe.hpp"
-#include "qdo/scenes.hpp"
+#include "qdo/data/data_root.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/recipe.hpp"
+#include "qdo/data/scenes.hpp"
 
 namespace fs = std::filesystem;
 
@@ -215,7 +215,7 @@ DesignRunOptions design_options(const Args& a, bool range) {
   o.design.parameterization = parameterization_from_string(a.get("parameterization", "radial"));
   o.design.quantizer.levels = parse_int("--levels", a.get("levels", "4"), 2, 65536);
   o.design.quantizer.placement = placement_from_string(a.get("placement", "inclusive"));
-  // The training recipe (qdo/recipe.hpp) gives every default below that it names; an option given
+  // The training recipe (qdo/design/recipe.hpp) gives every default below that it names; an option given
   // explicitly wins over it, and config.json records each value.
   const std::string recipe = a.get("recipe", "release");
   const auto rv = [&](const char* option) { return recipe_value(recipe, option, "--recipe"); };

@@ -5,12 +5,12 @@
 #include <memory>
 
 #include "cli.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/calibrate.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/physics/calibrate.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace qdo::cli {
 

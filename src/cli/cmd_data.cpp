@@ -3,7 +3,7 @@
 #include <string>
 
 #include "cli.hpp"
-#include "qdo/data_root.hpp"
+#include "qdo/data/data_root.hpp"
 
 namespace qdo::cli {
 

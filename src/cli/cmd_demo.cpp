@@ -8,18 +8,18 @@
 #include <vector>
 
 #include "cli.hpp"
-#include "qdo/config.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/error.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/io.hpp"
-#include "qdo/network_decoder.hpp"
-#include "qdo/run.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/scenes.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/eval.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/decode/network_decoder.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/data/scenes.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace fs = std::filesystem;
 

@@ -8,19 +8,19 @@
 #include <string>
 
 #include "cli.hpp"
-#include "qdo/config.hpp"
-#include "qdo/design.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/design_run_options.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/gradcheck.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/psf_source.hpp"
-#include "qdo/psf_spec.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/util.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/design/design_run_options.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/gradcheck.hpp"
+#include "qdo/runtime/mpi.hpp"
+#include "qdo/physics/psf_source.hpp"
+#include "qdo/design/psf_spec.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/runtime/util.hpp"
 
 namespace qdo::cli {
 

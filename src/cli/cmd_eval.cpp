@@ -4,13 +4,13 @@
 #include <string>
 
 #include "cli.hpp"
-#include "qdo/decoder_spec.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/util.hpp"
+#include "qdo/decode/decoder_spec.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/eval.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/runtime/util.hpp"
 
 namespace qdo::cli {
 

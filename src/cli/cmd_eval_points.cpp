@@ -5,9 +5,9 @@
 #include <limits>
 
 #include "cli.hpp"
-#include "qdo/error.hpp"
-#include "qdo/eval_points.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/eval_points.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 namespace qdo::cli {
 namespace {

@@ -8,13 +8,13 @@
 #include <nlohmann/json.hpp>
 
 #include "cli.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fab.hpp"
-#include "qdo/io.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/fab/fab.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

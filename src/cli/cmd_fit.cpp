@@ -12,13 +12,13 @@
 #include <filesystem>
 
 #include "cli.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fit.hpp"
-#include "qdo/io.hpp"
-#include "qdo/psf_source.hpp"
-#include "qdo/run.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/fit.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/psf_source.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 namespace qdo::cli {
 

@@ -4,9 +4,9 @@
 #include <vector>
 
 #include "cli.hpp"
-#include "qdo/design_run_options.hpp"
-#include "qdo/gradcheck.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/design/design_run_options.hpp"
+#include "qdo/design/gradcheck.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 namespace qdo::cli {
 

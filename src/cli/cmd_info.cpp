@@ -4,8 +4,8 @@
 #include <iostream>
 
 #include "cli.hpp"
-#include "qdo/config.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 namespace qdo::cli {
 

@@ -7,9 +7,9 @@
 
 #include "cli.hpp"
 #include "psf_outputs.hpp"
-#include "qdo/error.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace qdo::cli {
 

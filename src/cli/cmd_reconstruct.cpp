@@ -6,14 +6,14 @@
 #include <nlohmann/json.hpp>
 
 #include "cli.hpp"
-#include "qdo/decoder_registry.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/reconstruct.hpp"
-#include "qdo/scenes.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/testset.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/reconstruct.hpp"
+#include "qdo/data/scenes.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/decode/testset.hpp"
 
 namespace qdo::cli {
 

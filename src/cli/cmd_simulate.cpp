@@ -15,20 +15,20 @@
 #include "cli.hpp"
 #include "psf_outputs.hpp"
 #include "simulate_varying.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/demosaic.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/psf_source.hpp"
-#include "qdo/raw.hpp"
-#include "qdo/raw_reference.hpp"
-#include "qdo/release.hpp"
-#include "qdo/scenes.hpp"
-#include "qdo/psf_spec.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/demosaic.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/psf_source.hpp"
+#include "qdo/physics/raw.hpp"
+#include "qdo/physics/raw_reference.hpp"
+#include "qdo/physics/release.hpp"
+#include "qdo/data/scenes.hpp"
+#include "qdo/design/psf_spec.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace qdo::cli {
 
@@ -324,7 +324,7 @@ int cmd_simulate(const Args& a) {
 }
 
 // qdo image: the RGB sensor image of one scene with the skipping rules of Camera
-// (include/qdo/camera.hpp) and a JSON report of what was skipped and the bound.
+// (include/qdo/physics/camera.hpp) and a JSON report of what was skipped and the bound.
 int cmd_image(const Args& a) {
   const SystemConfig cfg = load_config(a);
   const Precision p = precision_from_string(a.get("precision"));

@@ -8,13 +8,13 @@
 #include <sstream>
 
 #include "cli.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/error.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/io.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/run.hpp"
-#include "qdo/sweep.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/mpi.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/sweep.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;

@@ -5,7 +5,7 @@
 #include <vector>
 
 #include "cli.hpp"
-#include "qdo/decoder_spec.hpp"
+#include "qdo/decode/decoder_spec.hpp"
 
 using namespace qdo;
 using namespace qdo::cli;

@@ -15,12 +15,12 @@
 #include <thread>
 
 #include "cli.hpp"
-#include "qdo/data_root.hpp"
-#include "qdo/error.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/io.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/fft.hpp"
+#include "qdo/data/data_root.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/mpi.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/runtime/fft.hpp"
 #include <clFFT.h>
 
 #ifndef QDO_VERSION

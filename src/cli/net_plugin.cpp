@@ -21,7 +21,7 @@
 #include <string>
 #include <vector>
 
-#include "qdo/network_decoder.hpp"
+#include "qdo/decode/network_decoder.hpp"
 
 #ifndef QDO_NET_PLUGIN_FILE
 #define QDO_NET_PLUGIN_FILE "libqdo-net.so"

@@ -7,12 +7,12 @@
 #include <sstream>
 #include <tuple>
 
-#include "qdo/figure.hpp"
-#include "qdo/config.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/psf_metrics.hpp"
-#include "qdo/scenes.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/psf_metrics.hpp"
+#include "qdo/data/scenes.hpp"
 
 namespace qdo::cli {
 

@@ -6,9 +6,9 @@
 #include <vector>
 
 #include "cli.hpp"
-#include "qdo/psf_metrics.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/types.hpp"
+#include "qdo/physics/psf_metrics.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo::cli {
 

@@ -10,9 +10,9 @@
 #include <string>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/scenes.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/data/scenes.hpp"
 
 namespace qdo::cli {
 

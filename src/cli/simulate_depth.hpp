@@ -5,7 +5,7 @@
 #include <vector>
 
 #include "cli.hpp"
-#include "qdo/types.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo::cli {
 

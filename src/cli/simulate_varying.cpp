@@ -1,5 +1,5 @@
 // qdo simulate --depth / --field-grid: the RGB sensor image of a scene whose PSF varies from pixel to
-// pixel, through VaryingCamera (include/qdo/varying.hpp).
+// pixel, through VaryingCamera (include/qdo/physics/varying.hpp).
 //
 //  --depth FILE[:KEY]   an H x W depth map (metres) beside the scene; each pixel goes to the nearest
 //                       depth layer in diopters (depth_layer_weights); the design's PSF is computed
@@ -31,16 +31,16 @@
 
 #include "psf_outputs.hpp"
 #include "simulate_depth.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/camera.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/point_psf.hpp"
-#include "qdo/scenes.hpp"
-#include "qdo/sensor_reference.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/varying.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/physics/camera.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/point_psf.hpp"
+#include "qdo/data/scenes.hpp"
+#include "qdo/physics/sensor_reference.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/physics/varying.hpp"
 
 namespace qdo::cli {
 

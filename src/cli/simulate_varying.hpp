@@ -1,8 +1,8 @@
 // qdo simulate with a depth map (--depth) or a field-dependent PSF (--field-grid) on the command
-// line, through VaryingCamera (include/qdo/varying.hpp).
+// line, through VaryingCamera (include/qdo/physics/varying.hpp).
 #pragma once
 #include "cli.hpp"
-#include "qdo/types.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo::cli {
 

@@ -1,14 +1,14 @@
-// The system configuration (include/qdo/config.hpp): derived quantities, object points and
+// The system configuration (include/qdo/data/config.hpp): derived quantities, object points and
 // their sampling limits, validation and the presets. Reading and writing JSON is config_json.cpp.
-#include "qdo/config.hpp"
+#include "qdo/data/config.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <utility>
 
-#include "qdo/error.hpp"
-#include "qdo/materials.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/materials.hpp"
 
 namespace qdo {
 

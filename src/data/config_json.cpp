@@ -1,6 +1,6 @@
-// The system configuration as JSON (include/qdo/config.hpp): the one field list, reading with
+// The system configuration as JSON (include/qdo/data/config.hpp): the one field list, reading with
 // checked values and a suggestion for unknown keys, and writing.
-#include "qdo/config.hpp"
+#include "qdo/data/config.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -11,9 +11,9 @@
 #include <nlohmann/json.hpp>
 #include <utility>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 #include "data/json_strict.hpp"
-#include "qdo/materials.hpp"
+#include "qdo/data/materials.hpp"
 
 namespace qdo {
 

@@ -1,5 +1,5 @@
 // The data root and named datasets (data_root.hpp).
-#include "qdo/data_root.hpp"
+#include "qdo/data/data_root.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -12,9 +12,9 @@
 #include <mutex>
 #include <sstream>
 
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
-#include "qdo/hash.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/hash.hpp"
 
 #ifndef QDO_SOURCE_DATA_ROOT
 #define QDO_SOURCE_DATA_ROOT ""

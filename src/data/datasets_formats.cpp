@@ -1,6 +1,6 @@
 // Training scenes, the readers: scene format detection and probing (MAT variable listing,
 // HDF5 dataset shapes), folders of PNG bands, and load_scene with each format's scale (see
-// include/qdo/datasets.hpp).
+// include/qdo/data/datasets.hpp).
 #include <hdf5.h>
 #include <matio.h>
 #include <png.h>
@@ -16,9 +16,9 @@
 
 #include "data/datasets_internal.hpp"
 #include "data/io_internal.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo {
 using namespace io_detail;

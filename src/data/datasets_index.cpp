@@ -1,5 +1,5 @@
 // Training scenes: the scene index and split, patches and augmentation, the cube cache and
-// the patch sampler (see include/qdo/datasets.hpp).
+// the patch sampler (see include/qdo/data/datasets.hpp).
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -8,8 +8,8 @@
 #include <utility>
 
 #include "data/datasets_internal.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 using namespace io_detail;

@@ -1,6 +1,6 @@
 // Private to src/: what datasets_formats.cpp, datasets_index.cpp and datasets_synthetic.cpp
 // share (the HDF5 and MATLAB handles and the "file '...'" failures come from io_internal.hpp).
-// Not installed; the public API is include/qdo/datasets.hpp.
+// Not installed; the public API is include/qdo/data/datasets.hpp.
 #pragma once
 
 #include <cstdint>
@@ -11,7 +11,7 @@
 #include <string>
 
 #include "data/io_internal.hpp"
-#include "qdo/datasets.hpp"
+#include "qdo/data/datasets.hpp"
 
 namespace qdo::datasets_detail {
 

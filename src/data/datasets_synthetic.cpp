@@ -1,16 +1,16 @@
 // Training scenes: the synthetic scene generator (shapes of measured reflectances under a
-// measured illuminant, from the embedded tables; see include/qdo/datasets.hpp).
+// measured illuminant, from the embedded tables; see include/qdo/data/datasets.hpp).
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <utility>
 
 #include "data/datasets_internal.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/embedded.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/scenes.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/embedded.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/data/scenes.hpp"
 
 namespace qdo {
 using namespace datasets_detail;

@@ -1,9 +1,9 @@
 // Figures drawn with PLplot: each is rendered twice, with the "pngcairo" device to the PNG and
 // with the "svg" device (text kept as <text>) to the SVG beside it, each into a temporary file
-// that commit_output moves into place. See include/qdo/figure.hpp. This file checks the input
+// that commit_output moves into place. See include/qdo/data/figure.hpp. This file checks the input
 // and lays out the four kinds of figure; the PLplot session is in figure_plplot.cpp, axes,
 // legends and colour scales in figure_axes.cpp (shared through data/figure_internal.hpp).
-#include "qdo/figure.hpp"
+#include "qdo/data/figure.hpp"
 
 #include <plplot.h>
 
@@ -18,8 +18,8 @@
 #include <vector>
 
 #include "data/figure_internal.hpp"
-#include "qdo/error.hpp"
-#include "qdo/types.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo {
 using namespace figure_detail;  // the figure module's shared parts

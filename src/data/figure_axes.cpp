@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "data/figure_internal.hpp"
-#include "qdo/figure.hpp"
+#include "qdo/data/figure.hpp"
 
 namespace qdo::figure_detail {
 

@@ -2,7 +2,7 @@
 // (one stream per file, rendered once with "pngcairo" and once with "svg", each to a temporary
 // file that commit_output moves into place); figure_axes.cpp lays out axes, ticks, legends,
 // colour scales and images; figure.cpp checks the input and writes the public figures. Not
-// installed; the public API is include/qdo/figure.hpp.
+// installed; the public API is include/qdo/data/figure.hpp.
 #pragma once
 
 #include <plplot.h>
@@ -16,7 +16,7 @@
 #include <string>
 #include <vector>
 
-#include "qdo/figure.hpp"
+#include "qdo/data/figure.hpp"
 
 namespace qdo::figure_detail {
 

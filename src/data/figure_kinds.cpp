@@ -6,8 +6,8 @@
 #include <string>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
 
 namespace qdo {
 

@@ -21,9 +21,9 @@
 #include <vector>
 
 #include "data/figure_internal.hpp"
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo::figure_detail {
 namespace {

@@ -6,8 +6,8 @@
 #include <vector>
 
 #include "data/io_internal.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo {
 using namespace io_detail;

@@ -2,7 +2,7 @@
 // for HDF5 ids (H5Id) and for libmatio files and variables (MatFile, MatVar), the "file '...'"
 // failure and shape helpers, the hostile-input size checks, atomic output files, and the HDF5
 // and MATLAB readers that read_cube and the dataset probes build on. Not installed; the
-// public API is include/qdo/io.hpp.
+// public API is include/qdo/data/io.hpp.
 #pragma once
 
 #include <hdf5.h>
@@ -16,8 +16,8 @@
 #include <utility>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo::io_detail {
 

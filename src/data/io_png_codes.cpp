@@ -11,7 +11,7 @@
 #include <filesystem>
 
 #include "data/io_internal.hpp"
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo::io_detail {
 namespace {

@@ -18,8 +18,8 @@
 
 #include "data/io_internal.hpp"
 #include "data/io_tiff_internal.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io_raw.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io_raw.hpp"
 
 namespace qdo {
 using namespace io_detail;

@@ -9,7 +9,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

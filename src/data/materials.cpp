@@ -1,10 +1,10 @@
-#include "qdo/materials.hpp"
+#include "qdo/data/materials.hpp"
 
 #include <algorithm>
 #include <cctype>
 #include <cmath>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 namespace {

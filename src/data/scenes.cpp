@@ -1,13 +1,13 @@
-#include "qdo/scenes.hpp"
+#include "qdo/data/scenes.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
 
-#include "qdo/datasets.hpp"
-#include "qdo/embedded.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/embedded.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo {
 

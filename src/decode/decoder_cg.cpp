@@ -6,9 +6,9 @@
 #include <cstdlib>
 #include <memory>
 
-#include "qdo/decoder_registry.hpp"
-#include "qdo/encoders.hpp"
-#include "qdo/error.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/decode/encoders.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -1,10 +1,10 @@
-#include "qdo/decoder_registry.hpp"
+#include "qdo/decode/decoder_registry.hpp"
 
 #include <cctype>
 #include <mutex>
 #include <utility>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -3,9 +3,9 @@
 // built from a PSF: outside a network run it is refused.
 #include <memory>
 
-#include "qdo/decoder_registry.hpp"
-#include "qdo/error.hpp"
-#include "qdo/network_decoder.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/decode/network_decoder.hpp"
 
 namespace qdo {
 

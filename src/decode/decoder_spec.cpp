@@ -1,10 +1,10 @@
-#include "qdo/decoder_spec.hpp"
+#include "qdo/decode/decoder_spec.hpp"
 
 #include <cctype>
 #include <cmath>
 
-#include "qdo/decoder_registry.hpp"
-#include "qdo/error.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -2,9 +2,9 @@
 // PSF stack on the prior's grid, OTF = psf_to_otf(psf, prior.rows, prior.cols).
 #include <memory>
 
-#include "qdo/decoder_registry.hpp"
-#include "qdo/error.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/decode/wiener.hpp"
 
 namespace qdo {
 

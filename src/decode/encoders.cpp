@@ -1,14 +1,14 @@
-#include "qdo/encoders.hpp"
+#include "qdo/decode/encoders.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <utility>
 
-#include "qdo/cpu_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fftw2.hpp"
-#include "qdo/materials.hpp"
-#include "qdo/rng.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fftw2.hpp"
+#include "qdo/data/materials.hpp"
+#include "qdo/runtime/rng.hpp"
 
 namespace qdo {
 namespace {

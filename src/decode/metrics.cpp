@@ -1,12 +1,12 @@
-// Reconstruction metrics (declared in include/qdo/wiener.hpp, namespace metrics): PSNR, PSNR-H,
+// Reconstruction metrics (declared in include/qdo/decode/wiener.hpp, namespace metrics): PSNR, PSNR-H,
 // SSIM, RMSE, ERGAS, SAM, with the conventions stated there.
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/decode/wiener.hpp"
 
 namespace qdo {
 

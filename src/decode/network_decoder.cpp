@@ -1,7 +1,7 @@
 // The core half of network_decoder.hpp: the factory slot qdo_net (src/net) fills with
 // register_network_factory(), the loader the qdo tool registers so that LibTorch is loaded only
 // when a network is asked for, and the network behind the Decoder interface.
-#include "qdo/network_decoder.hpp"
+#include "qdo/decode/network_decoder.hpp"
 
 #include <algorithm>
 #include <cstdlib>
@@ -12,7 +12,7 @@
 #include <utility>
 #include <vector>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -1,13 +1,13 @@
-#include "qdo/testset.hpp"
+#include "qdo/decode/testset.hpp"
 
 #include <algorithm>
 #include <filesystem>
 #include <map>
 
-#include "qdo/cpu_reference.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
 
 namespace fs = std::filesystem;
 

@@ -1,7 +1,7 @@
 // Linear MMSE (Wiener) decoder and its objectives with exact OTF / PSF gradients (the spectral
 // prior and the PSF <-> OTF transforms are in src/decode/wiener_model.cpp, the metrics in
 // src/decode/metrics.cpp).
-// Conventions: see include/qdo/wiener.hpp.
+// Conventions: see include/qdo/decode/wiener.hpp.
 //
 // Gradient derivation (per frequency, A = srf·diag(OTF), M = A P A^H + σ² I, K = P A^H M⁻¹,
 // T = K A, E = P − T P; for a real L, G_A = ∂L/∂Re A + i ∂L/∂Im A, dL = Re tr(G_A^H dA)):
@@ -13,8 +13,8 @@
 //  - chain to the OTF: G_OTF_b = Σ_c srf(c, b) G_A(c, b) (srf real).
 // T and E are never formed: with Kh = K^H = M⁻¹ A P (C x B) and AP = A P, T = Kh^H A and
 // E = P − Kh^H AP have rank-C structure, so every product costs O(C·B²) instead of O(B³).
-#include "qdo/wiener.hpp"
-#include "qdo/fftw2.hpp"
+#include "qdo/decode/wiener.hpp"
+#include "qdo/runtime/fftw2.hpp"
 
 #include <fftw3.h>
 
@@ -28,7 +28,7 @@
 #include <vector>
 
 #include "decode/wiener_internal.hpp"
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 namespace wiener {

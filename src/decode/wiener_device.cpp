@@ -1,13 +1,13 @@
-// The Wiener expected-error objective on the device: see include/qdo/wiener_device.hpp and
+// The Wiener expected-error objective on the device: see include/qdo/decode/wiener_device.hpp and
 // kernels/wiener.cl.
-#include "qdo/wiener_device.hpp"
+#include "qdo/decode/wiener_device.hpp"
 
 #include <cmath>
 #include <string>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
 
 namespace qdo {
 namespace wiener {

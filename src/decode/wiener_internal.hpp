@@ -1,6 +1,6 @@
 // Private to the host Wiener decoder (wiener.cpp, wiener_model.cpp): the FFT helpers, the scene
 // checks and the per-frequency gather / scatter they share. Not installed; the public API is
-// include/qdo/wiener.hpp.
+// include/qdo/decode/wiener.hpp.
 #pragma once
 #include <fftw3.h>
 
@@ -9,9 +9,9 @@
 #include <cstddef>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/fftw2.hpp"
-#include "qdo/types.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fftw2.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo::wiener::detail {
 

@@ -1,6 +1,6 @@
-// The host Wiener decoder's model (include/qdo/wiener.hpp): the spectral prior (SpectralPrior,
+// The host Wiener decoder's model (include/qdo/decode/wiener.hpp): the spectral prior (SpectralPrior,
 // radial_bin, estimate_prior), the PSF <-> OTF transforms and the simulated measurement.
-#include "qdo/wiener.hpp"
+#include "qdo/decode/wiener.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "decode/wiener_internal.hpp"
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 namespace wiener {

@@ -11,13 +11,13 @@
 #include <vector>
 
 #include "design/reconstruct_internal.hpp"
-#include "qdo/demosaic.hpp"
-#include "qdo/error.hpp"
-#include "qdo/flat_field.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/raw_reference.hpp"
-#include "qdo/reconstruct.hpp"
+#include "qdo/physics/demosaic.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/flat_field.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/raw_reference.hpp"
+#include "qdo/design/reconstruct.hpp"
 
 namespace qdo {
 using namespace reconstruct_detail;

@@ -1,11 +1,11 @@
-#include "qdo/design.hpp"
+#include "qdo/design/design.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <random>
 
-#include "qdo/adjoint.hpp"
-#include "qdo/error.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -6,11 +6,11 @@
 #include <random>
 #include <utility>
 
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/optics.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/physics/optics.hpp"
 
 namespace qdo {
 

@@ -1,7 +1,7 @@
 // `qdo design` as a library call: the run loop (design_run.hpp). The options and their config.json
 // codec are design_run_options.cpp, the problem and objectives design_problem.cpp, the network
 // state files network_state.cpp.
-#include "qdo/design_run.hpp"
+#include "qdo/design/design_run.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -19,18 +19,18 @@
 
 #include "design/network_state.hpp"
 #include "design/problem.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
-#include "qdo/joint.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/network_decoder.hpp"
-#include "qdo/psf_source.hpp"
-#include "qdo/run.hpp"
-#include "qdo/psf_spec.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/joint.hpp"
+#include "qdo/runtime/mpi.hpp"
+#include "qdo/decode/network_decoder.hpp"
+#include "qdo/physics/psf_source.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/psf_spec.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -241,7 +241,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
     sp["validation"] = pb.joint.val_names;
     sp["validation_patches"] = pb.joint.val.size();
     sp["patch_px"] = o.cfg.sensor_size_px();
-    sp["augmentation"] = "random S x S crops, one of the 8 flips/rotations each (qdo/joint.hpp)";
+    sp["augmentation"] = "random S x S crops, one of the 8 flips/rotations each (qdo/design/joint.hpp)";
     sp["threads"] = network_threads();  // LibTorch's summation order depends on it (network_decoder.hpp)
     if (finetune) sp["finetune_from"] = o.finetune_from;
     if (!o.finetune_psf.empty()) sp["finetune_psf"] = o.finetune_psf;

@@ -1,4 +1,4 @@
-#include "qdo/design_run_options.hpp"
+#include "qdo/design/design_run_options.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -11,9 +11,9 @@
 #include <limits>
 
 #include "data/json_strict.hpp"
-#include "qdo/error.hpp"
-#include "qdo/joint.hpp"
-#include "qdo/testset.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/joint.hpp"
+#include "qdo/decode/testset.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;

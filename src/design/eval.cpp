@@ -1,6 +1,6 @@
 // `qdo eval`: reconstruction of test scenes through a run's design with a decoder of the registry
 // (eval.hpp).
-#include "qdo/eval.hpp"
+#include "qdo/design/eval.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -12,23 +12,23 @@
 #include <memory>
 #include <sstream>
 
-#include "qdo/decoder_registry.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/psf_source.hpp"
-#include "qdo/radial.hpp"
-#include "qdo/reconstruct.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/embedded.hpp"
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
-#include "qdo/network_decoder.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/run.hpp"
-#include "qdo/psf_spec.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/scenes.hpp"
-#include "qdo/testset.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/physics/psf_source.hpp"
+#include "qdo/physics/radial.hpp"
+#include "qdo/design/reconstruct.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/runtime/embedded.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/decode/network_decoder.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/psf_spec.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/data/scenes.hpp"
+#include "qdo/decode/testset.hpp"
 
 namespace fs = std::filesystem;
 

@@ -1,6 +1,6 @@
 // `qdo eval-points`: a design's quality against object distance and field angle, its depth of
 // field and its valid field of view (eval_points.hpp).
-#include "qdo/eval_points.hpp"
+#include "qdo/design/eval_points.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -12,17 +12,17 @@
 #include <limits>
 #include <memory>
 
-#include "qdo/decoder_registry.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/error.hpp"
-#include "qdo/hash.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/hash.hpp"
 #include "design/eval_points_figures.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/point_psf.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/testset.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/point_psf.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/decode/testset.hpp"
 
 namespace fs = std::filesystem;
 

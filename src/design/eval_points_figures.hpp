@@ -4,9 +4,9 @@
 #include <filesystem>
 #include <vector>
 
-#include "qdo/config.hpp"
-#include "qdo/eval_points.hpp"
-#include "qdo/types.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/design/eval_points.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo {
 

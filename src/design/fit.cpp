@@ -1,6 +1,6 @@
 // The as-built fit (fit.hpp): Levenberg-Marquardt over AsBuiltModel (fit_model.cpp) with
 // Gauss-Newton uncertainties, correlations and the report.
-#include "qdo/fit.hpp"
+#include "qdo/design/fit.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -10,9 +10,9 @@
 #include <set>
 #include <utility>
 
-#include "qdo/design.hpp"
-#include "qdo/error.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/simulator.hpp"
 
 #include "fit_internal.hpp"
 

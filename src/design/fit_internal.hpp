@@ -8,7 +8,7 @@
 #include <utility>
 #include <vector>
 
-#include "qdo/fit.hpp"
+#include "qdo/design/fit.hpp"
 
 namespace qdo::fit_detail {
 

@@ -1,7 +1,7 @@
 // The as-built model of the fit (fit.hpp): AsBuiltModel, a measured PSF stack's model from a
 // design, its adjoint gradient and Jacobian. The registration shift is fit_shift.cpp, the
 // parameters' names and checks fit_parameters.cpp, the fit itself fit.cpp.
-#include "qdo/fit.hpp"
+#include "qdo/design/fit.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -10,9 +10,9 @@
 #include <limits>
 #include <set>
 
-#include "qdo/design.hpp"
-#include "qdo/error.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/simulator.hpp"
 
 #include "fit_internal.hpp"
 

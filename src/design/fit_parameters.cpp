@@ -1,13 +1,13 @@
 // The parameters of the as-built fit (fit.hpp): their names, the default set for a design, and
 // the check of a requested set against the configuration and the design.
-#include "qdo/fit.hpp"
+#include "qdo/design/fit.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <set>
 
-#include "qdo/design.hpp"
-#include "qdo/error.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/runtime/error.hpp"
 
 #include "fit_internal.hpp"
 

@@ -1,11 +1,11 @@
 // The bilinear registration shift of the as-built fit (fit.hpp: shift_bilinear) and its adjoints
 // with respect to the input and to the shift.
-#include "qdo/fit.hpp"
+#include "qdo/design/fit.hpp"
 
 #include <cmath>
 #include <string>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

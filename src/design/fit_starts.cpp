@@ -4,9 +4,9 @@
 #include <cmath>
 #include <limits>
 
-#include "qdo/error.hpp"
-#include "qdo/fit.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/fit.hpp"
+#include "qdo/physics/simulator.hpp"
 
 #include "fit_internal.hpp"
 

@@ -1,5 +1,5 @@
 // `qdo gradcheck`: every adjoint of a design run against central finite differences (gradcheck.hpp).
-#include "qdo/gradcheck.hpp"
+#include "qdo/design/gradcheck.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -7,10 +7,10 @@
 #include <random>
 
 #include "design/problem.hpp"
-#include "qdo/adjoint.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace qdo {
 

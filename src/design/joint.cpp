@@ -1,17 +1,17 @@
-#include "qdo/joint.hpp"
+#include "qdo/design/joint.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <random>
 
-#include "qdo/cpu_reference.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/error.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/rng.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/mpi.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/runtime/rng.hpp"
+#include "qdo/decode/wiener.hpp"
 
 namespace qdo {
 

@@ -12,11 +12,11 @@
 #include <sstream>
 #include <vector>
 
-#include "qdo/design_run.hpp"
-#include "qdo/error.hpp"
-#include "qdo/hash.hpp"
-#include "qdo/io.hpp"
-#include "qdo/run_folder.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/hash.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/run_folder.hpp"
 
 namespace fs = std::filesystem;
 

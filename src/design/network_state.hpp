@@ -5,9 +5,9 @@
 #include <filesystem>
 #include <string>
 
-#include "qdo/design.hpp"
-#include "qdo/design_run_options.hpp"
-#include "qdo/network_decoder.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/design/design_run_options.hpp"
+#include "qdo/decode/network_decoder.hpp"
 
 namespace qdo {
 

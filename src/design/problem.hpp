@@ -6,13 +6,13 @@
 #include <memory>
 #include <vector>
 
-#include "qdo/design.hpp"
-#include "qdo/design_run_options.hpp"
-#include "qdo/joint.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/types.hpp"
-#include "qdo/wiener.hpp"
-#include "qdo/wiener_device.hpp"
+#include "qdo/design/design.hpp"
+#include "qdo/design/design_run_options.hpp"
+#include "qdo/design/joint.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/runtime/types.hpp"
+#include "qdo/decode/wiener.hpp"
+#include "qdo/decode/wiener_device.hpp"
 
 namespace qdo {
 
@@ -27,7 +27,7 @@ struct Problem {
 
 // The run's problem: the sensor response, and per objective the training scenes (S x S patches at
 // the sensor pitch, S = the sensor PSF size, so prior, PSF and scenes share one grid) with their
-// prior (wiener objectives; network: the network's scenes, qdo/joint.hpp, and their patches'
+// prior (wiener objectives; network: the network's scenes, qdo/design/joint.hpp, and their patches'
 // prior), or the target's sensor PSF stack (psf-target). Reads data before any writing.
 // psf-target over object points: the target at point p is the target design's PSF at point p
 // (point_config(cfg, p)); lens:NM is then the lens focused for that point's distance, so the
@@ -46,6 +46,6 @@ PsfObjective make_objective(const DesignRunOptions& o, const Problem& pb, long s
 // target; the Wiener objectives are the same at every point (the step's batch shared).
 PointObjective make_point_objective(const DesignRunOptions& o, const Problem& pb, long step, wiener::DeviceObjective* dev = nullptr);
 
-// initial_params (the run's initial design): qdo/design_run_options.hpp.
+// initial_params (the run's initial design): qdo/design/design_run_options.hpp.
 
 }  // namespace qdo

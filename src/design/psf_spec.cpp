@@ -1,9 +1,9 @@
 // Where a camera's PSF comes from (psf_spec.hpp): the spec, its input read without a device, and
 // the one place that turns it into a PsfSource.
-#include "qdo/psf_spec.hpp"
+#include "qdo/design/psf_spec.hpp"
 
-#include "qdo/error.hpp"
-#include "qdo/run_folder.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/run_folder.hpp"
 
 namespace qdo {
 

@@ -1,12 +1,12 @@
 // The recipe table (recipe.hpp): each item's option, its value in each recipe, and how it sets a
 // DesignRunOptions field. The command line (src/cli) takes its defaults from here.
-#include "qdo/recipe.hpp"
+#include "qdo/design/recipe.hpp"
 
 #include <algorithm>
 #include <cstdlib>
 #include <map>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -1,6 +1,6 @@
 // `qdo reconstruct` (reconstruct.hpp): tiles through a run's decoder -> cube (the captures, step 1 to 4, are capture.cpp),
 // sRGB render, spectra.
-#include "qdo/reconstruct.hpp"
+#include "qdo/design/reconstruct.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -14,22 +14,22 @@
 #include <memory>
 #include <sstream>
 
-#include "qdo/decoder_registry.hpp"
-#include "qdo/demosaic.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/embedded.hpp"
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
-#include "qdo/network_decoder.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/psf_source.hpp"
-#include "qdo/raw_reference.hpp"
-#include "qdo/run.hpp"
-#include "qdo/psf_spec.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/scenes.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/physics/demosaic.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/runtime/embedded.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/decode/network_decoder.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/psf_source.hpp"
+#include "qdo/physics/raw_reference.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/psf_spec.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/data/scenes.hpp"
+#include "qdo/physics/simulator.hpp"
 #include "design/reconstruct_internal.hpp"
 
 namespace fs = std::filesystem;

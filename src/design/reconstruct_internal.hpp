@@ -8,8 +8,8 @@
 #include <string>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/util.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/util.hpp"
 
 namespace qdo::reconstruct_detail {
 

@@ -1,4 +1,4 @@
-#include "qdo/run.hpp"
+#include "qdo/design/run.hpp"
 
 #include <algorithm>
 #include <cerrno>
@@ -16,9 +16,9 @@
 #include <sys/file.h>
 #include <unistd.h>
 
-#include "qdo/error.hpp"
-#include "qdo/hash.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/hash.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo {
 

@@ -1,4 +1,4 @@
-#include "qdo/run_folder.hpp"
+#include "qdo/design/run_folder.hpp"
 
 #include <cmath>
 #include <cstdlib>
@@ -6,8 +6,8 @@
 #include <fstream>
 #include <sstream>
 
-#include "qdo/error.hpp"
-#include "qdo/run.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/run.hpp"
 
 namespace fs = std::filesystem;
 
@@ -42,7 +42,7 @@ wiener::SpectralPrior RunFolder::prior(std::size_t grid_px) const {
 
 void save_prior(const std::string& path, const wiener::SpectralPrior& p) {
   h5_write(path, {H5Dataset{"/cov", {p.bins, p.bands, p.bands}, p.cov, {{"rows", double(p.rows)}, {"cols", double(p.cols)}},
-                            {{"meaning", "E[X(f) X(f)^H] / (H W) per radial bin (qdo/wiener.hpp)"}}}});
+                            {{"meaning", "E[X(f) X(f)^H] / (H W) per radial bin (qdo/decode/wiener.hpp)"}}}});
 }
 
 wiener::SpectralPrior load_prior(const std::string& path) {

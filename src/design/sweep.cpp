@@ -1,4 +1,4 @@
-#include "qdo/sweep.hpp"
+#include "qdo/design/sweep.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -19,17 +19,17 @@
 #include "design/sweep_internal.hpp"
 
 #include "data/json_strict.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/decoder_registry.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/encoders.hpp"
-#include "qdo/error.hpp"
-#include "qdo/hash.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/run.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/decode/encoders.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/hash.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace fs = std::filesystem;
 
@@ -37,7 +37,7 @@ namespace qdo::sweep_detail {
 
 bool run_finished(const fs::path& run) { return fs::exists(run / "DONE"); }
 
-using Fnv = Fnv1a64;  // content hash for provenance checks (qdo/hash.hpp)
+using Fnv = Fnv1a64;  // content hash for provenance checks (qdo/runtime/hash.hpp)
 
 // The bytes of a file, or of every regular file under a folder (sorted by path, each with its
 // relative path and size); "missing" for a path that does not exist. Only the last name of `p`

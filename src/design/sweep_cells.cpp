@@ -9,18 +9,18 @@
 #include <utility>
 
 #include "design/sweep_internal.hpp"
-#include "qdo/decoder_registry.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/encoders.hpp"
-#include "qdo/error.hpp"
-#include "qdo/hash.hpp"
-#include "qdo/io.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/run.hpp"
-#include "qdo/run_folder.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/sweep.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/decode/encoders.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/hash.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/runtime/mpi.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/run_folder.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/design/sweep.hpp"
 
 namespace fs = std::filesystem;
 

@@ -11,9 +11,9 @@
 #include <thread>
 
 #include "design/sweep_internal.hpp"
-#include "qdo/error.hpp"
-#include "qdo/mpi.hpp"
-#include "qdo/sweep.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/mpi.hpp"
+#include "qdo/design/sweep.hpp"
 
 namespace fs = std::filesystem;
 

@@ -10,11 +10,11 @@
 #include <utility>
 
 #include "design/sweep_internal.hpp"
-#include "qdo/datasets.hpp"
-#include "qdo/decoder_registry.hpp"
-#include "qdo/design_run.hpp"
-#include "qdo/error.hpp"
-#include "qdo/sweep.hpp"
+#include "qdo/data/datasets.hpp"
+#include "qdo/decode/decoder_registry.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/design/sweep.hpp"
 
 namespace fs = std::filesystem;
 

@@ -9,11 +9,11 @@
 #include <string>
 #include <vector>
 
-#include "qdo/design_run_options.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/hash.hpp"
-#include "qdo/runtime.hpp"
-#include "qdo/sweep.hpp"
+#include "qdo/design/design_run_options.hpp"
+#include "qdo/design/eval.hpp"
+#include "qdo/runtime/hash.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/design/sweep.hpp"
 
 namespace qdo::sweep_detail {
 

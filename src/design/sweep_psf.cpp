@@ -1,6 +1,6 @@
 // `qdo sweep-psf` (sweep.hpp): PSF quality against the number of levels for one design, every
 // variant's PSF stack computed in batched device passes.
-#include "qdo/sweep.hpp"
+#include "qdo/design/sweep.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -10,12 +10,12 @@
 #include <functional>
 #include <sstream>
 
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/run.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace fs = std::filesystem;
 

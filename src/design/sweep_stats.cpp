@@ -1,4 +1,4 @@
-#include "qdo/sweep_stats.hpp"
+#include "qdo/design/sweep_stats.hpp"
 
 #include <algorithm>
 #include <cstdio>
@@ -8,9 +8,9 @@
 #include <map>
 #include <tuple>
 
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo {
 

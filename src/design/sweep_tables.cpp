@@ -13,11 +13,11 @@
 #include <vector>
 
 #include "design/sweep_internal.hpp"
-#include "qdo/hash.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
-#include "qdo/run.hpp"
-#include "qdo/sweep_stats.hpp"
+#include "qdo/runtime/hash.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/design/run.hpp"
+#include "qdo/design/sweep_stats.hpp"
 
 namespace fs = std::filesystem;
 

@@ -6,9 +6,9 @@
 #include <vector>
 
 #include "fab/fab_internal.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fab.hpp"
-#include "qdo/fit.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/fab/fab.hpp"
+#include "qdo/design/fit.hpp"
 
 namespace qdo::fab {
 

@@ -1,7 +1,7 @@
 // Export of a design's mask set: the GDSII library (mask layers, alignment marks, aperture
 // outline; src/fab/gds.cpp), manifest.json, the read-back check against the design, PNG previews and
-// the Markdown sheet manifest.md. API and conventions: include/qdo/fab.hpp.
-#include "qdo/fab.hpp"
+// the Markdown sheet manifest.md. API and conventions: include/qdo/fab/fab.hpp.
+#include "qdo/fab/fab.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -11,9 +11,9 @@
 #include <sstream>
 
 #include "fab/fab_internal.hpp"
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;

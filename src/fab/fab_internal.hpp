@@ -1,6 +1,6 @@
 // Helpers shared by the fab sources (src/fab/*.cpp): number and pixel
 // formatting for messages and the mask sheet, and the level limit of each scheme. Private to
-// the library (not installed); the public API is include/qdo/fab.hpp.
+// the library (not installed); the public API is include/qdo/fab/fab.hpp.
 #pragma once
 #include <cstddef>
 #include <cstdint>
@@ -8,8 +8,8 @@
 #include <string>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/fab.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/fab/fab.hpp"
 
 namespace qdo::fab {
 

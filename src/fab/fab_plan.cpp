@@ -1,14 +1,14 @@
 // Mask planning: the design's levels -> binary, nested or greyscale mask sets, with the
 // fabrication-constraint checks (the height map's reconstruction is in fab_reconstruct.cpp). API
-// and conventions: include/qdo/fab.hpp.
-#include "qdo/fab.hpp"
+// and conventions: include/qdo/fab/fab.hpp.
+#include "qdo/fab/fab.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
 
 #include "fab/fab_internal.hpp"
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo::fab {
 

@@ -1,6 +1,6 @@
 // Reconstruction of the height map from mask bitmaps or from an export folder (manifest.json +
-// GDSII). API and conventions: include/qdo/fab.hpp.
-#include "qdo/fab.hpp"
+// GDSII). API and conventions: include/qdo/fab/fab.hpp.
+#include "qdo/fab/fab.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -10,8 +10,8 @@
 #include <fstream>
 #include <iterator>
 
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 #include "data/json_strict.hpp"
 
 namespace fs = std::filesystem;

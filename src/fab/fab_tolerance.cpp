@@ -1,9 +1,9 @@
 // Fabrication errors: perturbation of a design's heights by mask-wise etch-depth errors, overlay,
 // edge blur and height noise (perturbed_heights), and the Monte Carlo tolerance analysis of a
 // design run (tolerance_analysis: metrics as qdo eval, tolerance.csv/json/md and figures).
-// API and conventions: include/qdo/fab.hpp.
-#include "qdo/run_folder.hpp"
-#include "qdo/fab.hpp"
+// API and conventions: include/qdo/fab/fab.hpp.
+#include "qdo/design/run_folder.hpp"
+#include "qdo/fab/fab.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -16,14 +16,14 @@
 #include <memory>
 #include <sstream>
 
-#include "qdo/design_run.hpp"
-#include "qdo/error.hpp"
-#include "qdo/figure.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
-#include "qdo/testset.hpp"
-#include "qdo/wiener.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/figure.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/decode/testset.hpp"
+#include "qdo/decode/wiener.hpp"
 #include "fab/fab_internal.hpp"
 
 namespace fs = std::filesystem;

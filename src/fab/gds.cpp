@@ -1,4 +1,4 @@
-#include "qdo/gds.hpp"
+#include "qdo/fab/gds.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -10,8 +10,8 @@
 #include <limits>
 #include <unistd.h>
 
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo::gds {
 namespace {

@@ -14,10 +14,10 @@
 #include <type_traits>
 #include <utility>
 
-#include "qdo/error.hpp"
-#include "qdo/net.hpp"
-#include "qdo/network_decoder.hpp"
-#include "qdo/resunet.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/net/net.hpp"
+#include "qdo/decode/network_decoder.hpp"
+#include "qdo/net/resunet.hpp"
 
 namespace qdo {
 namespace {

@@ -1,10 +1,10 @@
-#include "qdo/resunet.hpp"
+#include "qdo/net/resunet.hpp"
 
 #include <cmath>
 #include <string>
 #include <utility>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -1,5 +1,5 @@
 // Measured PSFs from captures (calibrate.hpp): a monochromator sweep of raw frames -> a PSF stack.
-#include "qdo/calibrate.hpp"
+#include "qdo/physics/calibrate.hpp"
 
 #include <algorithm>
 #include <array>
@@ -8,11 +8,11 @@
 #include <filesystem>
 #include <regex>
 
-#include "qdo/error.hpp"
-#include "qdo/flat_field.hpp"
-#include "qdo/io.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/raw_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/flat_field.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/raw_reference.hpp"
 
 namespace qdo {
 namespace fs = std::filesystem;

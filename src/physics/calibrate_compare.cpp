@@ -1,12 +1,12 @@
 // Measured against simulated PSF stacks, band by band (calibrate.hpp: compare_psf_stacks).
-#include "qdo/calibrate.hpp"
+#include "qdo/physics/calibrate.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <utility>
 #include <vector>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

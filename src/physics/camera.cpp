@@ -1,6 +1,6 @@
-// The Camera's passes (include/qdo/camera.hpp): a batch's plan under the skipping rules, images,
+// The Camera's passes (include/qdo/physics/camera.hpp): a batch's plan under the skipping rules, images,
 // their adjoint (vjp) and blur. Construction, the PSF and its caches are camera_setup.cpp.
-#include "qdo/camera.hpp"
+#include "qdo/physics/camera.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -8,10 +8,10 @@
 #include <cmath>
 #include <numeric>
 
-#include "qdo/cpu_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/optics.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/physics/optics.hpp"
 
 namespace qdo {
 

@@ -1,9 +1,9 @@
-#include "qdo/camera_reference.hpp"
+#include "qdo/physics/camera_reference.hpp"
 
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/optics.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/optics.hpp"
 #include "reference_internal.hpp"
 
 namespace qdo::ref {

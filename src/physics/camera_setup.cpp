@@ -1,14 +1,14 @@
-// The Camera's construction and state (include/qdo/camera.hpp): its kernels, the PSF it follows
+// The Camera's construction and state (include/qdo/physics/camera.hpp): its kernels, the PSF it follows
 // (its own stack or a PsfSource), buffer growth, the per-generation ring energies and OTFs, and
 // the checks of a batch. The passes themselves are camera.cpp.
-#include "qdo/camera.hpp"
+#include "qdo/physics/camera.hpp"
 
 #include <algorithm>
 #include <cmath>
 
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/optics.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/physics/optics.hpp"
 
 namespace qdo {
 

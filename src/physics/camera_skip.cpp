@@ -1,16 +1,16 @@
 // The camera's skipping options and report, the CPU reference of a skipped computation, and the
-// sensor's full-scale clip (include/qdo/camera.hpp). The rules themselves are planned in
+// sensor's full-scale clip (include/qdo/physics/camera.hpp). The rules themselves are planned in
 // Camera::images (camera.cpp).
-#include "qdo/camera.hpp"
+#include "qdo/physics/camera.hpp"
 #include <nlohmann/json.hpp>
 #include <algorithm>
 #include <cmath>
 #include <numeric>
-#include "qdo/cpu_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
 
 namespace qdo {
 

@@ -1,13 +1,13 @@
-// DemosaicStage (include/qdo/demosaic.hpp): the launcher of kernels/demosaic.cl.
-#include "qdo/demosaic.hpp"
+// DemosaicStage (include/qdo/physics/demosaic.hpp): the launcher of kernels/demosaic.cl.
+#include "qdo/physics/demosaic.hpp"
 
 #include <algorithm>
 #include <limits>
 #include <utility>
 
 #include "physics/device_buffers.hpp"
-#include "qdo/error.hpp"
-#include "qdo/raw_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/raw_reference.hpp"
 
 namespace qdo {
 

@@ -1,14 +1,14 @@
-// CPU reference of the demosaic stage (include/qdo/demosaic_reference.hpp), in double. The filters
+// CPU reference of the demosaic stage (include/qdo/physics/demosaic_reference.hpp), in double. The filters
 // are written out as tap lists from the formulas (the kernel holds them as a 5 x 5 table: two
 // spellings of the same numbers, compared by the tests).
-#include "qdo/demosaic_reference.hpp"
+#include "qdo/physics/demosaic_reference.hpp"
 
 #include <algorithm>
 #include <cctype>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/raw_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/raw_reference.hpp"
 
 namespace qdo {
 

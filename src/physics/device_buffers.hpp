@@ -7,8 +7,8 @@
 #include <cstddef>
 #include <vector>
 
-#include "qdo/runtime.hpp"
-#include "qdo/types.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo::detail {
 

@@ -1,10 +1,10 @@
-// DoeStage (include/qdo/doe.hpp): the launcher of kernels/doe.cl. The host versions of the same
+// DoeStage (include/qdo/physics/doe.hpp): the launcher of kernels/doe.cl. The host versions of the same
 // maps are in doe_reference.cpp.
 #include <cmath>
 
 #include "physics/device_buffers.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -1,10 +1,10 @@
-#include "qdo/doe_adjoint_reference.hpp"
+#include "qdo/physics/doe_adjoint_reference.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo::ref {
 

@@ -1,13 +1,13 @@
-// The host side of include/qdo/doe.hpp: parameterizations and their expansion, the quantizer,
+// The host side of include/qdo/physics/doe.hpp: parameterizations and their expansion, the quantizer,
 // alpha blending and schedule, lens and flat designs, in double (the CPU reference of kernels/doe.cl's
 // expand_params and quantize_blend; the device launcher is src/physics/doe.cpp).
-#include "qdo/doe.hpp"
+#include "qdo/physics/doe.hpp"
 
 #include <algorithm>
 #include <cmath>
 
-#include "qdo/error.hpp"
-#include "qdo/materials.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/materials.hpp"
 
 namespace qdo {
 

@@ -1,11 +1,11 @@
-// FieldStage (include/qdo/field.hpp): the launcher of kernels/field.cl.
-#include "qdo/field.hpp"
+// FieldStage (include/qdo/physics/field.hpp): the launcher of kernels/field.cl.
+#include "qdo/physics/field.hpp"
 
 #include <algorithm>
 #include <cmath>
 
 #include "physics/device_buffers.hpp"
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -1,9 +1,9 @@
-#include "qdo/field_reference.hpp"
+#include "qdo/physics/field_reference.hpp"
 
 #include <cmath>
 
-#include "qdo/error.hpp"
-#include "qdo/field.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/field.hpp"
 
 namespace qdo::ref {
 

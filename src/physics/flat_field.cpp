@@ -1,10 +1,10 @@
 // The flat field of white frames (flat_field.hpp).
-#include "qdo/flat_field.hpp"
+#include "qdo/physics/flat_field.hpp"
 
 #include <cstddef>
 
-#include "qdo/error.hpp"
-#include "qdo/raw_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/raw_reference.hpp"
 
 namespace qdo {
 

@@ -1,13 +1,13 @@
-#include "qdo/optics.hpp"
+#include "qdo/physics/optics.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <sstream>
 
-#include "qdo/embedded.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/materials.hpp"
+#include "qdo/runtime/embedded.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/data/materials.hpp"
 
 namespace qdo {
 

@@ -1,9 +1,9 @@
-#include "qdo/point_psf.hpp"
+#include "qdo/physics/point_psf.hpp"
 
 #include <algorithm>
 #include <cmath>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -1,13 +1,13 @@
-// PropagationStage (include/qdo/propagate.hpp): the launcher of kernels/propagate.cl, the FFT plans
+// PropagationStage (include/qdo/physics/propagate.hpp): the launcher of kernels/propagate.cl, the FFT plans
 // around it and the fused host propagation (HostPropagator, src/runtime/propagate_fftw.cpp).
-#include "qdo/propagate.hpp"
+#include "qdo/physics/propagate.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
 
 #include "physics/device_buffers.hpp"
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

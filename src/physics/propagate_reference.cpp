@@ -1,8 +1,8 @@
-#include "qdo/propagate_reference.hpp"
+#include "qdo/physics/propagate_reference.hpp"
 
 #include <cmath>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 #include "reference_internal.hpp"
 
 namespace qdo::ref {

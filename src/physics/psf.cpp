@@ -1,11 +1,11 @@
-// PsfStage (include/qdo/psf.hpp): the launcher of kernels/psf.cl.
-#include "qdo/psf.hpp"
+// PsfStage (include/qdo/physics/psf.hpp): the launcher of kernels/psf.cl.
+#include "qdo/physics/psf.hpp"
 
 #include <algorithm>
 
 #include "physics/device_buffers.hpp"
-#include "qdo/error.hpp"
-#include "qdo/field.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/field.hpp"
 
 namespace qdo {
 

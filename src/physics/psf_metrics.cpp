@@ -1,5 +1,5 @@
 // Summary numbers of a PSF plane (psf_metrics.hpp).
-#include "qdo/psf_metrics.hpp"
+#include "qdo/physics/psf_metrics.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -1,10 +1,10 @@
-#include "qdo/psf_reference.hpp"
+#include "qdo/physics/psf_reference.hpp"
 
 #include <cmath>
 
-#include "qdo/error.hpp"
-#include "qdo/field_reference.hpp"
-#include "qdo/propagate_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/field_reference.hpp"
+#include "qdo/physics/propagate_reference.hpp"
 
 namespace qdo::ref {
 namespace {

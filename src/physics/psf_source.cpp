@@ -1,10 +1,10 @@
-#include "qdo/psf_source.hpp"
+#include "qdo/physics/psf_source.hpp"
 
 #include <cmath>
 #include <utility>
 
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
 
 namespace qdo {
 

@@ -1,15 +1,15 @@
-// The radial PSF engine (include/qdo/radial.hpp): the OpenCL engine. Its tables (Bessel
+// The radial PSF engine (include/qdo/physics/radial.hpp): the OpenCL engine. Its tables (Bessel
 // functions, the QDHT, RadialTables) are built in radial_tables.cpp.
-#include "qdo/radial.hpp"
+#include "qdo/physics/radial.hpp"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <utility>
 
-#include "qdo/adjoint.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/error.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -1,6 +1,6 @@
 // The radial engine's double-precision CPU reference (ref::radial_*): the same ring-by-ring
 // Hankel chain as kernels/radial.cl and RadialEngine, on the host, with its adjoint.
-#include "qdo/radial.hpp"
+#include "qdo/physics/radial.hpp"
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -8,9 +8,9 @@
 #include <mutex>
 #include <thread>
 #include <utility>
-#include "qdo/adjoint.hpp"
-#include "qdo/cpu_reference.hpp"
-#include "qdo/error.hpp"
+#include "qdo/physics/adjoint.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

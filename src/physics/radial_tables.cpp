@@ -1,6 +1,6 @@
-// The radial PSF engine's tables (include/qdo/radial.hpp): Bessel functions and zeros, the QDHT,
+// The radial PSF engine's tables (include/qdo/physics/radial.hpp): Bessel functions and zeros, the QDHT,
 // RadialTables (build, cache) and the ring <-> grid maps. The OpenCL engine is in radial.cpp.
-#include "qdo/radial.hpp"
+#include "qdo/physics/radial.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -9,7 +9,7 @@
 #include <thread>
 #include <utility>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

@@ -1,12 +1,12 @@
-// RawStage (include/qdo/raw.hpp): the launcher of kernels/raw.cl.
-#include "qdo/raw.hpp"
+// RawStage (include/qdo/physics/raw.hpp): the launcher of kernels/raw.cl.
+#include "qdo/physics/raw.hpp"
 
 #include <algorithm>
 #include <limits>
 #include <utility>
 
 #include "physics/device_buffers.hpp"
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

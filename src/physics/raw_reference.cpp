@@ -1,10 +1,10 @@
-// CPU reference of the raw stage (include/qdo/raw_reference.hpp), in double.
-#include "qdo/raw_reference.hpp"
+// CPU reference of the raw stage (include/qdo/physics/raw_reference.hpp), in double.
+#include "qdo/physics/raw_reference.hpp"
 
 #include <cmath>
 
-#include "qdo/error.hpp"
-#include "qdo/rng.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/rng.hpp"
 
 namespace qdo {
 

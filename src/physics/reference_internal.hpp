@@ -2,8 +2,8 @@
 #pragma once
 #include <fftw3.h>
 
-#include "qdo/fftw2.hpp"
-#include "qdo/types.hpp"
+#include "qdo/runtime/fftw2.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo::ref::detail {
 

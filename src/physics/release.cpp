@@ -1,12 +1,12 @@
-// The release's image formation (include/qdo/release.hpp): geometry and the device path
+// The release's image formation (include/qdo/physics/release.hpp): geometry and the device path
 // (kernels/release.cl); its CPU reference in double is release_reference.cpp.
-#include "qdo/release.hpp"
+#include "qdo/physics/release.hpp"
 
 #include <algorithm>
 #include <string>
 
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
 
 namespace qdo {
 

@@ -1,14 +1,14 @@
-// The CPU reference of the release's image formation (include/qdo/release_reference.hpp), in
+// The CPU reference of the release's image formation (include/qdo/physics/release_reference.hpp), in
 // double, literally: arrays padded, rolled and transformed with FFTW (the device path is
 // release.cpp, kernels/release.cl).
-#include "qdo/release_reference.hpp"
+#include "qdo/physics/release_reference.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <string>
 
-#include "qdo/error.hpp"
-#include "qdo/fftw2.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fftw2.hpp"
 
 namespace qdo {
 

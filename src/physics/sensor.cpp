@@ -1,10 +1,10 @@
-// SensorStage (include/qdo/sensor.hpp): the launcher of kernels/sensor.cl.
-#include "qdo/sensor.hpp"
+// SensorStage (include/qdo/physics/sensor.hpp): the launcher of kernels/sensor.cl.
+#include "qdo/physics/sensor.hpp"
 
 #include <vector>
 
 #include "physics/device_buffers.hpp"
-#include "qdo/optics.hpp"
+#include "qdo/physics/optics.hpp"
 
 namespace qdo {
 

@@ -1,9 +1,9 @@
-#include "qdo/sensor_reference.hpp"
+#include "qdo/physics/sensor_reference.hpp"
 
 #include <cmath>
 
-#include "qdo/error.hpp"
-#include "qdo/rng.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/rng.hpp"
 
 namespace qdo::ref {
 

@@ -1,6 +1,6 @@
-// Simulator (include/qdo/simulator.hpp): the composition of the PSF chain's stages (doe, field,
+// Simulator (include/qdo/physics/simulator.hpp): the composition of the PSF chain's stages (doe, field,
 // propagate, psf, sensor) and the device buffers passed between them.
-#include "qdo/simulator.hpp"
+#include "qdo/physics/simulator.hpp"
 
 
 #include <algorithm>
@@ -10,7 +10,7 @@
 #include <string>
 
 #include "physics/device_buffers.hpp"
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 

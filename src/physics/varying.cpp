@@ -1,4 +1,4 @@
-#include "qdo/varying.hpp"
+#include "qdo/physics/varying.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -7,10 +7,10 @@
 #include <limits>
 #include <numeric>
 
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/optics.hpp"
-#include "qdo/point_psf.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/point_psf.hpp"
 
 namespace qdo {
 

@@ -1,10 +1,10 @@
-#include "qdo/varying_reference.hpp"
+#include "qdo/physics/varying_reference.hpp"
 
 #include <vector>
 
-#include "qdo/camera_reference.hpp"
-#include "qdo/error.hpp"
-#include "qdo/sensor_reference.hpp"
+#include "qdo/physics/camera_reference.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/sensor_reference.hpp"
 
 namespace qdo::ref {
 

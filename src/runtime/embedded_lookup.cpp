@@ -1,5 +1,5 @@
-#include "qdo/embedded.hpp"
-#include "qdo/error.hpp"
+#include "qdo/runtime/embedded.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 const std::string& embedded_file(const std::string& name) {

@@ -5,8 +5,8 @@
 #include <chrono>
 #include <memory>
 
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
 
 namespace qdo {
 namespace {

@@ -24,8 +24,8 @@
 
 #include <unistd.h>
 
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
 #include "runtime/fftw_internal.hpp"
 
 namespace qdo {

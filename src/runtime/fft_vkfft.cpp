@@ -19,8 +19,8 @@
 #include <memory>
 #include <string>
 
-#include "qdo/error.hpp"
-#include "qdo/fft.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/fft.hpp"
 
 namespace qdo {
 namespace {

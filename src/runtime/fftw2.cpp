@@ -1,11 +1,11 @@
-#include "qdo/fftw2.hpp"
+#include "qdo/runtime/fftw2.hpp"
 
 #include <fftw3.h>
 
 #include <memory>
 #include <mutex>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 namespace qdo {
 namespace {

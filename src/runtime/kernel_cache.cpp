@@ -1,9 +1,9 @@
-#include "qdo/kernel_cache.hpp"
+#include "qdo/runtime/kernel_cache.hpp"
 
 #include <cstdint>
 #include <cstring>
 
-#include "qdo/hash.hpp"
+#include "qdo/runtime/hash.hpp"
 
 namespace qdo {
 

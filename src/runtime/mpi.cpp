@@ -1,11 +1,11 @@
-#include "qdo/mpi.hpp"
+#include "qdo/runtime/mpi.hpp"
 
 #include <cstdlib>
 #include <limits>
 #include <string>
 #include <vector>
 
-#include "qdo/error.hpp"
+#include "qdo/runtime/error.hpp"
 
 #ifdef QDO_HAVE_MPI
 // The C API alone: OpenMPI and MPICH otherwise pull in their deprecated C++ bindings.

@@ -24,9 +24,9 @@
 #include <type_traits>
 #include <vector>
 
-#include "qdo/error.hpp"
-#include "qdo/host_propagator.hpp"
-#include "qdo/runtime.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/host_propagator.hpp"
+#include "qdo/runtime/runtime.hpp"
 #include "runtime/fftw_internal.hpp"
 
 namespace qdo {

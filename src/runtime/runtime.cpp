@@ -1,4 +1,4 @@
-#include "qdo/runtime.hpp"
+#include "qdo/runtime/runtime.hpp"
 
 #include <algorithm>
 #include <cctype>
@@ -14,11 +14,11 @@
 #include <sstream>
 #include <unistd.h>
 
-#include "qdo/embedded.hpp"
-#include "qdo/error.hpp"
-#include "qdo/hash.hpp"
-#include "qdo/fft.hpp"
-#include "qdo/kernel_cache.hpp"
+#include "qdo/runtime/embedded.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/runtime/hash.hpp"
+#include "qdo/runtime/fft.hpp"
+#include "qdo/runtime/kernel_cache.hpp"
 
 namespace qdo {
 namespace {

@@ -7,9 +7,9 @@
 #include <filesystem>
 
 #include "torch_common.hpp"  // LibTorch, then doctest's CHECK macros and the common helpers
-#include "qdo/io.hpp"
-#include "qdo/doe.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -7,13 +7,13 @@
 #include <sstream>
 
 #include "torch_common.hpp"  // LibTorch, then doctest's CHECK macros and the common helpers
-#include "qdo/design_run.hpp"
-#include "qdo/eval.hpp"
-#include "qdo/error.hpp"
-#include "qdo/io.hpp"
-#include "qdo/net.hpp"
-#include "qdo/network_decoder.hpp"
-#include "qdo/run.hpp"
+#include "qdo/design/design_run.hpp"
+#include "qdo/design/eval.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/data/io.hpp"
+#include "qdo/net/net.hpp"
+#include "qdo/decode/network_decoder.hpp"
+#include "qdo/design/run.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -1,4 +1,4 @@
-// The Res-UNet decoder (include/qdo/resunet.hpp, LibTorch) and the whole chain's gradient: heights
+// The Res-UNet decoder (include/qdo/net/resunet.hpp, LibTorch) and the whole chain's gradient: heights
 // -> PSF (OpenCL) -> camera (OpenCL) -> network (LibTorch) -> loss, its analytic gradient dL/dH
 // (LibTorch's backward, then qdo's camera and PSF adjoints) against central differences, in double.
 #include <cmath>
@@ -6,9 +6,9 @@
 #include <tuple>
 
 #include "torch_common.hpp"  // LibTorch, then doctest's CHECK macros and the common helpers
-#include "qdo/doe.hpp"
-#include "qdo/error.hpp"
-#include "qdo/simulator.hpp"
+#include "qdo/physics/doe.hpp"
+#include "qdo/runtime/error.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -1,7 +1,7 @@
 // The preamble of every LibTorch test (suite "net"): LibTorch first, since its glog-style CHECK
 // macros (which abort) must then be replaced by doctest's, then the tests' common helpers.
 #pragma once
-#include "qdo/resunet.hpp"
+#include "qdo/net/resunet.hpp"
 #undef CHECK
 #undef CHECK_EQ
 #undef CHECK_NE

@@ -1,0 +1,214 @@
+// `qdo reconstruct` as a library call: captured photos of one scene through the
+// built camera -> the run's decoder, with the PSF of the camera as built (measured or fitted) ->
+// the spectral cube, an sRGB render and spectra at named points and boxes.
+//
+// The capture chain, in order (every file is read and checked before any is processed; each
+// refusal is an InputError naming the file or the argument):
+//   1. read: 16-bit PNG or TIFF captures (read_capture16, io.hpp), one scene, all the same size; RGB (3
+//      planes) when the configuration's cfa is none, a raw mosaic (1 plane) otherwise. Several
+//      captures are averaged. A code value above the white level (cfg.white_level_dn(); 65535
+//      when bit_depth is 0: the container's) is refused (wrong bit depth or a shifted container).
+//   2. dark: the mean of the dark frames (a folder of 16-bit PNG or TIFF files of the captures' size and
+//      planes) is subtracted; without darks the configured black level (black_level_dn).
+//   3. signal: v = (DN - dark) / (gain * (white - black_level_dn)): the linear signal, 1.0 = full
+//      well, the inverse of the sensor-as-built stage (raw.hpp).
+//   4. mosaic: the 2 x 2 phase and colours are checked by read_captures (check_mosaic_phase,
+//      check_mosaic_colours, on step 3's signal), then the demosaic (demosaic.hpp:
+//      bilinear or Malvar-He-Cutler, on the device).
+//   5. crop: ROW, COL, H, W of the frame (after the demosaic, so the mosaic phase is kept).
+//   6. exposure (ExposureRule): none, a fixed factor, or the factor that puts a percentile of
+//      the cropped image at a level.
+// Then the decoder on tiles of its grid (S x S, the prior's and the training crops'), with
+// overlap, blended (blend_tiles); the cube is clipped to [0, 1] as `qdo eval` clips it.
+#pragma once
+#include <Eigen/Dense>
+
+#include <cstddef>
+#include <functional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "qdo/data/config.hpp"
+#include "qdo/decode/decoder.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/runtime/types.hpp"
+#include "qdo/decode/wiener.hpp"
+
+namespace qdo {
+
+// How the signal is scaled before decoding (step 6):
+//   none            as the sensor settings give it (v above)
+//   scale:K         v * K (e.g. the ratio of the training exposure to the capture's), K in (0, 1e6]
+//   percentile:P:L  v * L / (the P-th percentile of the cropped image's values), P in (0, 100],
+//                   L in (0, 1]; a percentile <= 0 is refused
+struct ExposureRule {
+  enum class Kind { None, Scale, Percentile } kind = Kind::None;
+  double scale = 1, percentile = 99, level = 0.9;
+  std::string to_string() const;
+};
+ExposureRule exposure_rule_from_string(const std::string& s, const std::string& argument = "--exposure");
+
+struct CaptureOptions {
+  std::vector<std::string> captures;  // 16-bit PNG or TIFF files of one scene (averaged)
+  std::string darks_dir;              // folder of dark frames (*.png); empty: the black level
+  // Folder of white (flat-field) frames: a uniformly lit, spectrally flat white target filling the
+  // view, the captures' size and kind, averaged, dark subtracted as the captures. Every capture
+  // pixel is divided by its white signal over the white's mean: the colour channels' gains and
+  // the pixels' response non-uniformity measured instead of taken from the response table.
+  // Empty: none.
+  std::string white_dir;
+  ExposureRule exposure;
+  bool crop = false;                  // crop_* below: rows and columns of the frame, 0-based
+  std::size_t crop_row = 0, crop_col = 0, crop_rows = 0, crop_cols = 0;
+  std::string demosaic = "bilinear";  // raw captures: bilinear or mhc (Malvar-He-Cutler)
+};
+
+// The captures, read and checked (step 1 and the darks' reading), nothing processed yet.
+struct CaptureFiles {
+  RealStack mean_dn;                 // planes x H x W (planes 1: a mosaic; 3: RGB), mean of the captures, DN
+  RealStack dark_dn;                 // planes x H x W, mean of the darks; empty: none
+  std::vector<std::string> darks;    // the dark frames read
+  std::size_t saturated = 0;         // capture values at the white level (kept; counted)
+  double white_dn = 0;               // the white level used
+  std::vector<std::string> whites;   // the white (flat-field) frames read
+  RealStack flat;                    // planes x H x W: white signal / its mean (1 = nominal); empty: none
+  std::vector<double> channel_gains; // with whites: each colour channel's white mean / the white's mean (R, G, B)
+  std::vector<std::string> notes;    // what the user should know (clipped values), printed and in reconstruct.json
+};
+// Every capture and dark read and checked: sizes, the white level, overexposed or empty captures
+// (check_capture_levels), and with a mosaic its phase and colours (step 4's checks).
+CaptureFiles read_captures(const SystemConfig& cfg, const CaptureOptions& o);
+
+// The mosaic's 2 x 2 phase against cfg.cfa, cheaply: the two green sites of a Bayer cell see the
+// same filter, so diagonal neighbours on the green diagonal differ by the scene's gradient only,
+// while the red-blue pair differs by the colour as well. When the configured layout's green pair
+// differs on average by more than 2 % of the mean level and more than 3 times the other pair, the
+// capture is refused naming `origin` and the layout family that fits (RGGB/BGGR against
+// GRBG/GBRG; an R/B swap within a family cannot be seen without knowing the scene, nor anything
+// on a grey scene). (qdo calibrate's check predicts a monochromatic frame's cell shares from the
+// camera response; a broadband scene has no such prediction, hence this one.)
+// raw: 1 x H x W signal (dark subtracted).
+void check_mosaic_phase(const RealStack& raw, Cfa cfa, const std::string& origin);
+// Red and blue within a family (RGGB read as BGGR: a raw frame cropped by one row and one
+// column), seen through physics instead of the scene: every light the camera records is a
+// non-negative mix of its bands, so a cell's (R, B) / (R + G + B) lies in the convex hull of the
+// band columns of srf (3 x bands), whatever the scene and the PSF. With the configured layout, the
+// fraction of bright cells (sum above the median) outside the hull by more than 0.02 is compared
+// with the same fraction with red and blue swapped; above 20 % and more than 4 times the swapped
+// one, the capture is refused naming `origin` and the swapped layout. A grey or weakly coloured
+// scene passes either way (nothing to see). raw: 1 x H x W signal (dark subtracted).
+void check_mosaic_colours(const RealStack& raw, Cfa cfa, const Eigen::MatrixXd& srf, const std::string& origin);
+
+// Steps 2 and 3: the linear signal (planes x H x W) of read_captures' result.
+RealStack capture_signal(const SystemConfig& cfg, const CaptureFiles& f);
+
+struct PreparedCapture {
+  RealStack rgb;             // 3 x H x W linear signal, cropped, exposure applied
+  double exposure_factor = 1;
+  double seconds_dark = 0, seconds_demosaic = 0;
+};
+// Steps 2 to 6 on read_captures' result; the demosaic on rt's device (DemosaicStage, demosaic.hpp)
+// in precision p.
+PreparedCapture prepare_capture(Runtime& rt, Precision p, const SystemConfig& cfg, const CaptureOptions& o, const CaptureFiles& f);
+
+// Tiles of `tile` x `tile` over an rows x cols image, neighbours overlapping by at least
+// `overlap` pixels: starts 0, tile - overlap, ... and rows - tile last (every pixel covered).
+// Requires rows, cols >= tile and overlap < tile (InputError).
+std::vector<std::size_t> tile_starts(std::size_t size, std::size_t tile, std::size_t overlap);
+// The 1-D blending weights of tiles at `starts` (tile long each) over `size` pixels: a sin² ramp
+// across each overlap with a neighbour (flat at the image's edges), normalised so that at every
+// pixel the weights of the tiles covering it sum to 1. weights[k][t]: tile k, pixel starts[k] + t.
+std::vector<std::vector<double>> tile_weights(const std::vector<std::size_t>& starts, std::size_t tile, std::size_t size);
+// How a tile's edges meet the decoder's circular model (a PSF camera's decoder assumes the scene
+// repeats: y = circular blur, REFERENCE §3b). A capture is not circular: light from outside a tile
+// lands inside it, and a deconvolving decoder (Wiener at small sigma) turns that mismatch into
+// ringing over the whole tile.
+//   circular  the tile is decoded as it is, on the decoder's tile x tile grid: the model the decoder
+//             was built and trained with, exact for captures simulated circularly (`qdo eval`'s
+//             patches); the network's only choice (it was trained on circular S x S patches)
+//   mirror    the tile is extended by its mirror image to 2 tile x 2 tile (whole-sample symmetric:
+//             the extension is continuous across every wrap) and decoded on that grid (dec built
+//             for it), the first tile x tile kept: the boundary mismatch shrinks to the PSF's
+//             asymmetry
+enum class TileBoundary { Circular, Mirror };
+TileBoundary tile_boundary_from_string(const std::string& s, const std::string& argument = "--boundary");
+std::string to_string(TileBoundary b);
+
+// dec's estimate of y (channels x H x W) on tile x tile tiles (weights: the product of the row and
+// column weights above, which sums to 1 at every pixel), decoded dec.batch() at a time;
+// progress(done, total) after each batch. Returns bands x H x W. An image of exactly tile x tile
+// is one tile. With Mirror, dec decodes 2 tile x 2 tile images (see TileBoundary).
+RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile, std::size_t overlap,
+                       const std::function<void(std::size_t, std::size_t)>& progress = {},
+                       TileBoundary boundary = TileBoundary::Circular);
+
+// The prior on another rows x cols grid: the same bins (their edges do not depend on the grid,
+// wiener::radial_bin), the DC bin scaled by the ratio of the grid areas (its scene-mean part
+// grows with H·W; wiener.hpp). What the Wiener decoder needs on the mirror boundary's 2S grid.
+wiener::SpectralPrior regrid_prior(const wiener::SpectralPrior& p, std::size_t rows, std::size_t cols);
+
+// A point (rows = cols = 1) or a box of the reconstructed image, 0-based.
+struct SpectrumRegion {
+  std::size_t row = 0, col = 0, rows = 1, cols = 1;
+  bool box = false;
+  std::string label() const;  // "point R,C" or "box R,C,H,W"
+};
+// "R,C;R,C;..." (points) or "R,C,H,W;..." (boxes); an InputError naming `argument` otherwise.
+std::vector<SpectrumRegion> parse_regions(const std::string& s, bool boxes, const std::string& argument);
+// The mean spectrum (bands values) over each region of cube (bands x H x W); a region reaching
+// outside is an InputError naming `argument`, the region and the image size.
+std::vector<std::vector<double>> region_spectra(const RealStack& cube, const std::vector<SpectrumRegion>& regions,
+                                                const std::string& argument = "--points/--boxes");
+
+// Linear sRGB (3 x H x W, >= 0) of a cube (bands x H x W at wavelengths_nm) through the CIE 1931
+// 2° observer (a flat unit spectrum has Y = 1) and the XYZ -> linear sRGB (D65) matrix.
+RealStack render_srgb(const RealStack& cube, const std::vector<double>& wavelengths_nm);
+
+
+// The sensor as built, over the run's configuration: a JSON object of sensor keys only (cfa,
+// black_level_dn, bit_depth, gain, read_noise_sigma, full_well_photons, noise_seed, camera,
+// srf_interpolate) replacing the run's values, checked as a configuration. Any other key (the
+// optics are the run's) is refused naming it; with a trained decoder (a network) the camera
+// response cannot change (its network saw the run's), so camera and srf_interpolate are refused.
+// `overridden` (optional) gets the keys given, in the file's order.
+SystemConfig with_sensor(const SystemConfig& run_cfg, const std::string& sensor_file, bool trained_decoder,
+                         std::vector<std::string>* overridden = nullptr);
+
+struct ReconstructOptions {
+  std::string run;          // the run folder: its configuration, prior and decoder
+  std::string sensor_file;  // the sensor as built (with_sensor); empty: the run's sensor
+  std::string psf_file;     // a measured PSF stack (qdo calibrate's psf.h5); or
+  std::string design_file;  // a fitted as-built design .h5 (simulated); neither: the run's design
+  CaptureOptions capture;
+  std::size_t overlap_px = 0;  // tile overlap; 0: S / 4
+  // The tiles' boundary; default (unset): mirror for the Wiener decoder, circular for a network
+  // (which refuses mirror: it was trained on circular S x S patches).
+  bool boundary_set = false;
+  TileBoundary boundary = TileBoundary::Mirror;
+  double noise_sigma = -1;     // the Wiener decoder's sigma; < 0: the run's (or the model's, below)
+  // The sigma from the sensor's noise model at the capture's mean signal v (full-scale units,
+  // before the exposure): sqrt(read^2 + v / full well + (1 / (2^bits - 1))^2 / 12), times the
+  // exposure factor; each term only where the configuration has it (read_noise_sigma,
+  // full_well_photons > 0, bit_depth > 0). Demosaic error is not in it.
+  bool noise_sigma_model = false;
+  std::vector<SpectrumRegion> regions;  // empty: the image centre
+  std::string out;
+  Precision precision = Precision::F32;
+  bool quiet = false;       // no progress lines
+};
+struct ReconstructResult {
+  RealStack cube;                                       // bands x H x W, clipped to [0, 1]
+  std::vector<std::pair<std::string, double>> seconds;  // per stage, in order
+  std::size_t tiles = 0, tile_px = 0;
+  std::string boundary;                                 // "circular" or "mirror"
+  std::string psf, decoder;                             // what was used, one line each
+  double exposure_factor = 1;
+  std::vector<std::string> notes;                       // from the captures (CaptureFiles::notes)
+};
+// Writes OUT/cube.h5 (/cube bands x H x W float64, /wavelengths_nm, provenance attributes),
+// srgb.png, spectra.csv (wavelength_nm, one column per region), spectra.png and reconstruct.json
+// (inputs, the PSF and decoder used, tiles, seconds per stage). Every input checked first.
+ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o);
+
+}  // namespace qdo
