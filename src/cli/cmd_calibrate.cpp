@@ -3,12 +3,14 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <utility>
 
 #include "cli.hpp"
 #include "qdo/data/figure.hpp"
 #include "qdo/physics/calibrate.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/data/io.hpp"
+#include "qdo/data/psf_file.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/physics/simulator.hpp"
 
@@ -47,37 +49,36 @@ int cmd_calibrate(const Args& a) {
   for (const auto& f : r.files) files += (files.empty() ? "" : ";") + std::filesystem::path(f).filename().string();
   std::string darks;
   for (const auto& f : r.darks) darks += (darks.empty() ? "" : ";") + std::filesystem::path(f).filename().string();
-  std::vector<H5Dataset> ds;
-  ds.push_back({"/psf_sensor", {r.psf.planes, s, s}, r.psf.data, {{"pitch_m", cfg.sensor_pitch_m}},
-                {{"units", "fraction of band energy per sensor pixel"}}});
-  ds.push_back({"/wavelengths_nm", {cfg.bands}, cfg.wavelengths_nm(), {}, {{"units", "nm"}}});
-  ds.push_back({"/frame_wavelengths_nm", {cfg.bands}, r.wavelengths_nm, {}, {{"units", "nm, from the file names"}}});
-  ds.push_back({"/peak_snr", {cfg.bands}, r.peak_snr, {}, {{"units", "peak / noise sigma"}}});
-  ds.push_back({"/noise_dn", {cfg.bands}, r.noise_dn, {}, {{"units", "DN"}}});
-  ds.push_back({"/background_dn", {cfg.bands}, r.background_dn, {}, {{"units", "DN, each frame's background after the mean dark"}}});
+  // The contract's /psf_sensor and /wavelengths_nm (one measured point: bands x S x S), and the
+  // calibration's own datasets and provenance.
+  PsfFile f = psf_file_for(cfg, SensorStack(r.psf));
+  f.points = 1;
+  f.extra.push_back({"/frame_wavelengths_nm", {cfg.bands}, r.wavelengths_nm, {}, {{"units", "nm, from the file names"}}});
+  f.extra.push_back({"/peak_snr", {cfg.bands}, r.peak_snr, {}, {{"units", "peak / noise sigma"}}});
+  f.extra.push_back({"/noise_dn", {cfg.bands}, r.noise_dn, {}, {{"units", "DN"}}});
+  f.extra.push_back({"/background_dn", {cfg.bands}, r.background_dn, {}, {{"units", "DN, each frame's background after the mean dark"}}});
   if (!r.whites.empty())
-    ds.push_back({"/white_channel_gains", {3}, {r.channel_gains.begin(), r.channel_gains.end()}, {},
-                  {{"units", "R, G, B: each colour's mean white signal over the white's mean (divided out with each pixel's)"}}});
+    f.extra.push_back({"/white_channel_gains", {3}, {r.channel_gains.begin(), r.channel_gains.end()}, {},
+                       {{"units", "R, G, B: each colour's mean white signal over the white's mean (divided out with each pixel's)"}}});
   std::string notes;
   for (const auto& n : r.notes) {
     std::printf("note: %s\n", n.c_str());
     notes += (notes.empty() ? "" : "\n") + n;
   }
-  h5_write(dir + "/psf.h5", ds,
-           {{"config", config_to_json_text(cfg)},
-            {"design", "measured"},
-            {"source", "qdo calibrate"},
-            {"frames_dir", a.get("frames")},
-            {"frames", files},
-            {"darks_dir", a.get("darks")},
-            {"darks", darks},
-            {"dark_count", std::to_string(r.darks.size())},
-            {"hot_pixels_replaced", std::to_string(r.hot_pixels)},
-            {"centre_row_col", std::to_string(r.centre_row) + "," + std::to_string(r.centre_col)},
-            {"frame_rows_cols", std::to_string(r.frame_rows) + "," + std::to_string(r.frame_cols)},
-            {"white_dir", a.get("white")},
-            {"white_count", std::to_string(r.whites.size())},
-            {"notes", notes}});
+  f.root_attrs.insert({{"design", "measured"},
+                       {"source", "qdo calibrate"},
+                       {"frames_dir", a.get("frames")},
+                       {"frames", files},
+                       {"darks_dir", a.get("darks")},
+                       {"darks", darks},
+                       {"dark_count", std::to_string(r.darks.size())},
+                       {"hot_pixels_replaced", std::to_string(r.hot_pixels)},
+                       {"centre_row_col", std::to_string(r.centre_row) + "," + std::to_string(r.centre_col)},
+                       {"frame_rows_cols", std::to_string(r.frame_rows) + "," + std::to_string(r.frame_cols)},
+                       {"white_dir", a.get("white")},
+                       {"white_count", std::to_string(r.whites.size())},
+                       {"notes", notes}});
+  write_psf_file(dir + "/psf.h5", std::move(f));
   const std::size_t crop = std::min<std::size_t>(96, s);
   write_psf_figure(dir + "/psf.png", "Measured PSF stack from " + a.get("frames"), r.psf, cfg.wavelengths_nm(), cfg.sensor_pitch_m, crop);
   std::printf("calibrated %zu bands from %s (%zu dark frames, %zu hot pixels replaced), centre (row %ld, column %ld) of %zu x %zu, "

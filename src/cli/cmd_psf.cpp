@@ -7,6 +7,7 @@
 
 #include "cli.hpp"
 #include "psf_outputs.hpp"
+#include "qdo/design/psf_outputs.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/physics/simulator.hpp"

@@ -19,6 +19,7 @@
 #include "qdo/physics/camera.hpp"
 #include "qdo/physics/cpu_reference.hpp"
 #include "qdo/physics/demosaic.hpp"
+#include "qdo/design/psf_outputs.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"

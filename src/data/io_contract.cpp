@@ -3,11 +3,13 @@
 #include <cmath>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "data/io_internal.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/data/io.hpp"
+#include "qdo/data/psf_file.hpp"
 
 namespace qdo {
 using namespace io_detail;
@@ -64,13 +66,12 @@ Design read_design(const std::string& path) {
 
 void write_psf(const std::string& path, const RealStack& psf, const std::vector<double>& wavelengths_nm,
                double pitch_m, const std::map<std::string, double>& extra_num_attrs) {
-  if (wavelengths_nm.size() != psf.planes)
-    reject("wavelengths_nm", wavelengths_nm.size(), "one wavelength per PSF plane (" + std::to_string(psf.planes) + ")");
-  if (!(pitch_m > 0) || !std::isfinite(pitch_m)) reject("pitch_m", pitch_m, "a finite pitch > 0 in metres");
-  H5Dataset p{"/psf_sensor", {psf.planes, psf.rows, psf.cols}, psf.data, extra_num_attrs,
-              {{"units", "fraction of band energy per sensor pixel"}}};
-  p.num_attrs["pitch_m"] = pitch_m;
-  h5_write(path, {p, H5Dataset{"/wavelengths_nm", {wavelengths_nm.size()}, wavelengths_nm, {}, {{"units", "nm"}}}});
+  PsfFile f;
+  f.psf_sensor = SensorStack(psf);
+  f.wavelengths_nm = wavelengths_nm;
+  f.pitch_m = pitch_m;
+  f.num_attrs = extra_num_attrs;
+  write_psf_file(path, std::move(f));
 }
 
 PsfStackFile read_psf_stack_file(const std::string& path) {

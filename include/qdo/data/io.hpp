@@ -84,8 +84,10 @@ void write_design(const std::string& path, const Design& d,
                   const std::map<std::string, std::string>& provenance = {});
 Design read_design(const std::string& path);   // checks square, finite, pitch_m > 0
 
-// A sensor-grid PSF stack (planes x S x S) as /psf_sensor with its pitch, and /wavelengths_nm: the
-// layout `qdo psf` writes and read_psf_stack_file reads.
+// A sensor-grid PSF stack (planes x S x S, row-major) as /psf_sensor with its pitch, and
+// /wavelengths_nm (planes): the layout `qdo psf` writes and read_psf_stack_file reads, without
+// provenance. Through write_psf_file (psf_file.hpp: the one psf.h5 writer, with provenance and
+// further datasets).
 void write_psf(const std::string& path, const RealStack& psf, const std::vector<double>& wavelengths_nm,
                double pitch_m, const std::map<std::string, double>& extra_num_attrs = {});
 // A sensor-grid PSF stack file (`qdo psf`, `qdo simulate`, a run folder's psf.h5): /psf_sensor
