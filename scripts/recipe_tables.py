@@ -8,7 +8,9 @@ them) and prints Markdown:
     QDO+A - QDO, QDO+A - DO-refit per level count (mean PSNR difference and its 95 % t interval
     over seeds, each seed's difference averaged over the test scenes);
   - the ablation: each item switched back to qdo's, against the release recipe, for QDO and QDO+A
-    at 4 levels (PSNR and ring deviation, paired the same way; the baseline: the grid's 4-level cells).
+    at 4 levels (PSNR and ring deviation, paired the same way; the baseline: the grid's 4-level cells);
+  - the Res-UNet table (OUT/network) and, when OUT/network_qdo_items holds the same sweep with the
+    network's items as qdo's, the paired effect of those items.
 Usage: python3 scripts/recipe_tables.py OUT [EPOCHS STEPS_PER_EPOCH]   (default out/recipe 50 36)
 """
 import glob
@@ -127,6 +129,22 @@ def main():
                    ring_dev(n["qdo"]) + " / " + ring_dev(n["qdo+a"])]
             print(f"| {L} | " + " | ".join(row) + " |")
         print(f"\nFull precision (DO's design unquantized): {full}.\n")
+
+        # The network's recipe items (batch norm, last initialiser, noise on the bands, fixed
+        # patches) against the same runs with qdo's (OUT/network_qdo_items: the same sweep made
+        # before those items existed, so with torch's batch norm, He-uniform, RGB noise and random
+        # crops), paired by seed and test scene.
+        old = cells(os.path.join(out, "network_qdo_items"))
+        if old:
+            print("### The network's recipe items: release's minus qdo's (PSNR dB, paired by seed, mean [95 % interval])\n")
+            print("| levels | DO | DO-finetune | QDO | QDO+A |")
+            print("|---|---|---|---|---|")
+            for L in levels:
+                row = [fmt(paired(net, f"{m}_L{L}{tag}_s{{s}}", old, f"{m}_L{L}{tag}_s{{s}}", seeds))
+                       for m in ["do", "do-finetune", "qdo", "qdo+a"]]
+                print(f"| {L} | " + " | ".join(row) + " |")
+            full_d = fmt(paired(net, f"full{tag}_s{{s}}", old, f"full{tag}_s{{s}}", seeds))
+            print(f"\nFull precision (DO's design unquantized): {full_d}.\n")
 
     ablations = [os.path.join(out, "grid")] + sorted(glob.glob(os.path.join(out, "ablation_*")))
     base = grid  # the release recipe's 4-level cells
