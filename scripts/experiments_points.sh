@@ -39,16 +39,8 @@ else
   TRAIN_DATA=${TRAIN_DATA-$SHARED/data/hsi/cave_train}
   TEST_DATA=${TEST_DATA-$SHARED/data/hsi/cave}
 fi
-export QDO_DEVICE=${QDO_DEVICE:-cpu}
-export QDO_CACHE_DIR=${QDO_CACHE_DIR:-$PWD/build/kernel-cache}
-# The script writes only under an OUT it made (the marker); a folder it did not make is refused.
-if [ -e "$OUT" ] && [ ! -f "$OUT/.experiments_points" ]; then
-  echo "experiments_points: $OUT exists and was not made by this script (no $OUT/.experiments_points); choose another OUT" >&2
-  exit 2
-fi
-mkdir -p "$OUT"
-touch "$OUT/.experiments_points"
-log() { printf '\n== %s\n' "$*"; }
+source scripts/experiments_out.sh  # (the scripts run from the repository root)
+claim_out experiments_points "$OUT"
 DATA_ARGS=()
 [ -n "$TRAIN_DATA" ] && DATA_ARGS=(--data "$TRAIN_DATA")
 TEST_ARGS=()

@@ -27,17 +27,8 @@ LATERAL_STARTS=${LATERAL_STARTS:-auto}   # qdo fit --lateral-starts
 SIGMAS=${SIGMAS:-"run model 0.01 0.03"}  # noise sigmas the decoder assumes: run (the run's), model (the sensor's at the capture's level), or values
 RECON_ONLY=${RECON_ONLY:-0}           # 1: only steps 7-8 (reconstruct and tables) on an earlier run's files
 BORDER=${BORDER:-16}                  # pixels left out of each score at every edge
-export QDO_DEVICE=${QDO_DEVICE:-cpu}
-export QDO_CACHE_DIR=${QDO_CACHE_DIR:-$PWD/build/kernel-cache}
-# The script deletes and rewrites only the folders it makes under OUT; an OUT it did not make
-# (no marker) is refused, so a user's folder is never touched.
-if [ -e "$OUT" ] && [ ! -f "$OUT/.experiments_section7" ]; then
-  echo "experiments_section7: $OUT exists and was not made by this script (no $OUT/.experiments_section7); choose another OUT" >&2
-  exit 2
-fi
-mkdir -p "$OUT"
-touch "$OUT/.experiments_section7"
-log() { printf '\n== %s\n' "$*"; }
+source scripts/experiments_out.sh  # (the scripts run from the repository root)
+claim_out experiments_section7 "$OUT"
 
 # The camera: small preset physics, the sensor as built (RGGB, 12 bits, black level 64 DN,
 # read noise 1e-3 of full scale ~ 4 DN, shot noise at 20000 photons full well).
