@@ -1,8 +1,9 @@
 // qdo simulate and qdo image: the RGB sensor image of a scene through a PSF source, either a design
 // simulated on the device (--design) or a PSF stack file written by `qdo psf` (--psf FILE; a
-// measured or otherwise computed stack in the same layout), and the camera operator (camera.hpp).
-// With --raw, also the capture as the sensor as built writes it (raw.hpp: mosaic, black level,
-// gain, bit depth, noise) and its demosaic (demosaic.hpp); with --capture psf-sweep, instead of a
+// measured or otherwise computed stack in the same layout), through the capture pipeline
+// (capture_pipeline.hpp: the camera operator, noise, the full-scale clip). With --raw, also the
+// capture as the sensor as built writes it (raw.hpp: mosaic, black level, gain, bit depth, noise)
+// and its demosaic (demosaic.hpp), the pipeline's raw stages; with --capture psf-sweep, instead of a
 // scene, a simulated monochromator sweep of a point source and dark frames for `qdo calibrate`.
 #include <algorithm>
 #include <chrono>
@@ -17,6 +18,7 @@
 #include "simulate_varying.hpp"
 #include "qdo/data/figure.hpp"
 #include "qdo/physics/camera.hpp"
+#include "qdo/physics/capture_pipeline.hpp"
 #include "qdo/physics/cpu_reference.hpp"
 #include "qdo/physics/demosaic.hpp"
 #include "qdo/design/psf_outputs.hpp"
@@ -24,7 +26,6 @@
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/physics/psf_source.hpp"
-#include "qdo/physics/raw.hpp"
 #include "qdo/physics/raw_reference.hpp"
 #include "qdo/physics/release.hpp"
 #include "qdo/data/scenes.hpp"
@@ -202,9 +203,14 @@ int cmd_simulate(const Args& a) {
   if (raw) check_raw_config(cfg, "--raw");
   if (!raw && a.has("demosaic")) reject("--demosaic", a.get("demosaic"), "only with --raw (it demosaics the raw capture)");
   const DemosaicMethod demosaic = demosaic_method_from_string(a.get("demosaic"), "--demosaic");
-  // With --raw the camera runs without noise: the raw stage draws the sensor's noise itself (its
-  // own stream), and sensor.h5 gets the configuration's noise added on the host (ref::add_noise, the
-  // camera's counters).
+  // The capture (capture_pipeline.hpp): the camera, noise, full-scale clip and, with --raw, the
+  // raw and demosaic stages. With --raw the PSF source is made with the configuration without noise
+  // (psf.h5 records it): the raw stage draws the sensor's noise itself (its own stream), and
+  // sensor.h5 gets the configuration's noise added on the host (ref::add_noise, the camera's counters).
+  CaptureOptions capture_opt;
+  capture_opt.formation = release ? ImageFormation::Release : ImageFormation::Qdo;
+  capture_opt.raw = raw;
+  capture_opt.demosaic = demosaic;
   SystemConfig cam_cfg = cfg;
   if (raw) {
     cam_cfg.read_noise_sigma = 0;
@@ -235,47 +241,34 @@ int cmd_simulate(const Args& a) {
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
   SpecPsfSource src = make_psf_source(rt, cam_cfg, p, in);
+  CapturePipeline pipeline(rt, cfg, p, capture_opt);
   const auto t0 = std::chrono::steady_clock::now();
   src.compute();
   const RealStack psf_s = src.source().psf_sensor();
   const Eigen::MatrixXd srf = sensor_response(cfg);
   const RealStack scene_rgb = ref::sensor_integrate(scene, srf);  // the same camera without the DOE blur
-  RealStack rgb, clean;  // clean: the image before noise (--raw)
-  SensorClip clip;
+  CaptureFrame shot;
   double secs = 0, outputs_s = 0;
   // The figures that need only the PSF, the design and the scene are drawn on a second thread
-  // while the camera runs and the HDF5 files are written on this one.
+  // while the capture runs and the HDF5 files are written on this one.
   write_concurrently(
       [&] {
-        // The camera through Camera's exact reorganisation with every skipping tolerance at 0: only
-        // what contributes exactly nothing is skipped (bands the camera does not see or the scene
-        // leaves dark, PSF rings holding no energy), so the error bound is 0 and the image is the
-        // unskipped camera's to the rounding of the precision, with fewer transforms.
-        if (release) {
-          // The release's pipeline on the DOE grid with the native PSF, then the sensor response and
-          // qdo's noise model (the release adds its noise on the DOE grid, before the sensor).
-          ReleaseImager imager(rt, p, cfg.bands, scene.rows, cfg.n);
-          imager.set_psf(src.sim->psf_native());
-          rgb = ref::sensor_integrate(imager.blur(scene), srf);
-          if (raw) clean = rgb;
-          ref::add_noise(rgb, cfg.read_noise_sigma, cfg.full_well_photons, cfg.noise_seed, 0);
-        } else {
-          Camera camera(src.source());
-          rgb = camera.images({scene}, SkipOptions::split(0.0)).front();
-          if (raw) {
-            clean = rgb;
-            ref::add_noise(rgb, cfg.read_noise_sigma, cfg.full_well_photons, cfg.noise_seed, 0);
-          }
-        }
-        secs = seconds_since(t0);
-        clip = clip_to_full_scale(rgb, "sensor image");
+        // qdo: the camera through Camera's exact reorganisation with every skipping tolerance at 0:
+        // only what contributes exactly nothing is skipped (bands the camera does not see or the
+        // scene leaves dark, PSF rings holding no energy), so the error bound is 0 and the image is
+        // the unskipped camera's to the rounding of the precision, with fewer transforms. release:
+        // the release's pipeline on the DOE grid with the native PSF, then the sensor response and
+        // qdo's noise model (the release adds its noise on the DOE grid, before the sensor).
+        const double psf_secs = seconds_since(t0);
+        shot = pipeline.run(src.source(), scene);
+        secs = psf_secs + shot.seconds_before("clip");  // PSF, convolution, sensor and noise
         const auto t1 = std::chrono::steady_clock::now();
-        write_rgb(dir + "/sensor.h5", rgb, {{"clipped_fraction", clip.fraction()}, {"max_before_clip", clip.max_before}});
+        write_rgb(dir + "/sensor.h5", shot.rgb, {{"clipped_fraction", shot.clip.fraction()}, {"max_before_clip", shot.clip.max_before}});
         if (src.sim)
           write_psf_h5(*src.sim, SensorStack(psf_s), in.heights, dir, a.get("design"), save_native(a), a.has("compress"));
         else
           write_psf(dir + "/psf.h5", psf_s, cfg.wavelengths_nm(), cfg.sensor_pitch_m);
-        write_rgb_png(dir + "/sensor.png", rgb);
+        write_rgb_png(dir + "/sensor.png", shot.rgb);
         outputs_s = seconds_since(t1);
       },
       [&] {
@@ -284,16 +277,16 @@ int cmd_simulate(const Args& a) {
                          std::min<std::size_t>(psf_s.rows, 96));
         if (!in.from_file()) write_height_figure(dir + "/design.png", "DOE height map", in.heights, cfg.pitch_m);
       });
+  const RealStack& rgb = shot.rgb;
+  const SensorClip& clip = shot.clip;
   std::string raw_line;
   if (raw) {
     // The capture as the sensor as built writes it, and its demosaic (in linear units: black
     // removed, divided by gain (white - black)).
-    RawStage raw_stage(rt, cfg, p);
-    const RawStage::Frames fr = raw_stage.run(std::vector<RealStack>{clean});
-    const RealStack& dn = fr.raw[0];
-    DemosaicStage dm(rt, cfg.cfa, demosaic, p);
-    const RealStack rgb_dm = dm.run(std::vector<RealStack>{raw_to_linear(dn, cfg)})[0];
-    const double sat = double(fr.counts.saturated) / double(fr.counts.total), flo = double(fr.counts.floored) / double(fr.counts.total);
+    const RealStack& dn = shot.raw_dn;
+    const RealStack& rgb_dm = shot.demosaiced;
+    const RawCounts& counts = shot.raw_counts;
+    const double sat = double(counts.saturated) / double(counts.total), flo = double(counts.floored) / double(counts.total);
     write_png16_gray(dir + "/raw.png", raw_map(dn));
     h5_write(dir + "/raw.h5",
              {{"/raw", {1, dn.rows, dn.cols}, dn.data,
@@ -308,7 +301,7 @@ int cmd_simulate(const Args& a) {
     std::snprintf(b, sizeof b,
                   "raw: cfa %s, %zu-bit, black level %g DN, gain %g: %s of pixels saturated, %s floored at 0; demosaic %s\n",
                   to_string(cfg.cfa).c_str(), cfg.bit_depth, cfg.black_level_dn, cfg.gain,
-                  percent(fr.counts.saturated, fr.counts.total).c_str(), percent(fr.counts.floored, fr.counts.total).c_str(),
+                  percent(counts.saturated, counts.total).c_str(), percent(counts.floored, counts.total).c_str(),
                   to_string(demosaic).c_str());
     raw_line = b;
   }
