@@ -3,7 +3,9 @@
 # ablation that switches one recipe item back to qdo's at a time (EXPERIMENTS.md "The release's
 # recipe"). Each part is a `qdo sweep` (resumable: rerun the script after a kill and finished runs
 # and cells are kept); two shards run side by side, then --collect writes the tables.
-# Usage: bash scripts/experiments_recipe.sh [OUT] [PART]   (default out/recipe; PART grid, ablation, network or all)
+# Usage: bash scripts/experiments_recipe.sh [OUT] [PART]   (default out/recipe; PART grid, ablation, network,
+#   network_qdo_items (the network sweep with the network's four items qdo's), network_ablation (DO with
+#   one of those four items qdo's, NET_SEEDS seeds, default 1) or all (grid, ablation, network))
 #   SEEDS (default 3), EPOCHS (50), STEPS (36 steps per epoch: 1,800 steps, alpha over steps 180-1,440,
 #   the sum of learning rates while alpha blends 8.9 against the release's 8.8), PSF_PATH (radial),
 #   NET_EPOCHS (50) x NET_STEPS (10) steps per network design, FT_STEPS (100) do-finetune steps
@@ -92,6 +94,47 @@ if [ "$PART" = network ] || [ "$PART" = all ]; then
     --preset small --data ../shared/data/hsi/cave_train,../shared/data/hsi/cave_png --test-data ../shared/data/hsi/cave \
     --epochs "${NET_EPOCHS:-50}" --steps-per-epoch "${NET_STEPS:-10}" --finetune-steps "${FT_STEPS:-100}" \
     --psf-path "${PSF_PATH:-radial}" --seeds "$SEEDS" --seed 0
+fi
+if [ "$PART" = network_qdo_items ]; then
+  sweep "$OUT/network_qdo_items" --recipe release --noise-at rgb --patches random --batch-norm torch --final-init he \
+    --grid decoder=resunet --grid levels=4,8 --grid mode=do,do-finetune,qdo,qdo+a \
+    --preset small --data ../shared/data/hsi/cave_train,../shared/data/hsi/cave_png --test-data ../shared/data/hsi/cave \
+    --epochs "${NET_EPOCHS:-50}" --steps-per-epoch "${NET_STEPS:-10}" --finetune-steps "${FT_STEPS:-100}" \
+    --psf-path "${PSF_PATH:-radial}" --seeds "$SEEDS" --seed 0
+fi
+if [ "$PART" = network_ablation ]; then
+  # DO with the Res-UNet, the release recipe with one of the network's four items set back to
+  # qdo's, evaluated as the network sweep's cells (4 levels); two lanes side by side.
+  declare -A net_items=([noise_rgb]="--noise-at rgb" [patches_random]="--patches random"
+                        [batch_norm_torch]="--batch-norm torch" [final_init_he]="--final-init he")
+  net_one() {  # net_one ITEM SEED
+    local name=$1 seed=$2 run="$OUT/network_ablation_$1/runs/do_s$2" cell="$OUT/network_ablation_$1/cells/do_L4_resunet-depth4-root16_s$2"
+    [ -f "$cell/metrics.json" ] && return 0
+    mkdir -p "$(dirname "$run")" "$(dirname "$cell")"
+    if [ -f "$run/checkpoint.h5" ] && [ ! -f "$run/design.h5" ]; then
+      "$QDO" design --resume --out "$run" > "$run.log" 2>&1
+    elif [ ! -f "$run/design.h5" ]; then
+      # shellcheck disable=SC2086
+      "$QDO" design --recipe release ${net_items[$name]} --mode do --decoder resunet --preset small \
+        --data ../shared/data/hsi/cave_train,../shared/data/hsi/cave_png --epochs "${NET_EPOCHS:-50}" \
+        --steps-per-epoch "${NET_STEPS:-10}" --psf-path "${PSF_PATH:-radial}" --seed "$seed" --out "$run" > "$run.log" 2>&1
+    fi
+    "$QDO" eval "$run" --levels 4 --data ../shared/data/hsi/cave --out "$cell" > "$cell.log" 2>&1
+  }
+  net_jobs=()
+  for name in $(printf '%s\n' "${!net_items[@]}" | sort); do
+    for ((s = 0; s < ${NET_SEEDS:-1}; ++s)); do net_jobs+=("$name $s"); done
+  done
+  net_lane() {
+    local i
+    for ((i = $1; i < ${#net_jobs[@]}; i += 2)); do
+      # shellcheck disable=SC2086
+      net_one ${net_jobs[$i]} || { echo "network_ablation ${net_jobs[$i]} failed (see its .log)"; return 1; }
+    done
+  }
+  net_lane 0 & n0=$!
+  net_lane 1 & n1=$!
+  wait $n0 $n1
 fi
 python3 scripts/recipe_tables.py "$OUT" "${EPOCHS:-50}" "${STEPS:-36}" > "$OUT/tables.md"
 for py in python3 /usr/bin/python3; do  # the figures need matplotlib (Debian: python3-matplotlib)

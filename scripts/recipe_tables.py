@@ -9,8 +9,8 @@ them) and prints Markdown:
     over seeds, each seed's difference averaged over the test scenes);
   - the ablation: each item switched back to qdo's, against the release recipe, for QDO and QDO+A
     at 4 levels (PSNR and ring deviation, paired the same way; the baseline: the grid's 4-level cells);
-  - the Res-UNet table (OUT/network) and, when OUT/network_qdo_items holds the same sweep with the
-    network's items as qdo's, the paired effect of those items.
+  - the Res-UNet tables: OUT/network (every item the release's) and OUT/network_qdo_items (the same
+    sweep with the network's four items qdo's), and the paired effect of those four items.
 Usage: python3 scripts/recipe_tables.py OUT [EPOCHS STEPS_PER_EPOCH]   (default out/recipe 50 36)
 """
 import glob
@@ -70,6 +70,37 @@ def seeds_of(cs):
     return sorted({int(n.rsplit("_s", 1)[1]) for n in cs if "_s" in n})
 
 
+def network_table(net, tag, title):
+    """The Res-UNet table of one sweep's cells: PSNR per mode and level count, paired differences."""
+    seeds = seeds_of(net)
+    levels = sorted({int(n.split("_L")[1].split("_")[0]) for n in net if "_L" in n})
+    print(f"### The Res-UNet under the release recipe, {title} (PSNR dB, mean [95 % interval] over the seeds that finished)\n")
+    print("| levels | DO | DO-finetune | QDO | QDO+A | QDO+A - DO | QDO - DO | QDO+A - QDO | QDO+A - DO-finetune | ring dev. QDO / QDO+A (nm) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+
+    def mean_of(name):
+        v = [net[name.format(s=s)]["mean"]["psnr_db"] for s in seeds if name.format(s=s) in net]
+        if not v:
+            return "–"
+        m, hw = mean_ci(v)
+        return f"{m:.2f} [{m - hw:.2f}, {m + hw:.2f}] ({len(v)})" if len(v) > 1 else f"{m:.2f} (1 seed)"
+
+    def ring_dev(name):
+        v = [net[name.format(s=s)].get("deviation_rings_nm") for s in seeds if name.format(s=s) in net]
+        v = [x for x in v if x is not None]
+        return f"{sum(v) / len(v):.1f}" if v else "–"
+
+    full = mean_of("full" + tag + "_s{s}")
+    for L in levels:
+        n = {m: f"{m}_L{L}{tag}_s{{s}}" for m in ["do", "do-finetune", "qdo", "qdo+a"]}
+        row = [mean_of(n["do"]), mean_of(n["do-finetune"]), mean_of(n["qdo"]), mean_of(n["qdo+a"]),
+               fmt(paired(net, n["qdo+a"], net, n["do"], seeds)), fmt(paired(net, n["qdo"], net, n["do"], seeds)),
+               fmt(paired(net, n["qdo+a"], net, n["qdo"], seeds)), fmt(paired(net, n["qdo+a"], net, n["do-finetune"], seeds)),
+               ring_dev(n["qdo"]) + " / " + ring_dev(n["qdo+a"])]
+        print(f"| {L} | " + " | ".join(row) + " |")
+    print(f"\nFull precision (DO's design unquantized): {full}.\n")
+
+
 def main():
     out = sys.argv[1] if len(sys.argv) > 1 else "out/recipe"
     epochs = int(sys.argv[2]) if len(sys.argv) > 2 else 50
@@ -99,52 +130,29 @@ def main():
             print(f"| {L} | " + " | ".join(fmt(r) for r in row) + " |")
         print()
 
+    tag = "_resunet-depth4-root16"
     net = cells(os.path.join(out, "network"))
-    if net:
-        tag = "_resunet-depth4-root16"
+    old = cells(os.path.join(out, "network_qdo_items"))
+    for folder_cells, title in [(net, "every item the release's, the network's four included"),
+                                (old, "the network's four items qdo's (--noise-at rgb --patches random --batch-norm torch "
+                                      "--final-init he)")]:
+        if folder_cells:
+            network_table(folder_cells, tag, title)
+
+    # The network's recipe items (batch norm, last initialiser, noise on the bands, fixed patches)
+    # against the same sweep with qdo's, paired by seed and test scene.
+    if net and old:
         seeds = seeds_of(net)
         levels = sorted({int(n.split("_L")[1].split("_")[0]) for n in net if "_L" in n})
-        print(f"### The Res-UNet under the release recipe (PSNR dB, mean [95 % interval] over the seeds that finished)\n")
-        print("| levels | DO | DO-finetune | QDO | QDO+A | QDO+A - DO | QDO - DO | QDO+A - QDO | QDO+A - DO-finetune | ring dev. QDO / QDO+A (nm) |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
-
-        def mean_of(name):
-            v = [net[name.format(s=s)]["mean"]["psnr_db"] for s in seeds if name.format(s=s) in net]
-            if not v:
-                return "–"
-            m, hw = mean_ci(v)
-            return f"{m:.2f} [{m - hw:.2f}, {m + hw:.2f}] ({len(v)})" if len(v) > 1 else f"{m:.2f} (1 seed)"
-
-        def ring_dev(name):
-            v = [net[name.format(s=s)].get("deviation_rings_nm") for s in seeds if name.format(s=s) in net]
-            v = [x for x in v if x is not None]
-            return f"{sum(v) / len(v):.1f}" if v else "–"
-
-        full = mean_of("full" + tag + "_s{s}")
+        print("### The network's four recipe items: release's minus qdo's (PSNR dB, paired by seed, mean [95 % interval])\n")
+        print("| levels | DO | DO-finetune | QDO | QDO+A |")
+        print("|---|---|---|---|---|")
         for L in levels:
-            n = {m: f"{m}_L{L}{tag}_s{{s}}" for m in ["do", "do-finetune", "qdo", "qdo+a"]}
-            row = [mean_of(n["do"]), mean_of(n["do-finetune"]), mean_of(n["qdo"]), mean_of(n["qdo+a"]),
-                   fmt(paired(net, n["qdo+a"], net, n["do"], seeds)), fmt(paired(net, n["qdo"], net, n["do"], seeds)),
-                   fmt(paired(net, n["qdo+a"], net, n["qdo"], seeds)), fmt(paired(net, n["qdo+a"], net, n["do-finetune"], seeds)),
-                   ring_dev(n["qdo"]) + " / " + ring_dev(n["qdo+a"])]
+            row = [fmt(paired(net, f"{m}_L{L}{tag}_s{{s}}", old, f"{m}_L{L}{tag}_s{{s}}", seeds))
+                   for m in ["do", "do-finetune", "qdo", "qdo+a"]]
             print(f"| {L} | " + " | ".join(row) + " |")
-        print(f"\nFull precision (DO's design unquantized): {full}.\n")
-
-        # The network's recipe items (batch norm, last initialiser, noise on the bands, fixed
-        # patches) against the same runs with qdo's (OUT/network_qdo_items: the same sweep made
-        # before those items existed, so with torch's batch norm, He-uniform, RGB noise and random
-        # crops), paired by seed and test scene.
-        old = cells(os.path.join(out, "network_qdo_items"))
-        if old:
-            print("### The network's recipe items: release's minus qdo's (PSNR dB, paired by seed, mean [95 % interval])\n")
-            print("| levels | DO | DO-finetune | QDO | QDO+A |")
-            print("|---|---|---|---|---|")
-            for L in levels:
-                row = [fmt(paired(net, f"{m}_L{L}{tag}_s{{s}}", old, f"{m}_L{L}{tag}_s{{s}}", seeds))
-                       for m in ["do", "do-finetune", "qdo", "qdo+a"]]
-                print(f"| {L} | " + " | ".join(row) + " |")
-            full_d = fmt(paired(net, f"full{tag}_s{{s}}", old, f"full{tag}_s{{s}}", seeds))
-            print(f"\nFull precision (DO's design unquantized): {full_d}.\n")
+        full_d = fmt(paired(net, f"full{tag}_s{{s}}", old, f"full{tag}_s{{s}}", seeds))
+        print(f"\nFull precision (DO's design unquantized): {full_d}.\n")
 
     ablations = [os.path.join(out, "grid")] + sorted(glob.glob(os.path.join(out, "ablation_*")))
     base = grid  # the release recipe's 4-level cells
