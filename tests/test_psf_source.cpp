@@ -9,6 +9,7 @@
 
 #include "common.hpp"
 #include "qdo/physics/camera.hpp"
+#include "qdo/physics/capture_pipeline.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/psf_source.hpp"
 #include "qdo/design/psf_spec.hpp"
@@ -34,9 +35,114 @@ fs::path write_config(const fs::path& dir, const SystemConfig& c, const std::str
   return f;
 }
 
+// A new kind of PSF source, written the way a user adds one (one class, nothing else touched): a
+// Gaussian blob of width sigma_px sensor pixels per band, growing with the wavelength, each band
+// summing to 1, held on the device by a StackPsfSource it delegates to; its one parameter is sigma,
+// whose gradient it takes on the host (dL/dsigma = sum g * dstack/dsigma, by central difference
+// of its own closed form).
+class GaussianPsfSource final : public PsfSource {
+ public:
+  GaussianPsfSource(Runtime& rt, const SystemConfig& cfg, Precision p, double sigma_px)
+      : sigma_(sigma_px), stack_(rt, cfg, p, blob(cfg, sigma_px), "gaussian blob") {}
+  static RealStack blob(const SystemConfig& cfg, double sigma_px) {
+    const std::size_t s = cfg.sensor_size_px();
+    RealStack st(cfg.bands, s, s);
+    for (std::size_t b = 0; b < cfg.bands; ++b) {
+      const double w = sigma_px * (1.0 + 0.1 * double(b));
+      double sum = 0;
+      for (std::size_t y = 0; y < s; ++y)
+        for (std::size_t x = 0; x < s; ++x) {
+          const double dy = double(y) - double(s / 2), dx = double(x) - double(s / 2);
+          sum += st(b, y, x) = std::exp(-(dx * dx + dy * dy) / (2 * w * w));
+        }
+      for (std::size_t i = 0; i < s * s; ++i) st.plane(b)[i] /= sum;
+    }
+    return st;
+  }
+  Runtime& runtime() const override { return stack_.runtime(); }
+  const SystemConfig& config() const override { return stack_.config(); }
+  Precision precision() const override { return stack_.precision(); }
+  std::size_t sensor_size() const override { return stack_.sensor_size(); }
+  std::size_t psf_planes() const override { return stack_.psf_planes(); }
+  bool psf_ready() const override { return true; }
+  const cl::Buffer& psf_sensor_buffer() const override { return stack_.psf_sensor_buffer(); }
+  std::uint64_t psf_generation() const override { return stack_.psf_generation(); }
+  RealStack psf_sensor() const override { return stack_.psf_sensor(); }
+  std::size_t parameter_count() const override { return 1; }
+  std::vector<double> parameter_vjp(const cl::Buffer& g_psf_sensor) override {
+    const RealStack g = read_stack(g_psf_sensor);
+    const double h = 1e-5 * sigma_;
+    const RealStack up = blob(config(), sigma_ + h), down = blob(config(), sigma_ - h);
+    double acc = 0;
+    for (std::size_t i = 0; i < g.data.size(); ++i) acc += g.data[i] * (up.data[i] - down.data[i]) / (2 * h);
+    return {acc};
+  }
+  std::string describe() const override { return "gaussian blob, sigma " + to_str(sigma_) + " px"; }
+
+ private:
+  RealStack read_stack(const cl::Buffer& b) const {
+    const std::size_t s = sensor_size(), n = psf_planes() * s * s;
+    RealStack out(psf_planes(), s, s);
+    if (precision() == Precision::F64) {
+      runtime().queue().enqueueReadBuffer(b, CL_TRUE, 0, n * sizeof(double), out.data.data());
+    } else {
+      std::vector<float> f(n);
+      runtime().queue().enqueueReadBuffer(b, CL_TRUE, 0, n * sizeof(float), f.data());
+      std::copy(f.begin(), f.end(), out.data.begin());
+    }
+    return out;
+  }
+  double sigma_;
+  StackPsfSource stack_;
+};
+
 }  // namespace
 
 TEST_SUITE("psf-source") {
+  TEST_CASE("a new kind of PSF source is one class: the camera and the capture pipeline take it, its gradient chains") {
+    SystemConfig c = tiny_config(32, 3);
+    c.read_noise_sigma = 0;  // the camera alone adds the configuration's noise; compare noiseless images
+    c.full_well_photons = 0;
+    if (!skip_unless(runtime().has_fp64(), "float64 device")) return;
+    const Precision p = Precision::F64;
+    GaussianPsfSource g(runtime(), c, p, 1.5);
+    const RealStack scene = random_cube(c.bands, 20, 18, 7);
+    // The camera and the capture pipeline image through it exactly as through a fixed stack of its PSF.
+    StackPsfSource fixed(runtime(), c, p, g.psf_sensor(), "the same stack");
+    Camera from_new(g), from_fixed(fixed);
+    CHECK(from_new.images({scene}, exact())[0].data == from_fixed.images({scene}, exact())[0].data);
+    CaptureOptions opt;
+    opt.noise = false;
+    CapturePipeline pipe(runtime(), c, p, opt);
+    const CaptureFrame f = pipe.run(g, scene);
+    // (The pipeline's camera runs with skipping tolerances 0, not the exact reorganisation: the
+    // same sums in another order, equal to double rounding.)
+    const RealStack want = from_fixed.images({scene}, exact())[0];
+    const double top = *std::max_element(want.data.begin(), want.data.end());
+    for (std::size_t i = 0; i < want.data.size(); ++i) CHECK(std::fabs(f.clean.data[i] - want.data[i]) <= 1e-12 * top);
+    // Its parameter's gradient through the pipeline's adjoint: L = <w, clean>, dL/dsigma against a
+    // central difference of L over sigma (both in double).
+    const RealStack w = random_cube(3, 20, 18, 8);
+    CaptureGradient cg;
+    cg.clean = w;
+    const CaptureGradient back = pipe.vjp(cg);
+    cl::Buffer gbuf(runtime().context(), CL_MEM_READ_WRITE, back.psf.data.size() * sizeof(double));
+    runtime().queue().enqueueWriteBuffer(gbuf, CL_TRUE, 0, back.psf.data.size() * sizeof(double), back.psf.data.data());
+    const double analytic = g.parameter_vjp(gbuf).at(0);
+    const auto loss = [&](double sigma) {
+      GaussianPsfSource gs(runtime(), c, p, sigma);
+      CapturePipeline pp(runtime(), c, p, opt);
+      const CaptureFrame ff = pp.run(gs, scene);
+      double l = 0;
+      for (std::size_t i = 0; i < w.data.size(); ++i) l += w.data[i] * ff.clean.data[i];
+      return l;
+    };
+    const double h = 1e-4, numeric = (loss(1.5 + h) - loss(1.5 - h)) / (2 * h);
+    CHECK(std::fabs(analytic) > 1e-6);
+    CHECK(std::fabs(analytic - numeric) <= 1e-6 * std::max(1.0, std::fabs(numeric)));
+  }
+
+
   TEST_CASE("a camera gives the same images from the simulator and from a fixed stack of its PSF") {
     const SystemConfig c = tiny_config(32, 3);
     const std::vector<RealStack> scenes{random_cube(c.bands, 20, 18, 5), random_cube(c.bands, 20, 18, 6)};
