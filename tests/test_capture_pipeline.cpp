@@ -191,7 +191,7 @@ TEST_SUITE("capture-pipeline") {
         CHECK(h.clean.data == f.clean.data);
       }
       // Without noise: no noise stage, rgb is the clean image clipped.
-      CaptureOptions o;
+      PipelineOptions o;
       o.noise = false;
       CapturePipeline silent(runtime(), cfg, p, o);
       CHECK(silent.stage_names() == std::vector<std::string>{"camera", "clip"});
@@ -211,7 +211,7 @@ TEST_SUITE("capture-pipeline") {
     sim.set_heights(random_heights(cfg.n, cfg.h_max_m(), 13));
     sim.compute_psf();
     const RealStack scene = random_cube(cfg.bands, s, s, 14);
-    CaptureOptions o;
+    PipelineOptions o;
     o.formation = ImageFormation::Release;
     CapturePipeline pipe(runtime(), cfg, p, o);
     CHECK(pipe.stage_names() == std::vector<std::string>{"release", "noise", "clip"});
@@ -246,7 +246,7 @@ TEST_SUITE("capture-pipeline") {
         CAPTURE(to_string(p));
         for (const bool noise : {true, false}) {
           CAPTURE(noise);
-          CaptureOptions o;
+          PipelineOptions o;
           o.raw = true;
           o.demosaic = cs.method;
           o.noise = noise;
@@ -269,7 +269,7 @@ TEST_SUITE("capture-pipeline") {
     const RealStack scene = random_cube(cfg.bands, kRows, kCols, 32);
     const Precision p = Precision::F32;
     const double k = 0.5;  // a power of two: every product below is exact
-    CaptureOptions o;
+    PipelineOptions o;
     o.raw = true;
     CapturePipeline base(runtime(), cfg, p, o);
     const CaptureFrame a = base.run(psf, scene);
@@ -319,7 +319,7 @@ TEST_SUITE("capture-pipeline") {
     for (const bool with_exposure : {false, true}) {
       CAPTURE(with_exposure);
       const double k = with_exposure ? 0.75 : 1.0;
-      CaptureOptions o;
+      PipelineOptions o;
       o.raw = true;
       o.demosaic = DemosaicMethod::MHC;
       CapturePipeline pipe(runtime(), cfg, p, o);
@@ -360,7 +360,7 @@ TEST_SUITE("capture-pipeline") {
   TEST_CASE("capture pipeline: refusals name the argument, the value and what is allowed") {
     const SystemConfig none = capture_config(Cfa::None);
     const Precision p = Precision::F32;
-    CaptureOptions raw;
+    PipelineOptions raw;
     raw.raw = true;
     CHECK(input_error_of([&] { CapturePipeline(runtime(), none, p, raw); }).find("'cfa' = none") != std::string::npos);
     const SystemConfig cfg = capture_config(Cfa::RGGB);

@@ -111,7 +111,7 @@ TEST_SUITE("psf-source") {
     StackPsfSource fixed(runtime(), c, p, g.psf_sensor(), "the same stack");
     Camera from_new(g), from_fixed(fixed);
     CHECK(from_new.images({scene}, exact())[0].data == from_fixed.images({scene}, exact())[0].data);
-    CaptureOptions opt;
+    PipelineOptions opt;
     opt.noise = false;
     CapturePipeline pipe(runtime(), c, p, opt);
     const CaptureFrame f = pipe.run(g, scene);

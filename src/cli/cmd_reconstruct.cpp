@@ -3,8 +3,6 @@
 #include <cstdio>
 #include <string>
 
-#include <nlohmann/json.hpp>
-
 #include "cli.hpp"
 #include "qdo/decode/decoder_registry.hpp"
 #include "qdo/design/run_folder.hpp"
@@ -60,29 +58,16 @@ int cmd_reconstruct(const Args& a) {
   // the captures' size (after --crop) before any work.
   RealStack truth;
   std::size_t border = 0;
+  TruthArguments truth_names;
+  truth_names.run = "--run";
+  truth_names.truth = "--truth";
+  truth_names.key = "--truth-key";
+  truth_names.border = "--truth-border";
   if (a.has("truth")) {
-    const DesignRunOptions ro = read_run_config(o.run, "--run", "a run folder written by qdo design");
-    const SystemConfig cfg = o.sensor_file.empty() ? ro.cfg : with_sensor(ro.cfg, o.sensor_file, decoder_entry(ro.decoder.kind_name()).trained);
-    truth = read_scene(cfg, a.get("truth"), a.get("truth-key"), false, "--truth-key");
-    const CaptureFiles f = read_captures(cfg, o.capture);
-    if (truth.rows != f.mean_dn.rows || truth.cols != f.mean_dn.cols)
-      reject("--truth", a.get("truth"),
-             "a scene of the captures' size, " + std::to_string(f.mean_dn.rows) + " x " + std::to_string(f.mean_dn.cols) + " (it is " +
-                 std::to_string(truth.rows) + " x " + std::to_string(truth.cols) + ")");
-    if (o.capture.crop) {
-      RealStack c(truth.planes, o.capture.crop_rows, o.capture.crop_cols);
-      for (std::size_t b = 0; b < truth.planes; ++b)
-        for (std::size_t y = 0; y < c.rows; ++y)
-          for (std::size_t x = 0; x < c.cols; ++x) c(b, y, x) = truth(b, o.capture.crop_row + y, o.capture.crop_col + x);
-      truth = std::move(c);
-    }
+    truth = read_reconstruct_truth(o, a.get("truth"), a.get("truth-key"), truth_names);
     border = std::size_t(parse_int("--truth-border", a.get("truth-border", "0"), 0, 1 << 20));
     // The scored interior must hold the metrics' 11 x 11 SSIM window: checked here, before any work.
-    const std::size_t side = std::min(truth.rows, truth.cols);
-    if (side < 11 || border > (side - 11) / 2)
-      reject("--truth-border", std::to_string(border),
-             "at most " + std::to_string(side < 11 ? 0 : (side - 11) / 2) + " px for a " + std::to_string(truth.rows) + " x " +
-                 std::to_string(truth.cols) + " image (the scored interior must be at least 11 x 11, the SSIM window)");
+    check_truth_border(truth, border, truth_names);
   } else if (a.has("truth-key") || a.has("truth-border")) {
     reject(a.has("truth-key") ? "--truth-key" : "--truth-border", "(given)", "only with --truth");
   }
@@ -90,22 +75,7 @@ int cmd_reconstruct(const Args& a) {
   Runtime rt(a.get("device"));
   const ReconstructResult r = reconstruct(rt, o);
   if (!truth.data.empty()) {
-    const auto interior = [&](const RealStack& s) {
-      RealStack c(s.planes, s.rows - 2 * border, s.cols - 2 * border);
-      for (std::size_t b = 0; b < s.planes; ++b)
-        for (std::size_t y = 0; y < c.rows; ++y)
-          for (std::size_t x = 0; x < c.cols; ++x) c(b, y, x) = s(b, border + y, border + x);
-      return c;
-    };
-    if (truth.planes != r.cube.planes) reject("--truth", a.get("truth"), "a cube of the run's " + std::to_string(r.cube.planes) + " bands");
-    const testset::Scores sc = testset::score(interior(r.cube), interior(truth));
-    nlohmann::json m;
-    m["truth"] = a.get("truth");
-    m["border_px"] = border;
-    m["psf"] = r.psf;
-    m["decoder"] = r.decoder;
-    m["mean"] = {{"psnr", sc.psnr}, {"psnr_hyper", sc.psnr_hyper}, {"ssim", sc.ssim}, {"rmse", sc.rmse}, {"ergas", sc.ergas}, {"sam_rad", sc.sam_rad}};
-    write_text_atomic(o.out + "/metrics.json", m.dump(2) + "\n");
+    const testset::Scores sc = score_reconstruction(r, truth, border, a.get("truth"), o.out, truth_names);
     std::printf("against %s (interior, %zu px border): PSNR %.3f dB, SSIM %.4f, RMSE %.5f, ERGAS %.3f, SAM %.4f rad\n",
                 a.get("truth").c_str(), border, sc.psnr, sc.ssim, sc.rmse, sc.ergas, sc.sam_rad);
   }

@@ -30,6 +30,8 @@
 #include "qdo/physics/release.hpp"
 #include "qdo/data/scenes.hpp"
 #include "qdo/design/psf_spec.hpp"
+#include "qdo/design/psf_sweep_capture.hpp"
+#include "qdo/design/raw_capture.hpp"
 #include "qdo/physics/simulator.hpp"
 
 namespace qdo::cli {
@@ -53,132 +55,55 @@ PsfInput psf_input(const SystemConfig& cfg, const Args& a) {
   return in;
 }
 
-// Raw captures need what a raw file holds: one mosaic plane of integer code values.
-void check_raw_config(const SystemConfig& cfg, const std::string& option) {
-  if (cfg.cfa == Cfa::None)
-    reject(option, "a configuration with \"cfa\": \"none\"",
-           "a colour filter mosaic (\"cfa\": \"rggb\", \"grbg\", \"gbrg\" or \"bggr\"): a raw frame is one plane");
-  if (cfg.bit_depth == 0)
-    reject(option, "a configuration with \"bit_depth\": 0",
-           "a bit depth of 8 .. 16 (\"bit_depth\"): raw frames are written as integer code values in 16-bit PNG");
-}
-
-// A raw plane (1 x H x W, integer DN) as the PNG writer's map.
-Map2D raw_map(const RealStack& raw) {
-  Map2D m(raw.rows, raw.cols);
-  m.data = raw.data;
-  return m;
-}
-
 std::string percent(std::size_t n, std::size_t total) {
   char b[64];
   std::snprintf(b, sizeof b, "%.4g %%", total ? 100.0 * double(n) / double(total) : 0.0);
   return b;
 }
 
-// qdo simulate --capture psf-sweep: for each configured band, the design's sensor PSF (bands x S x S,
-// axis at (S/2, S/2)) placed with its axis at --centre of an F x F frame, scaled so the brightest
-// colour's peak is --peak of full well, each colour c weighted by its response srf(c, b) relative
-// to the band's largest (as a monochromator at that band lights it), through the sensor as built
-// (ref::raw_forward: mosaic, noise, black level, gain, clipping, bit depth): DIR/frames/psf_<nm>nm.png;
-// and --darks frames of no light (DIR/darks/dark_<k>.png). Frame k (the bands in order, then the
-// darks) draws its noise as scene k of one batch (counters from the configuration's noise_seed).
+// qdo simulate --capture psf-sweep: the simulated monochromator sweep of a point source and its dark
+// frames for `qdo calibrate` (psf_sweep_capture.hpp).
 int simulate_psf_sweep(const Args& a, const SystemConfig& cfg, Precision p) {
   for (const char* o : {"scene", "key", "resample-bands", "formation", "save", "compress", "raw", "demosaic"})
     if (a.has(o)) reject(std::string("--") + o, a.get(o, "yes"), "not with --capture psf-sweep (the sweep images a point source)");
-  check_raw_config(cfg, "--capture psf-sweep");
+  check_raw_capture_config(cfg, "--capture psf-sweep");
   const PsfInput in = psf_input(cfg, a);
   const std::size_t S = cfg.sensor_size_px();
-  const std::size_t F = std::size_t(parse_int("--frame-size", a.get("frame-size", to_str(S + 64)), int(S), 8192));
-  const double peak = parse_double("--peak", a.get("peak"), 0, 1, "of full well", true);
-  const std::size_t n_darks = std::size_t(parse_int("--darks", a.get("darks"), 1, 1000));
-  long cy = long(F / 2), cx = long(F / 2);
+  PsfSweepCaptureSpec spec;
+  spec.frame_px = std::size_t(parse_int("--frame-size", a.get("frame-size", to_str(S + 64)), int(S), 8192));
+  const std::size_t F = spec.frame_px;
+  spec.peak = parse_double("--peak", a.get("peak"), 0, 1, "of full well", true);
+  spec.darks = std::size_t(parse_int("--darks", a.get("darks"), 1, 1000));
   if (a.has("centre")) {
     const auto v = split_items(a.get("centre"));
     if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
-    cy = parse_int("--centre", v[0], 0, int(F) - 1);
-    cx = parse_int("--centre", v[1], 0, int(F) - 1);
+    const long cy = parse_int("--centre", v[0], 0, int(F) - 1);
+    const long cx = parse_int("--centre", v[1], 0, int(F) - 1);
+    spec.centre = std::make_pair(cy, cx);
   }
-  const long half = long(S / 2);
-  if (cy < half || cx < half || cy - half + long(S) > long(F) || cx - half + long(S) > long(F))
-    reject("--centre", to_str(cy) + "," + to_str(cx),
-           "a centre whose S x S PSF window (S = " + to_str(S) + ") lies inside the " + to_str(F) + " x " + to_str(F) +
-               " frame: rows and columns in [" + to_str(half) + ", " + to_str(long(F) - long(S) + half) + "]");
+  spec.design = in.from_file() ? in.spec.value : a.get("design");
+  spec.provenance = "qdo simulate --capture psf-sweep";
+  spec.centre_label = {"--centre", ""};
+  spec.psf_label = {"--design", a.get("design", a.get("psf"))};
+  spec.config_label = {"--capture psf-sweep", ""};
+  (void)plan_psf_sweep_capture(cfg, spec);  // every refusal before the output folder and the device
   const std::string dir = out_dir(a);
   Runtime rt(a.get("device"));
-  SpecPsfSource src = make_psf_source(rt, cfg, p, in);
-  src.compute();
-  const RealStack psf = src.source().psf_sensor();
-  const Eigen::MatrixXd srf = sensor_response(cfg);
   const std::vector<double> wl = cfg.wavelengths_nm();
-  namespace fs = std::filesystem;
-  fs::create_directories(dir + "/frames");
-  fs::create_directories(dir + "/darks");
-  std::vector<double> amp(cfg.bands), peak_dn(cfg.bands);
-  RawCounts total;
-  std::size_t frames_saturated = 0;
-  RealStack crops(cfg.bands, S, S);  // the frames' S x S windows, black removed (the figure)
-  const auto t0 = std::chrono::steady_clock::now();
-  for (std::size_t b = 0; b < cfg.bands; ++b) {
-    const double top_psf = *std::max_element(psf.plane(b), psf.plane(b) + S * S);
-    const double top_srf = std::max({srf(0, long(b)), srf(1, long(b)), srf(2, long(b))});
-    if (!(top_psf > 0) || !(top_srf > 0))
-      reject("--design", a.get("design", a.get("psf")), "a PSF with light in every band (band " + to_str(wl[b]) + " nm is dark)");
-    amp[b] = peak / top_psf;
-    RealStack rgb(3, F, F);
-    for (std::size_t c = 0; c < 3; ++c)
-      for (std::size_t y = 0; y < S; ++y)
-        for (std::size_t x = 0; x < S; ++x)
-          rgb(c, std::size_t(cy - half) + y, std::size_t(cx - half) + x) = amp[b] * psf(b, y, x) * srf(long(c), long(b)) / top_srf;
-    const ref::RawFrame f = ref::raw_forward(rgb, cfg, b);
-    total.saturated += f.counts.saturated;
-    total.floored += f.counts.floored;
-    total.total += f.counts.total;
-    frames_saturated += f.counts.saturated > 0 ? 1 : 0;
-    peak_dn[b] = *std::max_element(f.raw.data.begin(), f.raw.data.end());
-    for (std::size_t y = 0; y < S; ++y)
-      for (std::size_t x = 0; x < S; ++x)
-        crops(b, y, x) = std::max(0.0, f.raw(0, std::size_t(cy - half) + y, std::size_t(cx - half) + x) - cfg.black_level_dn);
-    char name[64];
-    std::snprintf(name, sizeof name, "/frames/psf_%gnm.png", wl[b]);
-    write_png16_gray(dir + name, raw_map(f.raw));
+  const PsfSweepCaptureResult r = capture_psf_sweep(rt, cfg, p, in, spec, dir, [&](std::size_t b, double secs) {
     if ((b + 1) % 8 == 0 || b + 1 == cfg.bands)
-      std::fprintf(stderr, "[simulate] psf-sweep frame %zu of %zu (%g nm, %.1f s)\n", b + 1, cfg.bands, wl[b], seconds_since(t0));
-  }
-  RawCounts dark_counts;
-  for (std::size_t k = 0; k < n_darks; ++k) {
-    const ref::RawFrame f = ref::raw_forward(RealStack(3, F, F), cfg, cfg.bands + k);
-    dark_counts.saturated += f.counts.saturated;
-    dark_counts.floored += f.counts.floored;
-    dark_counts.total += f.counts.total;
-    write_png16_gray(dir + "/darks/dark_" + std::to_string(k) + ".png", raw_map(f.raw));
-  }
-  const double secs = seconds_since(t0);
-  write_psf(dir + "/psf.h5", psf, wl, cfg.sensor_pitch_m);
-  h5_write(dir + "/sweep.h5",
-           {{"/wavelengths_nm", {cfg.bands}, wl, {}, {{"units", "nm"}}},
-            {"/amplitude", {cfg.bands}, amp, {}, {{"units", "full well per unit of the unit-sum PSF (brightest colour)"}}},
-            {"/peak_dn", {cfg.bands}, peak_dn, {}, {{"units", "DN, the frame's largest code value"}}}},
-           {{"config", config_to_json_text(cfg)},
-            {"source", "qdo simulate --capture psf-sweep"},
-            {"design", in.from_file() ? in.spec.value : a.get("design")},
-            {"frame_size", to_str(F)},
-            {"centre_row_col", to_str(cy) + "," + to_str(cx)},
-            {"peak", to_str(peak)},
-            {"darks", to_str(n_darks)},
-            {"saturated", to_str(total.saturated)},
-            {"floored", to_str(total.floored + dark_counts.floored)}});
-  write_psf_figure(dir + "/frames.png", "PSF sweep frames above the black level, around the axis", crops, wl, cfg.sensor_pitch_m,
-                   std::min<std::size_t>(S, 96));
+      std::fprintf(stderr, "[simulate] psf-sweep frame %zu of %zu (%g nm, %.1f s)\n", b + 1, cfg.bands, wl[b], secs);
+  });
+  const RawCounts& total = r.frames;
   std::printf("device: %s\nPSF: %s\nsweep: %zu frames of %zu x %zu (cfa %s, %zu-bit, black %g DN, gain %g), axis at (%ld, %ld), "
               "peak %g of full well, and %zu dark frames in %.3f s\n"
               "raw: %s of frame pixels saturated (%zu of %zu frames hold one: qdo calibrate refuses those), %s floored at 0; "
               "darks: %s floored\n"
               "wrote %s/frames/psf_<nm>nm.png, darks/dark_<k>.png, frames.png, psf.h5 (the PSF stack imaged), sweep.h5\n",
-              rt.info().name.c_str(), src.source().describe().c_str(), cfg.bands, F, F, to_string(cfg.cfa).c_str(), cfg.bit_depth,
-              cfg.black_level_dn, cfg.gain, cy, cx, peak, n_darks, secs, percent(total.saturated, total.total).c_str(),
-              frames_saturated, cfg.bands, percent(total.floored, total.total).c_str(),
-              percent(dark_counts.floored, dark_counts.total).c_str(), dir.c_str());
+              rt.info().name.c_str(), r.psf_description.c_str(), cfg.bands, F, F, to_string(cfg.cfa).c_str(), cfg.bit_depth,
+              cfg.black_level_dn, cfg.gain, r.geometry.centre_row, r.geometry.centre_col, spec.peak, spec.darks, r.seconds,
+              percent(total.saturated, total.total).c_str(), r.frames_saturated, cfg.bands, percent(total.floored, total.total).c_str(),
+              percent(r.darks.floored, r.darks.total).c_str(), dir.c_str());
   return 0;
 }
 
@@ -200,14 +125,14 @@ int cmd_simulate(const Args& a) {
   for (const char* o : {"frame-size", "peak", "darks", "centre"})
     if (a.has(o)) reject(std::string("--") + o, a.get(o), "only with --capture psf-sweep");
   const bool raw = a.has("raw");
-  if (raw) check_raw_config(cfg, "--raw");
+  if (raw) check_raw_capture_config(cfg, "--raw");
   if (!raw && a.has("demosaic")) reject("--demosaic", a.get("demosaic"), "only with --raw (it demosaics the raw capture)");
   const DemosaicMethod demosaic = demosaic_method_from_string(a.get("demosaic"), "--demosaic");
   // The capture (capture_pipeline.hpp): the camera, noise, full-scale clip and, with --raw, the
   // raw and demosaic stages. With --raw the PSF source is made with the configuration without noise
   // (psf.h5 records it): the raw stage draws the sensor's noise itself (its own stream), and
   // sensor.h5 gets the configuration's noise added on the host (ref::add_noise, the camera's counters).
-  CaptureOptions capture_opt;
+  PipelineOptions capture_opt;
   capture_opt.formation = release ? ImageFormation::Release : ImageFormation::Qdo;
   capture_opt.raw = raw;
   capture_opt.demosaic = demosaic;
@@ -282,21 +207,9 @@ int cmd_simulate(const Args& a) {
   std::string raw_line;
   if (raw) {
     // The capture as the sensor as built writes it, and its demosaic (in linear units: black
-    // removed, divided by gain (white - black)).
-    const RealStack& dn = shot.raw_dn;
-    const RealStack& rgb_dm = shot.demosaiced;
+    // removed, divided by gain (white - black)): raw_capture.hpp.
     const RawCounts& counts = shot.raw_counts;
-    const double sat = double(counts.saturated) / double(counts.total), flo = double(counts.floored) / double(counts.total);
-    write_png16_gray(dir + "/raw.png", raw_map(dn));
-    h5_write(dir + "/raw.h5",
-             {{"/raw", {1, dn.rows, dn.cols}, dn.data,
-               {{"black_level_dn", cfg.black_level_dn}, {"white_level_dn", cfg.white_level_dn()}, {"gain", cfg.gain},
-                {"bit_depth", double(cfg.bit_depth)}, {"saturated_fraction", sat}, {"floored_fraction", flo}},
-               {{"units", "DN"}, {"cfa", to_string(cfg.cfa)}}},
-              {"/rgb_demosaiced", {3, dn.rows, dn.cols}, rgb_dm.data, {},
-               {{"units", "linear, 1 = full well (DN - black) / (gain (white - black))"}, {"method", to_string(demosaic)}}}},
-             {{"config", config_to_json_text(cfg)}, {"source", "qdo simulate --raw"}});
-    write_rgb_png(dir + "/raw_demosaiced.png", rgb_dm);
+    write_raw_capture_outputs(dir, cfg, shot, demosaic, "qdo simulate --raw");
     char b[400];
     std::snprintf(b, sizeof b,
                   "raw: cfa %s, %zu-bit, black level %g DN, gain %g: %s of pixels saturated, %s floored at 0; demosaic %s\n",

@@ -57,17 +57,7 @@ int cmd_sweep_psf(const Args& a) {
     o.variants.push_back(v);
   }
   if (a.has("adaptive-from")) {
-    const std::string run = a.get("adaptive-from");
-    const DesignRunOptions ro = read_run_config(run);
-    if (ro.design.mode != DesignMode::QDOA) reject("--adaptive-from", run, "a qdo+a run (it is " + to_string(ro.design.mode) + ")");
-    const std::size_t L = std::size_t(ro.design.quantizer.levels);
-    const DesignState st = load_checkpoint(RunFolder(run).checkpoint_path(),
-                                           parameter_count(ro.design.parameterization, ro.cfg.n), L, false,
-                                           ro.design.quantizer.pin_top);
-    PsfSweepVariant v;
-    v.quantizer = ro.design.quantizer;
-    v.quantizer.offsets = st.offsets;
-    v.label = "L" + std::to_string(L) + "-adaptive";
+    const PsfSweepVariant v = adaptive_psf_sweep_variant(a.get("adaptive-from"), "--adaptive-from");
     o.variants.push_back(v);
   }
   o.precision = precision_from_string(a.get("precision"));

@@ -15,6 +15,7 @@
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/design/run.hpp"
+#include "qdo/design/run_folder.hpp"
 #include "qdo/physics/simulator.hpp"
 
 namespace fs = std::filesystem;
@@ -176,6 +177,19 @@ std::vector<PsfSweepRow> sweep_psf(Runtime& rt, const PsfSweepOptions& o) {
                 [&](const PsfSweepRow& r) { return mean(r.ee80_um); }, true);
   }
   return rows;
+}
+
+PsfSweepVariant adaptive_psf_sweep_variant(const std::string& run, const std::string& argument) {
+  const DesignRunOptions ro = read_run_config(run);
+  if (ro.design.mode != DesignMode::QDOA) reject(argument, run, "a qdo+a run (it is " + to_string(ro.design.mode) + ")");
+  const std::size_t L = std::size_t(ro.design.quantizer.levels);
+  const DesignState st = load_checkpoint(RunFolder(run).checkpoint_path(), parameter_count(ro.design.parameterization, ro.cfg.n), L,
+                                         false, ro.design.quantizer.pin_top);
+  PsfSweepVariant v;
+  v.quantizer = ro.design.quantizer;
+  v.quantizer.offsets = st.offsets;
+  v.label = "L" + std::to_string(L) + "-adaptive";
+  return v;
 }
 
 }  // namespace qdo

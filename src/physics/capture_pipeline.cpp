@@ -272,7 +272,7 @@ void CaptureStage::vjp(const CaptureFrame&, CaptureGradient&) {
   throw Error("capture stage '" + name() + "' has no adjoint");
 }
 
-CapturePipeline::CapturePipeline(Runtime& rt, const SystemConfig& cfg, Precision p, const CaptureOptions& opt)
+CapturePipeline::CapturePipeline(Runtime& rt, const SystemConfig& cfg, Precision p, const PipelineOptions& opt)
     : rt_(rt), cfg_(cfg), prec_(p), opt_(opt) {
   cfg_.validate();
   rt_.require(p);

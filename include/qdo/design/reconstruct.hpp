@@ -31,6 +31,7 @@
 
 #include "qdo/data/config.hpp"
 #include "qdo/decode/decoder.hpp"
+#include "qdo/decode/testset.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/runtime/types.hpp"
 #include "qdo/decode/wiener.hpp"
@@ -210,5 +211,25 @@ struct ReconstructResult {
 // srgb.png, spectra.csv (wavelength_nm, one column per region), spectra.png and reconstruct.json
 // (inputs, the PSF and decoder used, tiles, seconds per stage). Every input checked first.
 ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o);
+
+
+// ---- Scoring against the scene a capture shows (a simulation's cube) ----
+// Arguments named in refusals: the library's names by default; a caller passes its own.
+struct TruthArguments {
+  std::string run = "run", truth = "truth", key = "truth_key", border = "truth_border";
+};
+// The truth cube (read_scene with `key`, the run's configuration with o.sensor_file's sensor), checked
+// against the captures' size and cropped as o.capture crops them: bands x H x W, row-major. Reads
+// the captures' headers and pixels (read_captures) but does no device work.
+RealStack read_reconstruct_truth(const ReconstructOptions& o, const std::string& path, const std::string& key,
+                                 const TruthArguments& names = {});
+// The scored interior, border_px from each edge of truth (bands x H x W), must hold the metrics'
+// 11 x 11 SSIM window; an InputError naming names.border otherwise.
+void check_truth_border(const RealStack& truth, std::size_t border_px, const TruthArguments& names = {});
+// qdo eval's metrics of cube against truth (both bands x H x W, the same shape) over the interior
+// border_px from each edge; OUT/metrics.json (truth: `path`, border, the PSF and decoder of r, the
+// means). An InputError naming names.truth (value `path`) when the bands differ.
+testset::Scores score_reconstruction(const ReconstructResult& r, const RealStack& truth, std::size_t border_px,
+                                     const std::string& path, const std::string& out, const TruthArguments& names = {});
 
 }  // namespace qdo

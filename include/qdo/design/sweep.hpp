@@ -42,6 +42,11 @@ struct PsfSweepRow {
 // pass on the device (designs x bands planes); the transfer functions, FFT plan and kernels are
 // built once. Writes sweep.csv, sweep.json, psf.h5, psf_<label>.png and metric plots when out is set.
 std::vector<PsfSweepRow> sweep_psf(Runtime& rt, const PsfSweepOptions& o);
+// The learned-offset variant of a qdo+a run folder: its quantizer with the checkpoint's level
+// offsets, labelled "L<levels>-adaptive". An InputError naming `argument` (value `run`) for a run of
+// another mode; the run's configuration and checkpoint are read and checked (read_run_config,
+// load_checkpoint).
+PsfSweepVariant adaptive_psf_sweep_variant(const std::string& run, const std::string& argument = "adaptive_from");
 
 // Radius (in units of the sensor pitch x pitch_m) around (S/2, S/2) within which `fraction` of
 // the plane's energy lies; pixel centres sorted by radius, linearly interpolated.

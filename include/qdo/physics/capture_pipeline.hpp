@@ -6,7 +6,7 @@
 //
 // The stages, by name, in order:
 //   "camera"   (formation Qdo) the camera operator (camera.hpp) without noise, every skipping
-//              tolerance as CaptureOptions::skip (default 0: only what contributes exactly nothing
+//              tolerance as PipelineOptions::skip (default 0: only what contributes exactly nothing
 //              is skipped): clean = rgb = the noiseless 3 x H x W sensor image;
 //   "release"  (formation Release, instead of "camera") the release's image formation
 //              (release.hpp, the native-grid PSF of a Simulator source) and the sensor response
@@ -50,7 +50,7 @@ namespace qdo {
 enum class ImageFormation { Qdo, Release };
 std::string to_string(ImageFormation f);  // "qdo", "release"
 
-struct CaptureOptions {
+struct PipelineOptions {
   ImageFormation formation = ImageFormation::Qdo;
   // The configuration's shot and read noise, in the noise stage and in the raw stage; false: no
   // noise anywhere (the noise stage is left out, the raw stage runs without noise).
@@ -110,7 +110,7 @@ class CaptureStage {
 // construction; the raw stages need a mosaic (cfg.cfa not "none").
 class CapturePipeline {
  public:
-  CapturePipeline(Runtime& rt, const SystemConfig& cfg, Precision p, const CaptureOptions& opt = {});
+  CapturePipeline(Runtime& rt, const SystemConfig& cfg, Precision p, const PipelineOptions& opt = {});
   CapturePipeline(const CapturePipeline&) = delete;
   CapturePipeline& operator=(const CapturePipeline&) = delete;
 
@@ -136,7 +136,7 @@ class CapturePipeline {
 
   const SystemConfig& config() const { return cfg_; }
   Precision precision() const { return prec_; }
-  const CaptureOptions& options() const { return opt_; }
+  const PipelineOptions& options() const { return opt_; }
 
  private:
   CaptureFrame run_stages(const CaptureInput& in);
@@ -144,7 +144,7 @@ class CapturePipeline {
   Runtime& rt_;
   SystemConfig cfg_;
   Precision prec_;
-  CaptureOptions opt_;
+  PipelineOptions opt_;
   std::vector<std::unique_ptr<CaptureStage>> stages_;
   CaptureFrame last_;
   bool have_last_ = false;

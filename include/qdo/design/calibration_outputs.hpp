@@ -1,0 +1,35 @@
+// The files of a PSF calibration (calibrate.hpp), as library calls (what `qdo calibrate` writes):
+// the measured stack in the layout of `qdo psf` with the calibration's own datasets and provenance,
+// its figure, and the comparison with a design's simulated stack.
+#pragma once
+#include <string>
+#include <vector>
+
+#include "qdo/data/config.hpp"
+#include "qdo/physics/calibrate.hpp"
+#include "qdo/runtime/runtime.hpp"
+#include "qdo/runtime/types.hpp"
+
+namespace qdo {
+
+// Where the captures came from, for psf.h5's attributes (the folders as the caller named them).
+struct CalibrationProvenance {
+  std::string source = "calibrate_psf";  // the "source" attribute
+  std::string frames_dir, darks_dir, white_dir;
+};
+
+// DIR/psf.h5: /psf_sensor (r.psf, bands x S x S) and /wavelengths_nm as `qdo psf` writes them (one
+// measured point), with /frame_wavelengths_nm, /peak_snr, /noise_dn, /background_dn (bands each),
+// /white_channel_gains (3, with whites) and the provenance (files, darks, hot pixels, centre, frame
+// size, notes); DIR/psf.png (the stack, a crop of at most 96 px). The folder exists.
+void write_calibration_outputs(const std::string& dir, const SystemConfig& cfg, const CalibrationResult& r,
+                               const CalibrationProvenance& prov);
+
+// The measured stack (bands x S x S) against the stack of a design (heights_m: N x N metres, N =
+// cfg.n) simulated in precision p: DIR/compare.csv (per band: correlation, EE80 of each, centroid
+// offset) and compare.png (measured and simulated side by side for up to 8 bands, evenly spaced;
+// `design` names the design in the title). Returns the mean correlation over the bands.
+double compare_calibration_with_design(Runtime& rt, const SystemConfig& cfg, Precision p, const RealStack& measured,
+                                       const Map2D& heights_m, const std::string& design, const std::string& dir);
+
+}  // namespace qdo
