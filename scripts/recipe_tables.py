@@ -10,7 +10,8 @@ them) and prints Markdown:
   - the ablation: each item switched back to qdo's, against the release recipe, for QDO and QDO+A
     at 4 levels (PSNR and ring deviation, paired the same way; the baseline: the grid's 4-level cells);
   - the Res-UNet tables: OUT/network (every item the release's) and OUT/network_qdo_items (the same
-    sweep with the network's four items qdo's), and the paired effect of those four items.
+    sweep with the network's four items qdo's), the paired effect of those four items, and DO with
+    one of them set back at a time (OUT/network_ablation_<item>).
 Usage: python3 scripts/recipe_tables.py OUT [EPOCHS STEPS_PER_EPOCH]   (default out/recipe 50 36)
 """
 import glob
@@ -153,6 +154,25 @@ def main():
             print(f"| {L} | " + " | ".join(row) + " |")
         full_d = fmt(paired(net, f"full{tag}_s{{s}}", old, f"full{tag}_s{{s}}", seeds))
         print(f"\nFull precision (DO's design unquantized): {full_d}.\n")
+
+    # DO with one of the network's four items set back to qdo's (OUT/network_ablation_<item>),
+    # against DO with all of the release's (OUT/network), 4 levels, paired by seed.
+    net_abl = sorted(glob.glob(os.path.join(out, "network_ablation_*")))
+    if net and net_abl:
+        print("### The network's items one at a time: DO at 4 levels with one item qdo's, minus DO with all the "
+              "release's (PSNR dB, paired by seed)\n")
+        print("| item set back to qdo's | seeds | PSNR difference | DO (that item qdo's) |")
+        print("|---|---|---|---|")
+        name = f"do_L4{tag}_s{{s}}"
+        for folder in net_abl:
+            cs = cells(folder)
+            sd = [x for x in seeds_of(cs) if name.format(s=x) in net]
+            if not sd:
+                continue
+            v = [cs[name.format(s=x)]["mean"]["psnr_db"] for x in sd]
+            print(f"| {os.path.basename(folder)[len('network_ablation_'):]} | {len(sd)} | "
+                  f"{fmt(paired(cs, name, net, name, sd))} | {sum(v) / len(v):.2f} |")
+        print()
 
     ablations = [os.path.join(out, "grid")] + sorted(glob.glob(os.path.join(out, "ablation_*")))
     base = grid  # the release recipe's 4-level cells
