@@ -119,7 +119,8 @@ if [ "$PART" = network_ablation ]; then
         --data ../shared/data/hsi/cave_train,../shared/data/hsi/cave_png --epochs "${NET_EPOCHS:-50}" \
         --steps-per-epoch "${NET_STEPS:-10}" --psf-path "${PSF_PATH:-radial}" --seed "$seed" --out "$run" > "$run.log" 2>&1
     fi
-    "$QDO" eval "$run" --levels 4 --data ../shared/data/hsi/cave --out "$cell" > "$cell.log" 2>&1
+    # As the sweep's do cells: the network trained for H_f, measured through the re-quantized DOE.
+    "$QDO" eval "$run" --levels 4 --decoder mismatch --data ../shared/data/hsi/cave --out "$cell" > "$cell.log" 2>&1
   }
   net_jobs=()
   for name in $(printf '%s\n' "${!net_items[@]}" | sort); do

@@ -24,6 +24,8 @@
 #include "qdo/design/joint.hpp"
 #include "qdo/net/net.hpp"
 #include "qdo/physics/simulator.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/sensor_reference.hpp"
 
 #include "../bench_util.hpp"
 
@@ -156,6 +158,29 @@ int main(int argc, char** argv) {
       const long cur = st.step;
       designer.step(st, [&](const RealStack& psf, RealStack& g) { return jt.step(cur, 1e-3, psf, g); });
     });
+    // The same step with the release's network items (joint_sampling.hpp, network_decoder.hpp):
+    // Keras' batch norm, Glorot-uniform last convolution, noise on the bands, fixed patches.
+    NetworkStyle keras;
+    keras.keras_batch_norm = keras.glorot_final = true;
+    auto net3 = make_network_decoder(NetworkSettings{spec, 3, cfg.bands, 1, 0.0, keras});
+    JointSampling release_sampling;
+    release_sampling.fixed_patches = release_sampling.noise_on_bands = true;
+    JointTrainer jt_release(rt, cfg, prec, *net3, jd, batch, 1e-3, 1, release_sampling);
+    DesignState st_r = designer.initial_state(p0);
+    const double t_loop_release = median_time(repeats, [&] {
+      const long cur = st_r.step;
+      designer.step(st_r, [&](const RealStack& psf, RealStack& g) { return jt_release.step(cur, 1e-3, psf, g); });
+    });
+    // The sensor noise alone on one batch of images: on RGB (3 draws a pixel) and on the bands
+    // (bands draws a pixel, then srf n).
+    std::vector<RealStack> noisy(batch, RealStack(3, s, s));
+    const Eigen::MatrixXd srf = sensor_response(cfg);
+    const double t_noise_rgb = median_time(repeats, [&] {
+      for (std::size_t k = 0; k < batch; ++k) ref::add_noise(noisy[k], 1e-3, 0, 7, k);
+    });
+    const double t_noise_bands = median_time(repeats, [&] {
+      for (std::size_t k = 0; k < batch; ++k) add_band_noise(noisy[k], srf, band_noise_sigma(cfg, 1e-3), 7, k);
+    });
     std::printf("%s (N=%zu, scenes %zu x %zu x %zu x %zu, %zu network parameters):\n", pname.c_str(), cfg.n, batch,
                 cfg.bands, s, s, net->parameter_count());
     const std::pair<const char*, double> rows[] = {{"optics forward (PSF)", t_opt},
@@ -165,7 +190,10 @@ int main(int argc, char** argv) {
                                                    {"PSF-chain adjoint (dL/dPSF -> dL/dH)", t_psf_adj},
                                                    {"network Adam step", t_adam},
                                                    {"whole step", t_step},
-                                                   {"qdo design's step (Designer + JointTrainer, radial path)", t_loop}};
+                                                   {"qdo design's step (Designer + JointTrainer, radial path)", t_loop},
+                                                   {"the same with the release's network items", t_loop_release},
+                                                   {"sensor noise on RGB, one batch (qdo)", t_noise_rgb},
+                                                   {"sensor noise on the bands, one batch (release)", t_noise_bands}};
     for (const auto& [what, t] : rows) {
       std::printf("  %-44s %8.3f s  %5.1f %%\n", what, t, 100 * t / t_step);
       md << "| " << pname << " | " << cfg.n << " | " << s << " x " << s << " | " << what << " | " << t << " | "
