@@ -3,7 +3,8 @@
 
   psnr_vs_levels   Table 1: PSNR against the level count per mode, mean and sd over seeds
   deviation        Table 2: the ring deviation against the level count (log scale), with the paper's
-  network_psnr     the Res-UNet's table: PSNR per mode at 4 and 8 levels, seeds and 95 % intervals
+  network_psnr     the Res-UNet's table (OUT/network_qdo_items): PSNR per mode at 4 and 8 levels, seeds
+                   and 95 % intervals; network_release_items_psnr the same of OUT/network
   training_<sweep> the training curves of every design of a sweep (loss per step, and the network's
                    MAE when it has one), one line per run, a moving median over 25 steps
 
@@ -138,10 +139,10 @@ def training_figure(folder, figdir, name, title):
     save(fig, figdir, name)
 
 
-def network_figure(out, figdir):
+def network_figure(out, figdir, sweep, name, title):
     """The Res-UNet under the release recipe: PSNR per mode at each level count, one dot per seed,
     the mean with its 95 % t interval; full precision (DO's design unquantized) as a band."""
-    cs = cells(os.path.join(out, "network"))
+    cs = cells(os.path.join(out, sweep))
     if not cs:
         return
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -172,18 +173,21 @@ def network_figure(out, figdir):
     ax.set_xticks(range(len(levels)))
     ax.set_xticklabels([f"{L} levels" for L in levels])
     ax.set_ylabel("PSNR on the CAVE test crops (dB)")
-    ax.set_title("Res-UNet (depth 4, root 16) under the release recipe, small preset, 300 steps")
+    ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    save(fig, figdir, "network_psnr")
+    save(fig, figdir, name)
 
 
 def main():
     out = sys.argv[1] if len(sys.argv) > 1 else "out/recipe"
     figdir = sys.argv[2] if len(sys.argv) > 2 else os.path.join(out, "figures")
     grid_figures(out, figdir, "Release recipe, Wiener decoder, small preset")
-    network_figure(out, figdir)
-    for sweep in ["grid", "network"]:
+    network_figure(out, figdir, "network_qdo_items", "network_psnr",
+                   "Res-UNet (depth 4, root 16), release recipe with qdo's network items, small preset, 300 steps")
+    network_figure(out, figdir, "network", "network_release_items_psnr",
+                   "Res-UNet (depth 4, root 16), every item the release's, small preset, 300 steps")
+    for sweep in ["grid", "network_qdo_items", "network"]:
         training_figure(os.path.join(out, sweep), figdir, f"training_{sweep}",
                         f"Training curves, release recipe ({sweep})")
     print(f"recipe_figures: wrote {figdir}")
