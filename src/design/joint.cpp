@@ -5,6 +5,8 @@
 #include <cstdlib>
 #include <random>
 
+#include <Eigen/Eigenvalues>
+
 #include "qdo/physics/cpu_reference.hpp"
 #include "qdo/data/datasets.hpp"
 #include "qdo/runtime/error.hpp"
@@ -177,12 +179,19 @@ void add_band_noise(RealStack& rgb, const Eigen::MatrixXd& srf, double sigma_ban
   if (rgb.planes != 3 || srf.rows() != 3) reject("rgb", rgb.planes, "3 channels and a 3 x bands srf");
   if (!(sigma_band >= 0) || !std::isfinite(sigma_band)) reject("sigma_band", sigma_band, ">= 0, finite");
   if (sigma_band == 0) return;
-  const std::size_t hw = rgb.plane_size(), bands = std::size_t(srf.cols());
-  Eigen::VectorXd n(srf.cols());
+  // srf n with n ~ N(0, sigma_band^2 I) is Gaussian with covariance C = sigma_band^2 srf srf^T (3 x 3):
+  // drawn as C^(1/2) z, z three standard normals per pixel (the symmetric square root, so a
+  // response of rank below 3 is drawn exactly too), instead of one draw per band.
+  const Eigen::Matrix3d c = sigma_band * sigma_band * (srf * srf.transpose());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(c);
+  const Eigen::Matrix3d root =
+      eig.eigenvectors() * eig.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal() * eig.eigenvectors().transpose();
+  const std::size_t hw = rgb.plane_size();
   for (std::size_t p = 0; p < hw; ++p) {
-    for (std::size_t b = 0; b < bands; ++b) n(Eigen::Index(b)) = sigma_band * noise_draw(seed, (scene_index * hw + p) * bands + b).gaussian;
-    const Eigen::Vector3d e = srf * n;
-    for (std::size_t c = 0; c < 3; ++c) rgb.plane(c)[p] += e(Eigen::Index(c));
+    Eigen::Vector3d z;
+    for (Eigen::Index k = 0; k < 3; ++k) z(k) = noise_draw(seed, (scene_index * hw + p) * 3 + std::size_t(k)).gaussian;
+    const Eigen::Vector3d e = root * z;
+    for (std::size_t ch = 0; ch < 3; ++ch) rgb.plane(ch)[p] += e(Eigen::Index(ch));
   }
 }
 

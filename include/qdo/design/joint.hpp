@@ -72,8 +72,9 @@ std::vector<RealStack> fixed_batch(const JointData& d, const std::vector<FixedPa
                                    long step);
 
 // The sensor noise of JointSampling::noise_on_bands, added to rgb (3 x S x S, row-major planes):
-// on each pixel srf * n, n a vector of bands Gaussians of std sigma_band, drawn from (seed,
-// counter (scene_index * S*S + pixel) * bands + band). srf: 3 x bands.
+// on each pixel the distribution of srf * n, n a vector of bands Gaussians of std sigma_band,
+// i.e. Gaussian with covariance sigma_band^2 srf srf^T, drawn as its symmetric square root times
+// three standard normals from (seed, counter (scene_index * S*S + pixel) * 3 + channel). srf: 3 x bands.
 // The per-band std on the sensor grid of noise sigma drawn on the DOE grid and averaged over the
 // r x r samples of a sensor pixel: sigma / r, r = sensor_pitch_m / pitch_m.
 double band_noise_sigma(const SystemConfig& cfg, double sigma);
