@@ -17,24 +17,12 @@
 #include "qdo/design/run_folder.hpp"
 #include "qdo/physics/psf_source.hpp"
 #include "qdo/runtime/error.hpp"
+#include "qdo/runtime/strprintf.hpp"
 #include "qdo/runtime/util.hpp"
 
 namespace qdo {
 
 namespace {
-
-// printf into a string of any length.
-__attribute__((format(printf, 1, 2))) std::string strprintf(const char* f, ...) {
-  va_list ap, ap2;
-  va_start(ap, f);
-  va_copy(ap2, ap);
-  const int n = std::vsnprintf(nullptr, 0, f, ap);
-  va_end(ap);
-  std::string s(n > 0 ? std::size_t(n) : 0, '\0');
-  if (n > 0) std::vsnprintf(&s[0], s.size() + 1, f, ap2);
-  va_end(ap2);
-  return s;
-}
 
 // A value and its sigma in the unit a reader wants: nm for heights, mm for distances, um for offsets.
 std::string human(const FitValue& v, double x) {
