@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Sets up (dependencies + build) and runs the default test suite with CTest on the OpenCL CPU
-# device (PoCL), then the Python package's tests (scripts/test_python.sh). Extra arguments go to
-# ctest and skip the Python tests, e.g. scripts/test.sh -R propagate.
+# Sets up (dependencies + one build of everything: scripts/build.sh) and runs the default test
+# suite with CTest on the OpenCL CPU device (PoCL), then the Python package's tests
+# (scripts/test_python.sh) on the extension of the same build, so the core is compiled once.
+# Extra arguments go to ctest and skip the Python tests, e.g. scripts/test.sh -R propagate.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh
