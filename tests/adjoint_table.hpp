@@ -1,15 +1,16 @@
 // The adjoint table (suite `adjoint`, run by tests/test_adjoint.cpp): every forward/adjoint pair of
 // the PSF chain, the parameterizations and the quantizer, the radial engine, the encoders, the
-// design loop, the Wiener decoder and joint training, one Stage row each, all through the one
-// ladder body of tests/adjoint_ladder.hpp.
-// Each group of rows is built next to the fixtures it needs: the PSF chain's, the camera
-// references' and the DOE's in test_adjoint.cpp, the radial engine's in test_radial.cpp, the
-// encoders' in test_encoders.cpp, the design loop's in test_design.cpp, the Wiener decoder's in
-// test_wiener.cpp, joint training's in test_joint.cpp, the raw stage's in test_raw.cpp. (The camera operator's
-// and the device Wiener objective's rows run in their own suites, test_camera.cpp and
-// test_wiener_device.cpp, through the same body.)
+// design loop, the Wiener decoder, joint training and the raw stage, one Stage row each, all
+// through the one ladder body of tests/adjoint_ladder.hpp.
+// Each group of rows is built next to the fixtures it needs, in the test file of its operator, and
+// registers itself there: QDO_ADJOINT_ROWS(id, "title") { ... return rows; }. A new operator's rows
+// touch no central list; the suite runs every registered group (its seeds derived from the title,
+// so adding a group changes no other group's inputs). (The camera operator's and the device Wiener
+// objective's rows run in their own suites, test_camera.cpp and test_wiener_device.cpp, through the
+// same body.)
 #pragma once
 #include <complex>
+#include <string>
 #include <vector>
 
 #include "adjoint_ladder.hpp"
@@ -17,17 +18,19 @@
 
 namespace qdo::test {
 
-namespace adjoint_rows {
-std::vector<Stage> psf_chain();  // DOE phase, propagation, resampling, normalisation, heights -> PSF
-std::vector<Stage> camera();     // convolution and sensor integration (reference); heights -> images (device)
-std::vector<Stage> doe();        // parameter expansion, quantizer offsets
-std::vector<Stage> radial();     // the radial engine's linear stages and its whole chain
-std::vector<Stage> encoders();   // CASSI and the DOE camera as linear encoders
-std::vector<Stage> design();     // the design loop's gradient in every mode, 2-D and radial paths
-std::vector<Stage> wiener();     // PSF -> OTF, the Wiener objectives' gradients (OTF and PSF)
-std::vector<Stage> joint();      // the patch camera (PSF -> patch images), the joint step's PSF gradient
-std::vector<Stage> raw();        // the sensor as built: mosaic, gain, black level, clip mask (reference and device)
-}  // namespace adjoint_rows
+// A registered group of rows: its title and the function that builds them.
+struct AdjointGroup {
+  std::string title;
+  std::vector<Stage> (*rows)();
+};
+// Every group registered by QDO_ADJOINT_ROWS in the test binary, in registration order.
+inline std::vector<AdjointGroup>& adjoint_groups() {
+  static std::vector<AdjointGroup> groups;
+  return groups;
+}
+struct AdjointGroupRegistrar {
+  AdjointGroupRegistrar(const char* title, std::vector<Stage> (*rows)()) { adjoint_groups().push_back({title, rows}); }
+};
 
 // A complex vector as interleaved (re, im) reals and back: the ladder's real inner product of two
 // such vectors is Re <a, b>, so the adjoint of a complex-linear map A is A^H.
@@ -46,3 +49,10 @@ inline std::vector<cdouble> deinterleave(const std::vector<double>& x) {
 }
 
 }  // namespace qdo::test
+
+// Defines and registers a group of adjoint-table rows: QDO_ADJOINT_ROWS(id, "title") { ... }, the
+// body returning std::vector<qdo::test::Stage>; id is an identifier unique in the test binary.
+#define QDO_ADJOINT_ROWS(ID, TITLE)                                                                        \
+  static std::vector<::qdo::test::Stage> qdo_adjoint_rows_##ID();                                          \
+  static const ::qdo::test::AdjointGroupRegistrar qdo_adjoint_registrar_##ID(TITLE, &qdo_adjoint_rows_##ID); \
+  static std::vector<::qdo::test::Stage> qdo_adjoint_rows_##ID()

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <memory>
 #include <random>
+#include <set>
 #include <string>
 
 #include "adjoint_table.hpp"
@@ -94,7 +95,7 @@ Stage chain_row(const std::string& name, const SystemConfig& c) {
 
 }  // namespace
 
-std::vector<Stage> adjoint_rows::psf_chain() {
+QDO_ADJOINT_ROWS(psf_chain, "PSF chain") {
   std::vector<Stage> rows;
   {  // The DOE phase (field stage): heights -> the field after the DOE, complex as interleaved reals.
     const SystemConfig c = tiny_config(32, 3);
@@ -223,7 +224,7 @@ std::vector<Stage> adjoint_rows::psf_chain() {
   return rows;
 }
 
-std::vector<Stage> adjoint_rows::camera() {
+QDO_ADJOINT_ROWS(camera, "camera") {
   std::vector<Stage> rows;
   const SystemConfig c = tiny_config(32, 3);
   const std::size_t s = c.sensor_size_px();
@@ -301,7 +302,7 @@ std::vector<Stage> adjoint_rows::camera() {
   return rows;
 }
 
-std::vector<Stage> adjoint_rows::doe() {
+QDO_ADJOINT_ROWS(doe, "DOE") {
   std::vector<Stage> rows;
   const std::size_t n = 16;
   const double hmax = 1.5e-6;
@@ -361,21 +362,20 @@ std::vector<Stage> adjoint_rows::doe() {
 
 TEST_SUITE("adjoint") {
   TEST_CASE("the adjoint table: every forward/adjoint pair through the ladder (dot product, directional and central differences)") {
-    struct Group {
-      const char* name;
-      std::vector<Stage> (*rows)();
-    };
-    const Group table[] = {
-        {"PSF chain", adjoint_rows::psf_chain}, {"camera", adjoint_rows::camera},     {"DOE", adjoint_rows::doe},
-        {"radial engine", adjoint_rows::radial}, {"encoders", adjoint_rows::encoders}, {"design loop", adjoint_rows::design},
-        {"Wiener decoder", adjoint_rows::wiener}, {"joint training", adjoint_rows::joint},
-        {"raw stage", adjoint_rows::raw},
-    };
-    std::uint64_t group_seed = 0;
-    for (const Group& gr : table) {
-      INFO("group: " << std::string(gr.name));
-      std::uint64_t seed = group_seed += 1000;
-      for (const Stage& st : gr.rows()) check_ladder(st, seed += 10);
+    // Every group the test files registered (QDO_ADJOINT_ROWS), each once, each with rows. A
+    // group's seeds come from its title (FNV-1a), not from its place in the registry.
+    const std::vector<AdjointGroup>& groups = adjoint_groups();
+    REQUIRE(!groups.empty());
+    std::set<std::string> titles;
+    for (const AdjointGroup& gr : groups) {
+      INFO("group: " << gr.title);
+      CHECK(titles.insert(gr.title).second);
+      std::uint64_t h = 1469598103934665603ull;
+      for (const char ch : gr.title) h = (h ^ std::uint64_t(static_cast<unsigned char>(ch))) * 1099511628211ull;
+      std::uint64_t seed = 1000 * (1 + h % 100000);
+      const std::vector<Stage> rows = gr.rows();
+      CHECK(!rows.empty());
+      for (const Stage& st : rows) check_ladder(st, seed += 10);
     }
   }
 

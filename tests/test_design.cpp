@@ -56,7 +56,7 @@ DesignOptions options(DesignMode m) {
 // weights w (and, for QDO+A, of the offsets a_1..a_3) at a mid-schedule state (0 < alpha < 1).
 // Quantized modes are piecewise smooth; a step of 1e-7 in w (0.08 pm) crosses a level boundary
 // with negligible probability. Within 1e-5 of the entry plus 1e-9.
-std::vector<Stage> adjoint_rows::design() {
+QDO_ADJOINT_ROWS(design, "design loop") {
   REQUIRE(runtime().has_fp64());  // gradient checks run in double (PoCL has fp64)
   const auto f = std::make_shared<const Fixture>();
   const auto obj = std::make_shared<const PsfObjective>(psf_target_objective(f->target));

@@ -172,7 +172,7 @@ double encircled(const RealStack& psf, std::size_t b, double cy, double cx, doub
 // Dot-product tests <A x, y> = <x, A^T y> (rounding only: within 1e-13 |x| |y|) for CASSI (mono,
 // RGB, shifts 0..3) and the DOE camera (within 1e-12 |x| |y|; 1e-11 for an OTF that is not the DFT
 // of a real PSF, where the Re of the IDFT is part of A).
-std::vector<Stage> adjoint_rows::encoders() {
+QDO_ADJOINT_ROWS(encoders, "encoders") {
   std::vector<Stage> rows;
   const auto row = [](const std::string& name, std::shared_ptr<const Encoder> e, const RealStack& x, const RealStack& y,
                       double tol) {

@@ -1,6 +1,6 @@
 // Joint training of the optics with a network decoder, the core half (qdo/design/joint.hpp): the patch
 // camera, the training batches, the step a JointTrainer takes (their adjoints are rows of the
-// adjoint table, adjoint_rows::joint, defined here), and network runs of qdo design / eval
+// adjoint table, QDO_ADJOINT_ROWS joint, defined here), and network runs of qdo design / eval
 // (checkpointed network state, bit-identical resume, refusals, do-finetune). The network here is
 // a stand-in written in plain C++ (a per-pixel affine map RGB -> bands trained by Adam on the
 // MSE), so these run without LibTorch; the Res-UNet itself is tested in tests/net/.
@@ -57,7 +57,7 @@ struct JointStep {
 // device in float64: the patch camera (PSF -> the images of three patches, linear) against its
 // adjoint on the circular (S = 16) and the periodic-extension (S = 22) grids, and the joint step's
 // loss against its PSF gradient.
-std::vector<Stage> adjoint_rows::joint() {
+QDO_ADJOINT_ROWS(joint, "joint training") {
   REQUIRE(runtime().has_fp64());  // gradient checks run in double (PoCL has fp64)
   std::vector<Stage> rows;
   for (std::size_t n : {32, 44}) {
@@ -123,7 +123,7 @@ std::vector<Stage> adjoint_rows::joint() {
 
 TEST_SUITE("joint") {
   TEST_CASE("the patch camera: periodic extension when S is not 7-smooth; one gradient per patch or refused") {
-    // Its adjoint, <A psf, g> = <psf, A^T g>, is a row of the adjoint table (adjoint_rows::joint).
+    // Its adjoint, <A psf, g> = <psf, A^T g>, is a row of the adjoint table (QDO_ADJOINT_ROWS joint).
     Runtime& rt = runtime();
     if (!skip_unless(rt.has_fp64(), "float64 device")) return;
     for (std::size_t n : {32, 44}) {  // S = 16 (7-smooth: circular camera), S = 22 = 2 x 11 (periodic extension)
@@ -269,7 +269,7 @@ TEST_SUITE("joint") {
   }
 
   TEST_CASE("the joint step: lr 0 keeps the loss a function of the PSF, with a non-zero PSF gradient") {
-    // The gradient against finite differences is a row of the adjoint table (adjoint_rows::joint).
+    // The gradient against finite differences is a row of the adjoint table (QDO_ADJOINT_ROWS joint).
     Runtime& rt = runtime();
     if (!skip_unless(rt.has_fp64(), "float64 device")) return;
     JointStep js;

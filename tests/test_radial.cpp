@@ -78,7 +78,7 @@ std::vector<double> lens_rings(const SystemConfig& c, double wl_nm) { return rin
 
 }  // namespace
 
-std::vector<Stage> adjoint_rows::radial() {
+QDO_ADJOINT_ROWS(radial, "radial engine") {
   std::vector<Stage> rows;
   const SystemConfig c = tiny_config(32, 3);
   const auto t = std::make_shared<const RadialTables>(RadialTables::build(c, {}));

@@ -1,7 +1,7 @@
 // The raw stage (suite `raw`): the sensor as built (include/qdo/physics/raw.hpp) against its CPU reference
 // (raw_reference.hpp) and against values worked out by hand: mosaic layout, saturation and floor
 // counts, bit depth, black level, gain, noise statistics, configuration errors. Its adjoint
-// rows (reference and device) are defined here as adjoint_rows::raw and run by the suite `adjoint`.
+// rows (reference and device) are defined here (QDO_ADJOINT_ROWS raw) and run by the suite `adjoint`.
 #include <cmath>
 #include <memory>
 #include <string>
@@ -50,7 +50,7 @@ std::pair<double, double> moments(const std::vector<double>& v) {
 
 }  // namespace
 
-std::vector<Stage> adjoint_rows::raw() {
+QDO_ADJOINT_ROWS(raw, "raw stage") {
   std::vector<Stage> rows;
   const std::size_t h = 5, w = 6;
   for (Cfa cfa : {Cfa::None, Cfa::RGGB, Cfa::GBRG}) {

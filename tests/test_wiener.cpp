@@ -1,6 +1,6 @@
 // Wiener (linear MMSE) decoder: exactness, Monte Carlo agreement of the expected error, the
 // mismatch decode and the metrics; its adjoints (PSF -> OTF, the objectives' gradients with respect
-// to the OTF and the PSF) are rows of the adjoint table, defined here (adjoint_rows::wiener) and
+// to the OTF and the PSF) are rows of the adjoint table, defined here (QDO_ADJOINT_ROWS wiener) and
 // run by the suite `adjoint`. Every tolerance is stated next to its check.
 #include <doctest/doctest.h>
 
@@ -181,8 +181,8 @@ struct Tiny {
 // on the host in double: the PSF -> OTF chain (wrap/fold onto the grid, then the DFT) against its
 // transpose, and the three objectives' gradients with respect to the OTF (every entry, re and im)
 // and to the PSF (unfolded and folded onto the grid).
-std::vector<qdo::test::Stage> qdo::test::adjoint_rows::wiener() {
-  using qdo::test::Stage;
+QDO_ADJOINT_ROWS(wiener, "Wiener decoder") {
+  using namespace qdo::test;
   std::vector<Stage> rows;
   struct Case {
     std::size_t s, h, w;
@@ -207,8 +207,9 @@ std::vector<qdo::test::Stage> qdo::test::adjoint_rows::wiener() {
   // The objectives: the tiny problem (B = 4, C = 3, 6 x 6, 3 bins, 3 scenes). Smooth losses:
   // step 1e-5 on an entry (truncation ~h^2, rounding ~1e-16/h), within 1e-7 of the gradient's rms
   // (observed ~1e-9 of its largest entry); along a direction, step 1e-6, within 1e-7 of the
-  // derivative. MAE is piecewise linear in each error: steps 1e-6 / 1e-7 keep every error's sign
-  // (checked by the seed), within 1e-6 / 1e-5.
+  // derivative plus the difference's rounding, 10 eps |L| / step (a direction along which L
+  // changes little, -2.4e-3 against L ~ 1, is at that floor: 8e-10). MAE is piecewise linear in
+  // each error: steps 1e-6 / 1e-7 keep every error's sign (checked by the seed), within 1e-6 / 1e-5.
   const auto t = std::make_shared<Tiny>();
   const RealStack psf5 = random_psf(t->rng, t->bands, 5);
   const ComplexStack otf = psf_to_otf(psf5, t->rows, t->cols);
@@ -224,6 +225,7 @@ std::vector<qdo::test::Stage> qdo::test::adjoint_rows::wiener() {
       st.dir_rel = mae ? 1e-5 : 1e-7;
       st.g0 = {1.0};
       for (std::size_t i = 0; i < st.inputs; ++i) st.probes.push_back(i);  // every entry
+      st.dir_abs = 10 * 2.2e-16 * std::fabs(st.forward(st.x0)[0]) / st.dir_step;  // forward and x0 are set
     };
     {
       Stage st("Wiener objective " + loss_name(loss) + " -> OTF", 2 * otf.size(), 1);
