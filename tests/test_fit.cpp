@@ -25,6 +25,10 @@
 #include "qdo/runtime/error.hpp"
 #include "qdo/design/fit.hpp"
 #include "qdo/data/io.hpp"
+#include "qdo/physics/cpu_reference.hpp"
+#include "qdo/physics/psf_reference.hpp"
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
@@ -206,6 +210,100 @@ TEST_SUITE("fit") {
     CHECK(r.loss_history.size() >= std::size_t(r.iterations));
     CHECK(r.loss_history.size() <= std::size_t(r.iterations) + 1);
     for (std::size_t k = 1; k < r.loss_history.size(); ++k) CHECK(r.loss_history[k] < r.loss_history[k - 1]);
+  }
+
+  TEST_CASE("the registration moves the pixel grid: a grid off by whole DOE pixels is the model at that shift; the fit recovers it") {
+    // The truth by another route: the design's native PSF (bands x N x N on the DOE grid) moved by
+    // whole DOE pixels (samples copied), then integrated onto the sensor pixels
+    // (ref::resample_area, S = N / 2: a DOE pixel is half a sensor pixel). A sensor grid off by
+    // (kx, ky) DOE pixels is the registration (sx, sy) = (kx, ky) x pitch / sensor pitch.
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    const std::size_t n = cfg.n;
+    RealStack native, at_zero;
+    {
+      Simulator sim(runtime(), cfg, Precision::F64);
+      sim.set_heights(d.height_m);
+      sim.compute_psf();
+      native = sim.psf_native();
+      at_zero = sim.psf_sensor();
+    }
+    // The native stack cut into f x f sub-cells, f odd (each a uniform share of its cell: the cells
+    // are uniform in the model; the middle sub-cell of the axis cell N/2 is the finer grid's axis
+    // sample m/2), moved by (mx, my) sub-cells on a grid padded by 8 cells a side (nothing falls
+    // off), integrated onto the sensor pixels and normalised.
+    const auto moved_then_integrated = [&](std::size_t f, long mx, long my) {
+      REQUIRE(f % 2 == 1);
+      const std::size_t pad = 8 * f, m = n * f + 2 * pad, left = pad - (f - 1) / 2;
+      RealStack moved(native.planes, m, m, 0.0);
+      for (std::size_t b = 0; b < native.planes; ++b)
+        for (std::size_t y = 0; y < n * f; ++y)
+          for (std::size_t x = 0; x < n * f; ++x)
+            moved(b, std::size_t(long(y + left) + my), std::size_t(long(x + left) + mx)) =
+                native(b, y / f, x / f) / double(f * f);
+      RealStack out =
+          ref::resample_area(moved, AreaWeights::make(m, cfg.pitch_m / double(f), cfg.sensor_size_px(), cfg.sensor_pitch_m));
+      ref::normalize_planes(out);
+      return out;
+    };
+    const auto rel_l2 = [](const std::vector<double>& a, const std::vector<double>& b) {
+      double num = 0, den = 0;
+      for (std::size_t i = 0; i < a.size(); ++i) {
+        num += (a[i] - b[i]) * (a[i] - b[i]);
+        den += b[i] * b[i];
+      }
+      return std::sqrt(num / den);
+    };
+    const double ratio = cfg.sensor_pitch_m / cfg.pitch_m;
+    REQUIRE(ratio == 2.0);
+    // At zero shift the integration is the simulator's own sensor stack, and the route above too.
+    CHECK(rel_l2(integrate_registered(native, cfg, 0, 0).data, at_zero.data) < 1e-12);
+    CHECK(rel_l2(moved_then_integrated(1, 0, 0).data, at_zero.data) < 1e-12);
+    // Whole DOE pixels: (1, -3) -> (0.5, -1.5) sensor px. In double, to rounding.
+    const RealStack truth_stack = moved_then_integrated(1, 1, -3);  // f = 1: the cells themselves
+    CHECK(rel_l2(integrate_registered(native, cfg, 0.5, -1.5).data, truth_stack.data) < 1e-12);
+    // Fractions of a DOE pixel, on sub-cells: (1, -2) thirds -> (1/6, -1/3) sensor px, (-3, 2)
+    // fifths -> (-0.3, 0.2).
+    CHECK(rel_l2(integrate_registered(native, cfg, 1.0 / 6, -1.0 / 3).data, moved_then_integrated(3, 1, -2).data) < 1e-12);
+    CHECK(rel_l2(integrate_registered(native, cfg, -0.3, 0.2).data, moved_then_integrated(5, -3, 2).data) < 1e-12);
+    // The bilinear shift of the sampled stack the fit used before blurs by up to a sensor pixel.
+    const std::vector<double> blurred = shift_bilinear(at_zero.data, at_zero.planes, at_zero.rows, at_zero.cols, 0.5, -1.5);
+    const double err_bilinear = rel_l2(blurred, truth_stack.data);
+    INFO("a bilinear shift of the sensor stack is " << err_bilinear << " (relative L2) from the moved grid's");
+    CHECK(err_bilinear > 0.05);
+    // Its adjoint: <A x, g> = <x, A^T g> for the normalised integration's linearisation, by central
+    // differences along a random direction of the native stack.
+    {
+      const RealStack g = uniform_stack(native.planes, at_zero.rows, at_zero.cols, 31);
+      const RealStack dir = uniform_stack(native.planes, n, n, 32);
+      const RealStack gx = integrate_registered_adjoint(g, native, cfg, 0.3, -0.7);
+      const double h = 1e-6;
+      RealStack a = native, b = native;
+      for (std::size_t i = 0; i < a.data.size(); ++i) {
+        a.data[i] += h * dir.data[i];
+        b.data[i] -= h * dir.data[i];
+      }
+      const RealStack fa = integrate_registered(a, cfg, 0.3, -0.7), fb = integrate_registered(b, cfg, 0.3, -0.7);
+      double fd = 0, ad = 0;
+      for (std::size_t i = 0; i < fa.data.size(); ++i) fd += g.data[i] * (fa.data[i] - fb.data[i]) / (2 * h);
+      for (std::size_t i = 0; i < gx.data.size(); ++i) ad += gx.data[i] * dir.data[i];
+      INFO("adjoint " << ad << ", central differences " << fd);
+      CHECK(std::fabs(ad - fd) <= 1e-7 * std::fabs(fd));
+    }
+    // The fit from the design (the registration's start at the centroid difference) recovers
+    // (0.5, -1.5) and leaves the levels where they are: the moved grid is in the model.
+    FitOptions opt;
+    opt.parameters = {"levels", "shift"};
+    opt.max_iterations = 40;
+    const FitResult r = fit_as_built(runtime(), cfg, Precision::F64, d, truth_stack, opt);
+    for (const FitValue& v : r.values) {
+      CAPTURE(v.name);
+      INFO("fitted " << v.value << " (design " << v.design << ")");
+      if (v.name == "sx") CHECK(std::fabs(v.value - 0.5) < 1e-3);
+      else if (v.name == "sy") CHECK(std::fabs(v.value + 1.5) < 1e-3);
+      else CHECK(std::fabs(v.value - v.design) < 0.05e-9);
+    }
+    CHECK(r.loss_final < 1e-8 * r.loss_design);
   }
 
   TEST_CASE("lateral starts: from the offset's mirror start the grid finds the true basin; start values are taken") {

@@ -54,6 +54,13 @@ struct AsBuiltModel::Impl {
   double aperture_r = 0;
   std::unique_ptr<Simulator> sim;
   double sim_z = 0, sim_d = 0, sim_r = 0;
+  // With the registration fitted: the native stack of the last PSF computed (planes x N x N), for
+  // the simulator build and the heights it was computed for; the registration's differences and
+  // other states with the same heights and geometry integrate it again without a new PSF.
+  bool registration = false;
+  RealStack native;
+  Map2D native_heights;
+  long native_build = 0;  // t.simulators_built when native was computed
   FitTimes t;
 
   // The complete state at theta: every quantity the model uses, nominal where theta has none.
@@ -130,20 +137,30 @@ struct AsBuiltModel::Impl {
     return *sim;
   }
 
-  // The PSF stack (unshifted by the registration) at a state; the simulator keeps it for the adjoint.
+  // Parameters whose gradient entries and Jacobian columns are central differences: z and d change
+  // the configuration (a new simulator), the registration only the integration of the native stack
+  // (no new PSF). The others go through the adjoint.
+  static bool by_differences(Kind k) { return k == Kind::Z || k == Kind::D || k == Kind::SX || k == Kind::SY; }
+
+  // The PSF stack (bands x S x S) at a state; the simulator keeps its state for the adjoint. With
+  // the registration fitted: the native stack integrated by the moved pixel grid (fit.hpp), the
+  // PSF computed only when the geometry or the heights differ from the last one's.
   RealStack psf(const State& st) {
     Simulator& s_ = simulator(st);
-    s_.set_heights(heights(st));
+    Map2D h = heights(st);
+    if (registration && native_build == t.simulators_built && native.planes && h.data == native_heights.data)
+      return integrate_registered(native, cfg, st.sx, st.sy);
+    s_.set_heights(h);
     s_.compute_psf();
     ++t.psf_evaluations;
-    return s_.psf_sensor();
+    if (!registration) return s_.psf_sensor();
+    native = s_.psf_native();
+    native_heights = std::move(h);
+    native_build = t.simulators_built;
+    return integrate_registered(native, cfg, st.sx, st.sy);
   }
 
-  RealStack model(const State& st) {
-    RealStack p = psf(st);
-    if (st.sx != 0 || st.sy != 0) p.data = shift_bilinear(p.data, p.planes, p.rows, p.cols, st.sx, st.sy);
-    return p;
-  }
+  RealStack model(const State& st) { return psf(st); }
 
   double half_sq(const RealStack& m, const RealStack& meas) const {
     double l = 0;
@@ -166,10 +183,7 @@ struct AsBuiltModel::Impl {
     check_measured(meas);
     const State st = state(theta);
     auto t0 = std::chrono::steady_clock::now();
-    const RealStack p = psf(st);
-    RealStack m = p;
-    const bool shifted = st.sx != 0 || st.sy != 0;
-    if (shifted) m.data = shift_bilinear(p.data, p.planes, p.rows, p.cols, st.sx, st.sy);
+    const RealStack m = psf(st);
     RealStack r = m;
     double loss = 0;
     for (std::size_t i = 0; i < r.data.size(); ++i) {
@@ -181,25 +195,14 @@ struct AsBuiltModel::Impl {
     t.psf_s += since(t0);
     t0 = std::chrono::steady_clock::now();
     grad.assign(ps.size(), 0.0);
-    const bool any_adjoint =
-        std::any_of(ps.begin(), ps.end(), [](const Param& q) { return q.kind != Kind::Z && q.kind != Kind::D; });
-    if (!any_adjoint) {  // z and d only: no adjoint to take
+    const bool any_adjoint = std::any_of(ps.begin(), ps.end(), [](const Param& q) { return !by_differences(q.kind); });
+    if (!any_adjoint) {  // z, d and the registration only: no adjoint to take
       t.vjp_s += since(t0);
       if (fd_distances) fd_distance_gradient(theta, meas, grad);
       return loss;
     }
-    // d / d registration, then back through it to the PSF.
-    double g_sx = 0, g_sy = 0;
-    RealStack g_p = r;
-    if (shifted) {
-      shift_bilinear_derivative(p.data, r.data, p.planes, p.rows, p.cols, st.sx, st.sy, g_sx, g_sy);
-      g_p.data = shift_bilinear_adjoint(r.data, p.planes, p.rows, p.cols, st.sx, st.sy);
-    } else {
-      // At exactly zero shift, d/ds is one-sided (the bilinear shift has a kink at integers):
-      // the right derivative, as the weights at s = 0+ give it.
-      shift_bilinear_derivative(p.data, r.data, p.planes, p.rows, p.cols, 0, 0, g_sx, g_sy);
-    }
-    const Map2D g_h = sim->psf_sensor_vjp(g_p);
+    const Map2D g_h =
+        registration ? sim->psf_native_vjp(integrate_registered_adjoint(r, native, cfg, st.sx, st.sy)) : sim->psf_sensor_vjp(r);
     ++t.vjps;
     const double px = cfg.pitch_m;
     const std::vector<double> h0 = unshifted(st);
@@ -226,8 +229,8 @@ struct AsBuiltModel::Impl {
         case Kind::Scale: grad[k] = g_scale; break;
         case Kind::DX: grad[k] = g_dx / px; break;
         case Kind::DY: grad[k] = g_dy / px; break;
-        case Kind::SX: grad[k] = g_sx; break;
-        case Kind::SY: grad[k] = g_sy; break;
+        case Kind::SX:
+        case Kind::SY:
         case Kind::Z:
         case Kind::D: break;
       }
@@ -237,11 +240,11 @@ struct AsBuiltModel::Impl {
     return loss;
   }
 
-  // The z and d entries of dL/dtheta by central differences of the loss.
+  // The z, d and registration entries of dL/dtheta by central differences of the loss.
   void fd_distance_gradient(const std::vector<double>& theta, const RealStack& meas, std::vector<double>& grad) {
     const auto t0 = std::chrono::steady_clock::now();
     for (std::size_t k = 0; k < ps.size(); ++k) {
-      if (ps[k].kind != Kind::Z && ps[k].kind != Kind::D) continue;
+      if (!by_differences(ps[k].kind)) continue;
       const double h = step(k, theta);
       std::vector<double> a = theta, b = theta;
       a[k] += h;
@@ -266,9 +269,9 @@ struct AsBuiltModel::Impl {
     return 0;
   }
 
-  // J (m x p): columns by central differences of the model; the distance columns last, so
-  // the simulator of theta's (z, d) serves every other column. With the model at theta given
-  // (at_theta), the columns but the distances' by one-sided differences from it (one evaluation
+  // J (m x p): columns by central differences of the model; the columns that rebuild the simulator
+  // (z, d, registration) last, so the simulator of theta serves every other column. With the model
+  // at theta given (at_theta), the other columns by one-sided differences from it (one evaluation
   // each instead of two: what a Levenberg-Marquardt step needs of J^T J).
   Eigen::MatrixXd jacobian(const std::vector<double>& theta, const RealStack* at_theta = nullptr) {
     const auto t0 = std::chrono::steady_clock::now();
@@ -276,16 +279,16 @@ struct AsBuiltModel::Impl {
     Eigen::MatrixXd j(m, ps.size());
     std::vector<std::size_t> order;
     for (std::size_t k = 0; k < ps.size(); ++k)
-      if (ps[k].kind != Kind::Z && ps[k].kind != Kind::D) order.push_back(k);
+      if (!by_differences(ps[k].kind)) order.push_back(k);
     for (std::size_t k = 0; k < ps.size(); ++k)
-      if (ps[k].kind == Kind::Z || ps[k].kind == Kind::D) order.push_back(k);
+      if (by_differences(ps[k].kind)) order.push_back(k);
     for (std::size_t k : order) {
       const double h = step(k, theta);
       std::vector<double> a = theta, b = theta;
       a[k] += h;
       b[k] -= h;
       const RealStack fa = model(state(a));
-      if (at_theta && ps[k].kind != Kind::Z && ps[k].kind != Kind::D) {
+      if (at_theta && !by_differences(ps[k].kind)) {
         for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - at_theta->data[i]) / h;
         continue;
       }
@@ -352,6 +355,7 @@ AsBuiltModel::AsBuiltModel(Runtime& rt, const SystemConfig& cfg, Precision p, co
     add(Kind::DY, 0, "dy", "m", 0.0);
   }
   if (has("shift")) {
+    m.registration = true;
     add(Kind::SX, 0, "sx", "px", 0.0);
     add(Kind::SY, 0, "sy", "px", 0.0);
   }
@@ -366,7 +370,7 @@ std::vector<double> AsBuiltModel::design_values() const {
   for (const auto& p : impl_->ps) v.push_back(p.nominal);
   return v;
 }
-bool AsBuiltModel::adjoint_parameter(std::size_t i) const { return impl_->ps.at(i).kind != Kind::Z && impl_->ps.at(i).kind != Kind::D; }
+bool AsBuiltModel::adjoint_parameter(std::size_t i) const { return !Impl::by_differences(impl_->ps.at(i).kind); }
 RealStack AsBuiltModel::evaluate(const std::vector<double>& theta) {
   const auto t0 = std::chrono::steady_clock::now();
   RealStack r = impl_->model(impl_->state(theta));

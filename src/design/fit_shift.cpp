@@ -1,10 +1,13 @@
-// The bilinear registration shift of the as-built fit (fit.hpp: shift_bilinear) and its adjoints
-// with respect to the input and to the shift.
+// The lateral moves of the as-built fit (fit.hpp): the registration, the native PSF integrated by a
+// moved sensor grid (integrate_registered) and its adjoint; the bilinear shift of the relief offset
+// (shift_bilinear) and its adjoints with respect to the input and to the shift.
 #include "qdo/design/fit.hpp"
 
 #include <cmath>
 #include <string>
 
+#include "qdo/physics/optics.hpp"
+#include "qdo/physics/psf_reference.hpp"
 #include "qdo/runtime/error.hpp"
 
 namespace qdo {
@@ -77,6 +80,99 @@ void shift_bilinear_derivative(const std::vector<double>& in, const std::vector<
     d_sx += g_out[o] * dx * in[i];
     d_sy += g_out[o] * dy * in[i];
   });
+}
+
+namespace {
+
+// The registration's weights per axis: the native grid (N at pitch_m) onto the sensor grid (S at
+// sensor_pitch_m) moved by -s sensor px, so the content moves by +s.
+struct RegisteredWeights {
+  AreaWeights wx, wy;
+  RegisteredWeights(const SystemConfig& cfg, double sx, double sy)
+      : wx(AreaWeights::make(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m, sx)),
+        wy(AreaWeights::make(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m, sy)) {}
+};
+
+void require_native(const RealStack& native, const SystemConfig& cfg, const char* what) {
+  if (native.rows != cfg.n || native.cols != cfg.n)
+    throw Error(std::string("integrate_registered: ") + what + " is " + shape(native) + ", expected planes x N x N with N = " +
+                std::to_string(cfg.n));
+}
+
+// Unnormalised integration: out(p, oy, ox) = sum wy(oy, ty) wx(ox, tx) in(p, y0(oy) + ty, x0(ox) + tx).
+RealStack integrate_raw(const RealStack& in, const RegisteredWeights& w) {
+  const std::size_t n = in.rows, s = w.wx.s;
+  RealStack rowsum(in.planes, n, s, 0.0), out(in.planes, s, s, 0.0);
+  for (std::size_t p = 0; p < in.planes; ++p) {
+    for (std::size_t y = 0; y < n; ++y)
+      for (std::size_t ox = 0; ox < s; ++ox) {
+        double acc = 0;
+        for (std::size_t t = 0; t < w.wx.taps; ++t) {
+          const long x = w.wx.start[ox] + long(t);
+          if (x >= 0 && x < long(n)) acc += w.wx.w[ox * w.wx.taps + t] * in(p, y, std::size_t(x));
+        }
+        rowsum(p, y, ox) = acc;
+      }
+    for (std::size_t oy = 0; oy < s; ++oy)
+      for (std::size_t t = 0; t < w.wy.taps; ++t) {
+        const long y = w.wy.start[oy] + long(t);
+        const double wt = w.wy.w[oy * w.wy.taps + t];
+        if (y < 0 || y >= long(n) || wt == 0) continue;
+        for (std::size_t ox = 0; ox < s; ++ox) out(p, oy, ox) += wt * rowsum(p, std::size_t(y), ox);
+      }
+  }
+  return out;
+}
+
+// Its transpose: planes x S x S -> planes x N x N.
+RealStack integrate_raw_adjoint(const RealStack& g, std::size_t n, const RegisteredWeights& w) {
+  const std::size_t s = w.wx.s;
+  RealStack rowsum(g.planes, n, s, 0.0), out(g.planes, n, n, 0.0);
+  for (std::size_t p = 0; p < g.planes; ++p) {
+    for (std::size_t oy = 0; oy < s; ++oy)
+      for (std::size_t t = 0; t < w.wy.taps; ++t) {
+        const long y = w.wy.start[oy] + long(t);
+        const double wt = w.wy.w[oy * w.wy.taps + t];
+        if (y < 0 || y >= long(n) || wt == 0) continue;
+        for (std::size_t ox = 0; ox < s; ++ox) rowsum(p, std::size_t(y), ox) += wt * g(p, oy, ox);
+      }
+    for (std::size_t y = 0; y < n; ++y)
+      for (std::size_t ox = 0; ox < s; ++ox)
+        for (std::size_t t = 0; t < w.wx.taps; ++t) {
+          const long x = w.wx.start[ox] + long(t);
+          if (x >= 0 && x < long(n)) out(p, y, std::size_t(x)) += w.wx.w[ox * w.wx.taps + t] * rowsum(p, y, ox);
+        }
+  }
+  return out;
+}
+
+std::vector<double> plane_sums(const RealStack& a) {
+  std::vector<double> sums(a.planes, 0.0);
+  for (std::size_t p = 0; p < a.planes; ++p)
+    for (std::size_t i = 0; i < a.plane_size(); ++i) sums[p] += a.plane(p)[i];
+  return sums;
+}
+
+}  // namespace
+
+RealStack integrate_registered(const RealStack& native, const SystemConfig& cfg, double sx, double sy) {
+  require_native(native, cfg, "the native stack");
+  RealStack out = integrate_raw(native, RegisteredWeights(cfg, sx, sy));
+  ref::normalize_planes(out);
+  return out;
+}
+
+RealStack integrate_registered_adjoint(const RealStack& g_out, const RealStack& native, const SystemConfig& cfg, double sx, double sy) {
+  require_native(native, cfg, "the native stack");
+  const RegisteredWeights w(cfg, sx, sy);
+  const std::size_t s = cfg.sensor_size_px();
+  if (g_out.planes != native.planes || g_out.rows != s || g_out.cols != s)
+    throw Error("integrate_registered_adjoint: the gradient is " + shape(g_out) + ", expected " + shape(native.planes, s, s));
+  const RealStack raw = integrate_raw(native, w);
+  const std::vector<double> sums = plane_sums(raw);
+  RealStack y = raw;
+  ref::normalize_planes(y);
+  return integrate_raw_adjoint(ref::normalize_vjp(g_out, y, sums), cfg.n, w);
 }
 
 }  // namespace qdo

@@ -148,8 +148,9 @@ void SamplingReport::enforce() const {
   }
 }
 
-AreaWeights AreaWeights::make(std::size_t n, double pitch_in_m, std::size_t s, double pitch_out_m) {
+AreaWeights AreaWeights::make(std::size_t n, double pitch_in_m, std::size_t s, double pitch_out_m, double shift_out_px) {
   if (!(pitch_out_m > 0) || !(pitch_in_m > 0)) reject("sensor_pitch_m", pitch_out_m, "> 0");
+  if (!std::isfinite(shift_out_px)) reject("shift_out_px", shift_out_px, "a finite number of output pixels");
   AreaWeights a;
   a.n = n;
   a.s = s;
@@ -158,7 +159,7 @@ AreaWeights AreaWeights::make(std::size_t n, double pitch_in_m, std::size_t s, d
   a.w.assign(s * a.taps, 0.0);
   for (std::size_t o = 0; o < s; ++o) {
     // Output pixel edges in units of input cells, measured from input cell 0's left edge.
-    const double lo = ((double(o) - double(s / 2) - 0.5) * pitch_out_m) / pitch_in_m + double(n / 2) + 0.5;
+    const double lo = ((double(o) - shift_out_px - double(s / 2) - 0.5) * pitch_out_m) / pitch_in_m + double(n / 2) + 0.5;
     const double hi = lo + pitch_out_m / pitch_in_m;
     const long first = static_cast<long>(std::floor(lo));
     a.start[o] = static_cast<int>(first);

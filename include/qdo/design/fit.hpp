@@ -10,8 +10,10 @@
 //   H      = shift(H0, dx / pitch, dy / pitch)   the relief moved by (dx, dy) metres against the
 //                                         aperture (bilinear = area-weighted for a shifted pixel,
 //                                         zero relief brought in from outside the grid)
-//   P      = Simulator(cfg with z, d).psf_sensor(H)   (bands x S x S)
-//   model  = shift(P, sx, sy)             optional registration of the measured stack (sensor px)
+//   model  = Simulator(cfg with z, d).psf_sensor(H)   (bands x S x S); with the registration
+//            (sx, sy) fitted, integrate_registered(psf_native(H), sx, sy) instead: the native
+//            stack integrated by a pixel grid displaced by (sx, sy) sensor px (the grid's
+//            sub-pixel position against the axis, not a resampling of the sampled stack)
 // Loss L = 1/2 sum (model - measured)^2 over bands x S x S (equal weights: every pixel's residual
 // is treated as one noise draw of one variance, estimated from the fit).
 //
@@ -26,8 +28,9 @@
 //   d         the object distance (metres; a finite scene_distance_m). Nearly degenerate with z
 //             (REFERENCE §7: 1/z' = 1/z + 1/d): the default fits z and holds d.
 //   offset    dx, dy: the relief's lateral offset against the aperture (metres).
-//   shift     sx, sy: registration of the measured stack (sensor pixels; a nuisance, not a
-//             physical parameter, REFERENCE §8; degenerate with offset to first order).
+//   shift     sx, sy: registration of the measured stack (sensor pixels; the sensor grid's
+//             position against the optical axis, REFERENCE §8; degenerate with offset to first
+//             order).
 //   aperture  the aperture radius (metres). The aperture is a set of DOE samples (config.hpp:
 //             aperture_inside_px2), piecewise constant in the radius: it is fitted by a walk of
 //             the loss over radii in half-pixel steps, downhill until the loss rises (the others
@@ -38,11 +41,13 @@
 // the magnification 1 + z/d and in metres) starts at the centroid difference of the measured and
 // design stacks; from zero the fit can fall into the mirror minimum (the blur a sub-pixel offset
 // adds to the sampled relief is even in the offset, only the small image shift is odd).
-// Gradients: the height parameters (levels, masks, scale, offset) and shift through the
-// simulator's adjoint (psf_sensor_vjp) chained through the shifts' adjoints; z and d by central
-// differences in double (they change the configuration, not the heights). The Gauss-Newton matrix
+// Gradients: the height parameters (levels, masks, scale, offset) through the simulator's adjoint
+// (psf_sensor_vjp, or psf_native_vjp after integrate_registered_adjoint) chained through the
+// offset's adjoint; z and d by central differences in double (they change the configuration, not
+// the heights), the registration by central differences of the integration (no new PSF). The Gauss-Newton matrix
 // J^T J of each step uses Jacobian columns by one-sided differences of the model from the current
-// stack (1 evaluation per parameter; z and d central), the uncertainties at the end central ones.
+// stack (1 evaluation per parameter; z, d and the registration central), the uncertainties at the
+// end central ones.
 // Uncertainties: Cov = s^2 (J^T J)^-1, s^2 = 2 L / (m - p) (m residuals, p parameters); and a
 // jackknife over groups of contiguous bands (FitOptions::jackknife_groups), linearised at the fit:
 // for each group the Gauss-Newton step of the fit without it, from the Jacobian and residuals at
@@ -214,6 +219,14 @@ class AsBuiltModel {
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+// The registration (sx, sy) of the model (sensor px, sx along columns): the native PSF stack
+// (planes x N x N on the DOE grid, each plane summing to 1, as Simulator::psf_native) integrated by
+// the sensor's pixels (planes x S x S, row-major) with the pixel grid moved so that the content
+// moves by (sx, sy), each plane then divided by its sum; at (0, 0) what the simulator's
+// psf_sensor is. Its adjoint maps a gradient on that output to one on the native stack.
+RealStack integrate_registered(const RealStack& native, const SystemConfig& cfg, double sx, double sy);
+RealStack integrate_registered_adjoint(const RealStack& g_out, const RealStack& native, const SystemConfig& cfg, double sx, double sy);
 
 // Bilinear shift of each plane of a planes x rows x cols stack by (sx, sy) pixels (sx along
 // columns): out(y, x) = in(y - sy, x - sx), zero outside; its adjoint (transpose) and the

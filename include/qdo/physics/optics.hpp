@@ -71,12 +71,15 @@ struct SamplingReport {
 // Area-integration weights for resampling a length-n grid at pitch_in onto a length-s grid
 // at pitch_out, both centred on the optical axis (index n/2, resp. s/2). Output pixel o
 // receives sum_t w[o*taps + t] * in[start[o] + t]; w is the fraction of the input cell inside
-// the output pixel, so a PSF's sum is preserved where the grids overlap.
+// the output pixel, so a PSF's sum is preserved where the grids overlap. shift_out_px moves the
+// content by that many output pixels (the output grid moved by -shift_out_px against the axis):
+// output pixel o integrates what pixel o - shift_out_px of the centred grid would, the input's
+// cells taken as uniform, as at zero shift.
 struct AreaWeights {
   std::size_t n = 0, s = 0, taps = 0;
   std::vector<int> start;            // s
   std::vector<double> w;             // s x taps, row-major
-  static AreaWeights make(std::size_t n, double pitch_in_m, std::size_t s, double pitch_out_m);
+  static AreaWeights make(std::size_t n, double pitch_in_m, std::size_t s, double pitch_out_m, double shift_out_px = 0);
   // The transpose (maps the length-s grid back onto the length-n grid): n and s swap roles.
   AreaWeights transposed() const;
 };
