@@ -23,7 +23,9 @@ if [ "$profile" = demo ]; then
   targets=(--target qdo)
 else
   bash scripts/install-deps.sh all
-  opts=(-DQDO_TORCH=ON -DQDO_PYTHON=ON)
+  # The extension for Debian's interpreter, whose NumPy, PyTorch and pytest install-deps.sh
+  # installs (another python3 earlier on PATH, a pyenv's, has none of them).
+  opts=(-DQDO_TORCH=ON -DQDO_PYTHON=ON -DPython_EXECUTABLE=/usr/bin/python3)
   targets=()
 fi
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DQDO_WERROR=ON "${opts[@]}" > build.log 2>&1 || { cat build.log; exit 1; }
