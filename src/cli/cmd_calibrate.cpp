@@ -23,7 +23,9 @@ int cmd_calibrate(const Args& a) {
   opt.white_dir = a.get("white");
   opt.hot_sigma = parse_double("--hot-sigma", a.get("hot-sigma"), 1, 1e6, "noise sigmas", false);
   opt.min_snr = parse_double("--min-snr", a.get("min-snr"), 0, 1e12, "", false);
-  opt.min_response = parse_double("--min-response", a.get("min-response"), 0, 1, "", true);
+  // Given explicitly only: the struct's default (a colour that responds at all is a measurement,
+  // weighted by its noise) stands otherwise.
+  if (a.has("min-response")) opt.min_response = parse_double("--min-response", a.get("min-response"), 0, 1, "", true);
   opt.floor_sigma = parse_double("--floor-sigma", a.get("floor-sigma"), 0, 100, "noise sigmas", false);
   const std::string bg = a.get("background");
   if (bg != "ring" && bg != "none") reject("--background", bg, "ring (the median of the crop's outer 2-pixel ring) or none");
@@ -51,9 +53,11 @@ int cmd_calibrate(const Args& a) {
   prov.darks_dir = a.get("darks");
   prov.white_dir = a.get("white");
   write_calibration_outputs(dir, cfg, r, prov);
-  std::printf("calibrated %zu bands from %s (%zu dark frames, %zu hot pixels replaced), centre (row %ld, column %ld) of %zu x %zu, "
-              "S = %zu\n",
-              cfg.bands, a.get("frames").c_str(), r.darks.size(), r.hot_pixels, r.centre_row, r.centre_col, r.frame_rows, r.frame_cols, s);
+  std::printf(
+      "calibrated %zu bands from %s (%zu frames, %zu dark frames, %zu hot pixels replaced, %zu of them transient), "
+      "centre (row %ld, column %ld) of %zu x %zu, S = %zu\n",
+      cfg.bands, a.get("frames").c_str(), r.files.size(), r.darks.size(), r.hot_pixels, r.transients.size(),
+      r.centre_row, r.centre_col, r.frame_rows, r.frame_cols, s);
   std::printf("seconds:");
   for (const auto& [step, sec] : r.seconds) std::printf(" [%s] %.4f", step.c_str(), sec);
   std::printf("\n");

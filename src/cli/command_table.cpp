@@ -147,7 +147,7 @@ std::vector<CommandSpec> make_table() {
                "and dark frames -> DIR/psf.h5 (the layout of qdo psf), psf.png; with --design compare.csv, compare.png",
                "", "",
                {preset(), config(), opt("frames", "folder of PSF frames: 16-bit grayscale PNG or TIFF raw frames named <anything>_<nm>nm.png|.tif, one "
-                                                  "per configured band (required)"),
+                                                  "or more per configured band (several of one band are exposures, averaged) (required)"),
                 opt("darks", "folder of dark frames (16-bit grayscale PNG or TIFF, same exposure; averaged) (required)"),
                 opt("white", "folder of white (flat-field) frames: a uniformly lit, spectrally flat white target filling the view, the "
                              "frames' size (averaged, dark subtracted); every frame is divided by its white signal over the white's "
@@ -155,8 +155,9 @@ std::vector<CommandSpec> make_table() {
                 opt("design", "design to compare with: lens:NM, flat, a design .h5 file or a run folder (its design.h5)"),
                 opt("hot-sigma", "hot-pixel threshold, in noise sigmas (> 1)", "8"),
                 opt("min-snr", "least peak SNR (peak above the dark / noise sigma) of a band; a darker frame is refused", "20"),
-                opt("min-response", "least relative response, in (0, 1], of a mosaic colour at a band for its pixels to be used "
-                                    "(others are filled from their neighbours)", "0.2"),
+                opt("min-response", "least relative response, in (0, 1], of a mosaic colour at a band for its pixels to count as "
+                                    "a measurement (weaker ones get the estimate of their neighbours; the rest are used, each "
+                                    "weighted by its noise)", "0.005"),
                 opt("floor-sigma", "signal-mask threshold: pixels whose 5 x 5 mean is below this many sigmas of its noise (and not within 2 px of one above) are set to 0", "4"),
                 opt("background", "background removed after the dark: ring (the median of the S x S crop's outer 2-pixel ring) "
                                   "or none (the dark only; for a PSF with energy out to the crop's edge)",

@@ -5,6 +5,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <regex>
 
@@ -54,18 +55,6 @@ void check_codes(const Frame& f, double white, bool refuse_saturated) {
   }
 }
 
-// Same-colour 8-neighbourhood (step 2 in a mosaic, 1 without) median of (y, x), inside the frame.
-double neighbour_median(const Map2D& m, std::size_t y, std::size_t x, long step) {
-  std::vector<double> v;
-  for (long dy = -step; dy <= step; dy += step)
-    for (long dx = -step; dx <= step; dx += step) {
-      if (dy == 0 && dx == 0) continue;
-      const long yy = long(y) + dy, xx = long(x) + dx;
-      if (yy >= 0 && xx >= 0 && yy < long(m.rows) && xx < long(m.cols)) v.push_back(m(std::size_t(yy), std::size_t(xx)));
-    }
-  return median_of(v);
-}
-
 // Predicted share of the signal of each 2 x 2 cell position under a layout at band b.
 std::vector<double> cell_shares(Cfa cfa, const Eigen::MatrixXd& srf, std::size_t b) {
   std::vector<double> p(4);
@@ -102,9 +91,10 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     last = now;
   };
 
-  // 1. Match the file names to the bands (before reading any pixel).
+  // 1. Match the file names to the bands (before reading any pixel); a band's several frames are
+  // its exposures.
   const std::vector<std::string> files = capture_files(frames_dir, "--frames");
-  std::vector<std::string> band_file(bands);
+  std::vector<std::vector<std::string>> band_files(bands);
   std::vector<double> band_nm(bands, 0);
   for (const auto& f : files) {
     const double nm = wavelength_from_file_name(f);
@@ -116,26 +106,32 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
       refuse(f, "wavelength " + to_str(nm) + " nm is not a band of the configuration (" + to_str(grid.front()) + " to " +
                     to_str(grid.back()) + " nm in steps of " + to_str(cfg.wavelength_step_nm) + " nm, within " +
                     to_str(kBandAxisToleranceNm) + " nm); remove the frame or use a configuration with that band");
-    if (!band_file[b].empty()) refuse(f, "a second frame for band " + to_str(grid[b]) + " nm (the first: " + in_quotes(band_file[b]) + ")");
-    band_file[b] = f;
-    band_nm[b] = nm;
+    band_files[b].push_back(f);
+    band_nm[b] += nm;
   }
-  for (std::size_t b = 0; b < bands; ++b)
-    if (band_file[b].empty())
+  for (std::size_t b = 0; b < bands; ++b) {
+    if (band_files[b].empty())
       throw InputError("--frames " + in_quotes(frames_dir) + ": no frame for the configured band " + to_str(grid[b]) +
                        " nm (expected a file named like psf_" + to_str(grid[b]) + "nm.png)");
+    band_nm[b] /= double(band_files[b].size());
+  }
 
   lap("match");
   // 2. Read and check every frame and dark.
   const std::vector<std::string> dark_files = capture_files(darks_dir, "--darks");
   for (const auto& d : dark_files) {
     std::error_code ec;
-    for (const auto& f : band_file)
-      if (std::filesystem::equivalent(d, f, ec))
-        refuse(d, "given as a dark (--darks " + in_quotes(darks_dir) + ") but it is also a frame (--frames " + in_quotes(frames_dir) +
-                      "); darks are frames taken with the source off, in a folder of their own");
+    for (const auto& bf : band_files)
+      for (const auto& f : bf)
+        if (std::filesystem::equivalent(d, f, ec))
+          refuse(d, "given as a dark (--darks " + in_quotes(darks_dir) + ") but it is also a frame (--frames " +
+                        in_quotes(frames_dir) +
+                        "); darks are frames taken with the source off, in a folder of their own");
   }
-  std::vector<Frame> frames(bands), darks;
+  std::vector<std::vector<Frame>> frames(bands);  // per band, its exposures
+  std::vector<Frame> darks;
+  std::string first_path;  // the first frame read, and its size
+  std::size_t rows = 0, cols = 0;
   auto read = [&](const std::string& p) {
     Frame f{p, {}};
     if (is_tiff_path(p) || is_camera_raw_path(p)) {
@@ -150,16 +146,22 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
       f.dn = read_png16_gray(p);
     }
     for (auto& v : f.dn.data) v *= file_scale;
-    if (!frames.empty() && frames[0].dn.rows && (f.dn.rows != frames[0].dn.rows || f.dn.cols != frames[0].dn.cols))
+    if (first_path.empty()) {
+      first_path = p;
+      rows = f.dn.rows;
+      cols = f.dn.cols;
+    } else if (f.dn.rows != rows || f.dn.cols != cols) {
       refuse(p, "size " + std::to_string(f.dn.rows) + " x " + std::to_string(f.dn.cols) + " differs from the " +
-                    std::to_string(frames[0].dn.rows) + " x " + std::to_string(frames[0].dn.cols) + " of " + in_quotes(frames[0].path) +
+                    std::to_string(rows) + " x " + std::to_string(cols) + " of " + in_quotes(first_path) +
                     " (rows x columns); every frame and dark must have one size");
+    }
     return f;
   };
-  for (std::size_t b = 0; b < bands; ++b) {
-    frames[b] = read(band_file[b]);
-    check_codes(frames[b], white, true);
-  }
+  for (std::size_t b = 0; b < bands; ++b)
+    for (const auto& p : band_files[b]) {
+      frames[b].push_back(read(p));
+      check_codes(frames[b].back(), white, true);
+    }
   for (const auto& p : dark_files) {
     darks.push_back(read(p));
     check_codes(darks.back(), white, false);
@@ -170,10 +172,10 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
       whites.push_back(read(p));
       check_codes(whites.back(), white, true);  // a clipped white would bend the flat field
     }
-  const std::size_t rows = frames[0].dn.rows, cols = frames[0].dn.cols;
   if (rows < s || cols < s)
-    refuse(frames[0].path, "frame " + std::to_string(rows) + " x " + std::to_string(cols) + " is smaller than the sensor grid's S x S = " +
-                               std::to_string(s) + " x " + std::to_string(s));
+    refuse(first_path, "frame " + std::to_string(rows) + " x " + std::to_string(cols) +
+                           " is smaller than the sensor grid's S x S = " + std::to_string(s) + " x " +
+                           std::to_string(s));
   const Eigen::MatrixXd srf = sensor_response(cfg);  // 3 x bands
 
   lap("read");
@@ -183,8 +185,9 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     for (std::size_t i = 0; i < dark.data.size(); ++i) dark.data[i] += d.dn.data[i] / double(darks.size());
   const double dark_med = median_of(dark.data), dark_sigma = std::max(mad_sigma(dark.data), 0.5 * file_scale);
   std::vector<char> hot(rows * cols, 0);
-  for (std::size_t i = 0; i < hot.size(); ++i) hot[i] = dark.data[i] > dark_med + opt.hot_sigma * dark_sigma;
-  const long step = mosaic ? 2 : 1;
+  std::size_t hot_count = 0;
+  for (std::size_t i = 0; i < hot.size(); ++i)
+    hot_count += hot[i] = dark.data[i] > dark_med + opt.hot_sigma * dark_sigma;
   // The flat field (1 x rows x cols, mean 1) of the white frames over the mean dark.
   RealStack flat;
   std::array<double, 3> r_channel_gains{};
@@ -198,11 +201,37 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     r_channel_gains = ff.channel_gains;
     for (const auto& f : whites) white_files.push_back(f.path);
   }
+  Map2D flat_map;
+  if (!flat.data.empty()) {
+    flat_map = Map2D(rows, cols);
+    flat_map.data = flat.data;
+  }
+  // Shot noise: one electron is gain x (white - black) / full well DN; its variance per DN of
+  // signal is that many DN². No full well configured: read noise alone.
+  const double shot_dn =
+      cfg.full_well_photons > 0 ? cfg.gain * (white - cfg.black_level_dn) / cfg.full_well_photons : 0.0;
+  // Each pixel's gain at each band (step 5), the darks' hot pixels dead.
+  PixelGain gain;
+  gain.cfa = cfg.cfa;
+  gain.min_response = mosaic ? opt.min_response : 0.0;
+  gain.flat = flat_map.data.empty() ? nullptr : &flat_map;
+  gain.dead = hot;
+  gain.cols = cols;
+  for (std::size_t b = 0; b < bands; ++b) {
+    const double top = std::max({srf(0, long(b)), srf(1, long(b)), srf(2, long(b))});
+    std::array<double, 3> w{1, 1, 1};
+    if (mosaic)
+      for (long c = 0; c < 3; ++c) w[std::size_t(c)] = top > 0 ? srf(c, long(b)) / top : 0;
+    gain.response.push_back(w);
+  }
 
   CalibrationResult r;
   r.channel_gains = r_channel_gains;
   r.whites = white_files;
-  r.files = band_file;
+  for (const auto& bf : band_files) {
+    r.files.insert(r.files.end(), bf.begin(), bf.end());
+    r.exposures.push_back(bf.size());
+  }
   r.wavelengths_nm = band_nm;
   r.darks = dark_files;
   r.frame_rows = rows;
@@ -211,23 +240,54 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   r.noise_dn.resize(bands);
   r.background_dn.resize(bands);
   lap("dark");
-  std::vector<Map2D> sig(bands);  // dark-subtracted, hot pixels replaced, DN
-  std::vector<double> cell(4, 0), worst(bands, 0);
-  std::vector<std::vector<double>> cell_b(bands, std::vector<double>(4, 0));
+  // Per band: the exposures over the dark (DN), each one's sigma, the transients (step 4) and the
+  // band's mean with its count of exposures used per pixel.
+  std::vector<std::vector<Map2D>> expo(bands);
+  std::vector<std::vector<double>> expo_sigma(bands);
+  std::vector<std::vector<Map2D>> excess(bands);
+  std::vector<std::vector<std::vector<char>>> transient(bands);
+  std::vector<Map2D> mean(bands);
+  std::vector<std::vector<std::uint16_t>> used(bands);  // per band, rows x cols: exposures in the mean
+  const auto average = [&](std::size_t b) {             // the band's mean over the exposures not transient there
+    const std::size_t k = expo[b].size();
+    mean[b] = Map2D(rows, cols);
+    used[b].assign(rows * cols, 0);
+    for (std::size_t i = 0; i < rows * cols; ++i) {
+      double sum = 0;
+      std::size_t n = 0;
+      for (std::size_t e = 0; e < k; ++e)
+        if (!transient[b][e][i]) sum += expo[b][e].data[i], ++n;
+      mean[b].data[i] = n ? sum / double(n) : 0.0;
+      used[b][i] = std::uint16_t(std::min<std::size_t>(n, 65535));
+    }
+  };
   for (std::size_t b = 0; b < bands; ++b) {
-    Map2D m(rows, cols);
-    for (std::size_t i = 0; i < m.data.size(); ++i) m.data[i] = frames[b].dn.data[i] - dark.data[i];
-    const double sigma = std::max(mad_sigma(m.data), 0.5 * file_scale);
-    const double med = median_of(m.data);
+    const std::size_t k = frames[b].size();
+    for (std::size_t e = 0; e < k; ++e) {
+      Map2D m(rows, cols);
+      for (std::size_t i = 0; i < m.data.size(); ++i) m.data[i] = frames[b][e].dn.data[i] - dark.data[i];
+      expo_sigma[b].push_back(std::max(mad_sigma(m.data), 0.5 * file_scale));
+      expo[b].push_back(std::move(m));
+    }
+    frames[b].clear();  // the codes are no longer needed
+    // 4 (exposures). Transients against the band's other exposures.
+    excess[b] = exposure_excess(expo[b], expo_sigma[b], shot_dn, opt.hot_sigma, hot);
+    transient[b].assign(k, std::vector<char>(rows * cols, 0));
+    for (std::size_t e = 0; e < k; ++e)
+      for (std::size_t i = 0; i < rows * cols; ++i)
+        transient[b][e][i] = !hot[i] && excess[b][e].data[i] > opt.hot_sigma;
+    average(b);
+    const Map2D& m = mean[b];
+    const double sigma = std::max(mad_sigma(m.data), 0.5 * file_scale / std::sqrt(double(k)));
     r.noise_dn[b] = sigma;
     // The darks against this frame's own background: its 10th percentile is the background's
     // (-1.2816 sigma for Gaussian noise) wherever at least a tenth of the frame is unlit, and
     // light can only raise it. Darks taken at another exposure, gain or temperature shift it.
     {
       std::vector<double> v = m.data;
-      const std::size_t k = v.size() / 10;
-      std::nth_element(v.begin(), v.begin() + long(k), v.end());
-      const double offset = v[k] + 1.2816 * sigma;
+      const std::size_t q = v.size() / 10;
+      std::nth_element(v.begin(), v.begin() + long(q), v.end());
+      const double offset = v[q] + 1.2816 * sigma;
       r.background_dn[b] = offset;
       if (std::abs(offset) > 3 * sigma) {
         const std::string what = "after the mean dark is subtracted, the frame's background sits at " + to_str(offset) +
@@ -235,46 +295,58 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
                                  "): the darks in " + in_quotes(darks_dir) + " were not taken as this frame was " +
                                  "(exposure, gain, black level, temperature)";
         if (!opt.ring_background || offset < 0)
-          refuse(frames[b].path, what + (offset < 0 ? "; a dark brighter than the frame's unlit pixels is not a dark of it. "
-                                                      : "; --background ring would subtract a constant offset, or ") +
-                                     "take darks with the frames' settings");
-        r.notes.push_back(frames[b].path + ": " + what + "; --background ring subtracts it as a constant");
+          refuse(band_files[b][0],
+                 what +
+                     (offset < 0 ? "; a dark brighter than the frame's unlit pixels is not a dark of it. "
+                                 : "; --background ring would subtract a constant offset, or ") +
+                     "take darks with the frames' settings");
+        r.notes.push_back(band_files[b][0] + ": " + what + "; --background ring subtracts it as a constant");
       }
     }
-    // 4. Hot pixels: the dark's, and isolated spikes of this frame.
-    Map2D fixed = m;
-    for (std::size_t y = 0; y < rows; ++y)
-      for (std::size_t x = 0; x < cols; ++x) {
-        bool is_hot = hot[y * cols + x] != 0;
-        if (!is_hot && m(y, x) - med > opt.hot_sigma * sigma) {
-          double nmax = -1e300;
-          for (long dy = -step; dy <= step; ++dy)
-            for (long dx = -step; dx <= step; ++dx) {
-              const long yy = long(y) + dy, xx = long(x) + dx;
-              const bool ring = std::abs(dy) <= 1 && std::abs(dx) <= 1;
-              const bool same_colour = dy % step == 0 && dx % step == 0;
-              if ((dy || dx) && (ring || same_colour) && yy >= 0 && xx >= 0 && yy < long(rows) && xx < long(cols))
-                nmax = std::max(nmax, m(std::size_t(yy), std::size_t(xx)) - med);
-            }
-          is_hot = nmax < 3 * sigma;
-        }
-        if (is_hot) {
-          fixed(y, x) = neighbour_median(m, y, x, step);
-          ++r.hot_pixels;
-        }
-      }
-    m = std::move(fixed);
+  }
+  // 4 (adjacent bands). Each exposure's values against the ceiling the adjacent bands' means set.
+  for (std::size_t b = 0; b < bands; ++b) {
+    const std::size_t k = expo[b].size();
+    for (std::size_t e = 0; e < k; ++e) {
+      const Map2D ceiling =
+          adjacent_band_ceiling(b, mean, r.noise_dn, r.exposures, gain, expo_sigma[b][e], shot_dn, opt.hot_sigma);
+      for (std::size_t i = 0; i < rows * cols; ++i)
+        // Marked 2: the means the other bands are tested against stay as they were until the end.
+        if (!transient[b][e][i] && expo[b][e].data[i] > ceiling.data[i] && (k == 1 || excess[b][e].data[i] > 3))
+          transient[b][e][i] = 2;
+    }
+    for (std::size_t e = 0; e < k; ++e)
+      for (std::size_t i = 0; i < rows * cols; ++i)
+        if (transient[b][e][i]) r.transients.push_back({b, e, i / cols, i % cols});
+  }
+  for (std::size_t b = 0; b < bands; ++b) {
+    average(b);
+    expo[b].clear();
+    excess[b].clear();
+  }
+  r.hot_pixels = hot_count * bands + r.transients.size();
+
+  std::vector<Map2D> sig(bands);  // per band, rows x cols: dark-subtracted mean, flat divided (DN)
+  std::vector<double> cell(4, 0), worst(bands, 0);
+  std::vector<std::vector<double>> cell_b(bands, std::vector<double>(4, 0));
+  for (std::size_t b = 0; b < bands; ++b) {
+    Map2D m = mean[b];
+    const double sigma = r.noise_dn[b], med = median_of(m.data);
     if (!flat.data.empty())
       for (std::size_t i = 0; i < m.data.size(); ++i) m.data[i] /= flat.data[i];
-    // 6. Peak SNR.
-    const double peak = *std::max_element(m.data.begin(), m.data.end()) - med;
+    // 6. Peak SNR, over the pixels measured.
+    double peak = -1e300;
+    for (std::size_t i = 0; i < m.data.size(); ++i)
+      if (!hot[i] && used[b][i]) peak = std::max(peak, m.data[i] - med);
     r.peak_snr[b] = peak / sigma;
     if (r.peak_snr[b] < opt.min_snr)
-      refuse(frames[b].path, "too dark: peak SNR " + to_str(r.peak_snr[b]) + " (peak " + to_str(peak) + " DN above the dark, noise " +
-                                 to_str(sigma) + " DN) is below --min-snr " + to_str(opt.min_snr));
+      refuse(band_files[b][0], "too dark: peak SNR " + to_str(r.peak_snr[b]) + " (peak " + to_str(peak) +
+                                   " DN above the dark, noise " + to_str(sigma) + " DN) is below --min-snr " +
+                                   to_str(opt.min_snr));
     for (std::size_t y = 0; y < rows; ++y)  // the 2 x 2 cell signals, with "cfa": "none" too (5a)
-        for (std::size_t x = 0; x < cols; ++x)
-          if (m(y, x) - med > 3 * sigma) cell_b[b][(y & 1) * 2 + (x & 1)] += m(y, x) - med;
+      for (std::size_t x = 0; x < cols; ++x)
+        if (!hot[y * cols + x] && used[b][y * cols + x] && m(y, x) - med > 3 * sigma)
+          cell_b[b][(y & 1) * 2 + (x & 1)] += m(y, x) - med;
     sig[b] = std::move(m);
   }
 
@@ -303,55 +375,34 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     const int best = int(std::min_element(err, err + 5) - err);
     if (layouts[best] != cfg.cfa && err_cfg > 4 * err[best] && err_cfg > 1e-3 * double(bands)) {
       const std::size_t wb = std::size_t(std::max_element(worst.begin(), worst.end()) - worst.begin());
-      refuse(frames[wb].path, "the capture's colour mosaic does not match the sensor settings: \"cfa\": \"" + to_string(cfg.cfa) +
-                                  "\" fits the 2 x 2 cell signals of the sweep " + to_str(err_cfg / std::max(err[best], 1e-300)) +
-                                  " times worse than \"" + to_string(layouts[best]) + "\" (this frame worst); check the configuration's cfa");
+      refuse(band_files[wb][0], "the capture's colour mosaic does not match the sensor settings: \"cfa\": \"" +
+                                    to_string(cfg.cfa) + "\" fits the 2 x 2 cell signals of the sweep " +
+                                    to_str(err_cfg / std::max(err[best], 1e-300)) + " times worse than \"" +
+                                    to_string(layouts[best]) + "\" (this frame worst); check the configuration's cfa");
     }
   }
 
-  // 5b. Each colour divided by its relative response; unused colours filled from neighbours.
-  // noise_scale[b]: a pixel's noise over the frame's sigma (1 / its weight; a filled pixel the
-  // mean of its neighbours' over the square root of their count).
-  std::vector<Map2D> noise_scale(bands, Map2D(rows, cols, 1.0));
+  // 5b. The joint estimate of each band's PSF (joint_pixel_estimate) from the mean over the dark
+  // (not flat divided: the gain holds the flat). noise_scale[b]: each pixel's error sd over the
+  // band's sigma (step 7); info[b]: sigma² / the variance of the pixel's own estimate (step 8's
+  // signal mask).
+  std::vector<Map2D> noise_scale(bands), info(bands);
   for (std::size_t b = 0; b < bands; ++b) {
-    if (!mosaic) continue;
-    Map2D& ns = noise_scale[b];
-    const double top = std::max({srf(0, long(b)), srf(1, long(b)), srf(2, long(b))});
-    Map2D& m = sig[b];
-    Map2D out(rows, cols);
-    std::vector<char> used(rows * cols);
+    const double sigma = r.noise_dn[b], k = double(r.exposures[b]);
+    Map2D g(rows, cols), rv(rows, cols);
     for (std::size_t y = 0; y < rows; ++y)
       for (std::size_t x = 0; x < cols; ++x) {
-        const double w = top > 0 ? srf(cfa_channel(cfg.cfa, y, x), long(b)) / top : 0;
-        used[y * cols + x] = w >= opt.min_response;
-        if (used[y * cols + x]) {
-          out(y, x) = m(y, x) / w;
-          ns(y, x) = 1 / w;
-        }
+        const std::size_t i = y * cols + x, n = used[b][i];
+        g.data[i] = n ? gain(b, y, x) : 0.0;
+        rv.data[i] = n ? sigma * sigma * k / double(n) : 0.0;
       }
-    for (std::size_t y = 0; y < rows; ++y)
-      for (std::size_t x = 0; x < cols; ++x) {
-        if (used[y * cols + x]) continue;
-        for (int ring = 0; ring < 2; ++ring) {
-          double sum = 0, nsum = 0;
-          int n = 0;
-          for (long dy = -1; dy <= 1; ++dy)
-            for (long dx = -1; dx <= 1; ++dx) {
-              if ((dy == 0 && dx == 0) || (ring == 0 && dy != 0 && dx != 0)) continue;
-              const long yy = long(y) + dy, xx = long(x) + dx;
-              if (yy < 0 || xx < 0 || yy >= long(rows) || xx >= long(cols) || !used[std::size_t(yy) * cols + std::size_t(xx)]) continue;
-              sum += out(std::size_t(yy), std::size_t(xx));
-              nsum += ns(std::size_t(yy), std::size_t(xx));
-              ++n;
-            }
-          if (n) {
-            out(y, x) = sum / n;
-            ns(y, x) = nsum / n / std::sqrt(double(n));
-            break;
-          }
-        }
-      }
-    m = std::move(out);
+    JointEstimate je = joint_pixel_estimate(mean[b], g, rv, shot_dn / k);
+    mean[b] = Map2D();
+    sig[b] = std::move(je.value);
+    noise_scale[b] = std::move(je.sd);
+    for (double& v : noise_scale[b].data) v /= sigma;
+    info[b] = std::move(je.info);
+    for (double& v : info[b].data) v *= sigma * sigma;
   }
 
   lap("mosaic");
@@ -394,78 +445,20 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   r.centre_col = cx;
   const long y0 = cy - long(s / 2), x0 = cx - long(s / 2);
   if (y0 < 0 || x0 < 0 || y0 + long(s) > long(rows) || x0 + long(s) > long(cols))
-    refuse(frames[0].path, "the S x S = " + std::to_string(s) + " x " + std::to_string(s) + " crop around the centre (row " +
-                               std::to_string(cy) + ", column " + std::to_string(cx) + ") leaves the " + std::to_string(rows) + " x " +
-                               std::to_string(cols) + " frame (every frame shares the centre); centre the point source or give --centre");
+    refuse(first_path, "the S x S = " + std::to_string(s) + " x " + std::to_string(s) +
+                           " crop around the centre (row " + std::to_string(cy) + ", column " + std::to_string(cx) +
+                           ") leaves the " + std::to_string(rows) + " x " + std::to_string(cols) +
+                           " frame (every frame shares the centre); centre the point source or give --centre");
 
-  // 8. Crop, background, signal mask, normalise.
+  // 8. Crop, background, signal mask, normalise (crop_band).
   r.psf = RealStack(bands, s, s);
   for (std::size_t b = 0; b < bands; ++b) {
-    std::vector<double> ring;
-    for (std::size_t y = 0; y < s; ++y)
-      for (std::size_t x = 0; x < s; ++x)
-        if (y < 2 || x < 2 || y + 2 >= s || x + 2 >= s) ring.push_back(sig[b](std::size_t(y0) + y, std::size_t(x0) + x));
-    const double bg = opt.ring_background ? median_of(ring) : 0.0;
-    // The signal mask: the 5 x 5 mean of the crop above floor_sigma of its own noise (sigma x
-    // the pixel's noise scale / 5), grown by 2 px. Inside it values are kept (negatives 0),
-    // outside they are 0: noise is neither clamped into a bias over all S² pixels nor are faint
-    // wings next to the signal cut.
-    Map2D v(s, s), scale(s, s);
-    for (std::size_t y = 0; y < s; ++y)
-      for (std::size_t x = 0; x < s; ++x) {
-        v(y, x) = sig[b](std::size_t(y0) + y, std::size_t(x0) + x) - bg;
-        scale(y, x) = noise_scale[b](std::size_t(y0) + y, std::size_t(x0) + x);
-      }
-    auto box = [&](const Map2D& m, std::size_t y, std::size_t x, long rad, bool any) {
-      double acc = 0;
-      int n = 0;
-      for (long dy = -rad; dy <= rad; ++dy)
-        for (long dx = -rad; dx <= rad; ++dx) {
-          const long yy = long(y) + dy, xx = long(x) + dx;
-          if (yy < 0 || xx < 0 || yy >= long(s) || xx >= long(s)) continue;
-          const double e = m(std::size_t(yy), std::size_t(xx));
-          if (any && e > 0) return 1.0;
-          acc += e;
-          ++n;
-        }
-      return any ? 0.0 : acc / n;
-    };
-    Map2D lit(s, s);
-    for (std::size_t y = 0; y < s; ++y)
-      for (std::size_t x = 0; x < s; ++x)
-        lit(y, x) = box(v, y, x, 2, false) > opt.floor_sigma * r.noise_dn[b] * box(scale, y, x, 2, false) / 5 ? 1 : 0;
-    Map2D kept(s, s);
-    for (std::size_t y = 0; y < s; ++y)
-      for (std::size_t x = 0; x < s; ++x) kept(y, x) = box(lit, y, x, 2, true) > 0 ? v(y, x) : 0.0;
-    // Negative values (noise) are spread onto their positive 8-neighbours, so the band's sum
-    // stays an unbiased estimate of its energy (clamping them would add 0.4 sigma per masked
-    // pixel); what no positive neighbour takes after 4 passes is set to 0.
-    for (int pass = 0; pass < 4; ++pass)
-      for (std::size_t y = 0; y < s; ++y)
-        for (std::size_t x = 0; x < s; ++x) {
-          if (kept(y, x) >= 0) continue;
-          double pos = 0;
-          for (long dy = -1; dy <= 1; ++dy)
-            for (long dx = -1; dx <= 1; ++dx) {
-              const long yy = long(y) + dy, xx = long(x) + dx;
-              if ((dy || dx) && yy >= 0 && xx >= 0 && yy < long(s) && xx < long(s)) pos += std::max(kept(std::size_t(yy), std::size_t(xx)), 0.0);
-            }
-          if (pos <= 0) continue;
-          const double f = std::max(1 + kept(y, x) / pos, 0.0);  // each positive neighbour keeps this fraction
-          const double taken = std::min(-kept(y, x), pos);
-          for (long dy = -1; dy <= 1; ++dy)
-            for (long dx = -1; dx <= 1; ++dx) {
-              const long yy = long(y) + dy, xx = long(x) + dx;
-              if ((dy || dx) && yy >= 0 && xx >= 0 && yy < long(s) && xx < long(s) && kept(std::size_t(yy), std::size_t(xx)) > 0)
-                kept(std::size_t(yy), std::size_t(xx)) *= f;
-            }
-          kept(y, x) += taken;
-        }
+    const Map2D band = crop_band(sig[b], info[b], r.noise_dn[b], std::size_t(y0), std::size_t(x0), s, opt.floor_sigma,
+                                 opt.ring_background);
     double sum = 0;
-    for (std::size_t y = 0; y < s; ++y)
-      for (std::size_t x = 0; x < s; ++x) sum += r.psf(b, y, x) = std::max(kept(y, x), 0.0);
-    if (!(sum > 0)) refuse(frames[b].path, "no signal above the background in the S x S crop");
-    for (std::size_t i = 0; i < s * s; ++i) r.psf.data[b * s * s + i] /= sum;
+    for (double v : band.data) sum += v;
+    if (!(sum > 0)) refuse(band_files[b][0], "no signal above the background in the S x S crop");
+    std::copy(band.data.begin(), band.data.end(), r.psf.data.begin() + long(b * s * s));
   }
   lap("crop, background and normalise");
   r.seconds = seconds;
