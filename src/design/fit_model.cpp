@@ -148,6 +148,13 @@ struct AsBuiltModel::Impl {
   RealStack psf(const State& st) {
     Simulator& s_ = simulator(st);
     Map2D h = heights(st);
+    // Levels move freely and level 0 is held, so a level can pass below it: the map then has
+    // negative heights, which no simulator takes. Adding one constant to every height is a piston
+    // (the same phase over the whole aperture, band by band: the same PSF), so the lowest height is
+    // lifted to 0. Its gradient is zero, as the PSF's is to a piston.
+    const double lowest = *std::min_element(h.data.begin(), h.data.end());
+    if (lowest < 0)
+      for (double& v : h.data) v -= lowest;
     if (registration && native_build == t.simulators_built && native.planes && h.data == native_heights.data)
       return integrate_registered(native, cfg, st.sx, st.sy);
     s_.set_heights(h);
