@@ -19,38 +19,19 @@
 
 #include "adjoint_ladder.hpp"
 #include "common.hpp"
+#include "fit_common.hpp"
 #include "qdo/data/config.hpp"
 #include "qdo/design/design.hpp"
 #include "qdo/physics/doe.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/design/fit.hpp"
 #include "qdo/data/io.hpp"
-#include "qdo/physics/cpu_reference.hpp"
-#include "qdo/physics/psf_reference.hpp"
-#include "qdo/physics/optics.hpp"
-#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
 namespace fs = std::filesystem;
 
 namespace {
-
-// The tiny system of the fit tests: N = 64 (S = 32), 8 bands over 450 .. 550 nm, z = 3.125 mm.
-SystemConfig fit_config() { return tiny_config(64, 8); }
-
-// A 4-level lens for 500 nm (uniform wrapped levels 0, h/4, h/2, 3h/4: every level used; with the
-// inclusive placement the lens for 500 nm would leave level 3 = h_max empty).
-Design quantized_lens(const SystemConfig& cfg) {
-  Quantizer q;
-  q.levels = 4;
-  q.placement = Placement::Wrapped;
-  Design d;
-  d.height_m = quantize_heights(lens_design(cfg, 500), cfg.h_max_m(), q);
-  d.pitch_m = cfg.pitch_m;
-  d.levels_m = q.level_heights_m(cfg.h_max_m());
-  return d;
-}
 
 // The truth: theta of levels,z,offset = (level1..3, z, dx, dy).
 std::vector<double> truth(const SystemConfig& cfg, const Design& d) {
@@ -101,33 +82,6 @@ double scale_of(const std::string& name, const SystemConfig& cfg) { return name 
 }  // namespace
 
 TEST_SUITE("fit") {
-  TEST_CASE("shift_bilinear: adjoint (dot product), derivative (central differences), integer shifts exact") {
-    const std::size_t planes = 2, rows = 7, cols = 9;
-    const RealStack x = uniform_stack(planes, rows, cols, 1), g = uniform_stack(planes, rows, cols, 2);
-    for (const auto& s : std::vector<std::pair<double, double>>{{0.3, -0.45}, {-1.7, 2.2}, {0.0, 0.0}, {2.0, -1.0}}) {
-      const auto y = shift_bilinear(x.data, planes, rows, cols, s.first, s.second);
-      const auto xt = shift_bilinear_adjoint(g.data, planes, rows, cols, s.first, s.second);
-      CHECK(dot(y, g.data) == doctest::Approx(dot(x.data, xt)).epsilon(1e-13));
-      double dsx = 0, dsy = 0;
-      shift_bilinear_derivative(x.data, g.data, planes, rows, cols, s.first, s.second, dsx, dsy);
-      if (std::floor(s.first) != s.first) {  // away from the kinks at integer shifts
-        const double h = 1e-6;
-        const double fx = (dot(shift_bilinear(x.data, planes, rows, cols, s.first + h, s.second), g.data) -
-                           dot(shift_bilinear(x.data, planes, rows, cols, s.first - h, s.second), g.data)) /
-                          (2 * h);
-        const double fy = (dot(shift_bilinear(x.data, planes, rows, cols, s.first, s.second + h), g.data) -
-                           dot(shift_bilinear(x.data, planes, rows, cols, s.first, s.second - h), g.data)) /
-                          (2 * h);
-        CHECK(dsx == doctest::Approx(fx).epsilon(1e-7));
-        CHECK(dsy == doctest::Approx(fy).epsilon(1e-7));
-      }
-    }
-    // An integer shift moves samples exactly: out(2, 3) = in(2 + 1, 3 - 2) for (sx, sy) = (2, -1).
-    const auto y = shift_bilinear(x.data, planes, rows, cols, 2.0, -1.0);
-    CHECK(y[2 * cols + 3] == x.data[3 * cols + 1]);
-    CHECK(y[(rows - 1) * cols + 3] == 0.0);  // brought in from outside
-  }
-
   TEST_CASE("the adjoint gradient of the fit's loss matches central differences (levels, scale, offset, shift; z, d)") {
     const SystemConfig cfg = fit_config();
     const Design d = quantized_lens(cfg);
@@ -210,135 +164,6 @@ TEST_SUITE("fit") {
     CHECK(r.loss_history.size() >= std::size_t(r.iterations));
     CHECK(r.loss_history.size() <= std::size_t(r.iterations) + 1);
     for (std::size_t k = 1; k < r.loss_history.size(); ++k) CHECK(r.loss_history[k] < r.loss_history[k - 1]);
-  }
-
-  TEST_CASE("the registration moves the pixel grid: a grid off by whole DOE pixels is the model at that shift; the fit recovers it") {
-    // The truth by another route: the design's native PSF (bands x N x N on the DOE grid) moved by
-    // whole DOE pixels (samples copied), then integrated onto the sensor pixels
-    // (ref::resample_area, S = N / 2: a DOE pixel is half a sensor pixel). A sensor grid off by
-    // (kx, ky) DOE pixels is the registration (sx, sy) = (kx, ky) x pitch / sensor pitch.
-    const SystemConfig cfg = fit_config();
-    const Design d = quantized_lens(cfg);
-    const std::size_t n = cfg.n;
-    RealStack native, at_zero;
-    {
-      Simulator sim(runtime(), cfg, Precision::F64);
-      sim.set_heights(d.height_m);
-      sim.compute_psf();
-      native = sim.psf_native();
-      at_zero = sim.psf_sensor();
-    }
-    // The native stack cut into f x f sub-cells, f odd (each a uniform share of its cell: the cells
-    // are uniform in the model; the middle sub-cell of the axis cell N/2 is the finer grid's axis
-    // sample m/2), moved by (mx, my) sub-cells on a grid padded by 8 cells a side (nothing falls
-    // off), integrated onto the sensor pixels and normalised.
-    const auto moved_then_integrated = [&](std::size_t f, long mx, long my) {
-      REQUIRE(f % 2 == 1);
-      const std::size_t pad = 8 * f, m = n * f + 2 * pad, left = pad - (f - 1) / 2;
-      RealStack moved(native.planes, m, m, 0.0);
-      for (std::size_t b = 0; b < native.planes; ++b)
-        for (std::size_t y = 0; y < n * f; ++y)
-          for (std::size_t x = 0; x < n * f; ++x)
-            moved(b, std::size_t(long(y + left) + my), std::size_t(long(x + left) + mx)) =
-                native(b, y / f, x / f) / double(f * f);
-      RealStack out =
-          ref::resample_area(moved, AreaWeights::make(m, cfg.pitch_m / double(f), cfg.sensor_size_px(), cfg.sensor_pitch_m));
-      ref::normalize_planes(out);
-      return out;
-    };
-    const auto rel_l2 = [](const std::vector<double>& a, const std::vector<double>& b) {
-      double num = 0, den = 0;
-      for (std::size_t i = 0; i < a.size(); ++i) {
-        num += (a[i] - b[i]) * (a[i] - b[i]);
-        den += b[i] * b[i];
-      }
-      return std::sqrt(num / den);
-    };
-    const double ratio = cfg.sensor_pitch_m / cfg.pitch_m;
-    REQUIRE(ratio == 2.0);
-    // At zero shift the integration is the simulator's own sensor stack, and the route above too.
-    CHECK(rel_l2(integrate_registered(native, cfg, 0, 0).data, at_zero.data) < 1e-12);
-    CHECK(rel_l2(moved_then_integrated(1, 0, 0).data, at_zero.data) < 1e-12);
-    // Whole DOE pixels: (1, -3) -> (0.5, -1.5) sensor px. In double, to rounding.
-    const RealStack truth_stack = moved_then_integrated(1, 1, -3);  // f = 1: the cells themselves
-    CHECK(rel_l2(integrate_registered(native, cfg, 0.5, -1.5).data, truth_stack.data) < 1e-12);
-    // Fractions of a DOE pixel, on sub-cells: (1, -2) thirds -> (1/6, -1/3) sensor px, (-3, 2)
-    // fifths -> (-0.3, 0.2).
-    CHECK(rel_l2(integrate_registered(native, cfg, 1.0 / 6, -1.0 / 3).data, moved_then_integrated(3, 1, -2).data) < 1e-12);
-    CHECK(rel_l2(integrate_registered(native, cfg, -0.3, 0.2).data, moved_then_integrated(5, -3, 2).data) < 1e-12);
-    // The bilinear shift of the sampled stack the fit used before blurs by up to a sensor pixel.
-    const std::vector<double> blurred = shift_bilinear(at_zero.data, at_zero.planes, at_zero.rows, at_zero.cols, 0.5, -1.5);
-    const double err_bilinear = rel_l2(blurred, truth_stack.data);
-    INFO("a bilinear shift of the sensor stack is " << err_bilinear << " (relative L2) from the moved grid's");
-    CHECK(err_bilinear > 0.05);
-    // Its adjoint: <A x, g> = <x, A^T g> for the normalised integration's linearisation, by central
-    // differences along a random direction of the native stack.
-    {
-      const RealStack g = uniform_stack(native.planes, at_zero.rows, at_zero.cols, 31);
-      const RealStack dir = uniform_stack(native.planes, n, n, 32);
-      const RealStack gx = integrate_registered_adjoint(g, native, cfg, 0.3, -0.7);
-      const double h = 1e-6;
-      RealStack a = native, b = native;
-      for (std::size_t i = 0; i < a.data.size(); ++i) {
-        a.data[i] += h * dir.data[i];
-        b.data[i] -= h * dir.data[i];
-      }
-      const RealStack fa = integrate_registered(a, cfg, 0.3, -0.7), fb = integrate_registered(b, cfg, 0.3, -0.7);
-      double fd = 0, ad = 0;
-      for (std::size_t i = 0; i < fa.data.size(); ++i) fd += g.data[i] * (fa.data[i] - fb.data[i]) / (2 * h);
-      for (std::size_t i = 0; i < gx.data.size(); ++i) ad += gx.data[i] * dir.data[i];
-      INFO("adjoint " << ad << ", central differences " << fd);
-      CHECK(std::fabs(ad - fd) <= 1e-7 * std::fabs(fd));
-    }
-    // The fit from the design (the registration's start at the centroid difference) recovers
-    // (0.5, -1.5) and leaves the levels where they are: the moved grid is in the model.
-    FitOptions opt;
-    opt.parameters = {"levels", "shift"};
-    opt.max_iterations = 40;
-    const FitResult r = fit_as_built(runtime(), cfg, Precision::F64, d, truth_stack, opt);
-    for (const FitValue& v : r.values) {
-      CAPTURE(v.name);
-      INFO("fitted " << v.value << " (design " << v.design << ")");
-      if (v.name == "sx") CHECK(std::fabs(v.value - 0.5) < 1e-3);
-      else if (v.name == "sy") CHECK(std::fabs(v.value + 1.5) < 1e-3);
-      else CHECK(std::fabs(v.value - v.design) < 0.05e-9);
-    }
-    CHECK(r.loss_final < 1e-8 * r.loss_design);
-  }
-
-  TEST_CASE("a level below level 0 is a piston away: the model lifts the map instead of refusing it") {
-    // The paper preset's fit from the centroid start walked level 3 below level 0 and the
-    // simulator refused the negative heights, ending the fit after 6 minutes.
-    const SystemConfig cfg = fit_config();
-    const Design d = quantized_lens(cfg);
-    AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels"});
-    std::vector<double> th = m.design_values();
-    th[0] = -20e-9;  // level 1 20 nm below level 0
-    RealStack got;
-    REQUIRE_NOTHROW(got = m.evaluate(th));
-    // The same map lifted by 20 nm by hand, and the piston itself: +0.3 um on every height.
-    Map2D lifted = m.heights(th);
-    for (double& v : lifted.data) v += 20e-9;
-    Simulator sim(runtime(), cfg, Precision::F64);
-    sim.set_heights(lifted);
-    sim.compute_psf();
-    const RealStack want = sim.psf_sensor();
-    for (double& v : lifted.data) v += 0.3e-6;
-    sim.set_heights(lifted);
-    sim.compute_psf();
-    const RealStack pistoned = sim.psf_sensor();
-    double num = 0, num_p = 0, den = 0;
-    for (std::size_t i = 0; i < want.data.size(); ++i) {
-      num += (got.data[i] - want.data[i]) * (got.data[i] - want.data[i]);
-      num_p += (pistoned.data[i] - want.data[i]) * (pistoned.data[i] - want.data[i]);
-      den += want.data[i] * want.data[i];
-    }
-    CHECK(std::sqrt(num / den) < 1e-12);
-    CHECK(std::sqrt(num_p / den) < 1e-10);  // float64 phases of ~10 rad: rounding of ~1e-15 rad each
-    std::vector<double> g;
-    const RealStack meas = m.evaluate(m.design_values());
-    m.loss_gradient(th, meas, g);
-    for (double v : g) CHECK(std::isfinite(v));
   }
 
   TEST_CASE("lateral starts: from the offset's mirror start the grid finds the true basin; start values are taken") {
