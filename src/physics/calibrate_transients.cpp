@@ -91,7 +91,9 @@ Map2D adjacent_band_ceiling(std::size_t b, const std::vector<Map2D>& mean_dn, co
   // Each band's scale A: the expected raw value of pixel p is A_b x gain_b(p) x psf_b(p) with psf
   // of unit sum, so A_b ~ sum of the band's signal / mean gain (the light falls on every colour).
   std::vector<double> scale(bands, 0);
-  for (std::size_t a : adj) {
+  std::vector<std::size_t> scaled = adj;
+  scaled.push_back(b);
+  for (std::size_t a : scaled) {
     double sum = 0, gsum = 0;
     for (std::size_t y = 0; y < rows; ++y)
       for (std::size_t x = 0; x < cols; ++x) {
@@ -99,15 +101,6 @@ Map2D adjacent_band_ceiling(std::size_t b, const std::vector<Map2D>& mean_dn, co
         if (g > 0) sum += mean_dn[a](y, x), gsum += g;
       }
     scale[a] = gsum > 0 ? sum / gsum : 0;
-  }
-  {
-    double sum = 0, gsum = 0;
-    for (std::size_t y = 0; y < rows; ++y)
-      for (std::size_t x = 0; x < cols; ++x) {
-        const double g = gain(b, y, x);
-        if (g > 0) sum += mean_dn[b](y, x), gsum += g;
-      }
-    scale[b] = gsum > 0 ? sum / gsum : 0;
   }
   if (!(scale[b] > 0)) return ceiling;
   for (std::size_t a : adj)
