@@ -26,8 +26,11 @@ fi
 # The whole paper-preset PSF command against its in-process compute, and with --compress.
 bash bench/psf_command.sh ./build/qdo paper 7 | tee "$out/psf_command.txt"
 bash bench/psf_command.sh ./build/qdo paper 5 --compress | tee "$out/psf_command_compress.txt"
-# What crossing between PyTorch and qdo costs (needs the package: scripts/test_python.sh builds it).
-if [ -x build/venv/bin/python ]; then build/venv/bin/python bench/python_overhead.py | tee "$out/python.txt"; fi
+# What crossing between PyTorch and qdo costs (needs the package: scripts/build.sh stages it in
+# build/pystage for Debian's python3; a pip install into build/venv serves too).
+if [ -f build/pystage/python-executable ]; then
+  PYTHONPATH="$PWD/build/pystage" "$(cat build/pystage/python-executable)" bench/python_overhead.py | tee "$out/python.txt"
+elif [ -x build/venv/bin/python ]; then build/venv/bin/python bench/python_overhead.py | tee "$out/python.txt"; fi
 # One joint-training step (optics + Res-UNet), when the build has LibTorch (QDO_TORCH).
 if [ -x build/bench_train ]; then ./build/bench_train --presets small,paper --repeats 3 --out "$out/train.md"; fi
 echo "bench: tables in $out/"
