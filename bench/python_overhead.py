@@ -5,7 +5,8 @@ qdo's NumPy API (the C++ call and its float64 copies) and (2) through the qdo.to
 --repeats runs after one warm-up, small preset, float32 device work. The C++ in-process figures of
 the same work are bench_step's "OpenCL PSF forward" rows.
 
-    build/venv/bin/python bench/python_overhead.py [--repeats 7] [--preset small]
+    PYTHONPATH=build/pystage /usr/bin/python3 bench/python_overhead.py [--repeats 7] [--preset small]
+    (or a pip-installed package: build/venv/bin/python bench/python_overhead.py ...)
 """
 import argparse
 import statistics
