@@ -151,7 +151,9 @@ TEST_SUITE("simulate-varying") {
                     " --depth-scale 0.001 --out " + (dir / "png").string(),
                 "QDO_DEVICE=cpu");
     REQUIRE_MESSAGE(r.code == 0, r.out);
-    CHECK(read_rgb(dir / "png").data == one.data);
+    // The same computation in another process: equal to the rounding of the FFT plans, which
+    // FFTW_MEASURE may choose differently while two CTest entries fill a cold wisdom cache.
+    CHECK(max_abs_diff(read_rgb(dir / "png").data, one.data) <= 1e-6 * top);
     // The configuration's noise is added as the camera adds it (Gaussian read noise, same counters).
     SystemConfig noisy = depth_config(d);
     noisy.read_noise_sigma = 0.01;
@@ -236,7 +238,8 @@ TEST_SUITE("simulate-varying") {
                           "QDO_DEVICE=cpu");
     REQUIRE_MESSAGE(r.code == 0, r.out);
     CHECK(r.out.find("the depth map's 2 distinct values") != std::string::npos);
-    CHECK(read_rgb(dir / "default").data == img[0].data);
+    // Another process (see the PNG depth above): equal to the FFT plans' rounding.
+    CHECK(max_abs_diff(read_rgb(dir / "default").data, img[0].data) <= 1e-6 * max_abs(img[0].data));
     // Many distinct values (a ramp from 0.01 m to 0.1 m): 8 layers evenly spaced in diopters, near to far.
     Map2D ramp(h, w);
     for (std::size_t y = 0; y < h; ++y)
