@@ -276,8 +276,9 @@ struct AsBuiltModel::Impl {
     return 0;
   }
 
-  // J (m x p): columns by central differences of the model; the columns that rebuild the simulator
-  // (z, d, registration) last, so the simulator of theta serves every other column. With the model
+  // J (m x p): columns by central differences of the model; the columns taken by differences
+  // (z and d rebuild the simulator, the registration re-integrates) last, so the simulator of theta
+  // serves every other column. With the model
   // at theta given (at_theta), the other columns by one-sided differences from it (one evaluation
   // each instead of two: what a Levenberg-Marquardt step needs of J^T J).
   Eigen::MatrixXd jacobian(const std::vector<double>& theta, const RealStack* at_theta = nullptr) {
