@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # qdo's joint-training step against a plain-PyTorch reference (bench/joint_torch.py), stage by stage, in
-# one run: build/bench_train --presets small (qdo: OpenCL optics and camera, LibTorch network) and
-# bench/joint_torch.py --preset small (torch.fft optics and camera, torch.nn network, one autograd graph)
+# one run: build/bench_train --presets PRESET (qdo: OpenCL optics and camera, LibTorch network) and
+# bench/joint_torch.py --preset PRESET (torch.fft optics and camera, torch.nn network, one autograd graph)
 # with the same batch, the same repeats and all cores as torch threads (bench_train sets LibTorch to
 # hardware_concurrency; PoCL uses every core). Writes OUT/joint_torch.md: one row per stage with qdo's
 # median, the reference's median and qdo / reference (< 1: qdo faster), plus the machine and the date.
@@ -10,7 +10,8 @@
 #
 # Usage: bench/joint_torch.sh OUT [REPEATS=5] [BATCH=4]
 #        env: BUILD=build (where bench_train and qdo are), PY=/usr/bin/python3 (a python with torch),
-#             THREADS=$(nproc), CHECK=1
+#             THREADS=$(nproc), CHECK=1, PRESET=small (or paper: N 1024, scenes of 512 x 512 and the
+#             paper's Res-UNet, depth 7 and root 32, on both sides; its check stays at small)
 # Timings on a shared machine are noisy: the load average at the start and the end goes into the report.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,6 +22,12 @@ BUILD=${BUILD:-build}
 PY=${PY:-/usr/bin/python3}
 THREADS=${THREADS:-$(nproc)}
 CHECK=${CHECK:-1}
+PRESET=${PRESET:-small}
+case "$PRESET" in
+  small) DECODER=resunet; NET=(--depth 4 --root 16) ;;
+  paper) DECODER=resunet:paper; NET=(--depth 7 --root 32) ;;
+  *) echo "joint_torch.sh: PRESET=$PRESET: small or paper" >&2; exit 2 ;;
+esac
 mkdir -p "$OUT"
 load0=$(cut -d' ' -f1-3 /proc/loadavg)
 date -u +"%Y-%m-%d %H:%M:%S UTC" > "$OUT/date.txt"
@@ -45,27 +52,27 @@ if [ "$CHECK" = 1 ]; then
 fi
 
 t0=$(date +%s.%N)
-"$BUILD/bench_train" --presets small --repeats "$REPEATS" --batch "$BATCH" --out "$OUT/bench_train.md" \
+"$BUILD/bench_train" --presets "$PRESET" --decoder "$DECODER" --repeats "$REPEATS" --batch "$BATCH" --out "$OUT/bench_train.md" \
   > "$OUT/bench_train.log" 2>&1 || { tail -20 "$OUT/bench_train.log"; exit 1; }
 t1=$(date +%s.%N)
-"$PY" bench/joint_torch.py --preset small --repeats "$REPEATS" --batch "$BATCH" --threads "$THREADS" \
+"$PY" bench/joint_torch.py --preset "$PRESET" "${NET[@]}" --repeats "$REPEATS" --batch "$BATCH" --threads "$THREADS" \
   --json "$OUT/joint_torch.json" > "$OUT/joint_torch.log" 2>&1 || { tail -20 "$OUT/joint_torch.log"; exit 1; }
 t2=$(date +%s.%N)
 load1=$(cut -d' ' -f1-3 /proc/loadavg)
 
-"$PY" - "$OUT" "$(echo "$t1 - $t0" | bc)" "$(echo "$t2 - $t1" | bc)" "$load0" "$load1" "$REPEATS" "$CHECK" <<'PY'
+"$PY" - "$OUT" "$(echo "$t1 - $t0" | bc)" "$(echo "$t2 - $t1" | bc)" "$load0" "$load1" "$REPEATS" "$CHECK" "$PRESET" "$DECODER" "${NET[*]}" <<'PY'
 import json, subprocess, sys
-out, qdo_wall, torch_wall, load0, load1, repeats, check = sys.argv[1:8]
+out, qdo_wall, torch_wall, load0, load1, repeats, check, preset, decoder, net = sys.argv[1:11]
 qdo = {}
 for line in open(f"{out}/bench_train.md"):
     f = [x.strip() for x in line.strip().strip("|").split("|")]
-    if len(f) == 6 and f[0] == "small":
+    if len(f) == 6 and f[0] == preset:
         try:
             qdo[f[3]] = float(f[4])
         except ValueError:
             pass
 device = next((l.strip() for l in open(f"{out}/bench_train.md") if l.startswith("Device:")), "")
-qdo_sizes = next((l.strip().rstrip(":") for l in open(f"{out}/bench_train.log") if l.startswith("small (")), "")
+qdo_sizes = next((l.strip().rstrip(":") for l in open(f"{out}/bench_train.log") if l.startswith(preset + " (")), "")
 ref = json.load(open(f"{out}/joint_torch.json"))
 t, sz = ref["times"], ref["sizes"]
 lscpu = subprocess.run(["lscpu"], capture_output=True, text=True).stdout
@@ -88,15 +95,15 @@ rows = [  # (stage, qdo row, torch row, remark)
      "network and optics Adam"),
 ]
 L = []
-L.append("# qdo vs a plain-PyTorch reference: one joint-training step, stage by stage (preset small)\n")
+L.append(f"# qdo vs a plain-PyTorch reference: one joint-training step, stage by stage (preset {preset})\n")
 L.append(f"- date: {open(out + '/date.txt').read().strip()}")
 L.append(f"- machine: {field('Model name')}, {field('CPU(s)')} CPUs ({field('Core(s) per socket')} cores per socket, "
          f"{field('Socket(s)')} socket(s), {field('Thread(s) per core')} thread(s) per core)")
 L.append(f"- load average (1, 5, 15 min) at the start: {load0}; at the end: {load1} (the machine is shared: "
          "other jobs ran meanwhile, so the numbers are noisy)")
-L.append(f"- qdo: `build/bench_train --presets small --repeats {repeats} --batch {ref['batch']}` ({device}; "
+L.append(f"- qdo: `build/bench_train --presets {preset} --decoder {decoder} --repeats {repeats} --batch {ref['batch']}` ({device}; "
          f"median of {repeats} after one warm-up; run took {float(qdo_wall):.0f} s, including its extra rows)")
-L.append(f"- reference: `bench/joint_torch.py --preset small --repeats {repeats} --batch {ref['batch']} "
+L.append(f"- reference: `bench/joint_torch.py --preset {preset} {net} --repeats {repeats} --batch {ref['batch']} "
          f"--threads {ref['threads']}` (torch {ref['torch']}, {ref['device']}, {ref['threads']} threads, "
          f"float32/complex64, QDO+A L=4, median of {repeats} after one warm-up; run took {float(torch_wall):.0f} s)")
 L.append("- sizes (both): " + ", ".join(f"{k} {v}" for k, v in sz.items()) +

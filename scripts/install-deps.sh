@@ -4,7 +4,10 @@
 #   bash scripts/install-deps.sh [all]   everything: the tool, its tests, the network decoder
 #                                        (LibTorch), MPI and the Python package
 #   bash scripts/install-deps.sh core    what the tool itself needs to build and run (scripts/demo.sh)
+#   bash scripts/install-deps.sh --list [all|core]   print the set's package names, one a line, and exit
 set -euo pipefail
+list_only=0
+if [ "${1:-}" = --list ]; then list_only=1; shift; fi
 set_name=${1:-all}
 case "$set_name" in
   all|core) ;;
@@ -38,6 +41,7 @@ extra=(
 )
 pkgs=("${core[@]}")
 [ "$set_name" = all ] && pkgs+=("${extra[@]}")
+if [ "$list_only" = 1 ]; then printf '%s\n' "${pkgs[@]}"; exit 0; fi
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
