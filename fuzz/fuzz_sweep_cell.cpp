@@ -6,7 +6,7 @@
 #include <vector>
 
 #include "fuzz_util.hpp"
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace qdo;

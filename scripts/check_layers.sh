@@ -2,8 +2,9 @@
 # The layers of src/ point down only (CTest entry "layers"). From the bottom:
 #   runtime, data          OpenCL, FFT, kernel cache; configurations, scenes, files, materials
 #   physics                the optical stages and their CPU references
-#   decode                 decoders and their registry, the test-set evaluation
-#   design                 the optimiser, run folders, eval of a run, sweeps
+#   decode                 decoders and their registry, the test-set evaluation, tiled decoding
+#   design                 the optimiser, run folders, the built camera (captures, fit, reconstruct)
+#   evaluate               eval of a run, eval-points, sweeps
 #   fab                    fabrication export and tolerance
 #   cli                    the qdo tool (top)
 # net (the LibTorch plugin, qdo_net) sits on decode and below, and nothing in the core includes it.
@@ -32,8 +33,9 @@ physics runtime,data,physics
 decode runtime,data,physics,decode
 net runtime,data,physics,decode,net
 design runtime,data,physics,decode,design
-cli runtime,data,physics,decode,design,fab,cli
-fab runtime,data,physics,decode,design,fab
+evaluate runtime,data,physics,decode,design,evaluate
+cli runtime,data,physics,decode,design,evaluate,fab,cli
+fab runtime,data,physics,decode,design,evaluate,fab
 '
 
 shopt -s nullglob

@@ -5,8 +5,11 @@
 #include <set>
 #include <sstream>
 
+#include <nlohmann/json.hpp>
+
 #include "common.hpp"
 #include "qdo/data/io.hpp"
+#include "qdo/design/recipe.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
@@ -21,6 +24,34 @@ void write_height_file(const std::string& path, std::size_t rows, std::size_t co
 }  // namespace
 
 TEST_SUITE("cli") {
+  TEST_CASE("qdo recipe: a command in one file prints every recipe item as the library sets it") {
+    // The command is src/cli/cmd_recipe.cpp alone: it registers itself and the table, help and
+    // dispatch find it.
+    const Run help = qdo_run("--help");
+    CHECK(help.out.find("recipe") != std::string::npos);
+    const Run r = qdo_run("recipe --json");
+    CAPTURE(r.out);
+    REQUIRE(r.code == 0);
+    const nlohmann::json j = nlohmann::json::parse(r.out.substr(r.out.find('{')));
+    for (const std::string& name : qdo::recipe_names())
+      for (const qdo::RecipeItem& it : qdo::recipe_items()) {
+        CAPTURE(name);
+        CAPTURE(it.option);
+        CHECK(j.at("recipes").at(name).at(it.option).get<std::string>() == qdo::recipe_value(name, it.option));
+        CHECK(j.at("what").at(it.option).get<std::string>() == it.what);
+      }
+    CHECK(j.at("not_reproduced").size() == qdo::recipe_gaps().size());
+    const Run table = qdo_run("recipe --name release");
+    REQUIRE(table.code == 0);
+    for (const qdo::RecipeItem& it : qdo::recipe_items()) CHECK(table.out.find("--" + it.option) != std::string::npos);
+    const std::string header = table.out.substr(0, table.out.find('\n'));
+    CHECK(header.find("release") != std::string::npos);
+    CHECK(header.find("qdo") == std::string::npos);  // one recipe's column only
+    const Run bad = qdo_run("recipe --name paper");
+    CHECK(bad.code == 2);
+    CHECK(bad.out.find("--name") != std::string::npos);
+  }
+
   TEST_CASE("qdo simulate --scene takes a CAVE PNG band folder, as --data does") {
     const auto dir = temp_dir("cli_pngscene");
     const std::string scene = (dir / "scene_ms").string(), out = (dir / "out").string();
@@ -115,8 +146,8 @@ TEST_SUITE("cli") {
   }
 
   TEST_CASE("qdo --help, qdo <command> --help and qdo --version; an unknown option of any command is exit 2") {
-    // Every command with every option it takes (the command table in src/cli/command_table.cpp must
-    // declare each of them, and its help must show each).
+    // Every command with every option it takes (each command's registration in src/cli/cmd_*.cpp
+    // must declare each of them, and its help must show each).
     const std::map<std::string, std::vector<std::string>> commands = {
         {"devices", {}},
         {"config", {"preset", "config"}},

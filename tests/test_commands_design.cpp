@@ -18,7 +18,7 @@
 
 #include "commands_common.hpp"
 #include "qdo/design/design_run.hpp"
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 #include "qdo/physics/doe.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/design/run.hpp"

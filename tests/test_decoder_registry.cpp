@@ -14,7 +14,7 @@
 #include "qdo/design/design_run.hpp"
 #include "qdo/decode/encoders.hpp"
 #include "qdo/runtime/error.hpp"
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/decode/testset.hpp"
 #include "qdo/decode/wiener.hpp"

@@ -15,8 +15,8 @@
 
 #include "common.hpp"
 #include "qdo/design/design_run.hpp"
-#include "qdo/design/eval.hpp"
-#include "qdo/design/eval_points.hpp"
+#include "qdo/evaluate/eval.hpp"
+#include "qdo/evaluate/eval_points.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/data/materials.hpp"
 

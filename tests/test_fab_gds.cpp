@@ -11,7 +11,7 @@
 #include "common.hpp"
 #include "fab_common.hpp"
 #include "qdo/design/design_run.hpp"
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 #include "qdo/design/gradcheck.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/fab/fab.hpp"

@@ -19,7 +19,7 @@
 #include "common.hpp"
 #include "joint_common.hpp"
 #include "qdo/design/design_run.hpp"
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/design/joint.hpp"
@@ -27,7 +27,7 @@
 #include "qdo/physics/optics.hpp"
 #include "qdo/design/run.hpp"
 #include "qdo/design/run_folder.hpp"
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

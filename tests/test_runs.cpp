@@ -19,7 +19,7 @@
 #include "common.hpp"
 #include "qdo/design/run_folder.hpp"
 #include "qdo/design/design_run.hpp"
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 #include "qdo/design/gradcheck.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/data/io.hpp"

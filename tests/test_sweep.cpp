@@ -8,7 +8,7 @@
 #include "qdo/design/run.hpp"
 #include "qdo/physics/simulator.hpp"
 #include "qdo/design/design_run.hpp"
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -19,7 +19,7 @@
 #include "qdo/runtime/mpi.hpp"
 #include "qdo/design/run.hpp"
 #include "qdo/design/run_folder.hpp"
-#include "qdo/design/sweep_stats.hpp"
+#include "qdo/evaluate/sweep_stats.hpp"
 #include "stress_common.hpp"
 
 using namespace qdo;

@@ -10,8 +10,11 @@
 
 #include "qdo/data/config.hpp"
 #include "qdo/design/design_run_options.hpp"
+#include "qdo/design/psf_spec.hpp"
+#include "qdo/fab/fab_outputs.hpp"
 #include "qdo/physics/doe.hpp"
 #include "qdo/physics/camera.hpp"
+#include "qdo/runtime/parse.hpp"
 #include "qdo/runtime/types.hpp"
 #include "qdo/runtime/util.hpp"
 
@@ -39,10 +42,12 @@ struct Args {
   bool has(const std::string& k) const { return opt.count(k) > 0; }
 };
 
-// --- The command table (src/cli/command_table.cpp) ----------------------------------------
-// Every command declares each option once: name (without --), a one-line description with
-// units and allowed values, the default ("" = none, or computed by the command as described),
-// and whether it is a flag (--name alone) or repeatable (--name V1 --name V2).
+// --- The command table ------------------------------------------------------------------------
+// Every command declares itself in its own file (src/cli/cmd_*.cpp) with a RegisterCommand: its
+// name, one-line summary, positional argument (if any) and each option once: name (without --), a
+// one-line description with units and allowed values, the default ("" = none, or computed by the
+// command as described), and whether it is a flag (--name alone) or repeatable (--name V1 --name V2).
+// Options several commands share are in options.hpp. main() (commands.cpp) only dispatches.
 struct OptionSpec {
   std::string name, help, def;
   bool flag = false;
@@ -54,7 +59,15 @@ struct CommandSpec {
   std::vector<OptionSpec> options;
   std::function<int(const Args&)> run;
   bool writes_as_it_goes = false;  // long, resumable commands; the others stage their outputs (OutputStage)
+  std::string memory_advice{};     // what to reduce when the command runs out of host memory ("" = the general advice)
 };
+// Registers a command at static initialisation: `const RegisterCommand r(order, [] { return
+// CommandSpec{...}; });` in the command's file. `order` places it in `qdo --help`; the spec is
+// made on the first look-up. Every command whose options include --out also gets --into-existing.
+struct RegisterCommand {
+  RegisterCommand(int order, std::function<CommandSpec()> make);
+};
+// The registered commands in help order (a std::logic_error names a name registered twice).
 const std::vector<CommandSpec>& command_table();
 const CommandSpec* find_command(const std::string& name);
 // Parses argv[2..] (argv[1] is the command) against the command's table entry with CLI11.
@@ -66,27 +79,6 @@ std::string command_help(const CommandSpec& c);
 // Registers the on-demand loader of the LibTorch plugin (net_plugin.cpp).
 void register_net_plugin_loader();
 
-// The command bodies (src/cli/*.cpp); options are parsed before any of them runs.
-int cmd_devices(const Args& a);
-int cmd_config(const Args& a);
-int cmd_data(const Args& a);
-int cmd_psf(const Args& a);
-int cmd_calibrate(const Args& a);
-int cmd_fit(const Args& a);
-int cmd_reconstruct(const Args& a);
-int cmd_quantize(const Args& a);
-int cmd_simulate(const Args& a);
-int cmd_demo(const Args& a);
-int cmd_design(const Args& a);
-int cmd_gradcheck(const Args& a);
-int cmd_eval(const Args& a);
-int cmd_eval_points(const Args& a);
-int cmd_image(const Args& a);
-int cmd_export(const Args& a);
-int cmd_tolerance(const Args& a);
-int cmd_fabricate(const Args& a);
-int cmd_sweep(const Args& a);
-int cmd_sweep_psf(const Args& a);
 // The gradient check's table on stdout (parameter group, max relative error, tolerance, ok/FAIL);
 // 0 when every group passes, 5 otherwise (cmd_gradcheck.cpp; also qdo design --check-gradients).
 int print_gradcheck(const std::vector<GradcheckRow>& rows);
@@ -101,17 +93,11 @@ SystemConfig load_config(const Args& a, bool allow_points = false);
 // with --resample-bands); the radiance rule (conform_radiance) applies.
 RealStack scene_from_args(const SystemConfig& cfg, const Args& a);
 // (A path given otherwise, qdo reconstruct --truth: read_scene, scenes.hpp.)
-int parse_int(const std::string& name, const std::string& v, int lo, int hi);
-double parse_double(const std::string& name, const std::string& v);
-// A number within [lo, hi] (lo excluded when lo_open), in `unit` (e.g. "nm", "" for none): an
-// InputError naming the option, the value, the unit and the range otherwise.
-double parse_double(const std::string& name, const std::string& v, double lo, double hi, const std::string& unit,
-                    bool lo_open = false);
+// Numbers and on/off switches of options: parse_int, parse_double, parse_on_off (qdo/runtime/parse.hpp).
 // The scene sources of option `name` (comma-separated): dataset names resolved under the data root
 // (data_root.hpp), paths checked to exist; an InputError naming --name otherwise. Empty when the
 // option is not given and has no default.
 std::vector<std::string> scene_paths(const Args& a, const std::string& name);
-bool parse_on_off(const std::string& name, const std::string& v);  // "on" or "off", else an InputError naming the option
 // lens:NM, flat, or an HDF5 design file matching the configuration's grid.
 Map2D load_design(const SystemConfig& cfg, const std::string& spec);
 struct QuantSpec {
@@ -120,6 +106,15 @@ struct QuantSpec {
 };
 QuantSpec load_quantizer(const Args& a);
 Map2D design_heights(const SystemConfig& cfg, const Args& a, QuantSpec* qs_out = nullptr);
+// The PSF of simulate and image, decided and checked before any device work (psf_spec.hpp):
+// --psf FILE (the file's stack, checked against the configuration's bands and sensor grid) or
+// --design (heights, quantized by --levels when given, simulated once the device is up). Exactly
+// one of the two.
+PsfInput psf_input(const SystemConfig& cfg, const Args& a);
+// RUN|DESIGN.h5 (the positional) of export, tolerance and fabricate: a run folder, whose
+// config.json leaves no room for --preset or --config, or a design .h5 file read with the
+// configuration they give (fab_outputs.hpp: read_design_source).
+fab::DesignSource fab_source(const Args& a, bool check_grid);
 // The command's --out folder under the one rule for output folders (claim_output_dir, io.hpp:
 // new, empty or the same command's; another's or a user's only with --into-existing).
 std::string out_dir(const Args& a, const std::string& def = "");

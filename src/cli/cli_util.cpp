@@ -48,13 +48,6 @@ SystemConfig load_config(const Args& a, bool allow_points) {
   return c;
 }
 
-int parse_int(const std::string& name, const std::string& v, int lo, int hi) {
-  char* end = nullptr;
-  const long x = std::strtol(v.c_str(), &end, 10);
-  if (v.empty() || *end || x < lo || x > hi) reject(name, v, "an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
-  return int(x);
-}
-
 // lens:NM, flat, or an HDF5 design file matching the configuration's grid.
 Map2D load_design(const SystemConfig& cfg, const std::string& spec) { return design_heights_from_spec(cfg, spec, "--design"); }
 
@@ -100,24 +93,6 @@ std::string clip_summary(const SensorClip& c) {
                   100.0 * c.fraction(), c.clipped, c.total, c.max_before);
   return buf;
 }
-
-
-double parse_double(const std::string& name, const std::string& v) {
-  char* end = nullptr;
-  const double x = std::strtod(v.c_str(), &end);
-  if (v.empty() || *end || !std::isfinite(x)) reject(name, v, "a number");
-  return x;
-}
-
-double parse_double(const std::string& name, const std::string& v, double lo, double hi, const std::string& unit, bool lo_open) {
-  const double x = parse_double(name, v);
-  if (x < lo || x > hi || (lo_open && x == lo)) {
-    const std::string u = unit.empty() ? "" : " " + unit;
-    reject(name, v + u, "a number in " + std::string(lo_open ? "(" : "[") + to_str(lo) + ", " + to_str(hi) + "]" + u);
-  }
-  return x;
-}
-
 
 std::vector<std::string> scene_paths(const Args& a, const std::string& name) {
   const std::vector<std::string> out = resolve_datasets(split_items(a.get(name)), "--" + name);
@@ -199,12 +174,6 @@ void range_options(const Args& a, DesignRunOptions& o) {
   // the value with the stored one.
   const std::size_t points = a.has("resume") ? 4096 : c.point_count();
   o.design.points_per_step = std::size_t(parse_int("--points-per-step", a.get("points-per-step", "1"), 1, int(std::min<std::size_t>(points, 4096))));
-}
-
-bool parse_on_off(const std::string& name, const std::string& v) {
-  if (v == "on") return true;
-  if (v == "off") return false;
-  reject(name, v, "on or off");
 }
 
 DesignRunOptions design_options(const Args& a, bool range) {
@@ -330,6 +299,26 @@ void check_resume_options(const Args& a, const DesignRunOptions& given) {
   reject("--resume", given.out,
          "options that match the run's config.json (a resumed run continues with its stored options; these differ: " + list +
              "; omit them, or start a new run in another --out)");
+}
+
+fab::DesignSource fab_source(const Args& a, bool check_grid) {
+  const std::string& src = a.positional;
+  if (fs::is_directory(src) && (a.has("preset") || a.has("config")))
+    reject("--preset", "(given)", "omitted with a run folder (its config.json is used)");
+  return fab::read_design_source(src, [&a] { return load_config(a); }, check_grid);
+}
+
+PsfInput psf_input(const SystemConfig& cfg, const Args& a) {
+  const PsfSpec spec = psf_spec_from_options(a.get("psf"), a.get("design"), "--psf", "--design", "the PSF comes from one of them");
+  if (spec.kind == PsfSpec::Kind::File) {
+    if (a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --psf (the PSF file is used as it is)");
+    return read_psf_input(spec, cfg);
+  }
+  if (spec.kind == PsfSpec::Kind::Run) reject("--design", "(missing)", "lens:NM, flat, or a design .h5 file (or --psf FILE: a PSF stack)");
+  PsfInput in;
+  in.spec = spec;
+  in.heights = design_heights(cfg, a);
+  return in;
 }
 
 }  // namespace qdo::cli

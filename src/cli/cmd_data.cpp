@@ -3,11 +3,12 @@
 #include <string>
 
 #include "cli.hpp"
+#include "options.hpp"
 #include "qdo/data/data_root.hpp"
 
 namespace qdo::cli {
 
-int cmd_data(const Args& a) {
+static int cmd_data(const Args& a) {
   const std::size_t bands = std::size_t(parse_int("--bands", a.get("bands"), 1, 1024));
   const DataRoot root = data_root();
   std::printf("data root: %s (%s)%s\n", root.path.empty() ? "(none)" : root.path.c_str(), root.source.c_str(),
@@ -38,5 +39,18 @@ int cmd_data(const Args& a) {
   }
   return 0;
 }
+
+namespace {
+// qdo data: its entry in the command table (help order 30).
+const RegisterCommand registered_data(30, [] {
+  using namespace opts;
+  CommandSpec c{"data", "where qdo looks for datasets and what it finds: each dataset's scenes, formats, shapes, value ranges, "
+                           "sizes and checksums, and the known ones that are missing", "", "",
+                   {data_root(), opt("bands", "bands expected in each scene, an integer in [1, 1024]", "31"),
+                    flag("quick", "leave the value ranges out (the cubes are not read; shapes come from the file headers)")},
+                   cmd_data};
+  return c;
+});
+}  // namespace
 
 }  // namespace qdo::cli

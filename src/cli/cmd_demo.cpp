@@ -8,11 +8,12 @@
 #include <vector>
 
 #include "cli.hpp"
+#include "options.hpp"
 #include "qdo/data/config.hpp"
 #include "qdo/physics/cpu_reference.hpp"
 #include "qdo/design/design_run.hpp"
 #include "qdo/runtime/error.hpp"
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/decode/network_decoder.hpp"
 #include "qdo/design/run.hpp"
@@ -31,7 +32,7 @@ const char* const kDemoMarker = ".qdo-demo";
 // The main job: a QDO+A design at L levels on synthetic scenes (small preset), compared with
 // conventional deep optics (DO: full-precision training, quantized afterwards) on held-out
 // synthetic scenes and the real CAVE scenes (--data, unless none); plus the forward-model figures.
-int cmd_demo(const Args& a) {
+static int cmd_demo(const Args& a) {
   const std::string dir = a.get("out", "out/demo");
   const bool network = decoder_spec_from_string(a.get("decoder", "wiener")).network();
   // The datasets, resolved under the data root before anything is written: a missing one is an
@@ -170,5 +171,26 @@ int cmd_demo(const Args& a) {
               seconds_since(t0), dir.c_str(), network ? " and doft/" : "");
   return 0;
 }
+
+namespace {
+// qdo demo: its entry in the command table (help order 90).
+const RegisterCommand registered_demo(90, [] {
+  using namespace opts;
+  CommandSpec c{"demo", "QDO+A against conventional deep optics (DO) at L levels, designed and evaluated end to end", "", "",
+                   {opt("preset", "system preset: paper or small", "small"), opt("levels", "height levels L, an integer in [2, 65536]", "4"),
+                    opt("epochs", "epochs per design, an integer in [2, 100000] (default: 15; 8 with a network decoder)"),
+                    opt("steps-per-epoch", "optimiser steps per epoch, an integer in [1, 100000] (default: 8; 50 with a network decoder)"),
+                    opt("decoder", "decoder: wiener (closed form, trained on synthetic scenes) or a network spec (resunet, ...; "
+                                   "trained with the optics on --train-data; about 10 minutes on 2 cores with resunet)", DecoderSpec{}.to_string()),
+                    opt("train-data", "training scenes of the network decoder: dataset names under the data root or paths, "
+                                      "comma-separated (each must exist)", "cave_train,cave_png"),
+                    opt("finetune-steps", "network decoder: do-finetune steps (doft/), an integer in [1, 100000000]", "100"),
+                    opt("data", "real test scenes: a dataset name under the data root or a path; none leaves the real-scene rows out", "cave"),
+                    data_root(), precision(), device(),
+                    opt("out", "output folder (created; its qdoa/ and do/ (and doft/) run folders are replaced)", "out/demo")},
+                   cmd_demo, true};
+  return c;
+});
+}  // namespace
 
 }  // namespace qdo::cli

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "cli.hpp"
+#include "options.hpp"
 #include "qdo/data/config.hpp"
 #include "qdo/design/design.hpp"
 #include "qdo/design/design_run.hpp"
@@ -101,7 +102,7 @@ void check_options_act(const Args& a, const DesignRunOptions& o) {
 
 }  // namespace
 
-int cmd_design(const Args& a) {
+static int cmd_design(const Args& a) {
   const bool finetune = a.get("mode") == "do-finetune";
   if (finetune && a.has("resume")) {  // a do-finetune run resumes like any run: its stored options
     Args b = a;
@@ -156,5 +157,35 @@ int cmd_design(const Args& a) {
               r.point_losses.empty() ? "" : " range.csv range.png");
   return 0;
 }
+
+namespace {
+// qdo design: its entry in the command table (help order 100).
+const RegisterCommand registered_design(100, [] {
+  using namespace opts;
+  CommandSpec c{"design", "optimise a design end to end into a run folder (resumable)", "", "",
+                   concat({preset(), config(),
+                           opt("mode", "design mode: full, do, qdo, ste, qdo+a, qdo+m, or do-finetune (with --from: a network do run's "
+                                       "network trained on with its DOE quantized to --levels and frozen)", "qdo+a"),
+                           opt("levels", "height levels L, an integer in [2, 65536]", "4"), placement(),
+                           parameterization(), objective(), target(), data("training scenes (default: synthetic scenes)"), data_root(),
+                           opt("from", "do-finetune: the finished network do run folder to fine-tune"),
+                           opt("finetune-steps", "do-finetune: network steps with the DOE frozen, an integer in [1, 100000000]", "200"),
+                           opt("psf", "do-finetune for the camera as built: a measured PSF stack (qdo calibrate's psf.h5, for the run's "
+                                      "bands and sensor grid; checked) frozen in place of the do run's quantized DOE; not with --levels"),
+                           opt("design", "do-finetune for the camera as built: a fitted as-built design .h5 (N x N at the run's pitch), "
+                                         "its simulated PSF frozen in place of the do run's quantized DOE; not with --levels or --psf"),
+                           object_distances("design over a range", "the training conditions of the run"), field_angles("design over a range"),
+                           opt("points-per-step", "object points each optimiser step trains on, drawn anew each step (seeded), an integer "
+                                                  "in [1, P] for P object points (P: every point every step)", "1")},
+                          concat(training_options(),
+                                 {opt("checkpoint-every", "steps between checkpoints, an integer in [1, 100000000]", "10"),
+                                  opt("max-steps", "stop after N steps in this session, resumable, an integer >= 0 (default: no limit)"),
+                                  flag("resume", "continue the run in --out with its stored options"),
+                                  flag("check-gradients", "run the gradient check on this configuration first"), precision(), device(),
+                                  opt("out", "run folder (config.json checkpoint.h5 log.csv design.h5 psf.h5 *.png)")})),
+                   cmd_design, true};
+  return c;
+});
+}  // namespace
 
 }  // namespace qdo::cli

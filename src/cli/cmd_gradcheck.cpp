@@ -4,6 +4,7 @@
 #include <vector>
 
 #include "cli.hpp"
+#include "options.hpp"
 #include "qdo/design/design_run_options.hpp"
 #include "qdo/design/gradcheck.hpp"
 #include "qdo/runtime/runtime.hpp"
@@ -20,7 +21,7 @@ int print_gradcheck(const std::vector<GradcheckRow>& rows) {
   return ok ? 0 : 5;
 }
 
-int cmd_gradcheck(const Args& a) {
+static int cmd_gradcheck(const Args& a) {
   Args b = a;
   b.opt["out"] = "(unused)";
   b.opt["epochs"] = "10";
@@ -33,5 +34,18 @@ int cmd_gradcheck(const Args& a) {
   Runtime rt(a.get("device"));
   return print_gradcheck(gradcheck(rt, o, o.design.seed));
 }
+
+namespace {
+// qdo gradcheck: its entry in the command table (help order 110).
+const RegisterCommand registered_gradcheck(110, [] {
+  using namespace opts;
+  CommandSpec c{"gradcheck", "check the analytic gradients against finite differences (exit 5 on failure)", "", "",
+                   {preset(), config(), mode(), opt("levels", "height levels L, an integer in [2, 65536]", "4"), placement(),
+                    parameterization(), objective(), target(), seed(), device(), psf_path(),
+                    opt("wiener-on", "where the wiener objective's device row is checked: device (default) or cpu (no such row)", "device")},
+                   cmd_gradcheck};
+  return c;
+});
+}  // namespace
 
 }  // namespace qdo::cli

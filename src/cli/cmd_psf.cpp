@@ -6,6 +6,7 @@
 #include <memory>
 
 #include "cli.hpp"
+#include "options.hpp"
 #include "psf_outputs.hpp"
 #include "qdo/design/psf_outputs.hpp"
 #include "qdo/runtime/error.hpp"
@@ -14,7 +15,7 @@
 
 namespace qdo::cli {
 
-int cmd_psf(const Args& a) {
+static int cmd_psf(const Args& a) {
   const auto t_cmd = std::chrono::steady_clock::now();
   (void)save_native(a);  // validated before any work
   // Several object points (the configuration's object_points, or --object-distances x
@@ -93,5 +94,19 @@ int cmd_psf(const Args& a) {
               inputs_s, st.device_s, st.setup_s, psf_seconds, read_s, write_s, seconds_since(t_cmd));
   return 0;
 }
+
+namespace {
+// qdo psf: its entry in the command table (help order 40).
+const RegisterCommand registered_psf(40, [] {
+  using namespace opts;
+  CommandSpec c{"psf", "compute a design's PSF stack: DIR/psf.h5 (the sensor-grid stack; points x bands x S x S with several "
+                          "object points, and points.csv), psf.png, design.png", "", "",
+                   {preset(), config(), design_spec(), levels_post(), placement(),
+                    object_distances("several object points", "all computed in one batched pass"), field_angles("several object points"),
+                    precision(), device(), save_opt(), compress(), out_dir_opt()},
+                   cmd_psf};
+  return c;
+});
+}  // namespace
 
 }  // namespace qdo::cli

@@ -5,6 +5,7 @@
 #include <string>
 
 #include "cli.hpp"
+#include "options.hpp"
 #include "qdo/physics/doe.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/data/io.hpp"
@@ -13,7 +14,7 @@ namespace fs = std::filesystem;
 
 namespace qdo::cli {
 
-int cmd_quantize(const Args& a) {
+static int cmd_quantize(const Args& a) {
   const SystemConfig cfg = load_config(a);
   if (!a.has("levels")) reject("--levels", "(missing)", "the number of levels L >= 2");
   const std::string out = a.get("out");
@@ -34,5 +35,17 @@ int cmd_quantize(const Args& a) {
   std::printf("\nwrote %s\n", out.c_str());
   return 0;
 }
+
+namespace {
+// qdo quantize: its entry in the command table (help order 70).
+const RegisterCommand registered_quantize(70, [] {
+  using namespace opts;
+  CommandSpec c{"quantize", "quantize a design to L levels (post-hoc, uniform) into a design .h5 file", "", "",
+                   {preset(), config(), design_spec(), opt("levels", "number of height levels L, an integer in [2, 65536] (required)"),
+                    placement(), opt("out", "output design .h5 file")},
+                   cmd_quantize};
+  return c;
+});
+}  // namespace
 
 }  // namespace qdo::cli

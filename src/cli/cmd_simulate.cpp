@@ -1,4 +1,4 @@
-// qdo simulate and qdo image: the RGB sensor image of a scene through a PSF source, either a design
+// qdo simulate: the RGB sensor image of a scene through a PSF source, either a design
 // simulated on the device (--design) or a PSF stack file written by `qdo psf` (--psf FILE; a
 // measured or otherwise computed stack in the same layout), through the capture pipeline
 // (capture_pipeline.hpp: the camera operator, noise, the full-scale clip). With --raw, also the
@@ -14,6 +14,7 @@
 #include <string>
 
 #include "cli.hpp"
+#include "options.hpp"
 #include "psf_outputs.hpp"
 #include "simulate_varying.hpp"
 #include "qdo/data/figure.hpp"
@@ -37,23 +38,6 @@
 namespace qdo::cli {
 
 namespace {
-
-// The PSF of simulate and image, decided and checked before any device work (psf_spec.hpp):
-// --psf FILE (the file's stack, checked against the configuration's bands and sensor grid) or
-// --design (heights, quantized by --levels when given, simulated once the device is up). Exactly
-// one of the two.
-PsfInput psf_input(const SystemConfig& cfg, const Args& a) {
-  const PsfSpec spec = psf_spec_from_options(a.get("psf"), a.get("design"), "--psf", "--design", "the PSF comes from one of them");
-  if (spec.kind == PsfSpec::Kind::File) {
-    if (a.has("levels")) reject("--levels", a.get("levels"), "no --levels with --psf (the PSF file is used as it is)");
-    return read_psf_input(spec, cfg);
-  }
-  if (spec.kind == PsfSpec::Kind::Run) reject("--design", "(missing)", "lens:NM, flat, or a design .h5 file (or --psf FILE: a PSF stack)");
-  PsfInput in;
-  in.spec = spec;
-  in.heights = design_heights(cfg, a);
-  return in;
-}
 
 std::string percent(std::size_t n, std::size_t total) {
   char b[64];
@@ -109,7 +93,7 @@ int simulate_psf_sweep(const Args& a, const SystemConfig& cfg, Precision p) {
 
 }  // namespace
 
-int cmd_simulate(const Args& a) {
+static int cmd_simulate(const Args& a) {
   (void)save_native(a);  // validated before any work
   const std::string formation = a.get("formation");
   if (formation != "qdo" && formation != "release") reject("--formation", formation, "qdo or release");
@@ -230,40 +214,59 @@ int cmd_simulate(const Args& a) {
   return 0;
 }
 
-// qdo image: the RGB sensor image of one scene with the skipping rules of Camera
-// (include/qdo/physics/camera.hpp) and a JSON report of what was skipped and the bound.
-int cmd_image(const Args& a) {
-  const SystemConfig cfg = load_config(a);
-  const Precision p = precision_from_string(a.get("precision"));
-  SkipOptions opt = SkipOptions::split(parse_double("--tolerance", a.get("tolerance"), 0, 1, "(units of full scale)"),
-                                       tile_mode_from_string(a.get("tiles")),
-                                       std::size_t(parse_int("--tile-px", a.get("tile-px"), 8, 4096)));
-  opt.exact = a.has("exact");
-  opt.validate();
-  const PsfInput in = psf_input(cfg, a);
-  const RealStack scene = scene_from_args(cfg, a);
-  const std::string dir = out_dir(a);
-  Runtime rt(a.get("device"));
-  SpecPsfSource src = make_psf_source(rt, cfg, p, in);
-  src.compute();
-  Camera im(src.source());
-  const auto t0 = std::chrono::steady_clock::now();
-  RealStack rgb = im.images({scene}, opt).front();
-  const double secs = seconds_since(t0);
-  const SkipReport& r = im.last_report();
-  const SensorClip clip = clip_to_full_scale(rgb, "sensor image");
-  write_rgb_png(dir + "/sensor.png", rgb);
-  write_text_atomic(dir + "/skip.json", r.to_json() + "\n");
-  std::printf("PSF: %s\nscene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (%s)\n"
-              "skipped: %zu/%zu bands, PSF crop radius %zu of %zu px, %zu/%zu tiles; FFT grid %zu x %zu\n"
-              "error bound %.3g (bands %.3g, crop %.3g, tiles %.3g; tolerance %.3g) in units of full scale\n"
-              "%s\n"
-              "wrote %s/sensor.png, skip.json\n",
-              src.source().describe().c_str(), scene.planes, scene.rows, scene.cols, rgb.rows, rgb.cols, secs,
-              to_string(p).c_str(), r.bands_skipped.size(), r.bands, r.crop_radius_px, r.sensor_psf_px / 2, r.tiles_skipped,
-              r.tiles_total, r.grid_rows, r.grid_cols, r.total_bound, r.band_bound, r.crop_bound, r.tile_bound, r.tolerance,
-              clip_summary(clip).c_str(), dir.c_str());
-  return 0;
-}
+namespace {
+// qdo simulate: its entry in the command table (help order 80).
+const RegisterCommand registered_simulate(80, [] {
+  using namespace opts;
+  CommandSpec c{"simulate", "the RGB sensor image of a scene through a design: DIR/sensor.h5, sensor.png, scene.png, psf.*; with --raw also "
+                   "the raw capture (raw.png, raw.h5); with --capture psf-sweep a simulated calibration sweep for qdo calibrate",
+                   "", "",
+                   {preset(), config(), design_spec(), psf_file(), levels_post(), placement(), scene(), key(), resample_bands(),
+                    opt("formation",
+                        "image formation: qdo (the configuration's convolution on the sensor grid, area-sampled PSF) or release "
+                        "(the paper release's: bilinear up, mirror padding, PSF one 4 um sample off centre, bilinear down; "
+                        "a square scene, N >= S + 2; pair it with \"aperture_edge\": \"strict\")",
+                        "qdo"),
+                    flag("raw", "also write the capture as the sensor as built records it (the configuration's cfa, black_level_dn, "
+                                "gain, bit_depth 8 .. 16, noise): raw.png (16-bit, DN), raw.h5 (/raw, and /rgb_demosaiced), "
+                                "raw_demosaiced.png; needs a mosaic and a bit depth"),
+                    opt("demosaic", "demosaic of the --raw capture: bilinear or mhc (Malvar-He-Cutler 5 x 5)", "mhc"),
+                    opt("capture", "what to capture: scene (the --scene image) or psf-sweep (a point source at every configured band "
+                                   "through the sensor as built, and dark frames, for qdo calibrate: DIR/frames/psf_<nm>nm.png, "
+                                   "darks/dark_<k>.png, psf.h5 the stack imaged, sweep.h5, frames.png)",
+                        "scene"),
+                    opt("frame-size", "psf-sweep: frame size F (F x F pixels), an integer in [S, 8192], S the sensor PSF size "
+                                      "(default: S + 64)"),
+                    opt("peak", "psf-sweep: peak exposure of each band's brightest colour, a fraction of full well in (0, 1]", "0.6"),
+                    opt("darks", "psf-sweep: number of dark frames, an integer in [1, 1000]", "8"),
+                    opt("centre", "psf-sweep: ROW,COL, the frame pixel of the optical axis, so that the S x S PSF window lies "
+                                  "inside the frame (default: F/2,F/2)"),
+                    opt("depth", "FILE[:KEY]: a depth map of the scene, H x W metres, for a depth-layered image: an HDF5 dataset "
+                                 "(KEY, default /depth_m; values > 0, or inf for infinitely far) or a 16-bit PNG (codes times "
+                                 "--depth-scale; code 0 = infinitely far), or builtin (the built-in chart's: patch rows at 4z, 8z, 16z, "
+                                 "32z, z the DOE-sensor distance, the rest at infinity); every pixel takes the PSF of its nearest layer "
+                                 "in diopters; writes also depth.png, depth.h5, psf_points.h5, varying.json; not with --psf, --raw, "
+                                 "--field-grid"),
+                    opt("depth-scale", "--depth FILE.png: metres per PNG code, a number > 0", "0.001"),
+                    opt("depth-layers", "--depth: the layers D1,D2,... in metres > 0 or inf (default: the map's distinct values when "
+                                        "at most 8, else 8 layers evenly spaced in diopters between its nearest and farthest); "
+                                        "PSFs are computed at the layers some pixel uses only"),
+                    opt("psf-placement", "--depth / --field-grid: source (each scene pixel emits through its own PSF) or output "
+                                         "(each sensor pixel takes the image blurred with its own PSF: the release's per-depth rule)",
+                        "source"),
+                    opt("field-grid", "NX[xNY]: a field-dependent PSF from an NX x NY grid of field angles (integers in [1, 31]) up "
+                                      "to the field edge, the image interpolated bilinearly between neighbouring points' recentred "
+                                      "PSFs; points whose hats miss the scene are not computed; 1 = the on-axis PSF"),
+                    opt("field-edge-deg", "--field-grid: the outermost field angle in degrees, in (0, the sampling limit] "
+                                          "(default: min(atan(half the scene's extent on the sensor / z), atan(a quarter of the N x N window / z), the "
+                                          "sampling limit); beyond the default, PSFs near the window's edge lose energy (the "
+                                          "sampling line says how much)"),
+                    opt("field-rank", "--field-grid: use the R leading components of the field PSFs (low-rank form), an integer in "
+                                      "[1, computed points] (default: all points, no low-rank form)"),
+                    precision(), device(), save_opt(), compress(), out_dir_opt()},
+                   cmd_simulate};
+  return c;
+});
+}  // namespace
 
 }  // namespace qdo::cli

@@ -1,4 +1,5 @@
-// qdo sweep-psf and qdo sweep.
+// qdo sweep: a grid of designs (levels x modes x encoders), each designed and evaluated, with summary
+// tables (sweep.hpp); sharded, resumable, and one cell per Slurm array task.
 #include <algorithm>
 #include <cstdlib>
 #include <cstdio>
@@ -8,13 +9,14 @@
 #include <sstream>
 
 #include "cli.hpp"
+#include "options.hpp"
 #include "qdo/design/run_folder.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/design/design_run.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/runtime/mpi.hpp"
 #include "qdo/design/run.hpp"
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 namespace fs = std::filesystem;
 using namespace qdo;
@@ -33,55 +35,7 @@ void print_cells(const std::vector<GridCell>& cells) {
 
 }  // namespace
 
-int cmd_sweep_psf(const Args& a) {
-  PsfSweepOptions o;
-  const std::string design = a.get("design");
-  if (design.empty()) reject("--design", "(missing)", "a design .h5 file or a run folder");
-  if (fs::is_directory(design)) {
-    if (a.has("preset") || a.has("config")) reject("--preset", "(given)", "omitted with a run folder (its config.json is used)");
-    o.cfg = read_run_config(design).cfg;
-    o.design_full_m = RunFolder(design).design_full().height_m;
-  } else {
-    o.cfg = load_config(a);
-    o.design_full_m = load_design(o.cfg, design);
-  }
-  const Placement pl = placement_from_string(a.get("placement"));
-  std::set<int> seen_levels;
-  for (const auto& l : split_items(a.get("levels"))) {
-    PsfSweepVariant v;
-    v.quantizer.levels = parse_int("--levels", l, 2, 65536);
-    if (!seen_levels.insert(v.quantizer.levels).second)
-      reject("--levels", a.get("levels"), "distinct level counts (" + l + " appears twice)");
-    v.quantizer.placement = pl;
-    v.label = "L" + l;
-    o.variants.push_back(v);
-  }
-  if (a.has("adaptive-from")) {
-    const PsfSweepVariant v = adaptive_psf_sweep_variant(a.get("adaptive-from"), "--adaptive-from");
-    o.variants.push_back(v);
-  }
-  o.precision = precision_from_string(a.get("precision"));
-  o.max_designs_per_pass = std::size_t(parse_int("--designs-per-pass", a.get("designs-per-pass"), 0, 1000));
-  o.out = out_dir(a);
-  Runtime rt(a.get("device"));
-  const auto t0 = std::chrono::steady_clock::now();
-  const auto rows = sweep_psf(rt, o);
-  std::printf("%-14s %7s %12s %12s %12s %12s %14s\n", "variant", "levels", "dev [nm]", "rel L2", "peak ratio", "EE80 [um]", "outside win.");
-  for (const auto& r : rows) {
-    auto mean = [](const std::vector<double>& v) {
-      double s = 0;
-      for (double x : v) s += x;
-      return s / double(v.size());
-    };
-    std::printf("%-14s %7d %12.3f %12.4f %12.4f %12.2f %14.4f\n", r.label.c_str(), r.levels, r.deviation_nm, mean(r.rel_l2),
-                mean(r.peak_ratio), mean(r.ee80_um), mean(r.energy_outside));
-  }
-  std::printf("(means over %zu bands) %.1f s; wrote %s/ (sweep.csv sweep.json psf.h5 psf_*.png *_vs_variant.png)\n", o.cfg.bands,
-              seconds_since(t0), o.out.c_str());
-  return 0;
-}
-
-int cmd_sweep(const Args& a) {
+static int cmd_sweep(const Args& a) {
   GridOptions g;
   Args b = a;
   b.opt["out"] = "(per run)";
@@ -245,5 +199,31 @@ int cmd_sweep(const Args& a) {
               seconds_since(t0), g.out.c_str(), g.seeds.empty() ? "" : " table1_seeds.csv");
   return 0;
 }
+
+namespace {
+// qdo sweep: its entry in the command table (help order 180).
+const RegisterCommand registered_sweep(180, [] {
+  using namespace opts;
+  CommandSpec c{"sweep", "a grid of designs (levels x modes x encoders), each designed and evaluated, with summary tables", "", "",
+                   concat({{"grid", "a grid axis AXIS=V1,V2,...: levels=2,4,8; mode=do,do-refit,do-finetune,qdo,qdo+a; "
+                                    "encoder=doe,fresnel,cassi; decoder=wiener,resunet; seed=1,2,3 (repeatable)",
+                            "", false, true},
+                           opt("finetune-steps", "do-finetune with a network decoder: network steps with the DOE frozen, an integer in [1, 100000000]", "100"),
+                           preset(), config(), placement(), parameterization(), objective(),
+                           data("training scenes (default: synthetic scenes)"), data_root(),
+                           opt("test-data", "test scenes: dataset names under the data root, CAVE folders, cube files or folders of "
+                                            "them, comma-separated (default: synthetic)"),
+                           opt("eval-scenes", "synthetic test scenes, an integer in [1, 10000]", "4"),
+                           opt("seeds", "N seeds as a grid axis: --seed, --seed + 1, ..., an integer in [1, 1000] (or --grid seed=S1,S2,...)"),
+                           flag("plan", "print the grid's cells (index, name, mode, levels, seed, runs) and exit: nothing is run or written"),
+                           opt("cell", "run cell K of --plan's list only (its runs, then its evaluation), no tables; K = slurm reads "
+                                       "SLURM_ARRAY_TASK_ID"),
+                           opt("shard", "run shard i/n of the cells only (cells i, i + n, ...), no tables"),
+                           flag("collect", "write the tables from the finished cells only, naming any that are not finished")},
+                          concat(training_options(), {precision(), device(), out_dir_opt()})),
+                   cmd_sweep, true};
+  return c;
+});
+}  // namespace
 
 }  // namespace qdo::cli

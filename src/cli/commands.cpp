@@ -1,6 +1,7 @@
-// Parsing and help of qdo's commands: CLI11 parses a command line against a command's entry of the
-// table (command_table.cpp) into an Args; `qdo --help`, `qdo <command> --help` and `qdo --version`
-// are generated from the table here, and main() dispatches to the command.
+// The command registry, parsing and help of qdo's commands: each command registers itself (its
+// cmd_*.cpp file); CLI11 parses a command line against its entry into an Args; `qdo --help`,
+// `qdo <command> --help` and `qdo --version` are generated from the table here, and main()
+// dispatches to the command.
 #include <CLI/CLI.hpp>
 #include <fftw3.h>
 #include <pthread.h>
@@ -11,10 +12,12 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <set>
 #include <sstream>
 #include <thread>
 
 #include "cli.hpp"
+#include "options.hpp"
 #include "qdo/data/data_root.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/mpi.hpp"
@@ -75,6 +78,42 @@ struct Parser {
 };
 
 }  // namespace
+
+namespace {
+
+// The registrations, filled at static initialisation (a function-local static, so that it exists
+// before the first RegisterCommand of any file runs).
+std::vector<std::pair<int, std::function<CommandSpec()>>>& registrations() {
+  static std::vector<std::pair<int, std::function<CommandSpec()>>> r;
+  return r;
+}
+
+std::vector<CommandSpec> make_table() {
+  auto regs = registrations();
+  std::stable_sort(regs.begin(), regs.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+  std::vector<CommandSpec> t;
+  std::set<std::string> names;
+  for (const auto& r : regs) {
+    CommandSpec c = r.second();
+    if (!names.insert(c.name).second) throw std::logic_error("qdo command '" + c.name + "' is registered twice");
+    // Every command that writes an output folder takes --into-existing (claim_output_dir, io.hpp).
+    const bool folder_out = std::any_of(c.options.begin(), c.options.end(), [](const OptionSpec& o) { return o.name == "out"; });
+    if (folder_out && c.name != "quantize")
+      c.options.push_back(opts::flag("into-existing", "write into an existing --out folder that qdo did not make, or that another "
+                                                      "qdo command made (files of the names this command writes are replaced)"));
+    t.push_back(std::move(c));
+  }
+  return t;
+}
+
+}  // namespace
+
+RegisterCommand::RegisterCommand(int order, std::function<CommandSpec()> make) { registrations().emplace_back(order, std::move(make)); }
+
+const std::vector<CommandSpec>& command_table() {
+  static const std::vector<CommandSpec> t = make_table();
+  return t;
+}
 
 const CommandSpec* find_command(const std::string& name) {
   for (const auto& c : command_table())
@@ -299,10 +338,7 @@ int main(int argc, char** argv) {
     return 6;
   } catch (const std::bad_alloc&) {
     // The advice names what this command takes.
-    const std::string advice = cmd == "calibrate"   ? "frames cropped closer to the PSF, or fewer bands in the configuration"
-                               : cmd == "reconstruct" ? "--crop, or fewer captures and darks"
-                               : cmd == "fit"         ? "a smaller configuration (n, bands) or --precision f32"
-                                                      : "--preset, n, bands, batch";
+    const std::string advice = c->memory_advice.empty() ? "--preset, n, bands, batch" : c->memory_advice;
     std::fprintf(stderr, "qdo %s: out of host memory (reduce the problem size: %s)\n", cmd.c_str(), advice.c_str());
     return 7;
   } catch (const std::exception& e) {

@@ -138,7 +138,7 @@ Map2D perturbed_heights(const MaskPlan& plan, const Map2D& design_height_m, cons
 
 namespace {
 
-// The reconstruction pipeline of qdo eval (src/design/eval.cpp), step for step, so the metrics agree
+// The reconstruction pipeline of qdo eval (src/evaluate/eval.cpp), step for step, so the metrics agree
 // exactly: the same test patches, noise draws, Wiener decoder and averaging order.
 class Evaluator {
  public:

@@ -8,7 +8,7 @@
 
 #include "torch_common.hpp"  // LibTorch, then doctest's CHECK macros and the common helpers
 #include "qdo/design/design_run.hpp"
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/net/net.hpp"

@@ -1,4 +1,4 @@
-// The test-set evaluation shared by `qdo eval` (src/design/eval.cpp) and `qdo tolerance`
+// The test-set evaluation shared by `qdo eval` (src/evaluate/eval.cpp) and `qdo tolerance`
 // (src/fab/fab_tolerance.cpp): the test patches, one patch through the camera and a decoder,
 // the six metrics, and their averages (per scene over its patches, then over scenes, in that
 // order, so both commands give bit-identical numbers for the same design).

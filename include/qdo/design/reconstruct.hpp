@@ -30,8 +30,10 @@
 #include <vector>
 
 #include "qdo/data/config.hpp"
+#include "qdo/data/cube_views.hpp"
 #include "qdo/decode/decoder.hpp"
 #include "qdo/decode/testset.hpp"
+#include "qdo/decode/tiled.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/runtime/types.hpp"
 #include "qdo/decode/wiener.hpp"
@@ -112,60 +114,6 @@ struct PreparedCapture {
 // Steps 2 to 6 on read_captures' result; the demosaic on rt's device (DemosaicStage, demosaic.hpp)
 // in precision p.
 PreparedCapture prepare_capture(Runtime& rt, Precision p, const SystemConfig& cfg, const CaptureOptions& o, const CaptureFiles& f);
-
-// Tiles of `tile` x `tile` over an rows x cols image, neighbours overlapping by at least
-// `overlap` pixels: starts 0, tile - overlap, ... and rows - tile last (every pixel covered).
-// Requires rows, cols >= tile and overlap < tile (InputError).
-std::vector<std::size_t> tile_starts(std::size_t size, std::size_t tile, std::size_t overlap);
-// The 1-D blending weights of tiles at `starts` (tile long each) over `size` pixels: a sin² ramp
-// across each overlap with a neighbour (flat at the image's edges), normalised so that at every
-// pixel the weights of the tiles covering it sum to 1. weights[k][t]: tile k, pixel starts[k] + t.
-std::vector<std::vector<double>> tile_weights(const std::vector<std::size_t>& starts, std::size_t tile, std::size_t size);
-// How a tile's edges meet the decoder's circular model (a PSF camera's decoder assumes the scene
-// repeats: y = circular blur, REFERENCE §3b). A capture is not circular: light from outside a tile
-// lands inside it, and a deconvolving decoder (Wiener at small sigma) turns that mismatch into
-// ringing over the whole tile.
-//   circular  the tile is decoded as it is, on the decoder's tile x tile grid: the model the decoder
-//             was built and trained with, exact for captures simulated circularly (`qdo eval`'s
-//             patches); the network's only choice (it was trained on circular S x S patches)
-//   mirror    the tile is extended by its mirror image to 2 tile x 2 tile (whole-sample symmetric:
-//             the extension is continuous across every wrap) and decoded on that grid (dec built
-//             for it), the first tile x tile kept: the boundary mismatch shrinks to the PSF's
-//             asymmetry
-enum class TileBoundary { Circular, Mirror };
-TileBoundary tile_boundary_from_string(const std::string& s, const std::string& argument = "--boundary");
-std::string to_string(TileBoundary b);
-
-// dec's estimate of y (channels x H x W) on tile x tile tiles (weights: the product of the row and
-// column weights above, which sums to 1 at every pixel), decoded dec.batch() at a time;
-// progress(done, total) after each batch. Returns bands x H x W. An image of exactly tile x tile
-// is one tile. With Mirror, dec decodes 2 tile x 2 tile images (see TileBoundary).
-RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile, std::size_t overlap,
-                       const std::function<void(std::size_t, std::size_t)>& progress = {},
-                       TileBoundary boundary = TileBoundary::Circular);
-
-// The prior on another rows x cols grid: the same bins (their edges do not depend on the grid,
-// wiener::radial_bin), the DC bin scaled by the ratio of the grid areas (its scene-mean part
-// grows with H·W; wiener.hpp). What the Wiener decoder needs on the mirror boundary's 2S grid.
-wiener::SpectralPrior regrid_prior(const wiener::SpectralPrior& p, std::size_t rows, std::size_t cols);
-
-// A point (rows = cols = 1) or a box of the reconstructed image, 0-based.
-struct SpectrumRegion {
-  std::size_t row = 0, col = 0, rows = 1, cols = 1;
-  bool box = false;
-  std::string label() const;  // "point R,C" or "box R,C,H,W"
-};
-// "R,C;R,C;..." (points) or "R,C,H,W;..." (boxes); an InputError naming `argument` otherwise.
-std::vector<SpectrumRegion> parse_regions(const std::string& s, bool boxes, const std::string& argument);
-// The mean spectrum (bands values) over each region of cube (bands x H x W); a region reaching
-// outside is an InputError naming `argument`, the region and the image size.
-std::vector<std::vector<double>> region_spectra(const RealStack& cube, const std::vector<SpectrumRegion>& regions,
-                                                const std::string& argument = "--points/--boxes");
-
-// Linear sRGB (3 x H x W, >= 0) of a cube (bands x H x W at wavelengths_nm) through the CIE 1931
-// 2° observer (a flat unit spectrum has Y = 1) and the XYZ -> linear sRGB (D65) matrix.
-RealStack render_srgb(const RealStack& cube, const std::vector<double>& wavelengths_nm);
-
 
 // The sensor as built, over the run's configuration: a JSON object of sensor keys only (cfa,
 // black_level_dn, bit_depth, gain, read_noise_sigma, full_well_photons, noise_seed, camera,

@@ -10,7 +10,7 @@
 #include "qdo/decode/decoder_spec.hpp"
 #include "qdo/design/design_run_options.hpp"
 #include "qdo/physics/doe.hpp"
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 #include "qdo/runtime/runtime.hpp"
 
 namespace qdo {

@@ -8,7 +8,7 @@
 #include <memory>
 #include <utility>
 
-#include "design/sweep_internal.hpp"
+#include "evaluate/sweep_internal.hpp"
 #include "qdo/decode/decoder_registry.hpp"
 #include "qdo/design/design_run.hpp"
 #include "qdo/decode/encoders.hpp"
@@ -20,7 +20,7 @@
 #include "qdo/design/run.hpp"
 #include "qdo/design/run_folder.hpp"
 #include "qdo/physics/simulator.hpp"
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 namespace fs = std::filesystem;
 

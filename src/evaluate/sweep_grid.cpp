@@ -9,12 +9,12 @@
 #include <set>
 #include <utility>
 
-#include "design/sweep_internal.hpp"
+#include "evaluate/sweep_internal.hpp"
 #include "qdo/data/datasets.hpp"
 #include "qdo/decode/decoder_registry.hpp"
 #include "qdo/design/design_run.hpp"
 #include "qdo/runtime/error.hpp"
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 namespace fs = std::filesystem;
 

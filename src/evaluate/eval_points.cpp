@@ -1,6 +1,6 @@
 // `qdo eval-points`: a design's quality against object distance and field angle, its depth of
 // field and its valid field of view (eval_points.hpp).
-#include "qdo/design/eval_points.hpp"
+#include "qdo/evaluate/eval_points.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -16,7 +16,7 @@
 #include "qdo/design/design_run.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/hash.hpp"
-#include "design/eval_points_figures.hpp"
+#include "evaluate/eval_points_figures.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/physics/point_psf.hpp"

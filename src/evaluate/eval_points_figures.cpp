@@ -1,5 +1,5 @@
 // The figures of qdo eval-points (eval_points_figures.hpp).
-#include "design/eval_points_figures.hpp"
+#include "evaluate/eval_points_figures.hpp"
 
 #include <cmath>
 #include <string>

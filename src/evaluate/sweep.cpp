@@ -1,4 +1,4 @@
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -16,7 +16,7 @@
 #include <chrono>
 #include <utility>
 
-#include "design/sweep_internal.hpp"
+#include "evaluate/sweep_internal.hpp"
 
 #include "data/json_strict.hpp"
 #include "qdo/data/datasets.hpp"

@@ -10,10 +10,10 @@
 #include <vector>
 
 #include "qdo/design/design_run_options.hpp"
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 #include "qdo/runtime/hash.hpp"
 #include "qdo/runtime/runtime.hpp"
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 namespace qdo::sweep_detail {
 

@@ -12,12 +12,12 @@
 #include <utility>
 #include <vector>
 
-#include "design/sweep_internal.hpp"
+#include "evaluate/sweep_internal.hpp"
 #include "qdo/runtime/hash.hpp"
 #include "qdo/data/figure.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/design/run.hpp"
-#include "qdo/design/sweep_stats.hpp"
+#include "qdo/evaluate/sweep_stats.hpp"
 
 namespace fs = std::filesystem;
 

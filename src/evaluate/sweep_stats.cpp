@@ -1,4 +1,4 @@
-#include "qdo/design/sweep_stats.hpp"
+#include "qdo/evaluate/sweep_stats.hpp"
 
 #include <algorithm>
 #include <cstdio>

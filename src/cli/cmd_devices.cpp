@@ -1,15 +1,13 @@
-// qdo devices and qdo config, two informational commands sharing one file: the OpenCL platforms
-// and devices with the default choice, and the system configuration as JSON.
+// qdo devices: the OpenCL platforms and devices with the default choice.
 #include <cstdio>
-#include <iostream>
 
 #include "cli.hpp"
-#include "qdo/data/config.hpp"
+#include "options.hpp"
 #include "qdo/runtime/runtime.hpp"
 
 namespace qdo::cli {
 
-int cmd_devices(const Args&) {
+static int cmd_devices(const Args&) {
   const auto devs = list_devices();
   for (const auto& d : devs)
     std::printf("%zu:%zu  %s / %s  [%s]  driver %s  %s  fp64 %s  %u CUs  %.1f GiB\n", d.platform_index, d.device_index,
@@ -20,9 +18,13 @@ int cmd_devices(const Args&) {
   return 0;
 }
 
-int cmd_config(const Args& a) {
-  std::cout << config_to_json_text(load_config(a)) << "\n";
-  return 0;
-}
+namespace {
+// qdo devices: its entry in the command table (help order 10).
+const RegisterCommand registered_devices(10, [] {
+  using namespace opts;
+  CommandSpec c{"devices", "list the OpenCL platforms and devices and the default choice", "", "", {}, cmd_devices};
+  return c;
+});
+}  // namespace
 
 }  // namespace qdo::cli

@@ -10,10 +10,10 @@
 #include <mutex>
 #include <thread>
 
-#include "design/sweep_internal.hpp"
+#include "evaluate/sweep_internal.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/mpi.hpp"
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 namespace fs = std::filesystem;
 

@@ -1,6 +1,6 @@
 // `qdo eval`: reconstruction of test scenes through a run's design with a decoder of the registry
 // (eval.hpp).
-#include "qdo/design/eval.hpp"
+#include "qdo/evaluate/eval.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -16,7 +16,7 @@
 #include "qdo/design/design_run.hpp"
 #include "qdo/physics/psf_source.hpp"
 #include "qdo/physics/radial.hpp"
-#include "qdo/design/reconstruct.hpp"
+#include "qdo/data/cube_views.hpp"
 #include "qdo/physics/simulator.hpp"
 #include "qdo/runtime/embedded.hpp"
 #include "qdo/runtime/error.hpp"

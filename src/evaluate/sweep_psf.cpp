@@ -1,6 +1,6 @@
 // `qdo sweep-psf` (sweep.hpp): PSF quality against the number of levels for one design, every
 // variant's PSF stack computed in batched device passes.
-#include "qdo/design/sweep.hpp"
+#include "qdo/evaluate/sweep.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -5,7 +5,7 @@
 #include <vector>
 
 #include "qdo/data/config.hpp"
-#include "qdo/design/eval_points.hpp"
+#include "qdo/evaluate/eval_points.hpp"
 #include "qdo/runtime/types.hpp"
 
 namespace qdo {

@@ -1,0 +1,130 @@
+// Tiled decoding (tiled.hpp): tile starts and blending weights, the mirror boundary, and the
+// prior regridded for it.
+#include "qdo/decode/tiled.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <utility>
+
+#include "qdo/runtime/error.hpp"
+
+namespace qdo {
+
+std::vector<std::size_t> tile_starts(std::size_t size, std::size_t tile, std::size_t overlap) {
+  if (tile == 0 || size < tile)
+    reject("image size", size, "at least the decoder's tile of " + to_str(tile) + " px (the grid it was trained on) on each side");
+  if (overlap >= tile) reject("--overlap", overlap, "below the tile size " + to_str(tile) + " px");
+  std::vector<std::size_t> s;
+  const std::size_t stride = tile - overlap;
+  for (std::size_t a = 0;; a += stride) {
+    if (a + tile >= size) {
+      s.push_back(size - tile);
+      break;
+    }
+    s.push_back(a);
+  }
+  return s;
+}
+
+std::vector<std::vector<double>> tile_weights(const std::vector<std::size_t>& starts, std::size_t tile, std::size_t size) {
+  const double pi = 3.14159265358979323846;
+  std::vector<std::vector<double>> w(starts.size(), std::vector<double>(tile, 1.0));
+  for (std::size_t k = 0; k < starts.size(); ++k) {
+    // The overlap with the previous and the next tile; a ramp sin²(π/2 (t + 1/2) / L) across it.
+    const std::size_t left = k > 0 && starts[k - 1] + tile > starts[k] ? starts[k - 1] + tile - starts[k] : 0;
+    const std::size_t right = k + 1 < starts.size() && starts[k] + tile > starts[k + 1] ? starts[k] + tile - starts[k + 1] : 0;
+    for (std::size_t t = 0; t < tile; ++t) {
+      if (left > 0 && t < left) w[k][t] *= std::pow(std::sin(pi / 2 * (double(t) + 0.5) / double(left)), 2);
+      if (right > 0 && tile - 1 - t < right) w[k][t] *= std::pow(std::sin(pi / 2 * (double(tile - 1 - t) + 0.5) / double(right)), 2);
+    }
+  }
+  std::vector<double> sum(size, 0.0);
+  for (std::size_t k = 0; k < starts.size(); ++k)
+    for (std::size_t t = 0; t < tile; ++t) sum[starts[k] + t] += w[k][t];
+  for (std::size_t k = 0; k < starts.size(); ++k)
+    for (std::size_t t = 0; t < tile; ++t) w[k][t] /= sum[starts[k] + t];
+  return w;
+}
+
+TileBoundary tile_boundary_from_string(const std::string& s, const std::string& argument) {
+  if (s == "circular") return TileBoundary::Circular;
+  if (s == "mirror") return TileBoundary::Mirror;
+  reject(argument, s, "circular or mirror");
+}
+
+std::string to_string(TileBoundary b) { return b == TileBoundary::Mirror ? "mirror" : "circular"; }
+
+wiener::SpectralPrior regrid_prior(const wiener::SpectralPrior& p, std::size_t rows, std::size_t cols) {
+  p.validate();
+  wiener::SpectralPrior q = p;
+  q.rows = rows;
+  q.cols = cols;
+  const double scale = double(rows * cols) / double(p.rows * p.cols);
+  for (std::size_t i = 0; i < p.bands * p.bands; ++i) q.cov[i] *= scale;  // bin 0 = DC
+  q.validate();
+  return q;
+}
+
+RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile, std::size_t overlap,
+                       const std::function<void(std::size_t, std::size_t)>& progress, TileBoundary boundary) {
+  if (y.planes != dec.channels()) reject("sensor image planes", y.planes, "the decoder's " + to_str(dec.channels()) + " channels");
+  const bool mirror = boundary == TileBoundary::Mirror;
+  // A tile as the decoder takes it: itself, or its whole-sample mirror extension to 2 tile x 2 tile.
+  auto input = [&](const RealStack& t) {
+    if (!mirror) return t;
+    const std::size_t e = 2 * tile;
+    RealStack x(t.planes, e, e);
+    for (std::size_t ch = 0; ch < t.planes; ++ch)
+      for (std::size_t r = 0; r < e; ++r)
+        for (std::size_t c = 0; c < e; ++c) x(ch, r, c) = t(ch, r < tile ? r : e - 1 - r, c < tile ? c : e - 1 - c);
+    return x;
+  };
+  auto output = [&](const RealStack& x) {
+    if (!mirror) return x;
+    RealStack o(x.planes, tile, tile);
+    for (std::size_t b = 0; b < x.planes; ++b)
+      for (std::size_t r = 0; r < tile; ++r)
+        for (std::size_t c = 0; c < tile; ++c) o(b, r, c) = x(b, r, c);
+    return o;
+  };
+  if (y.rows == tile && y.cols == tile) {
+    RealStack x = output(dec.decode(input(y)));
+    if (progress) progress(1, 1);
+    return x;
+  }
+  const auto rs = tile_starts(y.rows, tile, overlap), cs = tile_starts(y.cols, tile, overlap);
+  const auto wr = tile_weights(rs, tile, y.rows), wc = tile_weights(cs, tile, y.cols);
+  const std::size_t total = rs.size() * cs.size(), batch = std::max<std::size_t>(1, dec.batch());
+  RealStack out(dec.bands(), y.rows, y.cols, 0.0);
+  std::vector<std::pair<std::size_t, std::size_t>> pending;
+  std::vector<RealStack> ys;
+  std::size_t done = 0;
+  auto flush = [&] {
+    const std::vector<RealStack> xs = dec.decode_batch(ys);
+    for (std::size_t k = 0; k < xs.size(); ++k) {
+      const auto [i, j] = pending[k];
+      const RealStack x = output(xs[k]);
+      for (std::size_t b = 0; b < x.planes; ++b)
+        for (std::size_t r = 0; r < tile; ++r)
+          for (std::size_t c = 0; c < tile; ++c) out(b, rs[i] + r, cs[j] + c) += wr[i][r] * wc[j][c] * x(b, r, c);
+    }
+    done += xs.size();
+    pending.clear();
+    ys.clear();
+    if (progress) progress(done, total);
+  };
+  for (std::size_t i = 0; i < rs.size(); ++i)
+    for (std::size_t j = 0; j < cs.size(); ++j) {
+      RealStack t(y.planes, tile, tile);
+      for (std::size_t ch = 0; ch < y.planes; ++ch)
+        for (std::size_t r = 0; r < tile; ++r)
+          for (std::size_t c = 0; c < tile; ++c) t(ch, r, c) = y(ch, rs[i] + r, cs[j] + c);
+      ys.push_back(input(t));
+      pending.push_back({i, j});
+      if (ys.size() == batch) flush();
+    }
+  if (!ys.empty()) flush();
+  return out;
+}
+
+}  // namespace qdo
