@@ -211,6 +211,15 @@ class Optics:
         out = self._o.camera(batch, psf)
         return out[0] if single else out
 
+    def capture(self, scene, psf, raw=False, noise=True, demosaic="bilinear"):
+        """One scene (bands x H x W) through the whole capture chain `qdo simulate` runs (the
+        camera, the sensor's shot and read noise, the full-scale clip, and with raw=True the sensor
+        as built: mosaic, black level, gain, bit depth, then the demosaic): a dict with "clean"
+        (3 x H x W before noise and clip), "rgb" (after), "clipped_fraction", and with raw
+        "raw_dn" (1 x H x W code values) and "demosaiced" (3 x H x W, linear; demosaic "bilinear"
+        or "mhc"). raw=True needs a configuration whose cfa is a mosaic."""
+        return self._o.capture(scene, psf, bool(raw), bool(noise), demosaic)
+
     def camera_vjp(self, grad_rgb, scene=None, psf=None):
         """Adjoint of camera()'s noiseless camera: dL/dimage (3 x H x W or batch x 3 x H x W)
         -> (dL/dpsf bands x S x S, dL/dscene shaped as grad_rgb with bands for 3).

@@ -18,6 +18,8 @@
 #include "arguments.hpp"
 #include "qdo_bindings.hpp"
 #include "qdo/physics/camera.hpp"
+#include "qdo/physics/capture_pipeline.hpp"
+#include "qdo/physics/demosaic_reference.hpp"
 #include "qdo/data/config.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/physics/optics.hpp"
@@ -228,6 +230,41 @@ class Optics {
     return py::make_tuple(from_stack(res.psf), from_stacks(res.scenes, cfg_.bands, std::size_t(ga.shape(2)), std::size_t(ga.shape(3))));
   }
 
+  // One scene through the capture pipeline (capture_pipeline.hpp, the chain `qdo simulate` runs):
+  // scene bands x H x W, psf bands x S x S -> a dict of the frame's arrays: "clean" and "rgb"
+  // (3 x H x W: before noise and clip, and after), "clipped_fraction", and with raw
+  // (the configuration's cfa a mosaic) "raw_dn" (1 x H x W, code values) and "demosaiced"
+  // (3 x H x W, linear). noise: the configuration's shot and read noise (scene 0's counters, as
+  // qdo simulate draws them). demosaic: "bilinear" or "mhc". Bad arguments are ValueErrors naming
+  // them, before any device work.
+  py::dict capture(const py::handle& scene_obj, const py::handle& psf_obj, bool raw, bool noise, const std::string& demosaic) {
+    const Array sc = checked(scene_obj, "scene", {cfg_.bands, "H", "W"});
+    const RealStack scene = to_stack(sc);
+    const RealStack ps = to_stack(checked(psf_obj, "psf", {cfg_.bands, s_, s_}));
+    PipelineOptions o;
+    o.noise = noise;
+    o.raw = raw;
+    o.demosaic = demosaic_method_from_string(demosaic, "demosaic");  // InputError -> ValueError
+    if (raw && cfg_.cfa == Cfa::None)
+      value_error("raw: True needs a mosaic; the configuration's cfa is none (give a config with \"cfa\": \"rggb\", ...)");
+    CaptureFrame f;
+    {
+      py::gil_scoped_release unlocked;
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      CapturePipeline pipe(dev_->rt, cfg_, prec_, o);
+      f = pipe.run(ps, scene);
+    }
+    py::dict d;
+    d["clean"] = from_stack(f.clean);
+    d["rgb"] = from_stack(f.rgb);
+    d["clipped_fraction"] = f.clip.fraction();
+    if (raw) {
+      d["raw_dn"] = from_stack(f.raw_dn);
+      d["demosaiced"] = from_stack(f.demosaiced);
+    }
+    return d;
+  }
+
  private:
   // Object points of a call: none (the configuration's own) or a list, checked.
   using Points = std::optional<std::vector<ObjectPoint>>;
@@ -349,6 +386,8 @@ void bind_optics(py::module_& m) {
            py::arg("object_points") = py::none())
       .def("read_psf", &Optics::read_psf, py::arg("path"))
       .def("camera", &Optics::camera, py::arg("scene"), py::arg("psf"))
+      .def("capture", &Optics::capture, py::arg("scene"), py::arg("psf"), py::arg("raw") = false, py::arg("noise") = true,
+           py::arg("demosaic") = "bilinear")
       .def("camera_counted", &Optics::camera_counted, py::arg("scene"), py::arg("psf"))
       .def("camera_vjp", &Optics::camera_vjp, py::arg("grad_rgb"), py::arg("scene") = py::none(), py::arg("psf") = py::none(),
            py::arg("forward") = 0);

@@ -118,6 +118,41 @@ def test_a_psf_file_as_the_camera_s_psf_and_other_grids_refused(tmp_path, qdo_bi
         o.read_psf(tmp_path / "missing.h5")
 
 
+def test_capture_runs_the_simulate_chain_rgb_and_raw(rng):
+    # Noiseless, the pipeline's clean image is the camera operator's.
+    cfg = tiny_config()
+    o = qdo.Optics(config=cfg, precision="f64")
+    psf = o.psf(rng.uniform(0, o.h_max_m, (o.n, o.n)))
+    scene = rng.uniform(0, 0.5, (o.bands, 10, 8))
+    f = o.capture(scene, psf, noise=False)
+    assert set(f) == {"clean", "rgb", "clipped_fraction"}
+    np.testing.assert_allclose(f["clean"], o.camera(scene, psf), rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(f["rgb"], np.minimum(f["clean"], 1.0))
+    # The sensor as built: RGGB, 12 bits, black level 64 DN, gain 1. Without noise each code value
+    # is the clean value of its mosaic colour, scaled to [64, 4095] and rounded.
+    raw_cfg = dict(cfg, cfa="rggb", bit_depth=12, black_level_dn=64.0, gain=1.0)
+    r = qdo.Optics(config=raw_cfg, precision="f64")
+    fr = r.capture(scene, psf, raw=True, noise=False, demosaic="mhc")
+    assert fr["raw_dn"].shape == (1, 10, 8) and fr["demosaiced"].shape == (3, 10, 8)
+    colour = np.array([[0, 1], [1, 2]])  # RGGB
+    rows, cols = np.indices((10, 8))
+    v = fr["clean"][colour[rows % 2, cols % 2], rows, cols]
+    np.testing.assert_array_equal(fr["raw_dn"][0], np.clip(np.rint(64 + v * (4095 - 64)), 0, 4095))
+    # A flat grey scene under circular convolution stays flat in each colour, so both demosaics
+    # give back the clean image, to the 12-bit rounding.
+    c = qdo.Optics(config=dict(raw_cfg, convolution="circular"), precision="f64")
+    flat = np.full((c.bands, 10, 8), 0.3)
+    for method in ("bilinear", "mhc"):
+        ff = c.capture(flat, psf, raw=True, noise=False, demosaic=method)
+        np.testing.assert_allclose(ff["demosaiced"], ff["clean"], rtol=0, atol=0.5 / (4095 - 64) + 1e-12)
+    with pytest.raises(ValueError, match="cfa"):
+        o.capture(scene, psf, raw=True)
+    with pytest.raises(ValueError, match="demosaic"):
+        r.capture(scene, psf, raw=True, demosaic="nearest")
+    with pytest.raises(ValueError, match="scene"):
+        o.capture(scene[:2], psf)
+
+
 def test_camera_and_its_adjoint(optics64, rng):
     s = optics64.sensor_size
     psf = optics64.psf(rng.uniform(0, optics64.h_max_m, (optics64.n, optics64.n)))
