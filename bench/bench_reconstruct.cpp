@@ -27,7 +27,7 @@
 #include "qdo/decode/decoder_registry.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
-#include "qdo/design/reconstruct.hpp"
+#include "qdo/asbuilt/reconstruct.hpp"
 #include "qdo/design/run_folder.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/decode/wiener.hpp"

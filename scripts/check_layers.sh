@@ -3,8 +3,9 @@
 #   runtime, data          OpenCL, FFT, kernel cache; configurations, scenes, files, materials
 #   physics                the optical stages and their CPU references
 #   decode                 decoders and their registry, the test-set evaluation, tiled decoding
-#   design                 the optimiser, run folders, the built camera (captures, fit, reconstruct)
+#   design                 the optimiser, run folders
 #   evaluate               eval of a run, eval-points, sweeps
+#   asbuilt                the built camera: simulated captures, calibration outputs, fit, reconstruct
 #   fab                    fabrication export and tolerance
 #   cli                    the qdo tool (top)
 # net (the LibTorch plugin, qdo_net) sits on decode and below, and nothing in the core includes it.
@@ -34,8 +35,9 @@ decode runtime,data,physics,decode
 net runtime,data,physics,decode,net
 design runtime,data,physics,decode,design
 evaluate runtime,data,physics,decode,design,evaluate
-cli runtime,data,physics,decode,design,evaluate,fab,cli
-fab runtime,data,physics,decode,design,evaluate,fab
+asbuilt runtime,data,physics,decode,design,asbuilt
+cli runtime,data,physics,decode,design,evaluate,asbuilt,fab,cli
+fab runtime,data,physics,decode,design,evaluate,asbuilt,fab
 '
 
 shopt -s nullglob

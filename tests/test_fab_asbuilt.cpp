@@ -13,7 +13,7 @@
 #include "common.hpp"
 #include "fab_common.hpp"
 #include "qdo/fab/fab.hpp"
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 #include "qdo/data/io.hpp"
 
 using namespace qdo;

@@ -1,4 +1,4 @@
-// qdo fit (suite `fit`, include/qdo/design/fit.hpp): the as-built DOE. A known perturbation of a 4-level
+// qdo fit (suite `fit`, include/qdo/asbuilt/fit.hpp): the as-built DOE. A known perturbation of a 4-level
 // lens (level depths off by +15, -20, +20 nm, the DOE-sensor distance z off by 1.6 %, the relief
 // offset by (0.3, -0.2) DOE pixels) is applied through the fit's own model (the same forward
 // model: these tests check the inverse, not the physics, which the psf suite checks), PSFs are
@@ -24,7 +24,7 @@
 #include "qdo/design/design.hpp"
 #include "qdo/physics/doe.hpp"
 #include "qdo/runtime/error.hpp"
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 #include "qdo/data/io.hpp"
 
 using namespace qdo;

@@ -1,4 +1,4 @@
-// The as-built fit's model (suite `fit`, include/qdo/design/fit.hpp): its lateral moves, the
+// The as-built fit's model (suite `fit`, include/qdo/asbuilt/fit.hpp): its lateral moves, the
 // bilinear shift of the relief offset (adjoint, derivative, integer shifts) and the registration
 // that moves the pixel grid over the native PSF (against the native PSF cut into sub-cells, moved
 // and integrated; its adjoint; a fit that recovers it), and the piston that lifts a level below
@@ -12,7 +12,7 @@
 #include "adjoint_ladder.hpp"
 #include "common.hpp"
 #include "fit_common.hpp"
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 #include "qdo/physics/cpu_reference.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/physics/psf_reference.hpp"

@@ -23,7 +23,7 @@
 #include "qdo/physics/optics.hpp"
 #include "qdo/physics/psf_source.hpp"
 #include "qdo/physics/raw_reference.hpp"
-#include "qdo/design/reconstruct.hpp"
+#include "qdo/asbuilt/reconstruct.hpp"
 #include "qdo/design/run_folder.hpp"
 #include "qdo/physics/simulator.hpp"
 #include "qdo/decode/wiener.hpp"

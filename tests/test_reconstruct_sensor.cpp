@@ -15,7 +15,7 @@
 #include "qdo/data/io.hpp"
 #include "qdo/data/io_raw.hpp"
 #include "qdo/physics/raw_reference.hpp"
-#include "qdo/design/reconstruct.hpp"
+#include "qdo/asbuilt/reconstruct.hpp"
 
 using namespace qdo;
 using namespace qdo::test;

@@ -8,7 +8,7 @@
 
 #include "cli.hpp"
 #include "options.hpp"
-#include "qdo/design/calibration_outputs.hpp"
+#include "qdo/asbuilt/calibration_outputs.hpp"
 #include "qdo/physics/calibrate.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/data/io.hpp"

@@ -9,7 +9,7 @@
 #include "qdo/design/run_folder.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/data/io.hpp"
-#include "qdo/design/reconstruct.hpp"
+#include "qdo/asbuilt/reconstruct.hpp"
 #include "qdo/data/scenes.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/decode/testset.hpp"

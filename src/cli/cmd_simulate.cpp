@@ -31,8 +31,8 @@
 #include "qdo/physics/release.hpp"
 #include "qdo/data/scenes.hpp"
 #include "qdo/design/psf_spec.hpp"
-#include "qdo/design/psf_sweep_capture.hpp"
-#include "qdo/design/raw_capture.hpp"
+#include "qdo/asbuilt/psf_sweep_capture.hpp"
+#include "qdo/asbuilt/raw_capture.hpp"
 #include "qdo/physics/simulator.hpp"
 
 namespace qdo::cli {

@@ -1,5 +1,5 @@
 // qdo simulate --depth / --field-grid: the options of a spatially varying image turned into the
-// library's capture specs (include/qdo/design/varying_capture.hpp, which plans, runs and writes
+// library's capture specs (include/qdo/asbuilt/varying_capture.hpp, which plans, runs and writes
 // it), and the report printed.
 //
 //  --depth FILE[:KEY]   an H x W depth map (metres) beside the scene, imaged at depth layers
@@ -19,7 +19,7 @@
 #include <utility>
 #include <vector>
 
-#include "qdo/design/varying_capture.hpp"
+#include "qdo/asbuilt/varying_capture.hpp"
 #include "qdo/runtime/error.hpp"
 
 namespace qdo::cli {

@@ -1,5 +1,5 @@
 // qdo simulate with a depth map (--depth) or a field-dependent PSF (--field-grid) on the command
-// line: the options turned into the library's capture (include/qdo/design/varying_capture.hpp).
+// line: the options turned into the library's capture (include/qdo/asbuilt/varying_capture.hpp).
 #pragma once
 #include "cli.hpp"
 #include "qdo/runtime/types.hpp"

@@ -8,7 +8,7 @@
 #include "fab/fab_internal.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/fab/fab.hpp"
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 
 namespace qdo::fab {
 

@@ -66,6 +66,25 @@ std::vector<double> cell_shares(Cfa cfa, const Eigen::MatrixXd& srf, std::size_t
 
 }  // namespace
 
+Map2D read_raw_frame(const SystemConfig& cfg, const std::string& p) {
+  Map2D dn;
+  if (is_tiff_path(p) || is_camera_raw_path(p)) {
+    CaptureMeta meta;
+    const RealStack t = read_capture16(p, &meta);
+    if (t.planes != 1) refuse(p, "a raw frame must be a 16-bit grayscale (one sample per pixel) TIFF; this one is RGB");
+    // A camera raw file's mosaic layout, black and white levels against the configuration.
+    check_camera_raw(meta, to_string(cfg.cfa), cfg.black_level_dn, cfg.white_level_dn(), p);
+    dn = Map2D(t.rows, t.cols);
+    dn.data = t.data;
+  } else {
+    dn = read_png16_gray(p);
+  }
+  // bit_depth 0 (continuous codes, white 1): the 16-bit file holds the fraction of 65535.
+  if (cfg.bit_depth == 0)
+    for (auto& v : dn.data) v *= 1.0 / 65535.0;
+  return dn;
+}
+
 double wavelength_from_file_name(const std::string& path) {
   static const std::regex re(R"(.*_([0-9]+(\.[0-9]+)?)nm)", std::regex::icase);
   std::smatch m;
@@ -133,19 +152,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   std::string first_path;  // the first frame read, and its size
   std::size_t rows = 0, cols = 0;
   auto read = [&](const std::string& p) {
-    Frame f{p, {}};
-    if (is_tiff_path(p) || is_camera_raw_path(p)) {
-      CaptureMeta meta;
-      const RealStack t = read_capture16(p, &meta);
-      if (t.planes != 1) refuse(p, "a raw frame must be a 16-bit grayscale (one sample per pixel) TIFF; this one is RGB");
-      // A camera raw file's mosaic layout, black and white levels against the configuration.
-      check_camera_raw(meta, to_string(cfg.cfa), cfg.black_level_dn, white, p);
-      f.dn = Map2D(t.rows, t.cols);
-      f.dn.data = t.data;
-    } else {
-      f.dn = read_png16_gray(p);
-    }
-    for (auto& v : f.dn.data) v *= file_scale;
+    Frame f{p, read_raw_frame(cfg, p)};
     if (first_path.empty()) {
       first_path = p;
       rows = f.dn.rows;
@@ -325,6 +332,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     excess[b].clear();
   }
   r.hot_pixels = hot_count * bands + r.transients.size();
+  r.hot_map = hot;
 
   std::vector<Map2D> sig(bands);  // per band, rows x cols: dark-subtracted mean, flat divided (DN)
   std::vector<double> cell(4, 0), worst(bands, 0);

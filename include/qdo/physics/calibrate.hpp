@@ -114,6 +114,7 @@ struct CalibrationResult {
   std::vector<double> noise_dn;       // per band, sigma of the band's mean of exposures
   std::vector<std::string> darks;     // the dark frames averaged
   std::size_t hot_pixels = 0;         // replaced: the darks' hot pixels once per band, plus every transient
+  std::vector<char> hot_map;          // frame_rows x frame_cols, row-major: 1 at the darks' hot pixels
   // The transients of step 4 (each exposure's pixel counts once): (band, exposure, row, column).
   std::vector<std::array<std::size_t, 4>> transients;
   long centre_row = 0, centre_col = 0;  // frame pixel put at (S/2, S/2)
@@ -134,6 +135,43 @@ struct CalibrationResult {
 // an InputError naming the file (or folder) and what is wrong, raised before the frames are
 // processed where the input alone shows it.
 CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& frames_dir, const std::string& darks_dir,
+                                const CalibrationOptions& opt = {});
+
+// One frame's code values as calibrate_psf reads them: rows x cols DN (with bit_depth 0, a 16-bit
+// file's codes over 65535) from a 16-bit grayscale PNG, TIFF or camera raw file (its layout,
+// black and white levels checked against cfg). An InputError naming the file otherwise.
+Map2D read_raw_frame(const SystemConfig& cfg, const std::string& path);
+
+// The sweep reduced for a fit in the measurement domain (fit_raw.hpp): calibrate_psf's reading,
+// checks and refusals (with ring_background off: the darks alone remove the offset, and darks
+// that do not match the frames are refused), its hot pixels, transients, noise and centre, and
+// then, per band, the S x S window of the frames themselves around that centre (the window of
+// the stack calibrate_psf makes), not a calibrated stack.
+struct RawPsfWindows {
+  CalibrationResult calibration;  // calibrate_psf of the same frames (its psf is the stack path's measured stack)
+  std::size_t s = 0;              // the window's side, cfg.sensor_size_px()
+  long top = 0, left = 0;         // frame pixel of the window's (0, 0): the centre less (S/2, S/2)
+  double dn_full_scale = 1;       // DN of the linear signal 1.0: gain x (white level - black level)
+  // bands x S x S each, row-major; signal and variance in full-scale units (DN / dn_full_scale):
+  //   signal    the mean of the band's exposures at the pixel (transients and codes clipped at 0
+  //             left out) less the mean dark;
+  //   variance  its Poisson-Gaussian variance: the read variance of the mean of the n exposures
+  //             used less the mean of d darks, (1/n + 1/d) times one frame's (with d >= 2 the mean
+  //             over the pixels of each pixel's sample variance across the darks, at least the
+  //             rounding's 1/12 DN^2; with one dark, calibrate's noise of the band's mean, the MAD
+  //             of its unlit pixels) plus the shot noise of the expected signal over n, one electron
+  //             gain (white - black) / full_well_photons DN; the expected signal is the pixel's
+  //             gain times the PSF its 8 neighbours measure, never its own value, so a weight
+  //             does not follow the noise it weighs;
+  //   gain      the pixel's signal per unit PSF and source power: its colour's response at the
+  //             band over the band's largest colour, times the white frames' flat field when
+  //             given (PixelGain); 0 where the pixel is no measurement (hot in the darks, a colour
+  //             under min_response, no exposure left): signal and variance are 0 there.
+  RealStack signal, variance, gain;
+  std::vector<int> colour;  // S x S: each pixel's mosaic colour (0 R, 1 G, 2 B; -1 without a mosaic)
+  std::size_t usable = 0;   // the entries (pixels of all bands) with gain > 0
+};
+RawPsfWindows reduce_psf_frames(const SystemConfig& cfg, const std::string& frames_dir, const std::string& darks_dir,
                                 const CalibrationOptions& opt = {});
 
 // Steps 4 and 5 on their own (calibrate_psf uses them; tests call them on synthetic frames).

@@ -2,7 +2,7 @@
 // the field grid and its edge, the components some pixel uses, their weights and the PSF
 // configuration, every input checked before any device work. The device half and the outputs:
 // varying_capture_run.cpp.
-#include "qdo/design/varying_capture.hpp"
+#include "qdo/asbuilt/varying_capture.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -1,6 +1,6 @@
 // The as-built fit (fit.hpp): Levenberg-Marquardt over AsBuiltModel (fit_model.cpp) with
 // Gauss-Newton uncertainties, correlations and the report.
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -87,6 +87,12 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   AsBuiltModel model(rt, cfg, p, design, opt.parameters, opt);  // every other check, before device work
   const std::size_t np = model.parameter_names().size(), m = measured.data.size();
   if (m <= np) throw InputError("the measured PSF stack has " + std::to_string(m) + " values for " + std::to_string(np) + " parameters");
+  // The residuals s^2 counts: every value of the stack, or an observation's data less its own unknowns.
+  const FitObservation* obs = opt.observation.get();
+  if (obs && obs->residuals <= obs->nuisance + np)
+    throw InputError("the measurement has " + std::to_string(obs->residuals) + " usable values for " +
+                     std::to_string(np) + " parameters and " + std::to_string(obs->nuisance) + " source powers");
+  const double dof = obs ? double(obs->residuals - obs->nuisance - np) : double(m - np);
   const auto say = [&](const std::string& l) {
     if (opt.progress) opt.progress(l);
   };
@@ -167,7 +173,7 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
       // The step against the current 1-sigma (s^2 diag((J^T J)^-1), s^2 from the loss before it).
       double step_sigmas = 0;
       {
-        const Eigen::MatrixXd cov = a.completeOrthogonalDecomposition().pseudoInverse() * (2 * l / double(m - np));
+        const Eigen::MatrixXd cov = a.completeOrthogonalDecomposition().pseudoInverse() * (2 * l / dof);
         for (std::size_t k = 0; k < np; ++k) {
           const double sg = std::sqrt(std::max(cov(long(k), long(k)), 0.0));
           step_sigmas = std::max(step_sigmas, sg > 0 ? std::fabs(trial[k] - th[k]) / sg : 0.0);
@@ -313,7 +319,7 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
     model.set_aperture_radius(r);
     loss = l0;
     aperture = {"aperture", "m", r_design, r_fit, 0, "scan"};
-    aperture.sigma = curv > 0 ? std::sqrt(2 * loss / double(m - np) / curv) : std::numeric_limits<double>::infinity();
+    aperture.sigma = curv > 0 ? std::sqrt(2 * loss / dof / curv) : std::numeric_limits<double>::infinity();
     t.scan_s += since(t1);
     if (r == r0) return false;
     say("fit: aperture radius " + fmt("%.3f", r / cfg.pitch_m) + " px; the other parameters fitted (again) with it");
@@ -338,7 +344,7 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   const Eigen::MatrixXd as_inv = symmetric_pinv(as, 1e-15, &ev);
   const double evmax = ev.maxCoeff(), evmin = ev.minCoeff();
   res.condition = evmin > 0 ? evmax / evmin : std::numeric_limits<double>::infinity();
-  const double s2 = 2 * loss / double(m - np);
+  const double s2 = 2 * loss / dof;
   res.residual_sigma = std::sqrt(s2);
   res.correlation = Eigen::MatrixXd::Zero(long(np), long(np));
   for (long a_ = 0; a_ < long(np); ++a_)

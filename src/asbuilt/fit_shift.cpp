@@ -1,7 +1,7 @@
 // The lateral moves of the as-built fit (fit.hpp): the registration, the native PSF integrated by a
 // moved sensor grid (integrate_registered) and its adjoint; the bilinear shift of the relief offset
 // (shift_bilinear) and its adjoints with respect to the input and to the shift.
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 
 #include <cmath>
 #include <string>

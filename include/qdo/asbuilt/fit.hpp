@@ -52,9 +52,14 @@
 // jackknife over groups of contiguous bands (FitOptions::jackknife_groups), linearised at the fit:
 // for each group the Gauss-Newton step of the fit without it, from the Jacobian and residuals at
 // the fit (no new model evaluation); sigma_jk^2 = (G - 1) / G sum_g (step_g - mean)^2.
+// Another data term (FitObservation, FitOptions::observation; fit_raw.hpp's raw frames): the fit
+// compares obs.map(model) with the measured argument instead of the model stack itself, the
+// adjoint taking obs.vjp, the Jacobian the differences of the observed images; s^2 counts
+// obs.residuals - obs.nuisance residuals.
 #pragma once
 #include <Eigen/Dense>
 
+#include <cstddef>
 #include <functional>
 #include <limits>
 #include <memory>
@@ -72,6 +77,19 @@ namespace qdo {
 std::vector<std::string> fit_parameter_names();
 // The default set for a design: levels,z,offset when it is quantized, else scale,z,offset.
 std::vector<std::string> default_fit_parameters(const Design& design);
+
+// What a measurement records of a model PSF stack, when the fit compares that instead of the
+// stack itself (fit_raw.hpp: the raw frames through the sensor model). The loss is then
+// 1/2 |map(model) - measured|^2, measured being fit_as_built's stack argument (the target).
+struct FitObservation {
+  // The observed image of a model PSF stack: bands x S x S -> bands x S x S (the target's layout).
+  std::function<RealStack(const RealStack& psf)> map;
+  // d loss / d psf at psf given residual = map(psf) - target (both bands x S x S).
+  std::function<RealStack(const RealStack& psf, const RealStack& residual)> vjp;
+  std::size_t residuals = 0;  // the target's entries that are data (the rest are 0 in map and target)
+  // Unknowns solved inside map (not in the fit's vector): s^2 = 2 L / (residuals - nuisance - p).
+  std::size_t nuisance = 0;
+};
 
 struct FitOptions {
   std::vector<std::string> parameters;  // names above; empty: default_fit_parameters
@@ -112,6 +130,8 @@ struct FitOptions {
   double fd_px = 1e-3;
   // A progress line per iteration ("" lines skipped); stderr-free: the caller prints.
   std::function<void(const std::string&)> progress;
+  // The data term: none (the measured stack itself), or an observation of the model (fit_raw.hpp).
+  std::shared_ptr<const FitObservation> observation;
 };
 
 // One fitted scalar. For levels and masks, name is "level1" .., "mask0" ..; offsets "dx", "dy";
@@ -161,6 +181,8 @@ struct FitResult {
   Design as_built;                     // the fitted relief (levels_m = the fitted levels when quantized)
   SystemConfig as_built_config;        // z, d, aperture as fitted
   RealStack model_psf, design_psf;     // bands x S x S: the fitted model, and the design's nominal stack
+  // With raw frames (fit_raw.hpp): each band's source power a_b at the fit; empty for a stack.
+  std::vector<double> source_power;
   FitTimes times;
 };
 
@@ -189,8 +211,14 @@ class AsBuiltModel {
   std::vector<double> design_values() const;                 // the nominal vector
   // Whether parameter i's gradient comes from the adjoint (else central differences).
   bool adjoint_parameter(std::size_t i) const;
-  // The model stack at theta (bands x S x S).
+  // The model stack at theta (bands x S x S); with an observation (FitOptions::observation) its
+  // observed image, which the loss compares.
   RealStack evaluate(const std::vector<double>& theta);
+  // The model PSF stack at theta (bands x S x S), never observed; and the observation of a stack
+  // (the stack itself without one).
+  RealStack evaluate_psf(const std::vector<double>& theta);
+  RealStack observe(const RealStack& psf) const;
+  bool observed() const;
   // L(theta) = 1/2 |model - measured|^2 and dL/dtheta (adjoint where adjoint_parameter, else
   // central differences).
   double loss_gradient(const std::vector<double>& theta, const RealStack& measured, std::vector<double>& grad);

@@ -1,5 +1,5 @@
 // Scoring a reconstruction against the scene its capture shows (reconstruct.hpp).
-#include "qdo/design/reconstruct.hpp"
+#include "qdo/asbuilt/reconstruct.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -3,9 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <utility>
 
 #include "qdo/runtime/error.hpp"
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 #include "qdo/physics/simulator.hpp"
 
 #include "fit_internal.hpp"
@@ -105,12 +106,19 @@ LateralStarts find_lateral_starts(AsBuiltModel& model, const SystemConfig& cfg, 
         if (lat == dx && sx < np) {
           // The registration too: the model at zero shift once, then every whole-pixel shift
           // within +-3 px of the centroid's on the host (a whole-pixel shift is exact).
+          // With an observation the PSF stack is shifted, then observed (the observation is
+          // per sensor pixel: it does not commute with the shift).
           trial[sx] = trial[sx + 1] = 0;
-          const RealStack p0 = model.evaluate(trial);
+          const RealStack p0 = model.observed() ? model.evaluate_psf(trial) : model.evaluate(trial);
           const long cx = std::lround(c.first - ox), cy = std::lround(c.second - oy);
           for (long jy = cy - 3; jy <= cy + 3; ++jy)
             for (long jx = cx - 3; jx <= cx + 3; ++jx) {
-              const std::vector<double> sh = shift_bilinear(p0.data, p0.planes, p0.rows, p0.cols, double(jx), double(jy));
+              std::vector<double> sh = shift_bilinear(p0.data, p0.planes, p0.rows, p0.cols, double(jx), double(jy));
+              if (model.observed()) {
+                RealStack moved(p0.planes, p0.rows, p0.cols);
+                moved.data = std::move(sh);
+                sh = model.observe(moved).data;
+              }
               double ls = 0;
               for (std::size_t i = 0; i < sh.size(); ++i) ls += (sh[i] - measured.data[i]) * (sh[i] - measured.data[i]);
               ls *= 0.5;

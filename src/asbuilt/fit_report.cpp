@@ -1,6 +1,6 @@
 // The as-built fit as a job (fit_report.hpp): its inputs read and checked, its result written
 // and summarised.
-#include "qdo/design/fit_report.hpp"
+#include "qdo/asbuilt/fit_report.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -17,6 +17,7 @@
 #include "qdo/design/run_folder.hpp"
 #include "qdo/physics/psf_source.hpp"
 #include "qdo/runtime/error.hpp"
+#include "qdo/runtime/parse.hpp"
 #include "qdo/runtime/strprintf.hpp"
 #include "qdo/runtime/util.hpp"
 
@@ -38,14 +39,6 @@ std::string human(const FitValue& v, double x) {
   else
     std::snprintf(b, sizeof b, "%.6f", x);
   return b;
-}
-
-// A number (the whole text), else an InputError naming the argument.
-double parse_number(const std::string& argument, const std::string& v) {
-  char* end = nullptr;
-  const double x = std::strtod(v.c_str(), &end);
-  if (v.empty() || *end || !std::isfinite(x)) reject(argument, v, "a number");
-  return x;
 }
 
 // One start item NAME=VALUE (name: its NAME), read and bounded as parse_fit_starts says.
@@ -74,7 +67,7 @@ double start_value(const SystemConfig& cfg, const Design& design, const std::str
     }
     unit = " m";
   }
-  const double v = parse_number(argument, num) * factor;
+  const double v = parse_double(argument, num) * factor;
   double lo = 0, hi = 0;
   std::string why;
   const double half_aperture = 0.5 * double(cfg.n) * cfg.pitch_m;
@@ -160,6 +153,12 @@ void write_fit_h5(const std::string& path, const SystemConfig& cfg, const RealSt
   ds.push_back({"/psf_fit", {cfg.bands, s, s}, r.model_psf.data, {{"pitch_m", cfg.sensor_pitch_m}}, {{"units", "fraction of band energy per sensor pixel"}}});
   ds.push_back({"/psf_measured", {cfg.bands, s, s}, measured.data, {{"pitch_m", cfg.sensor_pitch_m}}, {}});
   ds.push_back({"/psf_design", {cfg.bands, s, s}, r.design_psf.data, {{"pitch_m", cfg.sensor_pitch_m}}, {}});
+  if (!r.source_power.empty())
+    ds.push_back({"/source_power",
+                  {r.source_power.size()},
+                  r.source_power,
+                  {},
+                  {{"units", "full scale per unit of the band's unit-sum PSF at its largest colour"}}});
   h5_write(path, ds,
            {{"config", config_to_json_text(cfg)},
             {"as_built_config", config_to_json_text(r.as_built_config)},
@@ -309,6 +308,20 @@ std::string fit_json_text(const SystemConfig& cfg, const FitResult& r, const Fit
                "(linearised at the fit), which grows where the model misses what differs between wavelengths; "
                "levels: level 0 held at its design value (a common piston is invisible); z and d by central differences; "
                "aperture by a half-pixel scan";
+  if (!r.source_power.empty()) {  // the raw frames (fit_raw.hpp)
+    j["data"] = "raw frames";
+    j["source_power"] = r.source_power;
+    j["chi2_reduced"] = r.residual_sigma * r.residual_sigma;
+    j["notes"] =
+        "data: the raw frames' windows, each usable pixel's residual (a_b G PSF - D) / sqrt(V) with V its "
+        "Poisson-Gaussian variance and a_b the band's source power solved in closed form; loss = chi^2 / 2; "
+        "sigma: Cov = chi2_reduced (J^T J)^-1 with J the Jacobian of those residuals (the curvature of chi^2 scaled "
+        "by the reduced chi^2, 1 when the noise model and the model hold); residual_rel_*: |weighted residual| / "
+        "|weighted data| per band; psf_measured in fit.h5: each usable pixel's D / (a_b G); sigma_jackknife: as for "
+        "a stack, over groups of contiguous bands; levels: level 0 held at its design value (a common piston is "
+        "invisible); z and d by central differences; "
+        "aperture by a half-pixel scan";
+  }
   return j.dump(2) + "\n";
 }
 
@@ -335,6 +348,11 @@ std::vector<std::string> fit_summary_lines(const SystemConfig& cfg, const FitRes
   out.push_back(strprintf("fitted %zu parameters in %d iterations (%s) in %.2f s: loss %.4e -> %.4e, residual sigma %.3e per pixel", np,
                           r.iterations, r.converged ? "converged" : "iteration limit", fit_s, r.loss_design, r.loss_final,
                           r.residual_sigma));
+  if (!r.source_power.empty())
+    out.push_back(strprintf(
+        "data: raw frames, each pixel weighted by its Poisson-Gaussian variance; reduced chi^2 %.4f (1 when the "
+        "noise model and the model hold; the sigmas are scaled by it)",
+        r.residual_sigma * r.residual_sigma));
   for (const auto& v : r.values) {
     const std::string jk = std::isfinite(v.sigma_jackknife) ? ", jackknife +- " + human(v, v.sigma_jackknife) : std::string();
     out.push_back(strprintf("  %-9s %s +- %s (design %s; %s%s)", v.name.c_str(), human(v, v.value).c_str(),

@@ -1,5 +1,5 @@
 // The files of a PSF calibration (calibration_outputs.hpp).
-#include "qdo/design/calibration_outputs.hpp"
+#include "qdo/asbuilt/calibration_outputs.hpp"
 
 #include <algorithm>
 #include <filesystem>

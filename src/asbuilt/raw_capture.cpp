@@ -1,5 +1,5 @@
 // Raw capture checks and outputs (raw_capture.hpp).
-#include "qdo/design/raw_capture.hpp"
+#include "qdo/asbuilt/raw_capture.hpp"
 
 #include "qdo/data/io.hpp"
 #include "qdo/runtime/error.hpp"

@@ -26,7 +26,7 @@
 
 #include "qdo/data/config.hpp"
 #include "qdo/design/psf_spec.hpp"
-#include "qdo/design/varying_capture.hpp"
+#include "qdo/asbuilt/varying_capture.hpp"
 #include "qdo/physics/raw_reference.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/runtime/types.hpp"

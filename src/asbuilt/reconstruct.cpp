@@ -1,6 +1,6 @@
 // `qdo reconstruct` (reconstruct.hpp): tiles through a run's decoder -> cube (the captures, step 1 to 4, are capture.cpp),
 // sRGB render, spectra.
-#include "qdo/design/reconstruct.hpp"
+#include "qdo/asbuilt/reconstruct.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -30,7 +30,7 @@
 #include "qdo/design/run_folder.hpp"
 #include "qdo/data/scenes.hpp"
 #include "qdo/physics/simulator.hpp"
-#include "design/reconstruct_internal.hpp"
+#include "asbuilt/reconstruct_internal.hpp"
 
 namespace fs = std::filesystem;
 

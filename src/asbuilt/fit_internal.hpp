@@ -8,7 +8,7 @@
 #include <utility>
 #include <vector>
 
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 
 namespace qdo::fit_detail {
 

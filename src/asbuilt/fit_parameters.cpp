@@ -1,6 +1,6 @@
 // The parameters of the as-built fit (fit.hpp): their names, the default set for a design, and
 // the check of a requested set against the configuration and the design.
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -10,14 +10,14 @@
 #include <string>
 #include <vector>
 
-#include "design/reconstruct_internal.hpp"
+#include "asbuilt/reconstruct_internal.hpp"
 #include "qdo/physics/demosaic.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/physics/flat_field.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/physics/raw_reference.hpp"
-#include "qdo/design/reconstruct.hpp"
+#include "qdo/asbuilt/reconstruct.hpp"
 
 namespace qdo {
 using namespace reconstruct_detail;

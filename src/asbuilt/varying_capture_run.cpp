@@ -1,7 +1,7 @@
 // The device half of a spatially varying capture (varying_capture.hpp): the PSFs of the plan's used
 // components, the image through VaryingCamera (directly or in the low-rank form), the noise, and the
 // output files. The plans: varying_capture.cpp.
-#include "qdo/design/varying_capture.hpp"
+#include "qdo/asbuilt/varying_capture.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -1,6 +1,6 @@
 // The simulated monochromator sweep (psf_sweep_capture.hpp): the plan on the host, the PSF on the
 // device, the raw frames and darks through the sensor as built (ref::raw_forward) on the host.
-#include "qdo/design/psf_sweep_capture.hpp"
+#include "qdo/asbuilt/psf_sweep_capture.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -10,7 +10,7 @@
 
 #include "qdo/data/figure.hpp"
 #include "qdo/data/io.hpp"
-#include "qdo/design/raw_capture.hpp"
+#include "qdo/asbuilt/raw_capture.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/util.hpp"

@@ -1,4 +1,4 @@
-// Private to src/design: what reconstruct.cpp and capture.cpp (qdo reconstruct's stages) share.
+// Private to src/asbuilt: what reconstruct.cpp and capture.cpp (qdo reconstruct's stages) share.
 #pragma once
 
 #include <chrono>

@@ -1,7 +1,7 @@
 // The as-built model of the fit (fit.hpp): AsBuiltModel, a measured PSF stack's model from a
 // design, its adjoint gradient and Jacobian. The registration shift is fit_shift.cpp, the
 // parameters' names and checks fit_parameters.cpp, the fit itself fit.cpp.
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 
 #include <algorithm>
 #include <chrono>
@@ -167,7 +167,8 @@ struct AsBuiltModel::Impl {
     return integrate_registered(native, cfg, st.sx, st.sy);
   }
 
-  RealStack model(const State& st) { return psf(st); }
+  // What the loss compares: the PSF stack, or its observation (FitOptions::observation).
+  RealStack model(const State& st) { return opt.observation ? opt.observation->map(psf(st)) : psf(st); }
 
   double half_sq(const RealStack& m, const RealStack& meas) const {
     double l = 0;
@@ -190,7 +191,8 @@ struct AsBuiltModel::Impl {
     check_measured(meas);
     const State st = state(theta);
     auto t0 = std::chrono::steady_clock::now();
-    const RealStack m = psf(st);
+    const RealStack psf_stack = psf(st);
+    const RealStack m = opt.observation ? opt.observation->map(psf_stack) : psf_stack;
     RealStack r = m;
     double loss = 0;
     for (std::size_t i = 0; i < r.data.size(); ++i) {
@@ -208,8 +210,12 @@ struct AsBuiltModel::Impl {
       if (fd_distances) fd_distance_gradient(theta, meas, grad);
       return loss;
     }
-    const Map2D g_h =
-        registration ? sim->psf_native_vjp(integrate_registered_adjoint(r, native, cfg, st.sx, st.sy)) : sim->psf_sensor_vjp(r);
+    // With an observation, the residual is carried back through it onto the PSF stack first.
+    const RealStack g_psf = opt.observation ? opt.observation->vjp(psf_stack, r) : RealStack();
+    const RealStack& g_stack = opt.observation ? g_psf : r;
+    const Map2D g_h = registration
+                          ? sim->psf_native_vjp(integrate_registered_adjoint(g_stack, native, cfg, st.sx, st.sy))
+                          : sim->psf_sensor_vjp(g_stack);
     ++t.vjps;
     const double px = cfg.pitch_m;
     const std::vector<double> h0 = unshifted(st);
@@ -385,6 +391,16 @@ RealStack AsBuiltModel::evaluate(const std::vector<double>& theta) {
   impl_->t.psf_s += since(t0);
   return r;
 }
+RealStack AsBuiltModel::evaluate_psf(const std::vector<double>& theta) {
+  const auto t0 = std::chrono::steady_clock::now();
+  RealStack r = impl_->psf(impl_->state(theta));
+  impl_->t.psf_s += since(t0);
+  return r;
+}
+RealStack AsBuiltModel::observe(const RealStack& psf) const {
+  return impl_->opt.observation ? impl_->opt.observation->map(psf) : psf;
+}
+bool AsBuiltModel::observed() const { return impl_->opt.observation != nullptr; }
 double AsBuiltModel::loss_gradient(const std::vector<double>& theta, const RealStack& measured, std::vector<double>& grad) {
   return impl_->loss_gradient(theta, measured, grad, true, nullptr);
 }

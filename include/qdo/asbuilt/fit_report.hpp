@@ -9,7 +9,7 @@
 
 #include "qdo/data/config.hpp"
 #include "qdo/data/io.hpp"
-#include "qdo/design/fit.hpp"
+#include "qdo/asbuilt/fit.hpp"
 #include "qdo/runtime/types.hpp"
 
 namespace qdo {
