@@ -73,7 +73,11 @@ for sc in depth full; do
   # mosaic), to tell the calibration's share of the fit's error from the model's.
   "$QDO" fit --config "$CAM" --design "$OUT/design/design.h5" --psf "$OUT/$sc/true_psf/psf.h5" --fit levels,z,offset \
     --lateral-starts "$LATERAL_STARTS" --iterations 60 --out "$OUT/$sc/fitted_true"
+  log "5b. [$sc] the same fit on the raw frames themselves (no calibrated stack)"
+  "$QDO" fit --config "$CAM" --design "$OUT/design/design.h5" --frames "$OUT/$sc/sweep/frames" --darks "$OUT/$sc/sweep/darks" \
+    --fit levels,z,offset,shift --lateral-starts "$LATERAL_STARTS" --iterations 60 --out "$OUT/$sc/fitted_raw"
 done
+python3 scripts/section7_fit_compare.py "$OUT" depth full > "$OUT/fit_compare.md"
 
 log "6. captures of the CAVE test scenes: through the design (as simulated) and through each camera as built"
 capture() {  # SET CONFIG DESIGN
