@@ -8,7 +8,8 @@
 # against the scene (qdo reconstruct --truth). Two fabrications of the same design: "depth" (each
 # mask's etch depth error, a relief offset, a DOE-sensor distance error: all inside qdo fit's
 # model) and "full" (the same plus each mask's own overlay shift, as qdo tolerance draws it: outside
-# the model). Writes OUT/table.md and OUT/table.csv.
+# the model). Writes OUT/table.md and OUT/table.csv, and OUT/fit_compare.md (the fit from the
+# calibrated stack against the fit from the raw frames, scripts/section7_fit_compare.py).
 # Usage: bash scripts/experiments_section7.sh [OUT]   (QDO: the qdo binary, default build/qdo)
 set -euo pipefail
 cd "$(dirname "$0")/.."
