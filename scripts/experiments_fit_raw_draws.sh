@@ -1,0 +1,91 @@
+#!/usr/bin/env bash
+# The as-built fit from the raw frames against the fit from the calibrated stack, over fabrication
+# draws (EXPERIMENTS.md "Section 7 again: the fit from the raw frames"). The Section 7 design
+# (4-level QDO+A, small preset, seed 0) is fabricated once per draw (qdo fabricate: etch depth
+# errors within +-20 nm, the draw's relief offset and DOE-sensor distance error; each mask's
+# overlay within OVERLAY_UM, default 0: every error inside the fit's model), a monochromator sweep
+# is captured through it as raw 12-bit RGGB frames with read and shot noise and 8 darks (qdo
+# simulate --capture psf-sweep), then fitted twice with --fit levels,z,offset,shift: from qdo
+# calibrate's stack, and from the frames themselves (qdo fit --frames). Writes OUT/table.md.
+# Usage: bash scripts/experiments_fit_raw_draws.sh [OUT]   (QDO: the qdo binary, default build/qdo;
+# DESIGN: a design.h5 to use instead of training the Section 7 design into OUT/design; DRAWS: how
+# many of the ten draws, default 5)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT=${1:-out/fit_raw_draws}
+QDO=${QDO:-build/qdo}
+SHARED=${SHARED:-../shared}
+OVERLAY_UM=${OVERLAY_UM:-0}
+NAME=experiments_fit_raw_draws
+source scripts/experiments_fit_common.sh
+# The sensor as built, as in experiments_section7.sh: RGGB, 12 bits, black level 64 DN, read noise
+# 1e-3 of full scale, shot noise at 20000 photons full well.
+RAWCAM=$OUT/camera_raw.json
+python3 -c '
+import json, sys
+c = json.load(open(sys.argv[1]))
+c.update({"cfa": "rggb", "bit_depth": 12, "black_level_dn": 64, "read_noise_sigma": 0.001,
+          "full_well_photons": 20000, "noise_seed": 1})
+json.dump(c, open(sys.argv[2], "w"), indent=2)' "$CAM" "$RAWCAM"
+# Each draw: the fabrication seed, the relief offset (um), the DOE-sensor distance error (um)
+# (experiments_fit_sigma.sh's list).
+ALL=("11 1.5,-1.0 150" "12 -2.0,0.5 -100" "13 0.7,2.4 60" "14 2.8,-1.9 180" "15 -0.6,-3.1 -140"
+     "16 4.2,1.1 90" "17 -1.3,-0.4 0" "18 0.2,-0.9 -60" "19 -3.5,2.0 120" "20 1.0,1.0 -200")
+n=${DRAWS:-5}
+for draw in "${ALL[@]:0:$n}"; do
+  read -r seed off dz <<< "$draw"
+  c=$OUT/draw$seed
+  if [ -f "$c/fitted_raw/fit.json" ] && [ -f "$c/fitted/fit.json" ]; then echo "draw $seed: done before"; continue; fi
+  rm -rf "$c"
+  mkdir -p "$c"
+  t0=$(date +%s)
+  "$QDO" fabricate "$DESIGN" --config "$RAWCAM" --seed "$seed" --etch-depth-error-nm 20 --overlay-um "$OVERLAY_UM" --offset-um="$off" \
+    --sensor-distance-error-um "$dz" --out "$c/asbuilt" > /dev/null
+  "$QDO" simulate --config "$c/asbuilt/config.json" --design "$c/asbuilt/design.h5" --capture psf-sweep --peak 0.6 --darks 8 \
+    --out "$c/sweep" > /dev/null
+  "$QDO" calibrate --config "$RAWCAM" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --background none --out "$c/measured" > /dev/null
+  "$QDO" fit --config "$RAWCAM" --design "$DESIGN" --psf "$c/measured/psf.h5" --fit levels,z,offset,shift --iterations 60 \
+    --out "$c/fitted" > "$c/fitted.log" 2>&1 || true
+  "$QDO" fit --config "$RAWCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit levels,z,offset,shift \
+    --iterations 60 --out "$c/fitted_raw" > "$c/fitted_raw.log" 2>&1 || true
+  echo "draw $seed (offset $off um, dz $dz um, overlay within $OVERLAY_UM um): $(( $(date +%s) - t0 )) s"
+done
+python3 - "$OUT" "$OVERLAY_UM" <<'PY'
+import glob, json, os, sys
+out, overlay = sys.argv[1], sys.argv[2]
+scale = {"level1": 1e9, "level2": 1e9, "level3": 1e9, "z": 1e6, "dx": 1e6, "dy": 1e6}
+unit = {"level1": "nm", "level2": "nm", "level3": "nm", "z": "µm", "dx": "µm", "dy": "µm"}
+rows, worst = [], {"stack": [], "raw": []}
+within3 = total = 0
+chi2 = []
+for d in sorted(glob.glob(os.path.join(out, "draw*"))):
+    truth = json.load(open(os.path.join(d, "asbuilt", "truth.json")))["fit_parameters"]
+    fits = {}
+    for kind, folder in (("stack", "fitted"), ("raw", "fitted_raw")):
+        fj = os.path.join(d, folder, "fit.json")
+        fits[kind] = json.load(open(fj)) if os.path.exists(fj) else None
+    if not fits["stack"] or not fits["raw"]:
+        rows.append(f"| {os.path.basename(d)} | (a fit failed: see {d}/*.log) | | | | |")
+        continue
+    chi2.append(fits["raw"].get("chi2_reduced", float("nan")))
+    p = {k: {q["name"]: q for q in f["parameters"]} for k, f in fits.items()}
+    lv = {k: max(abs(p[k][n]["value"] - truth[n]) * 1e9 for n in ("level1", "level2", "level3")) for k in p}
+    for k in p:
+        worst[k].append(lv[k])
+    for n in ("level1", "level2", "level3", "z", "dx", "dy"):
+        s = scale[n]
+        es, er, sg = (p["stack"][n]["value"] - truth[n]) * s, (p["raw"][n]["value"] - truth[n]) * s, p["raw"][n]["sigma"] * s
+        total += 1
+        within3 += abs(er) <= 3 * sg
+        rows.append(f"| {os.path.basename(d)} | {n} ({unit[n]}) | {es:+.2f} | {er:+.2f} | {sg:.3f} | {abs(er) / sg if sg > 0 else float('inf'):.1f} |")
+L = [f"Fitted minus true over {len(chi2)} draws (overlay within {overlay} um per mask), `--fit levels,z,offset,shift`:", "",
+     "| draw | parameter | stack fit − true | raw fit − true | raw σ | raw error / σ |", "|---|---|---:|---:|---:|---:|"] + rows
+if chi2:
+    L += ["", f"- worst level error per draw (nm): stack {', '.join(f'{x:.1f}' for x in worst['stack'])}; "
+              f"raw {', '.join(f'{x:.1f}' for x in worst['raw'])}",
+          f"- draws with every level within 8 nm: stack {sum(x <= 8 for x in worst['stack'])} of {len(chi2)}, "
+          f"raw {sum(x <= 8 for x in worst['raw'])} of {len(chi2)}",
+          f"- raw fit: reduced chi^2 {', '.join(f'{x:.3f}' for x in chi2)}; {within3} of {total} errors within 3 sigma"]
+open(os.path.join(out, "table.md"), "w").write("\n".join(L) + "\n")
+print("\n".join(L))
+PY
