@@ -54,7 +54,8 @@ const DecoderRegistration toy_registration{
     {"toy", "a test's constant decoder: toy:level=V", false, [](const DecoderInputs& in) -> std::unique_ptr<Decoder> {
        last_inputs() = in;
        return std::make_unique<ToyDecoder>(in.psf.planes, std::stod(in.spec.param("level", "0.25")));
-     }}};
+     },
+     nullptr}};
 
 // A Wiener do run of the tiny configuration (4 steps of N = 32, 3 bands).
 std::string tiny_wiener_run(const std::filesystem::path& dir) {
@@ -156,9 +157,9 @@ TEST_SUITE("decoders") {
     CHECK(m2.find("toy") != std::string::npos);
     // Registering: a taken name, a malformed name, no factory.
     const DecoderFactory f = [](const DecoderInputs&) -> std::unique_ptr<Decoder> { return nullptr; };
-    CHECK_THROWS_WITH_AS(register_decoder({"toy", "", false, f}), doctest::Contains("toy"), InputError);
-    CHECK_THROWS_WITH_AS(register_decoder({"Bad Name", "", false, f}), doctest::Contains("Bad Name"), InputError);
-    CHECK_THROWS_WITH_AS(register_decoder({"nofactory", "", false, nullptr}), doctest::Contains("nofactory"),
+    CHECK_THROWS_WITH_AS(register_decoder({"toy", "", false, f, nullptr}), doctest::Contains("toy"), InputError);
+    CHECK_THROWS_WITH_AS(register_decoder({"Bad Name", "", false, f, nullptr}), doctest::Contains("Bad Name"), InputError);
+    CHECK_THROWS_WITH_AS(register_decoder({"nofactory", "", false, nullptr, nullptr}), doctest::Contains("nofactory"),
                          InputError);
     // A design run trains wiener or a network; another registered decoder is refused by name.
     DesignRunOptions o;

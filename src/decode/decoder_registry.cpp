@@ -57,7 +57,20 @@ std::string names_of(const std::vector<DecoderEntry>& entries) {
 
 void register_decoder(DecoderEntry entry) {
   if (!valid_name(entry.name)) reject("decoder name", entry.name, "1 to 64 lower-case letters, digits, '-' or '_'");
-  if (!entry.make) reject("decoder", entry.name, "an entry with a factory");
+  if (!entry.make && !entry.train) reject("decoder", entry.name, "an entry with a factory (make, or train for a trained decoder)");
+  if (entry.trained != bool(entry.train))
+    reject("decoder", entry.name,
+           entry.train ? "trained = true with a train factory (it is trained with the optics)"
+                       : "a train factory with trained = true (a decoder trained with the optics is made by it)");
+  if (!entry.make) {  // a trained decoder at evaluation: the run's state in inference mode
+    const std::string name = entry.name;
+    entry.make = [name](const DecoderInputs& in) -> std::unique_ptr<Decoder> {
+      if (!in.run_network)
+        reject("decoder", in.spec.to_string(), "a decoder built from the camera (" + name + " is trained with the optics: qdo eval RUN)");
+      return std::make_unique<NetworkImageDecoder>(in.run_network(), in.psf.planes, 8,
+                                                   "the run's trained decoder (" + in.spec.to_string() + ", inference mode)");
+    };
+  }
   Registry& r = registry();
   const std::lock_guard<std::mutex> lock(r.mutex);
   for (const DecoderEntry& e : r.entries)
@@ -97,6 +110,20 @@ std::unique_ptr<Decoder> make_decoder(const DecoderInputs& in) {
   std::unique_ptr<Decoder> d = e.make(in);
   if (!d) throw Error("internal: the factory of decoder '" + e.name + "' returned none");
   return d;
+}
+
+std::unique_ptr<NetworkDecoder> make_trained_decoder(const NetworkSettings& s) {
+  const DecoderEntry e = decoder_entry(s.spec.kind_name());
+  if (!e.train) reject("decoder", s.spec.to_string(), "a decoder trained with the optics (one whose registry entry can train)");
+  std::unique_ptr<NetworkDecoder> d = e.train(s);
+  if (!d) throw Error("internal: the train factory of decoder '" + e.name + "' returned none");
+  return d;
+}
+
+bool DecoderSpec::network() const {
+  if (kind == Kind::ResUNet) return true;
+  if (kind == Kind::Wiener || !decoder_registered(name)) return false;
+  return decoder_entry(name).trained;
 }
 
 }  // namespace qdo

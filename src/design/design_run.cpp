@@ -25,6 +25,7 @@
 #include "qdo/data/io.hpp"
 #include "qdo/design/joint.hpp"
 #include "qdo/runtime/mpi.hpp"
+#include "qdo/decode/decoder_registry.hpp"
 #include "qdo/decode/network_decoder.hpp"
 #include "qdo/physics/psf_source.hpp"
 #include "qdo/design/run.hpp"
@@ -205,7 +206,7 @@ DesignRunResult run_design(Runtime& rt, const DesignRunOptions& given, bool resu
   }
   const Problem pb = make_problem(rt, o);  // reads data and estimates the prior before any writing
   std::unique_ptr<NetworkDecoder> net;
-  if (network) net = make_network_decoder(network_settings(o));  // refused here when built without LibTorch
+  if (network) net = make_trained_decoder(network_settings(o));  // a resunet is refused here when built without LibTorch
   if (network && resume) net->load(read_network_state(dir, resumed.state, resumed.checkpoint), (dir / resumed.state.network_file).string());
   std::vector<std::string> notes;
   if (network && resume) {  // the thread count the run trained with (split.json; runs before it recorded none)

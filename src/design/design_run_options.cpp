@@ -11,6 +11,7 @@
 #include <limits>
 
 #include "data/json_strict.hpp"
+#include "qdo/decode/decoder_registry.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/design/joint.hpp"
 #include "qdo/decode/testset.hpp"
@@ -123,17 +124,22 @@ void DesignRunOptions::validate() const {
   design.validate();
   if (design.mode == DesignMode::QDOM) mask_count(design.quantizer.levels);  // a power of two
   const bool net = decoder.network();
-  if (decoder.kind == DecoderSpec::Kind::Named)
+  // The decoders a design trains with: wiener (closed form) and those trained with the optics (a
+  // resunet spec, or a registered decoder with a train factory, decoder_registry.hpp).
+  std::string trainable = "resunet, resunet:paper, resunet:depth=D,root=R";
+  for (const std::string& n : decoder_names())
+    if (n != "resunet" && decoder_entry(n).trained) trainable += ", " + n;
+  if (decoder.kind == DecoderSpec::Kind::Named && !net)
     reject("decoder", decoder.to_string(),
-           "wiener or a network (resunet, resunet:paper, resunet:depth=D,root=R): the decoders a design trains with (" +
+           "wiener or a decoder trained with the optics (" + trainable + "): the decoders a design trains with (" +
                decoder.kind_name() + " decodes at evaluation: qdo eval --decoder-kind)");
   if (net && objective != Objective::Network)
     reject("objective", to_string(objective), "network: a network decoder (" + decoder.to_string() + ") is trained with its own loss (Eq. 14)");
   if (!net && objective == Objective::Network)
-    reject("decoder", decoder.to_string(), "a network (resunet, resunet:paper, resunet:depth=D,root=R) for objective network");
+    reject("decoder", decoder.to_string(), "a decoder trained with the optics (" + trainable + ") for objective network");
   if (net) {
     const std::size_t s = cfg.sensor_size_px(), m = std::size_t(1) << (decoder.depth - 1);
-    if (s % m)
+    if (decoder.kind == DecoderSpec::Kind::ResUNet && s % m)
       reject("decoder", decoder.to_string(),
              "a depth D whose 2^(D-1) divides the sensor patch size S = " + to_str(s) + " (the network pools D-1 times)");
     if (!(lr_decoder > 0) || !std::isfinite(lr_decoder)) reject("lr_decoder", lr_decoder, "a finite learning rate > 0");

@@ -12,6 +12,7 @@
 #include <sstream>
 #include <vector>
 
+#include "qdo/decode/decoder_registry.hpp"
 #include "qdo/design/design_run.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/hash.hpp"
@@ -137,7 +138,7 @@ std::unique_ptr<NetworkDecoder> load_run_network(const std::string& run) {
   const DesignRunOptions& o = st.options;
   if (!o.decoder.network())
     reject("run", run, "a run that trained a network decoder (this one's decoder is " + o.decoder.to_string() + ")");
-  std::unique_ptr<NetworkDecoder> net = make_network_decoder(network_settings(o));
+  std::unique_ptr<NetworkDecoder> net = make_trained_decoder(network_settings(o));
   const fs::path p = fs::path(run) / st.state.network_file;
   net->load(read_network_state(run, st.state, st.checkpoint), p.string());
   return net;

@@ -60,7 +60,7 @@ Grid::Grid(const GridOptions& g) : g_(g), out_(g.out) {
     o.decoder = d;
     if (d.network()) o.objective = Objective::Network;
     o.validate();
-    if (d.network() && !network_decoder_available())
+    if (d.kind == DecoderSpec::Kind::ResUNet && !network_decoder_available())  // the LibTorch plugin
       reject("grid decoder", d.to_string(), "wiener: " + network_decoder_unavailable_reason());
   }
   // Test scenes: the same for every seed (the split of base.design.seed).

@@ -28,8 +28,9 @@ struct DecoderSpec {
 
   // The registry's name of the decoder: "wiener", "resunet" or `name`.
   std::string kind_name() const;
-  // Whether it is a network trained with the optics (objective network, qdo/design/joint.hpp).
-  bool network() const { return kind == Kind::ResUNet; }
+  // Whether it is trained with the optics (objective network, qdo/design/joint.hpp): a resunet
+  // spec, or a registered decoder whose entry has a `train` factory (decoder_registry.hpp).
+  bool network() const;
   // The value of parameter `key` (Kind::Named), or `def` when it is not given.
   std::string param(const std::string& key, const std::string& def = "") const;
   // Canonical form: "wiener", "resunet:depth=D,root=R", "NAME" or "NAME:k1=v1,k2=v2" (parameters

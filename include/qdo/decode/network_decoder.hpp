@@ -78,7 +78,7 @@ struct NetworkStyle {
 };
 
 struct NetworkSettings {
-  DecoderSpec spec;                 // kind ResUNet
+  DecoderSpec spec;                 // the decoder trained (a resunet spec, or a trained registry entry)
   std::size_t in_channels = 3, out_channels = 31;
   std::uint64_t seed = 0;           // initial weights
   double weight_decay_gamma = 1e-4; // γ of Eq. 14 on the convolution weights
