@@ -1,8 +1,8 @@
 // The capture pipeline (include/qdo/physics/capture_pipeline.hpp), in suite `camera`: its sensor
 // image is the camera operator's (noise and clip included, from a source and from a host stack),
 // its raw frame and demosaic are RawStage's and DemosaicStage's run by hand, a stage added from
-// outside (a toy constant gain) changes only what follows it, and its adjoint is the transpose of
-// its Jacobian (dot-product test in float64 against the CPU references' Jacobian products).
+// outside (a toy constant gain) changes only what follows it, develop() runs the stages after the
+// sensor on a measured raw frame as on its own, and its adjoint is the transpose of its Jacobian (dot-product test in float64 against the CPU references' Jacobian products).
 #include <cmath>
 #include <memory>
 #include <string>
@@ -121,6 +121,19 @@ class GainStage final : public CaptureStage {
   }
   double k_;
   bool on_clean_;
+};
+
+// A toy stage after the demosaic: a constant gain k on the developed image (demosaiced).
+class DevelopedGain final : public CaptureStage {
+ public:
+  explicit DevelopedGain(double k) : k_(k) {}
+  std::string name() const override { return "developed gain"; }
+  void run(const CaptureInput&, CaptureFrame& f) override {
+    for (double& v : f.demosaiced.data) v *= k_;
+  }
+
+ private:
+  double k_;
 };
 
 // The frame a raw pipeline must give for a clean image, by hand: host noise and clip on rgb,
@@ -296,6 +309,50 @@ TEST_SUITE("capture-pipeline") {
     CHECK(input_error_of([&] { exposure.insert_after("sensor", std::make_unique<GainStage>(k, false)); }).find("camera, exposure, noise") !=
           std::string::npos);
     CHECK_THROWS_AS(exposure.insert_after("camera", nullptr), InputError);
+  }
+
+  TEST_CASE("capture pipeline: develop() runs the stages after the sensor on a measured raw frame, as on the pipeline's own") {
+    const SystemConfig cfg = capture_config(Cfa::RGGB);
+    const RealStack psf = random_psf(cfg, 41);
+    const RealStack scene = random_cube(cfg.bands, kRows, kCols, 42);
+    for (const Precision p : device_precisions(runtime())) {
+      CAPTURE(to_string(p));
+      PipelineOptions o;
+      o.raw = true;
+      o.demosaic = DemosaicMethod::MHC;
+      CapturePipeline pipe(runtime(), cfg, p, o);
+      const CaptureFrame f = pipe.run(psf, scene);
+      CHECK(f.raw_linear.data == raw_to_linear(f.raw_dn, cfg).data);
+      // The simulated frame's raw_linear, developed: the run's own demosaic, bit for bit.
+      const CaptureFrame d = pipe.develop(f.raw_linear);
+      CHECK(d.demosaiced.data == f.demosaiced.data);
+      CHECK(d.stage_seconds.size() == 1);
+      CHECK(d.stage_seconds.front().first == "demosaic");
+      CHECK(d.clean.size() == 0);
+      // A measured frame (any values, negative ones below a dark included): DemosaicStage's result.
+      RealStack measured = random_cube(1, kRows, kCols, 43);
+      for (double& v : measured.data) v = 1.2 * v - 0.1;
+      DemosaicStage dm(runtime(), cfg.cfa, DemosaicMethod::MHC, p);
+      CHECK(pipe.develop(measured).demosaiced.data == dm.run(std::vector<RealStack>{measured}).front().data);
+      // A stage inserted after "demosaic" acts on measured frames too; one before "raw" does not run.
+      pipe.insert_after("demosaic", std::make_unique<DevelopedGain>(0.5));
+      pipe.insert_after("camera", std::make_unique<GainStage>(0.5, true));
+      const CaptureFrame g = pipe.develop(measured);
+      CHECK(g.demosaiced.data == scaled(dm.run(std::vector<RealStack>{measured}).front(), 0.5).data);
+      REQUIRE(g.stage_seconds.size() == 2);
+      CHECK(g.stage_seconds.back().first == "developed gain");
+    }
+    // Refusals: no raw stages; a frame of the wrong planes, too small, or not finite; nothing is run.
+    CapturePipeline plain(runtime(), cfg, Precision::F32, PipelineOptions{});
+    CHECK(input_error_of([&] { plain.develop(RealStack(1, kRows, kCols, 0.1)); }).find("options.raw") != std::string::npos);
+    PipelineOptions o;
+    o.raw = true;
+    CapturePipeline pipe(runtime(), cfg, Precision::F32, o);
+    CHECK(input_error_of([&] { pipe.develop(RealStack(3, kRows, kCols, 0.1)); }).find("1 x H x W") != std::string::npos);
+    CHECK(input_error_of([&] { pipe.develop(RealStack(1, 2, kCols, 0.1)); }).find("H, W >= 3") != std::string::npos);
+    RealStack nan(1, kRows, kCols, 0.1);
+    nan.data[5] = std::nan("");
+    CHECK(input_error_of([&] { pipe.develop(nan); }).find("raw_linear[5]") != std::string::npos);
   }
 
   TEST_CASE("capture pipeline: vjp is the transpose of the Jacobian, <J x, y> = <x, J^T y> in float64 (camera, raw, demosaic)") {

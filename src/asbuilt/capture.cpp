@@ -1,7 +1,8 @@
 // qdo reconstruct's capture stages (reconstruct.hpp, steps 1 to 4): the exposure rule, the
 // captures and darks read and checked (sizes, white level, saturated and empty captures), the
 // mosaic's phase and colours checked against the configuration, the signal above the dark, the
-// demosaic, the crop and the exposure.
+// development of the capture pipeline (CapturePipeline::develop: the demosaic), the crop and the
+// exposure.
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -11,6 +12,7 @@
 #include <vector>
 
 #include "asbuilt/reconstruct_internal.hpp"
+#include "qdo/physics/capture_pipeline.hpp"
 #include "qdo/physics/demosaic.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/physics/flat_field.hpp"
@@ -348,8 +350,14 @@ PreparedCapture prepare_capture(Runtime& rt, Precision p, const SystemConfig& cf
   RealStack rgb;
   if (cfg.cfa != Cfa::None) {
     if (v.rows < 3 || v.cols < 3) reject("capture size", shape(v), "at least 3 x 3 for the demosaic");
-    DemosaicStage stage(rt, cfg.cfa, demosaic_method_from_string(o.demosaic, "--demosaic"), p);
-    rgb = stage.run(std::vector<RealStack>{v}).front();
+    // Developed as the capture pipeline develops its own raw frames (capture_pipeline.hpp), so
+    // the simulated and the measured frame go through the same stages after the sensor.
+    PipelineOptions po;
+    po.noise = false;
+    po.raw = true;
+    po.demosaic = demosaic_method_from_string(o.demosaic, "--demosaic");
+    CapturePipeline pipeline(rt, cfg, p, po);
+    rgb = std::move(pipeline.develop(v).demosaiced);
   } else {
     rgb = std::move(v);
   }

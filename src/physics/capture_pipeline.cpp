@@ -203,13 +203,14 @@ class ClipStage final : public CaptureStage {
 // point its adjoint is taken at.
 class RawCaptureStage final : public CaptureStage {
  public:
-  RawCaptureStage(Runtime& rt, const SystemConfig& cfg, Precision p) : raw_(rt, cfg, p) {}
+  RawCaptureStage(Runtime& rt, const SystemConfig& cfg, Precision p) : cfg_(cfg), raw_(rt, cfg, p) {}
   std::string name() const override { return "raw"; }
   void run(const CaptureInput&, CaptureFrame& f) override {
     point_ = f.clean;
     RawStage::Frames fr = raw_.run(std::vector<RealStack>{f.clean});
     f.raw_dn = std::move(fr.raw.front());
     f.raw_counts = fr.counts;
+    f.raw_linear = raw_to_linear(f.raw_dn, cfg_);
   }
   void vjp(const CaptureFrame&, CaptureGradient& g) override {
     if (g.raw_dn.size() == 0) return;
@@ -217,19 +218,21 @@ class RawCaptureStage final : public CaptureStage {
   }
 
  private:
+  SystemConfig cfg_;
   RawStage raw_;
   RealStack point_;  // 3 x H x W: the last run's input
 };
 
-// "demosaic": raw_dn in linear units (raw_to_linear: (dn - black) / span, span = gain (white -
-// black)) through DemosaicStage. Linear: the adjoint is the transpose divided by span.
+// "demosaic": raw_linear (raw_dn in linear units, raw_to_linear: (dn - black) / span, span = gain
+// (white - black); or a measured frame, develop()) through DemosaicStage. Linear: the adjoint to
+// raw_dn is the transpose divided by span.
 class DemosaicCaptureStage final : public CaptureStage {
  public:
   DemosaicCaptureStage(Runtime& rt, const SystemConfig& cfg, DemosaicMethod method, Precision p)
       : cfg_(cfg), dm_(rt, cfg.cfa, method, p) {}
   std::string name() const override { return "demosaic"; }
   void run(const CaptureInput&, CaptureFrame& f) override {
-    f.demosaiced = dm_.run(std::vector<RealStack>{raw_to_linear(f.raw_dn, cfg_)}).front();
+    f.demosaiced = dm_.run(std::vector<RealStack>{f.raw_linear}).front();
   }
   void vjp(const CaptureFrame&, CaptureGradient& g) override {
     if (g.demosaiced.size() == 0) return;
@@ -363,6 +366,27 @@ CaptureGradient CapturePipeline::vjp(CaptureGradient g) {
   for (auto it = stages_.rbegin(); it != stages_.rend(); ++it) (*it)->vjp(last_, g);
   have_last_ = false;
   return g;
+}
+
+CaptureFrame CapturePipeline::develop(const RealStack& raw_linear) {
+  const auto raw = std::find_if(stages_.begin(), stages_.end(), [](const auto& st) { return st->name() == "raw"; });
+  if (raw == stages_.end())
+    reject("develop", "a pipeline without the raw stages", "one made with options.raw (a mosaic's raw and demosaic stages)");
+  const std::size_t planes = raw_channels(cfg_.cfa);
+  if (raw_linear.planes != planes || raw_linear.rows < 3 || raw_linear.cols < 3)
+    reject("raw_linear", shape(raw_linear), to_str(planes) + " x H x W with H, W >= 3 (a raw frame of the " + to_string(cfg_.cfa) + " mosaic)");
+  for (std::size_t i = 0; i < raw_linear.size(); ++i)
+    if (!std::isfinite(raw_linear.data[i])) reject("raw_linear[" + to_str(i) + "]", raw_linear.data[i], "finite values");
+  have_last_ = false;
+  CaptureFrame f;
+  f.raw_linear = raw_linear;
+  const CaptureInput none;
+  for (auto it = raw + 1; it != stages_.end(); ++it) {
+    const auto t0 = std::chrono::steady_clock::now();
+    (*it)->run(none, f);
+    f.stage_seconds.emplace_back((*it)->name(), seconds_since(t0));
+  }
+  return f;
 }
 
 std::vector<std::string> CapturePipeline::stage_names() const {

@@ -13,8 +13,9 @@
 //   3. signal: v = (DN - dark) / (gain * (white - black_level_dn)): the linear signal, 1.0 = full
 //      well, the inverse of the sensor-as-built stage (raw.hpp).
 //   4. mosaic: the 2 x 2 phase and colours are checked by read_captures (check_mosaic_phase,
-//      check_mosaic_colours, on step 3's signal), then the demosaic (demosaic.hpp:
-//      bilinear or Malvar-He-Cutler, on the device).
+//      check_mosaic_colours, on step 3's signal), then the capture pipeline's development of a
+//      raw frame (CapturePipeline::develop, capture_pipeline.hpp: the demosaic, bilinear or
+//      Malvar-He-Cutler, on the device; the stages `qdo simulate --raw` runs after the sensor).
 //   5. crop: ROW, COL, H, W of the frame (after the demosaic, so the mosaic phase is kept).
 //   6. exposure (ExposureRule): none, a fixed factor, or the factor that puts a percentile of
 //      the cropped image at a level.
@@ -111,7 +112,7 @@ struct PreparedCapture {
   double exposure_factor = 1;
   double seconds_dark = 0, seconds_demosaic = 0;
 };
-// Steps 2 to 6 on read_captures' result; the demosaic on rt's device (DemosaicStage, demosaic.hpp)
+// Steps 2 to 6 on read_captures' result; the development (CapturePipeline::develop) on rt's device
 // in precision p.
 PreparedCapture prepare_capture(Runtime& rt, Precision p, const SystemConfig& cfg, const CaptureOptions& o, const CaptureFiles& f);
 

@@ -17,10 +17,14 @@
 //              without raw, else on the host in double (ref::add_noise). The two draw the same
 //              counters and agree to the rounding of the precision;
 //   "clip"     rgb clipped at full scale 1 (clip_to_full_scale; a NaN or Inf is a NumericalError);
-//   "raw"      (options.raw) clean through RawStage (raw.hpp): raw_dn, raw_counts; the raw stage
-//              draws the sensor's noise itself (its own counters) when options.noise;
-//   "demosaic" (options.raw) raw_dn in linear units (raw_to_linear) through DemosaicStage
-//              (demosaic.hpp): demosaiced.
+//   "raw"      (options.raw) clean through RawStage (raw.hpp): raw_dn, raw_counts, and raw_dn in
+//              linear units (raw_to_linear): raw_linear; the raw stage draws the sensor's noise
+//              itself (its own counters) when options.noise;
+//   "demosaic" (options.raw) raw_linear through DemosaicStage (demosaic.hpp): demosaiced.
+//
+// A measured raw frame is developed by the same stages: develop() runs the stages after "raw" on
+// it (qdo reconstruct develops its captures so), so a stage added after "raw" acts on simulated
+// and measured frames alike.
 //
 // Adjoints (vjp): "camera" (Camera::vjp: to the sensor PSF stack and the scene), "noise" (additive
 // and independent of the inputs: the identity), "raw" (RawStage::adjoint: the clip mask at the
@@ -78,6 +82,7 @@ struct CaptureFrame {
   SensorClip clip;       // what the clip stage clipped of rgb, and its largest value before
   RealStack raw_dn;      // raw_channels(cfa) x H x W (1 with a mosaic): code values, DN
   RawCounts raw_counts;  // the raw stage's saturated and floored elements
+  RealStack raw_linear;  // raw_channels(cfa) x H x W: raw_dn in linear units (1 = full well), the demosaic's input
   RealStack demosaiced;  // 3 x H x W: the demosaic of raw_dn in linear units (1 = full well)
   // Wall-clock seconds of each stage that ran, in order: (name, seconds).
   std::vector<std::pair<std::string, double>> stage_seconds;
@@ -128,6 +133,15 @@ class CapturePipeline {
   // (InputError) without a run, for a gradient on rgb (the clip has no adjoint), and (Error) for
   // a stage without an adjoint (the release formation).
   CaptureGradient vjp(CaptureGradient g);
+
+  // The development of a measured raw frame: the stages after "raw" (the demosaic, and any stage
+  // inserted after it) run on `raw_linear` as on the raw_linear a run() leaves. raw_linear:
+  // raw_channels(cfa) x H x W (one plane with a mosaic), H, W >= 3, finite, in linear units (the
+  // signal above the dark over gain x (white - black), flat-fielded: 1 = full well). The stages
+  // see a CaptureInput without scene or PSF. Returns the frame with raw_linear and what those
+  // stages wrote (demosaiced, ...). InputError without the raw stages (options.raw) or for a bad
+  // frame, before any work. No vjp follows a develop().
+  CaptureFrame develop(const RealStack& raw_linear);
 
   // The stages' names in run order.
   std::vector<std::string> stage_names() const;
