@@ -120,8 +120,6 @@ fab::DesignSource fab_source(const Args& a, bool check_grid);
 std::string out_dir(const Args& a, const std::string& def = "");
 // The same rule for a folder the command takes from another option or computes.
 void claim_out(const Args& a, const std::string& dir);
-// "sensor: 0.12 % of values clipped at full scale (max 1.3 before clipping)" or "... none clipped".
-std::string clip_summary(const SensorClip& c);
 // The options of `qdo design` (also used by gradcheck and sweep); --mode and --out as given.
 // The defaults written in the shared helpers (here, load_config, load_quantizer, scene_from_args)
 // apply only to options a command's table entry does not declare (e.g. --levels in qdo sweep);

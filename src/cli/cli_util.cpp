@@ -84,16 +84,6 @@ void claim_out(const Args& a, const std::string& dir) {
   claim_output_dir(dir, "--out", a.command, a.has("into-existing"));
 }
 
-std::string clip_summary(const SensorClip& c) {
-  char buf[160];
-  if (c.clipped == 0)
-    std::snprintf(buf, sizeof buf, "sensor: no value clipped at full scale (max %.4g)", c.max_before);
-  else
-    std::snprintf(buf, sizeof buf, "sensor: %.4g %% of values (%zu of %zu) clipped at full scale 1 (max %.4g before clipping)",
-                  100.0 * c.fraction(), c.clipped, c.total, c.max_before);
-  return buf;
-}
-
 std::vector<std::string> scene_paths(const Args& a, const std::string& name) {
   const std::vector<std::string> out = resolve_datasets(split_items(a.get(name)), "--" + name);
   for (const std::string& p : out)
