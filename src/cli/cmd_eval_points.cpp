@@ -24,7 +24,7 @@ const RegisterCommand registered_eval_points(130, [] {
   using namespace opts;
   return CommandSpec{"eval-points", "a run's design against object distance and field angle: quality, depth of field and valid field of view",
                    "RUN", "run folder written by qdo design",
-                   {opt("design", "a design .h5 (N x N at the run's pitch) evaluated in place of RUN/design.h5"),
+                   {opt("design", "the design evaluated in place of RUN/design.h5: a design .h5 (N x N at the run's pitch), lens:NM or flat"),
                     opt("distances", "object distances in metres, comma-separated, each > 0 or inf (a point at infinity); the "
                                      "nominal distance (--nominal) is always added", "0.3,0.5,0.7,1,1.5,2,3,5,10,inf"),
                     opt("nominal", "the distance the camera is focused at, metres > 0 or inf: the mismatch decoder is built for "
