@@ -1,5 +1,5 @@
 // qdo simulate with a depth map (--depth) or a field-dependent PSF (--field-grid) (suite
-// `simulate-varying`; src/cli/simulate_varying.cpp): the command run as a user would, its sensor
+// `simulate-varying`; src/asbuilt/simulate_varying.cpp): the command run as a user would, its sensor
 // image against plain `qdo simulate` and against the library (Simulator + ref::varying_images in
 // double), the skipping of unused depth layers and of field points off the crop, and the refusals.
 #include <algorithm>

@@ -25,7 +25,7 @@ using namespace qdo::python;
 namespace {
 
 // The scene a cube file or PNG band folder gives `qdo simulate --scene PATH [--key KEY]
-// [--resample-bands]` under configuration cfg (src/cli/cli_util.cpp, scene_from_args, the same
+// [--resample-bands]` under configuration cfg (scene_from_options, qdo/design/option_inputs.hpp: the same
 // library calls in the same order): bands x H x W on cfg's band grid, in [0, 1].
 // The configuration a read_cube call's scene must fit: JSON text as the Python wrapper gives it.
 SystemConfig scene_config(const py::handle& config_json, const py::handle& origin) {

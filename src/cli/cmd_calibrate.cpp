@@ -1,83 +1,31 @@
 // qdo calibrate: measured PSFs from captures (calibrate.hpp) -> DIR/psf.h5 in the layout of
 // `qdo psf`, psf.png, and with --design the comparison with the design's simulated stack
-// (calibration_outputs.hpp).
+// (calibration_outputs.hpp, which also reads the options and reports); this file claims --out,
+// opens the device for the comparison and prints.
 #include <cstdio>
-#include <filesystem>
-#include <memory>
-#include <utility>
+#include <string>
 
 #include "cli.hpp"
-#include "options.hpp"
 #include "qdo/asbuilt/calibration_outputs.hpp"
-#include "qdo/physics/calibrate.hpp"
-#include "qdo/runtime/error.hpp"
-#include "qdo/data/io.hpp"
 #include "qdo/runtime/runtime.hpp"
 
 namespace qdo::cli {
 
 static int cmd_calibrate(const Args& a) {
-  const SystemConfig cfg = load_config(a);
-  if (!a.has("frames")) throw InputError("argument '--frames' is required: the folder of PSF frames (psf_<nm>nm.png)");
-  if (!a.has("darks")) throw InputError("argument '--darks' is required: the folder of dark frames (*.png)");
-  CalibrationOptions opt;
-  opt.white_dir = a.get("white");
-  opt.hot_sigma = parse_double("--hot-sigma", a.get("hot-sigma"), 1, 1e6, "noise sigmas", false);
-  opt.min_snr = parse_double("--min-snr", a.get("min-snr"), 0, 1e12, "", false);
-  // Given explicitly only: the struct's default (a colour that responds at all is a measurement,
-  // weighted by its noise) stands otherwise.
-  if (a.has("min-response")) opt.min_response = parse_double("--min-response", a.get("min-response"), 0, 1, "", true);
-  opt.floor_sigma = parse_double("--floor-sigma", a.get("floor-sigma"), 0, 100, "noise sigmas", false);
-  const std::string bg = a.get("background");
-  if (bg != "ring" && bg != "none") reject("--background", bg, "ring (the median of the crop's outer 2-pixel ring) or none");
-  opt.ring_background = bg == "ring";
-  if (a.has("centre")) {
-    const auto v = split_items(a.get("centre"));
-    if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
-    opt.has_centre = true;
-    opt.centre_row = parse_int("--centre", v[0], 0, 1 << 20);
-    opt.centre_col = parse_int("--centre", v[1], 0, 1 << 20);
-  }
-  std::string design = a.get("design");
-  if (!design.empty() && std::filesystem::is_directory(design)) design += "/design.h5";  // a run folder
-  Map2D h;
-  if (!design.empty()) h = load_design(cfg, design);  // checked before any work
-  const Precision p = precision_from_string(a.get("precision"));
+  const CalibrateRequest q = calibrate_request_from_options(a);  // every option checked, the design read
   const std::string dir = out_dir(a);
-
-  const CalibrationResult r = calibrate_psf(cfg, a.get("frames"), a.get("darks"), opt);
-  const std::size_t s = r.psf.rows;
-  for (const auto& n : r.notes) std::printf("note: %s\n", n.c_str());
-  CalibrationProvenance prov;
-  prov.source = "qdo calibrate";
-  prov.frames_dir = a.get("frames");
-  prov.darks_dir = a.get("darks");
-  prov.white_dir = a.get("white");
-  write_calibration_outputs(dir, cfg, r, prov);
-  std::printf(
-      "calibrated %zu bands from %s (%zu frames, %zu dark frames, %zu hot pixels replaced, %zu of them transient), "
-      "centre (row %ld, column %ld) of %zu x %zu, S = %zu\n",
-      cfg.bands, a.get("frames").c_str(), r.files.size(), r.darks.size(), r.hot_pixels, r.transients.size(),
-      r.centre_row, r.centre_col, r.frame_rows, r.frame_cols, s);
-  std::printf("seconds:");
-  for (const auto& [step, sec] : r.seconds) std::printf(" [%s] %.4f", step.c_str(), sec);
-  std::printf("\n");
-  if (design.empty()) {
-    std::printf("wrote %s/psf.h5, psf.png\n", dir.c_str());
-    return 0;
-  }
+  const CalibrationRun r = run_calibration(q, dir);
+  std::fputs(r.report.c_str(), stdout);
+  if (q.design.empty()) return 0;
   Runtime rt(a.get("device"));
-  const double mean_corr = compare_calibration_with_design(rt, cfg, p, r.psf, h, design, dir);
-  std::printf("against the design %s: mean correlation %.4f over %zu bands\nwrote %s/psf.h5, psf.png, compare.csv, compare.png\n",
-              design.c_str(), mean_corr, cfg.bands, dir.c_str());
+  std::fputs(compare_calibration_report(rt, q, r.result, dir).c_str(), stdout);
   return 0;
 }
 
-namespace {
 // qdo calibrate: its entry in the command table (help order 50).
 const RegisterCommand registered_calibrate(50, [] {
   using namespace opts;
-  CommandSpec c{"calibrate",
+  return CommandSpec{"calibrate",
                    "measured PSFs from captures: a folder of point-source frames, one per band (16-bit PNG or TIFF, psf_<nm>nm.png), "
                    "and dark frames -> DIR/psf.h5 (the layout of qdo psf), psf.png; with --design compare.csv, compare.png",
                    "", "",
@@ -99,10 +47,8 @@ const RegisterCommand registered_calibrate(50, [] {
                         "ring"),
                     opt("centre", "ROW,COL: the frame pixel of the optical axis (default: the centroid of all bands)"),
                     precision(), device(), out_dir_opt()},
-                   cmd_calibrate};
-  c.memory_advice = "frames cropped closer to the PSF, or fewer bands in the configuration";
-  return c;
+                   cmd_calibrate, false,
+                   "frames cropped closer to the PSF, or fewer bands in the configuration"};
 });
-}  // namespace
 
 }  // namespace qdo::cli

@@ -2,23 +2,19 @@
 #include <iostream>
 
 #include "cli.hpp"
-#include "options.hpp"
 #include "qdo/data/config.hpp"
 
 namespace qdo::cli {
 
 static int cmd_config(const Args& a) {
-  std::cout << config_to_json_text(load_config(a)) << "\n";
+  std::cout << config_to_json_text(config_from_options(a)) << "\n";
   return 0;
 }
 
-namespace {
 // qdo config: its entry in the command table (help order 20).
 const RegisterCommand registered_config(20, [] {
   using namespace opts;
-  CommandSpec c{"config", "print the system configuration as JSON", "", "", {preset(), config()}, cmd_config};
-  return c;
+  return CommandSpec{"config", "print the system configuration as JSON", "", "", {preset(), config()}, cmd_config};
 });
-}  // namespace
 
 }  // namespace qdo::cli

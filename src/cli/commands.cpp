@@ -1,30 +1,22 @@
 // The command registry, parsing and help of qdo's commands: each command registers itself (its
 // cmd_*.cpp file); CLI11 parses a command line against its entry into an Args; `qdo --help`,
-// `qdo <command> --help` and `qdo --version` are generated from the table here, and main()
-// dispatches to the command.
+// `qdo <command> --help` and `qdo --version` are generated from the table here; out_dir and
+// claim_out apply the output-folder rule; main() dispatches to the command.
 #include <CLI/CLI.hpp>
-#include <fftw3.h>
-#include <pthread.h>
 
 #include <algorithm>
-#include <csignal>
 #include <cstdio>
 #include <filesystem>
-#include <iostream>
 #include <memory>
 #include <set>
 #include <sstream>
-#include <thread>
 
 #include "cli.hpp"
-#include "options.hpp"
 #include "qdo/data/data_root.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/mpi.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/runtime/runtime.hpp"
-#include "qdo/runtime/fft.hpp"
-#include <clFFT.h>
 
 #ifndef QDO_VERSION
 #define QDO_VERSION "unknown"
@@ -77,9 +69,6 @@ struct Parser {
   }
 };
 
-}  // namespace
-
-namespace {
 
 // The registrations, filled at static initialisation (a function-local static, so that it exists
 // before the first RegisterCommand of any file runs).
@@ -106,10 +95,7 @@ std::vector<CommandSpec> make_table() {
   return t;
 }
 
-}  // namespace
-
-RegisterCommand::RegisterCommand(int order, std::function<CommandSpec()> make) { registrations().emplace_back(order, std::move(make)); }
-
+// The registered commands in help order (a std::logic_error names a name registered twice).
 const std::vector<CommandSpec>& command_table() {
   static const std::vector<CommandSpec> t = make_table();
   return t;
@@ -121,11 +107,9 @@ const CommandSpec* find_command(const std::string& name) {
   return nullptr;
 }
 
-std::string command_help(const CommandSpec& c) {
-  Parser p(c);
-  return p.app.help();
-}
-
+// Parses argv[2..] (argv[1] is the command) against the command's table entry with CLI11.
+// Returns false when --help / -h was given (the command's help printed to stdout). An unknown
+// option, a missing value or a stray argument is an InputError naming it and what is allowed.
 bool parse_command_line(const CommandSpec& c, int argc, char** argv, Args& out) {
   // A value option with nothing after it (or another option after it) names the option here,
   // before CLI11 sees it.
@@ -212,10 +196,6 @@ bool parse_command_line(const CommandSpec& c, int argc, char** argv, Args& out) 
   return true;
 }
 
-}  // namespace qdo::cli
-
-namespace {
-
 std::string top_help() {
   std::ostringstream s;
   s << "qdo: quantization-aware deep optics simulator (OpenCL)\n\n"
@@ -234,57 +214,33 @@ std::string top_help() {
   return s.str();
 }
 
-// Version, git revision, OpenCL platforms and devices (none is fine), FFT backends.
+// Version and git revision, then the OpenCL devices and FFT backends (backends_report), CLI11.
 int print_version() {
-  std::printf("qdo %s (git revision %s)\n", QDO_VERSION, QDO_GIT_REVISION);
-  try {
-    const auto devs = list_devices();
-    std::printf("OpenCL devices: %zu\n", devs.size());
-    for (const auto& d : devs)
-      std::printf("  %zu:%zu  %s / %s  [%s]  %s  driver %s\n", d.platform_index, d.device_index, d.platform.c_str(), d.name.c_str(),
-                  d.type.c_str(), d.version.c_str(), d.driver_version.c_str());
-  } catch (const std::exception& e) {
-    std::printf("OpenCL devices: none (%s)\n", e.what());
-  }
-  cl_uint ma = 0, mi = 0, pa = 0;
-  clfftGetVersion(&ma, &mi, &pa);
-  std::printf("FFT backends: clFFT %u.%u.%u and VkFFT %s (OpenCL device; QDO_FFT=clfft|vkfft); FFTW (%s, host reference)\n", ma, mi, pa,
-              vkfft_version().c_str(), fftw_version);
-  std::printf("command line: CLI11 %s\n", CLI11_VERSION);
+  std::printf("qdo %s (git revision %s)\n%scommand line: CLI11 %s\n", QDO_VERSION, QDO_GIT_REVISION, backends_report().c_str(),
+              CLI11_VERSION);
   return 0;
 }
 
 }  // namespace
 
-namespace {
+RegisterCommand::RegisterCommand(int order, std::function<CommandSpec()> make) { registrations().emplace_back(order, std::move(make)); }
 
-// SIGINT (Ctrl-C), SIGTERM (kill, Slurm's time limit) and SIGHUP are blocked in every thread and
-// taken by one thread of their own, which discards the command's unfinished outputs as a failure
-// does (abandon_output_stage: the staged files, this process's temporary files, a folder the
-// command created and left empty) and then dies of the same signal (exit status 128 + signal for
-// the shell). A resumable run keeps its folder: checkpoints and logs make it non-empty.
-void take_termination_signals() {
-  sigset_t set;
-  sigemptyset(&set);
-  for (int sig : {SIGINT, SIGTERM, SIGHUP}) sigaddset(&set, sig);
-  if (pthread_sigmask(SIG_BLOCK, &set, nullptr) != 0) return;  // the default handling then
-  std::thread([set] {
-    int sig = 0;
-    if (sigwait(&set, &sig) != 0) return;
-    qdo::abandon_output_stage();
-    std::signal(sig, SIG_DFL);
-    sigset_t one;
-    sigemptyset(&one);
-    sigaddset(&one, sig);
-    pthread_sigmask(SIG_UNBLOCK, &one, nullptr);
-    std::raise(sig);
-  }).detach();
+std::string out_dir(const Args& a, const std::string& def) {
+  const std::string d = a.get("out", def);
+  if (d.empty()) reject("--out", "(missing)", "an output folder");
+  claim_out(a, d);
+  return d;
 }
 
-}  // namespace
+void claim_out(const Args& a, const std::string& dir) {
+  if (dir.empty()) reject("--out", "(missing)", "an output folder");
+  claim_output_dir(dir, "--out", a.command, a.has("into-existing"));
+}
+
+}  // namespace qdo::cli
 
 int main(int argc, char** argv) {
-  take_termination_signals();  // before any other thread exists, so that all inherit the mask
+  abandon_outputs_on_termination_signals();  // before any other thread exists, so that all inherit the mask
 #ifdef QDO_WITH_TORCH
   qdo::cli::register_net_plugin_loader();  // --decoder resunet: libqdo-net.so, loaded on first use (net_plugin.cpp)
 #endif

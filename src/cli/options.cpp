@@ -4,7 +4,7 @@
 #include <string>
 #include <vector>
 
-#include "options.hpp"
+#include "cli.hpp"
 #include "qdo/decode/decoder_spec.hpp"
 
 namespace qdo::cli::opts {
@@ -58,12 +58,7 @@ OptionSpec data_root() {
                           "~/.config/qdo/settings.json, else ~/.local/share/qdo, else the source tree's data; qdo data)");
 }
 OptionSpec synthetic_scenes(const std::string& def) { return opt("synthetic-scenes", "number of synthetic scenes, an integer in [1, 100000]", def); }
-OptionSpec noise_sigma(const std::string& help, const std::string& def) { return opt("noise-sigma", help, def); }
 OptionSpec seed() { return opt("seed", "random seed, an integer in [0, 2147483647]", "0"); }
-OptionSpec psf_path() {
-  return opt("psf-path", "PSF engine of the optimisation: auto (radial for radial designs), 2d or radial (radial designs only)", "auto");
-}
-OptionSpec mode() { return opt("mode", "design mode: full, do, qdo, ste, qdo+a or qdo+m", "qdo+a"); }
 OptionSpec parameterization() { return opt("parameterization", "height map parameterization: radial, quad or 2d", "radial"); }
 OptionSpec objective() {
   return opt("objective", "design objective: wiener, wiener-mse, wiener-mae, psf-target or network (default: wiener; network with a network --decoder)");
@@ -94,7 +89,7 @@ std::vector<OptionSpec> training_options() {
           opt("height-noise-nm", "half-width of the uniform fabrication height noise on every training step, nm, in [0, 10000] (" + r +
                                  "release 20, qdo 0)"),
           opt("noise-at-test", "on: the height noise also on the PSF the evaluation measures through (" + r + "release on, qdo off)"),
-          noise_sigma("sensor noise std of the decoder's training data, in units of full scale, in [0, 10] (" + r + "0.001)", ""),
+          opt("noise-sigma", "sensor noise std of the decoder's training data, in units of full scale, in [0, 10] (" + r + "0.001)"),
           opt("noise-at", "where a network's training noise enters: bands (each band on the DOE grid, before the response and the "
                           "sensor's area resampling) or rgb (each sensor pixel) (" + r + "release bands, qdo rgb)"),
           opt("patches", "a network's training patches: fixed (per scene the whole scene resized and a 3 x 3 grid of crops, in "

@@ -1,10 +1,13 @@
 // Output staging: the command's files are written to temporary names and renamed into place
 // together (OutputStage, commit_output), its new folders removed on failure
 // (make_output_dir), the rule of every command's output folder (claim_output_dir), and
-// write_text_atomic.
+// write_text_atomic; abandon_outputs_on_termination_signals (the signals that abandon the stage).
+#include <pthread.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <csignal>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -55,6 +58,30 @@ OutputStage::~OutputStage() {
 void wait_if_abandoned() {
   while (g_abandoned.load()) std::this_thread::sleep_for(std::chrono::seconds(1));  // until the signal ends the process
 }
+
+// SIGINT (Ctrl-C), SIGTERM (kill, Slurm's time limit) and SIGHUP are blocked in every thread and
+// taken by one thread of their own, which discards the command's unfinished outputs as a failure
+// does (abandon_output_stage: the staged files, this process's temporary files, a folder the
+// command created and left empty) and then dies of the same signal (exit status 128 + signal for
+// the shell). A resumable run keeps its folder: checkpoints and logs make it non-empty.
+void abandon_outputs_on_termination_signals() {
+  sigset_t set;
+  sigemptyset(&set);
+  for (int sig : {SIGINT, SIGTERM, SIGHUP}) sigaddset(&set, sig);
+  if (pthread_sigmask(SIG_BLOCK, &set, nullptr) != 0) return;  // the default handling then
+  std::thread([set] {
+    int sig = 0;
+    if (sigwait(&set, &sig) != 0) return;
+    abandon_output_stage();
+    std::signal(sig, SIG_DFL);
+    sigset_t one;
+    sigemptyset(&one);
+    sigaddset(&one, sig);
+    pthread_sigmask(SIG_UNBLOCK, &one, nullptr);
+    std::raise(sig);
+  }).detach();
+}
+
 
 void abandon_output_stage() {
   g_abandoned.store(true);

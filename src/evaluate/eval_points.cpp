@@ -20,6 +20,7 @@
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/physics/point_psf.hpp"
+#include "qdo/design/psf_spec.hpp"
 #include "qdo/design/run_folder.hpp"
 #include "qdo/physics/simulator.hpp"
 #include "qdo/decode/testset.hpp"
@@ -220,12 +221,22 @@ DepthOfField depth_of_field(const std::vector<double>& d, const std::vector<doub
   return r;
 }
 
+namespace {
+
+// The design evaluated, as a PSF spec (psf_spec.hpp): the run's own, or design_file (lens:NM, flat
+// or a design .h5 at the run's grid), named "design" in refusals.
+PsfSpec design_spec(const EvalPointsOptions& o) {
+  return {o.design_file.empty() ? PsfSpec::Kind::Run : PsfSpec::Kind::Design, o.design_file, "design"};
+}
+
+}  // namespace
+
 void check_eval_points(const EvalPointsOptions& o) {
   // A run trained over a range of object points (qdo design --object-distances) is evaluated like any other.
   const DesignRunOptions ro = read_run_config(o.run, "run", "a run folder written by qdo design (config.json missing)", true);
   (void)resolve(o, ro.cfg);
   const SystemConfig cfg = base_config(ro.cfg);
-  if (!o.design_file.empty()) (void)read_design_heights_for(cfg, o.design_file, "design");
+  if (!o.design_file.empty()) (void)read_psf_input(design_spec(o), cfg);
   const DecoderSpec spec = o.decoder_kind ? *o.decoder_kind : DecoderSpec{};
   if (decoder_entry(spec.kind_name()).trained)
     reject("decoder-kind", spec.to_string(), "a decoder built from the PSF (wiener, cg): it is refit for every distance");
@@ -238,7 +249,8 @@ EvalPointsResult evaluate_points(Runtime& rt, const EvalPointsOptions& o) {
   const DesignRunOptions ro = read_run_config(o.run, "run", "a run folder written by qdo design (config.json missing)", true);
   const Resolved rs = resolve(o, ro.cfg);
   const SystemConfig& cfg = rs.cfg;
-  const Map2D h = o.design_file.empty() ? folder.design().height_m : read_design_heights_for(cfg, o.design_file, "design");
+  const Map2D run_h = o.design_file.empty() ? folder.design().height_m : Map2D{};
+  const Map2D h = read_psf_input(design_spec(o), cfg, &run_h).heights;
   if (h.rows != cfg.n || h.cols != cfg.n)
     reject("run", folder.design_path(), "a design of N x N = " + to_str(cfg.n) + " x " + to_str(cfg.n) + " samples (the run's grid)");
   const std::size_t s = cfg.sensor_size_px();

@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <numeric>
 #include "qdo/physics/cpu_reference.hpp"
 #include "qdo/runtime/error.hpp"
@@ -132,6 +133,16 @@ SensorClip clip_to_full_scale(RealStack& rgb, const std::string& what) {
     throw NumericalError(what + ": " + std::to_string(bad) + " of " + std::to_string(c.total) +
                          " sensor values are NaN or Inf (nothing was written)");
   return c;
+}
+
+std::string clip_summary(const SensorClip& c) {
+  char buf[160];
+  if (c.clipped == 0)
+    std::snprintf(buf, sizeof buf, "sensor: no value clipped at full scale (max %.4g)", c.max_before);
+  else
+    std::snprintf(buf, sizeof buf, "sensor: %.4g %% of values (%zu of %zu) clipped at full scale 1 (max %.4g before clipping)",
+                  100.0 * c.fraction(), c.clipped, c.total, c.max_before);
+  return buf;
 }
 
 }  // namespace qdo

@@ -7,6 +7,7 @@
 
 #include "qdo/data/config.hpp"
 #include "qdo/physics/calibrate.hpp"
+#include "qdo/runtime/parse.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/runtime/types.hpp"
 
@@ -31,5 +32,29 @@ void write_calibration_outputs(const std::string& dir, const SystemConfig& cfg, 
 // `design` names the design in the title). Returns the mean correlation over the bands.
 double compare_calibration_with_design(Runtime& rt, const SystemConfig& cfg, Precision p, const RealStack& measured,
                                        const Map2D& heights_m, const std::string& design, const std::string& dir);
+
+// ---- qdo calibrate as a library call ----
+struct CalibrateRequest {
+  SystemConfig cfg;
+  std::string frames, darks;   // the folders of PSF frames and dark frames
+  CalibrationOptions options;  // white, hot-sigma, min-snr, min-response, floor-sigma, background, centre
+  std::string design;          // the design compared with (a run folder's design.h5); empty: none
+  Map2D heights;               // its heights, N x N metres (empty without a design)
+  Precision precision = Precision::F32;
+};
+// The options as a user typed them (TextOptions: preset, config, frames, darks, white, design,
+// hot-sigma, min-snr, min-response, floor-sigma, background, centre, precision), each checked and
+// the design read (InputError naming the option as typed), before any work.
+CalibrateRequest calibrate_request_from_options(const TextOptions& a);
+// The calibration (calibrate_psf, on the host) and its files in `dir` (write_calibration_outputs);
+// the report holds its notes, a summary, the seconds per step and, without a design, the files written.
+struct CalibrationRun {
+  CalibrationResult result;
+  std::string report;
+};
+CalibrationRun run_calibration(const CalibrateRequest& q, const std::string& dir);
+// With a design: compare_calibration_with_design into `dir`, and its report (the mean correlation,
+// the files written).
+std::string compare_calibration_report(Runtime& rt, const CalibrateRequest& q, const CalibrationResult& r, const std::string& dir);
 
 }  // namespace qdo

@@ -35,6 +35,7 @@
 #include "qdo/decode/decoder.hpp"
 #include "qdo/decode/testset.hpp"
 #include "qdo/decode/tiled.hpp"
+#include "qdo/runtime/parse.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/runtime/types.hpp"
 #include "qdo/decode/wiener.hpp"
@@ -180,5 +181,22 @@ void check_truth_border(const RealStack& truth, std::size_t border_px, const Tru
 // means). An InputError naming names.truth (value `path`) when the bands differ.
 testset::Scores score_reconstruction(const ReconstructResult& r, const RealStack& truth, std::size_t border_px,
                                      const std::string& path, const std::string& out, const TruthArguments& names = {});
+
+// ---- qdo reconstruct as a library call ----
+struct ReconstructRequest {
+  ReconstructOptions options;  // out left empty: the caller claims the folder and sets it
+  std::string truth_path;      // the scene the captures show (empty: not scored)
+  RealStack truth;             // read_reconstruct_truth's: bands x H x W, row-major
+  std::size_t border_px = 0;   // the score's border
+  TruthArguments names{"--run", "--truth", "--truth-key", "--truth-border"};
+};
+// The options as a user typed them (TextOptions: run, sensor, capture (repeatable), darks, white, psf, design, exposure, crop, demosaic, overlap, boundary, noise-sigma,
+// points, boxes, truth, truth-key, truth-border, precision), each checked, and the truth read and
+// checked against the captures: every refusal an InputError naming the option as typed, before any
+// device work.
+ReconstructRequest reconstruct_request_from_options(const TextOptions& a);
+// reconstruct() into q.options.out, then with a truth the score (metrics.json); returns the report:
+// the score, the notes, the decoder, PSF, sizes, tiles, seconds per stage and the files written.
+std::string run_reconstruct_request(Runtime& rt, const ReconstructRequest& q);
 
 }  // namespace qdo

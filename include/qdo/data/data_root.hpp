@@ -68,4 +68,9 @@ struct DatasetSummary {
 std::vector<DatasetSummary> summarise_datasets(const DataRoot& root, std::size_t expected_bands = 31,
                                                bool read_values = true);
 
+// What `qdo data` prints: the data root and where it comes from, the places considered in order,
+// each dataset found (its scenes, formats, shapes, size, checksum; with `values` the value range)
+// or why it is unreadable, then the known datasets not found. Lines end with "\n".
+std::string data_root_report(const DataRoot& root, const std::vector<DatasetSummary>& sets, bool values);
+
 }  // namespace qdo

@@ -284,6 +284,11 @@ class OutputStage {
 // signal thread; nothing happens without an active stage or after commit. A resumable run's
 // folder (checkpoints, logs) is kept: it is not empty.
 void abandon_output_stage();
+// SIGINT, SIGTERM and SIGHUP blocked in every thread and taken by one thread of its own, which
+// abandons the output stage (abandon_output_stage) and then dies of the same signal (exit status
+// 128 + signal for the shell). Call it before any other thread exists (the qdo tool's main), so
+// that every thread inherits the mask.
+void abandon_outputs_on_termination_signals();
 // Blocks for good once abandon_output_stage has run (the signal then ends the process): called
 // where an output write starts (AtomicFile) or ends (commit_output, the checkpoint's renames).
 void wait_if_abandoned();

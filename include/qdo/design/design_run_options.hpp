@@ -1,5 +1,5 @@
 // The options of a `qdo design` run (DesignRunOptions) and their typed parts. Each part is parsed
-// once where it enters: the command line (src/cli) and a run's config.json
+// once where it enters: the options as typed (design_run_text.hpp) and a run's config.json
 // (design_run_options_from_json), which holds each as the string its to_string() writes (the
 // strings the options always had there, so run folders of earlier versions read the same).
 #pragma once

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "qdo/data/config.hpp"
+#include "qdo/runtime/parse.hpp"
 #include "qdo/data/psf_file.hpp"
 #include "qdo/physics/psf_metrics.hpp"
 #include "qdo/physics/simulator.hpp"
@@ -51,5 +52,19 @@ void write_psf_figures(const SystemConfig& cfg, const SensorStack& psf_s, const 
 // HDF5 writer, one at a time: the HDF5 library is not built thread-safe, and any device read)
 // runs on this one; after both have stopped, rethrows the first failure (data's first).
 void write_concurrently(const std::function<void()>& data, const std::function<void()>& figures);
+
+// --save: extra outputs of qdo psf and qdo simulate, comma-separated; today only "native" (the
+// native-grid PSF stack /psf_native in psf.h5, bands x N x N: the largest output, off by default).
+// An InputError naming --save for any other item.
+bool save_native_from_option(const std::string& save);
+
+// qdo psf's work from its options as typed (TextOptions): the configuration (several object points
+// from the configuration or --object-distances x --field-angles: one batched pass, points x bands
+// planes), the design's heights (--design, --levels, --placement), then psf.h5 (write_psf_h5, with
+// --save and --compress), points.csv with several points, psf.png and design.png in the folder
+// claim_dir() returns. The device (--device) starts on a second thread while the inputs are read
+// and the folder claimed (an input's error is reported first). float32: the files are written from
+// the device buffer mapped on the host. Returns the report: device, stack, seconds, sampling, files.
+std::string psf_outputs_from_options(const TextOptions& a, const std::function<std::string()>& claim_dir);
 
 }  // namespace qdo

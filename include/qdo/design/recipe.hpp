@@ -42,4 +42,12 @@ void apply_recipe(const std::string& name, DesignRunOptions& o,
 // What the release does that no qdo option reproduces yet, one line each.
 const std::vector<std::string>& recipe_gaps();
 
+// What `qdo recipe` prints: a table of every item (its option, its value in recipe `name`, or in
+// every recipe side by side when `name` is empty, and what it decides), then what of the release
+// no option reproduces. An InputError naming `argument` for an unknown name. Lines end with "\n".
+std::string recipe_table_text(const std::string& name = "", const std::string& argument = "recipe");
+// The same as JSON (2-space indent, final newline): {recipes: {NAME: {option: value}}, what:
+// {option: text}, not_reproduced: [...]}.
+std::string recipe_json_text(const std::string& name = "", const std::string& argument = "recipe");
+
 }  // namespace qdo

@@ -10,6 +10,7 @@
 
 #include "qdo/decode/decoder_spec.hpp"
 #include "qdo/physics/doe.hpp"
+#include "qdo/runtime/parse.hpp"
 #include "qdo/runtime/runtime.hpp"
 
 namespace qdo {
@@ -71,5 +72,13 @@ struct EvalResult {
 // evaluated design to be the one it was trained with (the run's own design; H_f for full and for
 // do at full precision; a do-finetune run's quantized DOE), else an InputError asks for mismatch.
 EvalResult evaluate_run(Runtime& rt, const EvalOptions& e);
+// qdo eval's options as a user typed them (TextOptions: the run is `run`; data, levels,
+// placement, decoder, decoder-kind, psf, design, noise-sigma, renders, synthetic-scenes, pixels
+// (y:x pairs), precision, out), each checked (InputError naming the option as typed); a fitted
+// --design is read against the run's configuration. Nothing on the device, no folder claimed.
+EvalOptions eval_options_from_options(const std::string& run, const TextOptions& a);
+// The per-scene table (PSNR, PSNR-H, SSIM, RMSE, ERGAS, SAM), the mean row, the quantization
+// deviation and the files written into `out`. Lines end with "\n".
+std::string eval_report(const EvalResult& r, const std::string& out);
 
 }  // namespace qdo

@@ -30,6 +30,7 @@
 
 #include "qdo/data/config.hpp"
 #include "qdo/decode/decoder_spec.hpp"
+#include "qdo/runtime/parse.hpp"
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/runtime/types.hpp"
 
@@ -37,7 +38,9 @@ namespace qdo {
 
 struct EvalPointsOptions {
   std::string run;                    // the run folder (config.json, prior.h5, design.h5)
-  std::string design_file;            // a design .h5 (N x N at the run's pitch) in place of RUN/design.h5
+  // The design evaluated in place of RUN/design.h5, a PSF spec's design (psf_spec.hpp: lens:NM,
+  // flat or a design .h5, N x N at the run's pitch); empty: the run's.
+  std::string design_file;
   // The nominal distance (metres, > 0 or +infinity): the decoder of the mismatch rows is built for
   // the PSF there, and the field angles are evaluated there. NaN (the default): the run's one object
   // point's distance when its configuration lists exactly one, else its scene_distance_m (or
@@ -126,5 +129,15 @@ void check_eval_points(const EvalPointsOptions& o);
 // The whole evaluation; with o.out set, writes OUT/points.json, points.csv, quality_vs_distance.png,
 // quality_vs_angle.png, psf_vs_distance.png and psf_vs_angle.png (each written, then renamed).
 EvalPointsResult evaluate_points(Runtime& rt, const EvalPointsOptions& o);
+
+// qdo eval-points' options as a user typed them (TextOptions: the run is `run`; design, distances,
+// nominal, angles, angle-steps, data, synthetic-scenes, fov-tolerance, dof-margin-db, noise-sigma,
+// decoder-kind, precision, out), each parsed (InputError naming the option as typed) and then
+// checked with check_eval_points, before any output folder or device.
+EvalPointsOptions eval_points_options_from_options(const std::string& run, const TextOptions& a);
+// The report: the distance table (mismatch and matched PSNR), the depth of field, the angle table
+// (model error, PSNR, energy lost), the field edge and what binds it, the valid field of view and
+// the files written. Lines end with "\n".
+std::string eval_points_report(const EvalPointsOptions& o, const EvalPointsResult& r);
 
 }  // namespace qdo

@@ -225,5 +225,8 @@ struct SensorClip {
   double fraction() const { return total ? double(clipped) / double(total) : 0.0; }
 };
 SensorClip clip_to_full_scale(RealStack& rgb, const std::string& what);
+// One report line: "sensor: 0.12 % of values (12 of 9800) clipped at full scale 1 (max 1.3 before
+// clipping)", or "sensor: no value clipped at full scale (max 0.97)".
+std::string clip_summary(const SensorClip& c);
 
 }  // namespace qdo

@@ -98,6 +98,12 @@ struct DeviceInfo {
 };
 // Every device of every platform; throws DeviceError when no OpenCL platform exists.
 std::vector<DeviceInfo> list_devices();
+// What `qdo devices` lists: every device of every platform, one line each (P:D, platform / name,
+// type, driver, OpenCL version, fp64, compute units, memory in GiB); DeviceError as list_devices.
+std::string devices_report();
+// What `qdo --version` reports of the machine: the OpenCL devices (none is fine: the reason is
+// named), one line each, and the FFT backends' versions (clFFT, VkFFT, FFTW). Lines end with "\n".
+std::string backends_report();
 
 class FftPlan;
 

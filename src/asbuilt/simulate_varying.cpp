@@ -1,17 +1,16 @@
-// qdo simulate --depth / --field-grid: the options of a spatially varying image turned into the
-// library's capture specs (include/qdo/asbuilt/varying_capture.hpp, which plans, runs and writes
-// it), and the report printed.
+// The spatially varying part of qdo simulate (simulate.hpp): --depth / --field-grid and their
+// options turned into the capture specs of varying_capture.hpp (which plans, runs and writes it),
+// and the report.
 //
 //  --depth FILE[:KEY]   an H x W depth map (metres) beside the scene, imaged at depth layers
 //                       (--depth-layers, or the map's own; --depth-scale for a 16-bit PNG).
 //  --field-grid NX[xNY] a regular grid of field angles up to the field edge (--field-edge-deg);
 //                       --field-rank R: the low-rank form.
 //
-// Every input is checked before the device starts; refusals name the command line's options.
-#include "simulate_varying.hpp"
+// Every input is checked before the device starts; refusals name the options as typed.
+#include "qdo/asbuilt/simulate.hpp"
 
 #include <cmath>
-#include <cstdio>
 #include <cstdlib>
 #include <limits>
 #include <string>
@@ -19,10 +18,12 @@
 #include <utility>
 #include <vector>
 
-#include "qdo/asbuilt/varying_capture.hpp"
+#include "qdo/design/option_inputs.hpp"
 #include "qdo/runtime/error.hpp"
+#include "qdo/runtime/strprintf.hpp"
+#include "qdo/runtime/util.hpp"
 
-namespace qdo::cli {
+namespace qdo {
 
 namespace {
 
@@ -63,7 +64,8 @@ std::vector<double> depth_layers_option(const std::string& s) {
     }
     char* end = nullptr;
     const double d = std::strtod(v.c_str(), &end);
-    if (*end || !std::isfinite(d) || !(d > 0)) reject("--depth-layers", v, "distances in metres > 0, or inf (comma-separated)");
+    if (*end || !std::isfinite(d) || !(d > 0))
+      reject("--depth-layers", v, "distances in metres > 0, or inf (comma-separated)");
     layers.push_back(d);
   }
   if (layers.empty()) reject("--depth-layers", s, "one or more distances in metres > 0, or inf (comma-separated)");
@@ -71,10 +73,12 @@ std::vector<double> depth_layers_option(const std::string& s) {
 }
 
 // The --depth plan: the map read (DepthMapSource), the layers, the components.
-VaryingPlan depth_plan(const Args& a, const SystemConfig& cfg, PsfPlacement placement, std::size_t rows, std::size_t cols) {
+VaryingPlan depth_plan(const TextOptions& a, const SystemConfig& cfg, PsfPlacement placement, std::size_t rows,
+                       std::size_t cols) {
   const std::string spec = a.get("depth");
   if (spec == "builtin" && a.get("scene", "builtin") != "builtin")
-    reject("--depth", spec, "a depth map file for --scene " + a.get("scene") + " (--depth builtin is the built-in chart's)");
+    reject("--depth", spec,
+           "a depth map file for --scene " + a.get("scene") + " (--depth builtin is the built-in chart's)");
   DepthMapSource src;
   src.spec = spec;
   src.spec_label = {"--depth", spec};
@@ -93,7 +97,8 @@ VaryingPlan depth_plan(const Args& a, const SystemConfig& cfg, PsfPlacement plac
 }
 
 // The --field-grid plan: the grid, its edge, the components; --field-rank against the points computed.
-VaryingPlan field_plan(const Args& a, const SystemConfig& cfg, PsfPlacement placement, std::size_t rows, std::size_t cols) {
+VaryingPlan field_plan(const TextOptions& a, const SystemConfig& cfg, PsfPlacement placement, std::size_t rows,
+                       std::size_t cols) {
   FieldCaptureSpec f;
   std::tie(f.nx, f.ny) = field_grid_size(a.get("field-grid"));
   if (a.has("field-edge-deg")) f.edge_deg = number_or_nan(a.get("field-edge-deg"));
@@ -102,31 +107,36 @@ VaryingPlan field_plan(const Args& a, const SystemConfig& cfg, PsfPlacement plac
   f.edge_label = {"--field-edge-deg", a.get("field-edge-deg")};
   f.rank_label = {"--field-rank", a.get("field-rank")};
   VaryingPlan plan = plan_field_capture(cfg, f, rows, cols);
-  if (a.has("field-rank")) plan.rank = std::size_t(parse_int("--field-rank", a.get("field-rank"), 1, int(plan.used.size())));
+  if (a.has("field-rank"))
+    plan.rank = std::size_t(parse_int("--field-rank", a.get("field-rank"), 1, int(plan.used.size())));
   return plan;
 }
 
 }  // namespace
 
-bool varying_requested(const Args& a) { return a.has("depth") || a.has("field-grid"); }
+bool varying_requested(const TextOptions& a) { return a.has("depth") || a.has("field-grid"); }
 
-void check_no_orphan_varying_options(const Args& a) {
+void check_no_orphan_varying_options(const TextOptions& a) {
   for (const char* o : kVaryingOptions)
     if (a.has(o)) reject(std::string("--") + o, a.get(o), "only with --depth FILE or --field-grid NX[xNY]");
 }
 
-int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
+void plan_varying_simulation(const TextOptions& a, SimulatePlan& plan) {
+  const SystemConfig& cfg = plan.cfg;
   const bool depth_mode = a.has("depth");
   if (depth_mode && a.has("field-grid"))
-    reject("--field-grid", a.get("field-grid"),
-           "not together with --depth for now (a depth map and a field grid at once: K = layers x points components, not "
-           "supported yet); run one or the other");
+    reject(
+        "--field-grid", a.get("field-grid"),
+        "not together with --depth for now (a depth map and a field grid at once: K = layers x points components, not "
+        "supported yet); run one or the other");
   const std::string what = depth_mode ? "--depth" : "--field-grid";
   if (a.get("capture", "scene") != "scene") reject("--capture", a.get("capture"), "scene with " + what);
   if (a.has("psf"))
-    reject("--psf", a.get("psf"), "--design with " + what + " (a PSF stack file holds one PSF: it has no depth or field dependence)");
+    reject("--psf", a.get("psf"),
+           "--design with " + what + " (a PSF stack file holds one PSF: it has no depth or field dependence)");
   if (a.get("formation", "qdo") != "qdo")
-    reject("--formation", a.get("formation"), "qdo with " + what + " (--psf-placement output is the release's per-depth rule)");
+    reject("--formation", a.get("formation"),
+           "qdo with " + what + " (--psf-placement output is the release's per-depth rule)");
   for (const char* o : {"raw", "demosaic", "save", "compress", "frame-size", "peak", "darks", "centre"})
     if (a.has(o)) reject(std::string("--") + o, a.get(o, "yes"), "not with " + what + " for now");
   if (depth_mode) {
@@ -137,32 +147,44 @@ int simulate_varying(const Args& a, const SystemConfig& cfg, Precision p) {
       if (a.has(o)) reject(std::string("--") + o, a.get(o), "only with --depth");
   }
   if (cfg.convolution != ConvolutionMode::Linear)
-    reject("convolution", "circular", "\"convolution\": \"linear\" with " + what + " (the varying operator is a linear convolution)");
+    reject("convolution", "circular",
+           "\"convolution\": \"linear\" with " + what + " (the varying operator is a linear convolution)");
   const PsfPlacement placement = psf_placement_from_string(a.get("psf-placement", "source"));
-  const Map2D h = design_heights(cfg, a);
-  const RealStack scene = scene_from_args(cfg, a);
-  const std::size_t rows = scene.rows, cols = scene.cols;
-  const VaryingPlan plan = depth_mode ? depth_plan(a, cfg, placement, rows, cols) : field_plan(a, cfg, placement, rows, cols);
-
-  const std::string dir = out_dir(a);
-  std::fprintf(stderr, "[simulate] %s\n", plan.summary.c_str());
-  Runtime rt(a.get("device"));
-  const VaryingCaptureResult r =
-      run_varying_capture(rt, plan, h, scene, p, [](const std::string& line) { std::fprintf(stderr, "[simulate] %s\n", line.c_str()); });
-  write_varying_outputs(dir, plan, r, h, scene, "qdo simulate " + what);
-  const VaryingReport& report = r.report;
-  std::printf("device: %s\nformation: qdo, spatially varying (%s placement)\n%s\n%s%s"
-              "scene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSFs %.3f s + varying convolution + sensor, %s); "
-              "%zu forward and %zu inverse FFTs of %zu x %zu, %zu components kept, %zu skipped in the operator\n"
-              "noise: %s\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf_points.h5, psf.png, design.png%s, varying.json\n",
-              rt.info().name.c_str(), to_string(placement).c_str(), r.summary.c_str(), plan.note.empty() ? "" : plan.note.c_str(),
-              plan.note.empty() ? "" : "\n", scene.planes, rows, cols, r.rgb.rows, r.rgb.cols, r.seconds, r.psf_seconds,
-              to_string(p).c_str(), report.forward_ffts, report.inverse_ffts, report.grid_rows, report.grid_cols, report.kept.size(),
-              report.skipped.size(),
-              cfg.read_noise_sigma > 0 || cfg.full_well_photons > 0 ? "the configuration's (read noise and shot noise as the camera adds them)"
-                                                                    : "none (the configuration's noise is zero)",
-              r.sampling_summary.c_str(), clip_summary(r.clip).c_str(), dir.c_str(), depth_mode ? ", depth.png, depth.h5" : "");
-  return 0;
+  plan.kind = SimulateKind::Varying;
+  plan.varying_option = what;
+  plan.heights = design_heights_from_options(cfg, a);
+  plan.scene = scene_from_options(cfg, a);
+  const std::size_t rows = plan.scene.rows, cols = plan.scene.cols;
+  plan.varying = depth_mode ? depth_plan(a, cfg, placement, rows, cols) : field_plan(a, cfg, placement, rows, cols);
 }
 
-}  // namespace qdo::cli
+std::string run_varying_simulation(Runtime& rt, const SimulatePlan& sp, const std::string& dir,
+                                   const std::function<void(const std::string&)>& say) {
+  const VaryingPlan& plan = sp.varying;
+  const SystemConfig& cfg = sp.cfg;
+  const RealStack& scene = sp.scene;
+  const std::size_t rows = scene.rows, cols = scene.cols;
+  const Precision p = sp.precision;
+  const PsfPlacement placement = plan.placement;
+  const bool depth_mode = plan.mode == VaryingMode::Depth;
+  if (say) say(plan.summary);
+  const VaryingCaptureResult r = run_varying_capture(rt, plan, sp.heights, scene, p, say);
+  write_varying_outputs(dir, plan, r, sp.heights, scene, "qdo simulate " + sp.varying_option);
+  const VaryingReport& report = r.report;
+  return strprintf(
+      "device: %s\nformation: qdo, spatially varying (%s placement)\n%s\n%s%s"
+      "scene %zu x %zu x %zu -> sensor 3 x %zu x %zu in %.3f s (PSFs %.3f s + varying convolution + sensor, %s); "
+      "%zu forward and %zu inverse FFTs of %zu x %zu, %zu components kept, %zu skipped in the operator\n"
+      "noise: %s\n%s\n%s\nwrote %s/sensor.h5, sensor.png, scene.png, psf_points.h5, psf.png, design.png%s, "
+      "varying.json\n",
+      rt.info().name.c_str(), to_string(placement).c_str(), r.summary.c_str(),
+      plan.note.empty() ? "" : plan.note.c_str(), plan.note.empty() ? "" : "\n", scene.planes, rows, cols, r.rgb.rows,
+      r.rgb.cols, r.seconds, r.psf_seconds, to_string(p).c_str(), report.forward_ffts, report.inverse_ffts,
+      report.grid_rows, report.grid_cols, report.kept.size(), report.skipped.size(),
+      cfg.read_noise_sigma > 0 || cfg.full_well_photons > 0
+          ? "the configuration's (read noise and shot noise as the camera adds them)"
+          : "none (the configuration's noise is zero)",
+      r.sampling_summary.c_str(), clip_summary(r.clip).c_str(), dir.c_str(), depth_mode ? ", depth.png, depth.h5" : "");
+}
+
+}  // namespace qdo
