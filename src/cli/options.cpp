@@ -105,8 +105,8 @@ std::vector<OptionSpec> training_options() {
                           "height noise is drawn per ring) (" + r + "release 2d, qdo auto)"),
           opt("wiener-on", "where the wiener objective runs: device (OpenCL, the run's precision) or cpu (double, the reference)",
               "device"),
-          opt("decoder", "decoder trained with the optics: wiener (closed form), resunet (depth 4, root 16), resunet:paper "
-                         "(depth 7, root 32) or resunet:depth=D,root=R (needs the qdo tool built with LibTorch)", DecoderSpec{}.to_string()),
+          opt("decoder", "decoder trained with the optics: wiener (closed form), resunet (depth 4, root 16), resunet:paper (depth 7, "
+                         "root 32), resunet:depth=D,root=R (these need LibTorch) or a registered decoder that trains", DecoderSpec{}.to_string()),
           opt("lr-decoder", "learning rate of the network decoder, in (0, 1] (do-finetune: default the do run's last) (" + r + "0.001)"),
           opt("gamma", "weight decay gamma of the network's convolution weights (Eq. 14), in [0, 1000] (" + r + "release 0, qdo 0.0001)")};
 }

@@ -94,7 +94,7 @@ DesignRunOptions design_run_options_from_options(const TextOptions& a, bool rang
   o.design.psf_path = psf_path_from_string(a.get("psf-path", rv("psf-path")));
   if (o.design.psf_path == PsfPath::Radial && o.design.parameterization != Parameterization::Radial)
     reject("--psf-path", "radial", "auto or 2d unless --parameterization is radial");
-  o.decoder = decoder_spec_from_string(a.get("decoder", "wiener"));
+  o.decoder = decoder_spec_from_string(a.get("decoder", DecoderSpec{}.to_string()));
   o.objective = a.has("objective")    ? objective_from_string(a.get("objective"), "--objective")
                 : o.decoder.network() ? Objective::Network
                                       : Objective::Wiener;

@@ -52,7 +52,7 @@ DemoPlan prepare_demo(const TextOptions& given) {
   DemoPlan plan;
   plan.dir = a.get("out", "out/demo");
   const std::string& dir = plan.dir;
-  plan.network = decoder_spec_from_string(a.get("decoder", "wiener")).network();
+  plan.network = decoder_spec_from_string(a.get("decoder", DecoderSpec{}.to_string())).network();
   const bool network = plan.network;
   // The datasets, resolved under the data root before anything is written: a missing one is an
   // error naming where qdo looked (--data none leaves the real-scene rows out).
@@ -68,7 +68,7 @@ DemoPlan prepare_demo(const TextOptions& given) {
   claim_output_dir(dir, "--out", "demo", a.has("into-existing") || earlier_demo);
   DesignRunOptions& o = plan.o;
   o.cfg = preset_config(a.get("preset", "small"));
-  o.decoder = decoder_spec_from_string(a.get("decoder", "wiener"));
+  o.decoder = decoder_spec_from_string(a.get("decoder", DecoderSpec{}.to_string()));
   o.design.quantizer.levels = parse_int("--levels", a.get("levels", "4"), 2, 65536);
   // The Wiener demo: 15 x 8 steps on synthetic scenes. The network demo: 8 x 50 steps on the CAVE
   // training scenes (the network needs real data and more steps; README: how long it takes).
@@ -101,7 +101,7 @@ DemoPlan prepare_demo(const TextOptions& given) {
                  "' is absent, empty or a run folder qdo demo made (it holds files qdo demo did not write, and demo "
                  "would replace them; move them, or choose another --out)");
   }
-  if (network && !network_decoder_available())
+  if (o.decoder.kind == DecoderSpec::Kind::ResUNet && !network_decoder_available())  // the LibTorch plugin
     reject("--decoder", o.decoder.to_string(), "wiener: " + network_decoder_unavailable_reason());
   return plan;
 }
