@@ -198,6 +198,13 @@ class Optics:
         of other bands or size raises ValueError naming both."""
         return self._o.read_psf(path)
 
+    def psf_from(self, psf=None, design=None):
+        """The PSF as qdo's commands name it (their --psf and --design): psf a PSF stack file
+        (as read_psf reads it), or design "lens:NM", "flat" or a design .h5 file (a run's, or
+        qdo fit's as-built design.h5), simulated here -> bands x S x S. Exactly one of the two;
+        both are read and checked before any device work (ValueError naming the argument)."""
+        return self._o.psf_from(psf, design)
+
     def sensor_psf(self, height_m):
         """The PSF as the RGB sensor sees it: 3 x S x S, srf · psf (each channel sums to 1)."""
         p = self.psf(height_m)

@@ -21,6 +21,7 @@
 #include "qdo/physics/capture_pipeline.hpp"
 #include "qdo/physics/demosaic_reference.hpp"
 #include "qdo/data/config.hpp"
+#include "qdo/design/psf_spec.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/physics/psf_source.hpp"
@@ -170,6 +171,25 @@ class Optics {
   // naming both when they differ), for camera() in place of psf(): the file-backed PSF source.
   // HDF5 with the GIL held; no device work.
   Array read_psf(const py::handle& path) const { return from_stack(read_psf_stack_for(cfg_, path_arg(path, "path"), "path")); }
+
+  // The PSF named as the commands name it (psf_spec.hpp: qdo simulate's, image's, eval's and fit's
+  // --psf and --design): psf a PSF stack file, read as read_psf reads it, or design lens:NM, flat
+  // or a design .h5 (a run's or qdo fit's as-built design.h5), simulated on this configuration's
+  // device -> bands x S x S. Exactly one of the two; both read and checked before any device work
+  // (ValueError naming the argument otherwise).
+  Array psf_from(const py::handle& psf_obj, const py::handle& design_obj) {
+    const std::string psf = psf_obj.is_none() ? std::string() : path_arg(psf_obj, "psf");
+    const std::string design = design_obj.is_none() ? std::string() : str_arg(design_obj, "design");
+    if (psf.empty() && design.empty()) reject("psf", "None", "a PSF stack file, or design= lens:NM, flat or a design .h5 file");
+    const PsfInput in = read_psf_input(psf_spec_from_options(psf, design, "psf", "design", "the PSF comes from one of them"), cfg_);
+    RealStack out;
+    {
+      py::gil_scoped_release unlocked;
+      std::lock_guard<std::mutex> lock(dev_->mu);
+      out = psf_stack(dev_->rt, cfg_, prec_, in);
+    }
+    return from_stack(out);
+  }
 
   // scenes: batch x bands x H x W, psf: bands x S x S -> batch x 3 x H x W sensor images through
   // the device camera operator (cfg.convolution, the sensor response, cfg's noise; exact: no
@@ -385,6 +405,7 @@ void bind_optics(py::module_& m) {
       .def("psf_vjp", &Optics::psf_vjp, py::arg("grad_psf"), py::arg("height_m") = py::none(), py::arg("forward") = 0,
            py::arg("object_points") = py::none())
       .def("read_psf", &Optics::read_psf, py::arg("path"))
+      .def("psf_from", &Optics::psf_from, py::arg("psf") = py::none(), py::arg("design") = py::none())
       .def("camera", &Optics::camera, py::arg("scene"), py::arg("psf"))
       .def("capture", &Optics::capture, py::arg("scene"), py::arg("psf"), py::arg("raw") = false, py::arg("noise") = true,
            py::arg("demosaic") = "bilinear")

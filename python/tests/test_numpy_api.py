@@ -118,6 +118,29 @@ def test_a_psf_file_as_the_camera_s_psf_and_other_grids_refused(tmp_path, qdo_bi
         o.read_psf(tmp_path / "missing.h5")
 
 
+def test_psf_from_takes_the_commands_psf_spec(qdo_binary, tmp_path, rng):
+    # The commands' --psf / --design: a stack file is read_psf's, a design file is psf() of its
+    # heights, lens:NM is the lens; one of the two, checked before any device work.
+    cfg = tiny_config()
+    o = qdo.Optics(config=cfg, precision="f64")
+    h = qdo.quantize(rng.uniform(0, o.h_max_m, (o.n, o.n)), o.h_max_m, 4)
+    path = qdo_psf_file(qdo_binary, tmp_path, cfg, h, o.config["pitch_m"])
+    np.testing.assert_array_equal(o.psf_from(psf=path), o.read_psf(path))
+    np.testing.assert_allclose(o.psf_from(design=str(tmp_path / "d.h5")), o.psf(h), rtol=0, atol=1e-14)
+    flat = o.psf_from(design="flat")
+    np.testing.assert_allclose(flat, o.psf(np.zeros((o.n, o.n))), rtol=0, atol=1e-14)
+    # A lens focuses: its on-axis value beats the flat plate's in every band.
+    lens = o.psf_from(design="lens:550")
+    c = o.sensor_size // 2
+    assert lens.shape == flat.shape and np.all(lens[:, c, c] > flat[:, c, c])
+    with pytest.raises(ValueError, match="not both"):
+        o.psf_from(psf=path, design="lens:550")
+    with pytest.raises(ValueError, match="psf"):
+        o.psf_from()
+    with pytest.raises(ValueError, match="design"):
+        o.psf_from(design="lens:-3")
+
+
 def test_capture_runs_the_simulate_chain_rgb_and_raw(rng):
     # Noiseless, the pipeline's clean image is the camera operator's.
     cfg = tiny_config()
