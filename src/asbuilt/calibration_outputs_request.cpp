@@ -12,6 +12,22 @@
 
 namespace qdo {
 
+void frame_reduction_from_options(const TextOptions& a, CalibrationOptions& opt) {
+  opt.white_dir = a.get("white");
+  opt.hot_sigma = parse_double("--hot-sigma", a.get("hot-sigma", "8"), 1, 1e6, "noise sigmas", false);
+  opt.min_snr = parse_double("--min-snr", a.get("min-snr", "20"), 0, 1e12, "", false);
+  // Given explicitly only: the struct's default (a colour that responds at all is a measurement,
+  // weighted by its noise) stands otherwise.
+  if (a.has("min-response")) opt.min_response = parse_double("--min-response", a.get("min-response"), 0, 1, "", true);
+  if (a.has("centre")) {
+    const auto v = split_items(a.get("centre"));
+    if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
+    opt.has_centre = true;
+    opt.centre_row = parse_int("--centre", v[0], 0, 1 << 20);
+    opt.centre_col = parse_int("--centre", v[1], 0, 1 << 20);
+  }
+}
+
 CalibrateRequest calibrate_request_from_options(const TextOptions& a) {
   CalibrateRequest q;
   q.cfg = config_from_options(a);
@@ -20,24 +36,12 @@ CalibrateRequest calibrate_request_from_options(const TextOptions& a) {
   CalibrationOptions& opt = q.options;
   q.frames = a.get("frames");
   q.darks = a.get("darks");
-  opt.white_dir = a.get("white");
-  opt.hot_sigma = parse_double("--hot-sigma", a.get("hot-sigma", "8"), 1, 1e6, "noise sigmas", false);
-  opt.min_snr = parse_double("--min-snr", a.get("min-snr", "20"), 0, 1e12, "", false);
-  // Given explicitly only: the struct's default (a colour that responds at all is a measurement,
-  // weighted by its noise) stands otherwise.
-  if (a.has("min-response")) opt.min_response = parse_double("--min-response", a.get("min-response"), 0, 1, "", true);
+  frame_reduction_from_options(a, opt);
   opt.floor_sigma = parse_double("--floor-sigma", a.get("floor-sigma", "4"), 0, 100, "noise sigmas", false);
   const std::string bg = a.get("background", "ring");
   if (bg != "ring" && bg != "none")
     reject("--background", bg, "ring (the median of the crop's outer 2-pixel ring) or none");
   opt.ring_background = bg == "ring";
-  if (a.has("centre")) {
-    const auto v = split_items(a.get("centre"));
-    if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
-    opt.has_centre = true;
-    opt.centre_row = parse_int("--centre", v[0], 0, 1 << 20);
-    opt.centre_col = parse_int("--centre", v[1], 0, 1 << 20);
-  }
   q.design = a.get("design");
   if (!q.design.empty() && std::filesystem::is_directory(q.design)) q.design += "/design.h5";  // a run folder
   if (!q.design.empty()) q.heights = design_heights_from_spec(q.cfg, q.design, "--design");  // checked before any work

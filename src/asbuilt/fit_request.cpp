@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <utility>
 
+#include "qdo/asbuilt/calibration_outputs.hpp"
 #include "qdo/design/option_inputs.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/strprintf.hpp"
@@ -32,19 +33,11 @@ FitRequest fit_request_from_options(const TextOptions& a) {
   if (raw && !a.has("darks"))
     reject("--darks", "(missing)",
            "the folder of dark frames taken as the --frames were (same exposure and temperature)");
-  for (const char* k : {"darks", "white", "centre"})
+  for (const char* k : {"darks", "white", "centre", "hot-sigma", "min-snr", "min-response"})
     if (!raw && a.has(k))
       reject(std::string("--") + k, a.get(k),
              "only with --frames (the raw frames); a --psf stack is calibrated already");
-  CalibrationOptions& copt = q.calibration;
-  copt.white_dir = a.get("white");
-  if (a.has("centre")) {
-    const auto v = split_items(a.get("centre"));
-    if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
-    copt.has_centre = true;
-    copt.centre_row = parse_int("--centre", v[0], 0, 1 << 20);
-    copt.centre_col = parse_int("--centre", v[1], 0, 1 << 20);
-  }
+  frame_reduction_from_options(a, q.calibration);  // the frames reduced as qdo calibrate reduces them
   FitOptions& opt = q.options;
   if (a.has("fit") && a.get("fit").find_first_not_of(" ,") == std::string::npos)
     reject("--fit", a.get("fit"),
@@ -79,7 +72,7 @@ FitRequest fit_request_from_options(const TextOptions& a) {
   // reduced to each band's window, before any device work.
   if (raw) {
     RawPsfWindows& windows = q.windows;
-    windows = reduce_psf_frames(cfg, q.frames, q.darks, copt);
+    windows = reduce_psf_frames(cfg, q.frames, q.darks, q.calibration);
     for (const auto& n : windows.calibration.notes) q.notes.push_back("note: " + n);
     q.notes.push_back(strprintf(
         "raw frames: %zu bands from %s (%zu frames, %zu darks), window %zu x %zu at frame (row %ld, column %ld), "

@@ -94,6 +94,8 @@ OptionSpec objective();
 OptionSpec target();
 // The options of the optimisation (qdo design; qdo sweep, qdo demo and qdo gradcheck take some).
 std::vector<OptionSpec> training_options();
+// How raw point-source frames are reduced (qdo calibrate, qdo fit --frames): hot-sigma, min-snr, min-response.
+std::vector<OptionSpec> frame_reduction_options();
 std::vector<OptionSpec> concat(std::vector<OptionSpec> a, const std::vector<OptionSpec>& b);
 
 }  // namespace qdo::cli::opts

@@ -29,24 +29,19 @@ const RegisterCommand registered_calibrate(50, [] {
                    "measured PSFs from captures: a folder of point-source frames, one per band (16-bit PNG or TIFF, psf_<nm>nm.png), "
                    "and dark frames -> DIR/psf.h5 (the layout of qdo psf), psf.png; with --design compare.csv, compare.png",
                    "", "",
-                   {preset(), config(), opt("frames", "folder of PSF frames: 16-bit grayscale PNG or TIFF raw frames named <anything>_<nm>nm.png|.tif, one "
+                   concat({preset(), config(), opt("frames", "folder of PSF frames: 16-bit grayscale PNG or TIFF raw frames named <anything>_<nm>nm.png|.tif, one "
                                                       "or more per configured band (several of one band are exposures, averaged) (required)"),
                     opt("darks", "folder of dark frames (16-bit grayscale PNG or TIFF, same exposure; averaged) (required)"),
                     opt("white", "folder of white (flat-field) frames: a uniformly lit, spectrally flat white target filling the view, the "
                                  "frames' size (averaged, dark subtracted); every frame is divided by its white signal over the white's "
                                  "mean (colour gains and pixel response measured; psf.h5 /white_channel_gains) (default: none)"),
                     opt("design", "design to compare with: lens:NM, flat, a design .h5 file or a run folder (its design.h5)"),
-                    opt("hot-sigma", "hot-pixel threshold, in noise sigmas (> 1)", "8"),
-                    opt("min-snr", "least peak SNR (peak above the dark / noise sigma) of a band; a darker frame is refused", "20"),
-                    opt("min-response", "least relative response, in (0, 1], of a mosaic colour at a band for its pixels to count as "
-                                        "a measurement (weaker ones get the estimate of their neighbours; the rest are used, each "
-                                        "weighted by its noise)", "0.005"),
                     opt("floor-sigma", "signal-mask threshold: pixels whose 5 x 5 mean is below this many sigmas of its noise (and not within 2 px of one above) are set to 0", "4"),
                     opt("background", "background removed after the dark: ring (the median of the S x S crop's outer 2-pixel ring) "
                                       "or none (the dark only; for a PSF with energy out to the crop's edge)",
                         "ring"),
                     opt("centre", "ROW,COL: the frame pixel of the optical axis (default: the centroid of all bands)"),
-                    precision(), device(), out_dir_opt()},
+                    precision(), device(), out_dir_opt()}, frame_reduction_options()),
                    cmd_calibrate, false,
                    "frames cropped closer to the PSF, or fewer bands in the configuration"};
 });

@@ -36,7 +36,7 @@ const RegisterCommand registered_fit(60, [] {
                    "(--frames, --darks) by Levenberg-Marquardt through the adjoints -> "
                    "DIR/fit.h5, fit.json (values, 1-sigma, correlation, residual per band), design.h5 (as built), config.json, fit.png, "
                    "residual.png", "", "",
-                   {preset(), config(),
+                   concat({preset(), config(),
                     opt("design", "the design that was built: a design .h5 file (its /levels_m defines each pixel's level), a run folder "
                                   "(its design.h5), lens:NM or flat (required)"),
                     opt("psf", "the measured PSF stack: psf.h5 as qdo calibrate (or qdo psf) writes it, for the configuration's bands and "
@@ -53,24 +53,20 @@ const RegisterCommand registered_fit(60, [] {
                     opt("fit", "parameters, comma-separated: levels (the L-1 depths of levels 1..L-1, m; level 0 held: a piston is "
                                "invisible), masks (the log2 L mask depths of a qdo+m design, m), scale (one factor on all heights; not with "
                                "levels or masks), z (DOE-sensor distance, m), d (object distance, m; nearly degenerate with z, so not in the "
-                               "default), offset (dx, dy: the relief against the aperture, m), shift (sx, sy: registration of the measured "
-                               "stack, sensor px; a nuisance), aperture (radius, m, by a walk of the loss in half-pixel steps) (default: levels,z,offset for a "
-                               "quantized design, else scale,z,offset)"),
+                               "default), offset (dx, dy: the relief against the aperture, m), shift (sx, sy: registration, sensor px; a nuisance), "
+                               "aperture (radius, m, by a walk in half-pixel steps) (default: levels,z,offset if quantized, else scale,z,offset)"),
                     opt("iterations", "most Levenberg-Marquardt iterations, an integer in [1, 1000]", "30"),
                     opt("lateral-starts", "auto: scans of the offset along x, then y, twice, an eighth of a DOE pixel apart, over the "
-                                          "centroid's reach plus 1.5 DOE px, and the mirrors of the lowest (a DOE's PSF has narrow mirror "
-                                          "minima the centroid start does not tell apart; the shift alone: a grid half a sensor px apart); "
-                                          "K: a K x K grid over the centroid's reach plus 1 sensor px; 1: the centroid difference alone; "
-                                          "auto or an integer in [1, 15]", "auto"),
-                    opt("refine-starts", "M: short fits (3 iterations) from M starts in different basins (the lowest, its "
-                                         "mirrors, the next lowest), the fit going on from the lowest; 1: the lowest start alone; "
-                                         "an integer in [1, 16]", "4"),
+                                          "centroid's reach plus 1.5 DOE px, and the lowest's mirrors (the shift alone: a grid half a sensor "
+                                          "px apart); K: a K x K grid over the centroid's reach plus 1 sensor px; 1: the centroid alone; auto or an integer in [1, 15]", "auto"),
+                    opt("refine-starts", "M: short fits (3 iterations) from M starts in different basins (the lowest, its mirrors, the "
+                                         "next lowest), the fit going on from the lowest; 1: the lowest alone; an integer in [1, 16]", "4"),
                     opt("start", "NAME=VALUE,...: start values of fitted parameters by the names the fit prints (level1, z, dx, sx, ...), "
                                  "lengths in metres or with a unit (550nm, 1.5um, 12.5mm), sx and sy in sensor px, scale plain; bounded by "
                                  "the aperture, the sensor window, a factor 10 on z and d (default: the design's, the centroid for offset or shift)"),
                     opt("tolerance", "stop when an accepted step lowers the loss by less than this fraction, in [0, 1]", "1e-7"),
                     opt("precision", "floating-point precision on the device: f32 or f64 (the fit's central differences want f64)", "f64"),
-                    device(), out_dir_opt()},
+                    device(), out_dir_opt()}, frame_reduction_options()),
                    cmd_fit, false,
                    "a smaller configuration (n, bands) or --precision f32"};
 });

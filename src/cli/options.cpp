@@ -111,6 +111,13 @@ std::vector<OptionSpec> training_options() {
           opt("gamma", "weight decay gamma of the network's convolution weights (Eq. 14), in [0, 1000] (" + r + "release 0, qdo 0.0001)")};
 }
 
+std::vector<OptionSpec> frame_reduction_options() {
+  return {opt("hot-sigma", "hot-pixel threshold, in noise sigmas (> 1)", "8"),
+          opt("min-snr", "least peak SNR (peak above the dark / noise sigma) of a band; a darker frame is refused", "20"),
+          opt("min-response", "least relative response, in (0, 1], of a mosaic colour at a band for its pixels to count as a "
+                              "measurement (every colour that responds is used, each weighted by its noise)", "0.005")};
+}
+
 std::vector<OptionSpec> concat(std::vector<OptionSpec> a, const std::vector<OptionSpec>& b) {
   a.insert(a.end(), b.begin(), b.end());
   return a;

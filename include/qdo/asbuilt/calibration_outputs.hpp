@@ -42,6 +42,12 @@ struct CalibrateRequest {
   Map2D heights;               // its heights, N x N metres (empty without a design)
   Precision precision = Precision::F32;
 };
+// How the raw point-source frames are reduced, read from the options as a user typed them, shared by
+// qdo calibrate and qdo fit --frames: --white, --hot-sigma (> 1, default 8), --min-snr (>= 0,
+// default 20), --min-response (in (0, 1]; absent: CalibrationOptions' default, every colour that
+// responds at all) and --centre ROW,COL; InputErrors name the option as typed. The other fields of
+// opt are left as they are.
+void frame_reduction_from_options(const TextOptions& a, CalibrationOptions& opt);
 // The options as a user typed them (TextOptions: preset, config, frames, darks, white, design,
 // hot-sigma, min-snr, min-response, floor-sigma, background, centre, precision), each checked and
 // the design read (InputError naming the option as typed), before any work.
