@@ -310,6 +310,10 @@ TEST_SUITE("fit") {
     for (std::size_t i = cfg.bands / 2 * plane; i < meas.data.size(); ++i) meas.data[i] = upper.data[i];
     const FitResult split = fit_as_built(runtime(), cfg, Precision::F64, d, meas, opt);
     CHECK_FALSE(split.sigma_reliable);
+    INFO(split.sigma_unreliable_because);
+    CHECK(split.sigma_unreliable_because.find("jackknife") != std::string::npos);
+    CHECK(split.sigma_unreliable_because.find("level1") != std::string::npos);
+    CHECK(split.sigma_unreliable_because.find("chi^2") == std::string::npos);  // a stack's residuals are not in noise units
     for (std::size_t k = 0; k < 3; ++k) {
       const FitValue& v = split.values[k];
       CAPTURE(v.name);

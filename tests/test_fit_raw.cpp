@@ -10,6 +10,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -186,6 +187,14 @@ TEST_SUITE("fit-raw") {
     // read noise from calibrate's MAD of the lit frames' integer codes it was 0.88).
     const double chi2 = r.residual_sigma * r.residual_sigma;
     MESSAGE("reduced chi^2 " << chi2 << " over " << raw.usable_pixels << " pixels");
+    // Two weighting passes (the default): the neighbours' shot noise, then the fitted model's; the
+    // last pass's reduced chi^2 is the one sigma is scaled by.
+    REQUIRE(r.chi2_reduced_passes.size() == 2);
+    MESSAGE("reduced chi^2 per pass: " << r.chi2_reduced_passes[0] << ", " << r.chi2_reduced_passes[1]);
+    CHECK(r.chi2_reduced_passes[1] == doctest::Approx(chi2).epsilon(1e-12));
+    // Inside the model, with the noise the weights assume, the fit says its sigma reads as an error.
+    INFO(r.sigma_unreliable_because);
+    CHECK(r.sigma_reliable);
     CHECK(chi2 > 0.9);
     CHECK(chi2 < 1.1);
     // Each error within 3 sigma (the curvature sigma, scaled by the reduced chi^2): a Gaussian
@@ -215,6 +224,60 @@ TEST_SUITE("fit-raw") {
                                << shown(r.values[k].name, st.values[k].sigma));
     MESSAGE("noisy: sum of squared errors in the raw fit's sigmas: raw " << e_raw << ", stack " << e_stack);
     CHECK(10 * e_raw < e_stack);
+    fs::remove_all(sw.dir);
+  }
+
+  TEST_CASE("re-weighting: the variance is read plus shot noise of a signal; with the true signal the weights are the noise") {
+    const SystemConfig cfg = raw_config(12, 0.00025, 20000, 6);
+    const Design d = quantized_lens(cfg);
+    const Sweep sw = simulate_sweep(cfg, d, "reweight");
+    const RawPsfWindows w =
+        reduce_psf_frames(cfg, (sw.dir / "frames").string(), (sw.dir / "darks").string(), sw.window);
+    // The expected signal of the true camera: a_b G PSF_b (full-scale units).
+    AsBuiltModel m(runtime(), cfg, Precision::F64, d, kFitted);
+    const RealStack psf = m.evaluate(truth(cfg, d));
+    RealStack expected(psf.planes, psf.rows, psf.cols, 0.0);
+    const std::size_t plane = psf.plane_size();
+    for (std::size_t i = 0; i < psf.data.size(); ++i) expected.data[i] = sw.amplitude[i / plane] * w.gain.data[i] * psf.data[i];
+    const RawPsfWindows t = reweight_raw_windows(w, expected);
+    // The split: variance = read + shot per signal x signal, pixel for pixel; unusable pixels keep 0.
+    double chi2_true = 0, chi2_neighbours = 0;
+    std::size_t n = 0;
+    for (std::size_t i = 0; i < w.variance.data.size(); ++i) {
+      if (!(w.gain.data[i] > 0)) {
+        CHECK(t.variance.data[i] == 0);
+        continue;
+      }
+      CHECK(t.variance.data[i] == doctest::Approx(w.read_variance.data[i] + w.shot_per_signal.data[i] * std::max(expected.data[i], 0.0)));
+      CHECK(w.shot_per_signal.data[i] > 0);
+      const double e = w.signal.data[i] - expected.data[i];
+      chi2_true += e * e / t.variance.data[i];
+      chi2_neighbours += e * e / w.variance.data[i];
+      ++n;
+    }
+    // The residuals of the true signal over the variances of the true signal: chi^2 per pixel 1
+    // within 7 % (its spread over 8192 pixels is 1.6 %; the darks' read variance is an estimate).
+    chi2_true /= double(n);
+    chi2_neighbours /= double(n);
+    MESSAGE("chi^2 per pixel of the true signal: with its own variances " << chi2_true << ", with the neighbours' "
+                                                                          << chi2_neighbours);
+    CHECK(chi2_true > 0.93);
+    CHECK(chi2_true < 1.07);
+    // A camera outside the model: its sensor grid is off by (0.3, -0.2) px, and the fit holds the
+    // registration at 0. The misfit is far above the noise, and the fit says its sigma does not
+    // bound the error.
+    FitOptions held = fit_options();
+    held.parameters = {"levels", "z"};
+    held.lateral_starts = 1;
+    const RawFitResult off = fit_as_built_raw(runtime(), cfg, Precision::F64, d, w, held);
+    MESSAGE("registration held at 0: reduced chi^2 " << off.fit.residual_sigma * off.fit.residual_sigma << "; "
+                                                     << off.fit.sigma_unreliable_because);
+    CHECK(off.fit.residual_sigma * off.fit.residual_sigma > kReducedChi2Reliable);
+    CHECK_FALSE(off.fit.sigma_reliable);
+    CHECK(off.fit.sigma_unreliable_because.find("reduced chi^2") != std::string::npos);
+    // The windows must match: a stack of another shape is refused.
+    CHECK_THROWS_AS(reweight_raw_windows(w, RealStack(1, 2, 2, 0.0)), InputError);
+    CHECK_THROWS_AS(fit_as_built_raw(runtime(), cfg, Precision::F64, d, w, fit_options(), 6), InputError);
     fs::remove_all(sw.dir);
   }
 
@@ -290,6 +353,12 @@ TEST_SUITE("fit-raw") {
     refused("", {"--psf", "--frames"});
     refused(" --frames " + missing.string() + " --darks " + darks, {"--frames", to_str(nm2) + " nm"});
     refused(frames + " --darks " + darks + " --centre 1,2,3", {"--centre", "ROW,COL"});
+    // calibrate's frame reduction options: checked, only with --frames, and they reach the reduction
+    // (a least SNR no band of these frames reaches refuses them, naming the option).
+    refused(frames + " --darks " + darks + " --hot-sigma 0.5", {"--hot-sigma", "0.5"});
+    refused(frames + " --darks " + darks + " --min-response 0", {"--min-response"});
+    refused("--psf " + (sw.dir / "psf_given.h5").string() + " --min-snr 5", {"--min-snr", "only with --frames"});
+    refused(frames + " --darks " + darks + " --min-snr 1e9", {"--min-snr", "psf_"});
     fs::remove_all(sw.dir);
   }
 

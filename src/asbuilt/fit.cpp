@@ -404,9 +404,24 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   if (res.jackknife_groups >= 2) {
     const double worst = *std::max_element(res.residual_rel_fit.begin(), res.residual_rel_fit.end());
     res.sigma_reliable = true;
+    std::string names;
     for (const FitValue& v : res.values)
-      if (worst >= 1e-6 && std::isfinite(v.sigma_jackknife) && std::isfinite(v.sigma) && v.sigma_jackknife > 3 * v.sigma)
-        res.sigma_reliable = false;
+      if (worst >= 1e-6 && v.name != "sx" && v.name != "sy" && std::isfinite(v.sigma_jackknife) && std::isfinite(v.sigma) &&
+          v.sigma_jackknife > 3 * v.sigma)
+        names += (names.empty() ? "" : ", ") + v.name;
+    if (!names.empty()) {
+      res.sigma_reliable = false;
+      res.sigma_unreliable_because = "the jackknife sigma over " + std::to_string(res.jackknife_groups) +
+                                     " band groups is more than 3 x the curvature sigma for " + names +
+                                     ": the model misses something that differs between wavelengths";
+    }
+  }
+  const double chi2 = res.residual_sigma * res.residual_sigma;
+  if (opt.observation && opt.observation->noise_units && chi2 > kReducedChi2Reliable) {
+    res.sigma_reliable = false;
+    res.sigma_unreliable_because += (res.sigma_unreliable_because.empty() ? "" : "; ") + std::string("the reduced chi^2 ") +
+                                    to_str(chi2) + " is over " + to_str(kReducedChi2Reliable) +
+                                    ": the model misses something larger than the noise";
   }
   res.as_built.height_m = model.heights(theta);
   res.as_built.pitch_m = design.pitch_m;

@@ -2,6 +2,7 @@
 // sensor model with the source powers solved in closed form, and the fit that uses it.
 #include "qdo/asbuilt/fit_raw.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <string>
@@ -94,6 +95,7 @@ FitObservation raw_fit_observation(const SystemConfig& cfg, const RawPsfWindows&
   obs.vjp = [t](const RealStack& psf, const RealStack& residual) { return t->weighted(psf, residual); };
   obs.residuals = usable_of(*t);
   obs.nuisance = cfg.bands;  // one a_b per band
+  obs.noise_units = true;    // each residual over its Poisson-Gaussian sd
   return obs;
 }
 
@@ -103,11 +105,26 @@ std::vector<double> raw_source_powers(const RawPsfWindows& windows, const RealSt
   return t->powers(psf);
 }
 
+RawPsfWindows reweight_raw_windows(const RawPsfWindows& windows, const RealStack& expected) {
+  const RawPsfWindows& w = windows;
+  for (const RealStack* st : {&w.read_variance, &w.shot_per_signal, &expected})
+    if (st->planes != w.variance.planes || st->plane_size() != w.variance.plane_size())
+      throw InputError("reweight_raw_windows: a stack of " + shape(*st) + "; the windows are " + shape(w.variance));
+  RawPsfWindows out = windows;
+  for (std::size_t i = 0; i < out.variance.data.size(); ++i)
+    if (out.gain.data[i] > 0 && out.variance.data[i] > 0)
+      out.variance.data[i] = w.read_variance.data[i] + w.shot_per_signal.data[i] * std::max(expected.data[i], 0.0);
+  return out;
+}
+
 RawFitResult fit_as_built_raw(Runtime& rt, const SystemConfig& cfg, Precision p, const Design& design,
-                              const RawPsfWindows& windows, const FitOptions& opt_in) {
+                              const RawPsfWindows& windows_in, const FitOptions& opt_in, int reweight_passes) {
   FitOptions opt = opt_in;
   if (opt.parameters.empty()) opt.parameters = default_fit_parameters(design);
   check_fit_parameters(cfg, design, opt.parameters);
+  if (reweight_passes < 0 || reweight_passes > 5)
+    throw InputError("reweight_passes " + std::to_string(reweight_passes) + ": an integer in [0, 5]");
+  RawPsfWindows windows = windows_in;
   RealStack target;
   opt.observation = std::make_shared<const FitObservation>(raw_fit_observation(cfg, windows, target));
   RawFitResult out;
@@ -115,7 +132,33 @@ RawFitResult fit_as_built_raw(Runtime& rt, const SystemConfig& cfg, Precision p,
   if (out.usable_pixels == 0)
     throw InputError("the raw frames' windows hold no usable pixel (every pixel hot, clipped or of no response)");
   out.fit = fit_as_built(rt, cfg, p, design, target, opt);
+  std::vector<double> chi2{out.fit.residual_sigma * out.fit.residual_sigma};
+  const bool shot = std::any_of(windows.shot_per_signal.data.begin(), windows.shot_per_signal.data.end(),
+                                [](double v) { return v > 0; });
+  for (int pass = 0; pass < reweight_passes && shot; ++pass) {
+    // The signal the fitted model expects at each pixel, a_b G PSF(theta), for its shot noise.
+    const RealStack& psf = out.fit.model_psf;  // fit_as_built's: the observation w^(1/2) a_b G PSF
+    RealStack expected(psf.planes, psf.rows, psf.cols, 0.0);
+    for (std::size_t i = 0; i < psf.data.size(); ++i) {
+      const double v = windows.variance.data[i];
+      if (windows.gain.data[i] > 0 && v > 0) expected.data[i] = psf.data[i] * std::sqrt(v);
+    }
+    windows = reweight_raw_windows(windows, expected);
+    FitOptions again = opt;
+    again.start.clear();
+    for (const FitValue& v : out.fit.values)
+      if (v.name != "aperture") again.start.emplace_back(v.name, v.value);
+    again.lateral_starts = 1;
+    again.refine_starts = 1;
+    again.observation = std::make_shared<const FitObservation>(raw_fit_observation(cfg, windows, target));
+    if (opt.progress)
+      opt.progress("re-weighting (pass " + std::to_string(pass + 2) + "): shot noise of the fitted model's signal, reduced chi^2 " +
+                   "of the last pass " + std::to_string(chi2.back()));
+    out.fit = fit_as_built(rt, cfg, p, design, target, again);
+    chi2.push_back(out.fit.residual_sigma * out.fit.residual_sigma);
+  }
   FitResult& r = out.fit;
+  r.chi2_reduced_passes = chi2;
   // The PSF stacks themselves (the fit's model_psf and design_psf are their observations): the
   // model again, without the observation, at the fitted and the design values.
   FitOptions plain = opt;

@@ -300,9 +300,9 @@ std::string fit_json_text(const SystemConfig& cfg, const FitResult& r, const Fit
                   {"aperture_scan", r.times.scan_s}, {"total", total_s}};
   j["counts"] = {{"psf_evaluations", r.times.psf_evaluations}, {"vjps", r.times.vjps}, {"simulators_built", r.times.simulators_built}};
   j["jackknife_groups"] = r.jackknife_groups;
-  // Whether the curvature sigma can be read as an error: not when the band groups disagree by more
-  // than it allows (the jackknife sigma over 3 x the curvature sigma for some parameter).
+  // Whether the curvature sigma can be read as an error (FitResult::sigma_reliable), and why not.
   j["sigma_reliable"] = r.sigma_reliable;
+  if (!r.sigma_unreliable_because.empty()) j["sigma_unreliable_because"] = r.sigma_unreliable_because;
   j["notes"] = "sigma: 1-sigma from the Gauss-Newton curvature, Cov = s^2 (J^T J)^-1 with s^2 = 2 loss / (m - p), equal weights; "
                "sigma_jackknife: the spread over fits each leaving out one of jackknife_groups groups of contiguous bands "
                "(linearised at the fit), which grows where the model misses what differs between wavelengths; "
@@ -312,11 +312,14 @@ std::string fit_json_text(const SystemConfig& cfg, const FitResult& r, const Fit
     j["data"] = "raw frames";
     j["source_power"] = r.source_power;
     j["chi2_reduced"] = r.residual_sigma * r.residual_sigma;
+    j["chi2_reduced_passes"] = r.chi2_reduced_passes;
     j["notes"] =
         "data: the raw frames' windows, each usable pixel's residual (a_b G PSF - D) / sqrt(V) with V its "
         "Poisson-Gaussian variance and a_b the band's source power solved in closed form; loss = chi^2 / 2; "
         "sigma: Cov = chi2_reduced (J^T J)^-1 with J the Jacobian of those residuals (the curvature of chi^2 scaled "
-        "by the reduced chi^2, 1 when the noise model and the model hold); residual_rel_*: |weighted residual| / "
+        "by the reduced chi^2, 1 when the noise model and the model hold); chi2_reduced_passes: that of each weighting "
+        "pass, the first with the shot noise of the signal each pixel's neighbours predict, then of the fitted model's; "
+        "residual_rel_*: |weighted residual| / "
         "|weighted data| per band; psf_measured in fit.h5: each usable pixel's D / (a_b G); sigma_jackknife: as for "
         "a stack, over groups of contiguous bands; levels: level 0 held at its design value (a common piston is "
         "invisible); z and d by central differences; "
@@ -359,11 +362,10 @@ std::vector<std::string> fit_summary_lines(const SystemConfig& cfg, const FitRes
                             std::isfinite(v.sigma) ? human(v, v.sigma).c_str() : "undetermined", human(v, v.design).c_str(),
                             v.gradient.c_str(), jk.c_str()));
   }
-  if (!r.sigma_reliable && r.jackknife_groups >= 2)
-    out.push_back(strprintf("note: SIGMA UNRELIABLE: for some parameters the jackknife sigma over %d band groups is more than 3 x the "
-                            "curvature sigma: the model misses something that differs between wavelengths, and the curvature sigma "
-                            "does not bound the error; the jackknife sigma is a lower bound on it (fit.json sigma_reliable)",
-                            r.jackknife_groups));
+  if (!r.sigma_reliable && !r.sigma_unreliable_because.empty())
+    out.push_back("note: SIGMA UNRELIABLE: " + r.sigma_unreliable_because +
+                  "; the curvature sigma does not bound the error, and the jackknife sigma is a lower bound on it "
+                  "(fit.json sigma_reliable)");
   for (const auto& d : r.degenerate)
     out.push_back(strprintf("  not separable: %s and %s (correlation %+.4f)", r.values[d.first].name.c_str(),
                             r.values[d.second].name.c_str(), r.correlation(long(d.first), long(d.second))));

@@ -98,6 +98,8 @@ RawPsfWindows reduce_psf_frames(const SystemConfig& cfg, const std::string& fram
   w.signal = RealStack(bands, s, s, 0.0);
   w.variance = RealStack(bands, s, s, 0.0);
   w.gain = RealStack(bands, s, s, 0.0);
+  w.read_variance = RealStack(bands, s, s, 0.0);
+  w.shot_per_signal = RealStack(bands, s, s, 0.0);
   std::size_t first = 0;  // the band's first file in c.files
   for (std::size_t b = 0; b < bands; ++b) {
     const std::size_t k = c.exposures[b];
@@ -162,6 +164,8 @@ RawPsfWindows reduce_psf_frames(const SystemConfig& cfg, const std::string& fram
         const double var_dn2 = read_var(n) + shot_dn * expected_dn / n;
         w.signal(b, y, x) = d_dn[i] / w.dn_full_scale;
         w.variance(b, y, x) = var_dn2 / (w.dn_full_scale * w.dn_full_scale);
+        w.read_variance(b, y, x) = read_var(n) / (w.dn_full_scale * w.dn_full_scale);
+        w.shot_per_signal(b, y, x) = shot_dn / (n * w.dn_full_scale);
         w.gain(b, y, x) = g[i];
         ++w.usable;
       }

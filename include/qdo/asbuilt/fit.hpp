@@ -89,7 +89,16 @@ struct FitObservation {
   std::size_t residuals = 0;  // the target's entries that are data (the rest are 0 in map and target)
   // Unknowns solved inside map (not in the fit's vector): s^2 = 2 L / (residuals - nuisance - p).
   std::size_t nuisance = 0;
+  // The residuals are in noise units (each divided by its noise sd): s^2 is then the reduced chi^2,
+  // and one over kReducedChi2Reliable marks sigma unreliable (FitResult::sigma_reliable).
+  bool noise_units = false;
 };
+// The largest reduced chi^2 of a fit in noise units whose sigma still reads as an error: the
+// variances are themselves estimates (the darks' spread, the expected signal's shot noise), good to
+// a few per cent (1.00 .. 1.02 on cameras inside the model, EXPERIMENTS.md); above it the model
+// misses something larger than the noise, and sigma scaled by the reduced chi^2 does not bound the
+// bias that leaves.
+constexpr double kReducedChi2Reliable = 1.05;
 
 struct FitOptions {
   std::vector<std::string> parameters;  // names above; empty: default_fit_parameters
@@ -166,10 +175,13 @@ struct FitResult {
   double residual_sigma = 0;           // s, per pixel
   int jackknife_groups = 0;            // the band groups of sigma_jackknife (0: not computed)
   // Whether the curvature sigma can be read as an error: the jackknife was computed and no
-  // parameter's jackknife sigma is over 3 x its curvature sigma (the band groups disagree by more
-  // than it allows: the model misses something that differs between wavelengths), or the fit
-  // left no residual (relative residual below 1e-6 in every band).
+  // physical parameter's jackknife sigma is over 3 x its curvature sigma (the band groups disagree
+  // by more than it allows: the model misses something that differs between wavelengths; the
+  // registration sx, sy is a nuisance, not checked), or the fit left no residual (relative
+  // residual below 1e-6 in every band); and, for residuals in noise units (raw frames), the
+  // reduced chi^2 at most kReducedChi2Reliable.
   bool sigma_reliable = false;
+  std::string sigma_unreliable_because;  // why not, in words ("" when reliable or no jackknife)
   std::vector<double> residual_rel_design, residual_rel_fit;  // per band: |model - measured| / |measured|
   std::vector<double> loss_history;    // loss after each iteration (index 0 = start)
   int iterations = 0;
@@ -183,6 +195,9 @@ struct FitResult {
   RealStack model_psf, design_psf;     // bands x S x S: the fitted model, and the design's nominal stack
   // With raw frames (fit_raw.hpp): each band's source power a_b at the fit; empty for a stack.
   std::vector<double> source_power;
+  // With raw frames: the reduced chi^2 of each weighting pass (fit_raw.hpp: the first with the
+  // neighbours' shot noise, then the fitted model's); the last is residual_sigma^2. Empty for a stack.
+  std::vector<double> chi2_reduced_passes;
   FitTimes times;
 };
 

@@ -20,6 +20,11 @@
 // sigma: Cov = s^2 (J^T J)^-1 with J the Jacobian of the weighted residuals and s^2 = chi^2 /
 // (usable pixels - bands - p), the reduced chi^2: 1 when the variances and the model hold, and
 // the curvature sigma then scaled by it otherwise.
+// Re-weighting: the first pass weighs each pixel's shot noise by the signal its 8 neighbours
+// predict (reduce_psf_frames), which on a speckled PSF is off where the PSF changes from pixel to
+// pixel. Each further pass (reweight_passes) takes the shot noise of the signal the fitted model
+// expects, a_b G PSF(theta) (never the pixel's own value), and fits again from the last pass's
+// values (their lateral start alone, no new scan).
 #pragma once
 #include <vector>
 
@@ -51,9 +56,14 @@ struct RawFitResult {
   std::size_t usable_pixels = 0;  // the residuals (pixels of all bands) that are data
 };
 
+// The windows weighed again: each usable pixel's variance read_variance + shot_per_signal x
+// max(expected, 0), expected (bands x S x S, full-scale units) the signal a model predicts there.
+RawPsfWindows reweight_raw_windows(const RawPsfWindows& windows, const RealStack& expected);
+
 // The fit of fit.hpp on the raw windows (opt: fit.hpp's; opt.observation is set here). Every
 // check of fit_as_built first (parameters, design), then the device work.
+// reweight_passes: passes after the first with the model's shot noise, in [0, 5].
 RawFitResult fit_as_built_raw(Runtime& rt, const SystemConfig& cfg, Precision p, const Design& design,
-                              const RawPsfWindows& windows, const FitOptions& opt);
+                              const RawPsfWindows& windows, const FitOptions& opt, int reweight_passes = 1);
 
 }  // namespace qdo

@@ -168,6 +168,10 @@ struct RawPsfWindows {
   //             given (PixelGain); 0 where the pixel is no measurement (hot in the darks, a colour
   //             under min_response, no exposure left): signal and variance are 0 there.
   RealStack signal, variance, gain;
+  // variance's two parts (bands x S x S, full-scale units; 0 where not usable): variance =
+  // read_variance + shot_per_signal x the expected signal (full-scale units), so that a fit can
+  // weigh again with the signal its model expects (fit_raw.hpp: reweight_raw_windows).
+  RealStack read_variance, shot_per_signal;
   std::vector<int> colour;  // S x S: each pixel's mosaic colour (0 R, 1 G, 2 B; -1 without a mosaic)
   std::size_t usable = 0;   // the entries (pixels of all bands) with gain > 0
 };
