@@ -156,7 +156,8 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
     mean_signal /= double(std::max<std::size_t>(cap.rgb.data.size(), 1)) * cap.exposure_factor;
     const double lsb = cfg.bit_depth > 0 ? 1.0 / (std::ldexp(1.0, int(cfg.bit_depth)) - 1) : 0.0;
     const double shot = cfg.full_well_photons > 0 ? std::max(mean_signal, 0.0) / cfg.full_well_photons : 0.0;
-    in.noise_sigma = cap.exposure_factor * std::sqrt(cfg.read_noise_sigma * cfg.read_noise_sigma + shot + lsb * lsb / 12);
+    in.noise_sigma = cap.exposure_factor * std::sqrt(cfg.read_noise_sigma * cfg.read_noise_sigma + shot + lsb * lsb / 12 +
+                                                     cap.demosaic_sigma * cap.demosaic_sigma);
   }
   const std::string run = o.run;
   in.run_network = [run] { return load_run_network(run); };
@@ -265,7 +266,10 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
                               {"full_well_photons", cfg.full_well_photons},
                               {"bit_depth", cfg.bit_depth},
                               {"exposure_factor", cap.exposure_factor},
-                              {"formula", "exposure x sqrt(read^2 + mean_signal / full_well + (1 / (2^bits - 1))^2 / 12); no demosaic error"}};
+                              {"demosaic_sigma", cap.demosaic_sigma},
+                              {"formula", "exposure x sqrt(read^2 + mean_signal / full_well + (1 / (2^bits - 1))^2 / 12 + demosaic_sigma^2); "
+                                          "demosaic_sigma: the capture's demosaic error estimated from itself (its demosaic re-mosaicked "
+                                          "and developed again; 0 for RGB captures)"}};
   nlohmann::json st = nlohmann::json::object();
   for (const auto& [k, v] : secs) st[k] = v;
   j["seconds"] = st;

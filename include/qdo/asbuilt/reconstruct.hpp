@@ -39,6 +39,7 @@
 #include "qdo/runtime/runtime.hpp"
 #include "qdo/runtime/types.hpp"
 #include "qdo/decode/wiener.hpp"
+#include "qdo/physics/demosaic_reference.hpp"
 
 namespace qdo {
 
@@ -111,11 +112,26 @@ RealStack capture_signal(const SystemConfig& cfg, const CaptureFiles& f);
 struct PreparedCapture {
   RealStack rgb;             // 3 x H x W linear signal, cropped, exposure applied
   double exposure_factor = 1;
+  // A raw mosaic's demosaic error, estimated from the capture itself (full-scale units, before the
+  // exposure): the RMS over channels and pixels (2 px from the edge left out) of the demosaiced
+  // image sampled through the mosaic one column over and developed again (estimate_demosaic_sigma);
+  // 0 for RGB captures.
+  double demosaic_sigma = 0;
   double seconds_dark = 0, seconds_demosaic = 0;
 };
 // Steps 2 to 6 on read_captures' result; the development (CapturePipeline::develop) on rt's device
 // in precision p.
 PreparedCapture prepare_capture(Runtime& rt, Precision p, const SystemConfig& cfg, const CaptureOptions& o, const CaptureFiles& f);
+// The demosaic error of a developed mosaic capture, from the capture alone: rgb (3 x H x W, the
+// demosaic by `method` of a raw frame of cfg.cfa, linear units) is sampled through the mosaic one
+// column over (each site then holds another colour) and developed by the same demosaic on rt's
+// device; at the sites where the capture measured colour c, that development interpolates a value
+// rgb holds as measured. sigma^2 = the mean over the colours of the share of pixels the first
+// demosaic interpolates (3/4 red and blue, 1/2 green) times the colour's mean squared error at
+// its sites (2 px from the edge left out): the RMS error of the first demosaic over all pixels if
+// the second errs as it did. Its neighbours are partly interpolated already (a smoother image), so
+// it errs less: tests/test_reconstruct_sensor.cpp measures it against the true error.
+double estimate_demosaic_sigma(Runtime& rt, Precision p, const SystemConfig& cfg, DemosaicMethod method, const RealStack& rgb);
 
 // The sensor as built, over the run's configuration: a JSON object of sensor keys only (cfa,
 // black_level_dn, bit_depth, gain, read_noise_sigma, full_well_photons, noise_seed, camera,
@@ -141,7 +157,8 @@ struct ReconstructOptions {
   // The sigma from the sensor's noise model at the capture's mean signal v (full-scale units,
   // before the exposure): sqrt(read^2 + v / full well + (1 / (2^bits - 1))^2 / 12), times the
   // exposure factor; each term only where the configuration has it (read_noise_sigma,
-  // full_well_photons > 0, bit_depth > 0). Demosaic error is not in it.
+  // full_well_photons > 0, bit_depth > 0), and for a raw mosaic the demosaic error estimated from
+  // the capture (PreparedCapture::demosaic_sigma) added in quadrature.
   bool noise_sigma_model = false;
   std::vector<SpectrumRegion> regions;  // empty: the image centre
   std::string out;
