@@ -77,6 +77,7 @@ for sc in depth full; do
   log "5b. [$sc] the same fit on the raw frames themselves (no calibrated stack)"
   "$QDO" fit --config "$CAM" --design "$OUT/design/design.h5" --frames "$OUT/$sc/sweep/frames" --darks "$OUT/$sc/sweep/darks" \
     --fit levels,z,offset,shift --lateral-starts "$LATERAL_STARTS" --iterations 60 --out "$OUT/$sc/fitted_raw"
+  rm -rf "$OUT/$sc/fitted_raw_psf"
 done
 python3 scripts/section7_fit_compare.py "$OUT" depth full > "$OUT/fit_compare.md"
 
@@ -123,6 +124,10 @@ for sc in depth full; do
   run_rec "$sc/design_decoder" "$sc"                                  # the camera as built, the decoder made for the design
   run_rec "$sc/measured" "$sc" --psf "$OUT/$sc/measured/psf.h5"       # decoder adapted to the measured PSF
   run_rec "$sc/fitted" "$sc" --psf "$OUT/$sc/fitted_psf/psf.h5"       # decoder adapted to the fitted model
+  # ... and to the model fitted to the raw frames (its PSF with its fitted geometry, made once)
+  [ -f "$OUT/$sc/fitted_raw_psf/psf.h5" ] ||
+    "$QDO" psf --config "$OUT/$sc/fitted_raw/config.json" --design "$OUT/$sc/fitted_raw/design.h5" --out "$OUT/$sc/fitted_raw_psf" > /dev/null
+  run_rec "$sc/fitted_raw" "$sc" --psf "$OUT/$sc/fitted_raw_psf/psf.h5"
   run_rec "$sc/oracle" "$sc" --psf "$OUT/$sc/true_psf/psf.h5"         # decoder for the true as-built PSF (a bound)
 done
 

@@ -20,6 +20,7 @@ for sc, _ in SCENARIOS:
     ROWS += [(f"{sc}/design_decoder", f"{sc}: as built, decoder made for the design"),
              (f"{sc}/measured", f"{sc}: as built, decoder adapted to the measured PSF"),
              (f"{sc}/fitted", f"{sc}: as built, decoder adapted to the fitted model"),
+             (f"{sc}/fitted_raw", f"{sc}: as built, decoder adapted to the model fitted to the raw frames"),
              (f"{sc}/oracle", f"{sc}: as built, decoder for its true PSF (bound)")]
 METRICS = ["psnr", "ssim", "sam_rad"]
 
