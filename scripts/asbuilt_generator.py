@@ -17,7 +17,7 @@ than qdo's, so that `qdo fit` meets errors its model does not have:
   sensor pixel the sum of the fine intensity samples inside it (qdo: area integration of the
   DOE-grid PSF), each band normalised to unit sum over the S x S window.
 
-Sign conventions are REFERENCE.md's (Goodman's), as qdo's. Writes OUT/psf.h5 (/psf_sensor bands x S
+Sign conventions are REFERENCE.md's (Goodman's), as qdo's. Needs numpy and h5py only. Writes OUT/psf.h5 (/psf_sensor bands x S
 x S, /wavelengths_nm: the layout qdo reads as a PSF stack), OUT/truth.json (the true values in qdo
 fit's names: levelL = realised L - realised 0 + design 0 in metres, z, dx, dy in metres, and the
 grid displacement in sensor px) and OUT/generator.json (every input). The folder is written under a
@@ -36,7 +36,6 @@ import tempfile
 
 import h5py
 import numpy as np
-from scipy.signal import fftconvolve
 
 
 def fail(msg):
@@ -49,6 +48,31 @@ def pair(text, name):
     except ValueError:
         fail(f"--{name} {text!r}: two numbers X,Y")
     return a, b
+
+
+def fast_len(n):
+    """The smallest 2^a 3^b 5^c >= n (a size numpy's FFT handles fast)."""
+    best = 1 << (n - 1).bit_length()
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            m = p35
+            while m < n:
+                m *= 2
+            best = min(best, m)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def convolve_valid(u, h):
+    """The 'valid' part of the linear 2-D convolution of u (A x A) with h (B x B, B >= A): out[m] =
+    sum_j u[j] h[m + A - 1 - j], (B - A + 1) x (B - A + 1), by zero-padded FFTs (no wrap-around)."""
+    A, B = u.shape[0], h.shape[0]
+    P = fast_len(A + B - 1)
+    full = np.fft.ifft2(np.fft.fft2(u, s=(P, P)) * np.fft.fft2(h, s=(P, P)))
+    return full[A - 1:B, A - 1:B]
 
 
 def sellmeier_index(path, material, wavelength_um):
@@ -82,6 +106,8 @@ def main():
                                                         "sellmeier_coefficients.csv"))
     a = ap.parse_args()
 
+    if os.path.exists(a.out):
+        fail(f"--out {a.out}: exists (remove it or name another)")
     cfg = json.load(open(a.config))
     n, pitch = int(cfg["n"]), float(cfg["pitch_m"])
     bands, wl0, dwl = int(cfg["bands"]), float(cfg["wavelength_start_nm"]), float(cfg["wavelength_step_nm"])
@@ -158,7 +184,7 @@ def main():
         src = k * (np.sqrt(r2 + d * d) - d)
         U1 = np.where(aperture, np.exp(1j * (src + k * (nidx[b] - 1) * H)), 0)
         hker = np.exp(1j * np.pi * kr2 / (lam * z))  # the constant exp(ikz)/(i lambda z) drops out
-        U2 = fftconvolve(U1, hker, mode="valid")
+        U2 = convolve_valid(U1, hker)
         I = np.abs(U2) ** 2
         I = I.reshape(S, per_px, S, per_px).sum(axis=(1, 3))
         stack[b] = I / I.sum()
@@ -167,16 +193,16 @@ def main():
     parent = os.path.dirname(os.path.abspath(a.out))
     os.makedirs(parent, exist_ok=True)
     if os.path.exists(a.out):
-        fail(f"--out {a.out}: exists (remove it or name another)")
+        fail(f"--out {a.out}: appeared while this ran (another writer?); nothing written")
     tmp = tempfile.mkdtemp(prefix=".asbuilt_generator.", dir=parent)
     try:
         with h5py.File(os.path.join(tmp, "psf.h5"), "w") as f:
             ds = f.create_dataset("psf_sensor", data=stack)
             ds.attrs["pitch_m"] = spitch
-            ds.attrs["units"] = "fraction of band energy per sensor pixel"
+            ds.attrs["units"] = np.bytes_("fraction of band energy per sensor pixel")  # fixed-length, as qdo writes
             w = f.create_dataset("wavelengths_nm", data=wavelengths)
-            w.attrs["units"] = "nm"
-            f.attrs["made_by"] = "scripts/asbuilt_generator.py"
+            w.attrs["units"] = np.bytes_("nm")
+            f.attrs["made_by"] = np.bytes_("scripts/asbuilt_generator.py")
         truth = {f"level{L}": float(realised[L] - realised[0] + levels[0]) for L in range(1, levels.size)}
         truth.update({"z": z, "dx": dx_um * 1e-6, "dy": dy_um * 1e-6})
         json.dump({"fit_parameters": truth,
