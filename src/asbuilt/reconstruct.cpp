@@ -97,6 +97,9 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
                  " and cannot be refit in closed form): fine-tune it for the camera as built first, qdo design --mode do-finetune "
                  "--from RUN --psf FILE (or --design FILE), and reconstruct with that run");
   }
+  if (o.noise_sigma_gcv && ro.decoder.kind != DecoderSpec::Kind::Wiener)
+    reject("--noise-sigma", "gcv", "a value or model for the " + ro.decoder.to_string() +
+                                       " decoder (gcv chooses the Wiener decoder's sigma from the capture)");
   if (entry.trained && o.boundary_set && o.boundary == TileBoundary::Mirror)
     reject("--boundary", "mirror", "circular for this network run (its network was trained on circular " + to_str(s) + " x " + to_str(s) +
                                        " patches)");
@@ -158,6 +161,17 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
     const double shot = cfg.full_well_photons > 0 ? std::max(mean_signal, 0.0) / cfg.full_well_photons : 0.0;
     in.noise_sigma = cap.exposure_factor * std::sqrt(cfg.read_noise_sigma * cfg.read_noise_sigma + shot + lsb * lsb / 12 +
                                                      cap.demosaic_sigma * cap.demosaic_sigma);
+  }
+  const std::size_t overlap_px = overlap;
+  wiener::GcvResult gcv;
+  if (o.noise_sigma_gcv) {
+    const std::size_t grid = boundary == TileBoundary::Mirror ? 2 * s : s;
+    gcv = wiener::gcv_noise_sigma(decoder_tiles(cap.rgb, s, overlap_px, boundary), wiener::psf_to_otf(psf, grid, grid), in.srf,
+                                  in.prior);
+    in.noise_sigma = gcv.sigma;
+    if (gcv.at_edge)
+      res.notes.push_back("--noise-sigma gcv: the cross-validation's minimum lies at the edge of its range (" +
+                          to_str(gcv.sigmas.front()) + " .. " + to_str(gcv.sigmas.back()) + "): sigma " + to_str(gcv.sigma));
   }
   const std::string run = o.run;
   in.run_network = [run] { return load_run_network(run); };
@@ -232,7 +246,7 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   secs.push_back({"spectra", seconds_since(t)});
 
   res.exposure_factor = cap.exposure_factor;
-  res.notes = files.notes;
+  res.notes.insert(res.notes.begin(), files.notes.begin(), files.notes.end());
   res.seconds = secs;
   nlohmann::json j;
   j["run"] = o.run;
@@ -242,7 +256,7 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   j["darks"] = files.darks;
   if (!files.whites.empty()) j["white"] = {{"frames", files.whites}, {"channel_gains_rgb", files.channel_gains}};
   j["saturated_values"] = files.saturated;
-  j["notes"] = files.notes;
+  j["notes"] = res.notes;
   j["white_level_dn"] = files.white_dn;
   j["exposure"] = o.capture.exposure.to_string();
   j["exposure_factor"] = cap.exposure_factor;
@@ -270,6 +284,14 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
                               {"formula", "exposure x sqrt(read^2 + mean_signal / full_well + (1 / (2^bits - 1))^2 / 12 + demosaic_sigma^2); "
                                           "demosaic_sigma: the capture's demosaic error estimated from itself (its demosaic re-mosaicked "
                                           "and developed again; 0 for RGB captures)"}};
+  if (o.noise_sigma_gcv)
+    j["noise_sigma_gcv"] = {{"sigma", gcv.sigma},
+                            {"sigma_range", {gcv.sigmas.front(), gcv.sigmas.back()}},
+                            {"points", gcv.sigmas.size()},
+                            {"at_edge", gcv.at_edge},
+                            {"tiles", res.tiles},
+                            {"method", "generalised cross-validation of the Wiener filter over the tiles as decoded: the minimum over "
+                                       "log-spaced sigmas of N |(I - T) Y|^2 / tr(I - T)^2, refined by a parabola"}};
   nlohmann::json st = nlohmann::json::object();
   for (const auto& [k, v] : secs) st[k] = v;
   j["seconds"] = st;

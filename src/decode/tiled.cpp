@@ -65,20 +65,46 @@ wiener::SpectralPrior regrid_prior(const wiener::SpectralPrior& p, std::size_t r
   return q;
 }
 
+namespace {
+
+// A tile as the decoder takes it: itself, or its whole-sample mirror extension to 2 tile x 2 tile.
+RealStack tile_input(const RealStack& t, std::size_t tile, TileBoundary boundary) {
+  if (boundary != TileBoundary::Mirror) return t;
+  const std::size_t e = 2 * tile;
+  RealStack x(t.planes, e, e);
+  for (std::size_t ch = 0; ch < t.planes; ++ch)
+    for (std::size_t r = 0; r < e; ++r)
+      for (std::size_t c = 0; c < e; ++c) x(ch, r, c) = t(ch, r < tile ? r : e - 1 - r, c < tile ? c : e - 1 - c);
+  return x;
+}
+
+// The tile x tile window of y at (row, col).
+RealStack tile_at(const RealStack& y, std::size_t row, std::size_t col, std::size_t tile) {
+  RealStack t(y.planes, tile, tile);
+  for (std::size_t ch = 0; ch < y.planes; ++ch)
+    for (std::size_t r = 0; r < tile; ++r)
+      for (std::size_t c = 0; c < tile; ++c) t(ch, r, c) = y(ch, row + r, col + c);
+  return t;
+}
+
+}  // namespace
+
+std::vector<RealStack> decoder_tiles(const RealStack& y, std::size_t tile, std::size_t overlap, TileBoundary boundary) {
+  std::vector<RealStack> out;
+  if (y.rows == tile && y.cols == tile) {
+    out.push_back(tile_input(y, tile, boundary));
+    return out;
+  }
+  for (std::size_t r : tile_starts(y.rows, tile, overlap))
+    for (std::size_t c : tile_starts(y.cols, tile, overlap)) out.push_back(tile_input(tile_at(y, r, c, tile), tile, boundary));
+  return out;
+}
+
 RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile, std::size_t overlap,
                        const std::function<void(std::size_t, std::size_t)>& progress, TileBoundary boundary) {
   if (y.planes != dec.channels()) reject("sensor image planes", y.planes, "the decoder's " + to_str(dec.channels()) + " channels");
   const bool mirror = boundary == TileBoundary::Mirror;
-  // A tile as the decoder takes it: itself, or its whole-sample mirror extension to 2 tile x 2 tile.
-  auto input = [&](const RealStack& t) {
-    if (!mirror) return t;
-    const std::size_t e = 2 * tile;
-    RealStack x(t.planes, e, e);
-    for (std::size_t ch = 0; ch < t.planes; ++ch)
-      for (std::size_t r = 0; r < e; ++r)
-        for (std::size_t c = 0; c < e; ++c) x(ch, r, c) = t(ch, r < tile ? r : e - 1 - r, c < tile ? c : e - 1 - c);
-    return x;
-  };
+  auto input = [&](const RealStack& t) { return tile_input(t, tile, boundary); };
   auto output = [&](const RealStack& x) {
     if (!mirror) return x;
     RealStack o(x.planes, tile, tile);
@@ -115,11 +141,7 @@ RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile,
   };
   for (std::size_t i = 0; i < rs.size(); ++i)
     for (std::size_t j = 0; j < cs.size(); ++j) {
-      RealStack t(y.planes, tile, tile);
-      for (std::size_t ch = 0; ch < y.planes; ++ch)
-        for (std::size_t r = 0; r < tile; ++r)
-          for (std::size_t c = 0; c < tile; ++c) t(ch, r, c) = y(ch, rs[i] + r, cs[j] + c);
-      ys.push_back(input(t));
+      ys.push_back(input(tile_at(y, rs[i], cs[j], tile)));
       pending.push_back({i, j});
       if (ys.size() == batch) flush();
     }

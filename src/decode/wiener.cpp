@@ -252,6 +252,68 @@ RealStack decode(const RealStack& y, const ComplexStack& otf, const Eigen::Matri
   return inverse_fft_real(std::move(xf));
 }
 
+GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                          const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
+  check_model(otf, srf, prior, 0.0);
+  if (ys.empty()) reject("images", 0, "at least one C x H x W image");
+  if (!(sigma_min > 0) || !(sigma_max > sigma_min) || !std::isfinite(sigma_max))
+    reject("sigma range", to_str(sigma_min) + " .. " + to_str(sigma_max), "0 < sigma_min < sigma_max, finite");
+  if (points < 3) reject("points", points, "at least 3");
+  for (const RealStack& y : ys)
+    if (y.planes != static_cast<std::size_t>(srf.rows()) || y.rows != otf.rows || y.cols != otf.cols)
+      reject("images", shape(y), "C x H x W = " + shape(static_cast<std::size_t>(srf.rows()), otf.rows, otf.cols));
+  const Setup s(srf, prior, 0.0);
+  std::vector<ComplexStack> yf;
+  yf.reserve(ys.size());
+  for (const RealStack& y : ys) yf.push_back(forward_fft(y));
+  GcvResult r;
+  std::vector<double> s2(points);
+  for (std::size_t j = 0; j < points; ++j) {
+    const double t = double(j) / double(points - 1);
+    r.sigmas.push_back(sigma_min * std::pow(sigma_max / sigma_min, t));
+    s2[j] = r.sigmas[j] * r.sigmas[j];
+  }
+  std::vector<double> res(points, 0.0), tr(points, 0.0);
+  const double images = double(ys.size());
+  Eigen::SelfAdjointEigenSolver<MatrixXcd> es;
+  MatrixXcd a(static_cast<Eigen::Index>(s.channels), static_cast<Eigen::Index>(s.bands));
+  Eigen::VectorXd zsq(static_cast<Eigen::Index>(s.channels));
+  for (std::size_t f = 0; f < s.n; ++f) {
+    for (std::size_t b = 0; b < s.bands; ++b)
+      a.col(static_cast<Eigen::Index>(b)) = s.srf.col(static_cast<Eigen::Index>(b)) * otf.data[b * s.n + f];
+    const MatrixXcd m = a * s.prior_at(f) * a.adjoint();
+    es.compute(m);
+    const Eigen::VectorXd lam = es.eigenvalues().cwiseMax(0.0);
+    zsq.setZero();
+    for (const ComplexStack& y : yf) zsq += (es.eigenvectors().adjoint() * gather(y, f)).cwiseAbs2();
+    for (std::size_t j = 0; j < points; ++j)
+      for (Eigen::Index k = 0; k < lam.size(); ++k) {
+        const double w = s2[j] / (lam(k) + s2[j]);  // the eigenvalue of I - T
+        res[j] += w * w * zsq(k);
+        tr[j] += w * images;
+      }
+  }
+  const double n = double(s.n) * double(s.channels) * images;
+  std::size_t best = 0;
+  for (std::size_t j = 0; j < points; ++j) {
+    r.scores.push_back(tr[j] > 0 ? n * res[j] / (tr[j] * tr[j]) : std::numeric_limits<double>::infinity());
+    if (r.scores[j] < r.scores[best]) best = j;
+  }
+  const double low = r.scores[best];
+  for (double& v : r.scores) v /= low;
+  r.sigma = r.sigmas[best];
+  r.at_edge = best == 0 || best + 1 == points;
+  if (!r.at_edge) {  // the parabola through the three lowest points, in log sigma
+    const double y0 = r.scores[best - 1], y1 = r.scores[best], y2 = r.scores[best + 1];
+    const double den = y0 - 2 * y1 + y2;
+    if (den > 0) {
+      const double step = std::log(r.sigmas[best + 1] / r.sigmas[best]);
+      r.sigma = r.sigmas[best] * std::exp(std::clamp(0.5 * (y0 - y2) / den, -0.5, 0.5) * step);
+    }
+  }
+  return r;
+}
+
 RealStack decode_mismatched(const RealStack& scene, const ComplexStack& otf_actual, const ComplexStack& otf_design,
                             const Eigen::MatrixXd& srf, const SpectralPrior& prior, double noise_sigma) {
   check_model(otf_actual, srf, prior, noise_sigma, "otf_actual");

@@ -160,6 +160,10 @@ struct ReconstructOptions {
   // full_well_photons > 0, bit_depth > 0), and for a raw mosaic the demosaic error estimated from
   // the capture (PreparedCapture::demosaic_sigma) added in quadrature.
   bool noise_sigma_model = false;
+  // The Wiener decoder's sigma chosen from the capture by generalised cross-validation
+  // (wiener::gcv_noise_sigma on the tiles as the decoder takes them, the PSF and prior it is built
+  // with): what the linear model does not explain counts as noise. Refused for other decoders.
+  bool noise_sigma_gcv = false;
   std::vector<SpectrumRegion> regions;  // empty: the image centre
   std::string out;
   Precision precision = Precision::F32;

@@ -40,6 +40,11 @@ enum class TileBoundary { Circular, Mirror };
 TileBoundary tile_boundary_from_string(const std::string& s, const std::string& argument = "--boundary");
 std::string to_string(TileBoundary b);
 
+// The tiles of y (channels x H x W) as decode_tiled hands them to the decoder, in its order: tile x
+// tile (Circular) or their mirror extensions to 2 tile x 2 tile (Mirror). For what looks at the
+// decoder's inputs before decoding (wiener::gcv_noise_sigma in qdo reconstruct).
+std::vector<RealStack> decoder_tiles(const RealStack& y, std::size_t tile, std::size_t overlap, TileBoundary boundary);
+
 // dec's estimate of y (channels x H x W) on tile x tile tiles (weights: the product of the row and
 // column weights above, which sums to 1 at every pixel), decoded dec.batch() at a time;
 // progress(done, total) after each batch. Returns bands x H x W. An image of exactly tile x tile

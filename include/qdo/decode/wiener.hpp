@@ -90,6 +90,24 @@ RealStack simulate_measurement(const RealStack& cube, const ComplexStack& otf, c
 RealStack decode(const RealStack& y, const ComplexStack& otf, const Eigen::MatrixXd& srf, const SpectralPrior& prior,
                  double noise_sigma);
 
+// The noise sigma the data ask for, by generalised cross-validation (Golub, Heath and Wahba 1979):
+// for the Wiener filter at sigma, the influence matrix at frequency f is T(f) = M (M + sigma^2 I)^-1
+// with M = A P A^H (C x C), and GCV(sigma) = N |(I - T) Y|^2 / tr(I - T)^2 over every frequency of
+// every image (N = C H W x images), the score of predicting each measurement from the others. It
+// counts as noise whatever the linear model does not explain (sensor noise, demosaic error, the
+// edges of a tile, a prior that fits the scene badly), so it can choose a sigma above the
+// sensor's. ys: C x H x W images on the OTF's grid (a capture's tiles as the decoder takes them);
+// the minimum over `points` log-spaced values in [sigma_min, sigma_max] (> 0), refined by a
+// parabola through the lowest and its neighbours in log sigma. Eigen-decomposes M once per
+// frequency, so the grid costs little. InputError on shapes or a bad range.
+struct GcvResult {
+  double sigma = 0;                    // the minimiser
+  std::vector<double> sigmas, scores;  // the grid and GCV on it (relative: divided by its minimum)
+  bool at_edge = false;                // the grid's minimum is its first or last point
+};
+GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                          const SpectralPrior& prior, double sigma_min = 1e-4, double sigma_max = 1.0, std::size_t points = 49);
+
 // The paper's "DO" mismatch: the scene (B x H x W) is imaged noiselessly through otf_actual and
 // decoded by the Wiener filter built for otf_design (noise_sigma only enters the filter).
 // Returns the B x H x W estimate. With otf_actual == otf_design it is the matched decode.
