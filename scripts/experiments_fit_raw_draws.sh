@@ -10,9 +10,9 @@
 # With RECON=1 (the default) each draw also captures the CAVE test scenes through its camera as raw
 # frames (qdo simulate --raw) and reconstructs them with the design's Wiener decoder: made for the
 # design, adapted to the model fitted to the raw frames, adapted to the model fitted to the
-# calibrated stack, and for the true as-built PSF (a bound); sigma from the noise model with the
-# capture's demosaic error (--noise-sigma model), MHC demosaic, scored over the interior (16 px
-# border). Writes OUT/recon_table.md: per draw the mean over the scenes, and over the draws the
+# calibrated stack, and for the true as-built PSF (a bound); the sigma the decoder assumes from the
+# noise model with the capture's demosaic error (--noise-sigma model), by cross-validation on the
+# capture (gcv) and 0.03 (SIGMAS), MHC demosaic, scored over the interior (16 px border). Writes OUT/recon_table.md: per draw the mean over the scenes, and over the draws the
 # mean and 95 % t interval of each decoder's PSNR and of its difference to the design's decoder.
 # Usage: bash scripts/experiments_fit_raw_draws.sh [OUT]   (QDO: the qdo binary, default build/qdo;
 # DESIGN: a design.h5 to use instead of training the Section 7 design into OUT/design (its folder is
@@ -59,6 +59,7 @@ for draw in "${ALL[@]:0:$n}"; do
 done
 if [ "${RECON:-1}" = 1 ]; then
   RUN=$(dirname "$DESIGN")
+  SIGMAS=${SIGMAS:-"model gcv 0.03"}  # the sigma the decoder assumes: the noise model, cross-validated on the capture, a fixed value (a sensitivity, not tuned)
   for draw in "${ALL[@]:0:$n}"; do
     read -r seed _ <<< "$draw"
     c=$OUT/draw$seed
@@ -76,62 +77,74 @@ if [ "${RECON:-1}" = 1 ]; then
       cap=$c/captures/$s
       [ -f "$cap/raw.png" ] || { rm -rf "$cap"; mkdir -p "$c/captures";
         "$QDO" simulate --config "$c/asbuilt/config.json" --design "$c/asbuilt/design.h5" --scene "$f" --raw --out "$cap" > "$cap.log"; }
-      for row in design_decoder fitted_raw fitted true; do
-        d=$c/recon/$row/$s
-        [ -f "$d/metrics.json" ] && continue
-        psf=()
-        [ "$row" = design_decoder ] || psf=(--psf "$c/${row}_psf/psf.h5")
-        [ "$row" = design_decoder ] || [ -f "$c/${row}_psf/psf.h5" ] || continue
-        rm -rf "$d"
-        mkdir -p "$(dirname "$d")"
-        "$QDO" reconstruct --run "$RUN" --capture "$cap/raw.png" --demosaic mhc --noise-sigma model "${psf[@]}" \
-          --truth "$f" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "draw $seed $row $s: reconstruct failed (see $d.log)"
+      for sig in $SIGMAS; do
+        for row in design_decoder fitted_raw fitted true; do
+          d=$c/recon/$sig/$row/$s
+          [ -f "$d/metrics.json" ] && continue
+          psf=()
+          [ "$row" = design_decoder ] || psf=(--psf "$c/${row}_psf/psf.h5")
+          [ "$row" = design_decoder ] || [ -f "$c/${row}_psf/psf.h5" ] || continue
+          rm -rf "$d"
+          mkdir -p "$(dirname "$d")"
+          "$QDO" reconstruct --run "$RUN" --capture "$cap/raw.png" --demosaic mhc --noise-sigma "$sig" "${psf[@]}" \
+            --truth "$f" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "draw $seed $row $s: reconstruct failed (see $d.log)"
+        done
       done
     done
     echo "draw $seed: captures and reconstructions $(( $(date +%s) - t0 )) s"
   done
-  python3 - "$OUT" <<'PY'
+  python3 - "$OUT" $SIGMAS <<'PY'
 import glob, json, os, sys
 sys.path.insert(0, "scripts")
 from qdo_stats import mean_ci
-out = sys.argv[1]
+out, sigmas = sys.argv[1], sys.argv[2:]
 rows = [("design_decoder", "decoder made for the design"), ("fitted_raw", "adapted to the model fitted to the raw frames"),
         ("fitted", "adapted to the model fitted to the calibrated stack"), ("true", "for the true as-built PSF (bound)")]
-per = {r: {} for r, _ in rows}
-sigma = {}
-for d in sorted(glob.glob(os.path.join(out, "draw*"))):
-    for r, _ in rows:
-        ms = sorted(glob.glob(os.path.join(d, "recon", r, "*", "metrics.json")))
-        if ms:
-            per[r][os.path.basename(d)] = [json.load(open(m))["mean"] for m in ms]
-        if r == "design_decoder":
-            for m in ms:
-                rj = json.load(open(os.path.join(os.path.dirname(m), "reconstruct.json")))
-                sigma.setdefault(os.path.basename(d), []).append(rj["noise_sigma"])
-draws = sorted(per["design_decoder"])
-L = ["Reconstructions of the CAVE test scenes through each draw's camera (raw RGGB 12-bit, MHC, "
-     "sigma = the noise model with the capture's demosaic error), PSNR (dB) over the interior, mean over the scenes:", "",
-     "| draw | σ assumed (mean) | " + " | ".join(label for _, label in rows) + " |", "|---|---:|" + "---:|" * len(rows)]
-for d in draws:
-    cells = []
-    for r, _ in rows:
-        v = per[r].get(d)
-        cells.append(f"{sum(x['psnr'] for x in v) / len(v):.2f}" if v else "—")
-    L.append(f"| {d} | {sum(sigma[d]) / len(sigma[d]):.4f} | " + " | ".join(cells) + " |")
-L += ["", "Over the draws (mean ± 95 % t interval of the per-draw means; the difference paired by draw):", "",
-      "| decoder | PSNR (dB) | − design's decoder (dB) | SSIM | SAM (rad) |", "|---|---:|---:|---:|---:|"]
-for r, label in rows:
-    ds = [d for d in draws if d in per[r]]
-    if not ds:
+L = ["Reconstructions of the CAVE test scenes through each draw's camera (raw RGGB 12-bit, MHC), PSNR (dB) over the "
+     "interior (16 px border left out), mean over the 3 scenes; σ assumed: `model` = the sensor's noise model at each "
+     "capture's mean signal with the capture's demosaic error (`--noise-sigma model`); `gcv` = chosen from each capture by "
+     "generalised cross-validation (`--noise-sigma gcv`); or a fixed value.", ""]
+for sig in sigmas:
+    per = {r: {} for r, _ in rows}
+    used = {}
+    for d in sorted(glob.glob(os.path.join(out, "draw*"))):
+        for r, _ in rows:
+            ms = sorted(glob.glob(os.path.join(d, "recon", sig, r, "*", "metrics.json")))
+            if ms:
+                per[r][os.path.basename(d)] = [json.load(open(m))["mean"] for m in ms]
+            if r == "design_decoder":
+                for m in ms:
+                    rj = json.load(open(os.path.join(os.path.dirname(m), "reconstruct.json")))
+                    used.setdefault(os.path.basename(d), []).append(
+                        (rj["noise_sigma"], rj.get("noise_sigma_model", {}).get("demosaic_sigma", float("nan"))))
+    draws = sorted(per["design_decoder"])
+    if not draws:
         continue
-    mean = lambda d, k: sum(x[k] for x in per[r][d]) / len(per[r][d])
-    base = lambda d: sum(x["psnr"] for x in per["design_decoder"][d]) / len(per["design_decoder"][d])
-    p, pc = mean_ci([mean(d, "psnr") for d in ds])
-    dd, dc = mean_ci([mean(d, "psnr") - base(d) for d in ds])
-    L.append(f"| {label} | {p:.2f} ± {pc:.2f} | {dd:+.2f} ± {dc:.2f} | {mean_ci([mean(d, 'ssim') for d in ds])[0]:.4f} | "
-             f"{mean_ci([mean(d, 'sam_rad') for d in ds])[0]:.4f} |")
+    L += [f"σ = {sig}:", "", "| draw | σ assumed (mean) | its demosaic term (mean) | " + " | ".join(label for _, label in rows) + " |",
+          "|---|---:|---:|" + "---:|" * len(rows)]
+    for d in draws:
+        cells = []
+        for r, _ in rows:
+            v = per[r].get(d)
+            cells.append(f"{sum(x['psnr'] for x in v) / len(v):.2f}" if v else "—")
+        ns = [a for a, _ in used[d]]
+        dm = [b for _, b in used[d]]
+        L.append(f"| {d} | {sum(ns) / len(ns):.4f} | {sum(dm) / len(dm):.5f} | " + " | ".join(cells) + " |")
+    L += ["", "Over the draws (mean ± 95 % t interval of the per-draw means; the difference paired by draw):", "",
+          "| decoder | PSNR (dB) | − design's decoder (dB) | SSIM | SAM (rad) |", "|---|---:|---:|---:|---:|"]
+    for r, label in rows:
+        ds = [d for d in draws if d in per[r]]
+        if not ds:
+            continue
+        mean = lambda d, k: sum(x[k] for x in per[r][d]) / len(per[r][d])
+        base = lambda d: sum(x["psnr"] for x in per["design_decoder"][d]) / len(per["design_decoder"][d])
+        p, pc = mean_ci([mean(d, "psnr") for d in ds])
+        dd, dc = mean_ci([mean(d, "psnr") - base(d) for d in ds])
+        L.append(f"| {label} | {p:.2f} ± {pc:.2f} | {dd:+.2f} ± {dc:.2f} | {mean_ci([mean(d, 'ssim') for d in ds])[0]:.4f} | "
+                 f"{mean_ci([mean(d, 'sam_rad') for d in ds])[0]:.4f} |")
+    L.append("")
 tmp = os.path.join(out, "recon_table.md.tmp")
-open(tmp, "w").write("\n".join(L) + "\n")
+open(tmp, "w").write("\n".join(L))
 os.replace(tmp, os.path.join(out, "recon_table.md"))
 print("\n".join(L))
 PY
