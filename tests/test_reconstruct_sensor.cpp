@@ -295,16 +295,16 @@ TEST_SUITE("reconstruct") {
     CHECK(jm.at("noise_sigma").get<double>() ==
           doctest::Approx(std::sqrt(0.002 * 0.002 + v / 10000 + lsb * lsb / 12 + dm * dm)).epsilon(1e-9));
     CHECK(jm.at("noise_sigma").get<double>() > 0.002);  // shot noise on top of the read noise
-    // --noise-sigma gcv: the sigma the capture's tiles ask for, recorded with its range.
-    const Run gcv = qdo_run("reconstruct --run " + s.dir.string() + " --sensor " + (dir / "noisy_sensor.json").string() + " --capture " +
-                            (dir / "raw.png").string() + " --noise-sigma gcv --out " + (dir / "gcv").string());
-    REQUIRE_MESSAGE(gcv.code == 0, gcv.out);
-    const json jg = read_json(dir / "gcv" / "reconstruct.json");
-    const double sg = jg.at("noise_sigma_gcv").at("sigma").get<double>();
+    // --noise-sigma ml: the sigma the capture's tiles ask for, recorded with its range.
+    const Run ml = qdo_run("reconstruct --run " + s.dir.string() + " --sensor " + (dir / "noisy_sensor.json").string() + " --capture " +
+                            (dir / "raw.png").string() + " --noise-sigma ml --out " + (dir / "ml").string());
+    REQUIRE_MESSAGE(ml.code == 0, ml.out);
+    const json jg = read_json(dir / "ml" / "reconstruct.json");
+    const double sg = jg.at("noise_sigma_ml").at("sigma").get<double>();
     CHECK(jg.at("noise_sigma").get<double>() == sg);
-    CHECK(sg >= jg.at("noise_sigma_gcv").at("sigma_range")[0].get<double>());
-    CHECK(sg <= jg.at("noise_sigma_gcv").at("sigma_range")[1].get<double>());
-    CHECK(jg.at("noise_sigma_gcv").at("tiles").get<std::size_t>() == jm.at("tiles").get<std::size_t>());
+    CHECK(sg >= jg.at("noise_sigma_ml").at("sigma_range")[0].get<double>());
+    CHECK(sg <= jg.at("noise_sigma_ml").at("sigma_range")[1].get<double>());
+    CHECK(jg.at("noise_sigma_ml").at("tiles").get<std::size_t>() == jm.at("tiles").get<std::size_t>());
     const Run word = qdo_run("reconstruct --run " + s.dir.string() + " --capture " + (dir / "raw.png").string() +
                              " --noise-sigma modle --out " + (dir / "word").string());
     CHECK(word.code == 2);

@@ -97,9 +97,9 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
                  " and cannot be refit in closed form): fine-tune it for the camera as built first, qdo design --mode do-finetune "
                  "--from RUN --psf FILE (or --design FILE), and reconstruct with that run");
   }
-  if (o.noise_sigma_gcv && ro.decoder.kind != DecoderSpec::Kind::Wiener)
-    reject("--noise-sigma", "gcv", "a value or model for the " + ro.decoder.to_string() +
-                                       " decoder (gcv chooses the Wiener decoder's sigma from the capture)");
+  if ((o.noise_sigma_ml || o.noise_sigma_gcv) && ro.decoder.kind != DecoderSpec::Kind::Wiener)
+    reject("--noise-sigma", o.noise_sigma_ml ? "ml" : "gcv",
+           "a value or model for the " + ro.decoder.to_string() + " decoder (ml and gcv choose the Wiener decoder's sigma from the capture)");
   if (entry.trained && o.boundary_set && o.boundary == TileBoundary::Mirror)
     reject("--boundary", "mirror", "circular for this network run (its network was trained on circular " + to_str(s) + " x " + to_str(s) +
                                        " patches)");
@@ -163,15 +163,19 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
                                                      cap.demosaic_sigma * cap.demosaic_sigma);
   }
   const std::size_t overlap_px = overlap;
-  wiener::GcvResult gcv;
-  if (o.noise_sigma_gcv) {
-    const std::size_t grid = boundary == TileBoundary::Mirror ? 2 * s : s;
-    gcv = wiener::gcv_noise_sigma(decoder_tiles(cap.rgb, s, overlap_px, boundary), wiener::psf_to_otf(psf, grid, grid), in.srf,
-                                  in.prior);
-    in.noise_sigma = gcv.sigma;
-    if (gcv.at_edge)
-      res.notes.push_back("--noise-sigma gcv: the cross-validation's minimum lies at the edge of its range (" +
-                          to_str(gcv.sigmas.front()) + " .. " + to_str(gcv.sigmas.back()) + "): sigma " + to_str(gcv.sigma));
+  wiener::GcvResult fitted_sigma;
+  const bool search = o.noise_sigma_ml || o.noise_sigma_gcv;
+  const char* search_name = o.noise_sigma_ml ? "ml" : "gcv";
+  if (search) {
+    // On the tiles themselves (circular, S x S, the prior's own grid): a mirror extension repeats
+    // every value, which the likelihood would count twice.
+    fitted_sigma = (o.noise_sigma_ml ? wiener::ml_noise_sigma : wiener::gcv_noise_sigma)(
+        decoder_tiles(cap.rgb, s, overlap_px, TileBoundary::Circular), wiener::psf_to_otf(psf, s, s), in.srf, prior, 1e-4, 1.0, 49);
+    in.noise_sigma = fitted_sigma.sigma;
+    if (fitted_sigma.at_edge)
+      res.notes.push_back(std::string("--noise-sigma ") + search_name + ": the search's best lies at the edge of its range (" +
+                          to_str(fitted_sigma.sigmas.front()) + " .. " + to_str(fitted_sigma.sigmas.back()) + "): sigma " +
+                          to_str(fitted_sigma.sigma));
   }
   const std::string run = o.run;
   in.run_network = [run] { return load_run_network(run); };
@@ -284,14 +288,19 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
                               {"formula", "exposure x sqrt(read^2 + mean_signal / full_well + (1 / (2^bits - 1))^2 / 12 + demosaic_sigma^2); "
                                           "demosaic_sigma: the capture's demosaic error estimated from itself (its demosaic re-mosaicked "
                                           "and developed again; 0 for RGB captures)"}};
-  if (o.noise_sigma_gcv)
-    j["noise_sigma_gcv"] = {{"sigma", gcv.sigma},
-                            {"sigma_range", {gcv.sigmas.front(), gcv.sigmas.back()}},
-                            {"points", gcv.sigmas.size()},
-                            {"at_edge", gcv.at_edge},
-                            {"tiles", res.tiles},
-                            {"method", "generalised cross-validation of the Wiener filter over the tiles as decoded: the minimum over "
-                                       "log-spaced sigmas of N |(I - T) Y|^2 / tr(I - T)^2, refined by a parabola"}};
+  if (search)
+    j[std::string("noise_sigma_") + search_name] = {{"sigma", fitted_sigma.sigma},
+                           {"sigma_range", {fitted_sigma.sigmas.front(), fitted_sigma.sigmas.back()}},
+                           {"points", fitted_sigma.sigmas.size()},
+                           {"at_edge", fitted_sigma.at_edge},
+                           {"tiles", res.tiles},
+                           {"method", o.noise_sigma_ml
+                                          ? "the sigma of largest marginal likelihood of the capture's tiles (S x S, circular) under the "
+                                            "Wiener decoder's model, Y(f) ~ CN(0, H W (A P A^H + sigma^2 I)): the best of log-spaced "
+                                            "sigmas, refined by a parabola"
+                                          : "generalised cross-validation of the Wiener filter over the capture's tiles (S x S, "
+                                            "circular): the minimum over log-spaced sigmas of N |(I - T) Y|^2 / tr(I - T)^2, refined by "
+                                            "a parabola"}};
   nlohmann::json st = nlohmann::json::object();
   for (const auto& [k, v] : secs) st[k] = v;
   j["seconds"] = st;

@@ -43,10 +43,12 @@ ReconstructRequest reconstruct_request_from_options(const TextOptions& a) {
   }
   if (a.get("noise-sigma") == "model")
     o.noise_sigma_model = true;
+  else if (a.get("noise-sigma") == "ml")
+    o.noise_sigma_ml = true;
   else if (a.get("noise-sigma") == "gcv")
     o.noise_sigma_gcv = true;
   else if (a.has("noise-sigma"))
-    o.noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale, model or gcv)");
+    o.noise_sigma = parse_double("--noise-sigma", a.get("noise-sigma"), 0, 10, "(units of full scale, model, ml or gcv)");
   o.regions = parse_regions(a.get("points"), false, "--points");
   for (const auto& r : parse_regions(a.get("boxes"), true, "--boxes")) o.regions.push_back(r);
   o.precision = precision_from_string(a.get("precision", "f32"));

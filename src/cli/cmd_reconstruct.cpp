@@ -53,9 +53,9 @@ const RegisterCommand registered_reconstruct(200, [] {
                                     "decoded there: far less ringing from light that reaches the tile from outside it) or circular (as the "
                                     "decoder was trained: exact for circularly simulated captures; a network's only choice) (default: mirror "
                                     "for the Wiener decoder, circular for a network)"),
-                    opt("noise-sigma", "noise std the Wiener decoder assumes, in units of full scale, in [0, 10]; model: the sensor's "
-                                       "noise model (read, shot at the capture's mean signal, quantization, the capture's demosaic "
-                                       "error); gcv: chosen from the capture by generalised cross-validation (default: the run's)"),
+                    opt("noise-sigma", "the Wiener decoder's noise std, full-scale units in [0, 10]; model: the sensor's noise model (read, "
+                                       "shot, quantization, the capture's demosaic error); ml: from the capture, the largest marginal "
+                                       "likelihood under the decoder's model; gcv: by cross-validation, for comparison (default: the run's)"),
                     opt("points", "spectra at points ROW,COL;ROW,COL;... of the reconstructed image (default: its centre when no --boxes)"),
                     opt("boxes", "mean spectra over boxes ROW,COL,H,W;... of the reconstructed image"),
                     opt("truth", "the scene the captures show (a cube file or PNG band folder of the captures' size, e.g. the --scene of "

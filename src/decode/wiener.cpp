@@ -252,7 +252,9 @@ RealStack decode(const RealStack& y, const ComplexStack& otf, const Eigen::Matri
   return inverse_fft_real(std::move(xf));
 }
 
-GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+namespace {
+
+GcvResult sigma_from_data(bool likelihood, const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
                           const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
   check_model(otf, srf, prior, 0.0);
   if (ys.empty()) reject("images", 0, "at least one C x H x W image");
@@ -273,8 +275,9 @@ GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& 
     r.sigmas.push_back(sigma_min * std::pow(sigma_max / sigma_min, t));
     s2[j] = r.sigmas[j] * r.sigmas[j];
   }
-  std::vector<double> res(points, 0.0), tr(points, 0.0);
+  std::vector<double> res(points, 0.0), tr(points, 0.0), nll(points, 0.0);
   const double images = double(ys.size());
+  const double per_pixel = 1.0 / double(s.n);  // |Y(f)|^2 of the unnormalised DFT is H W x a per-pixel variance
   Eigen::SelfAdjointEigenSolver<MatrixXcd> es;
   MatrixXcd a(static_cast<Eigen::Index>(s.channels), static_cast<Eigen::Index>(s.bands));
   Eigen::VectorXd zsq(static_cast<Eigen::Index>(s.channels));
@@ -291,16 +294,20 @@ GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& 
         const double w = s2[j] / (lam(k) + s2[j]);  // the eigenvalue of I - T
         res[j] += w * w * zsq(k);
         tr[j] += w * images;
+        nll[j] += images * std::log(lam(k) + s2[j]) + per_pixel * zsq(k) / (lam(k) + s2[j]);
       }
   }
   const double n = double(s.n) * double(s.channels) * images;
   std::size_t best = 0;
   for (std::size_t j = 0; j < points; ++j) {
-    r.scores.push_back(tr[j] > 0 ? n * res[j] / (tr[j] * tr[j]) : std::numeric_limits<double>::infinity());
+    if (likelihood)
+      r.scores.push_back(nll[j]);
+    else
+      r.scores.push_back(tr[j] > 0 ? n * res[j] / (tr[j] * tr[j]) : std::numeric_limits<double>::infinity());
     if (r.scores[j] < r.scores[best]) best = j;
   }
   const double low = r.scores[best];
-  for (double& v : r.scores) v /= low;
+  for (double& v : r.scores) v = likelihood ? v - low : v / low;
   r.sigma = r.sigmas[best];
   r.at_edge = best == 0 || best + 1 == points;
   if (!r.at_edge) {  // the parabola through the three lowest points, in log sigma
@@ -312,6 +319,18 @@ GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& 
     }
   }
   return r;
+}
+
+}  // namespace
+
+GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                          const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
+  return sigma_from_data(false, ys, otf, srf, prior, sigma_min, sigma_max, points);
+}
+
+GcvResult ml_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                         const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
+  return sigma_from_data(true, ys, otf, srf, prior, sigma_min, sigma_max, points);
 }
 
 RealStack decode_mismatched(const RealStack& scene, const ComplexStack& otf_actual, const ComplexStack& otf_design,

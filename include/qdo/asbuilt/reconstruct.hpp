@@ -160,9 +160,13 @@ struct ReconstructOptions {
   // full_well_photons > 0, bit_depth > 0), and for a raw mosaic the demosaic error estimated from
   // the capture (PreparedCapture::demosaic_sigma) added in quadrature.
   bool noise_sigma_model = false;
-  // The Wiener decoder's sigma chosen from the capture by generalised cross-validation
-  // (wiener::gcv_noise_sigma on the tiles as the decoder takes them, the PSF and prior it is built
-  // with): what the linear model does not explain counts as noise. Refused for other decoders.
+  // The Wiener decoder's sigma chosen from the capture: the largest marginal likelihood of its
+  // S x S tiles under the decoder's own model (wiener::ml_noise_sigma, with the PSF and prior the
+  // decoder is built with), so power the model does not predict (demosaic error, light from
+  // outside a tile, a scene the prior fits badly) counts as noise. Refused for other decoders.
+  bool noise_sigma_ml = false;
+  // The same search by generalised cross-validation instead (wiener::gcv_noise_sigma), for
+  // comparison: with 3 channels for 31 bands it runs to the bottom of its range (docs/built-camera.md).
   bool noise_sigma_gcv = false;
   std::vector<SpectrumRegion> regions;  // empty: the image centre
   std::string out;

@@ -107,6 +107,13 @@ struct GcvResult {
 };
 GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
                           const SpectralPrior& prior, double sigma_min = 1e-4, double sigma_max = 1.0, std::size_t points = 49);
+// The same search for the sigma of largest marginal likelihood under the decoder's own model
+// (empirical Bayes): Y(f) ~ CN(0, H W (A P A^H + sigma^2 I)), -log L = sum_f sum_k log(l_k +
+// sigma^2) + |z_k|^2 / (H W (l_k + sigma^2)) with l_k, z_k the eigenvalues of A P A^H and Y(f) in
+// its eigenvectors. Power the prior does not predict (model error, non-white noise) raises sigma.
+// scores: -log L less its minimum.
+GcvResult ml_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                         const SpectralPrior& prior, double sigma_min = 1e-4, double sigma_max = 1.0, std::size_t points = 49);
 
 // The paper's "DO" mismatch: the scene (B x H x W) is imaged noiselessly through otf_actual and
 // decoded by the Wiener filter built for otf_design (noise_sigma only enters the filter).
