@@ -11,9 +11,10 @@
 # frames (qdo simulate --raw) and reconstructs them with the design's Wiener decoder: made for the
 # design, adapted to the model fitted to the raw frames, adapted to the model fitted to the
 # calibrated stack, and for the true as-built PSF (a bound); the sigma the decoder assumes from the
-# noise model with the capture's demosaic error (--noise-sigma model), by cross-validation on the
-# capture (gcv) and 0.03 (SIGMAS), MHC demosaic, scored over the interior (16 px border). Writes OUT/recon_table.md: per draw the mean over the scenes, and over the draws the
-# mean and 95 % t interval of each decoder's PSNR and of its difference to the design's decoder.
+# noise model with the capture's demosaic error (--noise-sigma model), the capture's marginal
+# likelihood (ml), cross-validation (gcv) and 0.03 (SIGMAS), MHC demosaic, scored over the interior
+# (16 px border). Writes OUT/recon_table.md: per draw the mean over the scenes, and over the draws
+# the mean and 95 % t interval of each decoder's PSNR and of its difference to the design's decoder.
 # Usage: bash scripts/experiments_fit_raw_draws.sh [OUT]   (QDO: the qdo binary, default build/qdo;
 # DESIGN: a design.h5 to use instead of training the Section 7 design into OUT/design (its folder is
 # the run reconstruct decodes with); DRAWS: how many of the ten draws, default 5)
@@ -59,7 +60,7 @@ for draw in "${ALL[@]:0:$n}"; do
 done
 if [ "${RECON:-1}" = 1 ]; then
   RUN=$(dirname "$DESIGN")
-  SIGMAS=${SIGMAS:-"model gcv 0.03"}  # the sigma the decoder assumes: the noise model, cross-validated on the capture, a fixed value (a sensitivity, not tuned)
+  SIGMAS=${SIGMAS:-"model ml gcv 0.03"}  # the noise model, the capture's likelihood, cross-validation, a fixed value (not tuned)
   for draw in "${ALL[@]:0:$n}"; do
     read -r seed _ <<< "$draw"
     c=$OUT/draw$seed
@@ -102,8 +103,9 @@ rows = [("design_decoder", "decoder made for the design"), ("fitted_raw", "adapt
         ("fitted", "adapted to the model fitted to the calibrated stack"), ("true", "for the true as-built PSF (bound)")]
 L = ["Reconstructions of the CAVE test scenes through each draw's camera (raw RGGB 12-bit, MHC), PSNR (dB) over the "
      "interior (16 px border left out), mean over the 3 scenes; σ assumed: `model` = the sensor's noise model at each "
-     "capture's mean signal with the capture's demosaic error (`--noise-sigma model`); `gcv` = chosen from each capture by "
-     "generalised cross-validation (`--noise-sigma gcv`); or a fixed value.", ""]
+     "capture's mean signal with the capture's demosaic error (`--noise-sigma model`); `ml` = chosen from each capture, "
+     "the largest marginal likelihood under the decoder's model (`--noise-sigma ml`); `gcv` = by generalised "
+     "cross-validation (`--noise-sigma gcv`); or a fixed value.", ""]
 for sig in sigmas:
     per = {r: {} for r, _ in rows}
     used = {}
