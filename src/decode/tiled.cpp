@@ -6,6 +6,7 @@
 #include <cmath>
 #include <utility>
 
+#include "qdo/data/datasets.hpp"
 #include "qdo/runtime/error.hpp"
 
 namespace qdo {
@@ -79,13 +80,7 @@ RealStack tile_input(const RealStack& t, std::size_t tile, TileBoundary boundary
 }
 
 // The tile x tile window of y at (row, col).
-RealStack tile_at(const RealStack& y, std::size_t row, std::size_t col, std::size_t tile) {
-  RealStack t(y.planes, tile, tile);
-  for (std::size_t ch = 0; ch < y.planes; ++ch)
-    for (std::size_t r = 0; r < tile; ++r)
-      for (std::size_t c = 0; c < tile; ++c) t(ch, r, c) = y(ch, row + r, col + c);
-  return t;
-}
+RealStack tile_at(const RealStack& y, std::size_t row, std::size_t col, std::size_t tile) { return crop_patch(y, {row, col}, tile); }
 
 }  // namespace
 
