@@ -19,114 +19,13 @@
 #include "qdo/decode/wiener.hpp"
 
 #include "adjoint_table.hpp"
+#include "wiener_common.hpp"
 
 using namespace qdo;
 using namespace qdo::wiener;
+using namespace qdo::test::wiener_suite;
 
 namespace {
-
-using Rng = std::mt19937_64;
-
-double uniform(Rng& r, double lo = 0.0, double hi = 1.0) { return std::uniform_real_distribution<double>(lo, hi)(r); }
-double normal(Rng& r) { return std::normal_distribution<double>(0.0, 1.0)(r); }
-
-RealStack random_stack(Rng& r, std::size_t p, std::size_t h, std::size_t w, double lo = 0.0, double hi = 1.0) {
-  RealStack s(p, h, w);
-  for (double& v : s.data) v = uniform(r, lo, hi);
-  return s;
-}
-
-// Positive PSFs, each band summing to 1.
-RealStack random_psf(Rng& r, std::size_t bands, std::size_t size) {
-  RealStack p = random_stack(r, bands, size, size, 0.05, 1.0);
-  ref::normalize_planes(p);
-  return p;
-}
-
-// C x B positive response with rows summing to 1, like sensor_response().
-Eigen::MatrixXd random_srf(Rng& r, std::size_t channels, std::size_t bands) {
-  Eigen::MatrixXd s(static_cast<Eigen::Index>(channels), static_cast<Eigen::Index>(bands));
-  for (Eigen::Index c = 0; c < s.rows(); ++c) {
-    for (Eigen::Index b = 0; b < s.cols(); ++b) s(c, b) = uniform(r, 0.05, 1.0);
-    s.row(c) /= s.row(c).sum();
-  }
-  return s;
-}
-
-Eigen::MatrixXd random_spd(Rng& r, std::size_t n, double scale) {
-  const auto k = static_cast<Eigen::Index>(n);
-  Eigen::MatrixXd a(k, k);
-  for (Eigen::Index i = 0; i < k; ++i)
-    for (Eigen::Index j = 0; j < k; ++j) a(i, j) = normal(r);
-  return scale * (a * a.transpose() / double(n) + 0.2 * Eigen::MatrixXd::Identity(k, k));
-}
-
-// A random SPD prior; the DC bin is larger (it holds the scene mean).
-SpectralPrior random_prior(Rng& r, std::size_t bands, std::size_t bins, std::size_t rows, std::size_t cols) {
-  SpectralPrior p;
-  p.bands = bands;
-  p.bins = bins;
-  p.rows = rows;
-  p.cols = cols;
-  p.cov.resize(bins * bands * bands);
-  for (std::size_t k = 0; k < bins; ++k) {
-    const Eigen::MatrixXd m = random_spd(r, bands, k == 0 ? 2.0 : 0.05 / double(k));
-    for (std::size_t i = 0; i < bands; ++i)
-      for (std::size_t j = 0; j < bands; ++j)
-        p.cov[(k * bands + i) * bands + j] = m(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
-  }
-  return p;
-}
-
-// Naive DFT of every plane, independent of the FFTW code under test. sign -1: forward
-// (unnormalised), +1: inverse (divided by rows*cols).
-ComplexStack naive_dft(const ComplexStack& in, int sign) {
-  ComplexStack out(in.planes, in.rows, in.cols);
-  const double h = double(in.rows), w = double(in.cols);
-  for (std::size_t b = 0; b < in.planes; ++b)
-    for (std::size_t ky = 0; ky < in.rows; ++ky)
-      for (std::size_t kx = 0; kx < in.cols; ++kx) {
-        cdouble acc = 0;
-        for (std::size_t y = 0; y < in.rows; ++y)
-          for (std::size_t x = 0; x < in.cols; ++x) {
-            const double ph = double(sign) * 2.0 * M_PI * (double(ky * y) / h + double(kx * x) / w);
-            acc += in(b, y, x) * std::polar(1.0, ph);
-          }
-        out(b, ky, kx) = sign > 0 ? acc / (h * w) : acc;
-      }
-  return out;
-}
-
-// A scene whose DFT has E[X(f) X(f)^H] = H W P(bin(f)) exactly: white noise coloured by the
-// Cholesky factor of each bin (real factor, same for f and -f, so the scene stays real).
-RealStack sample_from_prior(Rng& r, const SpectralPrior& p) {
-  ComplexStack z(p.bands, p.rows, p.cols);
-  for (cdouble& v : z.data) v = normal(r);
-  const ComplexStack zf = naive_dft(z, -1);
-  ComplexStack xf(p.bands, p.rows, p.cols);
-  std::vector<Eigen::MatrixXd> chol;
-  for (std::size_t k = 0; k < p.bins; ++k) chol.push_back(p.bin(k).llt().matrixL());
-  const std::size_t n = p.rows * p.cols;
-  for (std::size_t ky = 0; ky < p.rows; ++ky)
-    for (std::size_t kx = 0; kx < p.cols; ++kx) {
-      const std::size_t f = ky * p.cols + kx;
-      const Eigen::MatrixXd& l = chol[radial_bin(ky, kx, p.rows, p.cols, p.bins)];
-      for (std::size_t i = 0; i < p.bands; ++i) {
-        cdouble acc = 0;
-        for (std::size_t j = 0; j <= i; ++j) acc += l(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) * zf.data[j * n + f];
-        xf.data[i * n + f] = acc;
-      }
-    }
-  const ComplexStack x = naive_dft(xf, +1);
-  RealStack out(p.bands, p.rows, p.cols);
-  double max_imag = 0;
-  for (std::size_t i = 0; i < x.size(); ++i) {
-    max_imag = std::max(max_imag, std::abs(x.data[i].imag()));
-    out.data[i] = x.data[i].real();
-  }
-  REQUIRE(max_imag < 1e-12);  // Hermitian symmetry kept
-  return out;
-}
 
 double max_abs_diff(const std::vector<double>& a, const std::vector<double>& b) {
   REQUIRE(a.size() == b.size());
@@ -408,64 +307,6 @@ TEST_SUITE("wiener") {
     };
     check_mc(s1, s2, e_matched, "matched");
     check_mc(m1, m2, e_mismatch, "mismatched");
-  }
-
-  TEST_CASE("cross-validation and the marginal likelihood find the noise sigma of measurements drawn from the model") {
-    // Scenes drawn from the prior, measured through the OTF with white noise of a known sigma: the
-    // model holds, so GCV's minimiser and the likelihood's maximiser estimate that sigma (consistent
-    // as the frequencies grow; 12 images of 16 x 16 x 3 here), and the decode at either is nearly as
-    // good as at the true sigma.
-    Rng rng(9);
-    const std::size_t b = 4, h = 16, w = 16;
-    const SpectralPrior prior = random_prior(rng, b, 3, h, w);
-    const Eigen::MatrixXd srf = random_srf(rng, 3, b);
-    const ComplexStack otf = psf_to_otf(random_psf(rng, b, 5), h, w);
-    std::vector<RealStack> scenes, clean;
-    double rms = 0;
-    for (int k = 0; k < 12; ++k) {
-      scenes.push_back(sample_from_prior(rng, prior));
-      clean.push_back(simulate_measurement(scenes.back(), otf, srf));
-      for (double v : clean.back().data) rms += v * v / double(clean.back().data.size() * 12);
-    }
-    rms = std::sqrt(rms);
-    for (const double rel : {0.05, 0.3}) {
-      const double sigma = rel * rms;
-      std::vector<RealStack> ys = clean;
-      for (RealStack& y : ys)
-        for (double& v : y.data) v += sigma * normal(rng);
-      for (const bool ml : {false, true}) {
-        const GcvResult g = ml ? ml_noise_sigma(ys, otf, srf, prior, 1e-4 * rms, 10 * rms, 61)
-                               : gcv_noise_sigma(ys, otf, srf, prior, 1e-4 * rms, 10 * rms, 61);
-        INFO((ml ? "marginal likelihood" : "GCV") << ": true sigma " << sigma << ", found " << g.sigma);
-        CHECK_FALSE(g.at_edge);
-        CHECK(g.sigma > 0.75 * sigma);
-        CHECK(g.sigma < 1.33 * sigma);
-        REQUIRE(g.scores.size() == 61);
-        CHECK(*std::min_element(g.scores.begin(), g.scores.end()) == doctest::Approx(ml ? 0.0 : 1.0));
-        double e_found = 0, e_true = 0;
-        for (std::size_t k = 0; k < ys.size(); ++k) {
-          e_found += metrics::mse(decode(ys[k], otf, srf, prior, g.sigma), scenes[k]);
-          e_true += metrics::mse(decode(ys[k], otf, srf, prior, sigma), scenes[k]);
-        }
-        CHECK(e_found < 1.05 * e_true);
-      }
-    }
-    // Power the model does not predict raises the likelihood's sigma: the same images with a
-    // pattern of one pixel period added (a mosaic-like error, 0.3 of the clean RMS) ask for more.
-    std::vector<RealStack> odd = clean;
-    for (RealStack& y : odd)
-      for (std::size_t c = 0; c < y.planes; ++c)
-        for (std::size_t r = 0; r < y.rows; ++r)
-          for (std::size_t x = 0; x < y.cols; ++x) y(c, r, x) += 0.3 * rms * (((r + x + c) % 2) ? 1.0 : -1.0) + 0.05 * rms * normal(rng);
-    std::vector<RealStack> plain = clean;
-    for (RealStack& y : plain)
-      for (double& v : y.data) v += 0.05 * rms * normal(rng);
-    CHECK(ml_noise_sigma(odd, otf, srf, prior, 1e-4 * rms, 10 * rms).sigma > 2 * ml_noise_sigma(plain, otf, srf, prior, 1e-4 * rms, 10 * rms).sigma);
-    // Refused, naming what: no image, an image off the OTF's grid, a range that is none.
-    CHECK_THROWS_AS(gcv_noise_sigma({}, otf, srf, prior), InputError);
-    CHECK_THROWS_AS(gcv_noise_sigma({RealStack(3, h, w + 1, 0.0)}, otf, srf, prior), InputError);
-    CHECK_THROWS_AS(gcv_noise_sigma(clean, otf, srf, prior, 0.1, 0.01), InputError);
-    CHECK_THROWS_AS(gcv_noise_sigma(clean, otf, srf, prior, 0.0, 1.0), InputError);
   }
 
   TEST_CASE("expected error decreases monotonically as sigma decreases and is <= mean tr(P)") {
