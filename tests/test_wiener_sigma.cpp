@@ -42,7 +42,7 @@ TEST_SUITE("wiener") {
       for (RealStack& y : ys)
         for (double& v : y.data) v += sigma * normal(rng);
       for (const bool ml : {false, true}) {
-        const GcvResult g = ml ? ml_noise_sigma(ys, otf, srf, prior, 1e-4 * rms, 10 * rms, 61)
+        const SigmaSearch g = ml ? ml_noise_sigma(ys, otf, srf, prior, 1e-4 * rms, 10 * rms, 61)
                                : gcv_noise_sigma(ys, otf, srf, prior, 1e-4 * rms, 10 * rms, 61);
         INFO((ml ? "marginal likelihood" : "GCV") << ": true sigma " << sigma << ", found " << g.sigma);
         CHECK_FALSE(g.at_edge);

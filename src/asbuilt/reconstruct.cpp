@@ -162,15 +162,14 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
     in.noise_sigma = cap.exposure_factor * std::sqrt(cfg.read_noise_sigma * cfg.read_noise_sigma + shot + lsb * lsb / 12 +
                                                      cap.demosaic_sigma * cap.demosaic_sigma);
   }
-  const std::size_t overlap_px = overlap;
-  wiener::GcvResult fitted_sigma;
+  wiener::SigmaSearch fitted_sigma;
   const bool search = o.noise_sigma_ml || o.noise_sigma_gcv;
   const char* search_name = o.noise_sigma_ml ? "ml" : "gcv";
   if (search) {
     // On the tiles themselves (circular, S x S, the prior's own grid): a mirror extension repeats
     // every value, which the likelihood would count twice.
     fitted_sigma = (o.noise_sigma_ml ? wiener::ml_noise_sigma : wiener::gcv_noise_sigma)(
-        decoder_tiles(cap.rgb, s, overlap_px, TileBoundary::Circular), wiener::psf_to_otf(psf, s, s), in.srf, prior, 1e-4, 1.0, 49);
+        decoder_tiles(cap.rgb, s, overlap, TileBoundary::Circular), wiener::psf_to_otf(psf, s, s), in.srf, prior, 1e-4, 1.0, 49);
     in.noise_sigma = fitted_sigma.sigma;
     if (fitted_sigma.at_edge)
       res.notes.push_back(std::string("--noise-sigma ") + search_name + ": the search's best lies at the edge of its range (" +
@@ -286,8 +285,8 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
                               {"exposure_factor", cap.exposure_factor},
                               {"demosaic_sigma", cap.demosaic_sigma},
                               {"formula", "exposure x sqrt(read^2 + mean_signal / full_well + (1 / (2^bits - 1))^2 / 12 + demosaic_sigma^2); "
-                                          "demosaic_sigma: the capture's demosaic error estimated from itself (its demosaic re-mosaicked "
-                                          "and developed again; 0 for RGB captures)"}};
+                                          "demosaic_sigma: the capture's demosaic error estimated from itself (its demosaic sampled "
+                                          "through the mosaic one column over and developed again; 0 for RGB captures)"}};
   if (search)
     j[std::string("noise_sigma_") + search_name] = {{"sigma", fitted_sigma.sigma},
                            {"sigma_range", {fitted_sigma.sigmas.front(), fitted_sigma.sigmas.back()}},

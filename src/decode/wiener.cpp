@@ -254,8 +254,8 @@ RealStack decode(const RealStack& y, const ComplexStack& otf, const Eigen::Matri
 
 namespace {
 
-GcvResult sigma_from_data(bool likelihood, const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
-                          const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
+SigmaSearch sigma_from_data(bool likelihood, const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                            const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
   check_model(otf, srf, prior, 0.0);
   if (ys.empty()) reject("images", 0, "at least one C x H x W image");
   if (!(sigma_min > 0) || !(sigma_max > sigma_min) || !std::isfinite(sigma_max))
@@ -268,7 +268,7 @@ GcvResult sigma_from_data(bool likelihood, const std::vector<RealStack>& ys, con
   std::vector<ComplexStack> yf;
   yf.reserve(ys.size());
   for (const RealStack& y : ys) yf.push_back(forward_fft(y));
-  GcvResult r;
+  SigmaSearch r;
   std::vector<double> s2(points);
   for (std::size_t j = 0; j < points; ++j) {
     const double t = double(j) / double(points - 1);
@@ -323,13 +323,13 @@ GcvResult sigma_from_data(bool likelihood, const std::vector<RealStack>& ys, con
 
 }  // namespace
 
-GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
-                          const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
+SigmaSearch gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                            const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
   return sigma_from_data(false, ys, otf, srf, prior, sigma_min, sigma_max, points);
 }
 
-GcvResult ml_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
-                         const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
+SigmaSearch ml_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                           const SpectralPrior& prior, double sigma_min, double sigma_max, std::size_t points) {
   return sigma_from_data(true, ys, otf, srf, prior, sigma_min, sigma_max, points);
 }
 

@@ -90,30 +90,31 @@ RealStack simulate_measurement(const RealStack& cube, const ComplexStack& otf, c
 RealStack decode(const RealStack& y, const ComplexStack& otf, const Eigen::MatrixXd& srf, const SpectralPrior& prior,
                  double noise_sigma);
 
+// The result of a search for sigma over a log-spaced grid (gcv_noise_sigma, ml_noise_sigma).
+struct SigmaSearch {
+  double sigma = 0;                    // the best sigma
+  std::vector<double> sigmas, scores;  // the grid and the criterion on it (GCV over its minimum; -log L less its minimum)
+  bool at_edge = false;                // the grid's best is its first or last point
+};
 // The noise sigma the data ask for, by generalised cross-validation (Golub, Heath and Wahba 1979):
 // for the Wiener filter at sigma, the influence matrix at frequency f is T(f) = M (M + sigma^2 I)^-1
 // with M = A P A^H (C x C), and GCV(sigma) = N |(I - T) Y|^2 / tr(I - T)^2 over every frequency of
-// every image (N = C H W x images), the score of predicting each measurement from the others. It
-// counts as noise whatever the linear model does not explain (sensor noise, demosaic error, the
-// edges of a tile, a prior that fits the scene badly), so it can choose a sigma above the
-// sensor's. ys: C x H x W images on the OTF's grid (a capture's tiles as the decoder takes them);
-// the minimum over `points` log-spaced values in [sigma_min, sigma_max] (> 0), refined by a
+// every image (N = C H W x images), the score of predicting each measurement from the others.
+// With C < B the filter fits every measurement exactly as sigma -> 0, so on real captures (3
+// channels, 31 bands) it runs to the bottom of its range (EXPERIMENTS.md); it works where the model
+// holds and the noise is white (tests/test_wiener_sigma.cpp). ys: C x H x W images on the OTF's
+// grid; the minimum over `points` log-spaced values in [sigma_min, sigma_max] (> 0), refined by a
 // parabola through the lowest and its neighbours in log sigma. Eigen-decomposes M once per
 // frequency, so the grid costs little. InputError on shapes or a bad range.
-struct GcvResult {
-  double sigma = 0;                    // the minimiser
-  std::vector<double> sigmas, scores;  // the grid and GCV on it (relative: divided by its minimum)
-  bool at_edge = false;                // the grid's minimum is its first or last point
-};
-GcvResult gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
-                          const SpectralPrior& prior, double sigma_min = 1e-4, double sigma_max = 1.0, std::size_t points = 49);
+SigmaSearch gcv_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                            const SpectralPrior& prior, double sigma_min = 1e-4, double sigma_max = 1.0, std::size_t points = 49);
 // The same search for the sigma of largest marginal likelihood under the decoder's own model
 // (empirical Bayes): Y(f) ~ CN(0, H W (A P A^H + sigma^2 I)), -log L = sum_f sum_k log(l_k +
 // sigma^2) + |z_k|^2 / (H W (l_k + sigma^2)) with l_k, z_k the eigenvalues of A P A^H and Y(f) in
 // its eigenvectors. Power the prior does not predict (model error, non-white noise) raises sigma.
 // scores: -log L less its minimum.
-GcvResult ml_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
-                         const SpectralPrior& prior, double sigma_min = 1e-4, double sigma_max = 1.0, std::size_t points = 49);
+SigmaSearch ml_noise_sigma(const std::vector<RealStack>& ys, const ComplexStack& otf, const Eigen::MatrixXd& srf,
+                           const SpectralPrior& prior, double sigma_min = 1e-4, double sigma_max = 1.0, std::size_t points = 49);
 
 // The paper's "DO" mismatch: the scene (B x H x W) is imaged noiselessly through otf_actual and
 // decoded by the Wiener filter built for otf_design (noise_sigma only enters the filter).
