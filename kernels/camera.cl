@@ -38,51 +38,58 @@ __kernel void ring_energy(__global const real* psf, __global real* rings, const 
   rings[gid] = acc;
 }
 
+// t mod n in [0, n) for any int t (n > 0), without a division when |t| < n.
+inline int wrap_index(int t, const int n) {
+  if (t >= n || t < -n) t %= n;
+  return t < 0 ? t + n : t;
+}
+
 // Cropped PSF of kept bands, pair-packed onto the GY x GX grid with the axis at (0, 0): grid
 // (u, v) = sum of psf(b, S/2 + ty, S/2 + tx) over offsets ty = u (mod GY), tx = v (mod GX)
 // with -min(r, S/2) <= ty, tx <= min(r, S - 1 - S/2) (more than one term only when the grid is
 // smaller than the window: circular mode folds). band_of[k] = source band of kept band k.
 // psf: bands x S x S; out: P x GY x GX complex (written in full).
+// Row kernel: global (>= GX, P * GY); column v = id 0, row p * GY + u = id 1.
 __kernel void place_psf_pairs(__global const real* psf, __global const int* band_of, __global real2* out,
                               const int s, const int gy, const int gx, const int r, const int kept) {
-  const size_t gid = get_global_id(0);
-  const size_t g = (size_t)gy * gx;
+  const int v = (int)get_global_id(0);
+  const int row = (int)get_global_id(1);
   const int pairs = (kept + 1) / 2;
-  if (gid >= g * pairs) return;
-  const int p = (int)(gid / g);
-  const int rem = (int)(gid - (size_t)p * g);
-  const int u = rem / gx, v = rem - u * gx;
+  // The row's indices first, unconditionally: the compiler can then keep them out of the column loop.
+  const int p = row / gy, u = row - p * gy;
+  if (v >= gx || row >= pairs * gy) return;
   const int c = s / 2;
   const int lo = -min(r, c), hi = min(r, s - 1 - c);
-  real acc[2] = {R(0.0), R(0.0)};
-  for (int j = 0; j < 2; ++j) {
-    const int k = 2 * p + j;
-    if (k >= kept) break;
-    __global const real* q = psf + (size_t)band_of[k] * s * s;
-    const int ty0 = lo + ((u - lo) % gy + gy) % gy;  // first offset >= lo congruent to u
-    const int tx0 = lo + ((v - lo) % gx + gx) % gx;
-    for (int ty = ty0; ty <= hi; ty += gy)
-      for (int tx = tx0; tx <= hi; tx += gx) acc[j] += q[(ty + c) * s + tx + c];
-  }
-  out[gid] = (real2)(acc[0], acc[1]);
+  const int ty0 = lo + wrap_index(u - lo, gy);  // first offset >= lo congruent to u
+  const int tx0 = lo + wrap_index(v - lo, gx);
+  // Two named sums (a private array indexed in a loop lives on the stack of a CPU device).
+  const bool odd = 2 * p + 1 < kept;
+  __global const real* qa = psf + (size_t)band_of[2 * p] * s * s;
+  __global const real* qb = psf + (size_t)band_of[odd ? 2 * p + 1 : 2 * p] * s * s;
+  real acc_a = R(0.0), acc_b = R(0.0);
+  for (int ty = ty0; ty <= hi; ty += gy)
+    for (int tx = tx0; tx <= hi; tx += gx) {
+      const int i = (ty + c) * s + tx + c;
+      acc_a += qa[i];
+      acc_b += qb[i];
+    }
+  out[(size_t)row * gx + v] = (real2)(acc_a, odd ? acc_b : R(0.0));
 }
 
 // Scene windows of one chunk, pair-packed: spec[slot][p](u, v) = cube(scene, 2p, y0 + u, x0 + v)
 // + i cube(scene, 2p + 1, ...), zero outside the window (u >= th or v >= tw), outside the scene
 // and for slots >= count (padding of the last chunk). Slot `slot` of this chunk is global slot
 // base + slot. cube: scenes x K x H x W; spec: slots x P x GY x GX complex (written in full).
+// Row kernel: global (>= GX, slots * P * GY); column v = id 0, row (slot * P + p) * GY + u = id 1.
 __kernel void place_windows(__global const real* cube, __global const int* tiles, __global real2* spec,
                             const int h, const int w, const int kept, const int gy, const int gx, const int th,
                             const int tw, const int base, const int count, const int slots) {
-  const size_t gid = get_global_id(0);
-  const size_t g = (size_t)gy * gx;
+  const int v = (int)get_global_id(0);
+  const int row = (int)get_global_id(1);
   const int pairs = (kept + 1) / 2;
-  if (gid >= g * pairs * slots) return;
-  const int slot = (int)(gid / (g * pairs));
-  const size_t rem0 = gid - (size_t)slot * g * pairs;
-  const int p = (int)(rem0 / g);
-  const int rem = (int)(rem0 - (size_t)p * g);
-  const int u = rem / gx, v = rem - u * gx;
+  const int plane = row / gy, u = row - plane * gy;  // before the bounds check: see place_psf_pairs
+  const int slot = plane / pairs, p = plane - slot * pairs;
+  if (v >= gx || row >= slots * pairs * gy) return;
   real2 val = (real2)(R(0.0), R(0.0));
   if (slot < count && u < th && v < tw) {
     const int t = base + slot;
@@ -94,7 +101,7 @@ __kernel void place_windows(__global const real* cube, __global const int* tiles
       if (2 * p + 1 < kept) val.y = sc[(size_t)(2 * p + 1) * hw];
     }
   }
-  spec[gid] = val;
+  spec[(size_t)row * gx + v] = val;
 }
 
 // Unpacks the two real transforms held in a pair spectrum z: for real a, b with z = F(a + i b),
@@ -111,16 +118,19 @@ inline void unpack_pair(real2 zk, real2 zn, real2* fa, real2* fb) {
 // rgbspec[slot][0] = Y_R + i Y_G and rgbspec[slot][1] = Y_B (the R, G, B images are real, so
 // one inverse transform of the first carries two channels). wts: 3 x (2P) (zero-padded).
 // spec: slots x P x GY x GX; otf: P x GY x GX; rgbspec: slots x 2 x GY x GX complex.
+// Row kernel: global (>= GX, slots * GY); column v = id 0, row slot * GY + u = id 1.
 __kernel void combine_channels(__global const real2* spec, __global const real2* otf, __global const real* wts,
                                __global real2* rgbspec, const int gy, const int gx, const int kept,
                                const int slots) {
-  const size_t gid = get_global_id(0);
+  const int v = (int)get_global_id(0);
+  const int row = (int)get_global_id(1);
+  const int slot = row / gy, u = row - slot * gy;  // before the bounds check: see place_psf_pairs
+  if (v >= gx || row >= slots * gy) return;
   const size_t g = (size_t)gy * gx;
-  if (gid >= g * slots) return;
-  const int slot = (int)(gid / g);
-  const int rem = (int)(gid - (size_t)slot * g);
-  const int u = rem / gx, v = rem - u * gx;
-  const int nrem = ((gy - u) % gy) * gx + (gx - v) % gx;  // index of -k
+  const int rem = u * gx + v;
+  const int nrem = (u == 0 ? 0 : gy - u) * gx + (v == 0 ? 0 : gx - v);  // index of -k
+  // The images are real, so Y_c(-k) = conj Y_c(k): the item of k writes both, that of -k nothing.
+  if (rem > nrem) return;
   const int pairs = (kept + 1) / 2;
   const int wk = 2 * pairs;
   real2 yr = (real2)(R(0.0), R(0.0)), yg = yr, yb = yr;
@@ -137,6 +147,10 @@ __kernel void combine_channels(__global const real2* spec, __global const real2*
   __global real2* o = rgbspec + (size_t)slot * 2 * g;
   o[rem] = (real2)(yr.x - yg.y, yr.y + yg.x);
   o[g + rem] = yb;
+  if (nrem != rem) {  // conj Y_R(k) + i conj Y_G(k), conj Y_B(k)
+    o[nrem] = (real2)(yr.x + yg.y, yg.x - yr.y);
+    o[g + nrem] = (real2)(yb.x, -yb.y);
+  }
 }
 
 // Overlap-add of the inverse-transformed windows of one chunk into the RGB images: rgb(scene,
@@ -229,18 +243,22 @@ __kernel void gather_pairs(__global const real2* buf, __global real* out, const 
 // (a = 2p, b = 2p + 1; X = the scene spectra of spec). One work item per (p, frequency) loops over
 // the slots, so gpsf needs no atomics. gspec: slots x 2 x GY x GX; spec, gscene: slots x P x GY x
 // GX; otf, gpsf: P x GY x GX complex; wts: 3 x 2P.
+// Row kernel: global (>= GX, P * GY); column v = id 0, row p * GY + u = id 1.
 __kernel void camera_vjp_spectra(__global const real2* gspec, __global const real2* spec, __global const real2* otf,
                                  __global const real* wts, __global real2* gscene, __global real2* gpsf,
                                  const int gy, const int gx, const int kept, const int count,
                                  const int want_scene) {
-  const size_t gid = get_global_id(0);
-  const size_t g = (size_t)gy * gx;
+  const int v = (int)get_global_id(0);
+  const int row = (int)get_global_id(1);
   const int pairs = (kept + 1) / 2;
-  if (gid >= g * pairs) return;
-  const int p = (int)(gid / g);
-  const int rem = (int)(gid - (size_t)p * g);
-  const int u = rem / gx, v = rem - u * gx;
-  const int nrem = ((gy - u) % gy) * gx + (gx - v) % gx;
+  const int p = row / gy, u = row - p * gy;  // before the bounds check: see place_psf_pairs
+  if (v >= gx || row >= pairs * gy) return;
+  const size_t g = (size_t)gy * gx;
+  const int rem = u * gx + v;
+  const int nrem = (u == 0 ? 0 : gy - u) * gx + (v == 0 ? 0 : gx - v);
+  // Every spectrum here is that of a real image, so the values at -k are the conjugates of those
+  // at k: the item of k writes both, that of -k nothing.
+  if (rem > nrem) return;
   const int wk = 2 * pairs;
   real2 oa, ob;
   unpack_pair(otf[(size_t)p * g + rem], otf[(size_t)p * g + nrem], &oa, &ob);
@@ -260,30 +278,32 @@ __kernel void camera_vjp_spectra(__global const real2* gspec, __global const rea
     if (want_scene) {
       const real2 sa = cmul(cconj(oa), ga), sb = cmul(cconj(ob), gbb);
       gscene[plane * g + rem] = (real2)(sa.x - sb.y, sa.y + sb.x);
+      if (nrem != rem) gscene[plane * g + nrem] = (real2)(sa.x + sb.y, sb.x - sa.y);  // conj sa + i conj sb
     }
   }
-  gpsf[gid] += (real2)(acc_a.x - acc_b.y, acc_a.y + acc_b.x);
+  gpsf[(size_t)p * g + rem] += (real2)(acc_a.x - acc_b.y, acc_a.y + acc_b.x);
+  if (nrem != rem) gpsf[(size_t)p * g + nrem] += (real2)(acc_a.x + acc_b.y, acc_b.x - acc_a.y);
 }
 
 // Adjoint of place_psf_pairs (wrap, fold and crop): g_psf(band_of[k], S/2 + ty, S/2 + tx) = Re
 // (k even) or Im (k odd) of gpsf[k / 2] at grid (ty mod GY, tx mod GX) for offsets within the
 // crop, -min(r, S/2) <= ty, tx <= min(r, S - 1 - S/2); 0 outside it. Bands that are not kept
 // are not written (the caller zeroes them). gpsf: P x GY x GX complex; g_psf: bands x S x S.
+// Row kernel: global (>= S, K * S); column = id 0, row k * S + y = id 1.
 __kernel void gather_psf_pairs(__global const real2* gpsf, __global const int* band_of, __global real* g_psf,
                                const int s, const int gy, const int gx, const int r, const int kept) {
-  const size_t gid = get_global_id(0);
-  const size_t ss = (size_t)s * s;
-  if (gid >= ss * kept) return;
-  const int k = (int)(gid / ss);
-  const int rem = (int)(gid - (size_t)k * ss);
+  const int col = (int)get_global_id(0);
+  const int row = (int)get_global_id(1);
+  const int k = row / s, y = row - k * s;  // before the bounds check: see place_psf_pairs
+  if (col >= s || row >= kept * s) return;
   const int c = s / 2;
-  const int ty = rem / s - c, tx = rem % s - c;
+  const int ty = y - c, tx = col - c;
   const int lo = -min(r, c), hi = min(r, s - 1 - c);
   real val = R(0.0);
   if (ty >= lo && ty <= hi && tx >= lo && tx <= hi) {
-    const int uu = (ty % gy + gy) % gy, vv = (tx % gx + gx) % gx;
+    const int uu = wrap_index(ty, gy), vv = wrap_index(tx, gx);
     const real2 z = gpsf[(size_t)(k / 2) * gy * gx + (size_t)uu * gx + vv];
     val = (k & 1) ? z.y : z.x;
   }
-  g_psf[(size_t)band_of[k] * ss + rem] = val;
+  g_psf[((size_t)band_of[k] * s + y) * s + col] = val;
 }

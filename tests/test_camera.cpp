@@ -192,6 +192,14 @@ TEST_CASE("device camera, blur and both adjoints against the CPU reference (floa
       const Camera::Gradient gp = cam.vjp(g, false);
       CHECK(gp.scenes.empty());
       CHECK(max_abs_diff(gp.psf.data, gr.psf.data) <= tol * max_abs(want_psf));
+      // The vjp read the scene spectra images() left on the device; transforming the scenes again
+      // gives the same numbers (the same transforms of the same data).
+      CHECK(cam.spectra_reused());
+      cam.forget_spectra();
+      CHECK_FALSE(cam.spectra_reused());
+      const Camera::Gradient ga = cam.vjp(g, true);
+      CHECK(ga.psf.data == gr.psf.data);
+      CHECK(flat(ga.scenes) == flat(gr.scenes));
       // The blur alone.
       const auto blurred = cam.blur(cubes);
       for (std::size_t k = 0; k < cubes.size(); ++k) {

@@ -20,6 +20,7 @@
 #include "qdo/physics/camera.hpp"
 #include "qdo/net/resunet.hpp"
 #include "qdo/design/design.hpp"
+#include "qdo/decode/testset.hpp"
 #include "qdo/physics/doe.hpp"
 #include "qdo/design/joint.hpp"
 #include "qdo/net/net.hpp"
@@ -158,6 +159,27 @@ int main(int argc, char** argv) {
       const long cur = st.step;
       designer.step(st, [&](const RealStack& psf, RealStack& g) { return jt.step(cur, 1e-3, psf, g); });
     });
+    // The physics of that step alone, stage by stage: the design's optics (Designer::step with the
+    // objective handing back a fixed PSF gradient: radial PSF forward, its read-back, the PSF
+    // adjoint, Adam on the heights) and the patch camera on the S x S crops (circular, the design
+    // step's camera) with its adjoint.
+    RealStack g_fixed;
+    (void)jt.step(st.step, 1e-3, sim.psf_sensor(), g_fixed);  // a real dL/dPSF of the shape the loop sees
+    DesignState st_o = designer.initial_state(p0);
+    const double t_design_optics = median_time(repeats, [&] {
+      designer.step(st_o, [&](const RealStack&, RealStack& g) {
+        g = g_fixed;
+        return 0.0;
+      });
+    });
+    testset::PatchCamera patch_cam(rt, cfg, prec);
+    std::vector<testset::Patch> patches;
+    for (const RealStack& sc : scenes) patches.push_back({"", sc});
+    const RealStack psf_now = sim.psf_sensor();
+    std::vector<RealStack> patch_rgb;
+    const double t_patch = median_time(repeats, [&] { patch_rgb = patch_cam.measure(psf_now, patches); });
+    RealStack g_patch_psf;
+    const double t_patch_adj = median_time(repeats, [&] { g_patch_psf = patch_cam.vjp(g_rgb); });
     // The same step with the release's network items (joint_sampling.hpp, network_decoder.hpp):
     // Keras' batch norm, Glorot-uniform last convolution, noise on the bands, fixed patches.
     NetworkStyle keras;
@@ -192,6 +214,9 @@ int main(int argc, char** argv) {
                                                    {"whole step", t_step},
                                                    {"qdo design's step (Designer + JointTrainer, radial path)", t_loop},
                                                    {"the same with the release's network items", t_loop_release},
+                                                   {"design step's optics (radial PSF, read-back, adjoint, Adam)", t_design_optics},
+                                                   {"design step's patch camera (S x S crops, circular)", t_patch},
+                                                   {"design step's patch camera adjoint", t_patch_adj},
                                                    {"sensor noise on RGB, one batch (qdo)", t_noise_rgb},
                                                    {"sensor noise on the bands, one batch (release)", t_noise_bands}};
     for (const auto& [what, t] : rows) {
@@ -202,8 +227,18 @@ int main(int argc, char** argv) {
     const double optics_only = t_opt + t_psf_adj, physics = optics_only + t_cam + t_cam_adj, net_s = t_net + t_adam;
     std::printf("  optics (PSF forward + PSF adjoint) / network (forward + backward + Adam) = %.2f\n", optics_only / net_s);
     std::printf("  physics (optics + camera + camera adjoint) / network = %.2f\n", physics / net_s);
+    const double design_physics = t_design_optics + t_patch + t_patch_adj;
+    std::printf("  design step's physics (its optics + patch camera + adjoint) / network = %.2f\n", design_physics / net_s);
+    // The whole design step against what it cannot do without: the network's step and the design's
+    // optics (forward and adjoint; the PSF forward alone is a part of it, so this floor is generous).
+    const double floor_s = net_s + t_design_optics;
+    std::printf("  design step / (network + its optics) = %.2f\n", t_loop / floor_s);
     md << "| " << pname << " | " << cfg.n << " | | optics (PSF forward + adjoint) / network | " << optics_only / net_s << " | |\n";
     md << "| " << pname << " | " << cfg.n << " | | physics (optics + camera + its adjoint) / network | " << physics / net_s
+       << " | |\n";
+    md << "| " << pname << " | " << cfg.n << " | | design step's physics (its optics + patch camera + adjoint) / network | "
+       << design_physics / net_s << " | |\n";
+    md << "| " << pname << " | " << cfg.n << " | | design step / (network + its optics, forward and adjoint) | " << t_loop / floor_s
        << " | |\n";
   }
   std::printf("peak resident memory: %.0f MiB\n", double(peak_rss_kib()) / 1024.0);

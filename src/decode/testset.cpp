@@ -84,6 +84,23 @@ std::vector<RealStack> PatchCamera::measure(const RealStack& psf_sensor, const s
   return out;
 }
 
+std::vector<RealStack> PatchCamera::measure(const RealStack& psf_sensor, const std::vector<RealStack>& cubes) {
+  if (extend_ || cubes.size() > kMaxBatch) {
+    std::vector<Patch> patches;
+    patches.reserve(cubes.size());
+    for (const RealStack& c : cubes) patches.push_back({"", c});
+    return measure(psf_sensor, patches);
+  }
+  for (std::size_t k = 0; k < cubes.size(); ++k)
+    if (cubes[k].rows != s_ || cubes[k].cols != s_)
+      reject("cubes[" + to_str(k) + "]", shape(cubes[k]), "S x S patches with S = " + to_str(s_));
+  camera_->set_psf(psf_sensor);
+  SkipOptions exact;
+  exact.exact = true;
+  last_count_ = cubes.size();
+  return camera_->images(cubes, exact);
+}
+
 RealStack PatchCamera::vjp(const std::vector<RealStack>& g_images) {
   if (last_count_ == 0 || last_count_ > kMaxBatch)
     reject("g_images", to_str(g_images.size()) + " gradients",

@@ -220,13 +220,11 @@ JointTrainer::JointTrainer(Runtime& rt, const SystemConfig& cfg, Precision p, Ne
 
 double JointTrainer::step(long step, double lr_net, const RealStack& psf, RealStack& grad_psf) {
   // This rank's items [k0, k1) of the step's batch (all of it in one process).
-  const std::vector<RealStack> batch =
+  std::vector<RealStack> batch =
       sampling_.fixed_patches ? fixed_batch(data_, fixed_, s_, batch_, step) : joint_batch(data_, s_, batch_, seed_, step);
   const std::size_t k0 = rank_ * batch_ / ranks_, k1 = (rank_ + 1) * batch_ / ranks_;
-  const std::vector<RealStack> cubes(batch.begin() + long(k0), batch.begin() + long(k1));
-  std::vector<testset::Patch> patches;
-  for (const RealStack& c : cubes) patches.push_back({"", c});
-  std::vector<RealStack> images = camera_.measure(psf, patches);
+  const std::vector<RealStack> cubes = ranks_ == 1 ? std::move(batch) : std::vector<RealStack>(batch.begin() + long(k0), batch.begin() + long(k1));
+  std::vector<RealStack> images = camera_.measure(psf, cubes);
   // Read noise, drawn per step (scene k of the batch: counters of ref::add_noise's scene k).
   const unsigned long long noise_seed = (seed_ + 31) * 1000003ull + std::uint64_t(step);
   for (std::size_t k = 0; k < images.size(); ++k) {

@@ -12,6 +12,7 @@
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/fft.hpp"
 #include "qdo/physics/optics.hpp"
+#include "row_launch.hpp"
 
 namespace qdo {
 
@@ -38,6 +39,23 @@ double cost_model(std::size_t windows, std::size_t gy, std::size_t gx, std::size
   return double(windows) * g * (std::log2(std::max(g, 2.0)) * double(pairs + 2) + 4.0 * double(pairs));
 }
 
+// Writes `planes` planes of hw doubles (plane j from plane_at(j)) into buf as reals of precision p,
+// plane j at element j * hw: one mapping of the whole region, converted straight into it (no
+// staging vector, one blocking command instead of one per plane).
+template <typename PlaneAt>
+void upload_planes(cl::CommandQueue& q, const cl::Buffer& buf, Precision p, std::size_t planes, std::size_t hw,
+                   PlaneAt&& plane_at) {
+  if (planes * hw == 0) return;
+  const std::size_t rsz = real_size(p);
+  void* ptr = q.enqueueMapBuffer(buf, CL_TRUE, CL_MAP_WRITE_INVALIDATE_REGION, 0, planes * hw * rsz);
+  for (std::size_t j = 0; j < planes; ++j) {
+    const double* src = plane_at(j);
+    if (p == Precision::F64) std::copy(src, src + hw, static_cast<double*>(ptr) + j * hw);
+    else std::copy(src, src + hw, static_cast<float*>(ptr) + j * hw);
+  }
+  q.enqueueUnmapMemObject(buf, ptr);
+}
+
 }  // namespace
 
 // The host half of images(): the per-band (and per-tile) maxima of the batch, the three skipping
@@ -51,7 +69,8 @@ Camera::Plan Camera::plan_images(const std::vector<RealStack>& cubes, const Skip
   const std::size_t ntiles = nty * ntx;
   std::vector<double> bmax(bands, 0.0);
   std::vector<double> tmax(may_tile ? scenes * bands * ntiles : 0, 0.0);  // scenes x bands x tiles
-  for (std::size_t k = 0; k < scenes; ++k)
+  // Exact calls skip nothing and bound nothing: the maxima would only multiply zero dropped energy.
+  for (std::size_t k = 0; k < (opt.exact ? 0 : scenes); ++k)
     for (std::size_t b = 0; b < bands; ++b) {
       const double* p = cubes[k].plane(b);
       if (!may_tile) {  // the band maxima alone: one contiguous pass
@@ -250,7 +269,7 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
   // ---- Validation (before any device work) ----
   opt.validate();
   check_batch(cubes);
-  vjp_ready_ = false;
+  vjp_ready_ = spectra_ready_ = false;
   const std::size_t h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size();
   const bool circular = cfg_.convolution == ConvolutionMode::Circular;
   if (circular && !opt.exact && opt.tiles == TileMode::On)
@@ -264,6 +283,7 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
 
   // ---- Device work ----
   const std::size_t hw = h * w, g = L.gy * L.gx;
+  bool one_chunk = false;  // every scene's spectra left in spec_ (vjp reuses them)
   auto& q = rt_.queue();
   grow(rgb_, rgb_cap_, scenes * 3 * hw * rsz_);
   q.enqueueFillBuffer(rgb_, cl_uint(0), 0, scenes * 3 * hw * rsz_);
@@ -294,11 +314,11 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
     grow(wts_, wts_cap_, wt.size() * rsz_, CL_MEM_READ_ONLY);
     grow(cube_, cube_cap_, scenes * nk * hw * rsz_, CL_MEM_READ_ONLY);
     rt_.write_reals(wts_, wt.data(), wt.size(), prec_);
-    for (std::size_t k = 0; k < scenes; ++k)
-      for (std::size_t i = 0; i < nk; ++i) rt_.write_reals(cube_, cubes[k].plane(kept[i]), hw, prec_, (k * nk + i) * hw);
+    upload_planes(q, cube_, prec_, scenes * nk, hw, [&](std::size_t j) { return cubes[j / nk].plane(kept[j % nk]); });
     if (nslots > 0) {
       const std::size_t per_slot = pairs * g * 2 * rsz_;
       const std::size_t chunk = std::max<std::size_t>(1, std::min(nslots, kMaxChunkBytes / per_slot));
+      one_chunk = !tiled && nslots == scenes && chunk >= nslots;
       grow(spec_, spec_cap_, chunk * per_slot);
       grow(rgbspec_, rgbspec_cap_, chunk * 2 * g * 2 * rsz_);
       FftPlan& fwd = rt_.fft(L.gy, L.gx, chunk * pairs, prec_);
@@ -306,10 +326,10 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
       const std::size_t a = circular ? 0 : extent_neg(L.r, s_), b = circular ? 0 : extent_pos(L.r, s_);
       for (std::size_t base = 0; base < nslots; base += chunk) {
         const std::size_t count = std::min(chunk, nslots - base);
-        rt_.launch_1d(k_place_, chunk * pairs * g, prec_, cube_, tiles_, spec_, int(h), int(w), int(nk), int(L.gy),
+        launch_rows(rt_, k_place_, L.gx, chunk * pairs * L.gy, prec_, cube_, tiles_, spec_, int(h), int(w), int(nk), int(L.gy),
                       int(L.gx), int(L.th), int(L.tw), int(base), int(count), int(chunk));
         fwd.forward(spec_);
-        rt_.launch_1d(k_combine_, chunk * g, prec_, spec_, otf_, wts_, rgbspec_, int(L.gy), int(L.gx), int(nk),
+        launch_rows(rt_, k_combine_, L.gx, chunk * L.gy, prec_, spec_, otf_, wts_, rgbspec_, int(L.gy), int(L.gx), int(nk),
                       int(chunk));
         inv.inverse(rgbspec_);
         rt_.launch_1d(k_gather_, scenes * hw, prec_, rgbspec_, slot_of_, rgb_, int(h), int(w), int(L.gy), int(L.gx),
@@ -331,6 +351,7 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
   std::vector<RealStack> out(scenes, RealStack(3, h, w));
   for (std::size_t k = 0; k < scenes; ++k) rt_.read_reals(*result, out[k].data.data(), 3 * hw, prec_, k * 3 * hw);
   vjp_ready_ = !tiled;
+  spectra_ready_ = vjp_ready_ && one_chunk;
   return out;
 }
 
@@ -368,6 +389,8 @@ Camera::Gradient Camera::vjp(const std::vector<RealStack>& g_rgb, bool want_scen
   grow(grgb_, grgb_cap_, scenes * 3 * hw * rsz_, CL_MEM_READ_ONLY);
   for (std::size_t k = 0; k < scenes; ++k) rt_.write_reals(grgb_, g_rgb[k].data.data(), 3 * hw, prec_, k * 3 * hw);
   const std::size_t chunk = chunk_slots(scenes, pairs * g * 2 * rsz_);
+  // The scene spectra of the images() call, when it left them all in spec_ (same chunk layout).
+  const bool reuse_spectra = spectra_ready_ && chunk >= scenes;
   grow(spec_, spec_cap_, chunk * pairs * g * 2 * rsz_);
   grow(rgbspec_, rgbspec_cap_, chunk * 2 * g * 2 * rsz_);
   if (want_scenes) {
@@ -382,13 +405,15 @@ Camera::Gradient Camera::vjp(const std::vector<RealStack>& g_rgb, bool want_scen
   for (std::size_t base = 0; base < scenes; base += chunk) {
     const std::size_t count = std::min(chunk, scenes - base);
     // Image gradients as two pair spectra per scene (R + iG, B), then the scene spectra again.
-    rt_.launch_1d(k_place_, chunk * 2 * g, prec_, grgb_, tiles_, rgbspec_, int(h), int(w), 3, int(gy), int(gx), int(h),
+    launch_rows(rt_, k_place_, gx, chunk * 2 * gy, prec_, grgb_, tiles_, rgbspec_, int(h), int(w), 3, int(gy), int(gx), int(h),
                   int(w), int(base), int(count), int(chunk));
     fwd_rgb.forward(rgbspec_);
-    rt_.launch_1d(k_place_, chunk * pairs * g, prec_, cube_, tiles_, spec_, int(h), int(w), int(nk), int(gy), int(gx),
-                  int(h), int(w), int(base), int(count), int(chunk));
-    fwd_pairs.forward(spec_);
-    rt_.launch_1d(k_vjp_spectra_, pairs * g, prec_, rgbspec_, spec_, otf_, wts_, scene_out, gpsf_, int(gy), int(gx),
+    if (!reuse_spectra) {
+      launch_rows(rt_, k_place_, gx, chunk * pairs * gy, prec_, cube_, tiles_, spec_, int(h), int(w), int(nk), int(gy), int(gx),
+                    int(h), int(w), int(base), int(count), int(chunk));
+      fwd_pairs.forward(spec_);
+    }
+    launch_rows(rt_, k_vjp_spectra_, gx, pairs * gy, prec_, rgbspec_, spec_, otf_, wts_, scene_out, gpsf_, int(gy), int(gx),
                   int(nk), int(count), int(want_scenes ? 1 : 0));
     if (want_scenes) {
       fwd_pairs.inverse(gscene_);
@@ -399,7 +424,7 @@ Camera::Gradient Camera::vjp(const std::vector<RealStack>& g_rgb, bool want_scen
   rt_.fft(gy, gx, pairs, prec_).inverse(gpsf_);
   grow(gpsf_out_, gpsf_out_cap_, bands * s_ * s_ * rsz_);
   q.enqueueFillBuffer(gpsf_out_, cl_uint(0), 0, bands * s_ * s_ * rsz_);
-  rt_.launch_1d(k_gather_psf_, nk * s_ * s_, prec_, gpsf_, band_of_, gpsf_out_, int(s_), int(gy), int(gx),
+  launch_rows(rt_, k_gather_psf_, s_, nk * s_, prec_, gpsf_, band_of_, gpsf_out_, int(s_), int(gy), int(gx),
                 int(rep.crop_radius_px), int(nk));
   rt_.read_reals(gpsf_out_, out.psf.data.data(), out.psf.size(), prec_);
   if (want_scenes)
@@ -410,7 +435,7 @@ Camera::Gradient Camera::vjp(const std::vector<RealStack>& g_rgb, bool want_scen
 
 std::vector<RealStack> Camera::blur(const std::vector<RealStack>& cubes) {
   check_batch(cubes);
-  vjp_ready_ = false;
+  vjp_ready_ = spectra_ready_ = false;
   const std::size_t bands = cfg_.bands, h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size(), hw = h * w;
   const bool circular = cfg_.convolution == ConvolutionMode::Circular;
   const std::size_t c = s_ / 2;
@@ -433,7 +458,7 @@ std::vector<RealStack> Camera::blur(const std::vector<RealStack>& cubes) {
   FftPlan& plan = rt_.fft(gy, gx, chunk * pairs, prec_);
   for (std::size_t base = 0; base < scenes; base += chunk) {
     const std::size_t count = std::min(chunk, scenes - base);
-    rt_.launch_1d(k_place_, chunk * pairs * g, prec_, cube_, tiles_, spec_, int(h), int(w), int(bands), int(gy), int(gx),
+    launch_rows(rt_, k_place_, gx, chunk * pairs * gy, prec_, cube_, tiles_, spec_, int(h), int(w), int(bands), int(gy), int(gx),
                   int(h), int(w), int(base), int(count), int(chunk));
     plan.forward(spec_);
     rt_.launch_1d(k_multiply_, chunk * pairs * g, prec_, spec_, otf_, gscene_, int(gy), int(gx), int(pairs), int(chunk));

@@ -5,10 +5,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/fft.hpp"
 #include "qdo/physics/optics.hpp"
+#include "row_launch.hpp"
 
 namespace qdo {
 
@@ -109,7 +112,7 @@ void Camera::ensure_otf(std::size_t r, std::size_t gy, std::size_t gx, const std
   grow(band_of_, band_of_cap_, band_of.size() * sizeof(int), CL_MEM_READ_ONLY);
   rt_.queue().enqueueWriteBuffer(band_of_, CL_TRUE, 0, band_of.size() * sizeof(int), band_of.data());
   grow(otf_, otf_cap_, pairs * g * 2 * rsz_);
-  rt_.launch_1d(k_place_psf_, pairs * g, prec_, psf_buffer(), band_of_, otf_, int(s_), int(gy), int(gx), int(r),
+  launch_rows(rt_, k_place_psf_, gx, pairs * gy, prec_, psf_buffer(), band_of_, otf_, int(s_), int(gy), int(gx), int(r),
                 int(kept.size()));
   rt_.fft(gy, gx, pairs, prec_).forward(otf_);
   otf_gen_ = gen;
@@ -125,12 +128,25 @@ void Camera::check_batch(const std::vector<RealStack>& cubes) const {
   if (cubes.empty()) reject("cubes", 0, "at least one scene");
   const std::size_t bands = cfg_.bands, h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size();
   if (h < 1 || w < 1) reject("cube", to_str(h) + " x " + to_str(w), "at least 1 x 1 pixels");
+  // One branch-free pass flags a value with every exponent bit set (an infinity or a NaN); only
+  // then the slow scan below looks for it.
+  constexpr std::uint64_t kExponent = 0x7ff0000000000000ull;
+  std::uint64_t nonfinite = 0;
+  for (std::size_t k = 0; k < scenes; ++k) {
+    const double* p = cubes[k].data.data();
+    const std::size_t n = cubes[k].data.size();
+    for (std::size_t i = 0; i < n; ++i) {
+      std::uint64_t bits;
+      std::memcpy(&bits, p + i, sizeof bits);
+      nonfinite |= std::uint64_t((bits & kExponent) == kExponent);
+    }
+  }
   for (std::size_t k = 0; k < scenes; ++k) {
     if (cubes[k].planes != bands)
       reject("cubes[" + to_str(k) + "] bands", cubes[k].planes, "the configuration's band count (" + to_str(bands) + ")");
     if (cubes[k].rows != h || cubes[k].cols != w)
       reject("cubes[" + to_str(k) + "]", to_str(cubes[k].rows) + " x " + to_str(cubes[k].cols), "the shape of the first scene in the batch");
-    for (std::size_t i = 0; i < cubes[k].size(); ++i)
+    for (std::size_t i = 0; nonfinite && i < cubes[k].size(); ++i)
       if (!std::isfinite(cubes[k].data[i])) {
         const std::size_t b = i / (h * w), y = (i / w) % h, x = i % w;
         reject("cubes[" + to_str(k) + "](" + to_str(b) + ", " + to_str(y) + ", " + to_str(x) + ")", cubes[k].data[i], "finite values");

@@ -45,6 +45,9 @@ class PatchCamera {
   // The same camera in precision p (the joint training runs it in the run's precision).
   PatchCamera(Runtime& rt, const SystemConfig& cfg, Precision p);
   std::vector<RealStack> measure(const RealStack& psf_sensor, const std::vector<Patch>& patches);
+  // The same for bare cubes (bands x S x S each); with at most kMaxBatch of them on a 7-smooth S
+  // they go to the device without a host copy (the joint training step's path).
+  std::vector<RealStack> measure(const RealStack& psf_sensor, const std::vector<RealStack>& cubes);
   // Adjoint of the last measure() call (at most kMaxBatch patches, so one device call): gradients
   // on its images (3 x S x S each, in patch order) -> the gradient on its sensor PSF stack
   // (bands x S x S, summed over the patches). With the periodic extension the image gradient

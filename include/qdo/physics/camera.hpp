@@ -148,6 +148,11 @@ class Camera {
 
   // Times the OTFs were rebuilt since construction (tests of the reuse rule).
   std::size_t otf_builds() const { return otf_builds_; }
+  // vjp() reuses the scene spectra images() left on the device when that call ran in one chunk
+  // (spectra_reused()); forget_spectra() makes the next vjp() transform the scenes again (tests
+  // compare the two).
+  bool spectra_reused() const { return spectra_ready_; }
+  void forget_spectra() { spectra_ready_ = false; }
 
  private:
   void init();
@@ -198,6 +203,9 @@ class Camera {
   std::size_t otf_cap_ = 0, band_of_cap_ = 0, cube_cap_ = 0, tiles_cap_ = 0, slot_of_cap_ = 0, spec_cap_ = 0,
               rgbspec_cap_ = 0, rgb_cap_ = 0, noisy_cap_ = 0, wts_cap_ = 0, rings_cap_ = 0;
   bool vjp_ready_ = false;  // cube_, tiles_ and wts_ hold the last images() call's (untiled) batch
+  // spec_ still holds the pair spectra of every scene of the last images() call (it ran in one
+  // chunk, untiled): vjp() reads them instead of transforming the scenes again.
+  bool spectra_ready_ = false;
   cl::Buffer grgb_, gscene_, gpsf_, gout_, gpsf_out_;
   std::size_t grgb_cap_ = 0, gscene_cap_ = 0, gpsf_cap_ = 0, gout_cap_ = 0, gpsf_out_cap_ = 0;
   cl::Kernel k_rings_, k_place_psf_, k_place_, k_combine_, k_gather_, k_noise_, k_multiply_, k_gather_pairs_,
