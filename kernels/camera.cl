@@ -119,8 +119,9 @@ inline void unpack_pair(real2 zk, real2 zn, real2* fa, real2* fb) {
 // one inverse transform of the first carries two channels). wts: 3 x (2P) (zero-padded).
 // spec: slots x P x GY x GX; otf: P x GY x GX; rgbspec: slots x 2 x GY x GX complex.
 // Row kernel: global (>= GX, slots * GY); column v = id 0, row slot * GY + u = id 1.
-__kernel void combine_channels(__global const real2* spec, __global const real2* otf, __global const real* wts,
-                               __global real2* rgbspec, const int gy, const int gx, const int kept,
+__kernel void combine_channels(__global const real2* restrict spec, __global const real2* restrict otf,
+                               __global const real* restrict wts, __global real2* restrict rgbspec, const int gy,
+                               const int gx, const int kept,
                                const int slots) {
   const int v = (int)get_global_id(0);
   const int row = (int)get_global_id(1);
@@ -244,8 +245,9 @@ __kernel void gather_pairs(__global const real2* buf, __global real* out, const 
 // the slots, so gpsf needs no atomics. gspec: slots x 2 x GY x GX; spec, gscene: slots x P x GY x
 // GX; otf, gpsf: P x GY x GX complex; wts: 3 x 2P.
 // Row kernel: global (>= GX, P * GY); column v = id 0, row p * GY + u = id 1.
-__kernel void camera_vjp_spectra(__global const real2* gspec, __global const real2* spec, __global const real2* otf,
-                                 __global const real* wts, __global real2* gscene, __global real2* gpsf,
+__kernel void camera_vjp_spectra(__global const real2* restrict gspec, __global const real2* restrict spec,
+                                 __global const real2* restrict otf, __global const real* restrict wts,
+                                 __global real2* restrict gscene, __global real2* restrict gpsf,
                                  const int gy, const int gx, const int kept, const int count,
                                  const int want_scene) {
   const int v = (int)get_global_id(0);

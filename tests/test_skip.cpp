@@ -464,6 +464,16 @@ TEST_CASE("bad options and inputs are rejected before any work") {
   RealStack nan_cube = cubes[0];
   nan_cube(3, 2, 1) = std::nan("");
   CHECK_THROWS_WITH_AS((void)im.images({nan_cube}), doctest::Contains("finite"), InputError);
+  // Exact calls check the values while uploading them: the same refusal, naming the same value,
+  // for a NaN and for an infinity, and no batch is left for vjp() to differentiate.
+  SkipOptions exact_opt;
+  exact_opt.exact = true;
+  CHECK_THROWS_WITH_AS((void)im.images({cubes[0], nan_cube}, exact_opt), doctest::Contains("cubes[1](3, 2, 1)"), InputError);
+  RealStack inf_cube = cubes[0];
+  inf_cube(30, kSceneRows - 1, kSceneCols - 1) = -INFINITY;
+  const std::string where = "cubes[0](30, " + std::to_string(kSceneRows - 1) + ", " + std::to_string(kSceneCols - 1) + ")";
+  CHECK_THROWS_WITH_AS((void)im.images({inf_cube}, exact_opt), doctest::Contains(where.c_str()), InputError);
+  CHECK_THROWS_AS((void)im.vjp({RealStack(3, kSceneRows, kSceneCols)}), InputError);
   Camera standalone(runtime(), cfg, Precision::F32);
   CHECK_THROWS_WITH_AS(standalone.set_psf(RealStack(31, 63, 63)), doctest::Contains("psf_sensor"), InputError);
   CHECK_THROWS_AS((void)standalone.images(cubes), Error);  // no PSF yet

@@ -6,6 +6,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <numeric>
 
 #include "qdo/physics/cpu_reference.hpp"
@@ -41,19 +43,34 @@ double cost_model(std::size_t windows, std::size_t gy, std::size_t gx, std::size
 
 // Writes `planes` planes of hw doubles (plane j from plane_at(j)) into buf as reals of precision p,
 // plane j at element j * hw: one mapping of the whole region, converted straight into it (no
-// staging vector, one blocking command instead of one per plane).
-template <typename PlaneAt>
-void upload_planes(cl::CommandQueue& q, const cl::Buffer& buf, Precision p, std::size_t planes, std::size_t hw,
-                   PlaneAt&& plane_at) {
-  if (planes * hw == 0) return;
-  const std::size_t rsz = real_size(p);
-  void* ptr = q.enqueueMapBuffer(buf, CL_TRUE, CL_MAP_WRITE_INVALIDATE_REGION, 0, planes * hw * rsz);
+// staging vector, one blocking command instead of one per plane). Returns whether every value was
+// finite (an infinity or a NaN has every exponent bit set), found in the same pass.
+template <typename T, typename PlaneAt>
+bool convert_planes(T* dst, std::size_t planes, std::size_t hw, PlaneAt&& plane_at) {
+  constexpr std::uint64_t kExponent = 0x7ff0000000000000ull;
+  std::uint64_t nonfinite = 0;
   for (std::size_t j = 0; j < planes; ++j) {
     const double* src = plane_at(j);
-    if (p == Precision::F64) std::copy(src, src + hw, static_cast<double*>(ptr) + j * hw);
-    else std::copy(src, src + hw, static_cast<float*>(ptr) + j * hw);
+    T* out = dst + j * hw;
+    for (std::size_t i = 0; i < hw; ++i) {
+      std::uint64_t bits;
+      std::memcpy(&bits, src + i, sizeof bits);
+      nonfinite |= std::uint64_t((bits & kExponent) == kExponent);
+      out[i] = T(src[i]);
+    }
   }
+  return nonfinite == 0;
+}
+template <typename PlaneAt>
+bool upload_planes(cl::CommandQueue& q, const cl::Buffer& buf, Precision p, std::size_t planes, std::size_t hw,
+                   PlaneAt&& plane_at) {
+  if (planes * hw == 0) return true;
+  const std::size_t rsz = real_size(p);
+  void* ptr = q.enqueueMapBuffer(buf, CL_TRUE, CL_MAP_WRITE_INVALIDATE_REGION, 0, planes * hw * rsz);
+  const bool finite = p == Precision::F64 ? convert_planes(static_cast<double*>(ptr), planes, hw, plane_at)
+                                          : convert_planes(static_cast<float*>(ptr), planes, hw, plane_at);
   q.enqueueUnmapMemObject(buf, ptr);
+  return finite;
 }
 
 }  // namespace
@@ -268,7 +285,8 @@ Camera::Plan Camera::plan_images(const std::vector<RealStack>& cubes, const Skip
 std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const SkipOptions& opt) {
   // ---- Validation (before any device work) ----
   opt.validate();
-  check_batch(cubes);
+  // An exact call keeps every band, so the upload below reads every value: it checks them there.
+  check_batch(cubes, !opt.exact);
   vjp_ready_ = spectra_ready_ = false;
   const std::size_t h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size();
   const bool circular = cfg_.convolution == ConvolutionMode::Circular;
@@ -285,6 +303,14 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
   const std::size_t hw = h * w, g = L.gy * L.gx;
   bool one_chunk = false;  // every scene's spectra left in spec_ (vjp reuses them)
   auto& q = rt_.queue();
+  if (nk > 0) {
+    // Compacted kept bands of every scene on the device: scenes x K x H x W, converted plane by
+    // plane from the scenes (no host copy of the whole batch). First, so that an exact call's
+    // finiteness check (in the same pass) refuses a bad value before any kernel is launched.
+    grow(cube_, cube_cap_, scenes * nk * hw * rsz_, CL_MEM_READ_ONLY);
+    if (!upload_planes(q, cube_, prec_, scenes * nk, hw, [&](std::size_t j) { return cubes[j / nk].plane(kept[j % nk]); }))
+      check_batch(cubes, true);  // throws, naming the first value that is not finite
+  }
   grow(rgb_, rgb_cap_, scenes * 3 * hw * rsz_);
   q.enqueueFillBuffer(rgb_, cl_uint(0), 0, scenes * 3 * hw * rsz_);
   if (nk > 0) {
@@ -309,12 +335,8 @@ std::vector<RealStack> Camera::images(const std::vector<RealStack>& cubes, const
     std::vector<double> wt(3 * 2 * pairs, 0.0);
     for (std::size_t ch = 0; ch < 3; ++ch)
       for (std::size_t i = 0; i < nk; ++i) wt[ch * 2 * pairs + i] = srf_(Eigen::Index(ch), Eigen::Index(kept[i]));
-    // Compacted kept bands of every scene on the device: scenes x K x H x W, written plane by plane
-    // from the scenes (no host copy of the whole batch).
     grow(wts_, wts_cap_, wt.size() * rsz_, CL_MEM_READ_ONLY);
-    grow(cube_, cube_cap_, scenes * nk * hw * rsz_, CL_MEM_READ_ONLY);
     rt_.write_reals(wts_, wt.data(), wt.size(), prec_);
-    upload_planes(q, cube_, prec_, scenes * nk, hw, [&](std::size_t j) { return cubes[j / nk].plane(kept[j % nk]); });
     if (nslots > 0) {
       const std::size_t per_slot = pairs * g * 2 * rsz_;
       const std::size_t chunk = std::max<std::size_t>(1, std::min(nslots, kMaxChunkBytes / per_slot));
@@ -401,7 +423,9 @@ Camera::Gradient Camera::vjp(const std::vector<RealStack>& g_rgb, bool want_scen
   q.enqueueFillBuffer(gpsf_, cl_uint(0), 0, pairs * g * 2 * rsz_);
   FftPlan& fwd_pairs = rt_.fft(gy, gx, chunk * pairs, prec_);
   FftPlan& fwd_rgb = rt_.fft(gy, gx, chunk * 2, prec_);
-  const cl::Buffer& scene_out = want_scenes ? gscene_ : spec_;  // unused when !want_scenes
+  // Unused when !want_scenes (never written then, so passing spec_ twice keeps the kernel's restrict
+  // promise: restrict only forbids a second path to an object that is modified).
+  const cl::Buffer& scene_out = want_scenes ? gscene_ : spec_;
   for (std::size_t base = 0; base < scenes; base += chunk) {
     const std::size_t count = std::min(chunk, scenes - base);
     // Image gradients as two pair spectra per scene (R + iG, B), then the scene spectra again.

@@ -124,7 +124,7 @@ void Camera::ensure_otf(std::size_t r, std::size_t gy, std::size_t gx, const std
   ++otf_builds_;
 }
 
-void Camera::check_batch(const std::vector<RealStack>& cubes) const {
+void Camera::check_batch(const std::vector<RealStack>& cubes, bool values) const {
   if (cubes.empty()) reject("cubes", 0, "at least one scene");
   const std::size_t bands = cfg_.bands, h = cubes[0].rows, w = cubes[0].cols, scenes = cubes.size();
   if (h < 1 || w < 1) reject("cube", to_str(h) + " x " + to_str(w), "at least 1 x 1 pixels");
@@ -132,7 +132,7 @@ void Camera::check_batch(const std::vector<RealStack>& cubes) const {
   // then the slow scan below looks for it.
   constexpr std::uint64_t kExponent = 0x7ff0000000000000ull;
   std::uint64_t nonfinite = 0;
-  for (std::size_t k = 0; k < scenes; ++k) {
+  for (std::size_t k = 0; k < (values ? scenes : 0); ++k) {
     const double* p = cubes[k].data.data();
     const std::size_t n = cubes[k].data.size();
     for (std::size_t i = 0; i < n; ++i) {

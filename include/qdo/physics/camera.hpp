@@ -168,7 +168,9 @@ class Camera {
   Plan plan_images(const std::vector<RealStack>& cubes, const SkipOptions& opt);
   // Shape, band-count and finiteness checks of a batch (InputError naming the scene and pixel);
   // also refuses non-7-smooth sizes in circular mode and a missing PSF.
-  void check_batch(const std::vector<RealStack>& cubes) const;
+  // With values = false the finiteness scan is left to the caller (images() in exact mode does it
+  // while uploading, then calls this again with values = true to name the value it found).
+  void check_batch(const std::vector<RealStack>& cubes, bool values = true) const;
   // Uploads the kept bands (compacted) of every scene into cube_ and one untiled window per scene
   // into tiles_ / slot_of_.
   void upload_cubes(const std::vector<RealStack>& cubes, const std::vector<std::size_t>& kept);
