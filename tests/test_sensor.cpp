@@ -4,6 +4,7 @@
 #include "common.hpp"
 #include "qdo/physics/cpu_reference.hpp"
 #include "qdo/runtime/error.hpp"
+#include "qdo/runtime/rng.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/physics/simulator.hpp"
 
@@ -61,6 +62,25 @@ TEST_SUITE("sensor") {
     ref::add_noise(c2, 0.01, 0, 8);
     CHECK(b.data == a.data);
     CHECK(c2.data != a.data);
+  }
+
+  TEST_CASE("read noise alone: the values of the full draw, bit for bit, threaded or not") {
+    // Below and above the size at which add_noise splits the pixels between two threads; with a
+    // scene index so that the counters are offset as in a batch.
+    for (std::size_t side : {std::size_t(17), std::size_t(160)}) {
+      CAPTURE(side);
+      RealStack got(3, side, side + 3, 0.25);
+      const std::size_t hw = got.plane_size(), scene = 5;
+      const unsigned long long seed = 0x1234abcd5678ull;
+      ref::add_noise(got, 0.03, 0, seed, scene);
+      std::size_t same = 0;
+      for (std::size_t c = 0; c < 3; ++c)
+        for (std::size_t p = 0; p < hw; ++p) {
+          const double want = 0.25 + 0.03 * noise_draw(seed, (scene * hw + p) * 3 + c).gaussian;
+          same += got.plane(c)[p] == want;
+        }
+      CHECK(same == got.size());
+    }
   }
 
   TEST_CASE("an SRF on another band grid is rejected, naming the camera") {

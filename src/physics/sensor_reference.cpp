@@ -1,6 +1,7 @@
 #include "qdo/physics/sensor_reference.hpp"
 
 #include <cmath>
+#include <thread>
 
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/rng.hpp"
@@ -26,6 +27,26 @@ void add_noise(RealStack& rgb, double read_noise_sigma, double full_well_photons
   if (!(full_well_photons >= 0) || !std::isfinite(full_well_photons)) reject("full_well_photons", full_well_photons, ">= 0, finite");
   if (read_noise_sigma == 0 && full_well_photons == 0) return;
   const std::size_t hw = rgb.plane_size();
+  if (full_well_photons == 0) {
+    // Read noise alone: each value's draw is independent of the others (counter-based), so the
+    // planes' pixels are split between two threads when there are enough of them; the values are
+    // those of the loop below, bit for bit.
+    const auto add_rows = [&](std::size_t p0, std::size_t p1) {
+      for (std::size_t c = 0; c < rgb.planes; ++c) {
+        double* plane = rgb.plane(c);
+        for (std::size_t p = p0; p < p1; ++p) plane[p] += read_noise_sigma * noise_gaussian(seed, (scene_index * hw + p) * 3 + c);
+      }
+    };
+    constexpr std::size_t kThreadedPixels = 1u << 14;
+    if (hw < kThreadedPixels) {
+      add_rows(0, hw);
+    } else {
+      std::thread other(add_rows, hw / 2, hw);
+      add_rows(0, hw / 2);
+      other.join();
+    }
+    return;
+  }
   for (std::size_t c = 0; c < rgb.planes; ++c)
     for (std::size_t p = 0; p < hw; ++p) {
       const NoiseDraw d = noise_draw(seed, (scene_index * hw + p) * 3 + c);

@@ -36,6 +36,15 @@ struct NoiseDraw {
   double uniform_poisson;
   double gaussian_poisson;
 };
+// noise_draw(seed, index, stream).gaussian alone, bit for bit (the same operations in the same
+// order), without the second normal and the Poisson uniform: the read-noise-only path.
+inline double noise_gaussian(std::uint64_t seed, std::uint64_t index, std::uint32_t stream = kSensorNoiseStream) {
+  const auto r = philox4x32({std::uint32_t(index), std::uint32_t(index >> 32), stream, 0u},
+                            {std::uint32_t(seed), std::uint32_t(seed >> 32)});
+  const double u0 = uniform_open(r[0]), u1 = uniform_open(r[1]);
+  const double rad = std::sqrt(-2.0 * std::log(u0));
+  return rad * std::cos(2.0 * M_PI * u1);
+}
 inline NoiseDraw noise_draw(std::uint64_t seed, std::uint64_t index, std::uint32_t stream = kSensorNoiseStream) {
   const auto r = philox4x32({std::uint32_t(index), std::uint32_t(index >> 32), stream, 0u},
                             {std::uint32_t(seed), std::uint32_t(seed >> 32)});
