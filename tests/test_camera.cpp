@@ -362,4 +362,35 @@ TEST_CASE("a batch of scenes gives the per-scene results, noise counters include
   CHECK(diff(single[0].data, got[0].data).max_abs <= 1e3 * eps(p));
 }
 
+TEST_CASE("a batch whose rows take more than one kernel launch gives each scene's own images and gradients") {
+  // 11 scenes x 16 band pairs x 100 grid rows = 17,600 rows of the scene placement, over the
+  // 16,384 rows of one launch (src/physics/row_launch.hpp): the second launch runs with a global
+  // offset. Each scene must come out as it does alone (one launch).
+  SystemConfig c = tiny_config(32, 31);
+  c.convolution = ConvolutionMode::Circular;
+  c.read_noise_sigma = 0;
+  c.full_well_photons = 0;
+  c.validate();
+  const Precision p = Precision::F32;
+  Camera cam(runtime(), c, p);
+  cam.set_psf(random_psf(c, 41));
+  std::vector<RealStack> cubes, g;
+  for (unsigned k = 0; k < 11; ++k) {
+    cubes.push_back(random_cube(c.bands, 100, 100, 200 + k));
+    g.push_back(random_cube(3, 100, 100, 300 + k));
+  }
+  const auto batch = cam.images(cubes, no_skipping());
+  const Camera::Gradient gb = cam.vjp(g, true);
+  RealStack psf_sum(c.bands, c.sensor_size_px(), c.sensor_size_px(), 0.0);
+  for (std::size_t k = 0; k < cubes.size(); ++k) {
+    CAPTURE(k);
+    const auto one = cam.images({cubes[k]}, no_skipping());
+    const Camera::Gradient g1 = cam.vjp({g[k]}, true);
+    CHECK(diff(one[0].data, batch[k].data).max_abs <= 1e3 * eps(p) * max_abs(one[0].data));
+    CHECK(diff(g1.scenes[0].data, gb.scenes[k].data).max_abs <= 1e3 * eps(p) * max_abs(g1.scenes[0].data));
+    for (std::size_t i = 0; i < psf_sum.size(); ++i) psf_sum.data[i] += g1.psf.data[i];
+  }
+  CHECK(diff(psf_sum.data, gb.psf.data).max_abs <= 1e3 * eps(p) * max_abs(gb.psf.data));
+}
+
 }  // TEST_SUITE
