@@ -16,7 +16,9 @@
 # of the parameters, or the fit says its sigma is unreliable.
 # Usage: bash scripts/experiments_fit_raw_sigma.sh [OUT]   (QDO: the qdo binary, default build/qdo;
 # DESIGN: a design.h5 to use instead of training the Section 7 design into OUT/design; PY: a python
-# with numpy, scipy and h5py, default /usr/bin/python3)
+# with numpy, scipy and h5py, default /usr/bin/python3; ONLY: a name prefix, e.g. gen, to make and
+# fit only those cameras; FIT_PADDING: the fit's model with this padding_px instead of the preset's
+# (the cameras are made as without it))
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/fit_raw_sigma}
@@ -32,6 +34,15 @@ c = json.load(open(sys.argv[1]))
 c.update({"cfa": "rggb", "bit_depth": 12, "black_level_dn": 64, "read_noise_sigma": 0.001,
           "full_well_photons": 20000, "noise_seed": 1})
 json.dump(c, open(sys.argv[2], "w"), indent=2)' "$CAM" "$RAWCAM"
+FITCAM=$RAWCAM
+if [ -n "${FIT_PADDING:-}" ]; then
+  FITCAM=$OUT/camera_fit.json
+  "$PY" -c '
+import json, sys
+c = json.load(open(sys.argv[1]))
+c["padding_px"] = int(sys.argv[3])
+json.dump(c, open(sys.argv[2], "w"), indent=2)' "$RAWCAM" "$FITCAM" "$FIT_PADDING"
+fi
 # name, seed, relief offset (um), z error (um), sensor grid displacement (um; generator only)
 CAMERAS=("overlay11 11 1.5,-1.0 150 -" "overlay12 12 -2.0,0.5 -100 -" "overlay13 13 0.7,2.4 60 -"
          "overlay14 14 2.8,-1.9 180 -" "overlay15 15 -0.6,-3.1 -140 -"
@@ -39,6 +50,7 @@ CAMERAS=("overlay11 11 1.5,-1.0 150 -" "overlay12 12 -2.0,0.5 -100 -" "overlay13
          "gen24 24 -1.0,3.0 -160 -2,-7" "gen25 25 4.0,-1.0 70 4,4")
 for cam in "${CAMERAS[@]}"; do
   read -r name seed off dz grid <<< "$cam"
+  [ -n "${ONLY:-}" ] && [ "${name#"$ONLY"}" = "$name" ] && continue
   c=$OUT/$name
   if [ -f "$c/fitted_raw/fit.json" ]; then echo "$name: done before"; continue; fi
   rm -rf "$c"
@@ -56,7 +68,7 @@ for cam in "${CAMERAS[@]}"; do
     "$QDO" simulate --config "$RAWCAM" --psf "$c/asbuilt/psf.h5" --capture psf-sweep --peak 0.6 --darks 8 \
       --out "$c/sweep" > /dev/null
   fi
-  "$QDO" fit --config "$RAWCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit levels,z,offset,shift \
+  "$QDO" fit --config "$FITCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit levels,z,offset,shift \
     --iterations 60 --out "$c/fitted_raw" > "$c/fitted_raw.log" 2>&1 || true
   echo "$name (offset $off um, dz $dz um, grid $grid um): $(( $(date +%s) - t0 )) s"
 done
