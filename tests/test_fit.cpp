@@ -26,6 +26,7 @@
 #include "qdo/runtime/error.hpp"
 #include "qdo/asbuilt/fit.hpp"
 #include "qdo/data/io.hpp"
+#include "qdo/physics/simulator.hpp"
 
 using namespace qdo;
 using namespace qdo::test;
@@ -461,6 +462,15 @@ TEST_SUITE("fit") {
     CHECK(j["parameters"][0].contains("sigma_jackknife"));
     CHECK(j["jackknife_groups"] == 8);
     CHECK(j["sigma_reliable"] == true);
+    // The fitted model's sampling: the report `qdo psf` gives for the as-built design and configuration.
+    {
+      Simulator sim(runtime(), config_from_json_file((dir / "out" / "config.json").string()), Precision::F64);
+      sim.set_heights(read_design((dir / "out" / "design.h5").string()).height_m);
+      sim.compute_psf();
+      REQUIRE(j.contains("model_sampling"));
+      CHECK(j["model_sampling"] == sim.sampling().summary());
+      CHECK(ok.out.find("the fitted model's " + sim.sampling().summary()) != std::string::npos);
+    }
     CHECK(std::fabs(j["parameters"][0]["value"].get<double>() - t[0]) < 0.5e-9);
     CHECK(std::fabs(j["parameters"][3]["value"].get<double>() - t[3]) < 1e-3 * t[3]);
     CHECK(h5_read((dir / "out" / "fit.h5").string(), "/correlation").shape == std::vector<std::size_t>{6, 6});

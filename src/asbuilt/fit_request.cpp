@@ -8,6 +8,7 @@
 
 #include "qdo/asbuilt/calibration_outputs.hpp"
 #include "qdo/design/option_inputs.hpp"
+#include "qdo/physics/simulator.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/runtime/strprintf.hpp"
 #include "qdo/runtime/util.hpp"
@@ -109,11 +110,22 @@ FitReport run_fit_request(Runtime& rt, const FitRequest& q, const std::string& d
   const std::string source =
       raw ? "raw frames " + q.frames + ", darks " + q.darks + (q.white.empty() ? std::string() : ", white " + q.white)
           : q.measured.value;
+  // The fitted model's sampling, as `qdo psf` reports it for the as-built design and configuration:
+  // a transfer function the window under-samples is model error the fit meets as misfit
+  // (docs/built-camera.md, "Limits today").
+  std::string sampling;
+  {
+    Simulator sim(rt, r.as_built_config, p);
+    sim.set_heights(r.as_built.height_m);
+    sim.compute_psf();
+    sampling = sim.sampling().summary();
+  }
   FitReport rep;
-  rep.written = write_fit_outputs(dir, cfg, measured, r, {q.design.value, source}, fit_s);
+  rep.written = write_fit_outputs(dir, cfg, measured, r, {q.design.value, source, sampling}, fit_s);
   const double out_s = seconds_since(t1);
 
   for (const std::string& line : fit_summary_lines(cfg, r, fit_s, out_s)) rep.text += line + "\n";
+  rep.text += "the fitted model's " + sampling + "\n";
   if (!r.converged)
     rep.warning = strprintf(
         "NOT CONVERGED: the iteration limit (--iterations %d) ended the fit; the values and sigmas above "

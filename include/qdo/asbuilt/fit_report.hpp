@@ -57,6 +57,9 @@ std::vector<std::pair<std::string, double>> parse_fit_starts(const SystemConfig&
 struct FitSources {
   std::string design;  // the design spec
   std::string psf;     // the measured PSF file
+  // The fitted model's sampling report (SamplingReport::summary() of the as-built design and
+  // configuration, the paragraph `qdo psf` prints); fit.json's "model_sampling" when not empty.
+  std::string model_sampling = {};
 };
 
 // Whether the fit ended above the design's own loss (or at NaN): then it is no result and no
