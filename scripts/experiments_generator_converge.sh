@@ -18,9 +18,14 @@ PY=${PY:-/usr/bin/python3}
 for f in fab/config.json fab/design.h5 gen_fine2/psf.h5 gen_fine4/psf.h5; do
   [ -f "$OUT/$f" ] || { echo "experiments_generator_converge.sh: $OUT/$f missing: run scripts/experiments_generator_check.sh $OUT first" >&2; exit 2; }
 done
+[ -f "$OUT/.experiments_generator_check" ] ||
+  { echo "experiments_generator_converge.sh: $OUT was not made by scripts/experiments_generator_check.sh (no $OUT/.experiments_generator_check)" >&2; exit 2; }
+# OUT/converge is this script's own folder (claim_out refuses one it did not make); it rewrites only
+# what it makes there.
+source scripts/experiments_out.sh
 W="$OUT/converge"
-rm -rf "$W"
-mkdir -p "$W"
+claim_out experiments_generator_converge "$W"
+rm -rf "$W/k0" "$W/k1" "$W/k3" "$W"/*_b7.h5 "$W/k0.log" "$W/k1.txt" "$W/k3.txt"
 "$PY" scripts/supersample_design.py --config "$OUT/fab/config.json" --design "$OUT/fab/design.h5" --k 1 \
   --out-config "$W/k1/config.json" --out-design "$W/k1/design.h5" > "$W/k1.txt"
 "$PY" scripts/supersample_design.py --config "$OUT/fab/config.json" --design "$OUT/fab/design.h5" --k 3 --band-step 5 \
