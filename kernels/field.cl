@@ -14,9 +14,12 @@
 //             sqrt(..) - R0 written without cancellation, so float32 keeps ~1e-4 rad where k·R0
 //             (1.6e7 rad at 1 m) would lose everything (REFERENCE §1)
 //   plane wave: src = -(x α + y β).
-// The aperture test compares the integer pixel radius² with r_ap2_px, half an integer computed in
-// double on the host (SystemConfig::aperture_inside_px2: r <= R or r < R as aperture_edge), so
-// boundary samples agree in every precision.
+// The aperture: with use_amp = 0 the test compares the integer pixel radius² with r_ap2_px, half an
+// integer computed in double on the host (SystemConfig::aperture_inside_px2: r <= R or r < R as
+// aperture_edge), so boundary samples agree in every precision; with use_amp = 1 (aperture_edge
+// "area") sample (i, j) is weighted by amp[i * n + j] (N x N reals, aperture_transmission in
+// optics.hpp: the fraction of its cell inside the circle, whose centre may sit off the grid's centre)
+// and is inside when that is > 0. amp is a one-element buffer, never read, when use_amp = 0.
 // Groups: designs x points, design-major (group g uses height map g / points and point g % points);
 // plane b (of `planes` in all) belongs to group b / bands_per_group. planes = designs x points x bands.
 // NDRange (columns rounded up to the work-group size, rows, groups): each work item computes its
@@ -37,18 +40,19 @@ inline real point_source(const real x, const real y, const real r2, __global con
 __kernel void doe_field(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
                         __global real2* out, const int bands_per_group, const int n, const int m, const int offset,
                         const int bands, const real pitch_m, __global const real* point_tab, const int points,
-                        const real r_ap2_px) {
+                        const real r_ap2_px, __global const real* amp, const int use_amp) {
   const int wx = (int)get_global_id(0), wy = (int)get_global_id(1), g = (int)get_global_id(2);
   if (wx >= m || wy >= m || g * bands_per_group >= bands) return;
   const int d = g / points, pt = g - d * points;
   const int i = wy - offset, j = wx - offset;
   bool inside = false;
-  real src = R(0.0), h = R(0.0);
+  real src = R(0.0), h = R(0.0), a = R(1.0);
   if (i >= 0 && i < n && j >= 0 && j < n) {
     const int di = i - n / 2, dj = j - n / 2;
     const real y = (real)di * pitch_m, x = (real)dj * pitch_m;
     const real r2 = x * x + y * y;
-    if ((real)(di * di + dj * dj) <= r_ap2_px) {  // integer pixel radius²: exact in float too
+    if (use_amp) a = amp[i * n + j];
+    if (use_amp ? a > R(0.0) : (real)(di * di + dj * dj) <= r_ap2_px) {  // integer pixel radius²: exact in float too
       inside = true;
       src = point_source(x, y, r2, point_tab + 4 * pt);
       h = height_m[(size_t)d * n * n + i * n + j];
@@ -57,6 +61,7 @@ __kernel void doe_field(__global const real* height_m, __global const real* k_pe
   for (int b = g * bands_per_group; b < (g + 1) * bands_per_group; ++b) {
     real2 v = (real2)(R(0.0), R(0.0));
     if (inside) v = cexpi(k_per_m[b] * (src + dn[b] * h));
+    if (use_amp) v *= a;
     out[((size_t)b * m + wy) * m + wx] = v;
   }
 }
@@ -79,18 +84,20 @@ inline double point_source_d(const double x, const double y, const double r2, __
 __kernel void doe_field_p64(__global const real* height_m, __global const double* k_per_m, __global const double* dn,
                             __global real2* out, const int bands_per_group, const int n, const int m, const int offset,
                             const int bands, const double pitch_m, __global const double* point_tab, const int points,
-                            const double r_ap2_px) {
+                            const double r_ap2_px, __global const real* amp, const int use_amp) {
   const int wx = (int)get_global_id(0), wy = (int)get_global_id(1), g = (int)get_global_id(2);
   if (wx >= m || wy >= m || g * bands_per_group >= bands) return;
   const int d = g / points, pt = g - d * points;
   const int i = wy - offset, j = wx - offset;
   bool inside = false;
   double src = 0.0, h = 0.0;
+  real a = 1.0f;
   if (i >= 0 && i < n && j >= 0 && j < n) {
     const int di = i - n / 2, dj = j - n / 2;
     const double y = (double)di * pitch_m, x = (double)dj * pitch_m;
     const double r2 = x * x + y * y;
-    if ((double)(di * di + dj * dj) <= r_ap2_px) {
+    if (use_amp) a = amp[i * n + j];
+    if (use_amp ? a > 0.0f : (double)(di * di + dj * dj) <= r_ap2_px) {
       inside = true;
       src = point_source_d(x, y, r2, point_tab + 4 * pt);
       h = (double)height_m[(size_t)d * n * n + i * n + j];
@@ -102,6 +109,7 @@ __kernel void doe_field_p64(__global const real* height_m, __global const double
       double c;
       const double s = sincos(k_per_m[b] * (src + dn[b] * h), &c);
       v = (real2)((float)c, (float)s);
+      if (use_amp) v *= a;
     }
     out[((size_t)b * m + wy) * m + wx] = v;
   }
@@ -112,20 +120,21 @@ __kernel void doe_field_p64(__global const real* height_m, __global const double
 // complex gradients g = dL/dRe + i dL/dIm) ---
 
 // VJP of the DOE phase of one design: dH[i][j] = sum_p k_p dn_p Re(conj(gU1) i U1) over all
-// planes p (points x bands, point-major: the gradients of all object points add up), U1
+// planes p (U1 with its aperture weight amp when use_amp) (points x bands, point-major: the gradients of all object points add up), U1
 // recomputed exactly as doe_field does. gu: planes x M x M; dh: N x N; point_tab as doe_field.
 __kernel void phase_vjp(__global const real* height_m, __global const real* k_per_m, __global const real* dn,
                         __global const real2* gu, __global real* dh, const int n, const int m, const int offset,
                         const int bands, const real pitch_m, __global const real* point_tab, const int points,
-                        const real r_ap2_px) {
+                        const real r_ap2_px, __global const real* amp, const int use_amp) {
   const size_t gid = get_global_id(0);
   if (gid >= (size_t)n * n) return;
   const int i = (int)(gid / n), j = (int)(gid - (size_t)i * n);
   const int di = i - n / 2, dj = j - n / 2;
   const real y = (real)di * pitch_m, x = (real)dj * pitch_m;
   const real r2 = x * x + y * y;
+  const real a = use_amp ? amp[gid] : R(1.0);
   real acc = R(0.0);
-  if ((real)(di * di + dj * dj) <= r_ap2_px) {  // integer pixel radius²: exact in float too
+  if (use_amp ? a > R(0.0) : (real)(di * di + dj * dj) <= r_ap2_px) {  // integer pixel radius²: exact in float too
     const real h = height_m[gid];
     const int per_point = bands / points;
     for (int pt = 0; pt < points; ++pt) {
@@ -137,5 +146,5 @@ __kernel void phase_vjp(__global const real* height_m, __global const real* k_pe
       }
     }
   }
-  dh[gid] = acc;
+  dh[gid] = use_amp ? a * acc : acc;
 }

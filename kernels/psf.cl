@@ -41,11 +41,14 @@ __kernel void scale_by_sums(__global real* x, __global const real* sums, const i
   if (s > R(0.0)) x[gid] /= s;
 }
 
-// Area resampling: out[b][oy][ox] = sum_{ty,tx} w[oy][ty] w[ox][tx] in[b][start[oy]+ty][start[ox]+tx]
-// in: bands x N x N, out: bands x S x S, start: S ints, w: S x taps reals (zero where the
-// tap falls outside the input: such taps are read clamped and add nothing).
+// Area resampling: out[b][oy][ox] = sum_{ty,tx} w[oy][ty] w[c][tx] in[b][start[oy]+ty][start[c]+tx],
+// c = col_offset + ox. in: bands x N x N, out: bands x S x S, start: (col_offset + S) ints, w:
+// (col_offset + S) x taps reals (zero where the tap falls outside the input: such taps are read
+// clamped and add nothing); col_offset 0 (one table for both axes) or S (the columns' own table
+// after the rows', AreaWeights::make_xy).
 __kernel void resample_area(__global const real* in, __global real* out, __global const int* start,
-                            __global const real* w, const int n, const int s, const int taps, const int bands) {
+                            __global const real* w, const int n, const int s, const int taps, const int bands,
+                            const int col_offset) {
   const size_t gid = get_global_id(0);
   const size_t ss = (size_t)s * s;
   if (gid >= ss * bands) return;
@@ -60,7 +63,8 @@ __kernel void resample_area(__global const real* in, __global real* out, __globa
     const int iy = clamp(start[oy] + ty, 0, n - 1);
     __global const real* row = in + ((size_t)b * n + iy) * n;
     real racc = R(0.0);
-    for (int tx = 0; tx < taps; ++tx) racc += w[ox * taps + tx] * row[clamp(start[ox] + tx, 0, n - 1)];
+    const int cx = col_offset + ox;  // the columns' table entry (the rows' when col_offset = 0)
+    for (int tx = 0; tx < taps; ++tx) racc += w[cx * taps + tx] * row[clamp(start[cx] + tx, 0, n - 1)];
     acc += wy * racc;
   }
   out[gid] = acc;

@@ -85,12 +85,14 @@ void shift_bilinear_derivative(const std::vector<double>& in, const std::vector<
 namespace {
 
 // The registration's weights per axis: the native grid (N at pitch_m) onto the sensor grid (S at
-// sensor_pitch_m) moved by -s sensor px, so the content moves by +s.
+// sensor_pitch_m) moved by -s sensor px from the optical axis, so the content moves by +s (and, as
+// in sensor_weights, by -aperture_offset / sensor pitch: the window is centred on the axis).
 struct RegisteredWeights {
   AreaWeights wx, wy;
   RegisteredWeights(const SystemConfig& cfg, double sx, double sy)
-      : wx(AreaWeights::make(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m, sx)),
-        wy(AreaWeights::make(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m, sy)) {}
+      : wx(AreaWeights::make(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m, sx - axis_px(cfg.aperture_offset_x_m, cfg))),
+        wy(AreaWeights::make(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m, sy - axis_px(cfg.aperture_offset_y_m, cfg))) {}
+  static double axis_px(double offset_m, const SystemConfig& cfg) { return offset_m / cfg.sensor_pitch_m; }
 };
 
 void require_native(const RealStack& native, const SystemConfig& cfg, const char* what) {

@@ -216,8 +216,24 @@ void SystemConfig::validate() const {
                          " m (the PSF is area-integrated onto sensor pixels, never interpolated finer)");
   if (scene_size_px < 1 || scene_size_px > 16384) reject("scene_size_px", scene_size_px, "an integer from 1 to 16384");
   if (camera.empty()) reject("camera", "\"\"", "a built-in camera name or a CSV path, not empty");
-  if (aperture_edge != ApertureEdge::Inclusive && aperture_edge != ApertureEdge::Strict)
-    reject("aperture_edge", static_cast<int>(aperture_edge), "\"inclusive\" or \"strict\"");
+  if (aperture_edge != ApertureEdge::Inclusive && aperture_edge != ApertureEdge::Strict && aperture_edge != ApertureEdge::Area)
+    reject("aperture_edge", static_cast<int>(aperture_edge), "\"inclusive\", \"strict\" or \"area\"");
+  for (const auto& [key, v] : {std::pair<const char*, double>{"aperture_offset_m[0]", aperture_offset_x_m},
+                                {"aperture_offset_m[1]", aperture_offset_y_m}})
+    check_finite_range(key, v, -half_width_m, half_width_m, "a finite offset of the optical axis within the DOE grid (metres)");
+  if (aperture_offset()) {
+    if (aperture_edge != ApertureEdge::Area)
+      reject("aperture_offset_m", "[" + to_str(aperture_offset_x_m) + ", " + to_str(aperture_offset_y_m) + "]",
+             "[0, 0] unless \"aperture_edge\" is \"area\" (a sub-pixel centre has no whole-sample edge)");
+    // Sample centres run from -N/2 to N/2 - 1 pitches: the cells span [-(N/2 + 1/2), N/2 - 1/2].
+    const double r = aperture_radius(), lo = -(double(n) / 2.0 + 0.5) * pitch_m, hi = (double(n) / 2.0 - 0.5) * pitch_m;
+    for (const auto& [key, v] : {std::pair<const char*, double>{"aperture_offset_m[0]", aperture_offset_x_m},
+                                  {"aperture_offset_m[1]", aperture_offset_y_m}})
+      if (v - r < lo || v + r > hi)
+        reject(key, v,
+               "an offset that keeps the aperture (radius " + to_str(r) + " m) inside the DOE grid's cells [" + to_str(lo) + ", " +
+                   to_str(hi) + "] m");
+  }
   if (convolution != ConvolutionMode::Linear && convolution != ConvolutionMode::Circular)
     reject("convolution", static_cast<int>(convolution), "\"linear\" or \"circular\"");
   check_finite_range("read_noise_sigma", read_noise_sigma, 0.0, inf, "a finite sigma >= 0 (units of full scale)");

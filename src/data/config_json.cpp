@@ -154,8 +154,30 @@ const std::vector<Field>& fields() {
        }},
       number_field("sensor_distance_m", &SystemConfig::sensor_distance_m),
       number_field("aperture_radius_m", &SystemConfig::aperture_radius_m),
-      choice_field("aperture_edge", &SystemConfig::aperture_edge, "inclusive", ApertureEdge::Inclusive, "strict",
-                   ApertureEdge::Strict),
+      {"aperture_edge",
+       [](SystemConfig& c, const std::string& k, const json& v) {
+         const std::string e = get_string(k, v);
+         if (e == "inclusive") c.aperture_edge = ApertureEdge::Inclusive;
+         else if (e == "strict") c.aperture_edge = ApertureEdge::Strict;
+         else if (e == "area") c.aperture_edge = ApertureEdge::Area;
+         else reject(k, quote(v), "\"inclusive\", \"strict\" or \"area\"");
+       },
+       [](const SystemConfig& c) {
+         return nlohmann::ordered_json(c.aperture_edge == ApertureEdge::Strict ? "strict"
+                                       : c.aperture_edge == ApertureEdge::Area ? "area"
+                                                                                : "inclusive");
+       }},
+      {"aperture_offset_m",
+       [](SystemConfig& c, const std::string& k, const json& v) {
+         if (!v.is_array() || v.size() != 2) reject(k, quote(v), "an array [x, y] of two numbers of metres");
+         c.aperture_offset_x_m = get_number(k + "[0]", v[0]);
+         c.aperture_offset_y_m = get_number(k + "[1]", v[1]);
+       },
+       // Omitted at (0, 0): configurations with a centred axis write the same JSON as before.
+       [](const SystemConfig& c) {
+         if (!c.aperture_offset()) return nlohmann::ordered_json();
+         return nlohmann::ordered_json::array({c.aperture_offset_x_m, c.aperture_offset_y_m});
+       }},
       {"material",
        [](SystemConfig& c, const std::string& k, const json& v) {
          c.material = material_by_name(get_string(k, v)).name;  // canonical name; aliases accepted

@@ -22,7 +22,9 @@ std::vector<double> FieldStage::point_table(const SystemConfig& cfg) {
       const double g = std::sqrt(1.0 + tx * tx + ty * ty);
       t.insert(t.end(), {tx / g, ty / g, -1.0, 0.0});
     } else {
-      const double d = pt.distance_m, x0 = d * tx, y0 = d * ty;
+      // The points move with the optical axis (cfg.aperture_offset_*_m); a plane wave's tilt is the
+      // same about any centre (a constant phase apart).
+      const double d = pt.distance_m, x0 = d * tx + cfg.aperture_offset_x_m, y0 = d * ty + cfg.aperture_offset_y_m;
       t.insert(t.end(), {x0, y0, d, std::sqrt(x0 * x0 + y0 * y0 + d * d)});
     }
   }
@@ -49,6 +51,10 @@ FieldStage::FieldStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::s
   dn_ = detail::upload_real(rt_, dd, prec_);
   const std::vector<double> pts = point_table(cfg_);
   pt_ = detail::upload_real(rt_, pts, prec_);
+  // The aperture's weights (kernels/field.cl use_amp): N x N with aperture_edge "area", else one
+  // unread element.
+  use_amp_ = cfg_.aperture_edge == ApertureEdge::Area;
+  amp_ = detail::upload_real(rt_, use_amp_ ? aperture_transmission(cfg_) : std::vector<double>{1.0}, prec_);
   if (phase_fp64_) {
     k64_ = detail::upload(rt_, kk);
     dn64_ = detail::upload(rt_, dd);
@@ -62,7 +68,7 @@ void FieldStage::set_phase_args(cl::Kernel& k, Precision p, const cl::Buffer& he
   const double r_ap2_px = cfg_.aperture_inside_px2();  // as ref::doe_field: half an integer, exact in float
   const cl::Buffer& pt = p == Precision::F64 && phase_fp64_ ? pt64_ : pt_;
   set_args(k, p, heights, k_tab, dn_tab, a3, a4, int(cfg_.n), int(geom_.m), int(kOffset), int(planes ? planes : nb_),
-           Real{cfg_.pitch_m}, pt, int(points_), Real{r_ap2_px});
+           Real{cfg_.pitch_m}, pt, int(points_), Real{r_ap2_px}, amp_, int(use_amp_));
 }
 
 void FieldStage::run(const cl::Buffer& heights, cl::Buffer& field, bool crop_rows) {

@@ -19,8 +19,9 @@ ComplexStack doe_field(const SystemConfig& cfg, const Map2D& height_m, const Pro
     reject("height_m", to_str(height_m.rows) + " x " + to_str(height_m.cols), "an N x N map with N = " + to_str(cfg.n));
   const auto k = wavenumber_per_band(cfg);
   const auto dn = delta_n_per_band(cfg);
-  // Aperture: integer pixel radius² against cfg.aperture_inside_px2() (aperture_edge), as kernels/field.cl.
-  const double r_ap2_px = cfg.aperture_inside_px2();
+  // Aperture: aperture_transmission (optics.hpp): the integer pixel radius² test of
+  // cfg.aperture_inside_px2(), or each cell's area fraction with aperture_edge "area", as kernels/field.cl.
+  const std::vector<double> amp = aperture_transmission(cfg);
   const std::vector<double> pt = FieldStage::point_table(cfg);
   const std::size_t points = cfg.point_count(), bands = cfg.bands;
   ComplexStack f(points * bands, g.m, g.m, cdouble(0, 0));
@@ -29,11 +30,11 @@ ComplexStack doe_field(const SystemConfig& cfg, const Map2D& height_m, const Pro
     for (std::size_t i = 0; i < g.n; ++i) {
       for (std::size_t j = 0; j < g.n; ++j) {
         const double y = (double(i) - double(g.n / 2)) * g.pitch_m, x = (double(j) - double(g.n / 2)) * g.pitch_m;
-        const double di = double(i) - double(g.n / 2), dj = double(j) - double(g.n / 2);
-        if (di * di + dj * dj > r_ap2_px) continue;
+        const double a = amp[i * g.n + j];
+        if (!(a > 0)) continue;
         const double src = point_source_m(pt, p, x, y);
         const double phase = k[b] * (src + dn[b] * height_m(i, j));
-        f(pl, g.offset + i, g.offset + j) = std::polar(1.0, phase);
+        f(pl, g.offset + i, g.offset + j) = std::polar(a, phase);
       }
     }
   }

@@ -173,7 +173,56 @@ AreaWeights AreaWeights::make(std::size_t n, double pitch_in_m, std::size_t s, d
   return a;
 }
 
+AreaWeights AreaWeights::make_xy(std::size_t n, double pitch_in_m, std::size_t s, double pitch_out_m, double shift_x_px,
+                                 double shift_y_px) {
+  AreaWeights a = make(n, pitch_in_m, s, pitch_out_m, shift_y_px);
+  if (shift_x_px == shift_y_px) return a;
+  const AreaWeights c = make(n, pitch_in_m, s, pitch_out_m, shift_x_px);  // the same taps: they depend on the pitches only
+  a.col_offset = s;
+  a.start.insert(a.start.end(), c.start.begin(), c.start.end());
+  a.w.insert(a.w.end(), c.w.begin(), c.w.end());
+  return a;
+}
+
+AreaWeights sensor_weights(const SystemConfig& cfg, double extra_x_px, double extra_y_px) {
+  return AreaWeights::make_xy(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m,
+                              extra_x_px - cfg.aperture_offset_x_m / cfg.sensor_pitch_m,
+                              extra_y_px - cfg.aperture_offset_y_m / cfg.sensor_pitch_m);
+}
+
+namespace {
+
+// The transpose of one axis's table: entries [first, first + s) of a.
+AreaWeights transpose_axis(const AreaWeights& a, std::size_t first) {
+  AreaWeights one;
+  one.n = a.n;
+  one.s = a.s;
+  one.taps = a.taps;
+  one.start.assign(a.start.begin() + std::ptrdiff_t(first), a.start.begin() + std::ptrdiff_t(first + a.s));
+  one.w.assign(a.w.begin() + std::ptrdiff_t(first * a.taps), a.w.begin() + std::ptrdiff_t((first + a.s) * a.taps));
+  return one.transposed();
+}
+
+}  // namespace
+
 AreaWeights AreaWeights::transposed() const {
+  if (col_offset != 0) {
+    AreaWeights r = transpose_axis(*this, 0), c = transpose_axis(*this, col_offset);
+    const std::size_t taps_ = std::max(r.taps, c.taps);
+    AreaWeights t;
+    t.n = s;
+    t.s = n;
+    t.taps = taps_;
+    t.col_offset = n;
+    t.start = r.start;
+    t.start.insert(t.start.end(), c.start.begin(), c.start.end());
+    t.w.assign(2 * n * taps_, 0.0);
+    for (std::size_t i = 0; i < n; ++i) {
+      for (std::size_t k = 0; k < r.taps; ++k) t.w[i * taps_ + k] = r.w[i * r.taps + k];
+      for (std::size_t k = 0; k < c.taps; ++k) t.w[(n + i) * taps_ + k] = c.w[i * c.taps + k];
+    }
+    return t;
+  }
   AreaWeights t;
   t.n = s;
   t.s = n;
@@ -193,6 +242,69 @@ AreaWeights AreaWeights::transposed() const {
     if (cols[i].empty()) continue;
     t.start[i] = cols[i].front().first;
     for (const auto& ov : cols[i]) t.w[i * t.taps + static_cast<std::size_t>(ov.first - t.start[i])] = ov.second;
+  }
+  return t;
+}
+
+double circle_rectangle_area(double r, double x0, double x1, double y0, double y1) {
+  x0 = std::max(x0, -r);
+  x1 = std::min(x1, r);
+  if (!(x1 > x0) || !(y1 > y0) || !(r > 0)) return 0.0;
+  // Area = integral over x of |[y0, y1] ∩ [-c(x), c(x)]|, c = sqrt(r² - x²). Between the breakpoints
+  // (where c crosses |y0| or |y1|) each bound is one of y0, y1, ±c, with the integral of c in closed
+  // form: C(x) = (x c(x) + r² asin(x / r)) / 2.
+  const auto chord = [r](double x) { return std::sqrt(std::max(0.0, r * r - x * x)); };
+  const auto prim = [r, &chord](double x) { return 0.5 * (x * chord(x) + r * r * std::asin(std::clamp(x / r, -1.0, 1.0))); };
+  std::vector<double> xs = {x0, x1};
+  for (double y : {y0, y1})
+    if (std::fabs(y) < r) {
+      const double b = std::sqrt(r * r - y * y);
+      for (double x : {-b, b})
+        if (x > x0 && x < x1) xs.push_back(x);
+    }
+  std::sort(xs.begin(), xs.end());
+  double area = 0;
+  for (std::size_t k = 0; k + 1 < xs.size(); ++k) {
+    const double a = xs[k], b = xs[k + 1];
+    if (!(b > a)) continue;
+    const double c = chord(0.5 * (a + b));
+    // Which bound is the circle's at the middle (a tie there is a tangent: the circle's bound holds
+    // on the whole piece).
+    const bool top_c = c <= y1, bottom_c = -c >= y0;
+    const double top = top_c ? c : y1, bottom = bottom_c ? -c : y0;
+    if (!(top > bottom)) continue;
+    const double ic = prim(b) - prim(a);  // integral of c over [a, b]
+    area += (top_c ? ic : y1 * (b - a)) - (bottom_c ? -ic : y0 * (b - a));
+  }
+  return area;
+}
+
+std::vector<double> aperture_transmission(const SystemConfig& cfg) {
+  const std::size_t n = cfg.n;
+  std::vector<double> t(n * n, 0.0);
+  const double half = double(n / 2);
+  if (cfg.aperture_edge != ApertureEdge::Area) {
+    const double r2 = cfg.aperture_inside_px2();
+    for (std::size_t i = 0; i < n; ++i)
+      for (std::size_t j = 0; j < n; ++j) {
+        const double di = double(i) - half, dj = double(j) - half;
+        t[i * n + j] = di * di + dj * dj <= r2 ? 1.0 : 0.0;
+      }
+    return t;
+  }
+  // In pixel units about the circle's centre.
+  const double r = cfg.aperture_radius() / cfg.pitch_m, cx = cfg.aperture_offset_x_m / cfg.pitch_m,
+               cy = cfg.aperture_offset_y_m / cfg.pitch_m;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double y = double(i) - half - cy;
+    if (y - 0.5 >= r || y + 0.5 <= -r) continue;
+    for (std::size_t j = 0; j < n; ++j) {
+      const double x = double(j) - half - cx;
+      if (x - 0.5 >= r || x + 0.5 <= -r) continue;
+      // Whole cells inside (every corner within r) are exactly 1.
+      const double fx = std::fabs(x) + 0.5, fy = std::fabs(y) + 0.5;
+      t[i * n + j] = fx * fx + fy * fy <= r * r ? 1.0 : circle_rectangle_area(r, x - 0.5, x + 0.5, y - 0.5, y + 0.5);
+    }
   }
   return t;
 }

@@ -13,7 +13,7 @@ PsfStage::PsfStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_
     : rt_(rt), cfg_(cfg), prec_(p), nb_(cfg.bands * designs * cfg.point_count()), s_(cfg.sensor_size_px()),
       m_(PropagationGeometry::from_config(cfg).m), rsz_(real_size(p)) {
   if (designs < 1) reject("designs", designs, ">= 1");
-  weights_ = AreaWeights::make(cfg_.n, cfg_.pitch_m, s_, cfg_.sensor_pitch_m);
+  weights_ = sensor_weights(cfg_);  // the sensor window centred on the optical axis
   k_crop_sums_ = rt_.kernel("psf.cl", "intensity_crop_sums", p);
   k_sums_ = rt_.kernel("psf.cl", "band_sums", p);
   k_finalize_ = rt_.kernel("psf.cl", "finalize_sums", p);
@@ -38,7 +38,7 @@ void PsfStage::intensity_crop_sums(const cl::Buffer& field, cl::Buffer& psf, cl:
 
 void PsfStage::resample(const cl::Buffer& native, cl::Buffer& sensor) {
   rt_.launch_1d(k_resample_, nb_ * s_ * s_, prec_, native, sensor, wstart_, wts_, int(cfg_.n), int(s_), int(weights_.taps),
-                int(nb_));
+                int(nb_), int(weights_.col_offset));
 }
 
 const AreaWeights& PsfStage::weights_transposed() {
@@ -53,7 +53,8 @@ const AreaWeights& PsfStage::weights_transposed() {
 void PsfStage::resample_transposed(const cl::Buffer& sensor, cl::Buffer& native) {
   const std::size_t n = cfg_.n;
   const std::size_t taps = weights_transposed().taps;
-  rt_.launch_1d(k_resample_, nb_ * n * n, prec_, sensor, native, wstart_t_, wts_t_, int(s_), int(n), int(taps), int(nb_));
+  rt_.launch_1d(k_resample_, nb_ * n * n, prec_, sensor, native, wstart_t_, wts_t_, int(s_), int(n), int(taps), int(nb_),
+                int(weights_t_.col_offset));
 }
 
 void PsfStage::normalize(cl::Buffer& x, std::size_t len, cl::Buffer& sums) {

@@ -55,7 +55,7 @@ Forward forward(const SystemConfig& cfg, const Map2D& h) {
       for (std::size_t j = 0; j < cfg.n; ++j) f.p(b, i, j) = std::norm(f.u2(b, f.g.offset + i, f.g.offset + j));
   for (std::size_t b = 0; b < planes; ++b) f.p_sums.push_back(plane_sum(f.p, b));
   normalize_planes(f.p);
-  f.w = AreaWeights::make(cfg.n, cfg.pitch_m, cfg.sensor_size_px(), cfg.sensor_pitch_m);
+  f.w = sensor_weights(cfg);  // the sensor window centred on the optical axis
   f.s = resample_area(f.p, f.w);
   for (std::size_t b = 0; b < planes; ++b) f.s_sums.push_back(plane_sum(f.s, b));
   normalize_planes(f.s);
@@ -115,9 +115,9 @@ RealStack resample_area(const RealStack& psf, const AreaWeights& w) {
           if (wy == 0) continue;
           const std::size_t iy = static_cast<std::size_t>(w.start[oy]) + ty;
           for (std::size_t tx = 0; tx < w.taps; ++tx) {
-            const double wx = w.w[ox * w.taps + tx];
+            const double wx = w.w[(w.col_offset + ox) * w.taps + tx];
             if (wx == 0) continue;
-            acc += wy * wx * psf(b, iy, static_cast<std::size_t>(w.start[ox]) + tx);
+            acc += wy * wx * psf(b, iy, static_cast<std::size_t>(w.start[w.col_offset + ox]) + tx);
           }
         }
         out(b, oy, ox) = acc;
@@ -145,9 +145,9 @@ RealStack resample_area_adjoint(const RealStack& g, const AreaWeights& w) {
           const double wy = w.w[oy * w.taps + ty];
           if (wy == 0) continue;
           for (std::size_t tx = 0; tx < w.taps; ++tx) {
-            const double wx = w.w[ox * w.taps + tx];
+            const double wx = w.w[(w.col_offset + ox) * w.taps + tx];
             if (wx == 0) continue;
-            out(b, static_cast<std::size_t>(w.start[oy]) + ty, static_cast<std::size_t>(w.start[ox]) + tx) += wy * wx * v;
+            out(b, static_cast<std::size_t>(w.start[oy]) + ty, static_cast<std::size_t>(w.start[w.col_offset + ox]) + tx) += wy * wx * v;
           }
         }
       }

@@ -43,6 +43,10 @@ struct RadialEngine::Impl {
 };
 
 SystemConfig radial_config(const SystemConfig& cfg) {
+  if (cfg.aperture_edge == ApertureEdge::Area || cfg.aperture_offset())
+    reject("aperture_edge", cfg.aperture_edge == ApertureEdge::Area ? "\"area\"" : "an aperture_offset_m",
+           "\"inclusive\" or \"strict\" with the axis on the grid's centre for the radial path (its rings are whole "
+           "samples about the centre); an area-weighted or moved aperture needs the 2-D path");
   if (cfg.object_points.empty()) return cfg;
   if (cfg.object_points.size() == 1 && cfg.object_points[0].on_axis()) return point_config(cfg, 0);
   reject("object_points", to_str(cfg.object_points.size()) + " points" + (cfg.object_points.size() == 1 ? " (off-axis)" : ""),

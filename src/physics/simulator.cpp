@@ -303,6 +303,7 @@ Map2D Simulator::sensor_vjp_in_scratch(cl::Buffer& g_sensor) {
     in.u = &field_;
     in.s = s_;
     in.taps = wt.taps;
+    in.col_offset = wt.col_offset;
     in.start = wt.start.data();
     in.w = wt.w.data();
     in.y_sensor = &psf_s_;

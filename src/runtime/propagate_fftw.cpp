@@ -108,7 +108,8 @@ class FftwPropagator final : public HostPropagator {
       if (in->s < 1 || in->taps < 1) reject("in->s/in->taps", std::to_string(in->s) + "/" + std::to_string(in->taps), ">= 1");
       check_size("in->g_sensor", *in->g_sensor, planes * in->s * in->s * rs);
       check_size("in->u", *in->u, field_bytes);
-      w_in.assign(in->w, in->w + n * in->taps);
+      if (in->col_offset != 0 && in->col_offset != n) reject("in->col_offset", std::to_string(in->col_offset), "0 or N");
+      w_in.assign(in->w, in->w + (in->col_offset + n) * in->taps);
     }
     auto& q = rt_.queue();
     const MappedBuffer mf(q, field, CL_MAP_READ | CL_MAP_WRITE, field_bytes);
@@ -136,6 +137,7 @@ class FftwPropagator final : public HostPropagator {
       job.u = mu->as<const C>();
       job.s = in->s;
       job.taps = in->taps;
+      job.col_offset = in->col_offset;
       job.start = in->start;
       job.w = w_in.data();
       if (in->y_sensor) {
@@ -171,7 +173,7 @@ class FftwPropagator final : public HostPropagator {
     // IntensityAdjointInput, mapped (g null: the field's own block is the input).
     const R* g = nullptr;
     const C* u = nullptr;
-    std::size_t s = 0, taps = 0;
+    std::size_t s = 0, taps = 0, col_offset = 0;
     const int* start = nullptr;
     const R* w = nullptr;
     const R* y = nullptr;     // normalised sensor PSF and its sums (null: g is used as given)
@@ -209,10 +211,12 @@ class FftwPropagator final : public HostPropagator {
       for (std::size_t x = 0; x < s; ++x) r[x] += wy * (na * gr[x] + nc);
     }
     const C* u = job.u + (b - job.first) * m * m + y * m;
+    const R* wx = job.w + job.col_offset * taps;  // the columns' table (the rows' when col_offset = 0)
+    const int* sx = job.start + job.col_offset;
     for (std::size_t x = 0; x < n; ++x) {
       R acc = 0;
       for (std::size_t tx = 0; tx < taps; ++tx)
-        acc += job.w[x * taps + tx] * r[clamp(std::ptrdiff_t(job.start[x]) + std::ptrdiff_t(tx))];
+        acc += wx[x * taps + tx] * r[clamp(std::ptrdiff_t(sx[x]) + std::ptrdiff_t(tx))];
       row[x][0] = R(2) * acc * u[x][0];
       row[x][1] = R(2) * acc * u[x][1];
     }

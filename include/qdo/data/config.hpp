@@ -11,8 +11,10 @@ namespace qdo {
 enum class Propagator { Fresnel, AngularSpectrum };
 enum class ConvolutionMode { Linear, Circular };
 // Which DOE samples the circular aperture keeps: r <= R (qdo's default) or r < R (the release's,
-// REFERENCE §1: at N = 1024 the release drops the 12 samples at exactly r = (N/2 - 1) pitch).
-enum class ApertureEdge { Inclusive, Strict };
+// REFERENCE §1: at N = 1024 the release drops the 12 samples at exactly r = (N/2 - 1) pitch), each
+// sample whole; or Area: every sample weighted by the exact fraction of its pitch x pitch cell
+// inside the circle (a transmission in [0, 1], continuous in the aperture's radius and centre).
+enum class ApertureEdge { Inclusive, Strict, Area };
 // The colour filter mosaic of the built sensor (the raw stage, include/qdo/physics/raw.hpp): None gives
 // three full planes; a Bayer pattern names its 2 x 2 cell row by row from pixel (0, 0), e.g.
 // RGGB: (0, 0) = R, (0, 1) = G, (1, 0) = G, (1, 1) = B. JSON "cfa": "none" | "rggb" | ...
@@ -60,7 +62,15 @@ struct SystemConfig {
   std::vector<ObjectPoint> object_points;
   double sensor_distance_m = 0.05;       // DOE to sensor, z
   double aperture_radius_m = 0;          // 0 means the release's (N/2 - 1) * pitch_m
-  ApertureEdge aperture_edge = ApertureEdge::Inclusive;  // JSON "aperture_edge": "inclusive" | "strict"
+  ApertureEdge aperture_edge = ApertureEdge::Inclusive;  // JSON "aperture_edge": "inclusive" | "strict" | "area"
+  // The optical axis against the DOE grid: the aperture's centre, the on-axis object point (every
+  // object point moves with it) and the sensor window's centre sit at (x, y) metres from the grid's
+  // centre sample (N/2, N/2), x along columns. The relief therefore sits at (-x, -y) against the
+  // aperture and the sensor: a relief a fab moved by (dx, dy) against the aperture is
+  // aperture_offset = (-dx, -dy), with every relief pixel still on its level. Non-zero needs
+  // aperture_edge "area" (a sub-pixel centre has no whole-sample edge) and a circle inside the DOE
+  // grid; the radial path refuses it. JSON "aperture_offset_m": [x, y], written only when non-zero.
+  double aperture_offset_x_m = 0, aperture_offset_y_m = 0;
   std::string material = "OHARA_SK1300";
   double base_wavelength_nm = 700;       // h_max = base_wavelength / (n(base) - 1)
   double base_plate_m = 2e-3;            // glass under the relief (fabrication files only)
@@ -94,6 +104,7 @@ struct SystemConfig {
   // j - N/2) pixels, is inside when di² + dj² <= aperture_inside_px2(). Half an integer, so the
   // comparison is exact in float32 as well; it encodes aperture_edge (ties at r = R in or out).
   double aperture_inside_px2() const;
+  bool aperture_offset() const { return aperture_offset_x_m != 0 || aperture_offset_y_m != 0; }
   double h_max_m() const;                // one 2π phase at base_wavelength_nm
   std::size_t sensor_size_px() const;    // round(n * pitch_m / sensor_pitch_m)
   // The object points of the PSF stack: object_points, or the one on-axis point at

@@ -8,7 +8,8 @@
 // complex (interleaved, the precision, row-major; M = PropagationGeometry::m), the N x N DOE samples
 // stored at rows/cols [kOffset, kOffset + N) = [0, N): the centred window of PropagationGeometry
 // circularly shifted by -offset (see PropagationStage::plan in propagate.hpp); every other sample,
-// and every sample outside the aperture, is zero.
+// and every sample outside the aperture, is zero; with aperture_edge "area" each sample carries its
+// aperture weight (aperture_transmission, optics.hpp).
 #pragma once
 #include <CL/opencl.hpp>
 
@@ -54,7 +55,8 @@ class FieldStage {
   std::size_t planes() const { return nb_; }
   std::size_t points() const { return points_; }
   // The object points as doe_field reads them: points x 4 doubles (x0, y0, d, R0) per point of
-  // cfg.points() (kernels/field.cl; a plane wave: (α, β, -1, 0), its direction cosines).
+  // cfg.points() (kernels/field.cl; a plane wave: (α, β, -1, 0), its direction cosines), moved
+  // with the optical axis (cfg.aperture_offset_*_m).
   static std::vector<double> point_table(const SystemConfig& cfg);
   const PropagationGeometry& geometry() const { return geom_; }
   bool phase_fp64() const { return phase_fp64_; }
@@ -77,6 +79,8 @@ class FieldStage {
   cl::Buffer k_, dn_;      // per plane: 2π/λ (1/m) and n - 1, reals of the precision
   cl::Buffer k64_, dn64_;  // the same in double for doe_field_p64
   cl::Buffer pt_, pt64_;   // point_table(cfg) in the precision, and in double for doe_field_p64
+  cl::Buffer amp_;         // aperture_transmission(cfg) (N x N reals of the precision) when use_amp_
+  bool use_amp_ = false;   // aperture_edge area
   std::vector<cl::Buffer> chunk_k_, chunk_dn_;  // per chunk of run_chunk: its planes' k and dn
   std::size_t chunk_planes_ = 0;                // the planes per chunk those tables were made for
 };

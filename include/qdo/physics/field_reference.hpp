@@ -13,7 +13,9 @@ namespace qdo::ref {
 
 // Field just after the DOE for every object point and band, in the zero-padded window: shape
 // points x bands x M x M (points = cfg.point_count(), point-major: plane p * bands + b), row-major;
-// zero outside the circular aperture and outside the N x N DOE.
+// zero outside the circular aperture and outside the N x N DOE; each sample times its aperture
+// weight (aperture_transmission, optics.hpp: 1 inside, or its cell's area fraction with
+// aperture_edge "area"). The object points move with the optical axis (cfg.aperture_offset_*_m).
 // Phase k (sqrt((x-x0)² + (y-y0)² + d²) - R0) + k (n_b - 1) H (R0 = sqrt(x0² + y0² + d²)), the first
 // term written without cancellation (point_source_m) so no large constant k·R0 enters
 // (REFERENCE §1 precision pitfall); on axis r²/(sqrt(r²+d²)+d), for a plane wave -(x α + y β).

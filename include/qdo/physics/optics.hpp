@@ -75,14 +75,36 @@ struct SamplingReport {
 // content by that many output pixels (the output grid moved by -shift_out_px against the axis):
 // output pixel o integrates what pixel o - shift_out_px of the centred grid would, the input's
 // cells taken as uniform, as at zero shift.
+// Rows and columns may have their own shifts (make_xy): the rows' table is entries [0, s), the
+// columns' [col_offset, col_offset + s); col_offset is 0 when both axes share one table (every
+// call with equal shifts, bit for bit the one-axis table) and s when the columns' table follows.
 struct AreaWeights {
   std::size_t n = 0, s = 0, taps = 0;
-  std::vector<int> start;            // s
-  std::vector<double> w;             // s x taps, row-major
+  std::size_t col_offset = 0;
+  std::vector<int> start;            // s (one table) or 2 s (rows, then columns)
+  std::vector<double> w;             // (s or 2 s) x taps, row-major
   static AreaWeights make(std::size_t n, double pitch_in_m, std::size_t s, double pitch_out_m, double shift_out_px = 0);
-  // The transpose (maps the length-s grid back onto the length-n grid): n and s swap roles.
+  // Columns moved by shift_x_px, rows by shift_y_px (output pixels).
+  static AreaWeights make_xy(std::size_t n, double pitch_in_m, std::size_t s, double pitch_out_m, double shift_x_px,
+                             double shift_y_px);
+  // The transpose (maps the length-s grid back onto the length-n grid): n and s swap roles, each
+  // axis's table transposed (col_offset becomes n when there are two).
   AreaWeights transposed() const;
 };
+
+// The native grid (N at pitch_m) onto the sensor (S at sensor_pitch_m) for cfg: the sensor window
+// centred on the optical axis (cfg.aperture_offset_*_m), so the content moves by -offset / sensor
+// pitch, plus (extra_x_px, extra_y_px) sensor pixels (a registration).
+AreaWeights sensor_weights(const SystemConfig& cfg, double extra_x_px = 0, double extra_y_px = 0);
+
+// The aperture on the DOE grid: N x N transmissions (row-major), sample (i, j) the cell of side
+// pitch centred at ((j - N/2) pitch, (i - N/2) pitch). Inclusive / Strict: 1 inside the integer
+// radius test (aperture_inside_px2), else 0; Area: the exact area fraction of the cell inside the
+// circle of radius aperture_radius() centred at (aperture_offset_x_m, aperture_offset_y_m).
+std::vector<double> aperture_transmission(const SystemConfig& cfg);
+// The area of the rectangle [x0, x1] x [y0, y1] inside the circle of radius r at the origin (closed
+// form, any units; empty when x1 <= x0 or y1 <= y0).
+double circle_rectangle_area(double r, double x0, double x1, double y0, double y1);
 
 // The sensor response as a 3 x B matrix (rows R, G, B) on the configuration's band grid,
 // each row divided by its sum (Eq. 7's normalisation, so a flat spectrum maps to itself).

@@ -53,14 +53,15 @@ class HostPropagator {
   // i.e. the transposed area resampling of the sensor-grid gradient g (planes x S x S reals; taps
   // outside [0, S) have weight 0 and are read clamped) followed by the vector-Jacobian product of
   // |U|² with U the forward's propagated field (planes x M x M complex, crop [0, N)^2). start: N
-  // ints; w: N x taps reals (AreaWeights::transposed()).
+  // ints; w: N x taps reals (AreaWeights::transposed()); with col_offset = N the columns read
+  // start[N + x] and w[(N + x) x taps ..] (tables of 2 N rows: a different shift per axis).
   // With y_sensor and sensor_sums (planes x S x S and planes reals) g is first taken through the
   // vector-Jacobian product of the per-plane normalisation y = x / Σx:
   //   g <- (g - <g, y>) / Σx   (0 where Σx <= 0).
   struct IntensityAdjointInput {
     const cl::Buffer* g_sensor = nullptr;
     const cl::Buffer* u = nullptr;
-    std::size_t s = 0, taps = 0;
+    std::size_t s = 0, taps = 0, col_offset = 0;
     const int* start = nullptr;
     const double* w = nullptr;
     const cl::Buffer* y_sensor = nullptr;
