@@ -104,10 +104,10 @@ QDO_ADJOINT_ROWS(moved_aperture, "area-weighted aperture, moved axis") {
   st.g0 = uniform_stack(c.bands, s, s, 7).data;
   st.dot_tol = 0;
   st.dot_rel = 1e-9;
-  // Rung 2 along x +- 1e-4 d (phase steps ~1e-5 rad), within 1e-6; rung 3 at twelve samples of
-  // the aperture (weights > 0), +- 1e-11 m.
+  // Rung 2 along x +- 1e-4 d (d of size 1e-8 m: phase steps ~1e-5 rad), within 1e-6; rung 3 at
+  // twelve samples of the aperture (weights > 0), +- 1e-11 m.
   st.fd_tol = 0;
-  st.dir_step = 1e-12;
+  st.dir_step = 1e-4;
   st.dir_rel = 1e-6;
   const std::vector<double> amp = aperture_transmission(c);
   for (std::size_t i = 0; st.probes.size() < 12 && i < amp.size(); i += 37)
