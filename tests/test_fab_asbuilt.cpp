@@ -67,13 +67,21 @@ TEST_SUITE("fab") {
     dep.trial = 3;
     CHECK(fab::fabricate(d, cfg, dep).depth_error_m != c1.depth_error_m);
 
-    // Offset: the relief moved by (dx, dy) with qdo fit's shift; z by the assembly error.
+    // Offset: the relief moved by (dx, dy) exactly, as qdo fit's model moves it: the whole pixels
+    // (round(1.5) = 2, round(-0.25) = 0) in the map, every pixel on its level, the rest as the
+    // optical axis moved the other way (+0.5 and +0.25 px) with the area-weighted aperture; z by the
+    // assembly error.
     fab::AsBuiltOptions off = none;
     off.offset_x_m = 1.5 * cfg.pitch_m;
     off.offset_y_m = -0.25 * cfg.pitch_m;
     off.sensor_distance_error_m = 1e-4;
     const fab::AsBuiltCamera c2 = fab::fabricate(d, cfg, off);
-    CHECK(c2.design.height_m.data == shift_bilinear(d.height_m.data, 1, cfg.n, cfg.n, 1.5, -0.25));
+    for (std::size_t i = 0; i < cfg.n; ++i)
+      for (std::size_t j = 0; j < cfg.n; ++j) CHECK(c2.design.height_m(i, j) == (j >= 2 ? d.height_m(i, j - 2) : 0.0));
+    CHECK(c2.cfg.aperture_edge == ApertureEdge::Area);
+    CHECK(c2.cfg.aperture_offset_x_m == doctest::Approx(0.5 * cfg.pitch_m).epsilon(1e-12));
+    CHECK(c2.cfg.aperture_offset_y_m == doctest::Approx(0.25 * cfg.pitch_m).epsilon(1e-12));
+    CHECK(2 * cfg.pitch_m - c2.cfg.aperture_offset_x_m == doctest::Approx(off.offset_x_m).epsilon(1e-12));
     CHECK(c2.cfg.sensor_distance_m == doctest::Approx(cfg.sensor_distance_m + 1e-4).epsilon(1e-12));
 
     // Refusals name the option.

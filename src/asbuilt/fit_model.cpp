@@ -52,8 +52,9 @@ struct AsBuiltModel::Impl {
   std::vector<Param> ps;
   std::vector<std::string> names, units;
   double aperture_r = 0;
+  bool offset = false;  // the relief's offset is fitted: the model moves it exactly (move_relief)
   std::unique_ptr<Simulator> sim;
-  double sim_z = 0, sim_d = 0, sim_r = 0;
+  double sim_z = 0, sim_d = 0, sim_r = 0, sim_ax = 0, sim_ay = 0;
   // With the registration fitted: the native stack of the last PSF computed (planes x N x N), for
   // the simulator build and the heights it was computed for; the registration's differences and
   // other states with the same heights and geometry integrate it again without a new PSF.
@@ -111,13 +112,8 @@ struct AsBuiltModel::Impl {
     return h;
   }
 
-  Map2D heights(const State& st) const {
-    Map2D m(n, n);
-    m.data = shift_bilinear(unshifted(st), 1, n, n, st.dx_m / cfg.pitch_m, st.dy_m / cfg.pitch_m);
-    return m;
-  }
-
-  SystemConfig config_of(const State& st) const {
+  // The configuration before the relief's move (z, d and the aperture radius of the state).
+  SystemConfig base_config(const State& st) const {
     SystemConfig c = cfg;
     c.sensor_distance_m = st.z;
     c.scene_distance_m = st.d;
@@ -125,22 +121,46 @@ struct AsBuiltModel::Impl {
     return c;
   }
 
+  // The relief (N x N) and the configuration that simulate a state: with the offset fitted, the
+  // relief moved by (dx, dy) exactly (optics.hpp move_relief: whole pixels in the map, the rest as
+  // the optical axis moved the other way, the aperture area-weighted at every offset so the model
+  // is continuous in it); otherwise the unmoved relief in cfg's geometry.
+  Map2D heights(const State& st) const {
+    Map2D m(n, n);
+    m.data = unshifted(st);
+    if (offset) move_relief(base_config(st), m, st.dx_m, st.dy_m);
+    return m;
+  }
+
+  SystemConfig config_of(const State& st) const {
+    if (!offset) return base_config(st);
+    Map2D scratch(n, n);
+    return move_relief(base_config(st), scratch, st.dx_m, st.dy_m);
+  }
+
   Simulator& simulator(const State& st) {
-    if (!sim || sim_z != st.z || sim_d != st.d || sim_r != aperture_r) {
+    const SystemConfig c = config_of(st);
+    if (!sim || sim_z != st.z || sim_d != st.d || sim_r != aperture_r || sim_ax != c.aperture_offset_x_m ||
+        sim_ay != c.aperture_offset_y_m) {
       sim.reset();
-      sim = std::make_unique<Simulator>(rt, config_of(st), prec);
+      sim = std::make_unique<Simulator>(rt, c, prec);
       sim_z = st.z;
       sim_d = st.d;
       sim_r = aperture_r;
+      sim_ax = c.aperture_offset_x_m;
+      sim_ay = c.aperture_offset_y_m;
       ++t.simulators_built;
     }
     return *sim;
   }
 
-  // Parameters whose gradient entries and Jacobian columns are central differences: z and d change
-  // the configuration (a new simulator), the registration only the integration of the native stack
-  // (no new PSF). The others go through the adjoint.
-  static bool by_differences(Kind k) { return k == Kind::Z || k == Kind::D || k == Kind::SX || k == Kind::SY; }
+  // Parameters whose gradient entries and Jacobian columns are central differences: z, d and the
+  // relief's offset change the configuration (a new simulator; the offset moves the optical axis),
+  // the registration only the integration of the native stack (no new PSF). The others go through
+  // the adjoint.
+  static bool by_differences(Kind k) {
+    return k == Kind::Z || k == Kind::D || k == Kind::DX || k == Kind::DY || k == Kind::SX || k == Kind::SY;
+  }
 
   // The PSF stack (bands x S x S) at a state; the simulator keeps its state for the adjoint. With
   // the registration fitted: the native stack integrated by the moved pixel grid (fit.hpp), the
@@ -156,7 +176,7 @@ struct AsBuiltModel::Impl {
     if (lowest < 0)
       for (double& v : h.data) v -= lowest;
     if (registration && native_build == t.simulators_built && native.planes && h.data == native_heights.data)
-      return integrate_registered(native, cfg, st.sx, st.sy);
+      return integrate_registered(native, s_.config(), st.sx, st.sy);
     s_.set_heights(h);
     s_.compute_psf();
     ++t.psf_evaluations;
@@ -164,7 +184,7 @@ struct AsBuiltModel::Impl {
     native = s_.psf_native();
     native_heights = std::move(h);
     native_build = t.simulators_built;
-    return integrate_registered(native, cfg, st.sx, st.sy);
+    return integrate_registered(native, s_.config(), st.sx, st.sy);
   }
 
   // What the loss compares: the PSF stack, or its observation (FitOptions::observation).
@@ -214,14 +234,11 @@ struct AsBuiltModel::Impl {
     const RealStack g_psf = opt.observation ? opt.observation->vjp(psf_stack, r) : RealStack();
     const RealStack& g_stack = opt.observation ? g_psf : r;
     const Map2D g_h = registration
-                          ? sim->psf_native_vjp(integrate_registered_adjoint(g_stack, native, cfg, st.sx, st.sy))
+                          ? sim->psf_native_vjp(integrate_registered_adjoint(g_stack, native, sim->config(), st.sx, st.sy))
                           : sim->psf_sensor_vjp(g_stack);
     ++t.vjps;
-    const double px = cfg.pitch_m;
-    const std::vector<double> h0 = unshifted(st);
-    std::vector<double> g_h0 = shift_bilinear_adjoint(g_h.data, 1, n, n, st.dx_m / px, st.dy_m / px);
-    double g_dx = 0, g_dy = 0;
-    shift_bilinear_derivative(h0, g_h.data, 1, n, n, st.dx_m / px, st.dy_m / px, g_dx, g_dy);
+    // Through the relief's whole-pixel move (a move of the map: its transpose).
+    const std::vector<double> g_h0 = offset ? move_relief_adjoint(base_config(st), g_h, st.dx_m, st.dy_m).data : g_h.data;
     std::vector<double> g_lev(design.levels_m.size(), 0.0);
     double g_scale = 0;
     for (std::size_t i = 0; i < n * n; ++i) {
@@ -240,8 +257,8 @@ struct AsBuiltModel::Impl {
           break;
         }
         case Kind::Scale: grad[k] = g_scale; break;
-        case Kind::DX: grad[k] = g_dx / px; break;
-        case Kind::DY: grad[k] = g_dy / px; break;
+        case Kind::DX:
+        case Kind::DY:
         case Kind::SX:
         case Kind::SY:
         case Kind::Z:
@@ -253,7 +270,7 @@ struct AsBuiltModel::Impl {
     return loss;
   }
 
-  // The z, d and registration entries of dL/dtheta by central differences of the loss.
+  // The z, d, offset and registration entries of dL/dtheta by central differences of the loss.
   void fd_distance_gradient(const std::vector<double>& theta, const RealStack& meas, std::vector<double>& grad) {
     const auto t0 = std::chrono::steady_clock::now();
     for (std::size_t k = 0; k < ps.size(); ++k) {
@@ -365,6 +382,7 @@ AsBuiltModel::AsBuiltModel(Runtime& rt, const SystemConfig& cfg, Precision p, co
   if (has("z")) add(Kind::Z, 0, "z", "m", cfg.sensor_distance_m);
   if (has("d")) add(Kind::D, 0, "d", "m", cfg.scene_distance_m);
   if (has("offset")) {
+    m.offset = true;
     add(Kind::DX, 0, "dx", "m", 0.0);
     add(Kind::DY, 0, "dy", "m", 0.0);
   }

@@ -8,7 +8,7 @@
 #include "fab/fab_internal.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/fab/fab.hpp"
-#include "qdo/asbuilt/fit.hpp"
+#include "qdo/physics/optics.hpp"
 
 namespace qdo::fab {
 
@@ -61,9 +61,10 @@ AsBuiltCamera fabricate(const Design& d, const SystemConfig& cfg, const AsBuiltO
 
   r.design.pitch_m = d.pitch_m;
   r.design.height_m = fabricated;
-  if (o.offset_x_m != 0 || o.offset_y_m != 0)
-    r.design.height_m.data = shift_bilinear(fabricated.data, 1, cfg.n, cfg.n, o.offset_x_m / cfg.pitch_m, o.offset_y_m / cfg.pitch_m);
-  r.cfg = cfg;
+  // The relief moved against the aperture exactly (optics.hpp move_relief): whole pixels in the
+  // map, the rest as the optical axis moved the other way; the aperture a continuous circle
+  // (aperture_edge "area"), as a made one is, and as qdo fit's model of an offset is.
+  r.cfg = move_relief(cfg, r.design.height_m, o.offset_x_m, o.offset_y_m);
   r.cfg.sensor_distance_m = cfg.sensor_distance_m + o.sensor_distance_error_m;
   r.cfg.validate();
   return r;

@@ -309,6 +309,59 @@ std::vector<double> aperture_transmission(const SystemConfig& cfg) {
   return t;
 }
 
+namespace {
+
+// The whole pixels of a relief move and the axis offset that carries the rest (move_relief).
+struct ReliefSplit {
+  long kx = 0, ky = 0;
+  double axis_x_m = 0, axis_y_m = 0;
+  ReliefSplit(const SystemConfig& cfg, double dx_m, double dy_m) {
+    const double tx = (dx_m - cfg.aperture_offset_x_m) / cfg.pitch_m, ty = (dy_m - cfg.aperture_offset_y_m) / cfg.pitch_m;
+    kx = long(std::lround(tx));
+    ky = long(std::lround(ty));
+    axis_x_m = -(tx - double(kx)) * cfg.pitch_m;
+    axis_y_m = -(ty - double(ky)) * cfg.pitch_m;
+  }
+};
+
+// out(i, j) = in(i - ky, j - kx), zero from outside; sign -1 gives the transpose.
+Map2D roll_zero(const Map2D& in, long kx, long ky) {
+  Map2D out(in.rows, in.cols);
+  const long r = long(in.rows), c = long(in.cols);
+  for (long i = 0; i < r; ++i) {
+    const long si = i - ky;
+    if (si < 0 || si >= r) continue;
+    for (long j = 0; j < c; ++j) {
+      const long sj = j - kx;
+      if (sj >= 0 && sj < c) out(std::size_t(i), std::size_t(j)) = in(std::size_t(si), std::size_t(sj));
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+SystemConfig move_relief(const SystemConfig& cfg, Map2D& height_m, double dx_m, double dy_m, bool area_edge) {
+  if (height_m.rows != cfg.n || height_m.cols != cfg.n)
+    reject("height_m", to_str(height_m.rows) + " x " + to_str(height_m.cols), "an N x N map with N = " + to_str(cfg.n));
+  for (const auto& [key, v] : {std::pair<const char*, double>{"dx_m", dx_m}, {"dy_m", dy_m}})
+    if (!std::isfinite(v) || std::fabs(v) > double(cfg.n) * cfg.pitch_m)
+      reject(key, v, "a finite move of at most the DOE grid's width (metres)");
+  const ReliefSplit sp(cfg, dx_m, dy_m);
+  if (sp.kx != 0 || sp.ky != 0) height_m = roll_zero(height_m, sp.kx, sp.ky);
+  SystemConfig c = cfg;
+  c.aperture_offset_x_m = sp.axis_x_m;
+  c.aperture_offset_y_m = sp.axis_y_m;
+  if (area_edge || c.aperture_offset()) c.aperture_edge = ApertureEdge::Area;
+  c.validate();
+  return c;
+}
+
+Map2D move_relief_adjoint(const SystemConfig& cfg, const Map2D& g_moved, double dx_m, double dy_m) {
+  const ReliefSplit sp(cfg, dx_m, dy_m);
+  return roll_zero(g_moved, -sp.kx, -sp.ky);
+}
+
 std::vector<std::string> builtin_cameras() { return {"FLIR_GS3-U3-41S4C"}; }
 
 Eigen::MatrixXd sensor_response(const SystemConfig& cfg) {

@@ -160,9 +160,11 @@ Map2D perturbed_heights(const MaskPlan& plan, const Map2D& design_height_m, cons
 // `qdo tolerance` with the same seed, scheme and sizes: per mask an etch depth error uniform in
 // [-etch_depth_error_m, etch_depth_error_m], per mask after the first an overlay shift uniform in
 // [-overlay_m, overlay_m] per axis; perturbed_heights with `oversample`), then the whole relief
-// moved against the aperture by (offset_x_m, offset_y_m) (x = column direction; the model qdo fit
-// fits: fit.hpp's shift_bilinear, zero relief brought in) and the DOE-sensor distance changed by
-// sensor_distance_error_m (an assembly error).
+// moved against the aperture by (offset_x_m, offset_y_m) (x = column direction; exactly, as qdo
+// fit's model: optics.hpp move_relief, whole pixels in the map with zero relief brought in, the
+// rest as the optical axis moved the other way; the as-built aperture is area-weighted,
+// aperture_edge "area") and the DOE-sensor distance changed by sensor_distance_error_m (an
+// assembly error).
 struct AsBuiltOptions {
   std::string scheme = "auto";        // binary | nested | greyscale | auto (binary when possible, else nested)
   double etch_depth_error_m = 20e-9;  // REFERENCE §6
@@ -176,7 +178,7 @@ struct AsBuiltOptions {
 };
 struct AsBuiltCamera {
   Design design;                        // the as-built relief (N x N, metres); levels_m empty (edges are not on levels)
-  SystemConfig cfg;                     // the as-built geometry (sensor_distance_m changed)
+  SystemConfig cfg;                     // the as-built geometry (sensor_distance_m, aperture_edge and aperture_offset_m changed)
   MaskPlan plan;
   std::string scheme_note;
   std::vector<double> depth_error_m, shift_x_m, shift_y_m;  // the draws, one per mask

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "qdo/data/config.hpp"
+#include "qdo/runtime/types.hpp"
 
 namespace qdo {
 
@@ -102,6 +103,19 @@ AreaWeights sensor_weights(const SystemConfig& cfg, double extra_x_px = 0, doubl
 // radius test (aperture_inside_px2), else 0; Area: the exact area fraction of the cell inside the
 // circle of radius aperture_radius() centred at (aperture_offset_x_m, aperture_offset_y_m).
 std::vector<double> aperture_transmission(const SystemConfig& cfg);
+// A relief moved by (dx, dy) metres against its aperture and sensor (x along columns), exactly:
+// the whole-pixel part (round(D / pitch) per axis, D = the move plus the relief's present offset
+// -cfg.aperture_offset) moves the height map itself (zero relief brought in from outside the grid,
+// every pixel still on its level); the rest, within half a pixel, moves the optical axis the
+// other way (aperture_offset_m, with aperture_edge "area"). height_m (N x N, row-major) is moved in
+// place; the configuration to simulate it with is returned, validated (InputError, naming
+// aperture_offset_m, when the aperture no longer fits the grid). A relief neither moved nor offset
+// keeps cfg's edge unless area_edge asks for the area-weighted one anyway (a model continuous in the move).
+SystemConfig move_relief(const SystemConfig& cfg, Map2D& height_m, double dx_m, double dy_m, bool area_edge = true);
+// The transpose of move_relief's whole-pixel move of a height map: a gradient on the moved map
+// (N x N) back onto the map before the move (the pixels moved off the grid get 0).
+Map2D move_relief_adjoint(const SystemConfig& cfg, const Map2D& g_moved, double dx_m, double dy_m);
+
 // The area of the rectangle [x0, x1] x [y0, y1] inside the circle of radius r at the origin (closed
 // form, any units; empty when x1 <= x0 or y1 <= y0).
 double circle_rectangle_area(double r, double x0, double x1, double y0, double y1);
