@@ -7,10 +7,16 @@
 //                                         i's height (Design::levels_m); lev = the level depths,
 //                                         or the subset sums of k mask depths (QDO+M)
 //          = scale * h(i)                 a design that is not quantized
-//   H      = shift(H0, dx / pitch, dy / pitch)   the relief moved by (dx, dy) metres against the
-//                                         aperture (bilinear = area-weighted for a shifted pixel,
-//                                         zero relief brought in from outside the grid)
-//   model  = Simulator(cfg with z, d).psf_sensor(H)   (bands x S x S); with the registration
+//   H, cfg' = move_relief(cfg with z, d; H0, dx, dy)   with the offset fitted (optics.hpp): the
+//                                         relief moved by (dx, dy) metres against the aperture and
+//                                         the sensor exactly: whole pixels in the map (zero relief
+//                                         brought in, every pixel on its level), the rest (within
+//                                         half a pixel) as the optical axis -- the aperture, the
+//                                         point source, the sensor window -- moved the other way
+//                                         (aperture_offset_m), the aperture area-weighted
+//                                         (aperture_edge "area") at every offset, so the model is
+//                                         continuous in it; without the offset H = H0, cfg' = cfg
+//   model  = Simulator(cfg').psf_sensor(H)   (bands x S x S); with the registration
 //            (sx, sy) fitted, integrate_registered(psf_native(H), sx, sy) instead: the native
 //            stack integrated by a pixel grid displaced by (sx, sy) sensor px (the grid's
 //            sub-pixel position against the axis, not a resampling of the sampled stack)
@@ -29,25 +35,29 @@
 //             (REFERENCE §7: 1/z' = 1/z + 1/d): the default fits z and holds d.
 //   offset    dx, dy: the relief's lateral offset against the aperture (metres).
 //   shift     sx, sy: registration of the measured stack (sensor pixels; the sensor grid's
-//             position against the optical axis, REFERENCE §8; degenerate with offset to first
-//             order).
+//             position against the optical axis, REFERENCE §8). Nearly degenerate with offset:
+//             the offset moves the image by as much, and only the rim the aperture cuts from the
+//             relief tells them apart (none when the aperture filled the window); the default set
+//             fits offset and holds shift, and a fit of both reports the pair as degenerate when
+//             their correlation exceeds 0.95.
 //   aperture  the aperture radius (metres). The aperture is a set of DOE samples (config.hpp:
-//             aperture_inside_px2), piecewise constant in the radius: it is fitted by a walk of
+//             aperture_inside_px2), piecewise constant in the radius (area-weighted and continuous
+//             with the offset fitted; the same walk serves): it is fitted by a walk of
 //             the loss over radii in half-pixel steps, downhill until the loss rises (the others
 //             held at their fit, then fitted again when the radius moved; 3 rounds at most), its
 //             value and sigma from the parabola through the minimum and its neighbours; it takes
 //             no part in the correlation. The first walk runs at the start values, before the rest.
 // Start: the design values, except the lateral ones: shift (when fitted, else offset, divided by
 // the magnification 1 + z/d and in metres) starts at the centroid difference of the measured and
-// design stacks; from zero the fit can fall into the mirror minimum (the blur a sub-pixel offset
-// adds to the sampled relief is even in the offset, only the small image shift is odd).
-// Gradients: the height parameters (levels, masks, scale, offset) through the simulator's adjoint
+// design stacks (several lateral starts by default: FitOptions::lateral_starts).
+// Gradients: the height parameters (levels, masks, scale) through the simulator's adjoint
 // (psf_sensor_vjp, or psf_native_vjp after integrate_registered_adjoint) chained through the
-// offset's adjoint; z and d by central differences in double (they change the configuration, not
-// the heights), the registration by central differences of the integration (no new PSF). The Gauss-Newton matrix
+// whole-pixel move's transpose (move_relief_adjoint); z, d and the offset by central differences
+// in double (they change the configuration: the offset moves the optical axis), the registration
+// by central differences of the integration (no new PSF). The Gauss-Newton matrix
 // J^T J of each step uses Jacobian columns by one-sided differences of the model from the current
-// stack (1 evaluation per parameter; z, d and the registration central), the uncertainties at the
-// end central ones.
+// stack (1 evaluation per parameter; z, d, the offset and the registration central), the
+// uncertainties at the end central ones.
 // Uncertainties: Cov = s^2 (J^T J)^-1, s^2 = 2 L / (m - p) (m residuals, p parameters); and a
 // jackknife over groups of contiguous bands (FitOptions::jackknife_groups), linearised at the fit:
 // for each group the Gauss-Newton step of the fit without it, from the Jacobian and residuals at
@@ -109,9 +119,10 @@ struct FitOptions {
   std::vector<std::pair<std::string, double>> start;
   // Lateral starts tried (when offset or shift is fitted). 0 (automatic): for the offset, scans
   // of dx (dy held) then of dy (dx held), twice, an eighth of a DOE pixel apart over
-  // +-(|centroid| + 1.5 DOE px) (+-2 DOE px with shift fitted too): the blur a sub-pixel offset
-  // adds to the sampled relief changes with the offset's fraction of a DOE pixel, so the loss has
-  // narrow minima; for the shift alone a grid half a sensor px apart over +-(|centroid| + 1) px,
+  // +-(|centroid| + 1.5 DOE px) (+-2 DOE px with shift fitted too): a safeguard against basins a
+  // fraction of a pixel apart (the bilinear blend of heights qdo once moved reliefs with had them;
+  // with the exact move the centroid start alone found the truth on a trained DOE's speckled PSF,
+  // suite fit); for the shift alone a grid half a sensor px apart over +-(|centroid| + 1) px,
   // at most 15 x 15. The mirrors of the lowest start are evaluated too. 1 = the centroid
   // difference only. K > 1 = K x K starts over +-(|centroid| + lateral_span_px) sensor px (with
   // shift fitted too, +-lateral_span_px / 2). The offset's starts are in metres (divided by the
@@ -121,8 +132,8 @@ struct FitOptions {
   double lateral_span_px = 1.0;
   // With a grid or scans: short fits (refine_iterations each) from refine_starts starts in
   // different basins (at least a quarter of a DOE pixel apart for the offset, a sensor px for the
-  // shift): the lowest, its three mirrors (the blur a relief offset adds is even in the offset, so
-  // a DOE's speckled PSF has mirror minima that the loss at the start does not tell apart), then
+  // shift): the lowest, its three mirrors (mirror minima the loss at the start does not tell
+  // apart), then
   // the next lowest; the fit goes on from the one that ends lowest, its iterations counted in the
   // budget. refine_starts < 2: the lowest start alone.
   int refine_starts = 4;
