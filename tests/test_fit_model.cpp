@@ -2,7 +2,9 @@
 // bilinear shift of the relief offset (adjoint, derivative, integer shifts) and the registration
 // that moves the pixel grid over the native PSF (against the native PSF cut into sub-cells, moved
 // and integrated; its adjoint; a fit that recovers it), and the piston that lifts a level below
-// level 0. The fits themselves are tests/test_fit.cpp.
+// level 0, and the relief offset as the fit models it (an exact move: whole pixels in the map, the
+// rest as the optical axis moved, continuous across the switch). The fits themselves are
+// tests/test_fit.cpp.
 #include <doctest/doctest.h>
 
 #include <cmath>
@@ -141,6 +143,90 @@ TEST_SUITE("fit") {
       else CHECK(std::fabs(v.value - v.design) < 0.05e-9);
     }
     CHECK(r.loss_final < 1e-8 * r.loss_design);
+  }
+
+  TEST_CASE("the relief offset is an exact move: whole pixels in the map, the rest as the axis moved; continuous where they switch") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels", "offset"});
+    REQUIRE(m.parameter_names().size() == 5);  // level1..3, dx, dy
+    const double p = cfg.pitch_m;
+    std::vector<double> th = m.design_values();
+    // dx = 2 pixels, dy = -1 pixel: the map rolled (zero relief brought in), the axis on the grid's
+    // centre, the aperture area-weighted; every pixel still holds a design level.
+    th[3] = 2 * p;
+    th[4] = -p;
+    const Map2D h = m.heights(th);
+    const SystemConfig c = m.config(th);
+    CHECK(c.aperture_edge == ApertureEdge::Area);
+    CHECK(std::fabs(c.aperture_offset_x_m) < 1e-18);
+    CHECK(std::fabs(c.aperture_offset_y_m) < 1e-18);
+    for (std::size_t i = 0; i < cfg.n; ++i)
+      for (std::size_t j = 0; j < cfg.n; ++j)
+        CHECK(h(i, j) == (j >= 2 && i + 1 < cfg.n ? d.height_m(i + 1, j - 2) : 0.0));
+    Simulator sim(runtime(), c, Precision::F64);
+    sim.set_heights(h);
+    sim.compute_psf();
+    CHECK(diff(m.evaluate(th).data, sim.psf_sensor().data).rel_l2 < 1e-12);
+    // dx = 0.3 px: the map unmoved, the axis at -0.3 px.
+    th[3] = 0.3 * p;
+    th[4] = 0;
+    CHECK(m.heights(th).data == d.height_m.data);
+    CHECK(m.config(th).aperture_offset_x_m == doctest::Approx(-0.3 * p).epsilon(1e-12));
+    // Across the switch at half a pixel (0.5 - e: the axis at -0.5 + e px; 0.5 + e: the map one
+    // pixel over, the axis at +0.5 - e px) the two are one camera, and the model differs only by the
+    // light the sensor window, centred on the axis, finds beyond the native N x N crop: at an axis
+    // half a pixel to one side it reaches one DOE column past the crop (no light computed there),
+    // half a pixel to the other it does not. So the jump is that column's light (here, a 64-pixel
+    // lens whose PSF fills the window, 0.4 %), far above a step of 2e on one side, and bounded by it.
+    const double e = 1e-4 * p;
+    const auto at = [&](double dx) {
+      std::vector<double> t2 = m.design_values();
+      t2[3] = dx;
+      return m.evaluate(t2);
+    };
+    const RealStack below = at(0.5 * p - e), above = at(0.5 * p + e), further = at(0.5 * p - 3 * e);
+    const double jump = diff(below.data, above.data).rel_l2, step = diff(further.data, below.data).rel_l2;
+    {  // The light of the native column next to the crop's edge that the window leaves at the switch.
+      std::vector<double> t2 = m.design_values();
+      t2[3] = 0.5 * p + e;
+      Simulator s2(runtime(), m.config(t2), Precision::F64);
+      s2.set_heights(m.heights(t2));
+      s2.compute_psf();
+      const RealStack nat = s2.psf_native();
+      double col = 0;  // the largest share of a plane's light in its first or last column
+      for (std::size_t b = 0; b < nat.planes; ++b) {
+        double c0 = 0, c1 = 0, t0 = 0;
+        for (std::size_t i = 0; i < cfg.n; ++i) {
+          c0 += nat(b, i, 0);
+          c1 += nat(b, i, cfg.n - 1);
+          for (std::size_t j2 = 0; j2 < cfg.n; ++j2) t0 += nat(b, i, j2);
+        }
+        col = std::max(col, std::max(c0, c1) / t0);
+      }
+      CAPTURE(jump);
+      CAPTURE(step);
+      CAPTURE(col);
+      CHECK(step > 0);
+      CHECK(jump < 4 * col + 2 * step);  // relative L2 of a plane against its edge column's share of light
+    }
+    // The offset's gradient entries (central differences of the loss) agree with the Jacobian's
+    // columns and are not zero.
+    th = m.design_values();
+    th[3] = 0.21 * p;
+    th[4] = -0.37 * p;
+    const RealStack meas = at(0.1 * p);
+    std::vector<double> g;
+    m.loss_gradient(th, meas, g);
+    const Eigen::MatrixXd j = m.jacobian(th);
+    const RealStack model = m.evaluate(th);
+    for (std::size_t k : {std::size_t(3), std::size_t(4)}) {
+      CAPTURE(k);
+      double jr = 0;
+      for (std::size_t i = 0; i < model.data.size(); ++i) jr += j(long(i), long(k)) * (model.data[i] - meas.data[i]);
+      CHECK(std::fabs(g[k]) > 0);
+      CHECK(g[k] == doctest::Approx(jr).epsilon(1e-4));
+    }
   }
 
   TEST_CASE("a level below level 0 is a piston away: the model lifts the map instead of refusing it") {

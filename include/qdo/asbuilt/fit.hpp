@@ -15,7 +15,11 @@
 //                                         point source, the sensor window -- moved the other way
 //                                         (aperture_offset_m), the aperture area-weighted
 //                                         (aperture_edge "area") at every offset, so the model is
-//                                         continuous in it; without the offset H = H0, cfg' = cfg
+//                                         continuous in it -- but for the light of one DOE column at
+//                                         the sensor window's edge, which the window, centred on the
+//                                         axis, finds beyond the native N x N crop on one side of
+//                                         each half-pixel switch (suite fit: 0.4 % on a lens filling
+//                                         its window); without the offset H = H0, cfg' = cfg
 //   model  = Simulator(cfg').psf_sensor(H)   (bands x S x S); with the registration
 //            (sx, sy) fitted, integrate_registered(psf_native(H), sx, sy) instead: the native
 //            stack integrated by a pixel grid displaced by (sx, sy) sensor px (the grid's
