@@ -15,6 +15,11 @@
 # likelihood (ml), cross-validation (gcv) and 0.03 (SIGMAS), MHC demosaic, scored over the interior
 # (16 px border). Writes OUT/recon_table.md: per draw the mean over the scenes, and over the draws
 # the mean and 95 % t interval of each decoder's PSNR and of its difference to the design's decoder.
+# SIGMAS may also name `train`: each decoder's sigma tuned once per camera on training scenes, as a
+# lab can without any test scene: TRAIN_SCENES (default 4 of cave_train: cd, fake_and_real_lemon_slices,
+# fake_and_real_tomatoes, photo_and_face) captured as raw frames through the camera as fitted to the
+# raw frames (its config.json and design.h5), each decoder run on them at every sigma of TRAIN_GRID,
+# the sigma of the best mean PSNR kept (DRAW/recon/train/ROW/sigma.txt) and used on the test scenes.
 # Usage: bash scripts/experiments_fit_raw_draws.sh [OUT]   (QDO: the qdo binary, default build/qdo;
 # DESIGN: a design.h5 to use instead of training the Section 7 design into OUT/design (its folder is
 # the run reconstruct decodes with); DRAWS: how many of the ten draws, default 5)
@@ -73,6 +78,45 @@ if [ "${RECON:-1}" = 1 ]; then
              "$QDO" psf --config "$c/$kind/config.json" --design "$c/$kind/design.h5" --out "$c/${kind}_psf" > /dev/null ;;
       esac
     done
+    # `train`: each decoder's sigma from the training scenes through the camera as fitted (above).
+    if [[ " $SIGMAS " == *" train "* ]] && [ -f "$c/fitted_raw/config.json" ]; then
+      for ts in ${TRAIN_SCENES:-cd fake_and_real_lemon_slices fake_and_real_tomatoes photo_and_face}; do
+        f=$SHARED/data/hsi/cave_train/${ts}_256.mat
+        cap=$c/train_captures/$ts
+        [ -f "$cap/raw.png" ] || { rm -rf "$cap"; mkdir -p "$c/train_captures";
+          "$QDO" simulate --config "$c/fitted_raw/config.json" --design "$c/fitted_raw/design.h5" --scene "$f" --raw --out "$cap" > "$cap.log"; }
+      done
+      for row in design_decoder fitted_raw fitted true; do
+        [ -f "$c/recon/train/$row/sigma.txt" ] && continue
+        psf=()
+        [ "$row" = design_decoder ] || psf=(--psf "$c/${row}_psf/psf.h5")
+        [ "$row" = design_decoder ] || [ -f "$c/${row}_psf/psf.h5" ] || continue
+        best=
+        for sg in ${TRAIN_GRID:-0.005 0.01 0.015 0.02 0.03 0.04 0.06}; do
+          for ts in ${TRAIN_SCENES:-cd fake_and_real_lemon_slices fake_and_real_tomatoes photo_and_face}; do
+            d=$c/recon/train_grid/$row/$sg/$ts
+            [ -f "$d/metrics.json" ] && continue
+            rm -rf "$d"
+            mkdir -p "$(dirname "$d")"
+            "$QDO" reconstruct --run "$RUN" --capture "$c/train_captures/$ts/raw.png" --demosaic mhc --noise-sigma "$sg" "${psf[@]}" \
+              --truth "$SHARED/data/hsi/cave_train/${ts}_256.mat" --truth-border 16 --out "$d" > "$d.log" 2>&1 ||
+              echo "draw $seed $row $ts sigma $sg: reconstruct failed (see $d.log)"
+          done
+        done
+        best=$(python3 - "$c/recon/train_grid/$row" <<'PY'
+import glob, json, os, sys
+scores = {}
+for m in glob.glob(os.path.join(sys.argv[1], "*", "*", "metrics.json")):
+    sg = os.path.basename(os.path.dirname(os.path.dirname(m)))
+    scores.setdefault(sg, []).append(json.load(open(m))["mean"]["psnr"])
+n = max(len(v) for v in scores.values())
+print(max((sum(v) / len(v), k) for k, v in scores.items() if len(v) == n)[1])
+PY
+)
+        mkdir -p "$c/recon/train/$row"
+        echo "$best" > "$c/recon/train/$row/sigma.txt.tmp" && mv "$c/recon/train/$row/sigma.txt.tmp" "$c/recon/train/$row/sigma.txt"
+      done
+    fi
     for f in "$SHARED"/data/hsi/cave/*.mat; do
       s=$(basename "$f" .mat)
       cap=$c/captures/$s
@@ -85,9 +129,14 @@ if [ "${RECON:-1}" = 1 ]; then
           psf=()
           [ "$row" = design_decoder ] || psf=(--psf "$c/${row}_psf/psf.h5")
           [ "$row" = design_decoder ] || [ -f "$c/${row}_psf/psf.h5" ] || continue
+          use=$sig
+          if [ "$sig" = train ]; then
+            [ -f "$c/recon/train/$row/sigma.txt" ] || continue
+            use=$(cat "$c/recon/train/$row/sigma.txt")
+          fi
           rm -rf "$d"
           mkdir -p "$(dirname "$d")"
-          "$QDO" reconstruct --run "$RUN" --capture "$cap/raw.png" --demosaic mhc --noise-sigma "$sig" "${psf[@]}" \
+          "$QDO" reconstruct --run "$RUN" --capture "$cap/raw.png" --demosaic mhc --noise-sigma "$use" "${psf[@]}" \
             --truth "$f" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "draw $seed $row $s: reconstruct failed (see $d.log)"
         done
       done
@@ -132,6 +181,15 @@ for sig in sigmas:
         ns = [a for a, _ in used[d]]
         dm = [b for _, b in used[d]]
         L.append(f"| {d} | {sum(ns) / len(ns):.4f} | {sum(dm) / len(dm):.5f} | " + " | ".join(cells) + " |")
+    if sig == "train":
+        tuned = []
+        for d in draws:
+            got = []
+            for r, _ in rows:
+                f = os.path.join(out, d, "recon", "train", r, "sigma.txt")
+                got.append(open(f).read().strip() if os.path.exists(f) else "—")
+            tuned.append(f"{d} " + "/".join(got))
+        L += ["", "σ tuned on the training scenes (design / raw fit / stack fit / true): " + "; ".join(tuned)]
     L += ["", "Over the draws (mean ± 95 % t interval of the per-draw means; the difference paired by draw):", "",
           "| decoder | PSNR (dB) | − design's decoder (dB) | SSIM | SAM (rad) |", "|---|---:|---:|---:|---:|"]
     for r, label in rows:
