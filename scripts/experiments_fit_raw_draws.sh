@@ -40,6 +40,14 @@ c = json.load(open(sys.argv[1]))
 c.update({"cfa": "rggb", "bit_depth": 12, "black_level_dn": 64, "read_noise_sigma": 0.001,
           "full_well_photons": 20000, "noise_seed": 1})
 json.dump(c, open(sys.argv[2], "w"), indent=2)' "$CAM" "$RAWCAM"
+# The same sensor keys alone, for qdo reconstruct --sensor: the captures are raw whatever sensor the
+# run that decodes them was trained with.
+SENSOR=$OUT/sensor_raw.json
+python3 -c '
+import json, sys
+c = json.load(open(sys.argv[1]))
+json.dump({k: c[k] for k in ("cfa", "bit_depth", "black_level_dn", "read_noise_sigma", "full_well_photons", "noise_seed")},
+          open(sys.argv[2], "w"), indent=2)' "$RAWCAM" "$SENSOR"
 # Each draw: the fabrication seed, the relief offset (um), the DOE-sensor distance error (um)
 # (experiments_fit_sigma.sh's list).
 ALL=("11 1.5,-1.0 150" "12 -2.0,0.5 -100" "13 0.7,2.4 60" "14 2.8,-1.9 180" "15 -0.6,-3.1 -140"
@@ -98,7 +106,7 @@ if [ "${RECON:-1}" = 1 ]; then
             [ -f "$d/metrics.json" ] && continue
             rm -rf "$d"
             mkdir -p "$(dirname "$d")"
-            "$QDO" reconstruct --run "$RUN" --capture "$c/train_captures/$ts/raw.png" --demosaic mhc --noise-sigma "$sg" "${psf[@]}" \
+            "$QDO" reconstruct --run "$RUN" --capture "$c/train_captures/$ts/raw.png" --sensor "$SENSOR" --demosaic mhc --noise-sigma "$sg" "${psf[@]}" \
               --truth "$SHARED/data/hsi/cave_train/${ts}_256.mat" --truth-border 16 --out "$d" > "$d.log" 2>&1 ||
               echo "draw $seed $row $ts sigma $sg: reconstruct failed (see $d.log)"
           done
@@ -136,7 +144,7 @@ PY
           fi
           rm -rf "$d"
           mkdir -p "$(dirname "$d")"
-          "$QDO" reconstruct --run "$RUN" --capture "$cap/raw.png" --demosaic mhc --noise-sigma "$use" "${psf[@]}" \
+          "$QDO" reconstruct --run "$RUN" --capture "$cap/raw.png" --sensor "$SENSOR" --demosaic mhc --noise-sigma "$use" "${psf[@]}" \
             --truth "$f" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "draw $seed $row $s: reconstruct failed (see $d.log)"
         done
       done
