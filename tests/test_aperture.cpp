@@ -250,6 +250,32 @@ TEST_SUITE("aperture") {
     }
   }
 
+  TEST_CASE("Simulator::set_optical_axis equals a new simulator at that axis (stack and adjoint); a refused axis changes nothing") {
+    const SystemConfig a = area_config(0.2, -0.1, 48, 3), b = area_config(-0.45, 0.3, 48, 3);
+    const Map2D h = smooth_heights(a, 31);
+    for (Precision p : device_precisions(runtime())) {
+      CAPTURE(to_string(p));
+      Simulator moved(runtime(), a, p), fresh(runtime(), b, p);
+      moved.set_heights(h);
+      moved.compute_psf();
+      moved.set_optical_axis(b.aperture_offset_x_m, b.aperture_offset_y_m);
+      CHECK_FALSE(moved.psf_ready());
+      CHECK(moved.config().aperture_offset_x_m == b.aperture_offset_x_m);
+      moved.compute_psf();
+      fresh.set_heights(h);
+      fresh.compute_psf();
+      CHECK(moved.psf_sensor().data == fresh.psf_sensor().data);  // the same tables, the same arithmetic
+      const RealStack g = uniform_stack(b.bands, fresh.sensor_size(), fresh.sensor_size(), 5);
+      CHECK(moved.psf_sensor_vjp(g).data == fresh.psf_sensor_vjp(g).data);
+      // An axis the configuration refuses (beyond the grid) is refused before any change.
+      CHECK_THROWS_WITH_AS(moved.set_optical_axis(30 * b.pitch_m, 0), doctest::Contains("aperture_offset_m[0]"), InputError);
+      CHECK(moved.config().aperture_offset_x_m == b.aperture_offset_x_m);
+      CHECK(moved.psf_ready());
+    }
+    Simulator whole(runtime(), tiny_config(32, 3), Precision::F32);
+    CHECK_THROWS_WITH_AS(whole.set_optical_axis(1e-6, 0), doctest::Contains("\"area\""), InputError);
+  }
+
   TEST_CASE("a relief moved by one DOE pixel against its aperture = the axis moved by one pixel the other way") {
     // Camera A: the aperture centred, the relief moved by +1 column and -1 row (the rolled map,
     // zero relief brought in, outside the aperture). Camera B: the relief where it was, the optical

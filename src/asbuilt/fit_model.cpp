@@ -61,7 +61,8 @@ struct AsBuiltModel::Impl {
   bool registration = false;
   RealStack native;
   Map2D native_heights;
-  long native_build = 0;  // t.simulators_built when native was computed
+  long native_build = 0;  // sim_generation when native was computed
+  long sim_generation = 0;  // incremented by every new simulator and every move of its optical axis
   FitTimes t;
 
   // The complete state at theta: every quantity the model uses, nominal where theta has none.
@@ -138,19 +139,25 @@ struct AsBuiltModel::Impl {
     return move_relief(base_config(st), scratch, st.dx_m, st.dy_m);
   }
 
+  // A new simulator when z, d or the aperture radius change; when only the relief's offset does,
+  // the simulator's optical axis is moved instead (Simulator::set_optical_axis: new aperture
+  // weights, point table and sensor weights, no new kernels or FFT plans).
   Simulator& simulator(const State& st) {
     const SystemConfig c = config_of(st);
-    if (!sim || sim_z != st.z || sim_d != st.d || sim_r != aperture_r || sim_ax != c.aperture_offset_x_m ||
-        sim_ay != c.aperture_offset_y_m) {
+    if (!sim || sim_z != st.z || sim_d != st.d || sim_r != aperture_r) {
       sim.reset();
       sim = std::make_unique<Simulator>(rt, c, prec);
       sim_z = st.z;
       sim_d = st.d;
       sim_r = aperture_r;
-      sim_ax = c.aperture_offset_x_m;
-      sim_ay = c.aperture_offset_y_m;
       ++t.simulators_built;
+      ++sim_generation;
+    } else if (sim_ax != c.aperture_offset_x_m || sim_ay != c.aperture_offset_y_m) {
+      sim->set_optical_axis(c.aperture_offset_x_m, c.aperture_offset_y_m);
+      ++sim_generation;
     }
+    sim_ax = c.aperture_offset_x_m;
+    sim_ay = c.aperture_offset_y_m;
     return *sim;
   }
 
@@ -175,7 +182,7 @@ struct AsBuiltModel::Impl {
     const double lowest = *std::min_element(h.data.begin(), h.data.end());
     if (lowest < 0)
       for (double& v : h.data) v -= lowest;
-    if (registration && native_build == t.simulators_built && native.planes && h.data == native_heights.data)
+    if (registration && native_build == sim_generation && native.planes && h.data == native_heights.data)
       return integrate_registered(native, s_.config(), st.sx, st.sy);
     s_.set_heights(h);
     s_.compute_psf();
@@ -183,7 +190,7 @@ struct AsBuiltModel::Impl {
     if (!registration) return s_.psf_sensor();
     native = s_.psf_native();
     native_heights = std::move(h);
-    native_build = t.simulators_built;
+    native_build = sim_generation;
     return integrate_registered(native, s_.config(), st.sx, st.sy);
   }
 

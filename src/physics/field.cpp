@@ -49,17 +49,24 @@ FieldStage::FieldStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::s
   }
   k_ = detail::upload_real(rt_, kk, prec_);
   dn_ = detail::upload_real(rt_, dd, prec_);
+  if (phase_fp64_) {
+    k64_ = detail::upload(rt_, kk);
+    dn64_ = detail::upload(rt_, dd);
+  }
+  set_axis(cfg_);
+}
+
+void FieldStage::set_axis(const SystemConfig& cfg) {
+  cfg_.aperture_edge = cfg.aperture_edge;
+  cfg_.aperture_offset_x_m = cfg.aperture_offset_x_m;
+  cfg_.aperture_offset_y_m = cfg.aperture_offset_y_m;
   const std::vector<double> pts = point_table(cfg_);
   pt_ = detail::upload_real(rt_, pts, prec_);
+  if (phase_fp64_) pt64_ = detail::upload(rt_, pts);
   // The aperture's weights (kernels/field.cl use_amp): N x N with aperture_edge "area", else one
   // unread element.
   use_amp_ = cfg_.aperture_edge == ApertureEdge::Area;
   amp_ = detail::upload_real(rt_, use_amp_ ? aperture_transmission(cfg_) : std::vector<double>{1.0}, prec_);
-  if (phase_fp64_) {
-    k64_ = detail::upload(rt_, kk);
-    dn64_ = detail::upload(rt_, dd);
-    pt64_ = detail::upload(rt_, pts);
-  }
 }
 
 template <typename A3, typename A4>

@@ -13,7 +13,7 @@ PsfStage::PsfStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_
     : rt_(rt), cfg_(cfg), prec_(p), nb_(cfg.bands * designs * cfg.point_count()), s_(cfg.sensor_size_px()),
       m_(PropagationGeometry::from_config(cfg).m), rsz_(real_size(p)) {
   if (designs < 1) reject("designs", designs, ">= 1");
-  weights_ = sensor_weights(cfg_);  // the sensor window centred on the optical axis
+  set_sensor_weights(cfg_);
   k_crop_sums_ = rt_.kernel("psf.cl", "intensity_crop_sums", p);
   k_sums_ = rt_.kernel("psf.cl", "band_sums", p);
   k_finalize_ = rt_.kernel("psf.cl", "finalize_sums", p);
@@ -22,9 +22,17 @@ PsfStage::PsfStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_
   k_dot_ = rt_.kernel("psf.cl", "band_dot", p);
   k_norm_vjp_ = rt_.kernel("psf.cl", "normalize_vjp", p);
   k_int_vjp_ = rt_.kernel("psf.cl", "intensity_vjp", p);
+  partial_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, nb_ * kGroupsPerBand * rsz_);
+}
+
+void PsfStage::set_sensor_weights(const SystemConfig& cfg) {
+  cfg_.aperture_offset_x_m = cfg.aperture_offset_x_m;
+  cfg_.aperture_offset_y_m = cfg.aperture_offset_y_m;
+  weights_ = sensor_weights(cfg_);  // the sensor window centred on the optical axis
   wstart_ = detail::upload(rt_, weights_.start);
   wts_ = detail::upload_real(rt_, weights_.w, prec_);
-  partial_ = cl::Buffer(rt_.context(), CL_MEM_READ_WRITE, nb_ * kGroupsPerBand * rsz_);
+  wts_t_ = cl::Buffer();  // weights_transposed() makes them again
+  wstart_t_ = cl::Buffer();
 }
 
 void PsfStage::intensity_crop_sums(const cl::Buffer& field, cl::Buffer& psf, cl::Buffer& sums) {

@@ -324,6 +324,18 @@ Map2D Simulator::sensor_vjp_in_scratch(cl::Buffer& g_sensor) {
   return backward_from_native(g);
 }
 
+void Simulator::set_optical_axis(double x_m, double y_m) {
+  SystemConfig c = cfg_;
+  c.aperture_offset_x_m = x_m;
+  c.aperture_offset_y_m = y_m;
+  c.validate();
+  if (c.aperture_offset_x_m == cfg_.aperture_offset_x_m && c.aperture_offset_y_m == cfg_.aperture_offset_y_m) return;
+  field_stage_.set_axis(c);
+  psf_stage_.set_sensor_weights(c);
+  cfg_ = c;
+  psf_valid_ = false;
+}
+
 RealStack Simulator::integrate(const RealStack& cube) {
   require_single_design("integrate");
   if (cube.planes != cfg_.bands)

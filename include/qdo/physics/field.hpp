@@ -52,6 +52,11 @@ class FieldStage {
   // PropagationGeometry (samples at [offset, offset + N)), the layout of ref::doe_field.
   ComplexStack centred(const cl::Buffer& field);
 
+  // The optical axis moved (cfg.aperture_offset_*_m, aperture_edge "area"; config.hpp) without a
+  // new stage: the object points' table and the aperture's weights uploaded again. cfg must equal
+  // the stage's configuration but for those two keys (taken as valid).
+  void set_axis(const SystemConfig& cfg);
+
   std::size_t planes() const { return nb_; }
   std::size_t points() const { return points_; }
   // The object points as doe_field reads them: points x 4 doubles (x0, y0, d, R0) per point of

@@ -23,6 +23,9 @@ class PsfStage {
   // area weights N -> S.
   PsfStage(Runtime& rt, const SystemConfig& cfg, Precision p, std::size_t designs = 1);
   PsfStage(const PsfStage&) = delete;
+  // The sensor window centred on a moved optical axis (sensor_weights(cfg), optics.hpp) without a
+  // new stage: the area weights made and uploaded again (their transpose on next use).
+  void set_sensor_weights(const SystemConfig& cfg);
   PsfStage& operator=(const PsfStage&) = delete;
 
   // psf = |field|² on the crop (planes x N x N, unnormalised) and sums = its per-plane sums

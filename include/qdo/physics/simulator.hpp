@@ -95,6 +95,12 @@ class Simulator final : public HeightMapPsfSource {
                   double alpha = 1.0);
   // The current N x N heights (a host copy).
   Map2D heights() const;
+  // Moves the optical axis to (x, y) metres from the grid's centre sample (config.hpp
+  // aperture_offset_m; x along columns) without a new simulator: the aperture's weights, the
+  // object points and the sensor window follow; a stack computed before is no longer valid.
+  // Needs aperture_edge "area" unless (x, y) = (0, 0); InputError (before any change) for an
+  // offset the configuration refuses.
+  void set_optical_axis(double x_m, double y_m);
 
   // Runs the PSF chain on the device (all bands in one batched pass). The results stay on the
   // device; the accessors below copy them to the host. Honours cfg.strict_sampling.
