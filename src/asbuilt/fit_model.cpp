@@ -326,7 +326,10 @@ struct AsBuiltModel::Impl {
       a[k] += h;
       b[k] -= h;
       const RealStack fa = model(state(a));
-      if (at_theta && !by_differences(ps[k].kind)) {
+      // One-sided from the current stack: the adjoint's parameters and the offset (an axis move
+      // of the same simulator); z, d and the registration central, as before.
+      const bool one_sided = !by_differences(ps[k].kind) || ps[k].kind == Kind::DX || ps[k].kind == Kind::DY;
+      if (at_theta && one_sided) {
         for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - at_theta->data[i]) / h;
         continue;
       }

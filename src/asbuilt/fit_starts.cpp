@@ -163,14 +163,14 @@ LateralStarts find_lateral_starts(AsBuiltModel& model, const SystemConfig& cfg, 
       how = std::to_string(axis.size() * axis.size()) + " lateral starts of " + names[lat] + ", " + names[lat + 1] + " on a grid within +-" +
             fmt("%.3g", axis.back()) + " sensor px";
     } else {
-      // Automatic for the offset: scans of dx (dy held), then of dy (dx held), twice, an eighth
-      // of a DOE pixel apart. The blur a sub-pixel offset adds to the sampled relief changes
-      // with the offset's fraction of a DOE pixel, so the loss has narrow minima, one per
-      // fraction, and the image shift (odd in the offset) picks one;
-      // the blur is separable in x and y, so scans along each axis find the lowest. Over the
-      // centroid's reach plus 1.5 DOE px (with shift fitted too: +-2 DOE px), at most 64 steps a side.
+      // Automatic for the offset: scans of dx (dy held), then of dy (dx held), twice, a quarter
+      // of a DOE pixel apart, a safeguard against starting a basin away. (The bilinear blend of
+      // heights qdo once moved reliefs with had a narrow minimum per fraction of a pixel and took
+      // an eighth; the exact move has no such blur, and from the centroid alone the fit found the
+      // truth on a trained DOE's speckled PSF, suite fit.) Over the centroid's reach plus 1.5 DOE
+      // px (with shift fitted too: +-2 DOE px), at most 64 steps a side.
       const double doe_px = cfg.pitch_m / unit;  // one DOE pixel in sensor px
-      const double step = doe_px / 8;
+      const double step = doe_px / 4;
       const double span = sx < np ? 2.0 * doe_px : c_max + 1.5 * doe_px;
       const int half = std::min(64, int(std::ceil(span / step - 1e-9)));
       int evaluated = 0;

@@ -122,7 +122,7 @@ struct FitOptions {
   // lateral start given here is one candidate of the grid.
   std::vector<std::pair<std::string, double>> start;
   // Lateral starts tried (when offset or shift is fitted). 0 (automatic): for the offset, scans
-  // of dx (dy held) then of dy (dx held), twice, an eighth of a DOE pixel apart over
+  // of dx (dy held) then of dy (dx held), twice, a quarter of a DOE pixel apart over
   // +-(|centroid| + 1.5 DOE px) (+-2 DOE px with shift fitted too): a safeguard against basins a
   // fraction of a pixel apart (the bilinear blend of heights qdo once moved reliefs with had them;
   // with the exact move the centroid start alone found the truth on a trained DOE's speckled PSF,
