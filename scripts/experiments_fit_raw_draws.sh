@@ -100,7 +100,7 @@ if [ "${RECON:-1}" = 1 ]; then
         [ "$row" = design_decoder ] || psf=(--psf "$c/${row}_psf/psf.h5")
         [ "$row" = design_decoder ] || [ -f "$c/${row}_psf/psf.h5" ] || continue
         best=
-        for sg in ${TRAIN_GRID:-0.005 0.01 0.015 0.02 0.03 0.04 0.06}; do
+        for sg in ${TRAIN_GRID:-0.001 0.002 0.003 0.005 0.01 0.02 0.03}; do
           for ts in ${TRAIN_SCENES:-cd fake_and_real_lemon_slices fake_and_real_tomatoes photo_and_face}; do
             d=$c/recon/train_grid/$row/$sg/$ts
             [ -f "$d/metrics.json" ] && continue
