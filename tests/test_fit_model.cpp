@@ -229,6 +229,33 @@ TEST_SUITE("fit") {
     }
   }
 
+  TEST_CASE("a level at the top of the heights' range: the Jacobian takes the backward difference instead of refusing") {
+    // The paper preset's fit walked level 3 to 3072.9 nm of a 3073.8 nm range, and the next
+    // Jacobian column's forward step left it: the fit ended on the simulator's refusal.
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels", "z"});
+    std::vector<double> th = m.design_values();
+    FitOptions defaults;
+    th[2] = 2 * cfg.h_max_m() - 0.5 * defaults.fd_height_m;  // level 3 half a step below the top
+    CHECK_THROWS_AS(m.evaluate([&] { auto t = th; t[2] += defaults.fd_height_m; return t; }()), InputError);
+    Eigen::MatrixXd j;
+    REQUIRE_NOTHROW(j = m.jacobian(th));
+    std::vector<double> tb = th;
+    tb[2] -= defaults.fd_height_m;
+    const RealStack f0 = m.evaluate(th), fb = m.evaluate(tb);
+    double worst = 0, scale = 0;
+    for (std::size_t i = 0; i < f0.data.size(); ++i) {
+      worst = std::max(worst, std::fabs(j(long(i), 2) - (f0.data[i] - fb.data[i]) / defaults.fd_height_m));
+      scale = std::max(scale, std::fabs(j(long(i), 2)));
+    }
+    CHECK(scale > 0);
+    CHECK(worst <= 1e-12 * scale);
+    std::vector<double> g;
+    REQUIRE_NOTHROW(m.loss_gradient(th, f0, g));
+    for (double v : g) CHECK(std::isfinite(v));
+  }
+
   TEST_CASE("a level below level 0 is a piston away: the model lifts the map instead of refusing it") {
     // The paper preset's fit from the centroid start walked level 3 below level 0 and the
     // simulator refused the negative heights, ending the fit after 6 minutes.

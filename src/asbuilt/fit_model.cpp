@@ -286,7 +286,18 @@ struct AsBuiltModel::Impl {
       std::vector<double> a = theta, b = theta;
       a[k] += h;
       b[k] -= h;
-      grad[k] = (half_sq(model(state(a)), meas) - half_sq(model(state(b)), meas)) / (2 * h);
+      try {
+        grad[k] = (half_sq(model(state(a)), meas) - half_sq(model(state(b)), meas)) / (2 * h);
+      } catch (const InputError&) {  // one side outside the valid range: the other, from theta
+        double f0 = half_sq(model(state(theta)), meas), fs = 0, sgn = 1;
+        try {
+          fs = half_sq(model(state(a)), meas);
+        } catch (const InputError&) {
+          fs = half_sq(model(state(b)), meas);
+          sgn = -1;
+        }
+        grad[k] = sgn * (fs - f0) / h;
+      }
     }
     t.jacobian_s += since(t0);
   }
@@ -325,7 +336,17 @@ struct AsBuiltModel::Impl {
       std::vector<double> a = theta, b = theta;
       a[k] += h;
       b[k] -= h;
-      const RealStack fa = model(state(a));
+      RealStack fa;
+      try {
+        fa = model(state(a));
+      } catch (const InputError&) {
+        // theta + h leaves the heights or the geometry the simulator takes (a level at the top of
+        // its range): a backward difference from theta instead.
+        const RealStack f0 = at_theta ? *at_theta : model(state(theta));
+        const RealStack fb = model(state(b));
+        for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (f0.data[i] - fb.data[i]) / h;
+        continue;
+      }
       // One-sided from the current stack: the adjoint's parameters and the offset (an axis move
       // of the same simulator); z, d and the registration central, as before.
       const bool one_sided = !by_differences(ps[k].kind) || ps[k].kind == Kind::DX || ps[k].kind == Kind::DY;
