@@ -1,6 +1,6 @@
 // The lateral moves of the as-built fit (fit.hpp): the registration, the native PSF integrated by a
-// moved sensor grid (integrate_registered) and its adjoint; the bilinear shift of the relief offset
-// (shift_bilinear) and its adjoints with respect to the input and to the shift.
+// moved sensor grid (integrate_registered) and its adjoint; the bilinear shift of a stack
+// (shift_bilinear), which the starts use to move a sensor stack by whole pixels.
 #include "qdo/asbuilt/fit.hpp"
 
 #include <cmath>
@@ -25,11 +25,11 @@ struct ShiftSplit {
   }
 };
 
-// Visits every (output index, input index, weight, d weight / d sx, d weight / d sy) of the shift.
+// Visits every (output index, input index, weight) of the shift.
 template <typename F>
 void for_each_tap(std::size_t planes, std::size_t rows, std::size_t cols, double sx, double sy, F&& f) {
   const ShiftSplit x(sx), y(sy);
-  const double wx[2] = {1 - x.f, x.f}, wy[2] = {1 - y.f, y.f}, dw[2] = {-1, 1};
+  const double wx[2] = {1 - x.f, x.f}, wy[2] = {1 - y.f, y.f};
   const long r = long(rows), c = long(cols);
   for (std::size_t p = 0; p < planes; ++p) {
     const std::size_t base = p * rows * cols;
@@ -41,7 +41,7 @@ void for_each_tap(std::size_t planes, std::size_t rows, std::size_t cols, double
           for (int b = 0; b < 2; ++b) {
             const long xs = xx - x.i - b;
             if (xs < 0 || xs >= c) continue;
-            f(base + std::size_t(yy * c + xx), base + std::size_t(ys * c + xs), wy[a] * wx[b], wy[a] * dw[b], dw[a] * wx[b]);
+            f(base + std::size_t(yy * c + xx), base + std::size_t(ys * c + xs), wy[a] * wx[b]);
           }
       }
   }
@@ -59,27 +59,8 @@ std::vector<double> shift_bilinear(const std::vector<double>& in, std::size_t pl
                                    double sy) {
   require_size(in, planes, rows, cols, "the input");
   std::vector<double> out(in.size(), 0.0);
-  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double w, double, double) { out[o] += w * in[i]; });
+  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double w) { out[o] += w * in[i]; });
   return out;
-}
-
-std::vector<double> shift_bilinear_adjoint(const std::vector<double>& g_out, std::size_t planes, std::size_t rows, std::size_t cols,
-                                           double sx, double sy) {
-  require_size(g_out, planes, rows, cols, "the gradient");
-  std::vector<double> g(g_out.size(), 0.0);
-  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double w, double, double) { g[i] += w * g_out[o]; });
-  return g;
-}
-
-void shift_bilinear_derivative(const std::vector<double>& in, const std::vector<double>& g_out, std::size_t planes, std::size_t rows,
-                               std::size_t cols, double sx, double sy, double& d_sx, double& d_sy) {
-  require_size(in, planes, rows, cols, "the input");
-  require_size(g_out, planes, rows, cols, "the gradient");
-  d_sx = d_sy = 0;
-  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double, double dx, double dy) {
-    d_sx += g_out[o] * dx * in[i];
-    d_sy += g_out[o] * dy * in[i];
-  });
 }
 
 namespace {

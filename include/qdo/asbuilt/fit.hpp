@@ -287,13 +287,9 @@ RealStack integrate_registered(const RealStack& native, const SystemConfig& cfg,
 RealStack integrate_registered_adjoint(const RealStack& g_out, const RealStack& native, const SystemConfig& cfg, double sx, double sy);
 
 // Bilinear shift of each plane of a planes x rows x cols stack by (sx, sy) pixels (sx along
-// columns): out(y, x) = in(y - sy, x - sx), zero outside; its adjoint (transpose) and the
-// derivatives sum_i g_i d out_i / d sx, d / d sy for a gradient g on out. All row-major.
+// columns): out(y, x) = in(y - sy, x - sx), zero outside; row-major. (The fit's starts move a
+// sensor stack by whole pixels with it; the relief is moved by optics.hpp move_relief.)
 std::vector<double> shift_bilinear(const std::vector<double>& in, std::size_t planes, std::size_t rows, std::size_t cols, double sx,
                                    double sy);
-std::vector<double> shift_bilinear_adjoint(const std::vector<double>& g_out, std::size_t planes, std::size_t rows, std::size_t cols,
-                                           double sx, double sy);
-void shift_bilinear_derivative(const std::vector<double>& in, const std::vector<double>& g_out, std::size_t planes, std::size_t rows,
-                               std::size_t cols, double sx, double sy, double& d_sx, double& d_sy);
 
 }  // namespace qdo
