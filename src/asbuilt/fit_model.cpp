@@ -134,9 +134,7 @@ struct AsBuiltModel::Impl {
   }
 
   SystemConfig config_of(const State& st) const {
-    if (!offset) return base_config(st);
-    Map2D scratch(n, n);
-    return move_relief(base_config(st), scratch, st.dx_m, st.dy_m);
+    return offset ? moved_relief_config(base_config(st), st.dx_m, st.dy_m) : base_config(st);
   }
 
   // A new simulator when z, d or the aperture radius change; when only the relief's offset does,

@@ -344,11 +344,17 @@ Map2D roll_zero(const Map2D& in, long kx, long ky) {
 SystemConfig move_relief(const SystemConfig& cfg, Map2D& height_m, double dx_m, double dy_m, bool area_edge) {
   if (height_m.rows != cfg.n || height_m.cols != cfg.n)
     reject("height_m", to_str(height_m.rows) + " x " + to_str(height_m.cols), "an N x N map with N = " + to_str(cfg.n));
+  SystemConfig c = moved_relief_config(cfg, dx_m, dy_m, area_edge);
+  const ReliefSplit sp(cfg, dx_m, dy_m);
+  if (sp.kx != 0 || sp.ky != 0) height_m = roll_zero(height_m, sp.kx, sp.ky);
+  return c;
+}
+
+SystemConfig moved_relief_config(const SystemConfig& cfg, double dx_m, double dy_m, bool area_edge) {
   for (const auto& [key, v] : {std::pair<const char*, double>{"dx_m", dx_m}, {"dy_m", dy_m}})
     if (!std::isfinite(v) || std::fabs(v) > double(cfg.n) * cfg.pitch_m)
       reject(key, v, "a finite move of at most the DOE grid's width (metres)");
   const ReliefSplit sp(cfg, dx_m, dy_m);
-  if (sp.kx != 0 || sp.ky != 0) height_m = roll_zero(height_m, sp.kx, sp.ky);
   SystemConfig c = cfg;
   c.aperture_offset_x_m = sp.axis_x_m;
   c.aperture_offset_y_m = sp.axis_y_m;

@@ -112,6 +112,8 @@ std::vector<double> aperture_transmission(const SystemConfig& cfg);
 // aperture_offset_m, when the aperture no longer fits the grid). A relief neither moved nor offset
 // keeps cfg's edge unless area_edge asks for the area-weighted one anyway (a model continuous in the move).
 SystemConfig move_relief(const SystemConfig& cfg, Map2D& height_m, double dx_m, double dy_m, bool area_edge = true);
+// The configuration alone of move_relief (the same checks, no map moved).
+SystemConfig moved_relief_config(const SystemConfig& cfg, double dx_m, double dy_m, bool area_edge = true);
 // The transpose of move_relief's whole-pixel move of a height map: a gradient on the moved map
 // (N x N) back onto the map before the move (the pixels moved off the grid get 0).
 Map2D move_relief_adjoint(const SystemConfig& cfg, const Map2D& g_moved, double dx_m, double dy_m);
