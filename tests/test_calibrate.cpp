@@ -200,6 +200,8 @@ TEST_SUITE("calibrate") {
       CHECK(worst <= 14 * sigma_b + 0.02 * peak);
       CHECK(l1 <= double(n) * sigma_b);
     }
+    // The signal mask as used, in psf.h5's provenance.
+    CHECK(h5_read_root_attrs((s.dir / "out/psf.h5").string()).at("signal_mask") == "windows 5,11,23 px at 4 sigma");
     const std::string csv = slurp(s.dir / "out/compare.csv");
     CHECK(csv.find("correlation") != std::string::npos);
     CHECK(fs::exists(s.dir / "out/compare.png"));
@@ -424,6 +426,12 @@ TEST_SUITE("calibrate") {
       const Run r = calibrate(s.dir / "frames", "o_crop", "--centre 10,10");
       CHECK(r.code == 2);
       CHECK_MESSAGE((r.out.find("leaves the") != std::string::npos && r.out.find(".png") != std::string::npos), r.out);
+    }
+    for (const char* bad : {"4", "5,5", "11,5", "1", "301", "5,x"}) {  // signal-mask windows
+      const Run r = calibrate(s.dir / "frames", "o_windows", std::string("--mask-windows ") + bad);
+      CHECK(r.code == 2);
+      CHECK_MESSAGE(r.out.find("--mask-windows") != std::string::npos, r.out);
+      CHECK(!fs::exists(s.dir / "o_windows/psf.h5"));
     }
     {  // a capture whose mosaic is not the configured one
       const fs::path cfg = s.dir / "bggr.json";

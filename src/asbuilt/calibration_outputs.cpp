@@ -52,6 +52,7 @@ void write_calibration_outputs(const std::string& dir, const SystemConfig& cfg, 
                        {"white_dir", prov.white_dir},
                        {"white_count", std::to_string(r.whites.size())},
                        {"notes", notes}});
+  if (!prov.signal_mask.empty()) f.root_attrs.insert({"signal_mask", prov.signal_mask});
   write_psf_file(dir + "/psf.h5", std::move(f));
   const std::size_t crop = std::min<std::size_t>(96, r.psf.rows);
   write_psf_figure(dir + "/psf.png", "Measured PSF stack from " + prov.frames_dir, r.psf, cfg.wavelengths_nm(), cfg.sensor_pitch_m,

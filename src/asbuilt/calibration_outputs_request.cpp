@@ -38,6 +38,11 @@ CalibrateRequest calibrate_request_from_options(const TextOptions& a) {
   q.darks = a.get("darks");
   frame_reduction_from_options(a, opt);
   opt.floor_sigma = parse_double("--floor-sigma", a.get("floor-sigma", "4"), 0, 100, "noise sigmas", false);
+  if (a.has("mask-windows")) {
+    opt.mask_windows.clear();
+    for (const auto& w : split_items(a.get("mask-windows")))
+      opt.mask_windows.push_back(std::size_t(parse_int("--mask-windows", w, 3, 255)));
+  }
   const std::string bg = a.get("background", "ring");
   if (bg != "ring" && bg != "none")
     reject("--background", bg, "ring (the median of the crop's outer 2-pixel ring) or none");
@@ -62,6 +67,9 @@ CalibrationRun run_calibration(const CalibrateRequest& q, const std::string& dir
   prov.frames_dir = q.frames;
   prov.darks_dir = q.darks;
   prov.white_dir = q.options.white_dir;
+  std::string windows;
+  for (const std::size_t w : q.options.mask_windows) windows += (windows.empty() ? "" : ",") + std::to_string(w);
+  prov.signal_mask = "windows " + windows + " px at " + strprintf("%g", q.options.floor_sigma) + " sigma";
   write_calibration_outputs(dir, cfg, r, prov);
   report += strprintf(
       "calibrated %zu bands from %s (%zu frames, %zu dark frames, %zu hot pixels replaced, %zu of them transient), "

@@ -36,7 +36,8 @@ const RegisterCommand registered_calibrate(50, [] {
                                  "frames' size (averaged, dark subtracted); every frame is divided by its white signal over the white's "
                                  "mean (colour gains and pixel response measured; psf.h5 /white_channel_gains) (default: none)"),
                     opt("design", "design to compare with: lens:NM, flat, a design .h5 file or a run folder (its design.h5)"),
-                    opt("floor-sigma", "signal-mask threshold: pixels whose 5 x 5 mean is below this many sigmas of its noise (and not within 2 px of one above) are set to 0", "4"),
+                    opt("floor-sigma", "signal-mask threshold: a window is kept when its mean stands this many sigmas above its noise; pixels in no kept window are set to 0", "4"),
+                    opt("mask-windows", "the signal mask's window widths in px, odd, ascending: each tests the light the smaller ones did not keep (5 alone: a compact PSF; larger ones keep a DOE's faint wide halo)", "5,11,23"),
                     opt("background", "background removed after the dark: ring (the median of the S x S crop's outer 2-pixel ring) "
                                       "or none (the dark only; for a PSF with energy out to the crop's edge)",
                         "ring"),

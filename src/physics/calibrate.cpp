@@ -110,6 +110,15 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
     last = now;
   };
 
+  if (opt.mask_windows.empty())
+    throw InputError("--mask-windows: empty; give odd window widths in px, ascending, 3 to 255 (default 5,11,23)");
+  for (std::size_t k = 0; k < opt.mask_windows.size(); ++k) {
+    const std::size_t w = opt.mask_windows[k];
+    if (w < 3 || w > 255 || w % 2 == 0 || (k > 0 && w <= opt.mask_windows[k - 1]))
+      throw InputError("--mask-windows: " + std::to_string(w) +
+                       " is not allowed; give odd window widths in px, strictly ascending, 3 to 255 (default 5,11,23)");
+  }
+
   // 1. Match the file names to the bands (before reading any pixel); a band's several frames are
   // its exposures.
   const std::vector<std::string> files = capture_files(frames_dir, "--frames");
@@ -462,7 +471,7 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   r.psf = RealStack(bands, s, s);
   for (std::size_t b = 0; b < bands; ++b) {
     const Map2D band = crop_band(sig[b], info[b], r.noise_dn[b], std::size_t(y0), std::size_t(x0), s, opt.floor_sigma,
-                                 opt.ring_background);
+                                 opt.ring_background, opt.mask_windows);
     double sum = 0;
     for (double v : band.data) sum += v;
     if (!(sum > 0)) refuse(band_files[b][0], "no signal above the background in the S x S crop");

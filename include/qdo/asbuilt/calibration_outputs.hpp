@@ -17,6 +17,7 @@ namespace qdo {
 struct CalibrationProvenance {
   std::string source = "calibrate_psf";  // the "source" attribute
   std::string frames_dir, darks_dir, white_dir;
+  std::string signal_mask;  // the "signal_mask" attribute: windows and threshold (empty: not written)
 };
 
 // DIR/psf.h5: /psf_sensor (r.psf, bands x S x S) and /wavelengths_nm as `qdo psf` writes them (one

@@ -43,8 +43,11 @@
 //      min_response (default 0.005: a colour that responds at all is used) are no measurement.
 //      The estimate is empirical Bayes (joint_pixel_estimate): m = the inverse-variance mean of
 //      the 8 neighbours' x (of the 5 x 5 window's 24 where none of the 8 measures), vm its
-//      variance from their noise, tau² the local spread of the truth
-//      about such a mean (the noise-debiased mean of (x_q - m_q)² over the 7 x 7 window), and
+//      variance from their noise, tau² the local spread of the truth about such a mean,
+//      proportional to the local level (kappa (m² + vm), kappa the noise-debiased mean of
+//      (x_q - m_q)² / (m_q² + vm_q) over the 7 x 7 window, each term weighted by its variance,
+//      the spread's own included: a speckle's spread, and a peak's departure from its
+//      neighbours, scale with their level), and
 //      x^ = (x / v + m / (vm + tau²)) / (1 / v + 1 / (vm + tau²)): a weak colour's noisy pixel
 //      leans on its neighbours where the PSF is smooth, and keeps its own value where the PSF
 //      has structure its neighbours do not predict; noise-free frames give x^ = raw / gain (to
@@ -65,12 +68,16 @@
 //   8. background: the median of the crop's outer ring (2 px wide) is subtracted (unless
 //      ring_background is off: a PSF with energy out to the crop's edge, as a DOE's has, loses
 //      that level times S² with it; the dark has removed the sensor's own offset); then the
-//      signal mask: pixels whose 5 x 5 mean exceeds floor_sigma x its noise (1 / sqrt of the
-//      sum over the window of the pixels' own-estimate precisions 1 / v: sigma / 5 for 25 equal
-//      pixels), grown by 2 px, keep their value, all others are 0 (faint wings next to the signal
-//      stay); a negative value inside is taken from its positive 8-neighbours (4 passes; the rest
-//      set to 0), so the band's sum stays unbiased (clamping would add 0.4 sigma per masked
-//      pixel); each band is divided by its sum.
+//      signal mask, over mask_windows (default 5, 11, 23 px): a window is lit when the mean of
+//      its pixels not yet in the mask exceeds floor_sigma x that mean's noise (1 / sqrt of the
+//      sum of their own-estimate precisions 1 / v: sigma / 5 for 25 equal pixels; windows more
+//      than half inside the mask are not tested), and every pixel of a lit window joins the mask,
+//      the smallest window first (so the 5 x 5 scale keeps a compact PSF and its faint wings,
+//      and the larger ones a DOE's wide halo, below the noise of every 5 x 5 window, without
+//      being lit by a core they contain); pixels in the mask keep their value, all others are 0;
+//      a negative value inside is taken from its positive neighbours (8-neighbours, then squares
+//      up to 6 px for what is left; the rest set to 0), so the band's sum stays unbiased
+//      (clamping would add 0.4 sigma per masked pixel); each band is divided by its sum.
 #pragma once
 #include <array>
 #include <string>
@@ -94,7 +101,11 @@ struct CalibrationOptions {
   // colours above it are used, weighted by their noise: a floor against a response table's own
   // error at near-zero values, not a noise threshold.
   double min_response = 0.005;
-  double floor_sigma = 4;      // signal-mask threshold, in sigmas of a 5 x 5 mean's noise
+  double floor_sigma = 4;      // signal-mask threshold, in sigmas of a window mean's noise
+  // The signal mask's window widths (px, odd, 3 .. 255, ascending): the first tests every pixel's
+  // window, each further one the light the earlier ones have not kept (step 8). {5} alone keeps
+  // a compact PSF and cuts a faint wide halo.
+  std::vector<std::size_t> mask_windows{5, 11, 23};
   bool ring_background = true; // subtract the median of the crop's outer ring (false: the dark only)
   // Folder of white (flat-field) frames, the frames' size: a uniformly lit, spectrally flat white
   // target filling the view (flat_field.hpp). Their mean over the mean dark divides every frame's
@@ -232,10 +243,12 @@ JointEstimate joint_pixel_estimate(const Map2D& raw_dn, const Map2D& gain, const
 
 // Step 8 on one band: the S x S crop of estimate (rows x cols, DN per unit gain) whose top-left
 // corner is frame pixel (y0, x0), the ring background subtracted when ring_background, the signal
-// mask (info: rows x cols, each pixel's own-estimate precision times sigma_dn², the band's sigma),
+// mask (info: rows x cols, each pixel's own-estimate precision times sigma_dn², the band's sigma;
+// mask_windows as CalibrationOptions'),
 // negatives spread onto positive neighbours, unit sum. S x S; all 0 when nothing positive is left.
 Map2D crop_band(const Map2D& estimate, const Map2D& info, double sigma_dn, std::size_t y0, std::size_t x0,
-                std::size_t s, double floor_sigma, bool ring_background);
+                std::size_t s, double floor_sigma, bool ring_background,
+                const std::vector<std::size_t>& mask_windows = {5, 11, 23});
 
 // Measured against simulated, per band (stacks bands x S x S of one shape).
 struct PsfBandComparison {
