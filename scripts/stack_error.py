@@ -3,7 +3,8 @@
 calibrated stack (qdo calibrate) against the true one (qdo psf on the as-built camera).
 
 For each band: the relative L2 of the unit-sum planes, ||a - b|| / ||b||, and the share of each
-stack's light beyond --radius pixels of the window's centre (S/2, S/2). Prints a Markdown table.
+stack's light beyond --radius pixels of the window's centre (S/2, S/2). Prints a Markdown table,
+then one line: the median and the worst band's relative L2.
 Needs numpy and h5py. Exit 2 on bad input (naming the file and what is wrong), nothing written.
 
 Usage: stack_error.py MEASURED.h5 TRUE.h5 [--radius 32]
@@ -51,13 +52,17 @@ def main(argv=None):
     outer = np.hypot(yy - s // 2, xx - s // 2) >= a.radius
     print(f"| band | relative L2 | light beyond {a.radius:g} px, measured | light beyond {a.radius:g} px, true |")
     print("|---:|---:|---:|---:|")
+    rels = []
     for b in range(m.shape[0]):
         ms, ts = m[b].sum(), t[b].sum()
         if not (ms > 0 and ts > 0):
             fail(f"band {b}: a plane with no light ({a.measured} sum {ms}, {a.true} sum {ts})")
         mb, tb = m[b] / ms, t[b] / ts
         rel = np.linalg.norm(mb - tb) / np.linalg.norm(tb)
+        rels.append(rel)
         print(f"| {b} | {rel:.3f} | {mb[outer].sum():.3f} | {tb[outer].sum():.3f} |")
+    worst = int(np.argmax(rels))
+    print(f"\nrelative L2 over {len(rels)} bands: median {np.median(rels):.3f}, worst {rels[worst]:.3f} (band {worst})")
 
 
 if __name__ == "__main__":

@@ -31,8 +31,10 @@ def test_relative_l2_and_outer_light(tmp_path):
     write(tmp_path / "t.h5", true)
     r = run(tmp_path / "m.h5", tmp_path / "t.h5", "--radius", 8)
     assert r.returncode == 0, r.stderr
-    rows = [l.split("|") for l in r.stdout.splitlines()[2:]]
-    assert len(rows) == 2
+    lines = r.stdout.splitlines()
+    rows = [l.split("|") for l in lines[2:4]]
+    want_line = f"relative L2 over 2 bands: median {np.hypot(1 - 0.75, 0.25) / np.hypot(0.75, 0.25) / 2:.3f}, "
+    assert lines[-1].startswith(want_line) and lines[-1].endswith("(band 1)"), lines[-1]
     # band 0 equal; band 1: unit-sum planes (1, 0) vs (0.75, 0.25) at two pixels
     want = np.hypot(1 - 0.75, 0.25) / np.hypot(0.75, 0.25)
     assert float(rows[0][2]) == 0.0
