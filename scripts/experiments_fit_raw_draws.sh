@@ -2,8 +2,10 @@
 # The as-built fit from the raw frames against the fit from the calibrated stack, over fabrication
 # draws (EXPERIMENTS.md "Section 7 again: the fit from the raw frames"). The Section 7 design
 # (4-level QDO+A, small preset, seed 0) is fabricated once per draw (qdo fabricate: etch depth
-# errors within +-20 nm, the draw's relief offset and DOE-sensor distance error; each mask's
-# overlay within OVERLAY_UM, default 0: every error inside the fit's model), a monochromator sweep
+# errors within +-ETCH_NM, default 20 nm, the draw's relief offset and DOE-sensor distance error
+# times DZ_SCALE, default 1; each mask's overlay within OVERLAY_UM, default 0: every error inside
+# the fit's model; larger ETCH_NM and DZ_SCALE make an as-built PSF further from the design's, for
+# the decoders' comparison), a monochromator sweep
 # is captured through it as raw 12-bit RGGB frames with read and shot noise and 8 darks (qdo
 # simulate --capture psf-sweep), then fitted twice with --fit levels,z,offset,shift: from qdo
 # calibrate's stack, and from the frames themselves (qdo fit --frames). Writes OUT/table.md.
@@ -29,6 +31,8 @@ OUT=${1:-out/fit_raw_draws}
 QDO=${QDO:-build/qdo}
 SHARED=${SHARED:-../shared}
 OVERLAY_UM=${OVERLAY_UM:-0}
+ETCH_NM=${ETCH_NM:-20}
+DZ_SCALE=${DZ_SCALE:-1}
 NAME=experiments_fit_raw_draws
 source scripts/experiments_fit_common.sh
 # The sensor as built, as in experiments_section7.sh: RGGB, 12 bits, black level 64 DN, read noise
@@ -55,12 +59,13 @@ ALL=("11 1.5,-1.0 150" "12 -2.0,0.5 -100" "13 0.7,2.4 60" "14 2.8,-1.9 180" "15 
 n=${DRAWS:-5}
 for draw in "${ALL[@]:0:$n}"; do
   read -r seed off dz <<< "$draw"
+  dz=$(python3 -c "import sys; print(float(sys.argv[1]) * float(sys.argv[2]))" "$dz" "$DZ_SCALE")
   c=$OUT/draw$seed
   if [ -f "$c/fitted_raw/fit.json" ] && [ -f "$c/fitted/fit.json" ]; then echo "draw $seed: done before"; continue; fi
   rm -rf "$c"
   mkdir -p "$c"
   t0=$(date +%s)
-  "$QDO" fabricate "$DESIGN" --config "$RAWCAM" --seed "$seed" --etch-depth-error-nm 20 --overlay-um "$OVERLAY_UM" --offset-um="$off" \
+  "$QDO" fabricate "$DESIGN" --config "$RAWCAM" --seed "$seed" --etch-depth-error-nm "$ETCH_NM" --overlay-um "$OVERLAY_UM" --offset-um="$off" \
     --sensor-distance-error-um "$dz" --out "$c/asbuilt" > /dev/null
   "$QDO" simulate --config "$c/asbuilt/config.json" --design "$c/asbuilt/design.h5" --capture psf-sweep --peak 0.6 --darks 8 \
     --out "$c/sweep" > /dev/null
@@ -69,7 +74,7 @@ for draw in "${ALL[@]:0:$n}"; do
     --out "$c/fitted" > "$c/fitted.log" 2>&1 || true
   "$QDO" fit --config "$RAWCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit levels,z,offset,shift \
     --iterations 60 --out "$c/fitted_raw" > "$c/fitted_raw.log" 2>&1 || true
-  echo "draw $seed (offset $off um, dz $dz um, overlay within $OVERLAY_UM um): $(( $(date +%s) - t0 )) s"
+  echo "draw $seed (offset $off um, dz $dz um, etch within $ETCH_NM nm, overlay within $OVERLAY_UM um): $(( $(date +%s) - t0 )) s"
 done
 if [ "${RECON:-1}" = 1 ]; then
   RUN=$(dirname "$DESIGN")
