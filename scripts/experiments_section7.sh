@@ -10,6 +10,12 @@
 # model) and "full" (the same plus each mask's own overlay shift, as qdo tolerance draws it: outside
 # the model). Writes OUT/table.md and OUT/table.csv, and OUT/fit_compare.md (the fit from the
 # calibrated stack against the fit from the raw frames, scripts/section7_fit_compare.py).
+# With DRAWS=N the table is made over N fabrication draws instead (each its own etch errors within
+# ETCH_NM, relief offset and DOE-sensor distance error, every error inside the fit's model; fitted
+# from the calibrated stack and from the raw frames; reconstructions with 95 % t intervals over the
+# draws, the decoders' sigma from DRAW_SIGMAS, default "model ml 0.03 train"):
+# scripts/experiments_fit_raw_draws.sh on this script's design, into OUT/draws (its table.md and
+# recon_table.md).
 # Usage: bash scripts/experiments_section7.sh [OUT]   (QDO: the qdo binary, default build/qdo)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -45,6 +51,13 @@ log "1. design: 4-level QDO+A, Wiener decoder, CAVE training scenes"
 if [ ! -f "$OUT/design/design.h5" ]; then
   "$QDO" design --recipe qdo --config "$CAM" --mode qdo+a --levels 4 --epochs "$EPOCHS" --steps-per-epoch "$STEPS" --seed "$SEED" \
     --data "$SHARED/data/hsi/cave_train" --out "$OUT/design"
+fi
+
+if [ -n "${DRAWS:-}" ]; then
+  log "2-8 over $DRAWS fabrication draws: scripts/experiments_fit_raw_draws.sh into $OUT/draws"
+  DESIGN="$OUT/design/design.h5" DRAWS="$DRAWS" ETCH_NM="$ETCH_NM" OVERLAY_UM=0 SIGMAS="${DRAW_SIGMAS:-model ml 0.03 train}" \
+    QDO="$QDO" SHARED="$SHARED" bash scripts/experiments_fit_raw_draws.sh "$OUT/draws"
+  exit 0
 fi
 
 if [ "$RECON_ONLY" != 1 ]; then
