@@ -466,7 +466,9 @@ TEST_SUITE("calibrate") {
     // The control, the core alone: a larger window lit by noise keeps that noise (a false alarm
     // keeps a window whose mean stood floor_sigma sd above its noise). Its relative L2 error
     // against the true band must stay within the 5 x 5 mask's plus 0.01 (measured: equal in 26 of
-    // 31 bands, at most +0.005 in the others).
+    // 31 bands, at most +0.005 in the others), and the median band's at 1.02 x the 5 x 5 mask's
+    // (measured 1.00; larger windows tested on all their pixels, lit by the core they contain,
+    // gave 1.045).
     const Speckle& s = speckle();
     const SystemConfig& cfg = s.noisy;
     const std::size_t S = s.known.rows, H = kSpeckleFrame, c0 = S / 2;
@@ -474,6 +476,7 @@ TEST_SUITE("calibrate") {
     auto radius2 = [&](std::size_t y, std::size_t x) {
       return std::pow(double(y) - double(c0), 2) + std::pow(double(x) - double(c0), 2);
     };
+    std::vector<double> ratios;  // core alone: per band, relative L2 over the 5 x 5 mask's
     for (const bool halo : {true, false}) {
       const std::string tag = halo ? "halo" : "core";
       const fs::path d = s.dir / tag;
@@ -535,9 +538,15 @@ TEST_SUITE("calibrate") {
           CHECK(l2 <= 0.25 * l25);
         } else {
           CHECK(l2 <= l25 + 0.01);
+          ratios.push_back(l2 / l25);
         }
       }
     }
+    // Noise kept around every core (a larger window lit by the core it contains) would raise the
+    // error in every band; false alarms raise it in a few: the median band is the 5 x 5 mask's.
+    std::nth_element(ratios.begin(), ratios.begin() + long(ratios.size() / 2), ratios.end());
+    MESSAGE("core alone: median relative L2 over the 5 x 5 mask's " << ratios[ratios.size() / 2]);
+    CHECK(ratios[ratios.size() / 2] <= 1.02);
   }
 
   TEST_CASE("Poisson-Gaussian noise on a compact core: the joint estimate keeps the peak and the light") {
