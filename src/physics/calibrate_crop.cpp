@@ -25,12 +25,13 @@ Map2D crop_band(const Map2D& estimate, const Map2D& info, double sigma_dn, std::
     for (std::size_t x = 0; x < s; ++x)
       if (y < 2 || x < 2 || y + 2 >= s || x + 2 >= s) ring.push_back(estimate(y0 + y, x0 + x));
   const double bg = ring_background ? median_of(ring) : 0.0;
-  // The signal mask, over the windows mask_windows (default 5, 11, 23 px). First the 5 x 5 mean
-  // of the crop above floor_sigma of its own noise, grown by 2 px. That noise is sigma / sqrt(the window's sum of the pixels'
-  // own-estimate precisions info): the noise of the best mean of their own estimates, which the
-  // joint estimates' mean approaches (sigma / 5 for 25 pixels of one noise; the joint estimate's
-  // own sd would count the noise its neighbourhood term shares with the next pixel's several
-  // times). Then the 11 x 11 and the 23 x 23 windows, each tested on the light the smaller scales
+  // The signal mask, over the windows mask_windows (default 5, 11, 23 px). First the mean of
+  // each pixel's first window (5 x 5) above floor_sigma of its own noise, the window kept whole
+  // (grown by 2 px). That noise is sigma / sqrt(the window's sum of the pixels' own-estimate
+  // precisions info): the noise of the best mean of their own estimates, which the joint
+  // estimates' mean approaches (sigma / 5 for 25 pixels of one noise; the joint estimate's own sd
+  // would count the noise its neighbourhood term shares with the next pixel's several times).
+  // Then the 11 x 11 and the 23 x 23 windows, each tested on the light the smaller scales
   // have not kept (the window's pixels outside the mask so far, their mean against its noise), and
   // every pixel of a lit window kept: a DOE's wide halo, below the noise of every 5 x 5 window,
   // is kept where it stands above a larger window's, while around a compact PSF, whose light the
@@ -56,8 +57,10 @@ Map2D crop_band(const Map2D& estimate, const Map2D& info, double sigma_dn, std::
     Map2D out(s, s);
     for (std::size_t y = 0; y < s; ++y)
       for (std::size_t x = 0; x < s; ++x) {
-        const std::size_t ya = std::size_t(std::max(0L, long(y) - rad)), yb = std::size_t(std::min(long(s), long(y) + rad + 1));
-        const std::size_t xa = std::size_t(std::max(0L, long(x) - rad)), xb = std::size_t(std::min(long(s), long(x) + rad + 1));
+        // The window's rows [ya, yb) and columns [xa, xb), inside the crop.
+        const auto lo = [&](std::size_t i) { return std::size_t(std::max(0L, long(i) - rad)); };
+        const auto hi = [&](std::size_t i) { return std::size_t(std::min(long(s), long(i) + rad + 1)); };
+        const std::size_t ya = lo(y), yb = hi(y), xa = lo(x), xb = hi(x);
         out(y, x) = in[yb * (s + 1) + xb] - in[ya * (s + 1) + xb] - in[yb * (s + 1) + xa] + in[ya * (s + 1) + xa];
       }
     return out;
@@ -72,7 +75,8 @@ Map2D crop_band(const Map2D& estimate, const Map2D& info, double sigma_dn, std::
     for (std::size_t y = 0; y < s; ++y)
       for (std::size_t x = 0; x < s; ++x) {
         // At least half the window still unmasked: a window mostly inside the mask tests a few
-        // pixels at its edge, which the smaller scale has already judged.
+        // pixels at its edge, which the smaller scale has already judged (a window cut by the
+        // crop's edge counts its pixels inside).
         const double half = 0.5 * double((2 * rad + 1) * (2 * rad + 1));  // of the window's pixels
         const bool test = k == 0 || sn(y, x) >= half;
         if (test && sp(y, x) > 0 && sv(y, x) / sn(y, x) > floor_sigma * sigma_dn / std::sqrt(sp(y, x))) {

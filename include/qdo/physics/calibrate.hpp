@@ -247,8 +247,7 @@ JointEstimate joint_pixel_estimate(const Map2D& raw_dn, const Map2D& gain, const
 // mask_windows as CalibrationOptions'),
 // negatives spread onto positive neighbours, unit sum. S x S; all 0 when nothing positive is left.
 Map2D crop_band(const Map2D& estimate, const Map2D& info, double sigma_dn, std::size_t y0, std::size_t x0,
-                std::size_t s, double floor_sigma, bool ring_background,
-                const std::vector<std::size_t>& mask_windows = {5, 11, 23});
+                std::size_t s, double floor_sigma, bool ring_background, const std::vector<std::size_t>& mask_windows);
 
 // Measured against simulated, per band (stacks bands x S x S of one shape).
 struct PsfBandComparison {
