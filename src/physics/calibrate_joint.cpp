@@ -120,7 +120,7 @@ JointEstimate joint_pixel_estimate(const Map2D& raw_dn, const Map2D& gain, const
   // The second pass weights each term by its full variance, the structure's own included
   // ((tot / L² + kappa)² with the first pass's kappa at q): bright pixels no longer outweigh the
   // rest without bound, and kappa is the window's relative spread (noise-free speckle: within
-  // 1.00 .. 1.13 x the rounding's error with it, 1.2 .. 1.25 x with the first pass alone).
+  // 1.00 .. 1.13 x the rounding's error with it, up to 1.25 x with the first pass alone).
   for (std::size_t i = 0; i < n; ++i) {
     if (!(a.data[i] > 0)) continue;
     const double v = 1 / info.data[i], tot = v + vm.data[i], l2 = level2.data[i];
