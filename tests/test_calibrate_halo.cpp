@@ -33,7 +33,7 @@ TEST_SUITE("calibrate") {
     // (read² + 1/12 + 0.2 raw) / w², w its colour's response) over the band's light, plus what
     // the mask may cut at the halo's rim (under one 23 x 23 window's light, 529 DN; measured
     // within 2.1 sd). With the 5 x 5 window alone it is cut: under half of it is kept (measured
-    // 2-6 % of the light against 31 %).
+    // 2-8 % of the light against 31 %).
     // The band's relative L2 error is then under a quarter of the 5 x 5 mask's (measured 0.07 ..
     // 0.20 x: 0.028 .. 0.078 against 0.33 .. 0.44).
     // The control, the core alone: a larger window lit by noise keeps that noise (a false alarm
