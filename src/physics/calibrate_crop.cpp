@@ -85,20 +85,23 @@ Map2D crop_band(const Map2D& estimate, const Map2D& info, double sigma_dn, std::
         }
       }
     if (!any) continue;
-    // Every pixel of a lit window joins the mask (a separable box dilation of lit by rad).
+    // Every pixel of a lit window joins the mask: a separable box dilation of lit by rad, each
+    // axis by running counts (a pixel is reached when a lit one lies within rad along it).
+    const auto reached = [&](const std::vector<double>& prefix, std::size_t i) {
+      const long a = std::max(0L, long(i) - rad), b = std::min(long(s), long(i) + rad + 1);
+      return prefix[std::size_t(b)] - prefix[std::size_t(a)] > 0;
+    };
     Map2D rows(s, s);
-    for (std::size_t y = 0; y < s; ++y)
-      for (std::size_t x = 0; x < s; ++x)
-        for (long dx = -rad; dx <= rad && rows(y, x) == 0; ++dx) {
-          const long xx = long(x) + dx;
-          if (xx >= 0 && xx < long(s) && lit(y, std::size_t(xx)) > 0) rows(y, x) = 1;
-        }
-    for (std::size_t y = 0; y < s; ++y)
-      for (std::size_t x = 0; x < s; ++x)
-        for (long dy = -rad; dy <= rad && mask(y, x) == 0; ++dy) {
-          const long yy = long(y) + dy;
-          if (yy >= 0 && yy < long(s) && rows(std::size_t(yy), x) > 0) mask(y, x) = 1;
-        }
+    std::vector<double> prefix(s + 1);
+    for (std::size_t y = 0; y < s; ++y) {
+      for (std::size_t x = 0; x < s; ++x) prefix[x + 1] = prefix[x] + lit(y, x);
+      for (std::size_t x = 0; x < s; ++x) rows(y, x) = reached(prefix, x) ? 1 : 0;
+    }
+    for (std::size_t x = 0; x < s; ++x) {
+      for (std::size_t y = 0; y < s; ++y) prefix[y + 1] = prefix[y] + rows(y, x);
+      for (std::size_t y = 0; y < s; ++y)
+        if (reached(prefix, y)) mask(y, x) = 1;
+    }
   }
   Map2D kept(s, s);
   for (std::size_t i = 0; i < s * s; ++i) kept.data[i] = mask.data[i] > 0 ? v.data[i] : 0.0;
