@@ -26,6 +26,10 @@
 # and a row "chosen": per camera, the design's decoder or the one adapted to the raw fit, whichever
 # scores higher on those training scenes at its tuned sigma. The summary counts the draws where
 # each decoder is at or above the design's (to 0.01 dB).
+# BOUNDARY (default mirror): how reconstruct's tiles meet the decoder's model (--boundary); linear
+# is the capture's own model (tiled.hpp), solved by conjugate gradients, about 20 times slower; its
+# reconstructions go to DRAW/recon_linear and its table to OUT/recon_table_linear.md. ROWS: the
+# decoders reconstructed (default: design_decoder fitted_raw fitted true).
 # Usage: bash scripts/experiments_fit_raw_draws.sh [OUT]   (QDO: the qdo binary, default build/qdo;
 # DESIGN: a design.h5 to use instead of training the Section 7 design into OUT/design (its folder is
 # the run reconstruct decodes with); DRAWS: how many of the ten draws, default 5)
@@ -82,6 +86,16 @@ for draw in "${ALL[@]:0:$n}"; do
 done
 if [ "${RECON:-1}" = 1 ]; then
   RUN=$(dirname "$DESIGN")
+  BOUNDARY=${BOUNDARY:-mirror}
+  case $BOUNDARY in
+    mirror) REC=recon; TABLE=recon_table.md ;;
+    linear|circular) REC=recon_$BOUNDARY; TABLE=recon_table_$BOUNDARY.md ;;
+    *) echo "BOUNDARY: '$BOUNDARY' is not mirror, linear or circular" >&2; exit 2 ;;
+  esac
+  ROWS=${ROWS:-"design_decoder fitted_raw fitted true"}
+  for r in $ROWS; do
+    case $r in design_decoder|fitted_raw|fitted|true) ;; *) echo "ROWS: '$r' is not design_decoder, fitted_raw, fitted or true" >&2; exit 2 ;; esac
+  done
   SIGMAS=${SIGMAS:-"model ml gcv 0.03"}  # the noise model, the capture's likelihood, cross-validation, a fixed value (not tuned)
   for draw in "${ALL[@]:0:$n}"; do
     read -r seed _ <<< "$draw"
@@ -103,24 +117,25 @@ if [ "${RECON:-1}" = 1 ]; then
         [ -f "$cap/raw.png" ] || { rm -rf "$cap"; mkdir -p "$c/train_captures";
           "$QDO" simulate --config "$c/fitted_raw/config.json" --design "$c/fitted_raw/design.h5" --scene "$f" --raw --out "$cap" > "$cap.log"; }
       done
-      for row in design_decoder fitted_raw fitted true; do
-        [ -f "$c/recon/train/$row/sigma.txt" ] && continue
+      for row in $ROWS; do
+        [ -f "$c/$REC/train/$row/sigma.txt" ] && continue
         psf=()
         [ "$row" = design_decoder ] || psf=(--psf "$c/${row}_psf/psf.h5")
         [ "$row" = design_decoder ] || [ -f "$c/${row}_psf/psf.h5" ] || continue
         best=
         for sg in ${TRAIN_GRID:-0.001 0.002 0.003 0.005 0.01 0.02 0.03}; do
           for ts in ${TRAIN_SCENES:-cd fake_and_real_lemon_slices fake_and_real_tomatoes photo_and_face}; do
-            d=$c/recon/train_grid/$row/$sg/$ts
+            d=$c/$REC/train_grid/$row/$sg/$ts
             [ -f "$d/metrics.json" ] && continue
             rm -rf "$d"
             mkdir -p "$(dirname "$d")"
             "$QDO" reconstruct --run "$RUN" --capture "$c/train_captures/$ts/raw.png" --sensor "$SENSOR" --demosaic mhc --noise-sigma "$sg" "${psf[@]}" \
+              --boundary "$BOUNDARY" \
               --truth "$SHARED/data/hsi/cave_train/${ts}_256.mat" --truth-border 16 --out "$d" > "$d.log" 2>&1 ||
               echo "draw $seed $row $ts sigma $sg: reconstruct failed (see $d.log)"
           done
         done
-        best=$(python3 - "$c/recon/train_grid/$row" <<'PY'
+        best=$(python3 - "$c/$REC/train_grid/$row" <<'PY'
 import glob, json, os, sys
 scores = {}
 for m in glob.glob(os.path.join(sys.argv[1], "*", "*", "metrics.json")):
@@ -130,8 +145,8 @@ n = max(len(v) for v in scores.values())
 print(max((sum(v) / len(v), k) for k, v in scores.items() if len(v) == n)[1])
 PY
 )
-        mkdir -p "$c/recon/train/$row"
-        echo "$best" > "$c/recon/train/$row/sigma.txt.tmp" && mv "$c/recon/train/$row/sigma.txt.tmp" "$c/recon/train/$row/sigma.txt"
+        mkdir -p "$c/$REC/train/$row"
+        echo "$best" > "$c/$REC/train/$row/sigma.txt.tmp" && mv "$c/$REC/train/$row/sigma.txt.tmp" "$c/$REC/train/$row/sigma.txt"
       done
     fi
     for f in "$SHARED"/data/hsi/cave/*.mat; do
@@ -140,35 +155,35 @@ PY
       [ -f "$cap/raw.png" ] || { rm -rf "$cap"; mkdir -p "$c/captures";
         "$QDO" simulate --config "$c/asbuilt/config.json" --design "$c/asbuilt/design.h5" --scene "$f" --raw --out "$cap" > "$cap.log"; }
       for sig in $SIGMAS; do
-        for row in design_decoder fitted_raw fitted true; do
-          d=$c/recon/$sig/$row/$s
+        for row in $ROWS; do
+          d=$c/$REC/$sig/$row/$s
           [ -f "$d/metrics.json" ] && continue
           psf=()
           [ "$row" = design_decoder ] || psf=(--psf "$c/${row}_psf/psf.h5")
           [ "$row" = design_decoder ] || [ -f "$c/${row}_psf/psf.h5" ] || continue
           use=$sig
           if [ "$sig" = train ]; then
-            [ -f "$c/recon/train/$row/sigma.txt" ] || continue
-            use=$(cat "$c/recon/train/$row/sigma.txt")
+            [ -f "$c/$REC/train/$row/sigma.txt" ] || continue
+            use=$(cat "$c/$REC/train/$row/sigma.txt")
           fi
           rm -rf "$d"
           mkdir -p "$(dirname "$d")"
           "$QDO" reconstruct --run "$RUN" --capture "$cap/raw.png" --sensor "$SENSOR" --demosaic mhc --noise-sigma "$use" "${psf[@]}" \
-            --truth "$f" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "draw $seed $row $s: reconstruct failed (see $d.log)"
+            --boundary "$BOUNDARY" --truth "$f" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "draw $seed $row $s: reconstruct failed (see $d.log)"
         done
       done
     done
     echo "draw $seed: captures and reconstructions $(( $(date +%s) - t0 )) s"
   done
-  python3 - "$OUT" $SIGMAS <<'PY'
+  python3 - "$OUT" "$REC" "$TABLE" "$BOUNDARY" $SIGMAS <<'PY'
 import glob, json, os, sys
 sys.path.insert(0, "scripts")
 from qdo_stats import mean_ci
-out, sigmas = sys.argv[1], sys.argv[2:]
+out, rec, table, boundary, sigmas = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5:]
 rows = [("design_decoder", "decoder made for the design"), ("fitted_raw", "adapted to the model fitted to the raw frames"),
         ("fitted", "adapted to the model fitted to the calibrated stack"), ("true", "for the true as-built PSF")]
 L = ["Reconstructions of the CAVE test scenes through each draw's camera (raw RGGB 12-bit, MHC), PSNR (dB) over the "
-     "interior (16 px border left out), mean over the 3 scenes; σ assumed: `model` = the sensor's noise model at each "
+     "interior (16 px border left out), mean over the 3 scenes; tiles meet the decoder by the " + boundary + " boundary; σ assumed: `model` = the sensor's noise model at each "
      "capture's mean signal with the capture's demosaic error (`--noise-sigma model`); `ml` = chosen from each capture, "
      "the largest marginal likelihood under the decoder's model (`--noise-sigma ml`); `gcv` = by generalised "
      "cross-validation (`--noise-sigma gcv`); or a fixed value.", ""]
@@ -177,7 +192,7 @@ for sig in sigmas:
     used = {}
     for d in sorted(glob.glob(os.path.join(out, "draw*"))):
         for r, _ in rows:
-            ms = sorted(glob.glob(os.path.join(d, "recon", sig, r, "*", "metrics.json")))
+            ms = sorted(glob.glob(os.path.join(d, rec, sig, r, "*", "metrics.json")))
             if ms:
                 per[r][os.path.basename(d)] = [json.load(open(m))["mean"] for m in ms]
             if r == "design_decoder":
@@ -193,10 +208,10 @@ for sig in sigmas:
         # has the better mean PSNR on the training scenes (through the camera as fitted) at its
         # tuned sigma; a lab can do this without any test scene.
         def train_score(d, r):
-            f = os.path.join(out, d, "recon", "train", r, "sigma.txt")
+            f = os.path.join(out, d, rec, "train", r, "sigma.txt")
             if not os.path.exists(f):
                 return None
-            ms = glob.glob(os.path.join(out, d, "recon", "train_grid", r, open(f).read().strip(), "*", "metrics.json"))
+            ms = glob.glob(os.path.join(out, d, rec, "train_grid", r, open(f).read().strip(), "*", "metrics.json"))
             return sum(json.load(open(m))["mean"]["psnr"] for m in ms) / len(ms) if ms else None
         per["chosen"], picked = {}, []
         for d in draws:
@@ -224,7 +239,7 @@ for sig in sigmas:
         for d in draws:
             got = []
             for r, _ in rows:
-                f = os.path.join(out, d, "recon", "train", r, "sigma.txt")
+                f = os.path.join(out, d, rec, "train", r, "sigma.txt")
                 got.append(open(f).read().strip() if os.path.exists(f) else "—")
             tuned.append(f"{d} " + "/".join(got))
         L += ["", "σ tuned on the training scenes (design / raw fit / stack fit / true): " + "; ".join(tuned),
@@ -245,9 +260,9 @@ for sig in sigmas:
                  f"{mean_ci([mean(d, 'ssim') for d in ds])[0]:.4f} | "
                  f"{mean_ci([mean(d, 'sam_rad') for d in ds])[0]:.4f} |")
     L.append("")
-tmp = os.path.join(out, "recon_table.md.tmp")
+tmp = os.path.join(out, table + ".tmp")
 open(tmp, "w").write("\n".join(L))
-os.replace(tmp, os.path.join(out, "recon_table.md"))
+os.replace(tmp, os.path.join(out, table))
 print("\n".join(L))
 PY
 fi

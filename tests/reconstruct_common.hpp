@@ -12,6 +12,7 @@
 #include "commands_common.hpp"
 #include "common.hpp"
 #include "qdo/decode/decoder_registry.hpp"
+#include "qdo/decode/tiled.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/design/run_folder.hpp"
@@ -62,10 +63,14 @@ inline RealStack camera_image(const fs::path& run, const RealStack& scene) {
 }
 
 // The run's decoder as `qdo eval` builds it (the registry's Wiener decoder for the run's PSF,
-// prior and noise sigma).
-inline std::unique_ptr<Decoder> run_decoder(const fs::path& run) {
+// prior and noise sigma); with TileBoundary::Linear the Wiener decoder of the linear boundary as
+// reconstruct builds it (linear_tile_wiener, on the 2S grid).
+inline std::unique_ptr<Decoder> run_decoder(const fs::path& run, TileBoundary boundary = TileBoundary::Circular) {
   const RunFolder folder(run.string());
   const DesignRunOptions o = folder.config();
+  if (boundary == TileBoundary::Linear)
+    return linear_tile_wiener(read_psf_stack_file((run / "psf.h5").string()).psf_sensor, sensor_response(o.cfg),
+                              folder.prior(o.cfg.sensor_size_px()), o.decoder_noise_sigma, o.cfg.sensor_size_px());
   DecoderInputs in;
   in.spec = o.decoder;
   in.psf = read_psf_stack_file((run / "psf.h5").string()).psf_sensor;

@@ -13,6 +13,7 @@
 
 #include "adjoint_table.hpp"
 #include "common.hpp"
+#include "encoders_common.hpp"
 #include "qdo/physics/cpu_reference.hpp"
 #include "qdo/decode/encoders.hpp"
 #include "qdo/runtime/error.hpp"
@@ -22,141 +23,9 @@
 
 using namespace qdo;
 using namespace qdo::test;
+using namespace qdo::test::encoders_suite;
 
 namespace {
-
-using Rng = std::mt19937_64;
-using Eigen::Index;
-
-Index ix(std::size_t i) { return static_cast<Index>(i); }
-
-double normal(Rng& r) { return std::normal_distribution<double>(0.0, 1.0)(r); }
-
-RealStack normal_stack(Rng& r, std::size_t p, std::size_t h, std::size_t w) {
-  RealStack s(p, h, w);
-  for (double& v : s.data) v = normal(r);
-  return s;
-}
-
-double norm(const RealStack& a) { return std::sqrt(dot(a.data, a.data)); }
-
-double mse(const RealStack& a, const RealStack& b) {
-  REQUIRE(a.size() == b.size());
-  double s = 0;
-  for (std::size_t i = 0; i < a.size(); ++i) s += (a.data[i] - b.data[i]) * (a.data[i] - b.data[i]);
-  return s / double(a.size());
-}
-
-Eigen::MatrixXd random_srf(Rng& r, std::size_t channels, std::size_t bands) {
-  std::uniform_real_distribution<double> u(0.05, 1.0);
-  Eigen::MatrixXd s(ix(channels), ix(bands));
-  for (Index c = 0; c < s.rows(); ++c) {
-    for (Index b = 0; b < s.cols(); ++b) s(c, b) = u(r);
-    s.row(c) /= s.row(c).sum();
-  }
-  return s;
-}
-
-// A random SPD prior with a larger DC bin (it holds the scene mean), well conditioned
-// (eigenvalues >= 0.2 x scale), so its dense inverse is accurate.
-wiener::SpectralPrior random_prior(Rng& r, std::size_t bands, std::size_t bins, std::size_t rows, std::size_t cols) {
-  wiener::SpectralPrior p;
-  p.bands = bands;
-  p.bins = bins;
-  p.rows = rows;
-  p.cols = cols;
-  p.cov.resize(bins * bands * bands);
-  for (std::size_t k = 0; k < bins; ++k) {
-    Eigen::MatrixXd a(ix(bands), ix(bands));
-    for (Index i = 0; i < a.rows(); ++i)
-      for (Index j = 0; j < a.cols(); ++j) a(i, j) = normal(r);
-    const double scale = k == 0 ? 2.0 : 0.05 / double(k);
-    const Eigen::MatrixXd m =
-        scale * (a * a.transpose() / double(bands) + 0.2 * Eigen::MatrixXd::Identity(ix(bands), ix(bands)));
-    for (std::size_t i = 0; i < bands; ++i)
-      for (std::size_t j = 0; j < bands; ++j) p.cov[(k * bands + i) * bands + j] = m(ix(i), ix(j));
-  }
-  return p;
-}
-
-// A zero-mean Gaussian scene with E[X(f) X(f)^H] = H W P(bin f): real white noise z (so
-// E[Z Z^H] = H W I) coloured in the DFT domain by the Cholesky factor of each bin (the same real
-// factor at f and -f, so the scene stays real). Independent of apply_prior_power (eigenvectors).
-RealStack sample_from_prior(Rng& r, const wiener::SpectralPrior& p) {
-  ComplexStack z(p.bands, p.rows, p.cols);
-  for (cdouble& v : z.data) v = normal(r);
-  fftw2(z, true);
-  const std::size_t n = p.rows * p.cols;
-  std::vector<Eigen::MatrixXd> chol;
-  for (std::size_t k = 0; k < p.bins; ++k) chol.push_back(p.bin(k).llt().matrixL());
-  ComplexStack xf(p.bands, p.rows, p.cols);
-  for (std::size_t ky = 0; ky < p.rows; ++ky)
-    for (std::size_t kx = 0; kx < p.cols; ++kx) {
-      const std::size_t f = ky * p.cols + kx;
-      const Eigen::MatrixXd& l = chol[wiener::radial_bin(ky, kx, p.rows, p.cols, p.bins)];
-      for (std::size_t i = 0; i < p.bands; ++i) {
-        cdouble acc = 0;
-        for (std::size_t j = 0; j <= i; ++j) acc += l(ix(i), ix(j)) * z.data[j * n + f];
-        xf.data[i * n + f] = acc;
-      }
-    }
-  fftw2(xf, false, true);
-  RealStack out(p.bands, p.rows, p.cols);
-  double max_imag = 0;
-  for (std::size_t i = 0; i < out.size(); ++i) {
-    out.data[i] = xf.data[i].real();
-    max_imag = std::max(max_imag, std::fabs(xf.data[i].imag()));
-  }
-  REQUIRE(max_imag < 1e-12);  // Hermitian symmetry kept
-  return out;
-}
-
-// Dense C (B·H·W square, index (b·H + y)·W + x) straight from the definition
-// C[(b,r),(b',r')] = 1/(HW) Σ_f P_bb'(bin f) e^{i2π f·(r − r')}: a circulant block per (b, b').
-Eigen::MatrixXd dense_prior_covariance(const wiener::SpectralPrior& p) {
-  const std::size_t h = p.rows, w = p.cols, nb = p.bands, n = h * w;
-  // c[(b, b')][dy, dx]
-  std::vector<Eigen::MatrixXd> c(n, Eigen::MatrixXd::Zero(ix(nb), ix(nb)));
-  for (std::size_t dy = 0; dy < h; ++dy)
-    for (std::size_t dx = 0; dx < w; ++dx) {
-      Eigen::MatrixXd acc = Eigen::MatrixXd::Zero(ix(nb), ix(nb));
-      for (std::size_t ky = 0; ky < h; ++ky)
-        for (std::size_t kx = 0; kx < w; ++kx) {
-          const double ph = 2.0 * M_PI * (double(ky * dy) / double(h) + double(kx * dx) / double(w));
-          acc += std::cos(ph) * p.bin(wiener::radial_bin(ky, kx, h, w, p.bins));  // imaginary parts cancel (f, -f)
-        }
-      c[dy * w + dx] = acc / double(n);
-    }
-  Eigen::MatrixXd out(ix(nb * n), ix(nb * n));
-  for (std::size_t b = 0; b < nb; ++b)
-    for (std::size_t y = 0; y < h; ++y)
-      for (std::size_t x = 0; x < w; ++x)
-        for (std::size_t b2 = 0; b2 < nb; ++b2)
-          for (std::size_t y2 = 0; y2 < h; ++y2)
-            for (std::size_t x2 = 0; x2 < w; ++x2) {
-              const std::size_t dy = (y + h - y2) % h, dx = (x + w - x2) % w;
-              out(ix((b * h + y) * w + x), ix((b2 * h + y2) * w + x2)) = c[dy * w + dx](ix(b), ix(b2));
-            }
-  return out;
-}
-
-// Dense matrix of an encoder, columns = measure(unit vectors).
-Eigen::MatrixXd dense_encoder(const Encoder& e) {
-  const std::size_t nin = e.bands() * e.rows() * e.cols(), nout = e.channels() * e.rows() * e.out_cols();
-  Eigen::MatrixXd a(ix(nout), ix(nin));
-  RealStack u(e.bands(), e.rows(), e.cols());
-  for (std::size_t j = 0; j < nin; ++j) {
-    u.data[j] = 1.0;
-    const RealStack col = e.measure(u);
-    u.data[j] = 0.0;
-    for (std::size_t i = 0; i < nout; ++i) a(ix(i), ix(j)) = col.data[i];
-  }
-  return a;
-}
-
-Eigen::VectorXd as_vector(const RealStack& s) {
-  return Eigen::Map<const Eigen::VectorXd>(s.data.data(), ix(s.size()));
-}
 
 // Encircled energy of a PSF plane within radius r_px of (cy, cx).
 double encircled(const RealStack& psf, std::size_t b, double cy, double cx, double r_px) {
@@ -217,6 +86,10 @@ QDO_ADJOINT_ROWS(encoders, "encoders") {
   const auto doe2 = std::make_shared<const DoeEncoder>(otf, random_srf(rng, 2, nb));
   const RealStack y2 = normal_stack(rng, 2, h, w);
   rows.push_back(row("DOE camera, complex OTF (2 channels)", doe2, x, y2, 1e-11));
+  // The DOE camera recording only a random half of its pixels (MaskedEncoder: a tile's window of
+  // a linear capture, or pixels the sensor lost).
+  const auto masked = std::make_shared<const MaskedEncoder>(doe, random_binary_mask(h, w, 0.5, 7));
+  rows.push_back(row("DOE camera, masked pixels (RGB)", masked, x, y, 1e-12));
   return rows;
 }
 

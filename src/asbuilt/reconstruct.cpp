@@ -15,6 +15,7 @@
 #include <sstream>
 
 #include "qdo/decode/decoder_registry.hpp"
+#include "qdo/decode/wiener_masked.hpp"
 #include "qdo/physics/demosaic.hpp"
 #include "qdo/design/design_run.hpp"
 #include "qdo/runtime/embedded.hpp"
@@ -100,9 +101,13 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   if ((o.noise_sigma_ml || o.noise_sigma_gcv) && ro.decoder.kind != DecoderSpec::Kind::Wiener)
     reject("--noise-sigma", o.noise_sigma_ml ? "ml" : "gcv",
            "a value or model for the " + ro.decoder.to_string() + " decoder (ml and gcv choose the Wiener decoder's sigma from the capture)");
-  if (entry.trained && o.boundary_set && o.boundary == TileBoundary::Mirror)
-    reject("--boundary", "mirror", "circular for this network run (its network was trained on circular " + to_str(s) + " x " + to_str(s) +
-                                       " patches)");
+  if (entry.trained && o.boundary_set && o.boundary != TileBoundary::Circular)
+    reject("--boundary", to_string(o.boundary),
+           "circular for this network run (its network was trained on circular " + to_str(s) + " x " + to_str(s) + " patches)");
+  if (o.boundary_set && o.boundary == TileBoundary::Linear && ro.decoder.kind != DecoderSpec::Kind::Wiener &&
+      ro.decoder.kind_name() != "cg")
+    reject("--boundary", "linear", "mirror or circular for the " + ro.decoder.to_string() +
+                                       " decoder (linear solves the Wiener decoder's objective, or cg's, by conjugate gradients)");
   const TileBoundary boundary = entry.trained ? TileBoundary::Circular : o.boundary_set ? o.boundary : TileBoundary::Mirror;
   std::vector<std::pair<std::string, double>> secs;
   // Every input read and checked before any work.
@@ -151,7 +156,10 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   in.spec = ro.decoder;
   in.psf = psf;
   in.srf = sensor_response(cfg);
-  in.prior = boundary == TileBoundary::Mirror ? regrid_prior(prior, 2 * s, 2 * s) : prior;
+  in.prior = boundary == TileBoundary::Circular ? prior : regrid_prior(prior, 2 * s, 2 * s);
+  // Linear: the same objective (prior, sigma) under the capture's own linear model on the 2S grid
+  // (tiled.hpp): the Wiener decoder's in the measurement space, cg's by its own iterations.
+  if (boundary == TileBoundary::Linear && ro.decoder.kind != DecoderSpec::Kind::Wiener) in.encoder = linear_tile_encoder(psf, in.srf, s);
   in.noise_sigma = o.noise_sigma >= 0 ? o.noise_sigma : ro.decoder_noise_sigma;
   double mean_signal = 0;  // the capture's mean, full-scale units before the exposure
   if (o.noise_sigma_model) {
@@ -178,7 +186,9 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   }
   const std::string run = o.run;
   in.run_network = [run] { return load_run_network(run); };
-  const std::unique_ptr<Decoder> dec = make_decoder(in);
+  const std::unique_ptr<Decoder> dec = boundary == TileBoundary::Linear && ro.decoder.kind == DecoderSpec::Kind::Wiener
+                                           ? linear_tile_wiener(psf, in.srf, prior, in.noise_sigma, s)
+                                           : make_decoder(in);
   res.decoder = dec->description().empty() ? "decoder " + ro.decoder.to_string() : dec->description();
   secs.push_back({"psf+decoder", seconds_since(t)});
 
@@ -198,6 +208,16 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
       },
       boundary);
   res.boundary = to_string(boundary);
+  if (const auto* mw = dynamic_cast<const MaskedWienerDecoder*>(dec.get())) {
+    const MaskedWienerDecoder::Stats st = mw->stats();
+    res.solver_solves = st.solves;
+    res.solver_max_iterations = st.max_iterations;
+    res.solver_worst_residual = st.worst_residual;
+    res.solver_converged = st.all_converged;
+    if (!st.all_converged)
+      res.notes.push_back("boundary linear: a tile's conjugate gradients stopped at " + to_str(st.max_iterations) +
+                          " iterations with relative residual " + to_str(st.worst_residual) + " (tolerance 1e-5)");
+  }
   for (double& v : res.cube.data) v = std::clamp(v, 0.0, 1.0);
   secs.push_back({"tiles", seconds_since(t)});
 
@@ -276,6 +296,12 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
   j["tile_px"] = s;
   j["overlap_px"] = overlap;
   j["boundary"] = res.boundary;
+  if (res.solver_solves > 0)
+    j["boundary_solver"] = {{"method", "conjugate gradients in the measurement space (MaskedWienerDecoder)"},
+                            {"tiles", res.solver_solves},
+                            {"max_iterations", res.solver_max_iterations},
+                            {"worst_relative_residual", res.solver_worst_residual},
+                            {"converged", res.solver_converged}};
   j["noise_sigma"] = in.noise_sigma;
   if (o.noise_sigma_model)
     j["noise_sigma_model"] = {{"mean_signal", mean_signal},

@@ -50,9 +50,11 @@ const RegisterCommand registered_reconstruct(200, [] {
                     opt("demosaic", "raw captures: bilinear or mhc (Malvar-He-Cutler)", "bilinear"),
                     opt("overlap", "overlap of neighbouring S x S tiles, pixels, an integer in [1, S - 1] (default: S / 4)"),
                     opt("boundary", "how a tile meets the decoder's circular model: mirror (the tile extended by its mirror image to 2S x 2S and "
-                                    "decoded there: far less ringing from light that reaches the tile from outside it) or circular (as the "
-                                    "decoder was trained: exact for circularly simulated captures; a network's only choice) (default: mirror "
-                                    "for the Wiener decoder, circular for a network)"),
+                                    "decoded there: far less ringing from light that reaches the tile from outside it), linear (the capture's own "
+                                    "model: the tile is the recorded window of a scene twice its size, solved for by conjugate gradients "
+                                    "under the decoder's prior and sigma; exact for real and linearly simulated captures, slower; Wiener "
+                                    "and cg decoders) or circular (as the decoder was trained: exact for circularly simulated captures; a "
+                                    "network's only choice) (default: mirror for the Wiener decoder, circular for a network)"),
                     opt("noise-sigma", "the Wiener decoder's noise std, full-scale units in [0, 10]; model: the sensor's noise model (read, "
                                        "shot, quantization, the capture's demosaic error); ml: from the capture, the largest marginal "
                                        "likelihood under the decoder's model; gcv: by cross-validation, for comparison (default: the run's)"),

@@ -255,6 +255,38 @@ RealStack DoeEncoder::adjoint(const RealStack& y) const {
 }
 
 // ---------------------------------------------------------------------------------------------
+MaskedEncoder::MaskedEncoder(std::shared_ptr<const Encoder> inner, Map2D mask) : inner_(std::move(inner)), mask_(std::move(mask)) {
+  if (!inner_) reject("encoder", "null", "an encoder");
+  if (mask_.rows != inner_->rows() || mask_.cols != inner_->out_cols())
+    reject("mask", to_str(mask_.rows) + " x " + to_str(mask_.cols),
+           "the sensor's H x W' = " + to_str(inner_->rows()) + " x " + to_str(inner_->out_cols()));
+  for (std::size_t i = 0; i < mask_.data.size(); ++i)
+    if (mask_.data[i] != 0.0 && mask_.data[i] != 1.0) reject("mask[" + to_str(i) + "]", mask_.data[i], "0 or 1");
+}
+
+void MaskedEncoder::apply_mask(RealStack& y) const {
+  const std::size_t n = mask_.data.size();
+  for (std::size_t c = 0; c < y.planes; ++c) {
+    double* p = y.plane(c);
+    for (std::size_t i = 0; i < n; ++i) p[i] *= mask_.data[i];
+  }
+}
+
+RealStack MaskedEncoder::measure(const RealStack& x) const {
+  RealStack y = inner_->measure(x);
+  apply_mask(y);
+  return y;
+}
+
+RealStack MaskedEncoder::adjoint(const RealStack& y) const {
+  if (y.planes != channels() || y.rows != rows() || y.cols != out_cols())
+    reject("y", shape(y), "C x H x W' = " + shape(channels(), rows(), out_cols()));
+  RealStack m = y;
+  apply_mask(m);
+  return inner_->adjoint(m);
+}
+
+// ---------------------------------------------------------------------------------------------
 RealStack apply_prior_power(const wiener::SpectralPrior& prior, const RealStack& x, double power) {
   return PriorPower(prior, power).apply(x);
 }

@@ -7,6 +7,7 @@
 #include <utility>
 
 #include "qdo/data/datasets.hpp"
+#include "qdo/decode/wiener_masked.hpp"
 #include "qdo/runtime/error.hpp"
 
 namespace qdo {
@@ -50,10 +51,42 @@ std::vector<std::vector<double>> tile_weights(const std::vector<std::size_t>& st
 TileBoundary tile_boundary_from_string(const std::string& s, const std::string& argument) {
   if (s == "circular") return TileBoundary::Circular;
   if (s == "mirror") return TileBoundary::Mirror;
-  reject(argument, s, "circular or mirror");
+  if (s == "linear") return TileBoundary::Linear;
+  reject(argument, s, "circular, mirror or linear");
 }
 
-std::string to_string(TileBoundary b) { return b == TileBoundary::Mirror ? "mirror" : "circular"; }
+std::string to_string(TileBoundary b) {
+  return b == TileBoundary::Mirror ? "mirror" : b == TileBoundary::Linear ? "linear" : "circular";
+}
+
+namespace {
+
+// The recorded window of the Linear boundary on the 2 tile x 2 tile grid, after checking the PSF's reach.
+Map2D linear_window(const RealStack& psf, std::size_t tile) {
+  if (psf.rows > tile || psf.cols > tile)
+    reject("PSF", to_str(psf.rows) + " x " + to_str(psf.cols),
+           "at most the tile's " + to_str(tile) + " x " + to_str(tile) + " px for the linear boundary (it reaches tile/2 from its axis)");
+  const std::size_t e = 2 * tile, q = tile / 2;
+  Map2D window(e, e, 0.0);
+  for (std::size_t r = q; r < q + tile; ++r)
+    for (std::size_t c = q; c < q + tile; ++c) window(r, c) = 1.0;
+  return window;
+}
+
+}  // namespace
+
+std::shared_ptr<const Encoder> linear_tile_encoder(const RealStack& psf, const Eigen::MatrixXd& srf, std::size_t tile) {
+  Map2D window = linear_window(psf, tile);
+  return std::make_shared<const MaskedEncoder>(std::make_shared<const DoeEncoder>(wiener::psf_to_otf(psf, 2 * tile, 2 * tile), srf),
+                                               std::move(window));
+}
+
+std::unique_ptr<Decoder> linear_tile_wiener(const RealStack& psf, const Eigen::MatrixXd& srf, const wiener::SpectralPrior& prior,
+                                            double noise_sigma, std::size_t tile) {
+  Map2D window = linear_window(psf, tile);
+  return std::make_unique<MaskedWienerDecoder>(wiener::psf_to_otf(psf, 2 * tile, 2 * tile), srf, regrid_prior(prior, 2 * tile, 2 * tile),
+                                               std::move(window), noise_sigma);
+}
 
 wiener::SpectralPrior regrid_prior(const wiener::SpectralPrior& p, std::size_t rows, std::size_t cols) {
   p.validate();
@@ -70,8 +103,16 @@ namespace {
 
 // A tile as the decoder takes it: itself, or its whole-sample mirror extension to 2 tile x 2 tile.
 RealStack tile_input(const RealStack& t, std::size_t tile, TileBoundary boundary) {
-  if (boundary != TileBoundary::Mirror) return t;
+  if (boundary == TileBoundary::Circular) return t;
   const std::size_t e = 2 * tile;
+  if (boundary == TileBoundary::Linear) {
+    RealStack x(t.planes, e, e, 0.0);
+    const std::size_t q = tile / 2;
+    for (std::size_t ch = 0; ch < t.planes; ++ch)
+      for (std::size_t r = 0; r < tile; ++r)
+        for (std::size_t c = 0; c < tile; ++c) x(ch, q + r, q + c) = t(ch, r, c);
+    return x;
+  }
   RealStack x(t.planes, e, e);
   for (std::size_t ch = 0; ch < t.planes; ++ch)
     for (std::size_t r = 0; r < e; ++r)
@@ -98,14 +139,16 @@ std::vector<RealStack> decoder_tiles(const RealStack& y, std::size_t tile, std::
 RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile, std::size_t overlap,
                        const std::function<void(std::size_t, std::size_t)>& progress, TileBoundary boundary) {
   if (y.planes != dec.channels()) reject("sensor image planes", y.planes, "the decoder's " + to_str(dec.channels()) + " channels");
-  const bool mirror = boundary == TileBoundary::Mirror;
+  // The part of the decoder's grid that is the tile: all of it (Circular), the first tile x tile
+  // (Mirror) or the window at tile/2 (Linear).
+  const std::size_t keep_at = boundary == TileBoundary::Linear ? tile / 2 : 0;
   auto input = [&](const RealStack& t) { return tile_input(t, tile, boundary); };
   auto output = [&](const RealStack& x) {
-    if (!mirror) return x;
+    if (boundary == TileBoundary::Circular) return x;
     RealStack o(x.planes, tile, tile);
     for (std::size_t b = 0; b < x.planes; ++b)
       for (std::size_t r = 0; r < tile; ++r)
-        for (std::size_t c = 0; c < tile; ++c) o(b, r, c) = x(b, r, c);
+        for (std::size_t c = 0; c < tile; ++c) o(b, r, c) = x(b, keep_at + r, keep_at + c);
     return o;
   };
   if (y.rows == tile && y.cols == tile) {

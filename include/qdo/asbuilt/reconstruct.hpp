@@ -150,7 +150,8 @@ struct ReconstructOptions {
   CaptureOptions capture;
   std::size_t overlap_px = 0;  // tile overlap; 0: S / 4
   // The tiles' boundary; default (unset): mirror for the Wiener decoder, circular for a network
-  // (which refuses mirror: it was trained on circular S x S patches).
+  // (which refuses mirror and linear: it was trained on circular S x S patches); linear needs the
+  // Wiener or cg decoder (it solves their objective by conjugate gradients, tiled.hpp).
   bool boundary_set = false;
   TileBoundary boundary = TileBoundary::Mirror;
   double noise_sigma = -1;     // the Wiener decoder's sigma; < 0: the run's (or the model's, below)
@@ -177,10 +178,15 @@ struct ReconstructResult {
   RealStack cube;                                       // bands x H x W, clipped to [0, 1]
   std::vector<std::pair<std::string, double>> seconds;  // per stage, in order
   std::size_t tiles = 0, tile_px = 0;
-  std::string boundary;                                 // "circular" or "mirror"
+  std::string boundary;                                 // "circular", "mirror" or "linear"
   std::string psf, decoder;                             // what was used, one line each
   double exposure_factor = 1;
   std::vector<std::string> notes;                       // from the captures (CaptureFiles::notes)
+  // The linear boundary's Wiener solves (MaskedWienerDecoder::Stats): tiles solved, the most
+  // iterations, the worst relative residual, whether every one converged; solves 0 otherwise.
+  std::size_t solver_solves = 0, solver_max_iterations = 0;
+  double solver_worst_residual = 0;
+  bool solver_converged = true;
 };
 // Writes OUT/cube.h5 (/cube bands x H x W float64, /wavelengths_nm, provenance attributes),
 // srgb.png, spectra.csv (wavelength_nm, one column per region), spectra.png and reconstruct.json

@@ -137,6 +137,31 @@ class DoeEncoder final : public Encoder {
   Eigen::MatrixXd srf_;
 };
 
+// An encoder whose sensor records only some of its pixels: y = mask ⊙ (inner x), the same mask on
+// every channel (mask inner.rows() x inner.out_cols(), every value 0 or 1: a pixel recorded or
+// not). Adjoint: innerᵀ (mask ⊙ y). A tile of a capture as the camera made it (linear convolution:
+// light from outside the tile lands inside it) is the recorded window of a circular capture of a
+// scene larger than the tile (tiled.hpp, TileBoundary::Linear); masked pixels may also be ones the
+// sensor lost (hot or saturated). The MAP decoder (solve_map_cg) then estimates the scene over the
+// whole grid from the recorded pixels alone.
+class MaskedEncoder final : public Encoder {
+ public:
+  MaskedEncoder(std::shared_ptr<const Encoder> inner, Map2D mask);
+  RealStack measure(const RealStack& x) const override;  // B x H x W -> C x H x W' (0 where masked)
+  RealStack adjoint(const RealStack& y) const override;  // C x H x W' -> B x H x W (masked pixels ignored)
+  std::size_t bands() const override { return inner_->bands(); }
+  std::size_t channels() const override { return inner_->channels(); }
+  std::size_t rows() const override { return inner_->rows(); }
+  std::size_t cols() const override { return inner_->cols(); }
+  std::size_t out_cols() const override { return inner_->out_cols(); }
+  const Map2D& mask() const { return mask_; }
+
+ private:
+  void apply_mask(RealStack& y) const;
+  std::shared_ptr<const Encoder> inner_;
+  Map2D mask_;
+};
+
 // ---------------------------------------------------------------------------------------------
 // Prior operator and the conjugate-gradient MAP decoder.
 
