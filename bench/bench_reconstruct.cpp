@@ -6,10 +6,14 @@
 // 16-bit RGB. Each reconstruction runs once unmeasured, then --repeats times: the median per
 // stage and the min-max beside it. Baseline, in the same run: the Wiener decoder on one S x S tile
 // alone, times the tile count (what the tiles stage costs without cutting and blending).
-// With a raw mosaic (--cfa rggb), dark + demosaic of the same frame as a mosaic are timed too
-// (bilinear and mhc).
+// The capture is made as a camera makes it (linearly: the centre of a circular capture of a scene
+// larger by S on each axis), so light from outside it lands inside. With --boundaries a second
+// table times the whole command (medians after 1 warm-up) for each tile boundary named
+// (circular, mirror, linear; tiled.hpp) with its error beside it: the relative RMS of the cube
+// against the scene over the interior (16 px from each edge).
 //
 //   bench_reconstruct [--qdo build/qdo] [--run RUN] [--preset small] [--size 1024] [--repeats 3] [--out FILE.md]
+//                     [--boundary mirror] [--boundaries circular,mirror,linear]
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -25,6 +29,7 @@
 #include <vector>
 
 #include "qdo/decode/decoder_registry.hpp"
+#include "qdo/decode/tiled.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/asbuilt/reconstruct.hpp"
@@ -60,6 +65,7 @@ int main(int argc, char** argv) {
   std::string qdo = "build/qdo", run, preset = "small", out;
   std::size_t size = 1024;
   int repeats = 3;
+  std::string boundary = "mirror", boundaries;
   for (int i = 1; i < argc; i += 2) {
     const std::string k = i + 1 < argc ? argv[i] : "--help", v = i + 1 < argc ? argv[i + 1] : "";
     if (k == "--qdo") qdo = v;
@@ -68,8 +74,12 @@ int main(int argc, char** argv) {
     else if (k == "--size") size = std::size_t(std::max(16, std::atoi(v.c_str())));
     else if (k == "--repeats") repeats = std::max(1, std::atoi(v.c_str()));
     else if (k == "--out") out = v;
+    else if (k == "--boundary") boundary = v;
+    else if (k == "--boundaries") boundaries = v;
     else {
-      std::fprintf(stderr, "usage: bench_reconstruct [--qdo build/qdo] [--run RUN] [--preset small] [--size 1024] [--repeats 3] [--out FILE.md]\n");
+      std::fprintf(stderr,
+                   "usage: bench_reconstruct [--qdo build/qdo] [--run RUN] [--preset small] [--size 1024] [--repeats 3] [--out FILE.md] "
+                   "[--boundary mirror] [--boundaries circular,mirror,linear]\n");
       return 2;
     }
   }
@@ -91,15 +101,26 @@ int main(int argc, char** argv) {
   const std::size_t s = cfg.sensor_size_px();
   const RealStack psf = read_psf_stack_file(folder.psf_path()).psf_sensor;
   const Eigen::MatrixXd srf = sensor_response(cfg);
-  // The capture: a scene through the run's PSF (circular), 16-bit RGB.
-  RealStack y = wiener::simulate_measurement(smooth_scene(cfg.bands, size, 5), wiener::psf_to_otf(psf, size, size), srf);
-  for (double& v : y.data) v = std::round(std::clamp(v, 0.0, 1.0) * 65535.0);
+  // The capture: a scene through the run's PSF, linearly (the centre size x size of the circular
+  // capture of a scene size + S on a side: no light wraps into it), 16-bit RGB.
+  const std::size_t wide = size + s, off = s / 2;
+  const RealStack scene_wide = smooth_scene(cfg.bands, wide, 5);
+  const RealStack y_wide = wiener::simulate_measurement(scene_wide, wiener::psf_to_otf(psf, wide, wide), srf);
+  RealStack y(3, size, size), scene(cfg.bands, size, size);
+  for (std::size_t c = 0; c < 3; ++c)
+    for (std::size_t r = 0; r < size; ++r)
+      for (std::size_t x = 0; x < size; ++x) y(c, r, x) = std::round(std::clamp(y_wide(c, r + off, x + off), 0.0, 1.0) * 65535.0);
+  for (std::size_t b = 0; b < cfg.bands; ++b)
+    for (std::size_t r = 0; r < size; ++r)
+      for (std::size_t x = 0; x < size; ++x) scene(b, r, x) = scene_wide(b, r + off, x + off);
   const std::string cap = (tmp / "capture.png").string();
   write_png16_rgb(cap, y);
 
   Runtime rt;
   ReconstructOptions o;
   o.run = run;
+  o.boundary_set = true;
+  o.boundary = tile_boundary_from_string(boundary, "--boundary");
   o.capture.captures = {cap};
   o.quiet = true;
   o.regions = parse_regions("100,100;512,512", false, "--points");
@@ -146,8 +167,40 @@ int main(int argc, char** argv) {
   text += "| baseline: one " + std::to_string(s) + " x " + std::to_string(s) + " Wiener decode x " + std::to_string(tiles) + " tiles | " +
           bench::fmt("%.3f", one.median * double(tiles)) + " | " + bench::fmt("%.3f", one.min * double(tiles)) + "-" +
           bench::fmt("%.3f", one.max * double(tiles)) + " |\n";
-  std::printf("reconstruct: %zu x %zu RGB capture, %s preset (%zu bands, S = %zu), %zu tiles, Wiener decoder, device %s; %d runs after 1 warm-up\n%s",
-              size, size, preset.c_str(), cfg.bands, s, tiles, rt.info().name.c_str(), repeats, text.c_str());
+  std::printf("reconstruct: %zu x %zu RGB capture (linear), %s preset (%zu bands, S = %zu), %zu tiles, Wiener decoder, %s boundary, device %s; "
+              "%d runs after 1 warm-up\n%s",
+              size, size, preset.c_str(), cfg.bands, s, tiles, boundary.c_str(), rt.info().name.c_str(), repeats, text.c_str());
+  if (!boundaries.empty()) {
+    // The whole command per boundary, with the cube's error against the scene beside it.
+    std::string t2 = "| boundary | total median s | min-max s | interior relative RMS vs the scene |\n|---|---|---|---|\n";
+    for (const std::string& b : bench::split_items(boundaries, ',')) {
+      o.boundary = tile_boundary_from_string(b, "--boundaries");
+      std::vector<double> ts;
+      double err = 0;
+      for (int k = 0; k <= repeats; ++k) {
+        o.out = (tmp / ("b_" + b + std::to_string(k))).string();
+        const auto t0 = bench::Clock::now();
+        const ReconstructResult r = reconstruct(rt, o);
+        const double t = bench::seconds_since(t0);
+        if (k > 0) ts.push_back(t);
+        double d2 = 0, s2 = 0;
+        const std::size_t e = 16;
+        for (std::size_t p = 0; p < r.cube.planes; ++p)
+          for (std::size_t yy = e; yy + e < size; ++yy)
+            for (std::size_t xx = e; xx + e < size; ++xx) {
+              d2 += std::pow(r.cube(p, yy, xx) - scene(p, yy, xx), 2);
+              s2 += std::pow(scene(p, yy, xx), 2);
+            }
+        err = std::sqrt(d2 / s2);
+        fs::remove_all(o.out);
+      }
+      const bench::Timing t = bench::summarize(ts);
+      t2 += "| " + b + " | " + bench::fmt("%.3f", t.median) + " | " + bench::fmt("%.3f", t.min) + "-" + bench::fmt("%.3f", t.max) + " | " +
+            bench::fmt("%.4f", err) + " |\n";
+    }
+    std::printf("\nthe whole command per tile boundary (%d runs after 1 warm-up each):\n%s", repeats, t2.c_str());
+    text += "\n" + t2;
+  }
   if (!out.empty()) std::ofstream(out) << text;
   fs::remove_all(tmp);
   return 0;

@@ -5,6 +5,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <exception>
+#include <thread>
 #include <utility>
 
 #include "qdo/runtime/error.hpp"
@@ -163,5 +165,32 @@ MaskedWienerDecoder::Stats MaskedWienerDecoder::stats() const {
 }
 
 RealStack MaskedWienerDecoder::decode(const RealStack& y) const { return solve(y).x; }
+
+std::size_t MaskedWienerDecoder::batch() const {
+  return std::clamp<std::size_t>(std::thread::hardware_concurrency(), 1, 8);
+}
+
+std::vector<RealStack> MaskedWienerDecoder::decode_batch(const std::vector<RealStack>& ys) const {
+  std::vector<RealStack> xs(ys.size());
+  if (ys.size() <= 1) {
+    for (std::size_t i = 0; i < ys.size(); ++i) xs[i] = decode(ys[i]);
+    return xs;
+  }
+  std::vector<std::exception_ptr> errors(ys.size());
+  std::vector<std::thread> threads;
+  threads.reserve(ys.size());
+  for (std::size_t i = 0; i < ys.size(); ++i)
+    threads.emplace_back([&, i] {
+      try {
+        xs[i] = decode(ys[i]);
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+    });
+  for (std::thread& t : threads) t.join();
+  for (const std::exception_ptr& e : errors)
+    if (e) std::rethrow_exception(e);
+  return xs;
+}
 
 }  // namespace qdo

@@ -42,6 +42,10 @@ class MaskedWienerDecoder final : public Decoder {
                       CgOptions options = {1e-5, 2000});
   RealStack decode(const RealStack& y) const override;  // C x H x W -> B x H x W
   CgResult solve(const RealStack& y) const;             // the estimate, iterations and residual
+  // The images of a batch solved concurrently, one thread each (solves share nothing but the
+  // statistics); batch() = the machine's hardware threads, at most 8.
+  std::vector<RealStack> decode_batch(const std::vector<RealStack>& ys) const override;
+  std::size_t batch() const override;
   std::size_t bands() const override { return camera_->bands(); }
   std::size_t channels() const override { return static_cast<std::size_t>(srf_.rows()); }
   std::string description() const override { return "Wiener decoder for the recorded window (conjugate gradients)"; }
