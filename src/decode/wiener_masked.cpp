@@ -58,13 +58,13 @@ MaskedWienerDecoder::MaskedWienerDecoder(ComplexStack otf_in, Eigen::MatrixXd sr
     const Eigen::VectorXd ev = es.eigenvalues().cwiseMax(0.0);
     p[k] = es.eigenvectors() * ev.asDiagonal() * es.eigenvectors().transpose();
   }
-  const std::size_t nc = channels();
-  q_.assign(n * nc * nc, cdouble(0));
-  q_inv_.assign(n * nc * nc, cdouble(0));
+  const std::size_t nc = channels(), hc = w / 2 + 1;  // the half spectrum of a real image (rfftw2)
+  q_.assign(h * hc * nc * nc, cdouble(0));
+  q_inv_.assign(h * hc * nc * nc, cdouble(0));
   CMat v(idx(nc), idx(nb));
   for (std::size_t ky = 0; ky < h; ++ky)
-    for (std::size_t kx = 0; kx < w; ++kx) {
-      const std::size_t f = ky * w + kx;
+    for (std::size_t kx = 0; kx < hc; ++kx) {
+      const std::size_t f = ky * w + kx, fh = ky * hc + kx;
       const std::size_t k = wiener::radial_bin(ky, kx, h, w, prior_.bins);
       for (std::size_t c = 0; c < nc; ++c)
         for (std::size_t b = 0; b < nb; ++b) v(idx(c), idx(b)) = srf_(idx(c), idx(b)) * otf.data[b * n + f];
@@ -72,8 +72,8 @@ MaskedWienerDecoder::MaskedWienerDecoder(ComplexStack otf_in, Eigen::MatrixXd sr
       const CMat qi = (q + CMat::Identity(idx(nc), idx(nc)) * (sigma_ * sigma_)).inverse();
       for (std::size_t i = 0; i < nc; ++i)
         for (std::size_t j = 0; j < nc; ++j) {
-          q_[(f * nc + i) * nc + j] = q(idx(i), idx(j));
-          q_inv_[(f * nc + i) * nc + j] = qi(idx(i), idx(j));
+          q_[(fh * nc + i) * nc + j] = q(idx(i), idx(j));
+          q_inv_[(fh * nc + i) * nc + j] = qi(idx(i), idx(j));
         }
     }
   camera_ = std::make_shared<const DoeEncoder>(std::move(otf_in), srf_);
@@ -84,24 +84,26 @@ CgResult MaskedWienerDecoder::solve(const RealStack& y) const {
   if (y.planes != nc || y.rows != h || y.cols != w) reject("y", shape3(y.planes, y.rows, y.cols), "C x H x W = " + shape3(nc, h, w));
   for (double v : y.data)
     if (!std::isfinite(v)) reject("y", v, "finite values");
-  // out = M F⁻¹ (per-frequency C x C matrices m) F u, on the recorded pixels (u: C x H x W).
-  ComplexStack work(nc, h, w);
+  // out = M F⁻¹ (per-frequency C x C matrices m) F u, on the recorded pixels (u: C x H x W), on
+  // the half spectrum (u and out are real; m(-f) = conj m(f)).
+  const std::size_t nh = h * (w / 2 + 1);
+  RealStack in(nc, h, w);
+  std::vector<cdouble> t(nc);
   auto apply = [&](const std::vector<cdouble>& m, const std::vector<double>& u, std::vector<double>& out) {
-    for (std::size_t i = 0; i < u.size(); ++i) work.data[i] = u[i];
-    fftw2(work, true);
-    std::vector<cdouble> t(nc);
-    for (std::size_t f = 0; f < n; ++f) {
+    in.data = u;
+    ComplexStack work = rfftw2(in);
+    for (std::size_t f = 0; f < nh; ++f) {
       for (std::size_t i = 0; i < nc; ++i) {
         cdouble s = 0;
-        for (std::size_t j = 0; j < nc; ++j) s += m[(f * nc + i) * nc + j] * work.data[j * n + f];
+        for (std::size_t j = 0; j < nc; ++j) s += m[(f * nc + i) * nc + j] * work.data[j * nh + f];
         t[i] = s;
       }
-      for (std::size_t i = 0; i < nc; ++i) work.data[i * n + f] = t[i];
+      for (std::size_t i = 0; i < nc; ++i) work.data[i * nh + f] = t[i];
     }
-    fftw2(work, false, true);
+    const RealStack back = irfftw2(work, w);
     out.resize(u.size());
     for (std::size_t c = 0; c < nc; ++c)
-      for (std::size_t i = 0; i < n; ++i) out[c * n + i] = work.data[c * n + i].real() * mask_.data[i];
+      for (std::size_t i = 0; i < n; ++i) out[c * n + i] = back.data[c * n + i] * mask_.data[i];
   };
   const double s2 = sigma_ * sigma_;
   auto apply_g = [&](const std::vector<double>& u, std::vector<double>& gu) {

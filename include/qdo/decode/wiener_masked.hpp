@@ -10,7 +10,7 @@
 // (A(f) = srf · diag(OTF_b(f)), P the prior's bin of f, its eigenvalues clamped at 0 as in
 // apply_prior_power). Conjugate gradients on u (C x H x W), preconditioned by the circular camera's
 // exact inverse restricted to the recorded pixels, M F⁻¹ (Q(f) + σ² I)⁻¹ F M; each iteration costs
-// 2 C forward and 2 C inverse FFTs, against the primal CG's (solve_map_cg on a MaskedEncoder) 2 B
+// 2 C forward and 2 C inverse real FFTs (half spectra), against the primal CG's (solve_map_cg on a MaskedEncoder) 2 B
 // + 2 C and B x B products per frequency. The estimate then needs B inverse FFTs once.
 // Stopping: ‖M y − G u‖ <= tolerance · ‖M y‖ (G the operator above). σ > 0 (with σ = 0 the
 // system is singular wherever the prior is).
@@ -66,7 +66,8 @@ class MaskedWienerDecoder final : public Decoder {
   Map2D mask_;
   double sigma_;
   CgOptions options_;
-  // Per frequency f (H·W of them): Q(f) and (Q(f) + σ² I)⁻¹, each C x C row-major.
+  // Per frequency f of the half spectrum (H x (W/2 + 1), rfftw2): Q(f) and (Q(f) + σ² I)⁻¹, each
+  // C x C row-major.
   std::vector<cdouble> q_, q_inv_;
   mutable std::mutex stats_mutex_;
   mutable Stats stats_;
