@@ -1,4 +1,4 @@
-// The FFT backends (clFFT, VkFFT) against FFTW in double (qdo::fftw2) on seeded random data,
+// The FFT backends (clFFT, VkFFT) against FFTW in double (qdo::fftw2) on seeded random data, and FFTW's real transforms (rfftw2, irfftw2) against its complex one,
 // the plan cache, backend selection and the zero-padding hint.
 //
 // Tolerances: a floating-point FFT of n = rows*cols points has a relative L2 error bounded by
@@ -171,6 +171,34 @@ TEST_SUITE("fft") {
         const ComplexStack g = device_fft(rt, plan, impulse, false);
         for (const cdouble& v : g.data) REQUIRE(std::abs(v - 1.0 / n) <= t / n);
       }
+  }
+
+  TEST_CASE("rfftw2 is the first cols/2 + 1 columns of fftw2's spectrum; irfftw2 inverts it (even and odd sizes)") {
+    std::mt19937_64 rng(41);
+    std::normal_distribution<double> g(0.0, 1.0);
+    for (const auto& [rows, cols] : {std::pair<std::size_t, std::size_t>{8, 6}, {7, 9}, {5, 1}}) {
+      CAPTURE(rows);
+      CAPTURE(cols);
+      RealStack x(3, rows, cols);
+      for (double& v : x.data) v = g(rng);
+      ComplexStack full(3, rows, cols);
+      for (std::size_t i = 0; i < x.size(); ++i) full.data[i] = x.data[i];
+      fftw2(full, true);
+      ComplexStack half = rfftw2(x);
+      REQUIRE(half.cols == cols / 2 + 1);
+      double worst = 0, scale = 0;
+      for (std::size_t p = 0; p < 3; ++p)
+        for (std::size_t r = 0; r < rows; ++r)
+          for (std::size_t c = 0; c < half.cols; ++c) {
+            worst = std::max(worst, std::abs(half(p, r, c) - full(p, r, c)));
+            scale = std::max(scale, std::abs(full(p, r, c)));
+          }
+      CHECK(worst <= 1e-13 * scale);  // two FFTW plans of the same sums: rounding only
+      const RealStack back = irfftw2(half, cols);
+      double err = 0;
+      for (std::size_t i = 0; i < x.size(); ++i) err = std::max(err, std::fabs(back.data[i] - x.data[i]));
+      CHECK(err < 1e-13);
+    }
   }
 
   TEST_CASE("the backends agree with each other") {
