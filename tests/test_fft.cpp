@@ -1,5 +1,6 @@
-// The FFT backends (clFFT, VkFFT) against FFTW in double (qdo::fftw2) on seeded random data, and FFTW's real transforms (rfftw2, irfftw2) against its complex one,
-// the plan cache, backend selection and the zero-padding hint.
+// The FFT backends (clFFT, VkFFT) against FFTW in double (qdo::fftw2) on seeded random data, FFTW's
+// real transforms (rfftw2, irfftw2) against its complex one, the plan cache, backend selection and
+// the zero-padding hint.
 //
 // Tolerances: a floating-point FFT of n = rows*cols points has a relative L2 error bounded by
 // about c·ε·log2(n) (Cooley-Tukey error analysis); kTolC below is c, so
