@@ -34,6 +34,7 @@ LATERAL_STARTS=${LATERAL_STARTS:-auto}   # qdo fit --lateral-starts
 SIGMAS=${SIGMAS:-"run model 0.01 0.03"}  # noise sigmas the decoder assumes: run (the run's), model (the sensor's at the capture's level), or values
 RECON_ONLY=${RECON_ONLY:-0}           # 1: only steps 7-8 (reconstruct and tables) on an earlier run's files
 BORDER=${BORDER:-16}                  # pixels left out of each score at every edge
+BOUNDARY=${BOUNDARY:-mirror}          # qdo reconstruct --boundary (EXPERIMENTS' tables: mirror; reconstruct's default is linear)
 source scripts/experiments_out.sh  # (the scripts run from the repository root)
 claim_out experiments_section7 "$OUT"
 
@@ -56,7 +57,7 @@ fi
 if [ -n "${DRAWS:-}" ]; then
   log "2-8 over $DRAWS fabrication draws: scripts/experiments_fit_raw_draws.sh into $OUT/draws"
   DESIGN="$OUT/design/design.h5" DRAWS="$DRAWS" ETCH_NM="$ETCH_NM" OVERLAY_UM=0 SIGMAS="${DRAW_SIGMAS:-model ml 0.03 train}" \
-    QDO="$QDO" SHARED="$SHARED" bash scripts/experiments_fit_raw_draws.sh "$OUT/draws"
+    QDO="$QDO" SHARED="$SHARED" BOUNDARY="$BOUNDARY" bash scripts/experiments_fit_raw_draws.sh "$OUT/draws"
   exit 0
 fi
 
@@ -128,7 +129,7 @@ run_rec() {  # NAME CAPTURE_SET PSF_ARGS...
         *) ns=$sig ;;
       esac
       "$QDO" reconstruct --run "$OUT/design" --capture "$OUT/captures/$set/$s/raw.png" --demosaic mhc --noise-sigma "$ns" "$@" \
-        --truth "$f" --truth-border "$BORDER" --out "$d" > "$d.log"
+        --boundary "$BOUNDARY" --truth "$f" --truth-border "$BORDER" --out "$d" > "$d.log"
     done
   done
 }

@@ -108,7 +108,13 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
       ro.decoder.kind_name() != "cg")
     reject("--boundary", "linear", "mirror or circular for the " + ro.decoder.to_string() +
                                        " decoder (linear solves the Wiener decoder's objective, or cg's, by conjugate gradients)");
-  const TileBoundary boundary = entry.trained ? TileBoundary::Circular : o.boundary_set ? o.boundary : TileBoundary::Mirror;
+  // Default: the capture's own (linear) model for the Wiener decoder, mirror for another decoder
+  // built from the PSF (cg's linear solve is its own slow iteration), circular for a network.
+  const TileBoundary boundary = [&] {
+    if (entry.trained) return TileBoundary::Circular;
+    if (o.boundary_set) return o.boundary;
+    return ro.decoder.kind == DecoderSpec::Kind::Wiener ? TileBoundary::Linear : TileBoundary::Mirror;
+  }();
   std::vector<std::pair<std::string, double>> secs;
   // Every input read and checked before any work.
   auto t = clock::now();

@@ -54,7 +54,7 @@ const RegisterCommand registered_reconstruct(200, [] {
                                     "model: the tile is the recorded window of a scene twice its size, solved for by conjugate gradients "
                                     "under the decoder's prior and sigma; exact for real and linearly simulated captures, slower; Wiener "
                                     "and cg decoders) or circular (as the decoder was trained: exact for circularly simulated captures; a "
-                                    "network's only choice) (default: mirror for the Wiener decoder, circular for a network)"),
+                                    "network's only choice) (default: linear for the Wiener decoder, mirror for cg, circular for a network)"),
                     opt("noise-sigma", "the Wiener decoder's noise std, full-scale units in [0, 10]; model: the sensor's noise model (read, "
                                        "shot, quantization, the capture's demosaic error); ml: from the capture, the largest marginal "
                                        "likelihood under the decoder's model; gcv: by cross-validation, for comparison (default: the run's)"),

@@ -149,11 +149,12 @@ struct ReconstructOptions {
   std::string design_file;  // a fitted as-built design .h5 (simulated); neither: the run's design
   CaptureOptions capture;
   std::size_t overlap_px = 0;  // tile overlap; 0: S / 4
-  // The tiles' boundary; default (unset): mirror for the Wiener decoder, circular for a network
-  // (which refuses mirror and linear: it was trained on circular S x S patches); linear needs the
-  // Wiener or cg decoder (it solves their objective by conjugate gradients, tiled.hpp).
+  // The tiles' boundary; default (unset): linear for the Wiener decoder, mirror for cg, circular
+  // for a network (which refuses mirror and linear: it was trained on circular S x S patches);
+  // linear needs the Wiener or cg decoder (it solves their objective by conjugate gradients,
+  // tiled.hpp).
   bool boundary_set = false;
-  TileBoundary boundary = TileBoundary::Mirror;
+  TileBoundary boundary = TileBoundary::Linear;
   double noise_sigma = -1;     // the Wiener decoder's sigma; < 0: the run's (or the model's, below)
   // The sigma from the sensor's noise model at the capture's mean signal v (full-scale units,
   // before the exposure): sqrt(read^2 + v / full well + (1 / (2^bits - 1))^2 / 12), times the
