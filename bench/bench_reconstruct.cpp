@@ -2,8 +2,9 @@
 // 16-bit PNG and every input check), dark (subtraction and scaling), demosaic, psf+decoder (the
 // run's PSF simulated and the Wiener decoder built), tiles (decoding and blending every S x S
 // tile), write cube, sRGB, spectra. A Wiener run of the preset is made first with `qdo design`
-// (unless --run names one); the capture is a synthetic smooth scene through the run's PSF,
-// 16-bit RGB. Each reconstruction runs once unmeasured, then --repeats times: the median per
+// (unless --run names one, from 8 synthetic scenes); the capture is a synthetic scene (the kind
+// the run's prior was estimated on, synthetic_scene; --scene smooth: a few cosines per band, a
+// scene that prior does not describe) through the run's PSF, 16-bit RGB. Each reconstruction runs once unmeasured, then --repeats times: the median per
 // stage and the min-max beside it. Baseline, in the same run: the Wiener decoder on one S x S tile
 // alone, times the tile count (what the tiles stage costs without cutting and blending).
 // The capture is made as a camera makes it (linearly: the centre of a circular capture of a scene
@@ -13,7 +14,7 @@
 // against the scene over the interior (16 px from each edge).
 //
 //   bench_reconstruct [--qdo build/qdo] [--run RUN] [--preset small] [--size 1024] [--repeats 3] [--out FILE.md]
-//                     [--boundary mirror] [--boundaries circular,mirror,linear]
+//                     [--boundary mirror] [--boundaries circular,mirror,linear] [--scene synthetic|smooth]
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -28,6 +29,7 @@
 #include <string>
 #include <vector>
 
+#include "qdo/data/datasets.hpp"
 #include "qdo/decode/decoder_registry.hpp"
 #include "qdo/decode/tiled.hpp"
 #include "qdo/data/io.hpp"
@@ -65,7 +67,7 @@ int main(int argc, char** argv) {
   std::string qdo = "build/qdo", run, preset = "small", out;
   std::size_t size = 1024;
   int repeats = 3;
-  std::string boundary = "mirror", boundaries;
+  std::string boundary = "mirror", boundaries, scene_kind = "synthetic";
   for (int i = 1; i < argc; i += 2) {
     const std::string k = i + 1 < argc ? argv[i] : "--help", v = i + 1 < argc ? argv[i + 1] : "";
     if (k == "--qdo") qdo = v;
@@ -76,10 +78,11 @@ int main(int argc, char** argv) {
     else if (k == "--out") out = v;
     else if (k == "--boundary") boundary = v;
     else if (k == "--boundaries") boundaries = v;
+    else if (k == "--scene" && (v == "synthetic" || v == "smooth")) scene_kind = v;
     else {
       std::fprintf(stderr,
                    "usage: bench_reconstruct [--qdo build/qdo] [--run RUN] [--preset small] [--size 1024] [--repeats 3] [--out FILE.md] "
-                   "[--boundary mirror] [--boundaries circular,mirror,linear]\n");
+                   "[--boundary mirror] [--boundaries circular,mirror,linear] [--scene synthetic|smooth]\n");
       return 2;
     }
   }
@@ -88,7 +91,7 @@ int main(int argc, char** argv) {
   if (run.empty()) {
     run = (tmp / "run").string();
     const std::string cmd = qdo + " design --preset " + preset +
-                            " --mode qdo+a --epochs 1 --steps-per-epoch 1 --synthetic-scenes 2 --out " + run + " > /dev/null 2>&1";
+                            " --mode qdo+a --epochs 1 --steps-per-epoch 1 --synthetic-scenes 8 --out " + run + " > /dev/null 2>&1";
     const int st = std::system(cmd.c_str());
     if (!WIFEXITED(st) || WEXITSTATUS(st) != 0) {
       std::fprintf(stderr, "bench_reconstruct: failed: %s\n", cmd.c_str());
@@ -104,7 +107,8 @@ int main(int argc, char** argv) {
   // The capture: a scene through the run's PSF, linearly (the centre size x size of the circular
   // capture of a scene size + S on a side: no light wraps into it), 16-bit RGB.
   const std::size_t wide = size + s, off = s / 2;
-  const RealStack scene_wide = smooth_scene(cfg.bands, wide, 5);
+  // synthetic: the kind of scene the run's prior was estimated on; smooth: one it does not describe.
+  const RealStack scene_wide = scene_kind == "smooth" ? smooth_scene(cfg.bands, wide, 5) : synthetic_scene(cfg, wide, 5);
   const RealStack y_wide = wiener::simulate_measurement(scene_wide, wiener::psf_to_otf(psf, wide, wide), srf);
   RealStack y(3, size, size), scene(cfg.bands, size, size);
   for (std::size_t c = 0; c < 3; ++c)
@@ -123,7 +127,7 @@ int main(int argc, char** argv) {
   o.boundary = tile_boundary_from_string(boundary, "--boundary");
   o.capture.captures = {cap};
   o.quiet = true;
-  o.regions = parse_regions("100,100;512,512", false, "--points");
+  o.regions = parse_regions("100,100;" + std::to_string(size / 2) + "," + std::to_string(size / 2), false, "--points");
   for (const auto& r : parse_regions("200,200,64,64", true, "--boxes")) o.regions.push_back(r);
   std::map<std::string, std::vector<double>> stage;
   std::vector<std::string> order;
