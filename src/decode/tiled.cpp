@@ -101,7 +101,8 @@ wiener::SpectralPrior regrid_prior(const wiener::SpectralPrior& p, std::size_t r
 
 namespace {
 
-// A tile as the decoder takes it: itself, or its whole-sample mirror extension to 2 tile x 2 tile.
+// A tile as the decoder takes it: itself, its whole-sample mirror extension to 2 tile x 2 tile, or
+// (Linear) placed at tile/2 on a 2 tile x 2 tile grid of zeros (the unrecorded pixels).
 RealStack tile_input(const RealStack& t, std::size_t tile, TileBoundary boundary) {
   if (boundary == TileBoundary::Circular) return t;
   const std::size_t e = 2 * tile;
