@@ -43,10 +43,11 @@ std::vector<std::vector<double>> tile_weights(const std::vector<std::size_t>& st
 //             unrecorded pixels masked out: MaskedEncoder), so light reaching the tile from
 //             outside it is explained by scene outside it, exactly as long as the PSF reaches at
 //             most tile/2 from its axis (a PSF of at most tile x tile). The decoder is the MAP
-//             estimate under that model by conjugate gradients (linear_tile_encoder + CgDecoder:
-//             for the Wiener decoder's objective, the same prior and sigma); the centre window of
-//             its estimate is kept. Slower than mirror (iterations instead of one division per
-//             frequency), and the one that matches a real capture.
+//             estimate under that model by conjugate gradients: the Wiener decoder's objective
+//             (the same prior and sigma) by linear_tile_wiener, any encoder's by CgDecoder on
+//             linear_tile_encoder; the centre window of its estimate is kept. Slower than mirror
+//             (iterations instead of one division per frequency), and the one that matches a real
+//             capture.
 enum class TileBoundary { Circular, Mirror, Linear };
 TileBoundary tile_boundary_from_string(const std::string& s, const std::string& argument = "--boundary");
 std::string to_string(TileBoundary b);
