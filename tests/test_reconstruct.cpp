@@ -332,6 +332,7 @@ TEST_SUITE("reconstruct") {
     refused("--capture " + (dir / "a.png").string() + " --crop 0,0,8,8", "--crop", "o7");
     refused("--capture " + (dir / "missing.png").string(), "missing.png", "o8");
     refused("--capture " + (dir / "a.png").string() + " --boundary wrap", "--boundary", "o11");
+    refused("--capture " + (dir / "a.png").string() + " --noise-sigma 0", "--noise-sigma", "o12");  // the linear boundary needs sigma > 0
     // A PSF stack for another sensor grid (4 bands) and a design for another N.
     const SystemConfig other = tiny_config(32, 4);
     write_psf((dir / "psf4.h5").string(), RealStack(4, S, S, 1.0 / double(S * S)), other.wavelengths_nm(), other.sensor_pitch_m);

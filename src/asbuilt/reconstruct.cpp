@@ -115,6 +115,13 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
     if (o.boundary_set) return o.boundary;
     return ro.decoder.kind == DecoderSpec::Kind::Wiener ? TileBoundary::Linear : TileBoundary::Mirror;
   }();
+  if (boundary == TileBoundary::Linear && ro.decoder.kind == DecoderSpec::Kind::Wiener && !o.noise_sigma_model &&
+      !o.noise_sigma_ml && !o.noise_sigma_gcv) {
+    const double sigma_given = o.noise_sigma >= 0 ? o.noise_sigma : ro.decoder_noise_sigma;
+    if (!(sigma_given > 0))
+      reject(o.noise_sigma >= 0 ? "--noise-sigma" : "the run's decoder_noise_sigma", sigma_given,
+             "> 0 with the linear boundary (its system is singular at 0): a sigma, model or ml, or --boundary mirror");
+  }
   std::vector<std::pair<std::string, double>> secs;
   // Every input read and checked before any work.
   auto t = clock::now();
