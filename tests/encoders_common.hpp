@@ -13,12 +13,18 @@
 
 #include "adjoint_ladder.hpp"
 #include "common.hpp"
+#include "wiener_common.hpp"
 #include "qdo/decode/encoders.hpp"
 #include "qdo/decode/wiener.hpp"
 #include "qdo/runtime/fftw2.hpp"
 #include "qdo/runtime/types.hpp"
 
 namespace qdo::test::encoders_suite {
+
+// Random responses (C x B, rows summing to 1) and well-conditioned SPD priors with a larger DC bin
+// (eigenvalues >= 0.2 x scale, so a dense inverse is accurate): the Wiener suite's.
+using wiener_suite::random_prior;
+using wiener_suite::random_srf;
 
 using Rng = std::mt19937_64;
 using Eigen::Index;
@@ -42,37 +48,7 @@ inline double mse(const RealStack& a, const RealStack& b) {
   return s / double(a.size());
 }
 
-inline Eigen::MatrixXd random_srf(Rng& r, std::size_t channels, std::size_t bands) {
-  std::uniform_real_distribution<double> u(0.05, 1.0);
-  Eigen::MatrixXd s(ix(channels), ix(bands));
-  for (Index c = 0; c < s.rows(); ++c) {
-    for (Index b = 0; b < s.cols(); ++b) s(c, b) = u(r);
-    s.row(c) /= s.row(c).sum();
-  }
-  return s;
-}
 
-// A random SPD prior with a larger DC bin (it holds the scene mean), well conditioned
-// (eigenvalues >= 0.2 x scale), so its dense inverse is accurate.
-inline wiener::SpectralPrior random_prior(Rng& r, std::size_t bands, std::size_t bins, std::size_t rows, std::size_t cols) {
-  wiener::SpectralPrior p;
-  p.bands = bands;
-  p.bins = bins;
-  p.rows = rows;
-  p.cols = cols;
-  p.cov.resize(bins * bands * bands);
-  for (std::size_t k = 0; k < bins; ++k) {
-    Eigen::MatrixXd a(ix(bands), ix(bands));
-    for (Index i = 0; i < a.rows(); ++i)
-      for (Index j = 0; j < a.cols(); ++j) a(i, j) = normal(r);
-    const double scale = k == 0 ? 2.0 : 0.05 / double(k);
-    const Eigen::MatrixXd m =
-        scale * (a * a.transpose() / double(bands) + 0.2 * Eigen::MatrixXd::Identity(ix(bands), ix(bands)));
-    for (std::size_t i = 0; i < bands; ++i)
-      for (std::size_t j = 0; j < bands; ++j) p.cov[(k * bands + i) * bands + j] = m(ix(i), ix(j));
-  }
-  return p;
-}
 
 // A zero-mean Gaussian scene with E[X(f) X(f)^H] = H W P(bin f): real white noise z (so
 // E[Z Z^H] = H W I) coloured in the DFT domain by the Cholesky factor of each bin (the same real

@@ -34,6 +34,21 @@ RealStack random_psf(Rng& rng, std::size_t nb, std::size_t size) {
   return psf;
 }
 
+// A random camera (a PSF of psf_px, RGB) and prior (bins) for nb bands on an h x w grid, drawn in
+// that order.
+struct Problem {
+  wiener::SpectralPrior prior;
+  ComplexStack otf;
+  Eigen::MatrixXd srf;
+};
+Problem random_problem(Rng& rng, std::size_t nb, std::size_t bins, std::size_t h, std::size_t w, std::size_t psf_px) {
+  Problem q;
+  q.prior = random_prior(rng, nb, bins, h, w);
+  q.otf = wiener::psf_to_otf(random_psf(rng, nb, psf_px), h, w);
+  q.srf = random_srf(rng, 3, nb);
+  return q;
+}
+
 // A rows x cols mask recording the window [r0, r0 + h) x [c0, c0 + w).
 Map2D window_mask(std::size_t rows, std::size_t cols, std::size_t r0, std::size_t c0, std::size_t h, std::size_t w) {
   Map2D m(rows, cols, 0.0);
@@ -50,9 +65,7 @@ TEST_SUITE("wiener-masked") {
   TEST_CASE("every pixel recorded: the Wiener decoder's estimate (15 x 11, odd sizes, B = 5, RGB) to 1e-8") {
     Rng rng(31);
     const std::size_t nb = 5, h = 15, w = 11;
-    const wiener::SpectralPrior p = random_prior(rng, nb, 5, h, w);
-    const ComplexStack otf = wiener::psf_to_otf(random_psf(rng, nb, 7), h, w);
-    const Eigen::MatrixXd srf = random_srf(rng, 3, nb);
+    const auto [p, otf, srf] = random_problem(rng, nb, 5, h, w, 7);
     const double sigma = 0.03;
     RealStack y = DoeEncoder(otf, srf).measure(sample_from_prior(rng, p));
     ref::add_noise(y, sigma, 0.0, 3);
@@ -69,9 +82,7 @@ TEST_SUITE("wiener-masked") {
   TEST_CASE("a recorded window: the dense MAP solve and the primal CG agree (10 x 8 grid, B = 3)") {
     Rng rng(32);
     const std::size_t nb = 3, h = 10, w = 8;
-    const wiener::SpectralPrior p = random_prior(rng, nb, 4, h, w);
-    const ComplexStack otf = wiener::psf_to_otf(random_psf(rng, nb, 5), h, w);
-    const Eigen::MatrixXd srf = random_srf(rng, 3, nb);
+    const auto [p, otf, srf] = random_problem(rng, nb, 4, h, w, 5);
     const Map2D mask = window_mask(h, w, 3, 2, 5, 4);
     const double sigma = 0.02;
     const auto masked = std::make_shared<const MaskedEncoder>(std::make_shared<const DoeEncoder>(otf, srf), mask);
@@ -124,9 +135,7 @@ TEST_SUITE("wiener-masked") {
   TEST_CASE("input validation names the argument") {
     Rng rng(34);
     const std::size_t nb = 2, h = 6, w = 6;
-    const wiener::SpectralPrior p = random_prior(rng, nb, 3, h, w);
-    const ComplexStack otf = wiener::psf_to_otf(random_psf(rng, nb, 3), h, w);
-    const Eigen::MatrixXd srf = random_srf(rng, 3, nb);
+    const auto [p, otf, srf] = random_problem(rng, nb, 3, h, w, 3);
     CHECK_THROWS_WITH_AS(MaskedWienerDecoder(otf, srf, p, Map2D(h, w, 1.0), 0.0), doctest::Contains("noise_sigma"), InputError);
     CHECK_THROWS_WITH_AS(MaskedWienerDecoder(otf, srf, p, Map2D(h, w, 0.5), 0.1), doctest::Contains("mask[0]"), InputError);
     CHECK_THROWS_WITH_AS(MaskedWienerDecoder(otf, srf, p, Map2D(h, w + 1, 1.0), 0.1), doctest::Contains("mask"), InputError);
