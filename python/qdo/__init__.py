@@ -260,10 +260,15 @@ def estimate_prior(scenes, bins=16):
     return _qdo.estimate_prior(scenes, bins)
 
 
-def wiener_decode(y, psf, srf, prior, noise_sigma):
+def wiener_decode(y, psf, srf, prior, noise_sigma, boundary="circular"):
     """Linear MMSE reconstruction: sensor image y (3 x H x W), PSF stack (bands x S x S), srf
-    (3 x bands), prior (from estimate_prior on H x W scenes), noise_sigma >= 0 -> bands x H x W."""
-    return _qdo.wiener_decode(y, psf, srf, prior, noise_sigma)
+    (3 x bands), prior (from estimate_prior), noise_sigma >= 0 -> bands x H x W.
+
+    boundary: "circular" takes y as a circular blur (the scene repeats; one division per
+    frequency); "linear" takes y as a camera records it, the window of a larger scene whose light
+    reaches it from around (the Wiener objective for a scene (H + S) x (W + S) from y's pixels, by
+    conjugate gradients, `qdo reconstruct --boundary linear` on one tile; noise_sigma > 0)."""
+    return _qdo.wiener_decode(y, psf, srf, prior, noise_sigma, boundary)
 
 
 def read_cube(path, key="", config=None, resample_bands=False):

@@ -6,11 +6,14 @@
 
 #include <cstdint>
 #include <string>
+#include <utility>
 
 #include "arguments.hpp"
 #include "qdo_bindings.hpp"
 #include "qdo/runtime/error.hpp"
+#include "qdo/decode/tiled.hpp"
 #include "qdo/decode/wiener.hpp"
+#include "qdo/decode/wiener_masked.hpp"
 
 namespace py = pybind11;
 using namespace qdo;
@@ -44,7 +47,9 @@ void bind_wiener(py::module_& m) {
   m.def(
       "wiener_decode",
       [](const py::handle& y_obj, const py::handle& psf_obj, const py::handle& srf_obj, const py::handle& cov_obj,
-         const py::handle& sigma_obj) {
+         const py::handle& sigma_obj, const std::string& boundary) {
+        if (boundary != "circular" && boundary != "linear")
+          value_error("boundary: '" + boundary + "'; expected 'circular' or 'linear'");
         const Array y = checked(y_obj, "y", {3, "H", "W"});
         const Array p = checked(psf_obj, "psf", {"bands", "S", "S"});
         if (p.shape(1) != p.shape(2)) value_error("psf: shape " + shape_text(p) + "; expected (bands, S, S), square planes");
@@ -62,6 +67,29 @@ void bind_wiener(py::module_& m) {
         Eigen::MatrixXd srf(s.shape(0), s.shape(1));  // 3 x bands
         for (py::ssize_t i = 0; i < s.shape(0); ++i)
           for (py::ssize_t j = 0; j < s.shape(1); ++j) srf(i, j) = s.at(i, j);
+        if (boundary == "linear") {
+          // y is the recorded window of a scene (H + P) x (W + P) (P the PSF's size): the Wiener
+          // decoder's objective for that scene by conjugate gradients (MaskedWienerDecoder), its
+          // centre H x W returned.
+          if (!(sigma > 0)) value_error("noise_sigma: " + short_str(sigma_obj) + "; expected > 0 with boundary='linear'");
+          const std::size_t ps = std::size_t(p.shape(1)), rows = pr.rows + ps, cols = pr.cols + ps, at = ps / 2;
+          Map2D window(rows, cols, 0.0);
+          const RealStack yy = to_stack(y);
+          RealStack padded(yy.planes, rows, cols, 0.0);
+          for (std::size_t ch = 0; ch < yy.planes; ++ch)
+            for (std::size_t r = 0; r < pr.rows; ++r)
+              for (std::size_t x = 0; x < pr.cols; ++x) {
+                padded(ch, at + r, at + x) = yy(ch, r, x);
+                window(at + r, at + x) = 1.0;
+              }
+          const MaskedWienerDecoder dec(wiener::psf_to_otf(to_stack(p), rows, cols), srf, regrid_prior(pr, rows, cols), std::move(window), sigma);
+          const RealStack full = dec.decode(padded);
+          RealStack out(full.planes, pr.rows, pr.cols);
+          for (std::size_t b = 0; b < full.planes; ++b)
+            for (std::size_t r = 0; r < pr.rows; ++r)
+              for (std::size_t x = 0; x < pr.cols; ++x) out(b, r, x) = full(b, at + r, at + x);
+          return from_stack(out);
+        }
         try {
           return from_stack(wiener::decode(to_stack(y), wiener::psf_to_otf(to_stack(p), pr.rows, pr.cols), srf, pr, sigma));
         } catch (const InputError&) {
@@ -72,5 +100,5 @@ void bind_wiener(py::module_& m) {
           throw;
         }
       },
-      py::arg("y"), py::arg("psf"), py::arg("srf"), py::arg("prior"), py::arg("noise_sigma"));
+      py::arg("y"), py::arg("psf"), py::arg("srf"), py::arg("prior"), py::arg("noise_sigma"), py::arg("boundary") = "circular");
 }

@@ -89,6 +89,8 @@ def cases(tmp):
         ("wiener prior bands", lambda: qdo.wiener_decode(Y, PSF, SRF, np.zeros((4, 2, 2)), 0.01), "prior"),
         ("wiener sigma negative", lambda: qdo.wiener_decode(Y, PSF, SRF, PRIOR, -1.0), "noise_sigma"),
         ("wiener sigma str", lambda: qdo.wiener_decode(Y, PSF, SRF, PRIOR, "0.1"), "noise_sigma"),
+        ("wiener boundary unknown", lambda: qdo.wiener_decode(Y, PSF, SRF, PRIOR, 0.01, boundary="wrap"), "boundary"),
+        ("wiener linear sigma 0", lambda: qdo.wiener_decode(Y, PSF, SRF, PRIOR, 0.0, boundary="linear"), "noise_sigma"),
         ("wiener sigma 0 singular", lambda: qdo.wiener_decode(Y, np.zeros_like(PSF), SRF, np.zeros_like(PRIOR), 0.0),
          "noise_sigma"),
         ("read_cube path int", lambda: qdo.read_cube(5), "path"),
