@@ -3,6 +3,7 @@
 //  - every pixel recorded: the Wiener decoder itself (closed form per frequency);
 //  - a window: the dense MAP solve, built from the definitions of the camera, the mask and the
 //    prior covariance (encoders_common.hpp), and the primal CG on a MaskedEncoder (another route);
+//  - at small sigma (down to 1e-5) it still reaches the dense solution;
 //  - at the default tolerance the estimate is within 1e-3 of the converged one;
 //  - refusals name the argument.
 // The MaskedEncoder's dot-product test is a row of the adjoint table (test_encoders.cpp).
@@ -107,6 +108,34 @@ TEST_SUITE("wiener-masked") {
     RealStack y2 = y;
     for (std::size_t c = 0; c < 3; ++c) y2(c, 0, 0) = 5.0;
     CHECK(rel_diff(MaskedWienerDecoder(otf, srf, p, mask, sigma, CgOptions{1e-13, 1000}).decode(y2), r.x) < 1e-10);
+  }
+
+  TEST_CASE("small sigma: still the dense MAP solve, and the iterations it takes are reported (10 x 8 grid, B = 3)") {
+    // Stability: as sigma falls the system's condition number grows as 1/sigma^2 (eigenvalues in
+    // [sigma^2, sigma^2 + |A|^2 lambda_max(C)]); the preconditioned solve must still reach the
+    // dense solution, or say it did not (converged = false).
+    Rng rng(35);
+    const std::size_t nb = 3, h = 10, w = 8;
+    const auto [p, otf, srf] = random_problem(rng, nb, 4, h, w, 5);
+    const Map2D mask = window_mask(h, w, 2, 1, 6, 5);
+    const auto masked = std::make_shared<const MaskedEncoder>(std::make_shared<const DoeEncoder>(otf, srf), mask);
+    const RealStack clean = masked->measure(sample_from_prior(rng, p));
+    const Eigen::MatrixXd a = dense_encoder(*masked);
+    const Eigen::MatrixXd c = dense_prior_covariance(p);
+    for (double sigma : {1e-3, 1e-4, 1e-5}) {
+      CAPTURE(sigma);
+      RealStack y = clean;
+      ref::add_noise(y, sigma, 0.0, 6);
+      // The Woodbury form x = C Aᵀ (A C Aᵀ + σ² I)⁻¹ y, dense: better conditioned than the normal
+      // equations at small sigma.
+      const Eigen::MatrixXd k = a * c * a.transpose() + sigma * sigma * Eigen::MatrixXd::Identity(a.rows(), a.rows());
+      const Eigen::VectorXd direct = c * a.transpose() * k.ldlt().solve(as_vector(y));
+      const CgResult r = MaskedWienerDecoder(otf, srf, p, mask, sigma, CgOptions{1e-12, 5000}).solve(y);
+      const double rel = (as_vector(r.x) - direct).norm() / direct.norm();
+      MESSAGE("sigma " << sigma << ": " << r.iterations << " iterations, residual " << r.residual << ", vs dense " << rel);
+      CHECK(r.converged);
+      CHECK(rel < 1e-8);  // measured 3e-12 .. 6e-12 in 63 .. 81 iterations
+    }
   }
 
   TEST_CASE("the default tolerance: within 1e-3 of the converged estimate on a linear tile (B = 8, tile 24)") {
