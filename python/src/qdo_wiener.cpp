@@ -6,14 +6,12 @@
 
 #include <cstdint>
 #include <string>
-#include <utility>
 
 #include "arguments.hpp"
 #include "qdo_bindings.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/decode/tiled.hpp"
 #include "qdo/decode/wiener.hpp"
-#include "qdo/decode/wiener_masked.hpp"
 
 namespace py = pybind11;
 using namespace qdo;
@@ -68,27 +66,9 @@ void bind_wiener(py::module_& m) {
         for (py::ssize_t i = 0; i < s.shape(0); ++i)
           for (py::ssize_t j = 0; j < s.shape(1); ++j) srf(i, j) = s.at(i, j);
         if (boundary == "linear") {
-          // y is the recorded window of a scene (H + P) x (W + P) (P the PSF's size): the Wiener
-          // decoder's objective for that scene by conjugate gradients (MaskedWienerDecoder), its
-          // centre H x W returned.
+          // y as a camera records it: the window of a scene larger by the PSF (tiled.hpp).
           if (!(sigma > 0)) value_error("noise_sigma: " + short_str(sigma_obj) + "; expected > 0 with boundary='linear'");
-          const std::size_t ps = std::size_t(p.shape(1)), rows = pr.rows + ps, cols = pr.cols + ps, at = ps / 2;
-          Map2D window(rows, cols, 0.0);
-          const RealStack yy = to_stack(y);
-          RealStack padded(yy.planes, rows, cols, 0.0);
-          for (std::size_t ch = 0; ch < yy.planes; ++ch)
-            for (std::size_t r = 0; r < pr.rows; ++r)
-              for (std::size_t x = 0; x < pr.cols; ++x) {
-                padded(ch, at + r, at + x) = yy(ch, r, x);
-                window(at + r, at + x) = 1.0;
-              }
-          const MaskedWienerDecoder dec(wiener::psf_to_otf(to_stack(p), rows, cols), srf, regrid_prior(pr, rows, cols), std::move(window), sigma);
-          const RealStack full = dec.decode(padded);
-          RealStack out(full.planes, pr.rows, pr.cols);
-          for (std::size_t b = 0; b < full.planes; ++b)
-            for (std::size_t r = 0; r < pr.rows; ++r)
-              for (std::size_t x = 0; x < pr.cols; ++x) out(b, r, x) = full(b, at + r, at + x);
-          return from_stack(out);
+          return from_stack(wiener_decode_linear(to_stack(y), to_stack(p), srf, pr, sigma));
         }
         try {
           return from_stack(wiener::decode(to_stack(y), wiener::psf_to_otf(to_stack(p), pr.rows, pr.cols), srf, pr, sigma));

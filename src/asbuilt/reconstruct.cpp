@@ -229,7 +229,8 @@ ReconstructResult reconstruct(Runtime& rt, const ReconstructOptions& o) {
     res.solver_converged = st.all_converged;
     if (!st.all_converged)
       res.notes.push_back("boundary linear: a tile's conjugate gradients stopped at " + to_str(st.max_iterations) +
-                          " iterations with relative residual " + to_str(st.worst_residual) + " (tolerance 1e-5)");
+                          " iterations with relative residual " + to_str(st.worst_residual) + " (tolerance " +
+                          to_str(mw->options().tolerance) + ")");
   }
   for (double& v : res.cube.data) v = std::clamp(v, 0.0, 1.0);
   secs.push_back({"tiles", seconds_since(t)});

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <string>
 
+#include "qdo/data/datasets.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/data/scenes.hpp"
 #include "qdo/decode/decoder_registry.hpp"
@@ -13,19 +14,6 @@
 #include "qdo/runtime/error.hpp"
 
 namespace qdo {
-
-namespace {
-
-// planes x rows x cols of s from (row, col); the window lies inside s.
-RealStack window(const RealStack& s, std::size_t row, std::size_t col, std::size_t rows, std::size_t cols) {
-  RealStack c(s.planes, rows, cols);
-  for (std::size_t b = 0; b < s.planes; ++b)
-    for (std::size_t y = 0; y < rows; ++y)
-      for (std::size_t x = 0; x < cols; ++x) c(b, y, x) = s(b, row + y, col + x);
-  return c;
-}
-
-}  // namespace
 
 RealStack read_reconstruct_truth(const ReconstructOptions& o, const std::string& path, const std::string& key,
                                  const TruthArguments& names) {
@@ -37,7 +25,7 @@ RealStack read_reconstruct_truth(const ReconstructOptions& o, const std::string&
     reject(names.truth, path,
            "a scene of the captures' size, " + std::to_string(f.mean_dn.rows) + " x " + std::to_string(f.mean_dn.cols) + " (it is " +
                std::to_string(truth.rows) + " x " + std::to_string(truth.cols) + ")");
-  if (o.capture.crop) truth = window(truth, o.capture.crop_row, o.capture.crop_col, o.capture.crop_rows, o.capture.crop_cols);
+  if (o.capture.crop) truth = crop_window(truth, o.capture.crop_row, o.capture.crop_col, o.capture.crop_rows, o.capture.crop_cols);
   return truth;
 }
 
@@ -53,7 +41,7 @@ testset::Scores score_reconstruction(const ReconstructResult& r, const RealStack
                                      const std::string& path, const std::string& out, const TruthArguments& names) {
   if (truth.planes != r.cube.planes) reject(names.truth, path, "a cube of the run's " + std::to_string(r.cube.planes) + " bands");
   const auto interior = [&](const RealStack& s) {
-    return window(s, border_px, border_px, s.rows - 2 * border_px, s.cols - 2 * border_px);
+    return crop_window(s, border_px, border_px, s.rows - 2 * border_px, s.cols - 2 * border_px);
   };
   const testset::Scores sc = testset::score(interior(r.cube), interior(truth));
   nlohmann::json m;

@@ -176,17 +176,24 @@ std::vector<PatchOrigin> grid_origins(std::size_t rows, std::size_t cols, std::s
   return o;
 }
 
+RealStack crop_window(const RealStack& cube, std::size_t row, std::size_t col, std::size_t rows, std::size_t cols) {
+  if (rows == 0 || cols == 0 || row + rows > cube.rows || col + cols > cube.cols)
+    reject("patch", "(" + std::to_string(row) + ", " + std::to_string(col) + ") size " + std::to_string(rows) + " x " + std::to_string(cols),
+           "a non-empty crop inside the " + std::to_string(cube.rows) + " x " + std::to_string(cube.cols) + " scene");
+  RealStack p(cube.planes, rows, cols);
+  for (std::size_t b = 0; b < cube.planes; ++b)
+    for (std::size_t y = 0; y < rows; ++y) {
+      const double* src = &cube(b, row + y, col);
+      std::copy(src, src + cols, &p(b, y, 0));
+    }
+  return p;
+}
+
 RealStack crop_patch(const RealStack& cube, const PatchOrigin& o, std::size_t size) {
   if (size == 0 || o.y + size > cube.rows || o.x + size > cube.cols)
     reject("patch", "(" + std::to_string(o.y) + ", " + std::to_string(o.x) + ") size " + std::to_string(size),
            "a non-empty crop inside the " + std::to_string(cube.rows) + " x " + std::to_string(cube.cols) + " scene");
-  RealStack p(cube.planes, size, size);
-  for (std::size_t b = 0; b < cube.planes; ++b)
-    for (std::size_t y = 0; y < size; ++y) {
-      const double* src = &cube(b, o.y + y, o.x);
-      std::copy(src, src + size, &p(b, y, 0));
-    }
-  return p;
+  return crop_window(cube, o.y, o.x, size, size);
 }
 
 std::vector<RealStack> extract_patches(const RealStack& cube, std::size_t size, std::size_t stride) {

@@ -61,31 +61,50 @@ std::string to_string(TileBoundary b) {
 
 namespace {
 
-// The recorded window of the Linear boundary on the 2 tile x 2 tile grid, after checking the PSF's reach.
-Map2D linear_window(const RealStack& psf, std::size_t tile) {
-  if (psf.rows > tile || psf.cols > tile)
+// The Linear boundary's geometry: an h x w image recorded at (at, at) of a rows x cols grid.
+void check_psf_reach(const RealStack& psf, std::size_t h, std::size_t w, std::size_t rows, std::size_t cols) {
+  // The PSF reaches P/2 from its axis: the window [P/2, P/2 + h) sees sources in [0, h + P).
+  if (psf.rows > rows - h || psf.cols > cols - w)
     reject("PSF", to_str(psf.rows) + " x " + to_str(psf.cols),
-           "at most the tile's " + to_str(tile) + " x " + to_str(tile) + " px for the linear boundary (it reaches tile/2 from its axis)");
-  const std::size_t e = 2 * tile, q = tile / 2;
-  Map2D window(e, e, 0.0);
-  for (std::size_t r = q; r < q + tile; ++r)
-    for (std::size_t c = q; c < q + tile; ++c) window(r, c) = 1.0;
-  return window;
+           "at most " + to_str(rows - h) + " x " + to_str(cols - w) + " px for the linear boundary's grid (it reaches P/2 from its axis)");
+}
+Map2D window_mask(std::size_t rows, std::size_t cols, std::size_t at, std::size_t h, std::size_t w) {
+  Map2D m(rows, cols, 0.0);
+  for (std::size_t r = at; r < at + h; ++r)
+    for (std::size_t c = at; c < at + w; ++c) m(r, c) = 1.0;
+  return m;
+}
+// x (planes x h x w) placed at (at, at) on a rows x cols grid of zeros.
+RealStack embed(const RealStack& x, std::size_t rows, std::size_t cols, std::size_t at) {
+  RealStack out(x.planes, rows, cols, 0.0);
+  for (std::size_t p = 0; p < x.planes; ++p)
+    for (std::size_t r = 0; r < x.rows; ++r)
+      for (std::size_t c = 0; c < x.cols; ++c) out(p, at + r, at + c) = x(p, r, c);
+  return out;
 }
 
 }  // namespace
 
 std::shared_ptr<const Encoder> linear_tile_encoder(const RealStack& psf, const Eigen::MatrixXd& srf, std::size_t tile) {
-  Map2D window = linear_window(psf, tile);
+  check_psf_reach(psf, tile, tile, 2 * tile, 2 * tile);
   return std::make_shared<const MaskedEncoder>(std::make_shared<const DoeEncoder>(wiener::psf_to_otf(psf, 2 * tile, 2 * tile), srf),
-                                               std::move(window));
+                                               window_mask(2 * tile, 2 * tile, tile / 2, tile, tile));
 }
 
 std::unique_ptr<Decoder> linear_tile_wiener(const RealStack& psf, const Eigen::MatrixXd& srf, const wiener::SpectralPrior& prior,
                                             double noise_sigma, std::size_t tile) {
-  Map2D window = linear_window(psf, tile);
+  check_psf_reach(psf, tile, tile, 2 * tile, 2 * tile);
   return std::make_unique<MaskedWienerDecoder>(wiener::psf_to_otf(psf, 2 * tile, 2 * tile), srf, regrid_prior(prior, 2 * tile, 2 * tile),
-                                               std::move(window), noise_sigma);
+                                               window_mask(2 * tile, 2 * tile, tile / 2, tile, tile), noise_sigma);
+}
+
+RealStack wiener_decode_linear(const RealStack& y, const RealStack& psf, const Eigen::MatrixXd& srf, const wiener::SpectralPrior& prior,
+                               double noise_sigma) {
+  const std::size_t p = std::max(psf.rows, psf.cols), rows = y.rows + p, cols = y.cols + p, at = p / 2;
+  check_psf_reach(psf, y.rows, y.cols, rows, cols);
+  const MaskedWienerDecoder dec(wiener::psf_to_otf(psf, rows, cols), srf, regrid_prior(prior, rows, cols),
+                                window_mask(rows, cols, at, y.rows, y.cols), noise_sigma);
+  return crop_window(dec.decode(embed(y, rows, cols, at)), at, at, y.rows, y.cols);
 }
 
 wiener::SpectralPrior regrid_prior(const wiener::SpectralPrior& p, std::size_t rows, std::size_t cols) {
@@ -106,14 +125,7 @@ namespace {
 RealStack tile_input(const RealStack& t, std::size_t tile, TileBoundary boundary) {
   if (boundary == TileBoundary::Circular) return t;
   const std::size_t e = 2 * tile;
-  if (boundary == TileBoundary::Linear) {
-    RealStack x(t.planes, e, e, 0.0);
-    const std::size_t q = tile / 2;
-    for (std::size_t ch = 0; ch < t.planes; ++ch)
-      for (std::size_t r = 0; r < tile; ++r)
-        for (std::size_t c = 0; c < tile; ++c) x(ch, q + r, q + c) = t(ch, r, c);
-    return x;
-  }
+  if (boundary == TileBoundary::Linear) return embed(t, e, e, tile / 2);
   RealStack x(t.planes, e, e);
   for (std::size_t ch = 0; ch < t.planes; ++ch)
     for (std::size_t r = 0; r < e; ++r)
@@ -144,14 +156,7 @@ RealStack decode_tiled(const Decoder& dec, const RealStack& y, std::size_t tile,
   // (Mirror) or the window at tile/2 (Linear).
   const std::size_t keep_at = boundary == TileBoundary::Linear ? tile / 2 : 0;
   auto input = [&](const RealStack& t) { return tile_input(t, tile, boundary); };
-  auto output = [&](const RealStack& x) {
-    if (boundary == TileBoundary::Circular) return x;
-    RealStack o(x.planes, tile, tile);
-    for (std::size_t b = 0; b < x.planes; ++b)
-      for (std::size_t r = 0; r < tile; ++r)
-        for (std::size_t c = 0; c < tile; ++c) o(b, r, c) = x(b, keep_at + r, keep_at + c);
-    return o;
-  };
+  auto output = [&](const RealStack& x) { return boundary == TileBoundary::Circular ? x : crop_window(x, keep_at, keep_at, tile, tile); };
   if (y.rows == tile && y.cols == tile) {
     RealStack x = output(dec.decode(input(y)));
     if (progress) progress(1, 1);

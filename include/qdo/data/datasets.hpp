@@ -163,6 +163,8 @@ std::vector<PatchOrigin> grid_origins(std::size_t rows, std::size_t cols, std::s
 
 // cube[:, y : y + size, x : x + size] as bands x size x size; InputError when out of range.
 RealStack crop_patch(const RealStack& cube, const PatchOrigin& origin, std::size_t size);
+// cube[:, row : row + rows, col : col + cols] as bands x rows x cols; InputError when out of range.
+RealStack crop_window(const RealStack& cube, std::size_t row, std::size_t col, std::size_t rows, std::size_t cols);
 // Overlapping size x size crops at `stride` (patch_origins), row-major order.
 std::vector<RealStack> extract_patches(const RealStack& cube, std::size_t size, std::size_t stride);
 // The paper's 9 overlapping crops per scene: a 3 x 3 grid_origins grid (first, centred and

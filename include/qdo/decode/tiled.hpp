@@ -68,6 +68,13 @@ std::shared_ptr<const Encoder> linear_tile_encoder(const RealStack& psf, const E
 std::unique_ptr<Decoder> linear_tile_wiener(const RealStack& psf, const Eigen::MatrixXd& srf, const wiener::SpectralPrior& prior,
                                             double noise_sigma, std::size_t tile);
 
+// The linear boundary on a whole image, without tiles: y (C x H x W) the recorded window of a scene
+// (H + P) x (W + P) (P the PSF's size, the window at P/2), the Wiener decoder's objective for that
+// scene (MaskedWienerDecoder, the prior regridded from any grid), its centre H x W returned
+// (bands x H x W). noise_sigma > 0. Python's qdo.wiener_decode(boundary="linear").
+RealStack wiener_decode_linear(const RealStack& y, const RealStack& psf, const Eigen::MatrixXd& srf, const wiener::SpectralPrior& prior,
+                               double noise_sigma);
+
 // dec's estimate of y (channels x H x W) on tile x tile tiles (weights: the product of the row and
 // column weights above, which sums to 1 at every pixel), decoded dec.batch() at a time;
 // progress(done, total) after each batch. Returns bands x H x W. An image of exactly tile x tile

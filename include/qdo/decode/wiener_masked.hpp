@@ -50,6 +50,7 @@ class MaskedWienerDecoder final : public Decoder {
   std::size_t channels() const override { return static_cast<std::size_t>(srf_.rows()); }
   std::string description() const override { return "Wiener decoder for the recorded window (conjugate gradients)"; }
   double noise_sigma() const { return sigma_; }
+  const CgOptions& options() const { return options_; }
   // Over every solve so far (decode and solve, any thread): how many, the most iterations, the
   // worst final residual and whether every one reached the tolerance.
   struct Stats {
