@@ -18,10 +18,14 @@
 # DESIGN: a design.h5 to use instead of training the Section 7 design into OUT/design; PY: a python
 # with numpy, scipy and h5py, default /usr/bin/python3; ONLY: a name prefix, e.g. gen, to make and
 # fit only those cameras; FIT_PADDING: the fit's model with this padding_px instead of the preset's
-# (the cameras are made as without it))
+# (the cameras are made as without it); FIT: the fitted set, default levels,z,offset,shift (add
+# overlay for each mask's own overlay); FITDIR: the fit's folder in each camera, default fitted_raw
+# (a camera whose sweep is there already is fitted again into a new FITDIR, not made again))
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/fit_raw_sigma}
+FIT=${FIT:-levels,z,offset,shift}
+FITDIR=${FITDIR:-fitted_raw}
 QDO=${QDO:-build/qdo}
 SHARED=${SHARED:-../shared}
 PY=${PY:-/usr/bin/python3}
@@ -52,10 +56,18 @@ for cam in "${CAMERAS[@]}"; do
   read -r name seed off dz grid <<< "$cam"
   [ -n "${ONLY:-}" ] && [ "${name#"$ONLY"}" = "$name" ] && continue
   c=$OUT/$name
-  if [ -f "$c/fitted_raw/fit.json" ]; then echo "$name: done before"; continue; fi
+  if [ -f "$c/$FITDIR/fit.json" ]; then echo "$name: done before"; continue; fi
+  t0=$(date +%s)
+  if [ -f "$c/sweep/done" ] && [ -f "$c/asbuilt/truth.json" ]; then
+    echo "$name: camera made before; fitting it"
+  else
+  # A camera folder this script made (it holds asbuilt/) is made again; anything else is not touched.
+  if [ -e "$c" ] && [ ! -d "$c/asbuilt" ] && [ -n "$(ls -A "$c")" ]; then
+    echo "$c exists and is not a camera of this script: not touched" >&2
+    exit 2
+  fi
   rm -rf "$c"
   mkdir -p "$c"
-  t0=$(date +%s)
   if [ "$grid" = - ]; then
     "$QDO" fabricate "$DESIGN" --config "$RAWCAM" --seed "$seed" --etch-depth-error-nm 20 --overlay-um 0.5 --offset-um="$off" \
       --sensor-distance-error-um "$dz" --out "$c/asbuilt" > /dev/null
@@ -68,25 +80,37 @@ for cam in "${CAMERAS[@]}"; do
     "$QDO" simulate --config "$RAWCAM" --psf "$c/asbuilt/psf.h5" --capture psf-sweep --peak 0.6 --darks 8 \
       --out "$c/sweep" > /dev/null
   fi
-  "$QDO" fit --config "$FITCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit levels,z,offset,shift \
-    --iterations 60 --out "$c/fitted_raw" > "$c/fitted_raw.log" 2>&1 || true
+  touch "$c/sweep/done"
+  fi
+  "$QDO" fit --config "$FITCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit "$FIT" \
+    --iterations 60 --out "$c/$FITDIR" > "$c/$FITDIR.log" 2>&1 || true
   echo "$name (offset $off um, dz $dz um, grid $grid um): $(( $(date +%s) - t0 )) s"
 done
-"$PY" - "$OUT" <<'PY'
+"$PY" - "$OUT" "$FIT" "$FITDIR" <<'PY'
 import glob, json, os, sys
-out = sys.argv[1]
+out, fitset, fitdir = sys.argv[1], sys.argv[2], sys.argv[3]
 scale = {"level1": 1e9, "level2": 1e9, "level3": 1e9, "z": 1e6, "dx": 1e6, "dy": 1e6}
 unit = {"level1": "nm", "level2": "nm", "level3": "nm", "z": "µm", "dx": "µm", "dy": "µm"}
+for m in range(2, 9):
+    for a in "xy":
+        scale[f"o{a}{m}"], unit[f"o{a}{m}"] = 1e6, "µm"
 rows, percam = [], []
 n_all = in_all = in_jk = n_rel = in_rel = said = fits = 0
 for d in sorted(glob.glob(os.path.join(out, "overlay*")) + glob.glob(os.path.join(out, "gen*"))):
     name = os.path.basename(d)
     tj = os.path.join(d, "asbuilt", "truth.json")
-    fj = os.path.join(d, "fitted_raw", "fit.json")
+    fj = os.path.join(d, fitdir, "fit.json")
     if not os.path.exists(fj) or not os.path.exists(tj):
-        percam.append(f"| {name} | (no fit: see {d}/fitted_raw.log) | | | | | |")
+        percam.append(f"| {name} | (no fit: see {d}/{fitdir}.log) | | | | | |")
         continue
-    truth = json.load(open(tj))["fit_parameters"]
+    tjson = json.load(open(tj))
+    truth = dict(tjson["fit_parameters"])
+    # Each mask's overlay (oxM, oyM for "mask M"), from the masks' draws where an older truth.json
+    # does not name it; the generator's cameras have no masks: an overlay fitted there has no truth.
+    for k, mk in enumerate(tjson.get("masks", [])):
+        if k > 0:
+            truth.setdefault(f"ox{k + 1}", mk["shift_x_um"] * 1e-6)
+            truth.setdefault(f"oy{k + 1}", mk["shift_y_um"] * 1e-6)
     f = json.load(open(fj))
     fits += 1
     reliable = f.get("sigma_reliable")
@@ -116,7 +140,7 @@ for d in sorted(glob.glob(os.path.join(out, "overlay*")) + glob.glob(os.path.joi
     passes = ", ".join(f"{x:.3f}" for x in f.get("chi2_reduced_passes", []))
     percam.append(f"| {name} | {passes} | {str(reliable).lower()} | {inside} of {k} | {inside_jk} of {k} | {worst:.1f} | "
                   f"{f.get('sigma_unreliable_because', '')} |")
-L = ["Per camera (raw fit, `--fit levels,z,offset,shift`; reduced χ² of the two weighting passes):", "",
+L = [f"Per camera (raw fit, `--fit {fitset}`, in {fitdir}/; reduced χ² of the two weighting passes):", "",
      "| camera | reduced χ² (pass 1, 2) | sigma_reliable | within 3σ | within 3 jackknife σ | worst level error (nm) | why not reliable |",
      "|---|---|---|---:|---:|---:|---|"] + percam
 L += ["", "Per parameter:", "", "| camera | parameter | fitted − true | σ | jackknife σ | error / σ | error / jackknife σ |",
@@ -128,8 +152,9 @@ L += ["", f"- within 3 sigma over all cameras: {in_all} of {n_all}{pct(in_all, n
           + (pct(in_rel, n_rel) if n_rel else " (none said reliable)"),
       "- the issue's criterion (>= 90 % within 3 sigma, or the fit says sigma is unreliable) holds for every camera: "
           + ("yes" if all(("| false |" in l) or (l.split("|")[4].strip().split(" of ")[0] == l.split("|")[4].strip().split(" of ")[1]) for l in percam if " of " in l) and fits == len(percam) else "no (see the rows)")]
-tmp = os.path.join(out, "table.md.tmp")
+table = "table.md" if fitdir == "fitted_raw" else f"table_{fitdir}.md"
+tmp = os.path.join(out, table + ".tmp")
 open(tmp, "w").write("\n".join(L) + "\n")
-os.replace(tmp, os.path.join(out, "table.md"))
+os.replace(tmp, os.path.join(out, table))
 print("\n".join(L))
 PY

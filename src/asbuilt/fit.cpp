@@ -60,7 +60,7 @@ std::string values_line(const AsBuiltModel& m, const std::vector<double>& theta)
     const std::string& n = m.parameter_names()[i];
     if (u == "m" && (n == "z" || n == "d"))
       s += " " + n + "=" + fmt("%.4f", theta[i] * 1e3) + "mm";
-    else if (u == "m" && (n == "dx" || n == "dy"))
+    else if (u == "m" && (n == "dx" || n == "dy" || (n.size() > 2 && n[0] == 'o' && (n[1] == 'x' || n[1] == 'y'))))
       s += " " + n + "=" + fmt("%.3f", theta[i] * 1e6) + "um";
     else if (u == "m")
       s += " " + n + "=" + fmt("%.2f", theta[i] * 1e9) + "nm";
@@ -328,6 +328,37 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   if (scan_aperture) walk();  // first at the start values: a wrong aperture pulls the levels far
   refine_starts();
   if (!res.converged) run_lm(opt.max_iterations - res.iterations);  // what the refinement left of the budget
+  // The overlay's kinks: a mask's area fractions are linear in its overlay between whole DOE
+  // pixels, with another slope past each (other edge pixels change), so the loss has a kink there
+  // and a Levenberg-Marquardt run stalls on the wrong side of one when the truth lies close to it
+  // (the start, 0, is one). Each overlay within 0.1 DOE px of a whole pixel is tried on the other
+  // side (mirrored, at least 2 difference steps away) and fitted again (the same budget as the
+  // lateral refinement, twice); the lower loss is kept.
+  {
+    const auto& names = model.parameter_names();
+    for (std::size_t k = 0; k < np; ++k) {
+      if (names[k].size() < 3 || names[k][0] != 'o') continue;
+      const double px = theta[k] / cfg.pitch_m, whole = std::round(px), frac = px - whole;
+      if (std::fabs(frac) >= 0.1) continue;
+      std::vector<double> th = theta;
+      const double away = std::max(std::fabs(frac), 2 * opt.fd_px);
+      th[k] = (whole - (frac >= 0 ? away : -away)) * cfg.pitch_m;
+      double l = model.loss(th, measured), lam = opt.lambda0;
+      const double l_start = l;
+      const auto [done, at_minimum] = levenberg_marquardt(th, l, lam, 2 * std::max(1, opt.refine_iterations), 1, false, nullptr);
+      say("fit: " + names[k] + " across its kink at " + fmt("%.0f", whole) + " DOE px: loss " + fmt("%.6e", l_start) + " -> " +
+          fmt("%.6e", l) + " in " + std::to_string(done) + " iterations (" + (l < loss ? "kept" : "not kept") + ", the fit's " +
+          fmt("%.6e", loss) + ")");
+      if (l < loss) {
+        theta = th;
+        loss = l;
+        lambda = lam;
+        res.loss_history.push_back(l);
+        res.iterations += done;
+        res.converged = at_minimum;
+      }
+    }
+  }
   for (int round = 0; scan_aperture && round < 3 && walk(); ++round) {
     lambda = opt.lambda0;
     res.converged = false;

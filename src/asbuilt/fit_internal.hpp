@@ -24,6 +24,10 @@ inline std::string fmt(const char* f, double v) {
   return b;
 }
 
+// Each pixel's level (N x N row-major): the index of the design level nearest its height (all 0
+// for a design without a level table).
+std::vector<int> design_level_map(const Design& design);
+
 // Where the fit starts. theta: the design values on entry; on return the lowest start: the
 // centroid difference of the measured and design stacks (bands x S x S each) for shift (when
 // fitted, else offset), the values of opt.start, then, with opt.lateral_starts != 1, the lowest of

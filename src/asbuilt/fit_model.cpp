@@ -22,7 +22,7 @@ using fit_detail::since;
 
 namespace {
 
-enum class Kind { Level, Mask, Scale, Z, D, DX, DY, SX, SY };
+enum class Kind { Level, Mask, Scale, Z, D, DX, DY, SX, SY, OX, OY };
 
 }  // namespace
 
@@ -50,6 +50,9 @@ struct AsBuiltModel::Impl {
     double nominal;
   };
   std::vector<Param> ps;
+  // With the overlay fitted: the masks (fit_mask_set), each moved by its own (ox, oy).
+  bool overlay = false;
+  FitMaskSet mask_set;
   std::vector<std::string> names, units;
   double aperture_r = 0;
   bool offset = false;  // the relief's offset is fitted: the model moves it exactly (move_relief)
@@ -69,6 +72,7 @@ struct AsBuiltModel::Impl {
   struct State {
     std::vector<double> lev, masks;
     double scale = 1, z = 0, d = 0, dx_m = 0, dy_m = 0, sx = 0, sy = 0;
+    std::vector<double> ox_m, oy_m;  // each mask's overlay (metres; index 0, the first mask, stays 0)
   };
 
   State state(const std::vector<double>& theta) const {
@@ -79,6 +83,8 @@ struct AsBuiltModel::Impl {
     st.masks = masks0;
     st.z = cfg.sensor_distance_m;
     st.d = cfg.scene_distance_m;
+    st.ox_m.assign(mask_set.open.size(), 0.0);
+    st.oy_m.assign(mask_set.open.size(), 0.0);
     for (std::size_t i = 0; i < ps.size(); ++i) {
       const double v = theta[i];
       switch (ps[i].kind) {
@@ -91,6 +97,8 @@ struct AsBuiltModel::Impl {
         case Kind::DY: st.dy_m = v; break;
         case Kind::SX: st.sx = v; break;
         case Kind::SY: st.sy = v; break;
+        case Kind::OX: st.ox_m[std::size_t(ps[i].index)] = v; break;
+        case Kind::OY: st.oy_m[std::size_t(ps[i].index)] = v; break;
       }
     }
     if (use_masks) st.lev = subset_sums(st.masks);
@@ -105,11 +113,51 @@ struct AsBuiltModel::Impl {
     return lev;
   }
 
+  // The masks' etch depths e_m and the blank's top of a state (overlay; fit.hpp): binary, the mask
+  // depths and their sum (level L - 1); nested, the steps between the used levels and the highest.
+  std::vector<double> etch_depths(const State& st, double& top) const {
+    const std::size_t K = mask_set.open.size();
+    std::vector<double> e(K, 0.0);
+    if (mask_set.binary) {
+      top = 0;
+      for (std::size_t j = 0; j < K; ++j) top += e[j] = st.masks[j];
+      return e;
+    }
+    top = st.lev[mask_set.order[0]];
+    for (std::size_t m = 1; m <= K; ++m) e[m - 1] = st.lev[mask_set.order[m - 1]] - st.lev[mask_set.order[m]];
+    return e;
+  }
+
+  // Mask m's opening moved by its overlay (or its derivative along axis 1 = x, 0 = y), N x N.
+  std::vector<double> moved_opening(const State& st, std::size_t m, int derivative_axis = -1) const {
+    const std::vector<double> open(mask_set.open[m].begin(), mask_set.open[m].end());
+    const double sx = st.ox_m[m] / cfg.pitch_m, sy = st.oy_m[m] / cfg.pitch_m;
+    if (derivative_axis < 0) return sx == 0 && sy == 0 ? open : shift_bilinear(open, 1, n, n, sx, sy);
+    return shift_bilinear_derivative(open, 1, n, n, sx, sy, derivative_axis);
+  }
+
+  // H0 / scale (unshifted) of a state, N x N: the level map, or with the overlay the masks'
+  // relief top - sum_m e_m a_m.
+  std::vector<double> unscaled(const State& st) const {
+    std::vector<double> h(n * n);
+    if (overlay) {
+      double top = 0;
+      const std::vector<double> e = etch_depths(st, top);
+      std::fill(h.begin(), h.end(), top);
+      for (std::size_t m = 0; m < e.size(); ++m) {
+        const std::vector<double> a = moved_opening(st, m);
+        for (std::size_t i = 0; i < h.size(); ++i) h[i] -= e[m] * a[i];
+      }
+      return h;
+    }
+    for (std::size_t i = 0; i < h.size(); ++i) h[i] = quantized ? st.lev[std::size_t(level_of[i])] : design.height_m.data[i];
+    return h;
+  }
+
   // H0 (unshifted, scaled) of a state, N x N.
   std::vector<double> unshifted(const State& st) const {
-    std::vector<double> h(n * n);
-    for (std::size_t i = 0; i < h.size(); ++i)
-      h[i] = st.scale * (quantized ? st.lev[std::size_t(level_of[i])] : design.height_m.data[i]);
+    std::vector<double> h = unscaled(st);
+    for (double& v : h) v *= st.scale;
     return h;
   }
 
@@ -244,23 +292,53 @@ struct AsBuiltModel::Impl {
     ++t.vjps;
     // Through the relief's whole-pixel move (a move of the map: its transpose).
     const std::vector<double> g_h0 = offset ? move_relief_adjoint(base_config(st), g_h, st.dx_m, st.dy_m).data : g_h.data;
-    std::vector<double> g_lev(design.levels_m.size(), 0.0);
+    std::vector<double> g_lev(design.levels_m.size(), 0.0), g_mask(masks0.size(), 0.0), g_ox, g_oy;
     double g_scale = 0;
-    for (std::size_t i = 0; i < n * n; ++i) {
-      const double base = quantized ? st.lev[std::size_t(level_of[i])] : design.height_m.data[i];
-      g_scale += g_h0[i] * base;
-      if (quantized) g_lev[std::size_t(level_of[i])] += st.scale * g_h0[i];
+    {
+      const std::vector<double> base = unscaled(st);
+      for (std::size_t i = 0; i < n * n; ++i) g_scale += g_h0[i] * base[i];
+    }
+    if (overlay) {
+      // H0 = scale (top - sum_m e_m a_m): dL/dtop, dL/de_m, and each overlay through d a_m / d o.
+      double top = 0;
+      const std::vector<double> e = etch_depths(st, top);
+      const std::size_t K = e.size();
+      double g_top = 0;
+      for (std::size_t i = 0; i < n * n; ++i) g_top += st.scale * g_h0[i];
+      std::vector<double> g_e(K, 0.0);
+      g_ox.assign(K, 0.0);
+      g_oy.assign(K, 0.0);
+      for (std::size_t mk = 0; mk < K; ++mk) {
+        const std::vector<double> a = moved_opening(st, mk);
+        for (std::size_t i = 0; i < n * n; ++i) g_e[mk] -= st.scale * g_h0[i] * a[i];
+        if (mk == 0) continue;  // the first mask defines the alignment: no overlay
+        const std::vector<double> ax = moved_opening(st, mk, 1), ay = moved_opening(st, mk, 0);
+        for (std::size_t i = 0; i < n * n; ++i) {
+          g_ox[mk] -= st.scale * e[mk] * g_h0[i] * ax[i] / cfg.pitch_m;
+          g_oy[mk] -= st.scale * e[mk] * g_h0[i] * ay[i] / cfg.pitch_m;
+        }
+      }
+      if (mask_set.binary) {
+        for (std::size_t j = 0; j < K; ++j) g_mask[j] = g_top + g_e[j];
+      } else {
+        g_lev[mask_set.order[0]] += g_top;
+        for (std::size_t mk = 1; mk <= K; ++mk) {
+          g_lev[mask_set.order[mk - 1]] += g_e[mk - 1];
+          g_lev[mask_set.order[mk]] -= g_e[mk - 1];
+        }
+      }
+    } else if (quantized) {
+      for (std::size_t i = 0; i < n * n; ++i) g_lev[std::size_t(level_of[i])] += st.scale * g_h0[i];
+      for (std::size_t j = 0; j < g_mask.size(); ++j)
+        for (std::size_t l = 0; l < g_lev.size(); ++l)
+          if (l & (std::size_t(1) << j)) g_mask[j] += g_lev[l];
     }
     for (std::size_t k = 0; k < ps.size(); ++k) {
       switch (ps[k].kind) {
         case Kind::Level: grad[k] = g_lev[std::size_t(ps[k].index)]; break;
-        case Kind::Mask: {
-          double g = 0;
-          for (std::size_t l = 0; l < g_lev.size(); ++l)
-            if (l & (std::size_t(1) << ps[k].index)) g += g_lev[l];
-          grad[k] = g;
-          break;
-        }
+        case Kind::Mask: grad[k] = g_mask[std::size_t(ps[k].index)]; break;
+        case Kind::OX: grad[k] = g_ox[std::size_t(ps[k].index)]; break;
+        case Kind::OY: grad[k] = g_oy[std::size_t(ps[k].index)]; break;
         case Kind::Scale: grad[k] = g_scale; break;
         case Kind::DX:
         case Kind::DY:
@@ -311,6 +389,8 @@ struct AsBuiltModel::Impl {
       case Kind::DY: return opt.fd_px * cfg.pitch_m;
       case Kind::SX:
       case Kind::SY: return opt.fd_px;
+      case Kind::OX:
+      case Kind::OY: return opt.fd_px * cfg.pitch_m;
     }
     return 0;
   }
@@ -331,6 +411,22 @@ struct AsBuiltModel::Impl {
       if (by_differences(ps[k].kind)) order.push_back(k);
     for (std::size_t k : order) {
       const double h = step(k, theta);
+      if (ps[k].kind == Kind::OX || ps[k].kind == Kind::OY) {
+        // An overlay: the relief is linear in it between whole DOE pixels and kinks at each, so the
+        // difference stays inside the current cell [floor, floor + 1) px (where the adjoint's
+        // derivative is taken): central when both sides fit, else one-sided towards the cell's middle.
+        const double px = theta[k] / cfg.pitch_m, frac = px - std::floor(px), hpx = h / cfg.pitch_m;
+        const bool central = !at_theta && frac >= hpx && frac + hpx < 1;
+        const double dir = frac < 0.5 ? 1.0 : -1.0;
+        std::vector<double> a = theta, b = theta;
+        a[k] += central ? h : dir * h;
+        b[k] -= h;
+        const RealStack fa = model(state(a));
+        const RealStack fb = central ? model(state(b)) : at_theta ? *at_theta : model(state(theta));
+        const double den = central ? 2 * h : dir * h;
+        for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - fb.data[i]) / den;
+        continue;
+      }
       std::vector<double> a = theta, b = theta;
       a[k] += h;
       b[k] -= h;
@@ -373,16 +469,7 @@ AsBuiltModel::AsBuiltModel(Runtime& rt, const SystemConfig& cfg, Precision p, co
   const auto has = [&](const char* s_) { return given.count(s_) > 0; };
   const std::size_t levels = design.levels_m.size();
   m.quantized = levels >= 2;
-  if (m.quantized) {
-    m.level_of.resize(m.n * m.n);
-    for (std::size_t i = 0; i < m.level_of.size(); ++i) {
-      const double h = design.height_m.data[i];
-      std::size_t best = 0;
-      for (std::size_t l = 1; l < levels; ++l)
-        if (std::fabs(design.levels_m[l] - h) < std::fabs(design.levels_m[best] - h)) best = l;
-      m.level_of[i] = int(best);
-    }
-  }
+  if (m.quantized) m.level_of = fit_detail::design_level_map(design);
   if (has("masks")) {
     const int k = mask_count(int(levels));  // InputError unless a power of two
     m.use_masks = true;
@@ -419,6 +506,14 @@ AsBuiltModel::AsBuiltModel(Runtime& rt, const SystemConfig& cfg, Precision p, co
     m.registration = true;
     add(Kind::SX, 0, "sx", "px", 0.0);
     add(Kind::SY, 0, "sy", "px", 0.0);
+  }
+  if (has("overlay")) {
+    m.overlay = true;
+    m.mask_set = fit_mask_set(design, m.use_masks);
+    for (std::size_t k = 1; k < m.mask_set.open.size(); ++k) {
+      add(Kind::OX, int(k), "ox" + std::to_string(k + 1), "m", 0.0);
+      add(Kind::OY, int(k), "oy" + std::to_string(k + 1), "m", 0.0);
+    }
   }
 }
 

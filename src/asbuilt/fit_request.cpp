@@ -42,7 +42,7 @@ FitRequest fit_request_from_options(const TextOptions& a) {
   FitOptions& opt = q.options;
   if (a.has("fit") && a.get("fit").find_first_not_of(" ,") == std::string::npos)
     reject("--fit", a.get("fit"),
-           "one or more of levels, masks, scale, z, d, offset, shift, aperture (omit --fit for the default set)");
+           "one or more of levels, masks, scale, z, d, offset, shift, overlay, aperture (omit --fit for the default set)");
   opt.max_iterations = parse_int("--iterations", a.get("iterations", "30"), 1, 1000);
   opt.tolerance = parse_double("--tolerance", a.get("tolerance", "1e-7"), 0, 1, "", false);
   q.precision = precision_from_string(a.get("precision", "f64"));

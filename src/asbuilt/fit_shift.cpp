@@ -25,11 +25,15 @@ struct ShiftSplit {
   }
 };
 
-// Visits every (output index, input index, weight) of the shift.
+// Visits every (output index, input index, weight) of the shift; with derivative_axis 1 (0) the
+// weights of its derivative in sx (sy) instead: d(1 - f)/ds = -1, d f/ds = +1 (the right derivative
+// where s is a whole number).
 template <typename F>
-void for_each_tap(std::size_t planes, std::size_t rows, std::size_t cols, double sx, double sy, F&& f) {
+void for_each_tap(std::size_t planes, std::size_t rows, std::size_t cols, double sx, double sy, F&& f, int derivative_axis = -1) {
   const ShiftSplit x(sx), y(sy);
-  const double wx[2] = {1 - x.f, x.f}, wy[2] = {1 - y.f, y.f};
+  double wx[2] = {1 - x.f, x.f}, wy[2] = {1 - y.f, y.f};
+  if (derivative_axis == 1) wx[0] = -1, wx[1] = 1;
+  if (derivative_axis == 0) wy[0] = -1, wy[1] = 1;
   const long r = long(rows), c = long(cols);
   for (std::size_t p = 0; p < planes; ++p) {
     const std::size_t base = p * rows * cols;
@@ -60,6 +64,15 @@ std::vector<double> shift_bilinear(const std::vector<double>& in, std::size_t pl
   require_size(in, planes, rows, cols, "the input");
   std::vector<double> out(in.size(), 0.0);
   for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double w) { out[o] += w * in[i]; });
+  return out;
+}
+
+std::vector<double> shift_bilinear_derivative(const std::vector<double>& in, std::size_t planes, std::size_t rows, std::size_t cols,
+                                              double sx, double sy, int axis) {
+  require_size(in, planes, rows, cols, "the input");
+  if (axis != 0 && axis != 1) throw Error("shift_bilinear_derivative: axis " + std::to_string(axis) + ", expected 0 (sy) or 1 (sx)");
+  std::vector<double> out(in.size(), 0.0);
+  for_each_tap(planes, rows, cols, sx, sy, [&](std::size_t o, std::size_t i, double w) { out[o] += w * in[i]; }, axis);
   return out;
 }
 

@@ -54,7 +54,9 @@ const RegisterCommand registered_fit(60, [] {
                                "invisible), masks (the log2 L mask depths of a qdo+m design, m), scale (one factor on all heights; not with "
                                "levels or masks), z (DOE-sensor distance, m), d (object distance, m; nearly degenerate with z, so not in the "
                                "default), offset (dx, dy: the relief against the aperture, m), shift (sx, sy: registration, sensor px; a nuisance), "
-                               "aperture (radius, m, by a walk in half-pixel steps) (default: levels,z,offset if quantized, else scale,z,offset)"),
+                               "overlay (oxM, oyM: each lithography mask's own misplacement after the first, m; nested masks over the used levels, "
+                               "binary with masks), aperture (radius, m, by a walk in half-pixel steps) (default: levels,z,offset if quantized, else "
+                               "scale,z,offset)"),
                     opt("iterations", "most Levenberg-Marquardt iterations, an integer in [1, 1000]", "30"),
                     opt("lateral-starts", "auto: scans of the offset along x, then y, twice, an eighth of a DOE pixel apart, over the "
                                           "centroid's reach plus 1.5 DOE px, and the lowest's mirrors (the shift alone: a grid half a sensor "

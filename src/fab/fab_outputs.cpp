@@ -80,14 +80,21 @@ std::string as_built_truth_json_text(const AsBuiltCamera& cam, const SystemConfi
                            {"pixels", cam.plan.levels[l].pixels}});
     if (l > 0) fit_names["level" + std::to_string(l)] = cam.level_height_m[l] - cam.level_height_m[0] + l0_design;
   }
+  // Each mask's overlay after the first, as qdo fit's overlay names it (oxM, oyM for "mask M";
+  // its masks are these when the plan is nested, or binary index-coded for a qdo+m design).
+  if (cam.plan.scheme != Scheme::Greyscale)
+    for (std::size_t m = 1; m < cam.plan.masks.size(); ++m) {
+      fit_names["ox" + std::to_string(m + 1)] = cam.shift_x_m[m];
+      fit_names["oy" + std::to_string(m + 1)] = cam.shift_y_m[m];
+    }
   fit_names["z"] = cam.cfg.sensor_distance_m;
   fit_names["dx"] = o.offset_x_m;
   fit_names["dy"] = o.offset_y_m;
   t["fit_parameters"] = fit_names;
   t["fit_parameters_note"] =
       "the true values in qdo fit's names and units (m): levelL = realised level L - realised level 0 + design level 0; dx, dy = the "
-      "relief's offset applied after the masks (the per-mask overlay shifts come on top and are not in qdo fit's model); z = the "
-      "as-built DOE-sensor distance";
+      "relief's offset applied after the masks; oxM, oyM = mask M's own overlay on top of it (qdo fit --fit ...,overlay; the first "
+      "mask defines the alignment); z = the as-built DOE-sensor distance";
   t["sensor_distance_m"] = {{"design", design_cfg.sensor_distance_m}, {"as_built", cam.cfg.sensor_distance_m}};
   return t.dump(2) + "\n";
 }

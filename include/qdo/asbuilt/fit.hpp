@@ -51,6 +51,16 @@
 //             held at their fit, then fitted again when the radius moved; 3 rounds at most), its
 //             value and sigma from the parabola through the minimum and its neighbours; it takes
 //             no part in the correlation. The first walk runs at the start values, before the rest.
+//   overlay   oxM, oyM (metres) for every lithography mask M after the first (fit_mask_set: the
+//             masks a fab makes the design with; the first defines the alignment marks, and the
+//             relief's offset moves them all): each mask's own lateral misplacement. The relief is
+//             then H0(i) = scale * (top - sum_m e_m a_m(i)), a_m the area of pixel i that mask m's
+//             opening, moved by (oxM, oyM), covers (shift_bilinear of its 0/1 map: exact for an
+//             opening made of whole pixels) and e_m its etch depth (from the levels or masks fitted,
+//             else the design's): at zero overlay every pixel is on its level, and a misplaced mask
+//             leaves edge pixels between two levels, area-averaged as qdo fabricate renders them.
+//             Gradient through the adjoint (d a_m / d o piecewise constant: shift_bilinear_derivative;
+//             at zero, the start, the right derivative). Needs a quantized design with 2 masks or more.
 // Start: the design values, except the lateral ones: shift (when fitted, else offset, divided by
 // the magnification 1 + z/d and in metres) starts at the centroid difference of the measured and
 // design stacks (several lateral starts by default: FitOptions::lateral_starts).
@@ -74,6 +84,7 @@
 #include <Eigen/Dense>
 
 #include <cstddef>
+#include <cstdint>
 #include <functional>
 #include <limits>
 #include <memory>
@@ -89,6 +100,24 @@ namespace qdo {
 
 // Every name fit_as_built accepts, in the order of the parameter vector.
 std::vector<std::string> fit_parameter_names();
+
+// The lithography masks of a quantized design as the overlay parameter models them (fab.hpp's
+// schemes, made from the design's level map: each pixel on the level nearest its height):
+// binary (with masks fitted, a QDO+M design): mask j (j = 0 .. log2(L) - 1) opens the pixels whose
+// level has bit j at 0 and etches mask j's depth; nested (otherwise): over the U used levels sorted
+// by design height, highest first, mask m (m = 1 .. U - 1, index m - 1) opens every pixel at the
+// m-th or a lower one and etches the step between the (m-1)-th and the m-th. Names "mask 1" ..,
+// as qdo fabricate's.
+struct FitMaskSet {
+  bool binary = false;
+  std::size_t n = 0;
+  std::vector<std::vector<std::uint8_t>> open;  // K maps, each N x N row-major, 1 where the mask is open (etched)
+  std::vector<std::size_t> order;               // nested: the used levels' indices, highest first (K + 1 of them)
+};
+FitMaskSet fit_mask_set(const Design& design, bool binary);
+// The overlay's parameter names of a design and a parameter set: "ox2", "oy2", .. for masks 2 .. K
+// (empty without "overlay").
+std::vector<std::string> overlay_parameter_names(const Design& design, const std::vector<std::string>& parameters);
 // The default set for a design: levels,z,offset when it is quantized, else scale,z,offset.
 std::vector<std::string> default_fit_parameters(const Design& design);
 
@@ -291,5 +320,9 @@ RealStack integrate_registered_adjoint(const RealStack& g_out, const RealStack& 
 // sensor stack by whole pixels with it; the relief is moved by optics.hpp move_relief.)
 std::vector<double> shift_bilinear(const std::vector<double>& in, std::size_t planes, std::size_t rows, std::size_t cols, double sx,
                                    double sy);
+// Its derivative d out / d sx (axis 1) or d sy (axis 0) at (sx, sy), the same layout; piecewise
+// constant in the shift, the right derivative where it is a whole number of pixels.
+std::vector<double> shift_bilinear_derivative(const std::vector<double>& in, std::size_t planes, std::size_t rows, std::size_t cols,
+                                              double sx, double sy, int axis);
 
 }  // namespace qdo

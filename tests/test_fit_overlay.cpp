@@ -1,0 +1,228 @@
+// qdo fit's overlay (suite `fit-overlay`, include/qdo/asbuilt/fit.hpp: parameter "overlay"): each
+// lithography mask's own misplacement. The relief the fit models for an overlay is the one
+// qdo fabricate makes (fab.hpp: fabricate, rendered on a finer grid and area-averaged; an
+// independent code path), for nested and binary masks, shifts below and beyond one DOE pixel; the
+// overlay's adjoint gradient matches central differences; from a fabricated camera's noise-free
+// PSF stack the fit with the overlay recovers the levels, z, the offset and every mask's overlay,
+// where the fit without it bends the levels; refusals name the parameter.
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "common.hpp"
+#include "fit_common.hpp"
+#include "qdo/asbuilt/fit.hpp"
+#include "qdo/data/config.hpp"
+#include "qdo/fab/fab.hpp"
+#include "qdo/physics/simulator.hpp"
+#include "qdo/runtime/error.hpp"
+
+using namespace qdo;
+using namespace qdo::test;
+
+namespace {
+
+// The fit's parameter vector (in model's layout) of a fabricated camera: levels (relative to level
+// 0 at its design height) or mask depths, z, dx, dy, and each mask's overlay after the first.
+std::vector<double> true_theta(const AsBuiltModel& model, const fab::AsBuiltCamera& cam, const Design& d, const SystemConfig& cfg,
+                               double dx_m, double dy_m) {
+  std::vector<double> th;
+  for (const std::string& name : model.parameter_names()) {
+    if (name.rfind("level", 0) == 0) {
+      const std::size_t l = std::stoul(name.substr(5));
+      th.push_back(cam.level_height_m[l] - cam.level_height_m[0] + d.levels_m[0]);
+    } else if (name.rfind("mask", 0) == 0) {
+      const std::size_t j = std::stoul(name.substr(4));
+      th.push_back(cam.plan.masks[j].etch_depth_m + cam.depth_error_m[j]);
+    } else if (name == "z") {
+      th.push_back(cam.cfg.sensor_distance_m);
+    } else if (name == "dx" || name == "dy") {
+      th.push_back(name == "dx" ? dx_m : dy_m);
+    } else if (name.size() > 2 && name[0] == 'o') {  // oxM, oyM: fab's "mask M" (index M - 1)
+      const std::size_t m = std::stoul(name.substr(2)) - 1;
+      th.push_back(name[1] == 'x' ? cam.shift_x_m[m] : cam.shift_y_m[m]);
+    } else {
+      FAIL("unexpected parameter " << name);
+    }
+  }
+  (void)cfg;
+  return th;
+}
+
+fab::AsBuiltCamera make_camera(const Design& d, const SystemConfig& cfg, const std::string& scheme, double overlay_px, std::uint64_t seed,
+                               double dx_px = 0, double dy_px = 0, double dz_rel = 0) {
+  fab::AsBuiltOptions o;
+  o.scheme = scheme;
+  o.etch_depth_error_m = 20e-9;
+  o.overlay_m = overlay_px * cfg.pitch_m;
+  o.seed = seed;
+  o.offset_x_m = dx_px * cfg.pitch_m;
+  o.offset_y_m = dy_px * cfg.pitch_m;
+  o.sensor_distance_error_m = dz_rel * cfg.sensor_distance_m;
+  return fab::fabricate(d, cfg, o);
+}
+
+double spread(const std::vector<double>& a, const std::vector<double>& b) {
+  double lo = 1e300, hi = -1e300;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    lo = std::min(lo, a[i] - b[i]);
+    hi = std::max(hi, a[i] - b[i]);
+  }
+  return hi - lo;
+}
+
+}  // namespace
+
+TEST_SUITE("fit-overlay") {
+  TEST_CASE("the overlay's relief is qdo fabricate's: nested and binary masks, shifts below and beyond a DOE pixel") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    struct Case {
+      std::string scheme;
+      std::vector<std::string> params;
+      double overlay_px;
+    };
+    bool any_beyond_pixel = false;
+    for (const Case& c : {Case{"nested", {"levels", "overlay"}, 0.45}, Case{"nested", {"levels", "overlay"}, 2.5},
+                          Case{"binary", {"masks", "overlay"}, 0.45}, Case{"binary", {"masks", "overlay"}, 2.5}}) {
+      CAPTURE(c.scheme);
+      CAPTURE(c.overlay_px);
+      const fab::AsBuiltCamera cam = make_camera(d, cfg, c.scheme, c.overlay_px, 17);
+      AsBuiltModel model(runtime(), cfg, Precision::F64, d, c.params);
+      // Two masks or more after the first for the nested lens (3 masks), one for the binary set (2 masks).
+      const std::size_t masks = cam.plan.masks.size();
+      REQUIRE(model.parameter_names().size() == (c.params[0] == "levels" ? 3u : 2u) + 2 * (masks - 1));
+      const std::vector<double> th = true_theta(model, cam, d, cfg, 0, 0);
+      bool beyond_pixel = false, fractional = false;
+      for (std::size_t m = 1; m < masks; ++m)
+        for (double s : {cam.shift_x_m[m], cam.shift_y_m[m]}) {
+          beyond_pixel = beyond_pixel || std::fabs(s) > cfg.pitch_m;
+          fractional = fractional || std::fabs(s / cfg.pitch_m - std::round(s / cfg.pitch_m)) > 0.05;
+        }
+      CHECK(fractional);
+      any_beyond_pixel = any_beyond_pixel || beyond_pixel;
+      // The fabricated relief and the fit's differ by one constant (a piston: the fab lifts its
+      // lowest height to 0, the fit holds level 0): the same map to rounding.
+      const Map2D h = model.heights(th);
+      const double s = spread(cam.design.height_m.data, h.data);
+      INFO("spread of fabricated - fitted relief " << s << " m");
+      CHECK(s < 1e-15);
+      // And the overlay matters: at zero overlay the map differs at the masks' edges by up to an etch depth.
+      std::vector<double> th0 = th;
+      for (std::size_t k = 0; k < th0.size(); ++k)
+        if (model.parameter_names()[k][0] == 'o') th0[k] = 0;
+      CHECK(spread(cam.design.height_m.data, model.heights(th0).data) > 100e-9);
+    }
+    CHECK(any_beyond_pixel);
+  }
+
+  TEST_CASE("the overlay's adjoint gradient matches central differences (levels and masks, below and beyond a pixel)") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    const fab::AsBuiltCamera cam = make_camera(d, cfg, "nested", 0.45, 3);
+    Simulator sim(runtime(), cam.cfg, Precision::F64);
+    sim.set_heights(cam.design.height_m);
+    sim.compute_psf();
+    const RealStack meas = sim.psf_sensor();
+    struct Case {
+      std::vector<std::string> params;
+      std::vector<double> overlay_px;  // ox2, oy2, ... in DOE px (kept away from whole pixels, the kinks)
+    };
+    for (const Case& c : {Case{{"levels", "offset", "overlay"}, {0.21, -0.34, -1.37, 0.62}}, Case{{"masks", "overlay"}, {0.18, 2.41}}}) {
+      CAPTURE(c.params.front());
+      AsBuiltModel m(runtime(), cfg, Precision::F64, d, c.params);
+      std::vector<double> th = m.design_values();
+      std::size_t o = 0;
+      for (std::size_t k = 0; k < th.size(); ++k) {
+        const std::string& name = m.parameter_names()[k];
+        if (name[0] == 'o') th[k] = c.overlay_px.at(o++) * cfg.pitch_m;
+        if (name == "dx") th[k] = 0.27 * cfg.pitch_m;
+        if (name == "dy") th[k] = -0.13 * cfg.pitch_m;
+        if (name.rfind("level", 0) == 0 || name.rfind("mask", 0) == 0) th[k] += 5e-9 * double(k + 1);
+      }
+      REQUIRE(o == c.overlay_px.size());
+      std::vector<double> g;
+      m.loss_gradient(th, meas, g);
+      double gnorm = 0;
+      for (double v : g) gnorm += v * v;
+      gnorm = std::sqrt(gnorm);
+      for (std::size_t k = 0; k < th.size(); ++k) {
+        const std::string& name = m.parameter_names()[k];
+        CAPTURE(name);
+        const double h = name[0] == 'o' || name[0] == 'd' ? 1e-4 * cfg.pitch_m : 2e-11;
+        std::vector<double> a = th, b = th;
+        a[k] += h;
+        b[k] -= h;
+        const double fd = (m.loss(a, meas) - m.loss(b, meas)) / (2 * h);
+        INFO("adjoint " << g[k] << ", central differences " << fd);
+        CHECK(std::fabs(g[k] - fd) <= 1e-5 * std::fabs(fd) + 1e-9 * gnorm);
+        CHECK(g[k] != 0.0);
+        if (name[0] == 'o') CHECK(m.adjoint_parameter(k));
+      }
+    }
+  }
+
+  TEST_CASE("from a fabricated camera's noise-free stack the fit with the overlay recovers every parameter; without it the levels bend") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    const double dx_px = 0.3, dy_px = -0.2;
+    const fab::AsBuiltCamera cam = make_camera(d, cfg, "nested", 0.4, 11, dx_px, dy_px, 0.016);
+    Simulator sim(runtime(), cam.cfg, Precision::F64);
+    sim.set_heights(cam.design.height_m);
+    sim.compute_psf();
+    const RealStack meas = sim.psf_sensor();
+
+    FitOptions opt;
+    opt.parameters = {"levels", "z", "offset", "overlay"};
+    opt.max_iterations = 40;
+    const FitResult r = fit_as_built(runtime(), cfg, Precision::F64, d, meas, opt);
+    AsBuiltModel names(runtime(), cfg, Precision::F64, d, opt.parameters);
+    const std::vector<double> t = true_theta(names, cam, d, cfg, dx_px * cfg.pitch_m, dy_px * cfg.pitch_m);
+    REQUIRE(r.values.size() == t.size());
+    CHECK(r.loss_final < 1e-8 * r.loss_design);
+    double worst_level_with = 0;
+    for (std::size_t k = 0; k < t.size(); ++k) {
+      const FitValue& v = r.values[k];
+      CAPTURE(v.name);
+      INFO("fitted " << v.value << ", true " << t[k] << " (design " << v.design << ")");
+      if (v.name == "z")
+        CHECK(std::fabs(v.value - t[k]) < 1e-5 * t[k]);
+      else if (v.name[0] == 'd' || v.name[0] == 'o')
+        CHECK(std::fabs(v.value - t[k]) < 1e-3 * cfg.pitch_m);
+      else {
+        CHECK(std::fabs(v.value - t[k]) < 0.1e-9);
+        worst_level_with = std::max(worst_level_with, std::fabs(v.value - t[k]));
+      }
+    }
+    // The same stack without the overlay in the model: the fit leaves a residual and the levels
+    // take the misfit.
+    FitOptions without = opt;
+    without.parameters = {"levels", "z", "offset"};
+    const FitResult r0 = fit_as_built(runtime(), cfg, Precision::F64, d, meas, without);
+    double worst_level_without = 0;
+    for (std::size_t k = 0; k < 3; ++k) worst_level_without = std::max(worst_level_without, std::fabs(r0.values[k].value - t[k]));
+    INFO("worst level error with the overlay " << worst_level_with * 1e9 << " nm, without " << worst_level_without * 1e9 << " nm");
+    CHECK(r0.loss_final > 1e3 * r.loss_final);
+    CHECK(worst_level_without > 1e-9);
+    CHECK(worst_level_without > 20 * worst_level_with);
+  }
+
+  TEST_CASE("refusals: overlay needs a quantized design with two masks or more; start names and bounds") {
+    const SystemConfig cfg = fit_config();
+    Design flat = quantized_lens(cfg);
+    flat.levels_m.clear();
+    CHECK_THROWS_WITH_AS(check_fit_parameters(cfg, flat, {"scale", "overlay"}), doctest::Contains("overlay only for a quantized design"),
+                         InputError);
+    // Two used levels: one nested mask, nothing to misplace against it.
+    Design two = quantized_lens(cfg);
+    for (double& h : two.height_m.data) h = h < two.levels_m[2] ? two.levels_m[0] : two.levels_m[3];
+    CHECK_THROWS_WITH_AS(check_fit_parameters(cfg, two, {"levels", "overlay"}), doctest::Contains("2 masks or more"), InputError);
+    const Design d = quantized_lens(cfg);
+    CHECK(overlay_parameter_names(d, {"levels", "overlay"}) == std::vector<std::string>{"ox2", "oy2", "ox3", "oy3"});
+    CHECK(overlay_parameter_names(d, {"masks", "overlay"}) == std::vector<std::string>{"ox2", "oy2"});
+    CHECK(overlay_parameter_names(d, {"levels"}).empty());
+  }
+}
