@@ -1,5 +1,5 @@
 // qdo fit's overlay (suite `fit-overlay`, include/qdo/asbuilt/fit.hpp: parameter "overlay"): each
-// lithography mask's own misplacement. The relief the fit models for an overlay is the one
+// lithography mask's own misplacement. The bilinear shift's derivative matches its differences; the relief the fit models for an overlay is the one
 // qdo fabricate makes (fab.hpp: fabricate, rendered on a finer grid and area-averaged; an
 // independent code path), for nested and binary masks, shifts below and beyond one DOE pixel; the
 // overlay's adjoint gradient matches central differences; from a fabricated camera's noise-free
@@ -77,6 +77,36 @@ double spread(const std::vector<double>& a, const std::vector<double>& b) {
 }  // namespace
 
 TEST_SUITE("fit-overlay") {
+  TEST_CASE("shift_bilinear_derivative: the differences of shift_bilinear inside a pixel cell, the right one at a whole pixel") {
+    const std::size_t rows = 7, cols = 9;
+    std::vector<double> in(rows * cols);
+    for (std::size_t i = 0; i < in.size(); ++i) in[i] = std::sin(0.7 * double(i)) + 0.1 * double(i % 5);
+    // The shift is bilinear: linear in sx at fixed sy inside a cell, so a difference inside it is
+    // exact to rounding; at a whole pixel only the right difference is.
+    for (const auto& [sx, sy] : {std::pair<double, double>{0.3, -1.7}, {-2.45, 0.62}, {1.0, -0.25}, {0.4, 2.0}}) {
+      CAPTURE(sx);
+      CAPTURE(sy);
+      for (int axis : {1, 0}) {
+        CAPTURE(axis);
+        const double h = 1e-3, s = axis == 1 ? sx : sy;
+        const bool whole = s == std::floor(s);
+        const auto at = [&](double d) {
+          return shift_bilinear(in, 1, rows, cols, axis == 1 ? sx + d : sx, axis == 0 ? sy + d : sy);
+        };
+        const std::vector<double> g = shift_bilinear_derivative(in, 1, rows, cols, sx, sy, axis);
+        const std::vector<double> a = at(h), b = whole ? at(0) : at(-h);
+        double worst = 0, size = 0;
+        for (std::size_t i = 0; i < g.size(); ++i) {
+          worst = std::max(worst, std::fabs(g[i] - (a[i] - b[i]) / (whole ? h : 2 * h)));
+          size = std::max(size, std::fabs(g[i]));
+        }
+        CHECK(size > 0.1);
+        CHECK(worst < 1e-10);
+      }
+    }
+    CHECK_THROWS_AS(shift_bilinear_derivative(in, 1, rows, cols, 0, 0, 2), Error);
+  }
+
   TEST_CASE("the overlay's relief is qdo fabricate's: nested and binary masks, shifts below and beyond a DOE pixel") {
     const SystemConfig cfg = fit_config();
     const Design d = quantized_lens(cfg);
