@@ -240,6 +240,46 @@ TEST_SUITE("fit-overlay") {
     CHECK(worst_level_without > 20 * worst_level_with);
   }
 
+  TEST_CASE("overlays on and across whole DOE pixels: none (the minimum on a kink), either side of one, past -1 px from a start") {
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    const std::vector<std::string> params = {"levels", "z", "offset", "overlay"};
+    AsBuiltModel model(runtime(), cfg, Precision::F64, d, params);
+    REQUIRE(model.parameter_names().size() == 10);
+    struct Case {
+      double overlay_px[4];  // ox2, oy2, ox3, oy3
+      std::vector<std::pair<std::string, double>> start;
+    };
+    // From the design's start (0, itself a kink): ox2 none, oy2 into the cell left of 0, ox3 right,
+    // oy3 a hair left. Then oy2 at -1.3 px from a start at -0.8 px: the step stops at -1 and goes on.
+    for (const Case& c : {Case{{0.0, -0.35, 0.3, -0.02}, {}}, Case{{0.05, -1.3, 0.2, 0.0}, {{"oy2", -0.8 * cfg.pitch_m}}}}) {
+      CAPTURE(c.overlay_px[1]);
+      std::vector<double> t = model.design_values();
+      t[0] += 12e-9, t[1] -= 9e-9, t[2] += 15e-9, t[3] *= 1.01, t[4] = 0.3 * cfg.pitch_m, t[5] = -0.2 * cfg.pitch_m;
+      for (std::size_t q = 0; q < 4; ++q) t[6 + q] = c.overlay_px[q] * cfg.pitch_m;
+      const RealStack meas = model.evaluate(t);
+      FitOptions opt;
+      opt.parameters = params;
+      opt.max_iterations = 40;
+      opt.start = c.start;
+      const FitResult r = fit_as_built(runtime(), cfg, Precision::F64, d, meas, opt);
+      REQUIRE(r.values.size() == t.size());
+      CHECK(r.converged);
+      CHECK(r.loss_final < 1e-10 * r.loss_design);
+      for (std::size_t k = 0; k < t.size(); ++k) {
+        const FitValue& v = r.values[k];
+        CAPTURE(v.name);
+        INFO("fitted " << v.value << ", true " << t[k]);
+        if (v.name == "z")
+          CHECK(std::fabs(v.value - t[k]) < 1e-5 * t[k]);
+        else if (v.name[0] == 'd' || v.name[0] == 'o')
+          CHECK(std::fabs(v.value - t[k]) < 1e-3 * cfg.pitch_m);
+        else
+          CHECK(std::fabs(v.value - t[k]) < 0.1e-9);
+      }
+    }
+  }
+
   TEST_CASE("refusals: overlay needs a quantized design with two masks or more; start names and bounds") {
     const SystemConfig cfg = fit_config();
     Design flat = quantized_lens(cfg);

@@ -120,6 +120,12 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   say("fit: " + std::to_string(np) + " parameters, " + std::to_string(m) + " residuals; design loss " + fmt("%.6e", loss) +
       values_line(model, theta));
   const auto distance = [&](std::size_t k) { return !model.adjoint_parameter(k); };
+  // The overlay's parameters (oxM, oyM): piecewise linear in the relief, kinked at whole DOE pixels.
+  std::vector<std::size_t> overlay_index;
+  for (std::size_t k = 0; k < np; ++k) {
+    const std::string& n = model.parameter_names()[k];
+    if (n.size() > 2 && n[0] == 'o' && (n[1] == 'x' || n[1] == 'y')) overlay_index.push_back(k);
+  }
   // Levenberg-Marquardt: the adjoint gradient (the distances' entries from the Jacobian's
   // columns), J^T J from the Jacobian, Marquardt's damping on its diagonal.
   // One run from th (in place, with its loss l and damping lam): at most max_it iterations numbered
@@ -133,25 +139,79 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
       std::vector<double> grad;
       RealStack current;
       l = model.adjoint_gradient(th, measured, grad, &current);
-      const Eigen::MatrixXd j = model.jacobian(th, &current);  // one-sided: J^T J for the step
+      Eigen::MatrixXd j = model.jacobian(th, &current);  // one-sided: J^T J for the step
       const auto ts = std::chrono::steady_clock::now();
       const Eigen::VectorXd r = Eigen::Map<const Eigen::VectorXd>(current.data.data(), long(m)) - meas;
       Eigen::VectorXd g = Eigen::VectorXd::Zero(long(np));
       for (std::size_t k = 0; k < np; ++k) g(long(k)) = distance(k) ? j.col(long(k)).dot(r) : grad[k];
-      const Eigen::MatrixXd a = j.transpose() * j;
+      Eigen::MatrixXd a = j.transpose() * j;
       t.solve_s += since(ts);
+      // An overlay on a kink (a whole DOE pixel): its column above is the right one (the next
+      // cell); the left one too, so a step may take the side it goes to (or none where both rise).
+      std::vector<std::size_t> at_kink;
+      std::vector<Eigen::VectorXd> left_columns;
+      for (std::size_t k : overlay_index) {
+        const double px = th[k] / cfg.pitch_m;
+        if (px != std::round(px)) continue;
+        std::vector<double> b = th;
+        b[k] -= opt.fd_px * cfg.pitch_m;
+        const RealStack fb = model.evaluate(b);
+        left_columns.push_back((Eigen::Map<const Eigen::VectorXd>(current.data.data(), long(m)) -
+                                Eigen::Map<const Eigen::VectorXd>(fb.data.data(), long(m))) /
+                               (opt.fd_px * cfg.pitch_m));
+        at_kink.push_back(k);
+        g(long(k)) = j.col(long(k)).dot(r);  // the right derivative, as the column
+      }
+      // The damped Gauss-Newton step; an overlay on a kink takes the right column, or the left one
+      // when the step goes left, or stays where the step with either column goes back across.
+      std::vector<int> side(at_kink.size(), 1);
+      const auto step = [&](double damping) {
+        Eigen::VectorXd delta;
+        for (int pass = 0; pass < 1 + 2 * int(at_kink.size()); ++pass) {
+          Eigen::MatrixXd jj = j;
+          for (std::size_t q = 0; q < at_kink.size(); ++q) {
+            const long k = long(at_kink[q]);
+            if (side[q] == -1) jj.col(k) = left_columns[q];
+            if (side[q] == 0) jj.col(k).setZero();
+          }
+          Eigen::VectorXd gg = g;
+          if (!at_kink.empty()) {
+            a = jj.transpose() * jj;
+            for (std::size_t q = 0; q < at_kink.size(); ++q) gg(long(at_kink[q])) = jj.col(long(at_kink[q])).dot(r);
+          }
+          Eigen::MatrixXd al = a;
+          const double dmax = a.diagonal().maxCoeff();
+          for (long k = 0; k < long(np); ++k) al(k, k) += damping * std::max(a(k, k), 1e-12 * dmax);
+          for (std::size_t q = 0; q < at_kink.size(); ++q)
+            if (side[q] == 0) al(long(at_kink[q]), long(at_kink[q])) = 1;  // held: zero row, column and gradient
+          delta = al.ldlt().solve(-gg);
+          bool changed = false;
+          for (std::size_t q = 0; q < at_kink.size(); ++q) {
+            const double dq = delta(long(at_kink[q]));
+            if (side[q] == 1 && dq < 0) side[q] = -1, changed = true;
+            else if (side[q] == -1 && dq > 0) side[q] = 0, changed = true;
+          }
+          if (!changed) break;
+        }
+        return delta;
+      };
       bool accepted = false;
       double trial_loss = l;
       std::vector<double> trial;
       for (int tries = 0; tries < 16 && !accepted; ++tries) {
         const auto t1 = std::chrono::steady_clock::now();
-        Eigen::MatrixXd al = a;
-        const double dmax = a.diagonal().maxCoeff();
-        for (long k = 0; k < long(np); ++k) al(k, k) += lam * std::max(a(k, k), 1e-12 * dmax);
-        const Eigen::VectorXd delta = al.ldlt().solve(-g);
+        std::fill(side.begin(), side.end(), 1);
+        const Eigen::VectorXd delta = step(lam);
         t.solve_s += since(t1);
         trial = th;
         for (std::size_t k = 0; k < np; ++k) trial[k] += delta(long(k));
+        // An overlay stops at the next whole DOE pixel in its step's direction: past it the
+        // column it was stepped with no longer holds (the next iteration takes that cell's).
+        for (std::size_t k : overlay_index) {
+          const double px = th[k] / cfg.pitch_m, to = trial[k] / cfg.pitch_m;
+          const double bound = to > px ? (px == std::floor(px) ? px + 1 : std::ceil(px)) : (px == std::ceil(px) ? px - 1 : std::floor(px));
+          if ((to > px && to > bound) || (to < px && to < bound)) trial[k] = bound * cfg.pitch_m;
+        }
         try {
           trial_loss = model.loss(trial, measured);
         } catch (const InputError&) {  // a step outside the valid heights or geometry
@@ -328,37 +388,6 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   if (scan_aperture) walk();  // first at the start values: a wrong aperture pulls the levels far
   refine_starts();
   if (!res.converged) run_lm(opt.max_iterations - res.iterations);  // what the refinement left of the budget
-  // The overlay's kinks: a mask's area fractions are linear in its overlay between whole DOE
-  // pixels, with another slope past each (other edge pixels change), so the loss has a kink there
-  // and a Levenberg-Marquardt run stalls on the wrong side of one when the truth lies close to it
-  // (the start, 0, is one). Each overlay within 0.1 DOE px of a whole pixel is tried on the other
-  // side (mirrored, at least 2 difference steps away) and fitted again (the same budget as the
-  // lateral refinement, twice); the lower loss is kept.
-  {
-    const auto& names = model.parameter_names();
-    for (std::size_t k = 0; k < np; ++k) {
-      if (names[k].size() < 3 || names[k][0] != 'o') continue;
-      const double px = theta[k] / cfg.pitch_m, whole = std::round(px), frac = px - whole;
-      if (std::fabs(frac) >= 0.1) continue;
-      std::vector<double> th = theta;
-      const double away = std::max(std::fabs(frac), 2 * opt.fd_px);
-      th[k] = (whole - (frac >= 0 ? away : -away)) * cfg.pitch_m;
-      double l = model.loss(th, measured), lam = opt.lambda0;
-      const double l_start = l;
-      const auto [done, at_minimum] = levenberg_marquardt(th, l, lam, 2 * std::max(1, opt.refine_iterations), 1, false, nullptr);
-      say("fit: " + names[k] + " across its kink at " + fmt("%.0f", whole) + " DOE px: loss " + fmt("%.6e", l_start) + " -> " +
-          fmt("%.6e", l) + " in " + std::to_string(done) + " iterations (" + (l < loss ? "kept" : "not kept") + ", the fit's " +
-          fmt("%.6e", loss) + ")");
-      if (l < loss) {
-        theta = th;
-        loss = l;
-        lambda = lam;
-        res.loss_history.push_back(l);
-        res.iterations += done;
-        res.converged = at_minimum;
-      }
-    }
-  }
   for (int round = 0; scan_aperture && round < 3 && walk(); ++round) {
     lambda = opt.lambda0;
     res.converged = false;
