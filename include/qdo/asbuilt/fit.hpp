@@ -59,8 +59,13 @@
 //             opening made of whole pixels) and e_m its etch depth (from the levels or masks fitted,
 //             else the design's): at zero overlay every pixel is on its level, and a misplaced mask
 //             leaves edge pixels between two levels, area-averaged as qdo fabricate renders them.
-//             Gradient through the adjoint (d a_m / d o piecewise constant: shift_bilinear_derivative;
-//             at zero, the start, the right derivative). Needs a quantized design with 2 masks or more.
+//             Gradient through the adjoint (d a_m / d o piecewise constant: shift_bilinear_derivative,
+//             the right derivative on a whole DOE pixel). The relief is linear in an overlay between
+//             whole DOE pixels and kinks at each, so the Jacobian's differences stay inside the
+//             current cell; a step stops at the next whole pixel in its direction; on one (the
+//             start, 0, is one) the step takes the right cell's column, or the left's when it goes
+//             left, or holds the overlay where the step with either goes back across (the minimum
+//             on the kink). Needs a quantized design with 2 masks or more.
 // Start: the design values, except the lateral ones: shift (when fitted, else offset, divided by
 // the magnification 1 + z/d and in metres) starts at the centroid difference of the measured and
 // design stacks (several lateral starts by default: FitOptions::lateral_starts).
