@@ -238,6 +238,11 @@ TEST_SUITE("fit-overlay") {
     for (std::size_t k = 0; k < 3; ++k) worst_level_without = std::max(worst_level_without, std::fabs(r0.values[k].value - t[k]));
     INFO("worst level error with the overlay " << worst_level_with * 1e9 << " nm, without " << worst_level_without * 1e9 << " nm");
     CHECK(r0.loss_final > 1e3 * r.loss_final);
+    // It says its sigma is unreliable, and names the overlay as what to add.
+    INFO(r0.sigma_unreliable_because);
+    CHECK_FALSE(r0.sigma_reliable);
+    CHECK(r0.sigma_unreliable_because.find("add overlay to --fit") != std::string::npos);
+    CHECK(r.sigma_unreliable_because.find("add overlay") == std::string::npos);
     CHECK(worst_level_without > 1e-9);
     CHECK(worst_level_without > 20 * worst_level_with);
   }

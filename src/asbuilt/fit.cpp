@@ -483,6 +483,15 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
                                     to_str(chi2) + " is over " + to_str(kReducedChi2Reliable) +
                                     ": the model misses something larger than the noise";
   }
+  // Where the relief was made with two masks or more and their own overlay is not fitted, say that
+  // it is the first thing the model may miss (each mask's overlay bends the levels otherwise).
+  if (!res.sigma_reliable && !res.sigma_unreliable_because.empty() &&
+      std::find(opt.parameters.begin(), opt.parameters.end(), "overlay") == opt.parameters.end() && design.levels_m.size() >= 2) {
+    const bool binary = std::find(opt.parameters.begin(), opt.parameters.end(), "masks") != opt.parameters.end();
+    if (fit_mask_set(design, binary).open.size() >= 2)
+      res.sigma_unreliable_because += "; if the DOE was made with several lithography masks, each mask's own overlay is not in "
+                                      "this fit: add overlay to --fit";
+  }
   res.as_built.height_m = model.heights(theta);
   res.as_built.pitch_m = design.pitch_m;
   res.as_built.levels_m = model.levels(theta);
