@@ -319,6 +319,34 @@ TEST_SUITE("fit-overlay") {
     }
   }
 
+  TEST_CASE("the offset's Jacobian column beside a half-pixel switch is its branch's slope, not the step across the switch") {
+    // A truth on a switch (the offset exactly -0.5 DOE px) leaves the fit a hair beside it; a
+    // central difference across the switch would measure the step of the sensor window's edge
+    // column instead of the slope, and a sigma orders of magnitude too small.
+    const SystemConfig cfg = fit_config();
+    const Design d = quantized_lens(cfg);
+    AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels", "offset"});
+    std::vector<double> th = m.design_values();
+    th[4] = 0.2 * cfg.pitch_m;
+    const auto column_norm = [&](double dx_px, bool one_sided) {
+      th[3] = dx_px * cfg.pitch_m;
+      const RealStack at = m.evaluate(th);
+      const Eigen::MatrixXd j = one_sided ? m.jacobian(th, &at) : m.jacobian(th);
+      return j.col(3).norm();
+    };
+    for (bool one_sided : {false, true}) {
+      CAPTURE(one_sided);
+      const double smooth = column_norm(-0.45, one_sided);  // well inside the branch of 0
+      for (double beside : {-0.5002, -0.4998, 0.4998, 0.5002, -0.5}) {
+        CAPTURE(beside);
+        const double c = column_norm(beside, one_sided);
+        INFO("column norm " << c << ", inside the branch " << smooth);
+        CHECK(c < 3 * smooth);
+        CHECK(c > smooth / 3);
+      }
+    }
+  }
+
   TEST_CASE("refusals: overlay needs a quantized design with two masks or more; start names and bounds") {
     const SystemConfig cfg = fit_config();
     Design flat = quantized_lens(cfg);

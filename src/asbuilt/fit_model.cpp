@@ -427,6 +427,26 @@ struct AsBuiltModel::Impl {
         for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - fb.data[i]) / den;
         continue;
       }
+      if (ps[k].kind == Kind::DX || ps[k].kind == Kind::DY) {
+        // The offset: its whole pixels switch at each half pixel (optics.hpp move_relief, lround),
+        // where the model steps by the light of the sensor window's edge column (fit.hpp). A
+        // difference across a switch measures that step, not the slope (a sigma far too small
+        // beside a truth on a switch): the differences stay on the offset's side of it, central
+        // when both fit (and no stack at theta is given), else one-sided the way that does.
+        const double axis = ps[k].kind == Kind::DX ? cfg.aperture_offset_x_m : cfg.aperture_offset_y_m;
+        const double u = (theta[k] - axis) / cfg.pitch_m, hpx = h / cfg.pitch_m;
+        const long branch = std::lround(u);
+        const bool up = std::lround(u + hpx) == branch, down = std::lround(u - hpx) == branch;
+        if (!(up && down) || at_theta) {
+          const double dir = up ? 1.0 : -1.0;
+          std::vector<double> a = theta;
+          a[k] += dir * h;
+          const RealStack fa = model(state(a));
+          const RealStack f0 = at_theta ? *at_theta : model(state(theta));
+          for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - f0.data[i]) / (dir * h);
+          continue;
+        }
+      }
       std::vector<double> a = theta, b = theta;
       a[k] += h;
       b[k] -= h;
