@@ -25,4 +25,21 @@ inline Design quantized_lens(const SystemConfig& cfg) {
   return d;
 }
 
+// A trained DOE: the 4-level QDO+A design of scripts/experiments_section7.sh (small preset, seed 0,
+// 120 steps on the CAVE training scenes), its 128 ring levels (ring k: the pixels with
+// k <= r / pitch < k + 1) and level heights as that run wrote them to design.h5. Its rings are one
+// or two DOE pixels wide, so its PSF is speckled: the case where the fit's start decides the basin.
+inline Design trained_design(const SystemConfig& cfg) {
+  const std::string rings =
+      "20221201131111122121302221210311222113111132022111012232232111221101222133322231300110221112123102011023131020112302111223110221";
+  const std::vector<double> levels_m = {0.0, 498.58571290993757e-9, 1031.2915474099382e-9, 1531.6940693731594e-9};
+  std::vector<double> ring_m;
+  for (char ch : rings) ring_m.push_back(levels_m[std::size_t(ch - '0')]);
+  Design d;
+  d.height_m = expand_parameters(Parameterization::Radial, ring_m, cfg.n, cfg.h_max_m());
+  d.pitch_m = cfg.pitch_m;
+  d.levels_m = levels_m;
+  return d;
+}
+
 }  // namespace qdo::test

@@ -388,6 +388,39 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   if (scan_aperture) walk();  // first at the start values: a wrong aperture pulls the levels far
   refine_starts();
   if (!res.converged) run_lm(opt.max_iterations - res.iterations);  // what the refinement left of the budget
+  // The overlay's other cells. The loss has a minimum in each pixel cell next to a whole pixel (the
+  // relief is linear in an overlay inside a cell and kinks between), and from the start (0, a
+  // kink) the first steps choose a side while the other parameters are still far off: on simulated
+  // cameras the fit then ended with overlays a few hundredths of a pixel on the wrong side and the
+  // levels tens of nm off. So each overlay is tried mirrored about its nearest whole pixel (at
+  // least 2 difference steps past it) and fitted again (2 x refine_iterations iterations, the rest
+  // held at the fit's values to start); the lower loss is kept, overlay by overlay, in two rounds.
+  for (int round = 0; round < 2 && !overlay_index.empty(); ++round) {
+    bool improved = false;
+    for (std::size_t k : overlay_index) {
+      const double px = theta[k] / cfg.pitch_m, whole = std::round(px), frac = px - whole;
+      std::vector<double> th = theta;
+      const double away = std::max(std::fabs(frac), 2 * opt.fd_px);
+      th[k] = (whole - (frac >= 0 ? away : -away)) * cfg.pitch_m;
+      double l = model.loss(th, measured), lam = opt.lambda0;
+      const double l_start = l;
+      const auto [done, at_minimum] = levenberg_marquardt(th, l, lam, 2 * std::max(1, opt.refine_iterations), 1, false, nullptr);
+      const bool keep = l < loss * (1 - 1e-9);
+      say("fit: " + model.parameter_names()[k] + " tried on the other side of " + fmt("%.0f", whole) + " DOE px: loss " +
+          fmt("%.6e", l_start) + " -> " + fmt("%.6e", l) + " in " + std::to_string(done) + " iterations (" +
+          (keep ? "kept" : "not kept") + "; the fit's " + fmt("%.6e", loss) + ")");
+      if (!keep) continue;
+      theta = th;
+      loss = l;
+      lambda = lam;
+      res.loss_history.push_back(l);
+      res.iterations += done;
+      res.converged = at_minimum;
+      improved = true;
+    }
+    if (!improved) break;
+    if (!res.converged) run_lm(std::max(1, opt.max_iterations - res.iterations));
+  }
   for (int round = 0; scan_aperture && round < 3 && walk(); ++round) {
     lambda = opt.lambda0;
     res.converged = false;
@@ -495,6 +528,16 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   res.as_built.height_m = model.heights(theta);
   res.as_built.pitch_m = design.pitch_m;
   res.as_built.levels_m = model.levels(theta);
+  // A level fitted below level 0, or an overlay's edge pixels rounding a hair below it, leaves a
+  // height below 0, which no design file takes: the map and its levels are lifted by one constant
+  // (a piston: the same PSF), as the model does before each PSF.
+  {
+    const double lowest = *std::min_element(res.as_built.height_m.data.begin(), res.as_built.height_m.data.end());
+    if (lowest < 0) {
+      for (double& v : res.as_built.height_m.data) v -= lowest;
+      for (double& v : res.as_built.levels_m) v -= lowest;
+    }
+  }
   res.as_built_config = model.config(theta);
   if (scan_aperture) res.as_built_config.aperture_radius_m = aperture.value;
   res.times = t;

@@ -318,8 +318,8 @@ std::string fit_json_text(const SystemConfig& cfg, const FitResult& r, const Fit
   j["notes"] = "sigma: 1-sigma from the Gauss-Newton curvature, Cov = s^2 (J^T J)^-1 with s^2 = 2 loss / (m - p), equal weights; "
                "sigma_jackknife: the spread over fits each leaving out one of jackknife_groups groups of contiguous bands "
                "(linearised at the fit), which grows where the model misses what differs between wavelengths; "
-               "levels: level 0 held at its design value (a common piston is invisible); z and d by central differences; "
-               "aperture by a half-pixel scan";
+               "levels: level 0 held at its design value (a common piston is invisible); oxM, oyM: mask M's own overlay (the "
+               "first mask holds the alignment; the offset moves all); z and d by central differences; aperture by a half-pixel scan";
   if (!r.source_power.empty()) {  // the raw frames (fit_raw.hpp)
     j["data"] = "raw frames";
     j["source_power"] = r.source_power;
@@ -334,8 +334,8 @@ std::string fit_json_text(const SystemConfig& cfg, const FitResult& r, const Fit
         "residual_rel_*: |weighted residual| / "
         "|weighted data| per band; psf_measured in fit.h5: each usable pixel's D / (a_b G); sigma_jackknife: as for "
         "a stack, over groups of contiguous bands; levels: level 0 held at its design value (a common piston is "
-        "invisible); z and d by central differences; "
-        "aperture by a half-pixel scan";
+        "invisible); oxM, oyM: mask M's own overlay (the first mask holds the alignment; the offset moves all); z and d by "
+        "central differences; aperture by a half-pixel scan";
   }
   return j.dump(2) + "\n";
 }

@@ -65,7 +65,11 @@
 //             current cell; a step stops at the next whole pixel in its direction; on one (the
 //             start, 0, is one) the step takes the right cell's column, or the left's when it goes
 //             left, or holds the overlay where the step with either goes back across (the minimum
-//             on the kink). Needs a quantized design with 2 masks or more.
+//             on the kink). The loss has a minimum in the cells on both sides of a kink, and the
+//             first steps choose a side while the rest is still far off: after the fit each overlay
+//             is tried mirrored about its nearest whole pixel and fitted again (2 x
+//             refine_iterations), kept where the loss is lower (two rounds). Needs a quantized
+//             design with 2 masks or more.
 // Start: the design values, except the lateral ones: shift (when fitted, else offset, divided by
 // the magnification 1 + z/d and in metres) starts at the centroid difference of the measured and
 // design stacks (several lateral starts by default: FitOptions::lateral_starts).
