@@ -1,7 +1,15 @@
 // The fit's test fixtures (suite `fit`: tests/test_fit.cpp, tests/test_fit_model.cpp): the tiny
 // system and a 4-level lens on it.
 #pragma once
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <functional>
+#include <string>
+#include <vector>
+
 #include "common.hpp"
+#include "qdo/asbuilt/fit.hpp"
 #include "qdo/data/config.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/design/design.hpp"
@@ -40,6 +48,49 @@ inline Design trained_design(const SystemConfig& cfg) {
   d.pitch_m = cfg.pitch_m;
   d.levels_m = levels_m;
   return d;
+}
+
+// The fit's gradient (AsBuiltModel::loss_gradient at th) against central differences of its loss,
+// parameter by parameter, step_of(name, value) the step: the adjoint in double against differences
+// whose error is O(h^2) and the loss's rounding (1e-5 relative plus 1e-9 of the gradient's norm),
+// and never exactly 0.
+inline void check_fit_gradient(AsBuiltModel& m, const std::vector<double>& th, const RealStack& meas,
+                               const std::function<double(const std::string&, double)>& step_of) {
+  std::vector<double> g;
+  m.loss_gradient(th, meas, g);
+  double gnorm = 0;
+  for (double v : g) gnorm += v * v;
+  gnorm = std::sqrt(gnorm);
+  for (std::size_t k = 0; k < th.size(); ++k) {
+    const std::string& name = m.parameter_names()[k];
+    CAPTURE(name);
+    const double h = step_of(name, th[k]);
+    std::vector<double> a = th, b = th;
+    a[k] += h;
+    b[k] -= h;
+    const double fd = (m.loss(a, meas) - m.loss(b, meas)) / (2 * h);
+    INFO("adjoint " << g[k] << ", central differences " << fd << (m.adjoint_parameter(k) ? " (adjoint)" : " (differences)"));
+    CHECK(std::fabs(g[k] - fd) <= 1e-5 * std::fabs(fd) + 1e-9 * gnorm);
+    CHECK(g[k] != 0.0);
+  }
+}
+
+// Each fitted value against the truth t (the fit's layout): z within z_rel x t, the lateral ones
+// (dx, dy, oxM, oyM) within lateral_px DOE pixels, heights within height_m.
+inline void check_recovered(const FitResult& r, const std::vector<double>& t, double pitch_m, double z_rel, double lateral_px,
+                            double height_m) {
+  REQUIRE(r.values.size() >= t.size());
+  for (std::size_t k = 0; k < t.size(); ++k) {
+    const FitValue& v = r.values[k];
+    CAPTURE(v.name);
+    INFO("fitted " << v.value << ", true " << t[k] << " (design " << v.design << ")");
+    if (v.name == "z")
+      CHECK(std::fabs(v.value - t[k]) < z_rel * t[k]);
+    else if (v.name == "dx" || v.name == "dy" || v.name[0] == 'o')
+      CHECK(std::fabs(v.value - t[k]) < lateral_px * pitch_m);
+    else
+      CHECK(std::fabs(v.value - t[k]) < height_m);
+  }
 }
 
 }  // namespace qdo::test

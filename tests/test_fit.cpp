@@ -89,28 +89,13 @@ TEST_SUITE("fit") {
       std::vector<double> th = m.design_values();
       REQUIRE(th.size() == c.at.size());
       for (std::size_t k = 0; k < th.size(); ++k) th[k] += c.at[k] * scale_of(m.parameter_names()[k], cfg);
-      std::vector<double> g;
-      m.loss_gradient(th, meas, g);
-      double gnorm = 0;
-      for (double v : g) gnorm += v * v;
-      gnorm = std::sqrt(gnorm);
-      for (std::size_t k = 0; k < th.size(); ++k) {
-        const std::string& name = m.parameter_names()[k];
-        CAPTURE(name);
-        const double h = name == "z" || name == "d" ? 1e-4 * th[k]
-                         : name == "scale"          ? 1e-5
-                         : name == "sx" || name == "sy" ? 1e-4
-                         : name == "dx" || name == "dy" ? 1e-4 * cfg.pitch_m
-                                                        : 2e-11;
-        std::vector<double> a = th, b = th;
-        a[k] += h;
-        b[k] -= h;
-        const double fd = (m.loss(a, meas) - m.loss(b, meas)) / (2 * h);
-        INFO("adjoint " << g[k] << ", central differences " << fd << (m.adjoint_parameter(k) ? " (adjoint)" : " (differences)"));
-        // The adjoint in double against differences whose error is O(h^2) and the loss's rounding.
-        CHECK(std::fabs(g[k] - fd) <= 1e-5 * std::fabs(fd) + 1e-9 * gnorm);
-        CHECK(g[k] != 0.0);
-      }
+      check_fit_gradient(m, th, meas, [&](const std::string& name, double v) {
+        return name == "z" || name == "d"       ? 1e-4 * v
+               : name == "scale"                ? 1e-5
+               : name == "sx" || name == "sy"   ? 1e-4
+               : name == "dx" || name == "dy"   ? 1e-4 * cfg.pitch_m
+                                                : 2e-11;
+      });
     }
   }
 
