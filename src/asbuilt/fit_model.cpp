@@ -113,43 +113,14 @@ struct AsBuiltModel::Impl {
     return lev;
   }
 
-  // The masks' etch depths e_m and the blank's top of a state (overlay; fit.hpp): binary, the mask
-  // depths and their sum (level L - 1); nested, the steps between the used levels and the highest.
-  std::vector<double> etch_depths(const State& st, double& top) const {
-    const std::size_t K = mask_set.open.size();
-    std::vector<double> e(K, 0.0);
-    if (mask_set.binary) {
-      top = 0;
-      for (std::size_t j = 0; j < K; ++j) top += e[j] = st.masks[j];
-      return e;
-    }
-    top = st.lev[mask_set.order[0]];
-    for (std::size_t m = 1; m <= K; ++m) e[m - 1] = st.lev[mask_set.order[m - 1]] - st.lev[mask_set.order[m]];
-    return e;
-  }
-
-  // Mask m's opening moved by its overlay (or its derivative along axis 1 = x, 0 = y), N x N.
-  std::vector<double> moved_opening(const State& st, std::size_t m, int derivative_axis = -1) const {
-    const std::vector<double> open(mask_set.open[m].begin(), mask_set.open[m].end());
-    const double sx = st.ox_m[m] / cfg.pitch_m, sy = st.oy_m[m] / cfg.pitch_m;
-    if (derivative_axis < 0) return sx == 0 && sy == 0 ? open : shift_bilinear(open, 1, n, n, sx, sy);
-    return shift_bilinear_derivative(open, 1, n, n, sx, sy, derivative_axis);
-  }
-
-  // H0 / scale (unshifted) of a state, N x N: the level map, or with the overlay the masks'
-  // relief top - sum_m e_m a_m.
+  // H0 / scale (unshifted) of a state, N x N: the level map, or with the overlay the masks' relief.
   std::vector<double> unscaled(const State& st) const {
-    std::vector<double> h(n * n);
     if (overlay) {
       double top = 0;
-      const std::vector<double> e = etch_depths(st, top);
-      std::fill(h.begin(), h.end(), top);
-      for (std::size_t m = 0; m < e.size(); ++m) {
-        const std::vector<double> a = moved_opening(st, m);
-        for (std::size_t i = 0; i < h.size(); ++i) h[i] -= e[m] * a[i];
-      }
-      return h;
+      const std::vector<double> e = fit_detail::mask_etch_depths(mask_set, st.lev, st.masks, top);
+      return fit_detail::mask_relief(mask_set, e, top, st.ox_m, st.oy_m, cfg.pitch_m);
     }
+    std::vector<double> h(n * n);
     for (std::size_t i = 0; i < h.size(); ++i) h[i] = quantized ? st.lev[std::size_t(level_of[i])] : design.height_m.data[i];
     return h;
   }
@@ -300,33 +271,12 @@ struct AsBuiltModel::Impl {
     }
     if (overlay) {
       // H0 = scale (top - sum_m e_m a_m): dL/dtop, dL/de_m, and each overlay through d a_m / d o.
-      double top = 0;
-      const std::vector<double> e = etch_depths(st, top);
-      const std::size_t K = e.size();
-      double g_top = 0;
-      for (std::size_t i = 0; i < n * n; ++i) g_top += st.scale * g_h0[i];
-      std::vector<double> g_e(K, 0.0);
-      g_ox.assign(K, 0.0);
-      g_oy.assign(K, 0.0);
-      for (std::size_t mk = 0; mk < K; ++mk) {
-        const std::vector<double> a = moved_opening(st, mk);
-        for (std::size_t i = 0; i < n * n; ++i) g_e[mk] -= st.scale * g_h0[i] * a[i];
-        if (mk == 0) continue;  // the first mask defines the alignment: no overlay
-        const std::vector<double> ax = moved_opening(st, mk, 1), ay = moved_opening(st, mk, 0);
-        for (std::size_t i = 0; i < n * n; ++i) {
-          g_ox[mk] -= st.scale * e[mk] * g_h0[i] * ax[i] / cfg.pitch_m;
-          g_oy[mk] -= st.scale * e[mk] * g_h0[i] * ay[i] / cfg.pitch_m;
-        }
-      }
-      if (mask_set.binary) {
-        for (std::size_t j = 0; j < K; ++j) g_mask[j] = g_top + g_e[j];
-      } else {
-        g_lev[mask_set.order[0]] += g_top;
-        for (std::size_t mk = 1; mk <= K; ++mk) {
-          g_lev[mask_set.order[mk - 1]] += g_e[mk - 1];
-          g_lev[mask_set.order[mk]] -= g_e[mk - 1];
-        }
-      }
+      double top = 0, g_top = 0;
+      const std::vector<double> e = fit_detail::mask_etch_depths(mask_set, st.lev, st.masks, top);
+      std::vector<double> g_unscaled(n * n), g_e;
+      for (std::size_t i = 0; i < n * n; ++i) g_unscaled[i] = st.scale * g_h0[i];
+      fit_detail::mask_relief_vjp(mask_set, e, st.ox_m, st.oy_m, cfg.pitch_m, g_unscaled, g_top, g_e, g_ox, g_oy);
+      fit_detail::mask_etch_depths_vjp(mask_set, g_top, g_e, g_lev, g_mask);
     } else if (quantized) {
       for (std::size_t i = 0; i < n * n; ++i) g_lev[std::size_t(level_of[i])] += st.scale * g_h0[i];
       for (std::size_t j = 0; j < g_mask.size(); ++j)
@@ -395,82 +345,29 @@ struct AsBuiltModel::Impl {
     return 0;
   }
 
-  // J (m x p): columns by central differences of the model; the columns taken by differences
-  // (z and d rebuild the simulator, the registration re-integrates) last, so the simulator of theta
-  // serves every other column. With the model
-  // at theta given (at_theta), the other columns by one-sided differences from it (one evaluation
-  // each instead of two: what a Levenberg-Marquardt step needs of J^T J).
+  // J (m x p) by differences of the model (fit_jacobian.cpp): z, d and the registration last (they
+  // rebuild the simulator or re-integrate), so the simulator of theta serves every other column;
+  // with the model at theta given (at_theta), the adjoint's parameters and the offset one-sided
+  // from it (one evaluation each: what a Levenberg-Marquardt step needs of J^T J); an overlay's
+  // differences inside its pixel cell, the offset's on its side of a half-pixel switch.
   Eigen::MatrixXd jacobian(const std::vector<double>& theta, const RealStack* at_theta = nullptr) {
     const auto t0 = std::chrono::steady_clock::now();
-    const std::size_t m = cfg.bands * s * s;
-    Eigen::MatrixXd j(m, ps.size());
-    std::vector<std::size_t> order;
-    for (std::size_t k = 0; k < ps.size(); ++k)
-      if (!by_differences(ps[k].kind)) order.push_back(k);
-    for (std::size_t k = 0; k < ps.size(); ++k)
-      if (by_differences(ps[k].kind)) order.push_back(k);
-    for (std::size_t k : order) {
-      const double h = step(k, theta);
-      if (ps[k].kind == Kind::OX || ps[k].kind == Kind::OY) {
-        // An overlay: the relief is linear in it between whole DOE pixels and kinks at each, so the
-        // difference stays inside the current cell [floor, floor + 1) px (where the adjoint's
-        // derivative is taken): central when both sides fit, else one-sided towards the cell's middle.
-        const double px = theta[k] / cfg.pitch_m, frac = px - std::floor(px), hpx = h / cfg.pitch_m;
-        const bool central = !at_theta && frac >= hpx && frac + hpx < 1;
-        const double dir = frac < 0.5 ? 1.0 : -1.0;
-        std::vector<double> a = theta, b = theta;
-        a[k] += central ? h : dir * h;
-        b[k] -= h;
-        const RealStack fa = model(state(a));
-        const RealStack fb = central ? model(state(b)) : at_theta ? *at_theta : model(state(theta));
-        const double den = central ? 2 * h : dir * h;
-        for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - fb.data[i]) / den;
-        continue;
+    std::vector<fit_detail::JacobianColumn> cols(ps.size());
+    for (std::size_t k = 0; k < ps.size(); ++k) {
+      fit_detail::JacobianColumn& c = cols[k];
+      const Kind kind = ps[k].kind;
+      c.step = step(k, theta);
+      c.late = by_differences(kind);
+      c.one_sided = !by_differences(kind) || kind == Kind::DX || kind == Kind::DY;
+      c.pitch_m = cfg.pitch_m;
+      if (kind == Kind::OX || kind == Kind::OY) c.scheme = fit_detail::JacobianColumn::Scheme::Overlay;
+      if (kind == Kind::DX || kind == Kind::DY) {
+        c.scheme = fit_detail::JacobianColumn::Scheme::Offset;
+        c.axis_m = kind == Kind::DX ? cfg.aperture_offset_x_m : cfg.aperture_offset_y_m;
       }
-      if (ps[k].kind == Kind::DX || ps[k].kind == Kind::DY) {
-        // The offset: its whole pixels switch at each half pixel (optics.hpp move_relief, lround),
-        // where the model steps by the light of the sensor window's edge column (fit.hpp). A
-        // difference across a switch measures that step, not the slope (a sigma far too small
-        // beside a truth on a switch): the differences stay on the offset's side of it, central
-        // when both fit (and no stack at theta is given), else one-sided the way that does.
-        const double axis = ps[k].kind == Kind::DX ? cfg.aperture_offset_x_m : cfg.aperture_offset_y_m;
-        const double u = (theta[k] - axis) / cfg.pitch_m, hpx = h / cfg.pitch_m;
-        const long branch = std::lround(u);
-        const bool up = std::lround(u + hpx) == branch, down = std::lround(u - hpx) == branch;
-        if (!(up && down) || at_theta) {
-          const double dir = up ? 1.0 : -1.0;
-          std::vector<double> a = theta;
-          a[k] += dir * h;
-          const RealStack fa = model(state(a));
-          const RealStack f0 = at_theta ? *at_theta : model(state(theta));
-          for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - f0.data[i]) / (dir * h);
-          continue;
-        }
-      }
-      std::vector<double> a = theta, b = theta;
-      a[k] += h;
-      b[k] -= h;
-      RealStack fa;
-      try {
-        fa = model(state(a));
-      } catch (const InputError&) {
-        // theta + h leaves the heights or the geometry the simulator takes (a level at the top of
-        // its range): a backward difference from theta instead.
-        const RealStack f0 = at_theta ? *at_theta : model(state(theta));
-        const RealStack fb = model(state(b));
-        for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (f0.data[i] - fb.data[i]) / h;
-        continue;
-      }
-      // One-sided from the current stack: the adjoint's parameters and the offset (an axis move
-      // of the same simulator); z, d and the registration central, as before.
-      const bool one_sided = !by_differences(ps[k].kind) || ps[k].kind == Kind::DX || ps[k].kind == Kind::DY;
-      if (at_theta && one_sided) {
-        for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - at_theta->data[i]) / h;
-        continue;
-      }
-      const RealStack fb = model(state(b));
-      for (std::size_t i = 0; i < m; ++i) j(long(i), long(k)) = (fa.data[i] - fb.data[i]) / (2 * h);
     }
+    const Eigen::MatrixXd j = fit_detail::difference_jacobian([&](const std::vector<double>& x) { return model(state(x)); }, theta, cols,
+                                                              cfg.bands * s * s, at_theta);
     t.jacobian_s += since(t0);
     return j;
   }
