@@ -376,5 +376,7 @@ TEST_SUITE("fit-overlay") {
     CHECK(overlay_parameter_names(d, {"levels", "overlay"}) == std::vector<std::string>{"ox2", "oy2", "ox3", "oy3"});
     CHECK(overlay_parameter_names(d, {"masks", "overlay"}) == std::vector<std::string>{"ox2", "oy2"});
     CHECK(overlay_parameter_names(d, {"levels"}).empty());
+    for (const char* name : {"ox2", "oy3", "ox12"}) CHECK(is_overlay_parameter(name));
+    for (const char* name : {"overlay", "oy", "dx", "ox2b", "offset", "level1"}) CHECK_FALSE(is_overlay_parameter(name));
   }
 }

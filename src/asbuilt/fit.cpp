@@ -49,7 +49,7 @@ std::string values_line(const AsBuiltModel& m, const std::vector<double>& theta)
     const std::string& n = m.parameter_names()[i];
     if (u == "m" && (n == "z" || n == "d"))
       s += " " + n + "=" + fmt("%.4f", theta[i] * 1e3) + "mm";
-    else if (u == "m" && (n == "dx" || n == "dy" || (n.size() > 2 && n[0] == 'o' && (n[1] == 'x' || n[1] == 'y'))))
+    else if (u == "m" && (n == "dx" || n == "dy" || is_overlay_parameter(n)))
       s += " " + n + "=" + fmt("%.3f", theta[i] * 1e6) + "um";
     else if (u == "m")
       s += " " + n + "=" + fmt("%.2f", theta[i] * 1e9) + "nm";
@@ -111,10 +111,8 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
   const auto distance = [&](std::size_t k) { return !model.adjoint_parameter(k); };
   // The overlay's parameters (oxM, oyM): piecewise linear in the relief, kinked at whole DOE pixels.
   std::vector<std::size_t> overlay_index;
-  for (std::size_t k = 0; k < np; ++k) {
-    const std::string& n = model.parameter_names()[k];
-    if (n.size() > 2 && n[0] == 'o' && (n[1] == 'x' || n[1] == 'y')) overlay_index.push_back(k);
-  }
+  for (std::size_t k = 0; k < np; ++k)
+    if (is_overlay_parameter(model.parameter_names()[k])) overlay_index.push_back(k);
   // Levenberg-Marquardt: the adjoint gradient (the distances' entries from the Jacobian's
   // columns), J^T J from the Jacobian, Marquardt's damping on its diagonal.
   // One run from th (in place, with its loss l and damping lam): at most max_it iterations numbered
@@ -128,7 +126,7 @@ FitResult fit_as_built(Runtime& rt, const SystemConfig& cfg, Precision p, const 
       std::vector<double> grad;
       RealStack current;
       l = model.adjoint_gradient(th, measured, grad, &current);
-      Eigen::MatrixXd j = model.jacobian(th, &current);  // one-sided: J^T J for the step
+      const Eigen::MatrixXd j = model.jacobian(th, &current);  // one-sided: J^T J for the step
       const auto ts = std::chrono::steady_clock::now();
       const Eigen::VectorXd r = Eigen::Map<const Eigen::VectorXd>(current.data.data(), long(m)) - meas;
       Eigen::VectorXd g = Eigen::VectorXd::Zero(long(np));

@@ -65,6 +65,11 @@ FitMaskSet fit_mask_set(const Design& design, bool binary) {
   return ms;
 }
 
+bool is_overlay_parameter(const std::string& name) {
+  return name.size() > 2 && name[0] == 'o' && (name[1] == 'x' || name[1] == 'y') &&
+         std::all_of(name.begin() + 2, name.end(), [](char c) { return c >= '0' && c <= '9'; });
+}
+
 std::vector<std::string> overlay_parameter_names(const Design& design, const std::vector<std::string>& parameters) {
   if (std::find(parameters.begin(), parameters.end(), "overlay") == parameters.end()) return {};
   const bool binary = std::find(parameters.begin(), parameters.end(), "masks") != parameters.end();

@@ -25,17 +25,12 @@ namespace qdo {
 
 namespace {
 
-// "ox2", "oy3", ...: a mask's overlay (fit.hpp).
-bool is_overlay_name(const std::string& n) {
-  return n.size() > 2 && n[0] == 'o' && (n[1] == 'x' || n[1] == 'y') && std::isdigit(static_cast<unsigned char>(n[2]));
-}
-
 // A value and its sigma in the unit a reader wants: nm for heights, mm for distances, um for offsets.
 std::string human(const FitValue& v, double x) {
   char b[64];
   if (v.name == "z" || v.name == "d")
     std::snprintf(b, sizeof b, "%.4f mm", x * 1e3);
-  else if (v.name == "dx" || v.name == "dy" || v.name == "aperture" || is_overlay_name(v.name))
+  else if (v.name == "dx" || v.name == "dy" || v.name == "aperture" || is_overlay_parameter(v.name))
     std::snprintf(b, sizeof b, "%.3f um", x * 1e6);
   else if (v.unit == "m")
     std::snprintf(b, sizeof b, "%.2f nm", x * 1e9);
@@ -81,7 +76,7 @@ double start_value(const SystemConfig& cfg, const Design& design, const std::str
   for (double h : design.height_m.data) deepest = std::max(deepest, std::fabs(h));
   if (name == "dx" || name == "dy") {
     lo = -half_aperture, hi = half_aperture, why = "the relief's offset within the aperture's half width";
-  } else if (is_overlay_name(name)) {
+  } else if (is_overlay_parameter(name)) {
     hi = 4 * cfg.pitch_m, lo = -hi, why = "a mask's overlay within 4 DOE pixels";
   } else if (px) {
     hi = 0.5 * double(cfg.sensor_size_px()), lo = -hi, why = "a registration within half the " + to_str(cfg.sensor_size_px()) + " px window";

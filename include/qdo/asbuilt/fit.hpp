@@ -124,6 +124,8 @@ struct FitMaskSet {
   std::vector<std::size_t> order;               // nested: the used levels' indices, highest first (K + 1 of them)
 };
 FitMaskSet fit_mask_set(const Design& design, bool binary);
+// Whether a fitted value's name is a mask's overlay ("ox2", "oy3", ...).
+bool is_overlay_parameter(const std::string& name);
 // The overlay's parameter names of a design and a parameter set: "ox2", "oy2", .. for masks 2 .. K
 // (empty without "overlay").
 std::vector<std::string> overlay_parameter_names(const Design& design, const std::vector<std::string>& parameters);
