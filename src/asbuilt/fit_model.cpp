@@ -53,6 +53,7 @@ struct AsBuiltModel::Impl {
   // With the overlay fitted: the masks (fit_mask_set), each moved by its own (ox, oy).
   bool overlay = false;
   FitMaskSet mask_set;
+  bool scale_fitted = false;  // dL/dscale is taken only then (it needs the unscaled relief again)
   std::vector<std::string> names, units;
   double aperture_r = 0;
   bool offset = false;  // the relief's offset is fitted: the model moves it exactly (move_relief)
@@ -265,7 +266,7 @@ struct AsBuiltModel::Impl {
     const std::vector<double> g_h0 = offset ? move_relief_adjoint(base_config(st), g_h, st.dx_m, st.dy_m).data : g_h.data;
     std::vector<double> g_lev(design.levels_m.size(), 0.0), g_mask(masks0.size(), 0.0), g_ox, g_oy;
     double g_scale = 0;
-    {
+    if (scale_fitted) {
       const std::vector<double> base = unscaled(st);
       for (std::size_t i = 0; i < n * n; ++i) g_scale += g_h0[i] * base[i];
     }
@@ -411,7 +412,10 @@ AsBuiltModel::AsBuiltModel(Runtime& rt, const SystemConfig& cfg, Precision p, co
   }
   if (has("masks"))
     for (std::size_t j = 0; j < m.masks0.size(); ++j) add(Kind::Mask, int(j), "mask" + std::to_string(j), "m", m.masks0[j]);
-  if (has("scale")) add(Kind::Scale, 0, "scale", "", 1.0);
+  if (has("scale")) {
+    m.scale_fitted = true;
+    add(Kind::Scale, 0, "scale", "", 1.0);
+  }
   if (has("z")) add(Kind::Z, 0, "z", "m", cfg.sensor_distance_m);
   if (has("d")) add(Kind::D, 0, "d", "m", cfg.scene_distance_m);
   if (has("offset")) {
@@ -427,9 +431,10 @@ AsBuiltModel::AsBuiltModel(Runtime& rt, const SystemConfig& cfg, Precision p, co
   if (has("overlay")) {
     m.overlay = true;
     m.mask_set = fit_mask_set(design, m.use_masks);
+    const std::vector<std::string> o = overlay_parameter_names(design, parameters);  // ox2, oy2, ox3, ...: masks 1 .. K-1
     for (std::size_t k = 1; k < m.mask_set.open.size(); ++k) {
-      add(Kind::OX, int(k), "ox" + std::to_string(k + 1), "m", 0.0);
-      add(Kind::OY, int(k), "oy" + std::to_string(k + 1), "m", 0.0);
+      add(Kind::OX, int(k), o.at(2 * (k - 1)), "m", 0.0);
+      add(Kind::OY, int(k), o.at(2 * (k - 1) + 1), "m", 0.0);
     }
   }
 }
