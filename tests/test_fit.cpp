@@ -25,6 +25,8 @@
 #include "qdo/physics/doe.hpp"
 #include "qdo/runtime/error.hpp"
 #include "qdo/asbuilt/fit.hpp"
+#include "qdo/design/option_inputs.hpp"
+#include "qdo/physics/optics.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/simulator.hpp"
 
@@ -413,8 +415,13 @@ TEST_SUITE("fit") {
     std::ofstream(dir / "cfg.json") << config_to_json_text(cfg) << "\n";
     write_design((dir / "design.h5").string(), d);
     const auto t = truth(cfg, d);
+    // The camera made with a window that samples the transfer function (the configuration's keeps
+    // the paper's ratio, which does not): qdo fit's model window by default (--model-padding auto).
+    SystemConfig cam = cfg;
+    cam.padding_px = sampled_padding_px(cfg, kModelPaddingZMargin * cfg.sensor_distance_m).padding_px;
+    REQUIRE(cam.padding_px > cfg.padding_px);
     {
-      AsBuiltModel m(runtime(), cfg, Precision::F64, d, {"levels", "z", "offset"});
+      AsBuiltModel m(runtime(), cam, Precision::F64, d, {"levels", "z", "offset"});
       write_psf((dir / "psf.h5").string(), m.evaluate(t), cfg.wavelengths_nm(), cfg.sensor_pitch_m);
     }
     const std::string base = "fit --config " + (dir / "cfg.json").string() + " --design " + (dir / "design.h5").string();
@@ -433,6 +440,8 @@ TEST_SUITE("fit") {
     CHECK(j["parameters"][0].contains("sigma_jackknife"));
     CHECK(j["jackknife_groups"] == 8);
     CHECK(j["sigma_reliable"] == true);
+    CHECK(ok.out.find("padding_px raised from " + to_str(cfg.padding_px) + " to " + to_str(cam.padding_px)) != std::string::npos);
+    CHECK(j["model_padding_px"] == cam.padding_px);
     // The fitted model's sampling: the report `qdo psf` gives for the as-built design and configuration.
     {
       Simulator sim(runtime(), config_from_json_file((dir / "out" / "config.json").string()), Precision::F64);
@@ -451,6 +460,7 @@ TEST_SUITE("fit") {
     CHECK(std::fabs(built.levels_m[1] - t[0]) < 0.5e-9);
     const SystemConfig built_cfg = config_from_json_file((dir / "out" / "config.json").string());
     CHECK(std::fabs(built_cfg.sensor_distance_m - t[3]) < 1e-3 * t[3]);
+    CHECK(built_cfg.padding_px == cam.padding_px);  // the as-built configuration is the fitted model's
     // The as-built design and configuration are taken by the other commands.
     const Run psf = qdo_run("psf --config " + (dir / "out" / "config.json").string() + " --design " + (dir / "out" / "design.h5").string() +
                             " --out " + (dir / "psf_built").string());

@@ -24,7 +24,9 @@
 #include "qdo/data/io.hpp"
 #include "qdo/asbuilt/fit.hpp"
 #include "qdo/asbuilt/fit_raw.hpp"
+#include "qdo/design/option_inputs.hpp"
 #include "qdo/design/psf_spec.hpp"
+#include "qdo/physics/optics.hpp"
 #include "qdo/asbuilt/psf_sweep_capture.hpp"
 #include "qdo/physics/calibrate.hpp"
 #include "qdo/runtime/error.hpp"
@@ -367,7 +369,10 @@ TEST_SUITE("fit-raw") {
     const SystemConfig cfg = raw_config(16, 0, 0, 1);
     const Design d = quantized_lens(cfg);
     const auto t = truth(cfg, d);
-    const Sweep sw = simulate_sweep(cfg, d, "cli");
+    // The camera with a window that samples the transfer function, as qdo fit models it by default.
+    SystemConfig cam = cfg;
+    cam.padding_px = sampled_padding_px(cfg, kModelPaddingZMargin * cfg.sensor_distance_m).padding_px;
+    const Sweep sw = simulate_sweep(cam, d, "cli");
     std::ofstream(sw.dir / "cfg.json") << config_to_json_text(cfg) << "\n";
     write_design((sw.dir / "design.h5").string(), d);
     const Run run =
@@ -382,6 +387,7 @@ TEST_SUITE("fit-raw") {
       CHECK(fs::exists(sw.dir / "out" / f));
     const auto j = nlohmann::json::parse(slurp(sw.dir / "out" / "fit.json"));
     CHECK(j["data"] == "raw frames");
+    CHECK(j["model_padding_px"] == cam.padding_px);
     REQUIRE(j["source_power"].size() == cfg.bands);
     CHECK(j["source_power"][3].get<double>() == doctest::Approx(sw.amplitude[3]).epsilon(1e-3));
     REQUIRE(j["parameters"].size() == t.size());

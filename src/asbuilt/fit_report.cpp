@@ -310,6 +310,7 @@ std::string fit_json_text(const SystemConfig& cfg, const FitResult& r, const Fit
   j["sigma_reliable"] = r.sigma_reliable;
   if (!r.sigma_unreliable_because.empty()) j["sigma_unreliable_because"] = r.sigma_unreliable_because;
   if (!sources.model_sampling.empty()) j["model_sampling"] = sources.model_sampling;
+  j["model_padding_px"] = cfg.padding_px;  // the model's window (qdo fit --model-padding)
   j["notes"] = "sigma: 1-sigma from the Gauss-Newton curvature, Cov = s^2 (J^T J)^-1 with s^2 = 2 loss / (m - p), equal weights; "
                "sigma_jackknife: the spread over fits each leaving out one of jackknife_groups groups of contiguous bands "
                "(linearised at the fit), which grows where the model misses what differs between wavelengths; "

@@ -2,6 +2,7 @@
 // fit and its report.
 #include "qdo/asbuilt/fit_request.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <utility>
@@ -69,6 +70,13 @@ FitRequest fit_request_from_options(const TextOptions& a) {
   opt.refine_starts = parse_int("--refine-starts", a.get("refine-starts", "4"), 1, 16);
   // NAME=VALUE,...: the names the fit prints, checked against the fitted set before any work.
   if (a.has("start")) opt.start = parse_fit_starts(cfg, problem.design, opt.parameters, a.get("start"));
+  // The model's window: by default wide enough to sample the transfer function in every band up to
+  // 5 % beyond the configuration's z (or the z start, when longer); a real camera is no aliased model.
+  double z_m = cfg.sensor_distance_m;
+  for (const auto& s : opt.start)
+    if (s.first == "z") z_m = std::max(z_m, s.second);
+  const std::string padded = apply_model_padding(q.cfg, a, z_m);
+  if (!padded.empty()) q.notes.push_back(padded);
   // The raw frames read and checked as qdo calibrate checks them (every refusal names the file),
   // reduced to each band's window, before any device work.
   if (raw) {

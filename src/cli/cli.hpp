@@ -72,6 +72,8 @@ OptionSpec flag(const std::string& name, const std::string& help);
 OptionSpec preset();
 OptionSpec config();
 OptionSpec device();
+// --model-padding (qdo fit, qdo fabricate): the built camera's model window (apply_model_padding).
+OptionSpec model_padding();
 OptionSpec precision();
 OptionSpec placement();
 OptionSpec design_spec();

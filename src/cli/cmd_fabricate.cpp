@@ -10,8 +10,9 @@
 namespace qdo::cli {
 
 static int cmd_fabricate(const Args& a) {
-  const fab::AsBuiltOptions o = fab::as_built_options_from_options(a);
+  fab::AsBuiltOptions o = fab::as_built_options_from_options(a);
   const fab::DesignSource s = fab::design_source_from_options(a.positional, a, false);
+  fab::as_built_padding_from_options(o, s.cfg, a);
   const fab::AsBuiltCamera cam = fab::fabricate(s.design, s.cfg, o);  // every check before any file is written
   const std::string dir = a.get("out");
   claim_out(a, dir);
@@ -38,7 +39,7 @@ const RegisterCommand registered_fabricate(170, [] {
                     opt("oversample", "mask oversampling, an integer in [1, 16]", "4"),
                     opt("offset-um", "DX,DY: the whole relief moved against the aperture after the masks, um (x along columns)", "0,0"),
                     opt("sensor-distance-error-um", "added to the DOE-sensor distance (assembly), um, in [-1e6, 1e6]; z must stay > 0", "0"),
-                    out_dir_opt()},
+                    model_padding(), out_dir_opt()},
                    cmd_fabricate};
 });
 

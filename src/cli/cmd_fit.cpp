@@ -68,7 +68,7 @@ const RegisterCommand registered_fit(60, [] {
                                  "the aperture, the sensor window, a factor 10 on z and d (default: the design's, the centroid for offset or shift)"),
                     opt("tolerance", "stop when an accepted step lowers the loss by less than this fraction, in [0, 1]", "1e-7"),
                     opt("precision", "floating-point precision on the device: f32 or f64 (the fit's central differences want f64)", "f64"),
-                    device(), out_dir_opt()}, frame_reduction_options()),
+                    model_padding(), device(), out_dir_opt()}, frame_reduction_options()),
                    cmd_fit, false,
                    "a smaller configuration (n, bands) or --precision f32"};
 });

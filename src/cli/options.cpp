@@ -18,6 +18,12 @@ OptionSpec device() {
   return opt("device", "OpenCL device: gpu, cpu, P:D as 'qdo devices' prints, or a substring of the device name "
                        "(default: $QDO_DEVICE, else the first GPU, else the first CPU)");
 }
+OptionSpec model_padding() {
+  return opt("model-padding", "the model's zero padding per side: auto (raise the configuration's padding_px, never lower it, until the "
+                              "transfer function is sampled in every band up to 5 % beyond the DOE-sensor distance: a built camera's "
+                              "model, where the presets keep the paper's under-sampled window), config (the configuration's), or "
+                              "an integer in [0, 4 n]", "auto");
+}
 OptionSpec precision() { return opt("precision", "floating-point precision on the device: f32 or f64", "f32"); }
 OptionSpec placement() { return opt("placement", "quantization level placement: inclusive or wrapped", "inclusive"); }
 OptionSpec design_spec() { return opt("design", "design: lens:NM (a diffractive lens for NM nanometres), flat, or a design .h5 file"); }

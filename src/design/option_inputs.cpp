@@ -12,6 +12,7 @@
 #include "qdo/design/run_folder.hpp"
 #include "qdo/physics/optics.hpp"
 #include "qdo/runtime/error.hpp"
+#include "qdo/runtime/strprintf.hpp"
 #include "qdo/runtime/util.hpp"
 
 namespace fs = std::filesystem;
@@ -44,6 +45,25 @@ SystemConfig config_from_options(const TextOptions& a, bool allow_points) {
            "layered scenes and field-dependent images: qdo simulate --depth / --field-grid)");
   sensor_response(c);
   return c;
+}
+
+std::string apply_model_padding(SystemConfig& cfg, const TextOptions& a, double z_m) {
+  const std::string v = a.get("model-padding", "auto");
+  const std::size_t before = cfg.padding_px;
+  if (v == "config") return "";
+  if (v != "auto") {
+    cfg.padding_px = std::size_t(parse_int("--model-padding", v, 0, int(4 * cfg.n)));
+    return cfg.padding_px == before ? "" : strprintf("model: padding_px %zu (--model-padding; the configuration's %zu)", cfg.padding_px, before);
+  }
+  const double z_sampled_m = kModelPaddingZMargin * z_m;
+  const SampledPadding need = sampled_padding_px(cfg, z_sampled_m);
+  if (need.padding_px <= before) return "";
+  cfg.padding_px = need.padding_px;
+  return strprintf(
+      "model: padding_px raised from %zu to %zu so the transfer function is sampled in every band up to z = %.4g mm%s "
+      "(--model-padding auto; config keeps the configuration's)",
+      before, cfg.padding_px, z_sampled_m * 1e3,
+      need.sampled ? "" : ": not reached even at the limit 4 n, the long wavelengths stay under-sampled");
 }
 
 QuantizerOption quantizer_from_options(const TextOptions& a) {

@@ -66,6 +66,7 @@ AsBuiltCamera fabricate(const Design& d, const SystemConfig& cfg, const AsBuiltO
   // (aperture_edge "area"), as a made one is, and as qdo fit's model of an offset is.
   r.cfg = move_relief(cfg, r.design.height_m, o.offset_x_m, o.offset_y_m);
   r.cfg.sensor_distance_m = cfg.sensor_distance_m + o.sensor_distance_error_m;
+  if (o.padding_px) r.cfg.padding_px = *o.padding_px;
   r.cfg.validate();
   return r;
 }

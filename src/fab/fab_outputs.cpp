@@ -127,6 +127,9 @@ std::vector<std::string> as_built_summary_lines(const AsBuiltCamera& cam, const 
                             cam.level_height_m[l] * 1e9));
   out.push_back(strprintf("relief offset (%+.3f, %+.3f) um, DOE-sensor distance %.6f -> %.6f m", o.offset_x_m * 1e6, o.offset_y_m * 1e6,
                           design_cfg.sensor_distance_m, cam.cfg.sensor_distance_m));
+  if (cam.cfg.padding_px != design_cfg.padding_px)
+    out.push_back(strprintf("model window: padding_px %zu (the design's %zu), so that config.json samples the transfer function "
+                            "(--model-padding)", cam.cfg.padding_px, design_cfg.padding_px));
   return out;
 }
 

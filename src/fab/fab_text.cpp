@@ -51,6 +51,11 @@ AsBuiltOptions as_built_options_from_options(const TextOptions& a) {
   return o;
 }
 
+void as_built_padding_from_options(AsBuiltOptions& o, const SystemConfig& design_cfg, const TextOptions& a) {
+  SystemConfig c = design_cfg;
+  if (!apply_model_padding(c, a, design_cfg.sensor_distance_m).empty()) o.padding_px = c.padding_px;
+}
+
 ToleranceOptions tolerance_options_from_options(const std::string& run, const TextOptions& a) {
   ToleranceOptions t;
   t.run = run;

@@ -41,6 +41,20 @@ double transfer_function_limit_per_m(Propagator p, double wavelength_nm, double 
   return 1.0 / (lambda * std::sqrt(q * q + 1.0));
 }
 
+SampledPadding sampled_padding_px(const SystemConfig& cfg, double z_m) {
+  const std::vector<double> wl = cfg.wavelengths_nm();
+  const double nyquist = 0.5 / cfg.pitch_m;
+  SystemConfig c = cfg;
+  for (std::size_t p = 0; p <= 4 * cfg.n; ++p) {
+    c.padding_px = p;
+    const std::size_t m = PropagationGeometry::from_config(c).m;
+    bool ok = true;
+    for (double w : wl) ok = ok && transfer_function_limit_per_m(cfg.propagator, w, z_m, m, cfg.pitch_m) >= nyquist;
+    if (ok) return {p, true};
+  }
+  return {4 * cfg.n, false};
+}
+
 void check_source_sampling(const SystemConfig& cfg, std::vector<BandSampling>& bands) {
   const double r = cfg.aperture_radius(), d = cfg.scene_distance_m;
   if (cfg.object_points.empty()) {

@@ -1,7 +1,8 @@
 // qdo fit as a library call: the as-built DOE (fit.hpp) from the design that was built and a
 // measured PSF stack, or from the raw point-source frames themselves (fit_raw.hpp). The options are
 // read as a user typed them (TextOptions: preset, config, design, psf, frames, darks, white,
-// centre, fit, iterations, lateral-starts, refine-starts, start, tolerance, precision) and every
+// centre, fit, iterations, lateral-starts, refine-starts, start, tolerance, precision, model-padding:
+// option_inputs.hpp's apply_model_padding, which sets cfg.padding_px, the model's window) and every
 // input is read and checked before any device work: refusals are InputErrors naming the option as
 // typed ("--psf"), the value and what is allowed. The design and the measured stack are PSF specs
 // (psf_spec.hpp): --design the design that was built (read_fit_design: its level table kept), --psf

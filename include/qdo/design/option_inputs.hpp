@@ -23,6 +23,16 @@ namespace qdo {
 // A configuration of several object points is refused unless allow_points (qdo design: a design
 // over a range of points; qdo psf: one batched pass).
 SystemConfig config_from_options(const TextOptions& a, bool allow_points = false);
+// How far beyond the configuration's DOE-sensor distance a model's window samples the transfer
+// function with --model-padding auto: a fitted or as-built z up to 5 % longer stays sampled.
+constexpr double kModelPaddingZMargin = 1.05;
+// --model-padding of the commands that model a built camera (qdo fit, qdo fabricate): "auto" (the
+// default) raises cfg.padding_px, never lowers it, to sampled_padding_px(cfg, kModelPaddingZMargin
+// * z_m) (optics.hpp): the window then samples the transfer function in every band, where the
+// presets (the paper's ratio) under-sample the long wavelengths; "config" keeps cfg's; an integer
+// in [0, 4 n] sets it. Refused naming --model-padding otherwise. Returns a line saying what changed
+// ("" when nothing did).
+std::string apply_model_padding(SystemConfig& cfg, const TextOptions& a, double z_m);
 // --scene builtin (the configuration's chart scene, the default), a cube file (.mat / .h5,
 // read_cube with --key) or a folder of PNG bands, checked to have cfg.bands bands: bands x H x W.
 // A band axis stored in the file must match cfg's (refused naming both grids; interpolated with

@@ -32,6 +32,7 @@
 #pragma once
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -175,6 +176,9 @@ struct AsBuiltOptions {
   std::size_t oversample = 4;
   double offset_x_m = 0, offset_y_m = 0;
   double sensor_distance_error_m = 0;
+  // The as-built configuration's padding_px, its model's window (unset: the design's; qdo
+  // fabricate sets it by --model-padding, option_inputs.hpp apply_model_padding).
+  std::optional<std::size_t> padding_px;
 };
 struct AsBuiltCamera {
   Design design;                        // the as-built relief (N x N, metres); levels_m empty (edges are not on levels)

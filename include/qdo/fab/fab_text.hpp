@@ -19,6 +19,9 @@ ExportOptions export_options_from_options(const TextOptions& a);
 // qdo fabricate: scheme (auto or a mask scheme), etch-depth-error-nm, overlay-um, edge-blur-um,
 // seed, trial, oversample, offset-um (DX,DY), sensor-distance-error-um.
 AsBuiltOptions as_built_options_from_options(const TextOptions& a);
+// qdo fabricate's --model-padding (option_inputs.hpp apply_model_padding) for the design's
+// configuration: o.padding_px set when it changes the design's padding_px.
+void as_built_padding_from_options(AsBuiltOptions& o, const SystemConfig& design_cfg, const TextOptions& a);
 // qdo tolerance RUN: etch-depth-error-nm, overlay-um, edge-blur-um, height-noise-nm, trials, seed,
 // scheme, oversample, no-per-source, save-psfs, data, synthetic-scenes, noise-sigma, precision, out.
 ToleranceOptions tolerance_options_from_options(const std::string& run, const TextOptions& a);

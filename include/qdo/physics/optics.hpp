@@ -35,6 +35,17 @@ inline double fft_frequency(std::size_t k, std::size_t m, double pitch_m) {
 // 1 / (λ sqrt((2 z / (M pitch))² + 1)). Frequencies above it alias (Fresnel) or are cut (ASM).
 double transfer_function_limit_per_m(Propagator p, double wavelength_nm, double z_m, std::size_t m, double pitch_m);
 
+// The smallest padding_px (per side) whose window (PropagationGeometry: M = fast_fft_size(n + 2 p),
+// M - n even) samples the propagator's transfer function up to the DOE grid's Nyquist 1 / (2 pitch)
+// in every band of cfg at the DOE-sensor distance z_m: transfer_function_limit_per_m >= 0.5 /
+// pitch_m (Fresnel: M pitch >= lambda_max z / pitch). cfg's own padding_px is not read. When no
+// padding up to the configuration's limit 4 n does, padding_px = 4 n and sampled = false.
+struct SampledPadding {
+  std::size_t padding_px = 0;
+  bool sampled = true;
+};
+SampledPadding sampled_padding_px(const SystemConfig& cfg, double z_m);
+
 struct BandSampling {
   double wavelength_nm = 0;
   double f_limit_per_m = 0;          // see transfer_function_limit_per_m
