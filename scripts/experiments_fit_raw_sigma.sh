@@ -17,8 +17,9 @@
 # Usage: bash scripts/experiments_fit_raw_sigma.sh [OUT]   (QDO: the qdo binary, default build/qdo;
 # DESIGN: a design.h5 to use instead of training the Section 7 design into OUT/design; PY: a python
 # with numpy, scipy and h5py, default /usr/bin/python3; ONLY: a name prefix, e.g. gen, to make and
-# fit only those cameras; FIT_PADDING: the fit's model with this padding_px instead of the preset's
-# (the cameras are made as without it); FIT: the fitted set, default levels,z,offset,shift (add
+# fit only those cameras; FIT_PADDING: qdo fit --model-padding for every camera (default: the
+# generated cameras auto, qdo fit's default; those of qdo fabricate the window they were simulated
+# with, their config.json's padding_px); FIT: the fitted set, default levels,z,offset,shift (add
 # overlay for each mask's own overlay); FITDIR: the fit's folder in each camera, default fitted_raw
 # (a camera whose sweep is there already is fitted again into a new FITDIR, not made again))
 set -euo pipefail
@@ -38,15 +39,6 @@ c = json.load(open(sys.argv[1]))
 c.update({"cfa": "rggb", "bit_depth": 12, "black_level_dn": 64, "read_noise_sigma": 0.001,
           "full_well_photons": 20000, "noise_seed": 1})
 json.dump(c, open(sys.argv[2], "w"), indent=2)' "$CAM" "$RAWCAM"
-FITCAM=$RAWCAM
-if [ -n "${FIT_PADDING:-}" ]; then
-  FITCAM=$OUT/camera_fit.json
-  "$PY" -c '
-import json, sys
-c = json.load(open(sys.argv[1]))
-c["padding_px"] = int(sys.argv[3])
-json.dump(c, open(sys.argv[2], "w"), indent=2)' "$RAWCAM" "$FITCAM" "$FIT_PADDING"
-fi
 # name, seed, relief offset (um), z error (um), sensor grid displacement (um; generator only)
 CAMERAS=("overlay11 11 1.5,-1.0 150 -" "overlay12 12 -2.0,0.5 -100 -" "overlay13 13 0.7,2.4 60 -"
          "overlay14 14 2.8,-1.9 180 -" "overlay15 15 -0.6,-3.1 -140 -"
@@ -82,8 +74,10 @@ for cam in "${CAMERAS[@]}"; do
   fi
   touch "$c/sweep/done"
   fi
-  "$QDO" fit --config "$FITCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit "$FIT" \
-    --iterations 60 --out "$c/$FITDIR" > "$c/$FITDIR.log" 2>&1 || true
+  pad=${FIT_PADDING:-auto}
+  [ -z "${FIT_PADDING:-}" ] && [ "$grid" = - ] && pad=$(model_padding_of "$c/asbuilt/config.json")
+  "$QDO" fit --config "$RAWCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit "$FIT" \
+    --model-padding "$pad" --iterations 60 --out "$c/$FITDIR" > "$c/$FITDIR.log" 2>&1 || true
   echo "$name (offset $off um, dz $dz um, grid $grid um): $(( $(date +%s) - t0 )) s"
 done
 "$PY" - "$OUT" "$FIT" "$FITDIR" <<'PY'
