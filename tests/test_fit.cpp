@@ -505,6 +505,8 @@ TEST_SUITE("fit") {
     refused("--fit ''", "--fit", "s6");
     refused("--fit ' , '", "--fit", "s7");
     refused("--fit=", "--fit", "s7b");
+    refused("--model-padding wide", "--model-padding", "s7c");
+    refused("--model-padding 100000", "--model-padding", "s7d");
     // Suffixes are read: 0.1um is 1e-7 m (taken: a fit from there converges to the truth).
     const Run um = qdo_run(with_psf + " --start dx=0.1um,dy=-50nm,z=" + to_str(cfg.sensor_distance_m * 1e3) + "mm --out " + (dir / "s8").string());
     CAPTURE(um.out);
