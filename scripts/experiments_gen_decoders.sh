@@ -6,8 +6,10 @@
 # raw 12-bit RGGB frames (qdo simulate --psf GEN/asbuilt/psf.h5 --raw, the sensor of camera_raw.json)
 # and reconstructs them (--boundary linear, MHC, 16 px border left out) with the design's Wiener
 # decoder, the decoder adapted to the camera as qdo fit found it from its raw frames (the PSF of
-# FITDIR's config.json and design.h5 by qdo psf: the fitted geometry and model window), and the
-# decoder made for the generator's PSF itself, at each sigma of SIGMAS. Writes OUT/gen_recon_FITDIR.md:
+# FITDIR's config.json and design.h5 by qdo psf: the fitted geometry and model window), the decoder
+# adapted to the PSF qdo calibrate measures from the camera's sweep (--background none, as
+# experiments_fit_raw_draws.sh), and the decoder made for the generator's PSF itself, at each sigma
+# of SIGMAS. Writes OUT/gen_recon_FITDIR.md:
 # per camera the mean PSNR over the scenes, and over the cameras the mean and 95 % t interval of
 # each decoder's PSNR and of its difference to the design's decoder, and the cameras at or above it.
 # Usage: bash scripts/experiments_gen_decoders.sh OUT   (OUT: experiments_fit_raw_sigma.sh's folder;
@@ -36,23 +38,26 @@ c = json.load(open(sys.argv[1]))
 json.dump({k: c[k] for k in ("cfa", "bit_depth", "black_level_dn", "read_noise_sigma", "full_well_photons", "noise_seed")},
           open(sys.argv[2], "w"), indent=2)' "$RAWCAM" "$SENSOR"
 REC=recon_$FITDIR
-for c in "$OUT"/gen*; do
+for c in "$OUT"/gen[0-9]*; do
   [ -f "$c/$FITDIR/fit.json" ] || { echo "$c: no $FITDIR/fit.json, skipped"; continue; }
   t0=$(date +%s)
   [ -f "$c/${FITDIR}_psf/psf.h5" ] || "$QDO" psf --config "$c/$FITDIR/config.json" --design "$c/$FITDIR/design.h5" \
     --out "$c/${FITDIR}_psf" > /dev/null
+  [ -f "$c/measured/psf.h5" ] || { rm -rf "$c/measured"; "$QDO" calibrate --config "$RAWCAM" --frames "$c/sweep/frames" \
+    --darks "$c/sweep/darks" --background none --out "$c/measured" > "$c/measured.log" 2>&1; }
   for f in "$SHARED"/data/hsi/cave/*.mat; do
     s=$(basename "$f" .mat)
     cap=$c/captures/$s
     [ -f "$cap/raw.png" ] || { rm -rf "$cap"; mkdir -p "$c/captures";
       "$QDO" simulate --config "$RAWCAM" --psf "$c/asbuilt/psf.h5" --scene "$f" --raw --out "$cap" > "$cap.log"; }
     for sig in $SIGMAS; do
-      for row in design_decoder fitted true; do
+      for row in design_decoder fitted measured true; do
         d=$c/$REC/$sig/$row/$s
         [ -f "$d/metrics.json" ] && continue
         case $row in
           design_decoder) psf=() ;;
           fitted) psf=(--psf "$c/${FITDIR}_psf/psf.h5") ;;
+          measured) psf=(--psf "$c/measured/psf.h5") ;;
           true) psf=(--psf "$c/asbuilt/psf.h5") ;;
         esac
         rm -rf "$d"
@@ -70,13 +75,13 @@ sys.path.insert(0, "scripts")
 from qdo_stats import mean_ci
 out, rec, fitdir, sigmas = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
 rows = [("design_decoder", "decoder made for the design"), ("fitted", "adapted to the camera as fitted (" + fitdir + ")"),
-        ("true", "made for the generator's PSF")]
+        ("measured", "adapted to the measured PSF (qdo calibrate)"), ("true", "made for the generator's PSF")]
 L = ["The generated cameras (scripts/asbuilt_generator.py): the CAVE test scenes captured through each camera's own PSF "
      "as raw 12-bit RGGB frames, reconstructed with linear tiles and MHC; PSNR (dB) over the interior (16 px border), "
      "mean over the 3 scenes.", ""]
 for sig in sigmas:
     per = {r: {} for r, _ in rows}
-    for c in sorted(glob.glob(os.path.join(out, "gen*"))):
+    for c in sorted(glob.glob(os.path.join(out, "gen[0-9]*"))):
         for r, _ in rows:
             ms = sorted(glob.glob(os.path.join(c, rec, sig, r, "*", "metrics.json")))
             if len(ms) == 3:
