@@ -127,12 +127,7 @@ if [ "${RECON:-1}" = 1 ]; then
           for ts in ${TRAIN_SCENES:-cd fake_and_real_lemon_slices fake_and_real_tomatoes photo_and_face}; do
             d=$c/$REC/train_grid/$row/$sg/$ts
             [ -f "$d/metrics.json" ] && continue
-            rm -rf "$d"
-            mkdir -p "$(dirname "$d")"
-            "$QDO" reconstruct --run "$RUN" --capture "$c/train_captures/$ts/raw.png" --sensor "$SENSOR" --demosaic mhc --noise-sigma "$sg" "${psf[@]}" \
-              --boundary "$BOUNDARY" \
-              --truth "$SHARED/data/hsi/cave_train/${ts}_256.mat" --truth-border 16 --out "$d" > "$d.log" 2>&1 ||
-              echo "draw $seed $row $ts sigma $sg: reconstruct failed (see $d.log)"
+            recon_raw "$d" "$c/train_captures/$ts/raw.png" "$SHARED/data/hsi/cave_train/${ts}_256.mat" "$sg" "$BOUNDARY" "${psf[@]}"
           done
         done
         best=$(python3 - "$c/$REC/train_grid/$row" <<'PY'
@@ -166,10 +161,7 @@ PY
             [ -f "$c/$REC/train/$row/sigma.txt" ] || continue
             use=$(cat "$c/$REC/train/$row/sigma.txt")
           fi
-          rm -rf "$d"
-          mkdir -p "$(dirname "$d")"
-          "$QDO" reconstruct --run "$RUN" --capture "$cap/raw.png" --sensor "$SENSOR" --demosaic mhc --noise-sigma "$use" "${psf[@]}" \
-            --boundary "$BOUNDARY" --truth "$f" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "draw $seed $row $s: reconstruct failed (see $d.log)"
+          recon_raw "$d" "$cap/raw.png" "$f" "$use" "$BOUNDARY" "${psf[@]}"
         done
       done
     done

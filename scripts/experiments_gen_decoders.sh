@@ -60,10 +60,7 @@ for c in "$OUT"/gen[0-9]*; do
           measured) psf=(--psf "$c/measured/psf.h5") ;;
           true) psf=(--psf "$c/asbuilt/psf.h5") ;;
         esac
-        rm -rf "$d"
-        mkdir -p "$(dirname "$d")"
-        "$QDO" reconstruct --run "$RUN" --capture "$cap/raw.png" --sensor "$SENSOR" --demosaic mhc --noise-sigma "$sig" "${psf[@]}" \
-          --boundary linear --truth "$f" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "$c $row $s: reconstruct failed (see $d.log)"
+        recon_raw "$d" "$cap/raw.png" "$f" "$sig" linear "${psf[@]}"
       done
     done
   done

@@ -15,3 +15,16 @@ claim_out() {
   touch "$out/.$name"
 }
 log() { printf '\n== %s\n' "$*"; }
+# recon_raw DIR CAPTURE TRUTH SIGMA BOUNDARY [ARG ...]: qdo reconstruct of one raw capture (a raw.png)
+# by the Wiener decoder of the run $RUN with the sensor keys $SENSOR, MHC demosaic, --noise-sigma
+# SIGMA, --boundary BOUNDARY and ARGs (e.g. --psf FILE), scored against TRUTH over the interior (16
+# px border) into DIR (made again), its log DIR.log; a failure is reported, not fatal. Needs QDO, RUN
+# and SENSOR.
+recon_raw() {
+  local d=$1 cap=$2 truth=$3 sig=$4 boundary=$5
+  shift 5
+  rm -rf "$d"
+  mkdir -p "$(dirname "$d")"
+  "$QDO" reconstruct --run "$RUN" --capture "$cap" --sensor "$SENSOR" --demosaic mhc --noise-sigma "$sig" "$@" \
+    --boundary "$boundary" --truth "$truth" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "$d: reconstruct failed (see $d.log)"
+}
