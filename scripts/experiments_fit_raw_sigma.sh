@@ -21,7 +21,9 @@
 # generated cameras auto, qdo fit's default; those of qdo fabricate the window they were simulated
 # with, their config.json's padding_px); FIT: the fitted set, default levels,z,offset,shift (add
 # overlay for each mask's own overlay); FITDIR: the fit's folder in each camera, default fitted_raw
-# (a camera whose sweep is there already is fitted again into a new FITDIR, not made again))
+# (a camera whose sweep is there already is fitted again into a new FITDIR, not made again); CENTRE:
+# sweep to give the fit the sweep's own axis pixel (--centre from sweep.h5's centre_row_col, known in
+# simulation: the fitted psf.h5 is then on the captures' grid), default the frames' centroid)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/fit_raw_sigma}
@@ -74,10 +76,12 @@ for cam in "${CAMERAS[@]}"; do
   fi
   touch "$c/sweep/done"
   fi
+  centre=()
+  [ "${CENTRE:-}" = sweep ] && centre=(--centre "$(sweep_centre_of "$c/sweep/sweep.h5")")
   pad=${FIT_PADDING:-auto}
   [ -z "${FIT_PADDING:-}" ] && [ "$grid" = - ] && pad=$(model_padding_of "$c/asbuilt/config.json")
   "$QDO" fit --config "$RAWCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit "$FIT" \
-    --model-padding "$pad" --iterations 60 --out "$c/$FITDIR" > "$c/$FITDIR.log" 2>&1 || true
+    --model-padding "$pad" "${centre[@]}" --iterations 60 --out "$c/$FITDIR" > "$c/$FITDIR.log" 2>&1 || true
   echo "$name (offset $off um, dz $dz um, grid $grid um): $(( $(date +%s) - t0 )) s"
 done
 "$PY" - "$OUT" "$FIT" "$FITDIR" <<'PY'

@@ -5,11 +5,15 @@
 # propagation, no qdo code), captures the CAVE test scenes through the generator's own PSF stack as
 # raw 12-bit RGGB frames (qdo simulate --psf GEN/asbuilt/psf.h5 --raw, the sensor of camera_raw.json)
 # and reconstructs them (--boundary linear, MHC, 16 px border left out) with the design's Wiener
-# decoder, the decoder adapted to the camera as qdo fit found it from its raw frames (the PSF of
-# FITDIR's config.json and design.h5 by qdo psf: the fitted geometry and model window), the decoder
-# adapted to the PSF qdo calibrate measures from the camera's sweep (--background none, as
-# experiments_fit_raw_draws.sh), and the decoder made for the generator's PSF itself, at each sigma
-# of SIGMAS. Writes OUT/gen_recon_FITDIR.md:
+# decoder (design_decoder), the decoder adapted to the camera as qdo fit found it from its raw
+# frames (fitted: the PSF of FITDIR's config.json and design.h5 by qdo psf, the fitted geometry and
+# model window, centred on the optical axis; fitted_window: FITDIR's psf.h5, the fitted model in the
+# measurement's window with the registration), the decoder adapted to the PSF qdo calibrate measures
+# from the camera's sweep (measured; --background none, as experiments_fit_raw_draws.sh), and the
+# decoder made for the generator's PSF itself (true), at each sigma of SIGMAS. ROWS picks the rows
+# (default all five; fitted_window only where FITDIR has psf.h5). CENTRE=sweep: calibrate with
+# --centre at the sweep's own axis pixel (sweep_centre_of, known in simulation) into measured_sweep/,
+# the grid the captures are on; default the frames' centroid, into measured/. Writes OUT/gen_recon_FITDIR.md:
 # per camera the mean PSNR over the scenes, and over the cameras the mean and 95 % t interval of
 # each decoder's PSNR and of its difference to the design's decoder, and the cameras at or above it.
 # Usage: bash scripts/experiments_gen_decoders.sh OUT   (OUT: experiments_fit_raw_sigma.sh's folder;
@@ -38,26 +42,32 @@ c = json.load(open(sys.argv[1]))
 json.dump({k: c[k] for k in ("cfa", "bit_depth", "black_level_dn", "read_noise_sigma", "full_well_photons", "noise_seed")},
           open(sys.argv[2], "w"), indent=2)' "$RAWCAM" "$SENSOR"
 REC=recon_$FITDIR
+ROWS=${ROWS:-"design_decoder fitted fitted_window measured true"}
+MEAS=measured
+[ "${CENTRE:-}" = sweep ] && MEAS=measured_sweep
 for c in "$OUT"/gen[0-9]*; do
   [ -f "$c/$FITDIR/fit.json" ] || { echo "$c: no $FITDIR/fit.json, skipped"; continue; }
   t0=$(date +%s)
   [ -f "$c/${FITDIR}_psf/psf.h5" ] || "$QDO" psf --config "$c/$FITDIR/config.json" --design "$c/$FITDIR/design.h5" \
     --out "$c/${FITDIR}_psf" > /dev/null
-  [ -f "$c/measured/psf.h5" ] || { rm -rf "$c/measured"; "$QDO" calibrate --config "$RAWCAM" --frames "$c/sweep/frames" \
-    --darks "$c/sweep/darks" --background none --out "$c/measured" > "$c/measured.log" 2>&1; }
+  centre=()
+  [ "$MEAS" = measured_sweep ] && centre=(--centre "$(sweep_centre_of "$c/sweep/sweep.h5")")
+  [ -f "$c/$MEAS/psf.h5" ] || { rm -rf "$c/$MEAS"; "$QDO" calibrate --config "$RAWCAM" --frames "$c/sweep/frames" \
+    --darks "$c/sweep/darks" --background none "${centre[@]}" --out "$c/$MEAS" > "$c/$MEAS.log" 2>&1; }
   for f in "$SHARED"/data/hsi/cave/*.mat; do
     s=$(basename "$f" .mat)
     cap=$c/captures/$s
     [ -f "$cap/raw.png" ] || { rm -rf "$cap"; mkdir -p "$c/captures";
       "$QDO" simulate --config "$RAWCAM" --psf "$c/asbuilt/psf.h5" --scene "$f" --raw --out "$cap" > "$cap.log"; }
     for sig in $SIGMAS; do
-      for row in design_decoder fitted measured true; do
+      for row in $ROWS; do
         d=$c/$REC/$sig/$row/$s
         [ -f "$d/metrics.json" ] && continue
         case $row in
           design_decoder) psf=() ;;
           fitted) psf=(--psf "$c/${FITDIR}_psf/psf.h5") ;;
-          measured) psf=(--psf "$c/measured/psf.h5") ;;
+          fitted_window) [ -f "$c/$FITDIR/psf.h5" ] || continue; psf=(--psf "$c/$FITDIR/psf.h5") ;;
+          measured) psf=(--psf "$c/$MEAS/psf.h5") ;;
           true) psf=(--psf "$c/asbuilt/psf.h5") ;;
         esac
         recon_raw "$d" "$cap/raw.png" "$f" "$sig" linear "${psf[@]}"
@@ -66,13 +76,14 @@ for c in "$OUT"/gen[0-9]*; do
   done
   echo "$(basename "$c"): captures and reconstructions $(( $(date +%s) - t0 )) s"
 done
-python3 - "$OUT" "$REC" "$FITDIR" $SIGMAS <<'PY'
+python3 - "$OUT" "$REC" "$FITDIR" "$MEAS" $SIGMAS <<'PY'
 import glob, json, os, sys
 sys.path.insert(0, "scripts")
 from qdo_stats import mean_ci
-out, rec, fitdir, sigmas = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
-rows = [("design_decoder", "decoder made for the design"), ("fitted", "adapted to the camera as fitted (" + fitdir + ")"),
-        ("measured", "adapted to the measured PSF (qdo calibrate)"), ("true", "made for the generator's PSF")]
+out, rec, fitdir, meas, sigmas = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5:]
+rows = [("design_decoder", "decoder made for the design"), ("fitted", "adapted to the camera as fitted (" + fitdir + ", qdo psf)"),
+        ("fitted_window", "adapted to the fit's psf.h5 (" + fitdir + ")"),
+        ("measured", "adapted to the measured PSF (qdo calibrate, " + meas + ")"), ("true", "made for the generator's PSF")]
 L = ["The generated cameras (scripts/asbuilt_generator.py): the CAVE test scenes captured through each camera's own PSF "
      "as raw 12-bit RGGB frames, reconstructed with linear tiles and MHC; PSNR (dB) over the interior (16 px border), "
      "mean over the 3 scenes.", ""]
@@ -83,12 +94,13 @@ for sig in sigmas:
             ms = sorted(glob.glob(os.path.join(c, rec, sig, r, "*", "metrics.json")))
             if len(ms) == 3:
                 per[r][os.path.basename(c)] = sum(json.load(open(m))["mean"]["psnr"] for m in ms) / 3
-    cams = sorted(set.intersection(*(set(v) for v in per.values())))
-    L += [f"σ = {sig}:", "", "| camera | " + " | ".join(lbl for _, lbl in rows) + " |", "|---|" + "---:|" * len(rows)]
+    shown = [(r, lbl) for r, lbl in rows if per[r]]  # rows not run (ROWS, no psf.h5) are left out
+    cams = sorted(set.intersection(*(set(per[r]) for r, _ in shown))) if shown else []
+    L += [f"σ = {sig}:", "", "| camera | " + " | ".join(lbl for _, lbl in shown) + " |", "|---|" + "---:|" * len(shown)]
     for c in cams:
-        L.append(f"| {c} | " + " | ".join(f"{per[r][c]:.2f}" for r, _ in rows) + " |")
+        L.append(f"| {c} | " + " | ".join(f"{per[r][c]:.2f}" for r, _ in shown) + " |")
     L += ["", "| decoder | PSNR (dB) | − design's decoder (dB) | cameras at or above the design's |", "|---|---:|---:|---:|"]
-    for r, lbl in rows:
+    for r, lbl in shown:
         if not cams:
             break
         p, pc = mean_ci([per[r][c] for c in cams])

@@ -3,6 +3,7 @@
 #   claim_out NAME OUT   OUT becomes NAME's output folder. The script deletes and rewrites only the
 #                        folders it makes under OUT; an OUT it did not make (no OUT/.NAME marker) is
 #                        refused with exit 2, so a user's folder is never touched.
+#   recon_raw, model_padding_of, sweep_centre_of   below
 export QDO_DEVICE=${QDO_DEVICE:-cpu}
 export QDO_CACHE_DIR=${QDO_CACHE_DIR:-$PWD/build/kernel-cache}
 claim_out() {
@@ -27,4 +28,17 @@ recon_raw() {
   mkdir -p "$(dirname "$d")"
   "$QDO" reconstruct --run "$RUN" --capture "$cap" --sensor "$SENSOR" --demosaic mhc --noise-sigma "$sig" "$@" \
     --boundary "$boundary" --truth "$truth" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "$d: reconstruct failed (see $d.log)"
+}
+
+# model_padding_of CONFIG: the padding_px of a camera's as-built config.json, for qdo fit
+# --model-padding: a camera qdo simulated is fitted with the window it was made with (qdo fabricate
+# writes the sampled window since --model-padding existed, the design's before).
+model_padding_of() {
+  "${PY:-/usr/bin/python3}" -c 'import json, sys; c = json.load(open(sys.argv[1])); print(c.get("system", c)["padding_px"])' "$1"
+}
+
+# sweep_centre_of SWEEP.h5: ROW,COL, the frame pixel where qdo simulate --capture psf-sweep put the
+# optical axis (its centre_row_col), for qdo calibrate / qdo fit --centre in a simulation.
+sweep_centre_of() {
+  "${PY:-/usr/bin/python3}" -c 'import h5py, sys; print(h5py.File(sys.argv[1], "r").attrs["centre_row_col"].decode())' "$1"
 }

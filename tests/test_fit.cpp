@@ -433,7 +433,7 @@ TEST_SUITE("fit") {
     CHECK(ok.out.find("fit: start 2 at dx=") != std::string::npos);
     CHECK(ok.out.find("fitted 6 parameters in ") != std::string::npos);
     CHECK(ok.out.find("SIGMA UNRELIABLE") == std::string::npos);  // an exact fit leaves nothing to disagree on
-    for (const char* f : {"fit.h5", "fit.json", "design.h5", "config.json", "fit.png", "residual.png"}) CHECK(fs::exists(dir / "out" / f));
+    for (const char* f : {"fit.h5", "fit.json", "design.h5", "config.json", "psf.h5", "fit.png", "residual.png"}) CHECK(fs::exists(dir / "out" / f));
     const auto j = nlohmann::json::parse(slurp(dir / "out" / "fit.json"));
     REQUIRE(j["parameters"].size() == 6);
     CHECK(j["parameters"][0]["name"] == "level1");
@@ -456,6 +456,9 @@ TEST_SUITE("fit") {
     CHECK(h5_read((dir / "out" / "fit.h5").string(), "/correlation").shape == std::vector<std::size_t>{6, 6});
     CHECK(h5_read((dir / "out" / "fit.h5").string(), "/psf_fit").shape == std::vector<std::size_t>{cfg.bands, 32, 32});
     CHECK(h5_read((dir / "out" / "fit.h5").string(), "/residual_rel_fit").data.size() == cfg.bands);
+    // psf.h5: the fitted model in the measurement's window, as qdo psf writes a stack (--psf takes it).
+    CHECK(h5_read((dir / "out" / "psf.h5").string(), "/psf_sensor").data == h5_read((dir / "out" / "fit.h5").string(), "/psf_fit").data);
+    CHECK(read_psf_stack_file((dir / "out" / "psf.h5").string()).psf_sensor.planes == cfg.bands);
     const Design built = read_design((dir / "out" / "design.h5").string());
     CHECK(std::fabs(built.levels_m[1] - t[0]) < 0.5e-9);
     const SystemConfig built_cfg = config_from_json_file((dir / "out" / "config.json").string());

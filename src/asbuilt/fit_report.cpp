@@ -14,6 +14,7 @@
 #include <filesystem>
 
 #include "qdo/data/figure.hpp"
+#include "qdo/data/psf_file.hpp"
 #include "qdo/design/run_folder.hpp"
 #include "qdo/physics/psf_source.hpp"
 #include "qdo/runtime/error.hpp"
@@ -347,6 +348,14 @@ bool write_fit_outputs(const std::string& dir, const SystemConfig& cfg, const Re
     write_design(dir + "/design.h5", r.as_built,
                  {{"source", "qdo fit"}, {"design", sources.design}, {"psf", sources.psf}, {"fit", joined_names(r)}});
     write_text_atomic(dir + "/config.json", config_to_json_text(r.as_built_config) + "\n");
+    // The fitted model as the measurement's window sees it, the registration included (fit.h5's
+    // /psf_fit): the PSF a decoder adapted to the camera takes (--psf), on the grid the measurement
+    // was taken on, where qdo psf of design.h5 and config.json centres it on the optical axis.
+    PsfFile f = psf_file_for(r.as_built_config, SensorStack(r.model_psf));
+    f.root_attrs["source"] = "qdo fit: the fitted model in the measurement's window, registration included";
+    f.root_attrs["design"] = sources.design;
+    f.root_attrs["measured"] = sources.psf;
+    write_psf_file(dir + "/psf.h5", std::move(f));
   }
   write_fit_figures(dir, cfg, measured, r);
   return written;

@@ -145,7 +145,7 @@ FitReport run_fit_request(Runtime& rt, const FitRequest& q, const std::string& d
                   "); start nearer the truth (--start in "
                   "the parameter's unit, e.g. dx=1.5um), raise --iterations or try more starts (--lateral-starts)";
   else
-    rep.text += "wrote " + dir + "/fit.h5, fit.json, design.h5, config.json, fit.png, residual.png\n";
+    rep.text += "wrote " + dir + "/fit.h5, fit.json, design.h5, config.json, psf.h5, fit.png, residual.png\n";
   return rep;
 }
 

@@ -77,7 +77,8 @@ std::string fit_json_text(const SystemConfig& cfg, const FitResult& r, const Fit
 // -1 for a sigma not determined; /correlation p x p; per band /wavelengths_nm, /residual_rel_design,
 // /residual_rel_fit; /loss_history; /psf_fit, /psf_measured, /psf_design: bands x S x S, row-major;
 // the configuration and the as-built one as root attributes), unless fit_worse_than_design the
-// as-built design.h5 and config.json, then fit.png (for up to 6 bands, evenly spaced: measured,
+// as-built design.h5 and config.json and psf.h5 (r.model_psf as qdo psf writes a stack: the fitted
+// model in the measurement's window, the registration included), then fit.png (for up to 6 bands, evenly spaced: measured,
 // fitted, design and |fitted - measured|, each divided by its own maximum) and residual.png (the
 // relative residual per band of the design and of the fit). measured: bands x S x S, row-major,
 // the stack fitted. Returns whether the as-built design.h5 and config.json were written. A stack
