@@ -94,7 +94,7 @@ for m in range(2, 9):
         scale[f"o{a}{m}"], unit[f"o{a}{m}"] = 1e6, "µm"
 rows, percam, met = [], [], []
 n_all = in_all = in_jk = n_rel = in_rel = said = fits = 0
-for d in sorted(glob.glob(os.path.join(out, "overlay*")) + glob.glob(os.path.join(out, "gen*"))):
+for d in sorted(glob.glob(os.path.join(out, "overlay[0-9]*")) + glob.glob(os.path.join(out, "gen[0-9]*"))):
     name = os.path.basename(d)
     tj = os.path.join(d, "asbuilt", "truth.json")
     fj = os.path.join(d, fitdir, "fit.json")

@@ -1,7 +1,7 @@
 // qdo fit: the as-built DOE (fit.hpp) from a design and a measured PSF stack, or from the raw
 // point-source frames themselves (fit_raw.hpp: --frames, --darks) -> DIR/fit.h5, fit.json,
-// design.h5, config.json, fit.png, residual.png. The work is the library's (fit_request.hpp: the
-// options read and checked, the fit, its files and report); this file claims --out and prints.
+// design.h5, config.json, psf.h5, fit.png, residual.png. The work is the library's (fit_request.hpp:
+// the options read and checked, the fit, its files and report); this file claims --out and prints.
 #include <cstdio>
 #include <string>
 
@@ -34,7 +34,8 @@ const RegisterCommand registered_fit(60, [] {
                    "the as-built DOE: fit a design's level depths (or mask depths, or a height scale), DOE-sensor distance, object "
                    "distance, lateral offset and aperture to a measured PSF stack (--psf) or to the raw point-source frames themselves "
                    "(--frames, --darks) by Levenberg-Marquardt through the adjoints -> "
-                   "DIR/fit.h5, fit.json (values, 1-sigma, correlation, residual per band), design.h5 (as built), config.json, fit.png, "
+                   "DIR/fit.h5, fit.json (values, 1-sigma, correlation, residual per band), design.h5 (as built), config.json, psf.h5 "
+                   "(the fitted model in the measurement's window, registration included: --psf for an adapted decoder), fit.png, "
                    "residual.png", "", "",
                    concat({preset(), config(),
                     opt("design", "the design that was built: a design .h5 file (its /levels_m defines each pixel's level), a run folder "
