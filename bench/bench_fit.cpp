@@ -40,6 +40,7 @@
 #include "qdo/runtime/error.hpp"
 #include "qdo/asbuilt/fit.hpp"
 #include "qdo/asbuilt/fit_raw.hpp"
+#include "qdo/design/option_inputs.hpp"
 #include "qdo/design/psf_spec.hpp"
 #include "qdo/asbuilt/psf_sweep_capture.hpp"
 #include "qdo/physics/calibrate.hpp"
@@ -170,7 +171,7 @@ int main(int argc, char** argv) try {
   // The same fit on the model window qdo fit uses by default (--model-padding auto: the transfer
   // function sampled in every band up to 5 % beyond z), on the truth simulated with that window.
   SystemConfig wcfg = cfg;
-  wcfg.padding_px = std::max(cfg.padding_px, sampled_padding_px(cfg, 1.05 * cfg.sensor_distance_m).padding_px);
+  (void)apply_model_padding(wcfg, TextOptions{}, cfg.sensor_distance_m);  // qdo fit's own rule
   RealStack wmeas = AsBuiltModel(rt, wcfg, Precision::F64, d, params).evaluate(truth);
   add_noise(wmeas);
   t0 = qdo::bench::Clock::now();
