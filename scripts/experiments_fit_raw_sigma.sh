@@ -23,7 +23,8 @@
 # overlay for each mask's own overlay); FITDIR: the fit's folder in each camera, default fitted_raw
 # (a camera whose sweep is there already is fitted again into a new FITDIR, not made again); CENTRE:
 # sweep to give the fit the sweep's own axis pixel (--centre from sweep.h5's centre_row_col, known in
-# simulation: the fitted psf.h5 is then on the captures' grid), default the frames' centroid)
+# simulation: the fitted psf.h5 is then on the captures' grid), centroid for --centre centroid (qdo
+# fit's default before --centre auto), default qdo fit's own (auto))
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/fit_raw_sigma}
@@ -78,6 +79,7 @@ for cam in "${CAMERAS[@]}"; do
   fi
   centre=()
   [ "${CENTRE:-}" = sweep ] && centre=(--centre "$(sweep_centre_of "$c/sweep/sweep.h5")")
+  [ "${CENTRE:-}" = centroid ] && centre=(--centre centroid)
   pad=${FIT_PADDING:-auto}
   [ -z "${FIT_PADDING:-}" ] && [ "$grid" = - ] && pad=$(model_padding_of "$c/asbuilt/config.json")
   "$QDO" fit --config "$RAWCAM" --design "$DESIGN" --frames "$c/sweep/frames" --darks "$c/sweep/darks" --fit "$FIT" \

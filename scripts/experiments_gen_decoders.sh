@@ -13,7 +13,8 @@
 # decoder made for the generator's PSF itself (true), at each sigma of SIGMAS. ROWS picks the rows
 # (default all five; fitted_window only where FITDIR has psf.h5). CENTRE=sweep: calibrate with
 # --centre at the sweep's own axis pixel (sweep_centre_of, known in simulation) into measured_sweep/,
-# the grid the captures are on; default the frames' centroid, into measured/. Writes OUT/gen_recon_FITDIR.md:
+# the grid the captures are on; CENTRE=centroid: --centre centroid (calibrate's default before
+# --centre auto) into measured/; default calibrate's own (auto) into measured_auto/. Writes OUT/gen_recon_FITDIR.md:
 # per camera the mean PSNR over the scenes, and over the cameras the mean and 95 % t interval of
 # each decoder's PSNR and of its difference to the design's decoder, and the cameras at or above it.
 # Usage: bash scripts/experiments_gen_decoders.sh OUT   (OUT: experiments_fit_raw_sigma.sh's folder;
@@ -43,8 +44,9 @@ json.dump({k: c[k] for k in ("cfa", "bit_depth", "black_level_dn", "read_noise_s
           open(sys.argv[2], "w"), indent=2)' "$RAWCAM" "$SENSOR"
 REC=recon_$FITDIR
 ROWS=${ROWS:-"design_decoder fitted fitted_window measured true"}
-MEAS=measured
+MEAS=measured_auto
 [ "${CENTRE:-}" = sweep ] && MEAS=measured_sweep
+[ "${CENTRE:-}" = centroid ] && MEAS=measured
 for c in "$OUT"/gen[0-9]*; do
   [ -f "$c/$FITDIR/fit.json" ] || { echo "$c: no $FITDIR/fit.json, skipped"; continue; }
   t0=$(date +%s)
@@ -52,6 +54,7 @@ for c in "$OUT"/gen[0-9]*; do
     --out "$c/${FITDIR}_psf" > /dev/null
   centre=()
   [ "$MEAS" = measured_sweep ] && centre=(--centre "$(sweep_centre_of "$c/sweep/sweep.h5")")
+  [ "$MEAS" = measured ] && centre=(--centre centroid)
   [ -f "$c/$MEAS/psf.h5" ] || { rm -rf "$c/$MEAS"; "$QDO" calibrate --config "$RAWCAM" --frames "$c/sweep/frames" \
     --darks "$c/sweep/darks" --background none "${centre[@]}" --out "$c/$MEAS" > "$c/$MEAS.log" 2>&1; }
   for f in "$SHARED"/data/hsi/cave/*.mat; do

@@ -131,7 +131,7 @@ inline constexpr std::size_t kSpeckleFrame = 256;
 inline CalibrationOptions speckle_options() {
   CalibrationOptions o;
   o.ring_background = false;
-  o.has_centre = true;
+  o.centre = CentreRule::given;
   o.centre_row = long(kOffY + speckle().known.rows / 2);
   o.centre_col = long(kOffX + speckle().known.rows / 2);
   return o;

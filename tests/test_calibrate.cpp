@@ -380,6 +380,80 @@ TEST_SUITE("calibrate") {
     CHECK(g.data[2] / g.data[1] == doctest::Approx(0.85).epsilon(5e-3));
   }
 
+  TEST_CASE("--centre: auto takes the frame's centre within 4 px of the light's centroid, else the centroid with a note; centroid, frame and ROW,COL on request") {
+    // The sweep puts the lens's axis (its centroid: the lens PSF is symmetric) at frame pixel
+    // (kOffY + S/2, kOffX + S/2) = (77, 91) of 168 x 168, 9.9 px from the frame's centre (84, 84).
+    const Sweep& s = sweep();
+    const std::size_t S = s.known.rows;
+    const long ay = long(kOffY + S / 2), ax = long(kOffX + S / 2);
+    auto attrs = [&](const std::string& out) { return h5_read_root_attrs((s.dir / out / "psf.h5").string()); };
+    {  // far from the frame's centre: the centroid, said in a note and in psf.h5
+      const Run r = calibrate(s.dir / "frames", "c_far");
+      REQUIRE_MESSAGE(r.code == 0, r.out);
+      CHECK(attrs("c_far").at("centre_row_col") == std::to_string(ay) + "," + std::to_string(ax));
+      CHECK(attrs("c_far").at("centre_rule").rfind("centroid (automatic: ", 0) == 0);
+      CHECK_MESSAGE(r.out.find("give --centre ROW,COL at the axis's pixel") != std::string::npos, r.out);
+    }
+    {  // --centre frame: the frame's centre whatever the light
+      const Run r = calibrate(s.dir / "frames", "c_frame", "--centre frame");
+      REQUIRE_MESSAGE(r.code == 0, r.out);
+      CHECK(attrs("c_frame").at("centre_row_col") == "84,84");
+      CHECK(attrs("c_frame").at("centre_rule") == "frame centre");
+    }
+    // The frames and darks cropped to rows 6 .. 149 and columns 16 .. 159 (even offsets keep the
+    // RGGB phase): 144 x 144 with its centre (72, 72) at the sweep's (78, 88), where the light's
+    // centroid is (71, 75) in the crop: 3.2 px away.
+    const std::size_t r0 = 6, c0 = 16, F = 144;
+    auto crop_folder = [&](const fs::path& from, const fs::path& to) {
+      fs::create_directories(to);
+      for (const auto& e : fs::directory_iterator(from)) {
+        const Map2D f = read_png16_gray(e.path().string());
+        Map2D c(F, F);
+        for (std::size_t y = 0; y < F; ++y)
+          for (std::size_t x = 0; x < F; ++x) c(y, x) = f(r0 + y, c0 + x);
+        write_png16_gray((to / e.path().filename()).string(), c);
+      }
+    };
+    crop_folder(s.dir / "frames", s.dir / "crop_frames");
+    crop_folder(s.dir / "darks", s.dir / "crop_darks");
+    auto cropped = [&](const std::string& out, const std::string& extra) {
+      return calibrate_with(s.cfg_path, s.dir / "crop_frames", s.dir / "crop_darks", out, extra);
+    };
+    const Run aut = cropped("c_auto", "");
+    REQUIRE_MESSAGE(aut.code == 0, aut.out);
+    const std::string cy = std::to_string(ay - long(r0)), cx = std::to_string(ax - long(c0));
+    CHECK(cy + "," + cx == "71,75");
+    CHECK(attrs("c_auto").at("centre_row_col") == "72,72");
+    CHECK(attrs("c_auto").at("centre_rule").rfind("frame centre (automatic: the light's centroid (", 0) == 0);
+    CHECK_MESSAGE(aut.out.find("give --centre") == std::string::npos, aut.out);
+    const Run cen = cropped("c_centroid", "--centre centroid");
+    REQUIRE_MESSAGE(cen.code == 0, cen.out);
+    CHECK(attrs("c_centroid").at("centre_row_col") == cy + "," + cx);
+    CHECK(attrs("c_centroid").at("centre_rule") == "centroid");
+    // The automatic frame centre is the given one, pixel for pixel; the centroid's stack is the
+    // same light one pixel up and three to the right of it.
+    const Run giv = cropped("c_given", "--centre 72,72");
+    REQUIRE_MESSAGE(giv.code == 0, giv.out);
+    CHECK(attrs("c_given").at("centre_rule") == "given");
+    const RealStack a = read_psf_stack_file((s.dir / "c_auto/psf.h5").string()).psf_sensor;
+    const RealStack g = read_psf_stack_file((s.dir / "c_given/psf.h5").string()).psf_sensor;
+    const RealStack c = read_psf_stack_file((s.dir / "c_centroid/psf.h5").string()).psf_sensor;
+    CHECK(max_abs_diff(a.data, g.data) == 0);
+    const std::size_t b = 15;  // 550 nm, the lens's focus: a compact peak
+    auto argmax = [&](const RealStack& st) {
+      const auto* p = st.data.data() + b * S * S;
+      return std::size_t(std::max_element(p, p + S * S) - p);
+    };
+    CHECK(argmax(c) == (S / 2) * S + S / 2);
+    CHECK(argmax(a) == (S / 2 - 1) * S + S / 2 + 3);
+    for (const char* bad : {"middle", "1,2,3"}) {
+      const Run r = cropped("c_bad", std::string("--centre ") + bad);
+      CHECK(r.code == 2);
+      CHECK_MESSAGE((r.out.find("--centre") != std::string::npos && r.out.find("centroid, frame, or ROW,COL") != std::string::npos), r.out);
+      CHECK(!fs::exists(s.dir / "c_bad/psf.h5"));
+    }
+  }
+
   TEST_CASE("refusals exit 2 naming the file") {
     const Sweep& s = sweep();
     const std::size_t H = s.known.rows + kMargin;
@@ -479,15 +553,17 @@ TEST_SUITE("calibrate") {
         CHECK_MESSAGE(ring.out.find("brighter than the frame") != std::string::npos, ring.out);
       } else {  // darks dimmer: a constant offset the ring subtracts, said in stdout and psf.h5
         CHECK_MESSAGE(ring.code == 0, ring.out);
-        CHECK_MESSAGE(ring.out.find("note: ") != std::string::npos, ring.out);
+        CHECK_MESSAGE(ring.out.find("background sits at") != std::string::npos, ring.out);
         const auto attrs = h5_read_root_attrs((s.dir / ("o_dshift_ring_" + std::to_string(int(shift))) / "psf.h5").string());
         CHECK(attrs.at("notes").find("background sits at") != std::string::npos);
         const auto bg = h5_read((s.dir / ("o_dshift_ring_" + std::to_string(int(shift))) / "psf.h5").string(), "/background_dn");
         for (double v : bg.data) CHECK(v == doctest::Approx(-shift).epsilon(0.25));
       }
     }
-    // Matching darks: every frame's background within a few tenths of the noise of 0.
-    const Run ok = calibrate(s.dir / "frames", "o_dmatch");
+    // Matching darks: every frame's background within a few tenths of the noise of 0, and no note
+    // (the centre chosen, so that --centre auto's note on a point source off the frame's centre
+    // does not stand in for one).
+    const Run ok = calibrate(s.dir / "frames", "o_dmatch", "--centre centroid");
     REQUIRE_MESSAGE(ok.code == 0, ok.out);
     CHECK(ok.out.find("note: ") == std::string::npos);
     const auto bg = h5_read((s.dir / "o_dmatch/psf.h5").string(), "/background_dn");

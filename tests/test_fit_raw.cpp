@@ -81,7 +81,7 @@ Sweep simulate_sweep(const SystemConfig& cfg, const Design& d, const std::string
   const PsfSweepCaptureResult r = capture_psf_sweep(runtime(), cfg, Precision::F64, in, spec, sw.dir.string());
   REQUIRE(r.frames_saturated == 0);
   sw.amplitude = r.amplitude;
-  sw.window.has_centre = true;
+  sw.window.centre = CentreRule::given;
   sw.window.centre_row = r.geometry.centre_row;
   sw.window.centre_col = r.geometry.centre_col;
   return sw;

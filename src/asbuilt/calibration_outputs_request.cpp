@@ -19,10 +19,20 @@ void frame_reduction_from_options(const TextOptions& a, CalibrationOptions& opt)
   // Given explicitly only: the struct's default (a colour that responds at all is a measurement,
   // weighted by its noise) stands otherwise.
   if (a.has("min-response")) opt.min_response = parse_double("--min-response", a.get("min-response"), 0, 1, "", true);
-  if (a.has("centre")) {
-    const auto v = split_items(a.get("centre"));
-    if (v.size() != 2) reject("--centre", a.get("centre"), "ROW,COL: the frame pixel of the optical axis");
-    opt.has_centre = true;
+  const std::string centre = a.get("centre", "auto");
+  if (centre == "auto") {
+    opt.centre = CentreRule::automatic;
+  } else if (centre == "centroid") {
+    opt.centre = CentreRule::centroid;
+  } else if (centre == "frame") {
+    opt.centre = CentreRule::frame;
+  } else {
+    const auto v = split_items(centre);
+    if (v.size() != 2)
+      reject("--centre", centre,
+             "auto (the frame's centre pixel when the light's centroid lies within " + strprintf("%g", kFrameCentreReachPx) +
+                 " px of it, else the centroid), centroid, frame, or ROW,COL: the frame pixel of the optical axis");
+    opt.centre = CentreRule::given;
     opt.centre_row = parse_int("--centre", v[0], 0, 1 << 20);
     opt.centre_col = parse_int("--centre", v[1], 0, 1 << 20);
   }
@@ -73,9 +83,9 @@ CalibrationRun run_calibration(const CalibrateRequest& q, const std::string& dir
   write_calibration_outputs(dir, cfg, r, prov);
   report += strprintf(
       "calibrated %zu bands from %s (%zu frames, %zu dark frames, %zu hot pixels replaced, %zu of them transient), "
-      "centre (row %ld, column %ld) of %zu x %zu, S = %zu\n",
+      "centre (row %ld, column %ld) of %zu x %zu, S = %zu: %s\n",
       cfg.bands, q.frames.c_str(), r.files.size(), r.darks.size(), r.hot_pixels, r.transients.size(), r.centre_row,
-      r.centre_col, r.frame_rows, r.frame_cols, s);
+      r.centre_col, r.frame_rows, r.frame_cols, s, r.centre_rule.c_str());
   report += "seconds:";
   for (const auto& [step, sec] : r.seconds) report += strprintf(" [%s] %.4f", step.c_str(), sec);
   report += "\n";

@@ -312,6 +312,10 @@ std::string fit_json_text(const SystemConfig& cfg, const FitResult& r, const Fit
   if (!r.sigma_unreliable_because.empty()) j["sigma_unreliable_because"] = r.sigma_unreliable_because;
   if (!sources.model_sampling.empty()) j["model_sampling"] = sources.model_sampling;
   j["model_padding_px"] = cfg.padding_px;  // the model's window (qdo fit --model-padding)
+  if (!sources.centre_row_col.empty()) {
+    j["window_centre_row_col"] = sources.centre_row_col;
+    j["window_centre_rule"] = sources.centre_rule;
+  }
   j["notes"] = "sigma: 1-sigma from the Gauss-Newton curvature, Cov = s^2 (J^T J)^-1 with s^2 = 2 loss / (m - p), equal weights; "
                "sigma_jackknife: the spread over fits each leaving out one of jackknife_groups groups of contiguous bands "
                "(linearised at the fit), which grows where the model misses what differs between wavelengths; "
@@ -355,6 +359,10 @@ bool write_fit_outputs(const std::string& dir, const SystemConfig& cfg, const Re
     f.root_attrs["source"] = "qdo fit: the fitted model in the measurement's window, registration included";
     f.root_attrs["design"] = sources.design;
     f.root_attrs["measured"] = sources.psf;
+    if (!sources.centre_row_col.empty()) {  // the frame pixel the window's centre (S/2, S/2) is
+      f.root_attrs["centre_row_col"] = sources.centre_row_col;
+      f.root_attrs["centre_rule"] = sources.centre_rule;
+    }
     write_psf_file(dir + "/psf.h5", std::move(f));
   }
   write_fit_figures(dir, cfg, measured, r);

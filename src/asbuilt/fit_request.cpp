@@ -85,9 +85,10 @@ FitRequest fit_request_from_options(const TextOptions& a) {
     for (const auto& n : windows.calibration.notes) q.notes.push_back("note: " + n);
     q.notes.push_back(strprintf(
         "raw frames: %zu bands from %s (%zu frames, %zu darks), window %zu x %zu at frame (row %ld, column %ld), "
-        "%zu usable pixels",
+        "centred on (row %ld, column %ld): %s; %zu usable pixels",
         cfg.bands, q.frames.c_str(), windows.calibration.files.size(), windows.calibration.darks.size(), windows.s,
-        windows.s, windows.top, windows.left, windows.usable));
+        windows.s, windows.top, windows.left, windows.calibration.centre_row, windows.calibration.centre_col,
+        windows.calibration.centre_rule.c_str(), windows.usable));
   }
   return q;
 }
@@ -128,8 +129,14 @@ FitReport run_fit_request(Runtime& rt, const FitRequest& q, const std::string& d
     sim.compute_psf();
     sampling = sim.sampling().summary();
   }
+  FitSources sources{q.design.value, source, sampling};
+  if (raw) {
+    const CalibrationResult& c = q.windows.calibration;
+    sources.centre_row_col = to_str(c.centre_row) + "," + to_str(c.centre_col);
+    sources.centre_rule = c.centre_rule;
+  }
   FitReport rep;
-  rep.written = write_fit_outputs(dir, cfg, measured, r, {q.design.value, source, sampling}, fit_s);
+  rep.written = write_fit_outputs(dir, cfg, measured, r, sources, fit_s);
   const double out_s = seconds_since(t1);
 
   for (const std::string& line : fit_summary_lines(cfg, r, fit_s, out_s)) rep.text += line + "\n";

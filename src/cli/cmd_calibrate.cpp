@@ -41,7 +41,7 @@ const RegisterCommand registered_calibrate(50, [] {
                     opt("background", "background removed after the dark: ring (the median of the S x S crop's outer 2-pixel ring) "
                                       "or none (the dark only; for a PSF with energy out to the crop's edge)",
                         "ring"),
-                    opt("centre", "ROW,COL: the frame pixel of the optical axis (default: the centroid of all bands)"),
+                    opt("centre", "where the S x S window is centred: auto (the frame's centre pixel, where a camera and a simulator put the optical axis, when the light's centroid lies within 4 px of it; else the centroid, with a note), centroid (of all bands), frame, or ROW,COL: the frame pixel of the optical axis", "auto"),
                     precision(), device(), out_dir_opt()}, frame_reduction_options()),
                    cmd_calibrate, false,
                    "frames cropped closer to the PSF, or fewer bands in the configuration"};

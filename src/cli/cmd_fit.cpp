@@ -49,8 +49,9 @@ const RegisterCommand registered_fit(60, [] {
                     opt("darks", "with --frames: the folder of dark frames taken as the frames were (required with --frames)"),
                     opt("white", "with --frames: the folder of white (flat-field) frames, as qdo calibrate --white: each pixel's "
                                  "gain measured (default: none, gains 1)"),
-                    opt("centre", "with --frames: ROW,COL, the frame pixel of the optical axis, the window's centre (default: the "
-                                  "centroid of all bands, as qdo calibrate)"),
+                    opt("centre", "with --frames: where the window is centred, as qdo calibrate: auto (the frame's centre pixel when the "
+                                  "light's centroid lies within 4 px of it, else the centroid), centroid, frame, or ROW,COL: the frame "
+                                  "pixel of the optical axis", "auto"),
                     opt("fit", "parameters, comma-separated: levels (the L-1 depths of levels 1..L-1, m; level 0 held: a piston is "
                                "invisible), masks (the log2 L mask depths of a qdo+m design, m), scale (one factor on all heights; not with "
                                "levels or masks), z (DOE-sensor distance, m), d (object distance, m; nearly degenerate with z, so not in the "

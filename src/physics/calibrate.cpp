@@ -10,6 +10,7 @@
 #include <regex>
 
 #include "qdo/runtime/error.hpp"
+#include "qdo/runtime/strprintf.hpp"
 #include "qdo/physics/flat_field.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
@@ -425,7 +426,15 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   lap("mosaic");
   // 7. The common centre.
   long cy = opt.centre_row, cx = opt.centre_col;
-  if (!opt.has_centre) {
+  const bool need_centroid = opt.centre == CentreRule::automatic || opt.centre == CentreRule::centroid;
+  const long frame_cy = long(rows / 2), frame_cx = long(cols / 2);
+  if (opt.centre == CentreRule::given) r.centre_rule = "given";
+  if (opt.centre == CentreRule::frame) {
+    cy = frame_cy;
+    cx = frame_cx;
+    r.centre_rule = "frame centre";
+  }
+  if (need_centroid) {
     Map2D acc(rows, cols);
     for (std::size_t b = 0; b < bands; ++b) {
       const double med = median_of(sig[b].data), thr = 3 * r.noise_dn[b];
@@ -454,8 +463,26 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
         }
       if (st > 0) py = sy / st, px = sx / st;
     }
+    r.centroid_row = py;
+    r.centroid_col = px;
     cy = std::lround(py);
     cx = std::lround(px);
+    r.centre_rule = "centroid";
+    if (opt.centre == CentreRule::automatic) {
+      const double away = std::hypot(py - double(frame_cy), px - double(frame_cx));
+      const std::string where = strprintf("the light's centroid (%.2f, %.2f) lies %.2f px from the frame's centre (%ld, %ld)", py,
+                                          px, away, frame_cy, frame_cx);
+      if (away <= kFrameCentreReachPx) {
+        cy = frame_cy;
+        cx = frame_cx;
+        r.centre_rule = "frame centre (automatic: " + where + ", within " + strprintf("%g", kFrameCentreReachPx) + " px)";
+      } else {
+        r.centre_rule = "centroid (automatic: " + where + ", more than " + strprintf("%g", kFrameCentreReachPx) + " px)";
+        r.notes.push_back("centre: " + where + ", so the window is centred on the centroid; a DOE's centroid lies a pixel "
+                          "or two from its optical axis, and the stack (and every cube reconstructed with it) is registered "
+                          "to the centroid: give --centre ROW,COL at the axis's pixel where it is known");
+      }
+    }
   }
   lap("centre");
   r.centre_row = cy;

@@ -60,6 +60,11 @@ struct FitSources {
   // The fitted model's sampling report (SamplingReport::summary() of the as-built design and
   // configuration, the paragraph `qdo psf` prints); fit.json's "model_sampling" when not empty.
   std::string model_sampling = {};
+  // Raw frames: the frame pixel of the windows' centre ("ROW,COL") and the rule that chose it
+  // (CalibrationResult::centre_rule); fit.json's "window_centre_row_col" and "window_centre_rule"
+  // and psf.h5's "centre_row_col" and "centre_rule" when not empty.
+  std::string centre_row_col = {};
+  std::string centre_rule = {};
 };
 
 // Whether the fit ended above the design's own loss (or at NaN): then it is no result and no

@@ -61,10 +61,17 @@
 //   6. too dark: peak SNR (largest dark-subtracted mean value / sigma, hot pixels and transients
 //      left out) below min_snr is refused;
 //   7. centre: one common centre for all bands (a point on the axis: chromatic differences of
-//      the design stay in the stack): the intensity-weighted centroid of the sum over bands of
-//      each band's unit-sum image with values below 3 x its noise set to 0, within the S x S window
-//      around its brightest pixel (then around that centroid once more), rounded to a pixel, or the
-//      given centre; the S x S crop puts it at (S/2, S/2), refused when it leaves the frame;
+//      the design stay in the stack), by CalibrationOptions::centre: the given pixel; the frame's
+//      centre pixel (rows / 2, cols / 2); or the light's centroid: the intensity-weighted centroid
+//      of the sum over bands of each band's unit-sum image with values below 3 x its noise set to
+//      0, within the S x S window around its brightest pixel (then around that centroid once
+//      more), rounded to a pixel. The default (automatic) takes the frame's centre when the
+//      centroid lies within kFrameCentreReachPx of it, else the centroid (with a note): a camera
+//      is built with the DOE's axis over the sensor's centre and a simulator puts it there, while
+//      a DOE's PSF is not symmetric and its centroid lies a pixel or two off the axis, which would
+//      move the stack, and every cube reconstructed with it, against the design's PSF and a
+//      simulation's truth. The S x S crop puts the centre at (S/2, S/2), refused when it leaves
+//      the frame;
 //   8. background: the median of the crop's outer ring (2 px wide) is subtracted (unless
 //      ring_background is off: a PSF with energy out to the crop's edge, as a DOE's has, loses
 //      that level times S² with it; the dark has removed the sensor's own offset); then the
@@ -80,6 +87,7 @@
 //      (clamping would add 0.4 sigma per masked pixel); each band is divided by its sum.
 #pragma once
 #include <array>
+#include <limits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -92,6 +100,17 @@ namespace qdo {
 // The wavelength in a file name's stem, "<anything>_<number>nm" (e.g. psf_552.5nm.png -> 552.5);
 // a negative value when the name has none.
 double wavelength_from_file_name(const std::string& path);
+
+// Where step 7 centres the S x S window.
+enum class CentreRule {
+  automatic,  // the frame's centre pixel when the centroid lies within kFrameCentreReachPx of it, else the centroid
+  centroid,   // the light's centroid, rounded to a pixel
+  frame,      // the frame's centre pixel (rows / 2, cols / 2)
+  given       // CalibrationOptions::centre_row, centre_col
+};
+// The automatic rule's reach (px): a DOE's PSF centroid lies 1-2 px from its axis (EXPERIMENTS.md,
+// the Section 7 design), a point source aligned elsewhere further.
+inline constexpr double kFrameCentreReachPx = 4;
 
 struct CalibrationOptions {
   double hot_sigma = 8;        // hot-pixel threshold, in noise sigmas
@@ -112,8 +131,8 @@ struct CalibrationOptions {
   // signal before the colours are combined, so the colour channels' gains and the pixels' response
   // are measured, not taken from the response table. Empty: none.
   std::string white_dir;
-  bool has_centre = false;     // use centre_row/col instead of the centroid
-  long centre_row = 0, centre_col = 0;
+  CentreRule centre = CentreRule::automatic;
+  long centre_row = 0, centre_col = 0;  // CentreRule::given: the frame pixel of the optical axis
 };
 
 struct CalibrationResult {
@@ -129,6 +148,11 @@ struct CalibrationResult {
   // The transients of step 4 (each exposure's pixel counts once): (band, exposure, row, column).
   std::vector<std::array<std::size_t, 4>> transients;
   long centre_row = 0, centre_col = 0;  // frame pixel put at (S/2, S/2)
+  // The light's centroid (frame px, unrounded; NaN with a given or the frame's centre, which do
+  // not need it) and the rule that chose the centre: "given", "frame centre", "centroid", or
+  // "frame centre (automatic: ...)" / "centroid (automatic: ...)" saying why.
+  double centroid_row = std::numeric_limits<double>::quiet_NaN(), centroid_col = std::numeric_limits<double>::quiet_NaN();
+  std::string centre_rule;
   std::size_t frame_rows = 0, frame_cols = 0;
   // Per band, the frame's own background after the mean dark is subtracted (DN): ~0 when the
   // darks match the frames (same exposure, gain, temperature). Estimated from the frame's 10th
