@@ -388,6 +388,13 @@ TEST_SUITE("fit-raw") {
     const auto j = nlohmann::json::parse(slurp(sw.dir / "out" / "fit.json"));
     CHECK(j["data"] == "raw frames");
     CHECK(j["model_padding_px"] == cam.padding_px);
+    // The window's centre and the rule that chose it, in fit.json and in the fit's psf.h5.
+    const std::string centre = to_str(sw.window.centre_row) + "," + to_str(sw.window.centre_col);
+    CHECK(j["window_centre_row_col"] == centre);
+    CHECK(j["window_centre_rule"] == "given");
+    const auto pa = h5_read_root_attrs((sw.dir / "out" / "psf.h5").string());
+    CHECK(pa.at("centre_row_col") == centre);
+    CHECK(pa.at("centre_rule") == "given");
     REQUIRE(j["source_power"].size() == cfg.bands);
     CHECK(j["source_power"][3].get<double>() == doctest::Approx(sw.amplitude[3]).epsilon(1e-3));
     REQUIRE(j["parameters"].size() == t.size());
