@@ -195,7 +195,7 @@ int main(int argc, char** argv) try {
   sweep.frame_px = s + 32;
   const PsfSweepCaptureResult swept = capture_psf_sweep(rt, rcfg, Precision::F64, in, sweep, raw_dir);
   CalibrationOptions window;
-  window.has_centre = true;
+  window.centre = CentreRule::given;
   window.centre_row = swept.geometry.centre_row;
   window.centre_col = swept.geometry.centre_col;
   t0 = qdo::bench::Clock::now();

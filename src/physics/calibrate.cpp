@@ -10,7 +10,6 @@
 #include <regex>
 
 #include "qdo/runtime/error.hpp"
-#include "qdo/runtime/strprintf.hpp"
 #include "qdo/physics/flat_field.hpp"
 #include "qdo/data/io.hpp"
 #include "qdo/physics/optics.hpp"
@@ -424,66 +423,13 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   }
 
   lap("mosaic");
-  // 7. The common centre.
-  long cy = opt.centre_row, cx = opt.centre_col;
-  const bool need_centroid = opt.centre == CentreRule::automatic || opt.centre == CentreRule::centroid;
-  const long frame_cy = long(rows / 2), frame_cx = long(cols / 2);
-  if (opt.centre == CentreRule::given) r.centre_rule = "given";
-  if (opt.centre == CentreRule::frame) {
-    cy = frame_cy;
-    cx = frame_cx;
-    r.centre_rule = "frame centre";
-  }
-  if (need_centroid) {
-    Map2D acc(rows, cols);
-    for (std::size_t b = 0; b < bands; ++b) {
-      const double med = median_of(sig[b].data), thr = 3 * r.noise_dn[b];
-      std::vector<double> lit(acc.data.size());
-      double tot = 0;
-      for (std::size_t i = 0; i < lit.size(); ++i) {
-        const double v = sig[b].data[i] - med;
-        tot += lit[i] = v > thr * noise_scale[b].data[i] ? v : 0;
-      }
-      if (tot <= 0) continue;
-      for (std::size_t i = 0; i < acc.data.size(); ++i) acc.data[i] += lit[i] / tot;
-    }
-    // Within the S x S window around the brightest pixel of the sum, then around that centroid
-    // once more (noise far from the point stays out).
-    const std::size_t at = std::size_t(std::max_element(acc.data.begin(), acc.data.end()) - acc.data.begin());
-    double py = double(at / cols), px = double(at % cols);
-    for (int pass = 0; pass < 2; ++pass) {
-      double sy = 0, sx = 0, st = 0;
-      const double half = double(s) / 2;
-      for (std::size_t y = 0; y < rows; ++y)
-        for (std::size_t x = 0; x < cols; ++x) {
-          if (std::abs(double(y) - py) > half || std::abs(double(x) - px) > half) continue;
-          sy += acc(y, x) * double(y);
-          sx += acc(y, x) * double(x);
-          st += acc(y, x);
-        }
-      if (st > 0) py = sy / st, px = sx / st;
-    }
-    r.centroid_row = py;
-    r.centroid_col = px;
-    cy = std::lround(py);
-    cx = std::lround(px);
-    r.centre_rule = "centroid";
-    if (opt.centre == CentreRule::automatic) {
-      const double away = std::hypot(py - double(frame_cy), px - double(frame_cx));
-      const std::string where = strprintf("the light's centroid (%.2f, %.2f) lies %.2f px from the frame's centre (%ld, %ld)", py,
-                                          px, away, frame_cy, frame_cx);
-      if (away <= kFrameCentreReachPx) {
-        cy = frame_cy;
-        cx = frame_cx;
-        r.centre_rule = "frame centre (automatic: " + where + ", within " + strprintf("%g", kFrameCentreReachPx) + " px)";
-      } else {
-        r.centre_rule = "centroid (automatic: " + where + ", more than " + strprintf("%g", kFrameCentreReachPx) + " px)";
-        r.notes.push_back("centre: " + where + ", so the window is centred on the centroid; a DOE's centroid lies a pixel "
-                          "or two from its optical axis, and the stack (and every cube reconstructed with it) is registered "
-                          "to the centroid: give --centre ROW,COL at the axis's pixel where it is known");
-      }
-    }
-  }
+  // 7. The common centre (choose_centre).
+  const CentreChoice centre = choose_centre(sig, noise_scale, r.noise_dn, s, opt);
+  const long cy = centre.row, cx = centre.col;
+  r.centroid_row = centre.centroid_row;
+  r.centroid_col = centre.centroid_col;
+  r.centre_rule = centre.rule;
+  if (!centre.note.empty()) r.notes.push_back(centre.note);
   lap("centre");
   r.centre_row = cy;
   r.centre_col = cx;

@@ -265,6 +265,19 @@ struct JointEstimate {
 };
 JointEstimate joint_pixel_estimate(const Map2D& raw_dn, const Map2D& gain, const Map2D& read_var_dn2, double shot_dn);
 
+// Step 7: the common centre by opt.centre (CentreRule) from every band's signal (bands maps of
+// rows x cols, DN per unit gain), each pixel's noise scale (its error sd over the band's noise,
+// same layout) and each band's noise noise_dn (DN); s the window's side (the centroid's reach).
+struct CentreChoice {
+  long row = 0, col = 0;  // the frame pixel put at (S/2, S/2)
+  // The light's centroid (frame px, unrounded); NaN for a given centre or the frame's.
+  double centroid_row = std::numeric_limits<double>::quiet_NaN(), centroid_col = std::numeric_limits<double>::quiet_NaN();
+  std::string rule;  // as CalibrationResult::centre_rule
+  std::string note;  // automatic, far from the frame's centre: what the user should know; else empty
+};
+CentreChoice choose_centre(const std::vector<Map2D>& signal_dn, const std::vector<Map2D>& noise_scale,
+                           const std::vector<double>& noise_dn, std::size_t s, const CalibrationOptions& opt);
+
 // Step 8 on one band: the S x S crop of estimate (rows x cols, DN per unit gain) whose top-left
 // corner is frame pixel (y0, x0), the ring background subtracted when ring_background, the signal
 // mask (info: rows x cols, each pixel's own-estimate precision times sigma_dn², the band's sigma;
