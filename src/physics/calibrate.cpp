@@ -1,5 +1,6 @@
 // Measured PSFs from captures (calibrate.hpp): a monochromator sweep of raw frames -> a PSF stack.
 #include "qdo/physics/calibrate.hpp"
+#include "calibrate_internal.hpp"
 
 #include <algorithm>
 #include <array>
@@ -22,12 +23,7 @@ namespace {
 std::string in_quotes(const std::string& p) { return "'" + p + "'"; }
 [[noreturn]] void refuse(const std::string& file, const std::string& what) { throw InputError("file " + in_quotes(file) + ": " + what); }
 
-double median_of(std::vector<double> v) {
-  if (v.empty()) return 0;
-  const std::size_t m = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + long(m), v.end());
-  return v[m];
-}
+using calibrate_detail::median_of;
 // 1.4826 x the median absolute deviation from the median: a Gaussian's sigma, robust to a point.
 double mad_sigma(const std::vector<double>& v) {
   const double med = median_of(v);

@@ -6,17 +6,13 @@
 #include <vector>
 
 #include "qdo/physics/calibrate.hpp"
+#include "calibrate_internal.hpp"
 #include "qdo/runtime/strprintf.hpp"
 
 namespace qdo {
 namespace {
 
-double median_of(std::vector<double> v) {
-  if (v.empty()) return 0;
-  const std::size_t m = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + long(m), v.end());
-  return v[m];
-}
+using calibrate_detail::median_of;
 
 // The light's centroid (frame px, unrounded): of the sum over bands of each band's unit-sum image
 // with values below 3 x its noise set to 0, within the S x S window around the sum's brightest

@@ -5,18 +5,10 @@
 #include <vector>
 
 #include "qdo/physics/calibrate.hpp"
+#include "calibrate_internal.hpp"
 
 namespace qdo {
-namespace {
-
-double median_of(std::vector<double> v) {
-  if (v.empty()) return 0;
-  const std::size_t m = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + long(m), v.end());
-  return v[m];
-}
-
-}  // namespace
+using calibrate_detail::median_of;
 
 Map2D crop_band(const Map2D& estimate, const Map2D& info, double sigma_dn, std::size_t y0, std::size_t x0,
                 std::size_t s, double floor_sigma, bool ring_background, const std::vector<std::size_t>& mask_windows) {
