@@ -113,9 +113,7 @@ if [ "${RECON:-1}" = 1 ]; then
     if [[ " $SIGMAS " == *" train "* ]] && [ -f "$c/fitted_raw/config.json" ]; then
       for ts in ${TRAIN_SCENES:-cd fake_and_real_lemon_slices fake_and_real_tomatoes photo_and_face}; do
         f=$SHARED/data/hsi/cave_train/${ts}_256.mat
-        cap=$c/train_captures/$ts
-        [ -f "$cap/raw.png" ] || { rm -rf "$cap"; mkdir -p "$c/train_captures";
-          "$QDO" simulate --config "$c/fitted_raw/config.json" --design "$c/fitted_raw/design.h5" --scene "$f" --raw --out "$cap" > "$cap.log"; }
+        capture_raw_once "$c/train_captures/$ts" "$f" --config "$c/fitted_raw/config.json" --design "$c/fitted_raw/design.h5"
       done
       for row in $ROWS; do
         [ -f "$c/$REC/train/$row/sigma.txt" ] && continue
@@ -147,8 +145,7 @@ PY
     for f in "$SHARED"/data/hsi/cave/*.mat; do
       s=$(basename "$f" .mat)
       cap=$c/captures/$s
-      [ -f "$cap/raw.png" ] || { rm -rf "$cap"; mkdir -p "$c/captures";
-        "$QDO" simulate --config "$c/asbuilt/config.json" --design "$c/asbuilt/design.h5" --scene "$f" --raw --out "$cap" > "$cap.log"; }
+      capture_raw_once "$cap" "$f" --config "$c/asbuilt/config.json" --design "$c/asbuilt/design.h5"
       for sig in $SIGMAS; do
         for row in $ROWS; do
           d=$c/$REC/$sig/$row/$s

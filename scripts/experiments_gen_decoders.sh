@@ -60,8 +60,7 @@ for c in "$OUT"/gen[0-9]*; do
   for f in "$SHARED"/data/hsi/cave/*.mat; do
     s=$(basename "$f" .mat)
     cap=$c/captures/$s
-    [ -f "$cap/raw.png" ] || { rm -rf "$cap"; mkdir -p "$c/captures";
-      "$QDO" simulate --config "$RAWCAM" --psf "$c/asbuilt/psf.h5" --scene "$f" --raw --out "$cap" > "$cap.log"; }
+    capture_raw_once "$cap" "$f" --config "$RAWCAM" --psf "$c/asbuilt/psf.h5"
     for sig in $SIGMAS; do
       for row in $ROWS; do
         d=$c/$REC/$sig/$row/$s

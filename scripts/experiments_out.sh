@@ -30,6 +30,18 @@ recon_raw() {
     --boundary "$boundary" --truth "$truth" --truth-border 16 --out "$d" > "$d.log" 2>&1 || echo "$d: reconstruct failed (see $d.log)"
 }
 
+# capture_raw_once CAP SCENE ARG...: qdo simulate ARGs (the camera: --config and --design or --psf)
+# --scene SCENE --raw into CAP, its log CAP.log, unless CAP/raw.png is there (a CAP a killed run left
+# without it is made again). Needs QDO.
+capture_raw_once() {
+  local cap=$1 scene=$2
+  shift 2
+  [ -f "$cap/raw.png" ] && return 0
+  rm -rf "$cap"
+  mkdir -p "$(dirname "$cap")"
+  "$QDO" simulate "$@" --scene "$scene" --raw --out "$cap" > "$cap.log"
+}
+
 # model_padding_of CONFIG: the padding_px of a camera's as-built config.json, for qdo fit
 # --model-padding: a camera qdo simulated is fitted with the window it was made with (qdo fabricate
 # writes the sampled window since --model-padding existed, the design's before).
