@@ -422,8 +422,6 @@ CalibrationResult calibrate_psf(const SystemConfig& cfg, const std::string& fram
   // 7. The common centre (choose_centre).
   const CentreChoice centre = choose_centre(sig, noise_scale, r.noise_dn, s, opt);
   const long cy = centre.row, cx = centre.col;
-  r.centroid_row = centre.centroid_row;
-  r.centroid_col = centre.centroid_col;
   r.centre_rule = centre.rule;
   if (!centre.note.empty()) r.notes.push_back(centre.note);
   lap("centre");

@@ -73,8 +73,6 @@ CentreChoice choose_centre(const std::vector<Map2D>& signal_dn, const std::vecto
   }
   double py = 0, px = 0;
   light_centroid(signal_dn, noise_scale, noise_dn, s, py, px);
-  c.centroid_row = py;
-  c.centroid_col = px;
   c.row = std::lround(py);
   c.col = std::lround(px);
   c.rule = "centroid";

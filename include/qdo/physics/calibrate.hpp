@@ -87,7 +87,6 @@
 //      (clamping would add 0.4 sigma per masked pixel); each band is divided by its sum.
 #pragma once
 #include <array>
-#include <limits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -148,10 +147,8 @@ struct CalibrationResult {
   // The transients of step 4 (each exposure's pixel counts once): (band, exposure, row, column).
   std::vector<std::array<std::size_t, 4>> transients;
   long centre_row = 0, centre_col = 0;  // frame pixel put at (S/2, S/2)
-  // The light's centroid (frame px, unrounded; NaN with a given or the frame's centre, which do
-  // not need it) and the rule that chose the centre: "given", "frame centre", "centroid", or
-  // "frame centre (automatic: ...)" / "centroid (automatic: ...)" saying why.
-  double centroid_row = std::numeric_limits<double>::quiet_NaN(), centroid_col = std::numeric_limits<double>::quiet_NaN();
+  // The rule that chose the centre: "given", "frame centre", "centroid", or "frame centre
+  // (automatic: ...)" / "centroid (automatic: ...)" with the light's centroid and its distance.
   std::string centre_rule;
   std::size_t frame_rows = 0, frame_cols = 0;
   // Per band, the frame's own background after the mean dark is subtracted (DN): ~0 when the
@@ -270,8 +267,6 @@ JointEstimate joint_pixel_estimate(const Map2D& raw_dn, const Map2D& gain, const
 // same layout) and each band's noise noise_dn (DN); s the window's side (the centroid's reach).
 struct CentreChoice {
   long row = 0, col = 0;  // the frame pixel put at (S/2, S/2)
-  // The light's centroid (frame px, unrounded); NaN for a given centre or the frame's.
-  double centroid_row = std::numeric_limits<double>::quiet_NaN(), centroid_col = std::numeric_limits<double>::quiet_NaN();
   std::string rule;  // as CalibrationResult::centre_rule
   std::string note;  // automatic, far from the frame's centre: what the user should know; else empty
 };
